@@ -1,0 +1,15 @@
+"""The typer application object shared by every command module in accellog.cli."""
+
+from __future__ import annotations
+
+import typer
+
+app = typer.Typer(
+    name="accellog",
+    help="Record, calibrate and inspect MEMS accelerometers (MPU-9250): MCAP logs, error models "
+    "with uncertainties, a model workbench and Rerun recordings.",
+    no_args_is_help=True,
+    rich_markup_mode="rich",
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
