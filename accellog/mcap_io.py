@@ -1,0 +1,883 @@
+"""MCAP files of accellog sessions: a crash-safe ``SessionWriter`` and a fast, recovering ``read_session``.
+
+Layout (schemas in accellog/messages.py, protobuf package accellog.v1, one message per FIFO read):
+
+| topic | schema | content |
+|---|---|---|
+| /imu | ImuBatch | accel/gyro/temp counts (or values) with per-sample sensor time t_ns |
+| /mag | MagBatch | magnetometer counts, ST2, ASA factors |
+| /poses | PoseLabel | labelled static holds |
+| /events | Event | gaps, overflows, notes, ... |
+| /truth | TruthBatch | ground truth of simulated sessions |
+| /derived/... | Vector3Batch | derived channels (e.g. calibrated acceleration) |
+
+Every ``SessionMeta`` field is stored as the MCAP metadata record 'session' (strings; extra keys as
+'extra.<key>', plus 'schema_version'). Message log_time = meta.start_time_unix_ns + sensor t_ns of
+the first sample; publish_time = start_time_unix_ns + host_time_ns.
+
+Crash safety: the writer ends the current chunk and flushes the OS file at least every
+``flush_interval_s`` of sensor time or wall time, so a killed recorder loses at most that much data
+(plus the chunk being written); ``read_session`` salvages every complete chunk of an unfinished file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.writer import CompressionType, Writer
+
+from . import __version__
+from . import messages as pb
+from .errors import InputError
+from .session import Event, PoseLabel, Session, SessionMeta, Truth
+from .units import temp_counts_to_degC
+
+NS_PER_S = 1_000_000_000
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+TOPIC_IMU = "/imu"
+TOPIC_MAG = "/mag"
+TOPIC_POSES = "/poses"
+TOPIC_EVENTS = "/events"
+TOPIC_TRUTH = "/truth"
+DERIVED_PREFIX = "/derived/"
+
+_TOPIC_MESSAGE = {
+    TOPIC_IMU: "ImuBatch",
+    TOPIC_MAG: "MagBatch",
+    TOPIC_POSES: "PoseLabel",
+    TOPIC_EVENTS: "Event",
+    TOPIC_TRUTH: "TruthBatch",
+}
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+
+
+# ---------------------------------------------------------------------------------------------
+# session metadata <-> MCAP metadata record (strings)
+
+
+def meta_to_metadata(meta: SessionMeta) -> dict[str, str]:
+    """MCAP metadata 'session': every SessionMeta field as a string (None -> ''), extra as 'extra.<k>'."""
+    out = {"schema_version": pb.SCHEMA_VERSION, "accellog_version": __version__}
+    for f in dataclasses.fields(SessionMeta):
+        if f.name == "extra":
+            continue
+        v = getattr(meta, f.name)
+        out[f.name] = "" if v is None else (repr(float(v)) if isinstance(v, float) else str(v))
+    for k, v in meta.extra.items():
+        out[f"extra.{k}"] = str(v)
+    return out
+
+
+def metadata_to_meta(d: dict[str, str], where: str = "") -> SessionMeta:
+    """Inverse of ``meta_to_metadata`` (unknown keys are ignored, missing ones take defaults)."""
+    kw: dict = {}
+    for f in dataclasses.fields(SessionMeta):
+        if f.name == "extra" or f.name not in d:
+            continue
+        s, ann = d[f.name], str(f.type)
+        try:
+            if "None" in ann and s == "":
+                kw[f.name] = None
+            elif ann.startswith("int"):
+                kw[f.name] = int(s)
+            elif ann.startswith("float"):
+                kw[f.name] = float(s)
+            else:
+                kw[f.name] = s
+        except ValueError:
+            raise InputError(f"metadata 'session' field {f.name}={s!r} is not a {ann}", where=where) from None
+    kw["extra"] = {k[6:]: v for k, v in d.items() if k.startswith("extra.")}
+    kw.setdefault("source", "unknown")
+    return SessionMeta(**kw)
+
+
+def _ns(t_s: float) -> int:
+    return round(t_s * NS_PER_S)
+
+
+def _ns_array(t_s: np.ndarray) -> np.ndarray:
+    return np.round(np.asarray(t_s, dtype=np.float64) * NS_PER_S).astype(np.int64)
+
+
+# ---------------------------------------------------------------------------------------------
+# writer
+
+
+class SessionWriter:
+    """Write a session to MCAP as it is recorded; crash-safe (see module docstring).
+
+    Use as a context manager: on an exception inside the ``with`` a 'note' event names it and the
+    file is still finished cleanly. Counters: ``samples_written``, ``mag_samples_written``,
+    ``events_written``, ``poses_written``, ``truth_samples_written``, ``messages_written``,
+    ``flushes``.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        meta: SessionMeta,
+        *,
+        flush_interval_s: float = 0.5,
+        chunk_size: int = 64 * 1024,
+        compression: str = "zstd",
+    ) -> None:
+        if compression not in _COMPRESSION:
+            raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
+        self.path = Path(path)
+        self.meta = meta
+        self._flush_s = float(flush_interval_s)
+        self._flush_ns = _ns(self._flush_s) if math.isfinite(self._flush_s) else None
+        self._base_ns = int(meta.start_time_unix_ns)
+        self._f = open(self.path, "wb")  # noqa: SIM115 (closed in close())
+        self._w = Writer(
+            self._f, chunk_size=chunk_size, compression=_COMPRESSION[compression], enable_data_crcs=True
+        )
+        self._w.start(profile="", library=f"accellog {__version__}")
+        self._w.add_metadata("session", meta_to_metadata(meta))
+        self._schema_ids: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._seq: dict[str, int] = {}
+        for topic, msg in _TOPIC_MESSAGE.items():
+            self._channel(topic, msg)
+        self.samples_written = 0
+        self.mag_samples_written = 0
+        self.events_written = 0
+        self.poses_written = 0
+        self.truth_samples_written = 0
+        self.messages_written = 0
+        self.flushes = 0
+        self.closed = False
+        self._t_last_ns = 0
+        self._last_flush_t_ns: int | None = None
+        self._last_flush_wall = time.monotonic()
+
+    # -- plumbing ---------------------------------------------------------------------------------
+    def _channel(self, topic: str, message: str) -> int:
+        cid = self._channels.get(topic)
+        if cid is None:
+            sid = self._schema_ids.get(message)
+            if sid is None:
+                sid = self._w.register_schema(
+                    pb.full_name(message), "protobuf", pb.file_descriptor_set_bytes()
+                )
+                self._schema_ids[message] = sid
+            cid = self._w.register_channel(topic, "protobuf", sid, metadata={"accellog": pb.SCHEMA_VERSION})
+            self._channels[topic] = cid
+            self._seq[topic] = 0
+        return cid
+
+    def _add(self, topic: str, message: str, t_ns: int, data: bytes, host_time_ns: int = 0) -> None:
+        if self.closed:
+            raise ValueError(f"{self.path}: writer is closed")
+        cid = self._channel(topic, message)
+        log_time = max(0, self._base_ns + int(t_ns))
+        pub = max(0, self._base_ns + int(host_time_ns)) if host_time_ns else log_time
+        self._w.add_message(cid, log_time=log_time, data=data, publish_time=pub, sequence=self._seq[topic])
+        self._seq[topic] += 1
+        self.messages_written += 1
+
+    def _maybe_flush(self, t_ns: int) -> None:
+        """End the chunk if flush_interval_s of sensor or wall time passed since the last flush."""
+        self._t_last_ns = max(self._t_last_ns, int(t_ns))
+        if self._flush_ns is None:
+            return
+        if self._last_flush_t_ns is None:  # first data: put schemas/channels on disk at once
+            self.flush()
+            return
+        if (
+            self._t_last_ns - self._last_flush_t_ns >= self._flush_ns
+            or time.monotonic() - self._last_flush_wall >= self._flush_s
+        ):
+            self.flush()
+
+    def flush(self) -> None:
+        """End the current chunk and write it to the OS (survives a killed process, not power loss)."""
+        self._w.flush()
+        self.flushes += 1
+        self._last_flush_t_ns = self._t_last_ns
+        self._last_flush_wall = time.monotonic()
+
+    # -- data -------------------------------------------------------------------------------------
+    def write_imu(
+        self,
+        first_index: int,
+        t_ns,
+        accel_counts=None,
+        gyro_counts=None,
+        temp_counts=None,
+        host_time_ns: int = 0,
+        accel_g=None,
+        gyro_dps=None,
+        temp_degC=None,
+    ) -> None:
+        """One FIFO batch: t_ns (n,) sensor ns since start; counts (n,3)/(n,) int; or values in g, deg/s, degC."""
+        t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+        n = t.shape[0]
+        if n == 0:
+            return
+        if accel_counts is None and accel_g is None:
+            raise ValueError("write_imu needs accel_counts or accel_g")
+        if accel_counts is not None and accel_g is None and self.meta.accel_lsb_per_g is None:
+            raise ValueError("accel_counts without meta.accel_lsb_per_g: give accel_g too")
+        for name, arr, width in (
+            ("accel_counts", accel_counts, 3),
+            ("gyro_counts", gyro_counts, 3),
+            ("temp_counts", temp_counts, 1),
+            ("accel_g", accel_g, 3),
+            ("gyro_dps", gyro_dps, 3),
+            ("temp_degC", temp_degC, 1),
+        ):
+            if arr is not None and np.size(arr) != n * width:
+                raise ValueError(f"write_imu: {name} has {np.size(arr)} values, expected {n} x {width}")
+        data = pb.encode(
+            "ImuBatch",
+            first_sample_index=int(first_index),
+            t_ns=t,
+            accel_counts=accel_counts,
+            gyro_counts=gyro_counts,
+            temp_counts=temp_counts,
+            host_time_ns=int(host_time_ns),
+            accel_g=accel_g,
+            gyro_dps=gyro_dps,
+            temp_degC=temp_degC,
+        )
+        self._add(TOPIC_IMU, "ImuBatch", int(t[0]), data, int(host_time_ns))
+        self.samples_written += n
+        self._maybe_flush(int(t[-1]))
+
+    def write_mag(
+        self,
+        t_ns,
+        mag_counts=None,
+        st2=None,
+        asa_factor=None,
+        ut_per_lsb: float = 0.0,
+        mag_uT=None,
+        *,
+        first_index: int | None = None,
+        host_time_ns: int = 0,
+    ) -> None:
+        """Magnetometer samples: t_ns (m,), raw counts (m,3), ST2 bytes (m,), ASA factors (3,), uT/LSB."""
+        t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+        m = t.shape[0]
+        if m == 0:
+            return
+        if mag_counts is None and mag_uT is None:
+            raise ValueError("write_mag needs mag_counts or mag_uT")
+        st2_b = b"" if st2 is None else np.asarray(st2, dtype=np.uint8).reshape(-1).tobytes()
+        if st2 is not None and len(st2_b) != m:
+            raise ValueError(f"write_mag: st2 has {len(st2_b)} values, expected {m}")
+        data = pb.encode(
+            "MagBatch",
+            first_sample_index=self.mag_samples_written if first_index is None else int(first_index),
+            t_ns=t,
+            mag_counts=mag_counts,
+            st2=st2_b,
+            asa_factor=asa_factor,
+            ut_per_lsb=float(ut_per_lsb),
+            mag_uT=mag_uT,
+            host_time_ns=int(host_time_ns),
+        )
+        self._add(TOPIC_MAG, "MagBatch", int(t[0]), data, int(host_time_ns))
+        self.mag_samples_written += m
+        self._maybe_flush(int(t[-1]))
+
+    def write_mag_reading(self, reading) -> None:
+        """Write a driver's magnetometer reading (duck-typed: t_ns, counts|mag_counts, st2,
+        asa_factor|asa, ut_per_lsb, uT|mag_uT, host_time_ns; single sample or batch)."""
+
+        def get(*names, default=None):
+            for nm in names:
+                v = getattr(reading, nm, None)
+                if v is not None:
+                    return v
+            return default
+
+        self.write_mag(
+            np.atleast_1d(get("t_ns")),
+            mag_counts=get("counts", "mag_counts"),
+            st2=None if get("st2") is None else np.atleast_1d(get("st2")),
+            asa_factor=get("asa_factor", "asa"),
+            ut_per_lsb=float(get("ut_per_lsb", "uT_per_lsb", default=0.0)),
+            mag_uT=get("uT", "mag_uT"),
+            host_time_ns=int(get("host_time_ns", default=0)),
+        )
+
+    def write_pose(self, pose: PoseLabel) -> None:
+        """A labelled static hold (start_s/end_s stored as ns)."""
+        data = pb.encode(
+            "PoseLabel",
+            name=pose.name,
+            start_ns=_ns(pose.start_s),
+            end_ns=_ns(pose.end_s),
+            up_sensor=pose.up_sensor,
+            q_sensor_to_world=pose.q_sensor_to_world,
+            hold_index=int(pose.hold_index),
+        )
+        self._add(TOPIC_POSES, "PoseLabel", _ns(pose.start_s), data)
+        self.poses_written += 1
+        self._maybe_flush(self._t_last_ns)
+
+    def write_event(self, event: Event) -> None:
+        """An event (gap, overflow, note, ...) at its sensor time."""
+        t_ns = _ns(event.t_s)
+        data = pb.encode(
+            "Event",
+            t_ns=t_ns,
+            kind=event.kind,
+            detail=event.detail,
+            sample_index=int(event.sample_index),
+            lost_samples=int(event.lost_samples),
+        )
+        self._add(TOPIC_EVENTS, "Event", t_ns, data)
+        self.events_written += 1
+        self._maybe_flush(self._t_last_ns)
+
+    def write_truth(self, truth: Truth, *, batch_size: int = 1000) -> None:
+        """Ground truth, written in slices of batch_size samples."""
+        t_ns = _ns_array(truth.t_s)
+        for i in range(0, t_ns.shape[0], batch_size):
+            s = slice(i, i + batch_size)
+            data = pb.encode(
+                "TruthBatch",
+                t_ns=t_ns[s],
+                specific_force_g=truth.specific_force_g[s],
+                omega_dps=truth.omega_dps[s],
+                position_m=truth.position_m[s],
+                velocity_mps=truth.velocity_mps[s],
+                q_sensor_to_world=truth.q_sensor_to_world[s],
+                temp_degC=truth.temp_degC[s],
+            )
+            self._add(TOPIC_TRUTH, "TruthBatch", int(t_ns[i]), data)
+            self.truth_samples_written += int(t_ns[s].shape[0])
+            self._maybe_flush(self._t_last_ns)
+
+    def write_vector3(self, topic: str, t_ns, values, unit: str, frame: str = "sensor") -> None:
+        """A derived 3-vector batch on /derived/<topic>: t_ns (n,) ns, values (n,3) in ``unit``."""
+        if not topic.startswith(DERIVED_PREFIX):
+            topic = DERIVED_PREFIX + topic.lstrip("/")
+        t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+        if t.shape[0] == 0:
+            return
+        if np.size(values) != 3 * t.shape[0]:
+            raise ValueError(f"write_vector3: values has {np.size(values)} values, expected {t.shape[0]} x 3")
+        data = pb.encode("Vector3Batch", t_ns=t, values=values, unit=unit, frame=frame)
+        self._add(topic, "Vector3Batch", int(t[0]), data)
+        self._maybe_flush(int(t[-1]))
+
+    def attach(self, name: str, media_type: str, data: bytes) -> None:
+        """Attach a file (e.g. 'calibration/accel.json', 'application/json')."""
+        self._w.add_attachment(
+            create_time=time.time_ns(),
+            log_time=max(0, self._base_ns + self._t_last_ns),
+            name=name,
+            media_type=media_type,
+            data=bytes(data),
+        )
+
+    def close(self) -> None:
+        """Write the summary and close the file (idempotent)."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self._w.finish()
+        finally:
+            self._f.close()
+
+    def __enter__(self) -> SessionWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None and not self.closed:
+            try:
+                what = "interrupted" if issubclass(exc_type, KeyboardInterrupt) else exc_type.__name__
+                self.write_event(Event(self._t_last_ns / NS_PER_S, "note", f"recording ended: {what}: {exc}"))
+            except Exception:  # the writer itself may be what failed; still try to finish
+                pass
+        self.close()
+
+
+def _batch_bounds(sample_index: np.ndarray, host_ns: np.ndarray | None, batch_size: int) -> list[tuple]:
+    """(start, end) of IMU batches: split at sample-index jumps, host-time changes, every batch_size."""
+    n = sample_index.shape[0]
+    cuts = [np.flatnonzero(np.diff(sample_index) != 1) + 1]
+    if host_ns is not None:
+        runs = np.flatnonzero(np.diff(host_ns) != 0) + 1
+        if runs.shape[0] <= n // 8:
+            cuts.append(runs)
+    starts = np.unique(np.concatenate([[0], *cuts, [n]]))
+    bounds = []
+    for s, e in zip(starts[:-1].tolist(), starts[1:].tolist(), strict=True):
+        bounds += [(i, min(i + batch_size, e)) for i in range(s, e, batch_size)]
+    return bounds
+
+
+def _values_needed(counts, values, scale_fn) -> bool:
+    """True if values are not exactly recomputed from counts (so both must be stored)."""
+    if counts is None:
+        return True
+    if values is None:
+        return False
+    try:
+        return not np.array_equal(scale_fn(counts), values)
+    except TypeError:
+        return True
+
+
+def write_session(
+    path: str | Path,
+    session: Session,
+    *,
+    batch_size: int = 500,
+    compression: str = "zstd",
+    chunk_size: int = 1024 * 1024,
+) -> Path:
+    """Write a whole in-memory Session atomically (temp file + rename); returns the path.
+
+    IMU batches hold up to batch_size samples and are split where sample_index jumps or host time
+    changes (so both round-trip exactly; host time varying at nearly every sample is stored per
+    batch, as the batch's last value). Counts are stored when present; values in g/deg/s/degC are
+    stored when there are no counts or they are not exactly counts / LSB.
+    """
+    path = Path(path)
+    meta = session.meta
+    n = session.n
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    t_ns = _ns_array(session.t_s)
+    si = np.asarray(session.sample_index, dtype=np.int64)
+    host_ns = None if session.host_time_s is None else _ns_array(session.host_time_s)
+    lsb_a, lsb_g = meta.accel_lsb_per_g, meta.gyro_lsb_per_dps
+    ac = session.accel_counts
+    put_ag = _values_needed(ac, session.accel_g, lambda c: c / lsb_a) if lsb_a else True
+    gc = session.gyro_counts
+    put_gd = session.gyro_dps is not None and (
+        _values_needed(gc, session.gyro_dps, lambda c: c / lsb_g) if lsb_g else True
+    )
+    tc = session.temp_counts
+    put_td = session.temp_degC is not None and _values_needed(tc, session.temp_degC, temp_counts_to_degC)
+    try:
+        with SessionWriter(
+            tmp, meta, flush_interval_s=math.inf, chunk_size=chunk_size, compression=compression
+        ) as w:
+            if n:
+                for s, e in _batch_bounds(si, host_ns, batch_size):
+                    w.write_imu(
+                        int(si[s]),
+                        t_ns[s:e],
+                        accel_counts=None if ac is None else ac[s:e],
+                        gyro_counts=None if gc is None else gc[s:e],
+                        temp_counts=None if tc is None else tc[s:e],
+                        host_time_ns=0 if host_ns is None else int(host_ns[e - 1]),
+                        accel_g=session.accel_g[s:e] if put_ag else None,
+                        gyro_dps=session.gyro_dps[s:e] if put_gd else None,
+                        temp_degC=session.temp_degC[s:e] if put_td else None,
+                    )
+            if session.mag_t_s is not None and session.mag_t_s.shape[0]:
+                m_ns = _ns_array(session.mag_t_s)
+                for i in range(0, m_ns.shape[0], batch_size):
+                    s = slice(i, i + batch_size)
+                    w.write_mag(
+                        m_ns[s],
+                        mag_counts=None if session.mag_counts is None else session.mag_counts[s],
+                        st2=None if session.mag_st2 is None else session.mag_st2[s],
+                        mag_uT=None if session.mag_uT is None else session.mag_uT[s],
+                        first_index=i,
+                    )
+            for p in session.poses:
+                w.write_pose(p)
+            for ev in session.events:
+                w.write_event(ev)
+            if session.truth is not None:
+                w.write_truth(session.truth)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# reader
+
+
+@dataclasses.dataclass
+class _Collected:
+    metadata: dict[str, str]
+    topics: dict[str, str]  # topic -> schema name
+    decoders: dict[str, pb.BatchDecoder]
+    recovered: str | None  # None: finished file; else what was salvaged
+
+
+def _check_file(path: Path) -> None:
+    if not path.is_file():
+        raise InputError("no such file", where=str(path))
+    with open(path, "rb") as f:
+        head = f.read(len(MCAP_MAGIC))
+    if not head:
+        raise InputError("empty file (0 bytes), not an MCAP session", where=str(path))
+    if head != MCAP_MAGIC:
+        raise InputError("not an MCAP file (bad magic bytes)", where=str(path))
+
+
+class _Sink:
+    """Routes (schema, channel, data) of accellog topics into per-topic batch decoders."""
+
+    def __init__(self, topics: Iterable[str] | None) -> None:
+        self.want = None if topics is None else set(topics)
+        self.topics: dict[str, str] = {}
+        self.decoders: dict[str, pb.BatchDecoder] = {}
+        self.metadata: dict[str, str] = {}
+        self.n_messages = 0
+
+    def channel(self, schema: Schema | None, channel: Channel) -> str | None:
+        """Message type of the channel if it is an accellog.v1 protobuf channel, else None."""
+        if schema is None or schema.encoding != "protobuf" or channel.message_encoding != "protobuf":
+            return None
+        name = schema.name
+        if not name.startswith(pb.PACKAGE + "."):
+            self.topics.setdefault(channel.topic, name)
+            return None
+        msg = name[len(pb.PACKAGE) + 1 :]
+        if msg not in pb.MESSAGE_DEFS:
+            return None
+        self.topics.setdefault(channel.topic, name)
+        return msg
+
+    def add(self, schema: Schema | None, channel: Channel, data: bytes) -> None:
+        self.n_messages += 1
+        if self.want is not None and channel.topic not in self.want:
+            return
+        dec = self.decoders.get(channel.topic)
+        if dec is None:
+            msg = self.channel(schema, channel)
+            if msg is None:
+                return
+            dec = self.decoders[channel.topic] = pb.BatchDecoder(msg)
+        dec.add(data)
+
+
+def _collect(path: Path, topics: Iterable[str] | None = None) -> _Collected:
+    """Read every message of ``topics`` (all if None); salvage unfinished files chunk by chunk."""
+    _check_file(path)
+    sink = _Sink(topics)
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            if summary is None:
+                raise McapError("no summary section")
+            for sch, ch, msg in reader.iter_messages(topics=topics, log_time_order=False):
+                sink.add(sch, ch, msg.data)
+            for md in reader.iter_metadata():
+                if md.name == "session":
+                    sink.metadata = dict(md.metadata)
+            for ch in summary.channels.values():
+                sink.channel(summary.schemas.get(ch.schema_id), ch)
+        return _Collected(sink.metadata, sink.topics, sink.decoders, None)
+    except (McapError, EOFError, ValueError, OSError, IndexError, KeyError) as exc:
+        fast_error = exc
+    return _recover(path, topics, fast_error)
+
+
+def _recover(path: Path, topics: Iterable[str] | None, why: Exception) -> _Collected:
+    """Scan the file front to back and keep every complete chunk (all-or-nothing per chunk)."""
+    sink = _Sink(topics)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    n_chunks = 0
+    stop = ""
+
+    def handle(rec) -> None:
+        if isinstance(rec, Schema):
+            schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            channels[rec.id] = rec
+            sink.channel(schemas.get(rec.schema_id), rec)
+        elif isinstance(rec, Message):
+            ch = channels.get(rec.channel_id)
+            if ch is not None:
+                sink.add(schemas.get(ch.schema_id), ch, rec.data)
+        elif isinstance(rec, Metadata) and rec.name == "session":
+            sink.metadata = dict(rec.metadata)
+
+    with open(path, "rb") as f:
+        try:
+            for rec in StreamReader(f, emit_chunks=True).records:
+                if isinstance(rec, Chunk):
+                    inner = breakup_chunk(rec, validate_crc=True)  # whole chunk or nothing
+                    for r in inner:
+                        handle(r)
+                    n_chunks += 1
+                else:
+                    handle(rec)
+        except Exception as exc:  # anything unreadable ends the salvage: keep what is complete
+            stop = f"{type(exc).__name__} at byte {f.tell()}"
+    size = path.stat().st_size
+    detail = (
+        f"file was not finished ({type(why).__name__}: {why}); salvaged {sink.n_messages} messages "
+        f"in {n_chunks} chunks of {size} bytes; reading stopped: {stop or 'end of data'}"
+    )
+    return _Collected(sink.metadata, sink.topics, sink.decoders, detail)
+
+
+def _reshape(arr: np.ndarray, n: int, width: int, what: str, where: str) -> np.ndarray | None:
+    if arr.size == 0:
+        return None
+    if arr.size != n * width:
+        raise InputError(f"{what} has {arr.size} values for {n} samples (mixed batches)", where=where)
+    return arr.reshape(n, width) if width > 1 else arr
+
+
+def read_session(path: str | Path) -> Session:
+    """Read an accellog MCAP file into a Session (fast; recovers unfinished/truncated files).
+
+    A recovered file gets an extra Event('recovered') saying how much was salvaged. Raises
+    InputError (one line) for a missing/empty/non-MCAP file, a file without an accellog.v1 /imu
+    channel, or a session without samples.
+    """
+    path = Path(path)
+    where = str(path)
+    col = _collect(path)
+    if col.topics.get(TOPIC_IMU) != pb.full_name("ImuBatch"):
+        found = ", ".join(f"{t} ({s})" for t, s in sorted(col.topics.items())) or "none"
+        if col.recovered is not None and not col.topics:
+            raise InputError("truncated MCAP file: no complete chunk with IMU data to recover", where=where)
+        raise InputError(
+            f"not an accellog session: no {TOPIC_IMU} channel of {pb.full_name('ImuBatch')} (channels: {found})",
+            where=where,
+        )
+    meta = metadata_to_meta(col.metadata, where) if col.metadata else SessionMeta(source="unknown")
+    dec = col.decoders.get(TOPIC_IMU)
+    if dec is None or dec.n_messages == 0:
+        raise InputError(
+            "session has no IMU samples" + (" (truncated file)" if col.recovered else ""), where=where
+        )
+    arrays, scalars, counts = dec.result()
+    n_per = counts["t_ns"]
+    n = int(n_per.sum())
+    if n == 0:
+        raise InputError("session has no IMU samples", where=where)
+    t_ns = arrays["t_ns"]
+    starts = np.cumsum(n_per) - n_per
+    first = np.asarray(scalars["first_sample_index"], dtype=np.int64)
+    sample_index = np.repeat(first - starts, n_per) + np.arange(n, dtype=np.int64)
+    host = np.asarray(scalars["host_time_ns"], dtype=np.int64)
+    host_time_s = np.repeat(host, n_per) / NS_PER_S if np.any(host != 0) else None
+
+    accel_counts = _reshape(arrays["accel_counts"], n, 3, "accel_counts", where)
+    accel_g = _reshape(arrays["accel_g"], n, 3, "accel_g", where)
+    if accel_g is None:
+        if accel_counts is None:
+            raise InputError("IMU batches carry neither accel_counts nor accel_g", where=where)
+        if not meta.accel_lsb_per_g:
+            raise InputError("accel_counts without accel_lsb_per_g in the session metadata", where=where)
+        accel_g = accel_counts / meta.accel_lsb_per_g
+    gyro_counts = _reshape(arrays["gyro_counts"], n, 3, "gyro_counts", where)
+    gyro_dps = _reshape(arrays["gyro_dps"], n, 3, "gyro_dps", where)
+    if gyro_dps is None and gyro_counts is not None and meta.gyro_lsb_per_dps:
+        gyro_dps = gyro_counts / meta.gyro_lsb_per_dps
+    temp_counts = _reshape(arrays["temp_counts"], n, 1, "temp_counts", where)
+    temp_degC = _reshape(arrays["temp_degC"], n, 1, "temp_degC", where)
+    if temp_degC is None and temp_counts is not None:
+        temp_degC = temp_counts_to_degC(temp_counts.astype(np.float64))
+
+    if n > 1 and np.any(np.diff(sample_index) < 0):  # batches out of order: sort samples once
+        order = np.argsort(sample_index, kind="stable")
+        sample_index, t_ns = sample_index[order], t_ns[order]
+        fix = [accel_g, accel_counts, gyro_dps, gyro_counts, temp_degC, temp_counts, host_time_s]
+        accel_g, accel_counts, gyro_dps, gyro_counts, temp_degC, temp_counts, host_time_s = (
+            None if a is None else a[order] for a in fix
+        )
+
+    session = Session(
+        meta=meta,
+        t_s=t_ns / NS_PER_S,
+        sample_index=sample_index,
+        accel_g=accel_g,
+        accel_counts=accel_counts,
+        gyro_dps=gyro_dps,
+        gyro_counts=gyro_counts,
+        temp_degC=temp_degC,
+        temp_counts=temp_counts,
+        host_time_s=host_time_s,
+        path=str(path),
+    )
+    _read_mag(session, col.decoders.get(TOPIC_MAG), where)
+    session.poses = _read_poses(col.decoders.get(TOPIC_POSES))
+    session.events = _read_events(col.decoders.get(TOPIC_EVENTS))
+    session.truth = _read_truth(col.decoders.get(TOPIC_TRUTH), where)
+    if col.recovered is not None:
+        session.events.append(Event(float(session.t_s[-1]), "recovered", col.recovered))
+    return session
+
+
+def _read_mag(session: Session, dec: pb.BatchDecoder | None, where: str) -> None:
+    if dec is None or dec.n_messages == 0:
+        return
+    arrays, scalars, counts = dec.result()
+    m = int(counts["t_ns"].sum())
+    if m == 0:
+        return
+    session.mag_t_s = arrays["t_ns"] / NS_PER_S
+    session.mag_counts = _reshape(arrays["mag_counts"], m, 3, "mag_counts", where)
+    st2 = b"".join(scalars["st2"])
+    session.mag_st2 = np.frombuffer(st2, np.uint8).copy() if len(st2) == m else None
+    mag_uT = _reshape(arrays["mag_uT"], m, 3, "mag_uT", where)
+    if mag_uT is None and session.mag_counts is not None:
+        asa = arrays["asa_factor"]
+        if asa.size == 3 * dec.n_messages:
+            factor = np.repeat(asa.reshape(-1, 3), counts["t_ns"], axis=0)
+        else:
+            factor = np.ones((m, 3))
+        scale = np.repeat(np.asarray(scalars["ut_per_lsb"], dtype=np.float64), counts["t_ns"])
+        mag_uT = session.mag_counts * factor * scale[:, None]
+    session.mag_uT = mag_uT
+
+
+def _messages(dec: pb.BatchDecoder | None):
+    """Per-message dicts of a small-message channel (poses, events)."""
+    if dec is None:
+        return []
+    arrays, scalars, counts = dec.result()
+    out = []
+    offs = {k: np.concatenate([[0], np.cumsum(v)]) for k, v in counts.items()}
+    for i in range(dec.n_messages):
+        d = {k: v[i] for k, v in scalars.items()}
+        for k, a in arrays.items():
+            d[k] = a[offs[k][i] : offs[k][i + 1]]
+        out.append(d)
+    return out
+
+
+def _read_poses(dec: pb.BatchDecoder | None) -> list[PoseLabel]:
+    return [
+        PoseLabel(
+            name=d["name"],
+            start_s=d["start_ns"] / NS_PER_S,
+            end_s=d["end_ns"] / NS_PER_S,
+            up_sensor=tuple(float(v) for v in d["up_sensor"]),
+            q_sensor_to_world=tuple(float(v) for v in d["q_sensor_to_world"])
+            if d["q_sensor_to_world"].size
+            else None,
+            hold_index=int(d["hold_index"]),
+        )
+        for d in _messages(dec)
+    ]
+
+
+def _read_events(dec: pb.BatchDecoder | None) -> list[Event]:
+    return [
+        Event(d["t_ns"] / NS_PER_S, d["kind"], d["detail"], int(d["sample_index"]), int(d["lost_samples"]))
+        for d in _messages(dec)
+    ]
+
+
+def _read_truth(dec: pb.BatchDecoder | None, where: str) -> Truth | None:
+    if dec is None or dec.n_messages == 0:
+        return None
+    a, _, counts = dec.result()
+    k = int(counts["t_ns"].sum())
+
+    def r(name: str, width: int) -> np.ndarray:
+        out = _reshape(a[name], k, width, name, where)
+        return np.full((k, width) if width > 1 else (k,), np.nan) if out is None else out
+
+    return Truth(
+        t_s=a["t_ns"] / NS_PER_S,
+        specific_force_g=r("specific_force_g", 3),
+        omega_dps=r("omega_dps", 3),
+        position_m=r("position_m", 3),
+        velocity_mps=r("velocity_mps", 3),
+        q_sensor_to_world=r("q_sensor_to_world", 4),
+        temp_degC=r("temp_degC", 1),
+    )
+
+
+def read_vector3(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray, str, str]:
+    """A derived channel: (t_s (n,), values (n,3), unit, frame). InputError if the topic is absent."""
+    path = Path(path)
+    if not topic.startswith(DERIVED_PREFIX):
+        topic = DERIVED_PREFIX + topic.lstrip("/")
+    col = _collect(path, [topic])
+    dec = col.decoders.get(topic)
+    if dec is None or dec.n_messages == 0:
+        raise InputError(f"no derived channel {topic}", where=str(path))
+    a, s, c = dec.result()
+    n = int(c["t_ns"].sum())
+    return a["t_ns"] / NS_PER_S, a["values"].reshape(n, 3), s["unit"][0], s["frame"][0]
+
+
+def read_attachments(path: str | Path) -> list[tuple[str, str, bytes]]:
+    """(name, media_type, data) of every attachment of a finished file."""
+    _check_file(Path(path))
+    try:
+        with open(path, "rb") as f:
+            return [(a.name, a.media_type, bytes(a.data)) for a in make_reader(f).iter_attachments()]
+    except McapError as exc:
+        raise InputError(f"cannot read attachments ({exc}): file not finished?", where=str(path)) from None
+
+
+def session_summary(path: str | Path) -> dict:
+    """Fast facts from the MCAP summary section (no message is decoded).
+
+    Keys: path, bytes, finished, messages, chunks, topics {topic: {schema, messages}}, start_ns,
+    end_ns, duration_s (log-time span), metadata (the 'session' record), attachments [(name,
+    media_type, bytes)]. An unfinished file is scanned instead (finished=False).
+    """
+    path = Path(path)
+    _check_file(path)
+    out: dict = {"path": str(path), "bytes": path.stat().st_size}
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            summ = reader.get_summary()
+            if summ is None or summ.statistics is None:
+                raise McapError("no summary")
+            st = summ.statistics
+            out.update(
+                finished=True,
+                messages=st.message_count,
+                chunks=st.chunk_count,
+                start_ns=st.message_start_time,
+                end_ns=st.message_end_time,
+                duration_s=(st.message_end_time - st.message_start_time) / NS_PER_S,
+                topics={
+                    ch.topic: {
+                        "schema": summ.schemas[ch.schema_id].name if ch.schema_id in summ.schemas else "",
+                        "messages": st.channel_message_counts.get(cid, 0),
+                    }
+                    for cid, ch in summ.channels.items()
+                },
+                metadata={},
+                attachments=[(a.name, a.media_type, a.data_size) for a in summ.attachment_indexes],
+            )
+            for md in reader.iter_metadata():
+                if md.name == "session":
+                    out["metadata"] = dict(md.metadata)
+        return out
+    except (McapError, EOFError, ValueError, OSError) as exc:
+        col = _recover(path, None, exc)
+    out.update(
+        finished=False,
+        recovered=col.recovered,
+        topics={
+            t: {"schema": s, "messages": col.decoders[t].n_messages if t in col.decoders else 0}
+            for t, s in col.topics.items()
+        },
+        messages=sum(d.n_messages for d in col.decoders.values()),
+        metadata=col.metadata,
+        attachments=[],
+    )
+    return out

@@ -1,0 +1,452 @@
+"""Protobuf wire format of accellog MCAP files (package ``accellog.v1``), encoded and decoded with numpy.
+
+The schemas are described here in Python (``MESSAGES``); ``schemas/accellog_v1.proto`` is the same
+description rendered as .proto text (a test checks they agree) and the binary FileDescriptorSet stored
+in every MCAP schema record is built from it at runtime with ``google.protobuf.descriptor_pb2``.
+
+Encoding never touches the protobuf runtime: repeated numeric fields are *packed* (tag, byte length,
+raw little-endian array), so ``encode`` writes ``ndarray.tobytes()`` straight into the message and
+``decode`` / ``BatchDecoder`` read them back with ``np.frombuffer``. Scalars equal to their proto3
+default (0, "", empty) are omitted, exactly as the stock runtime does, so ``SerializeToString()`` of the
+same message gives the same bytes (tests check this; it is what makes the files open in Foxglove).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+
+PACKAGE = "accellog.v1"
+SCHEMA_VERSION = "accellog.v1"
+PROTO_FILE_NAME = "accellog_v1.proto"
+
+# field type -> (wire type, numpy dtype for packed arrays or None)
+_SCALAR_TYPES = {
+    "uint64": (0, None),
+    "int64": (0, None),
+    "uint32": (0, None),
+    "int32": (0, None),
+    "double": (1, None),
+    "string": (2, None),
+    "bytes": (2, None),
+}
+_PACKED_TYPES = {"sfixed64": np.dtype("<i8"), "sfixed32": np.dtype("<i4"), "double": np.dtype("<f8")}
+
+
+@dataclass(frozen=True)
+class Field:
+    """One protobuf field: ``repeated`` fields are packed numeric arrays (sfixed64, sfixed32, double)."""
+
+    name: str
+    number: int
+    type: str
+    repeated: bool = False
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class MessageDef:
+    name: str
+    doc: str
+    fields: tuple[Field, ...]
+
+
+MESSAGES: tuple[MessageDef, ...] = (
+    MessageDef(
+        "ImuBatch",
+        "One FIFO read of the accelerometer/gyro/temperature stream (topic /imu). Sample k of the batch "
+        "has device sample index first_sample_index + k. Raw counts are lossless; the conversions "
+        "(accel_lsb_per_g, gyro_lsb_per_dps) are in the MCAP metadata record 'session'. Sources "
+        "without counts fill the value fields instead.",
+        (
+            Field("first_sample_index", 1, "uint64", doc="device sample index of the first sample"),
+            Field("t_ns", 2, "sfixed64", True, "sensor time of each sample, ns since session start"),
+            Field("accel_counts", 3, "sfixed32", True, "accelerometer counts, interleaved x,y,z"),
+            Field("gyro_counts", 4, "sfixed32", True, "gyro counts, interleaved x,y,z"),
+            Field("temp_counts", 5, "sfixed32", True, "TEMP_OUT counts (degC = counts/333.87 + 21)"),
+            Field(
+                "host_time_ns", 6, "int64", doc="host clock when the batch was read, ns since session start"
+            ),
+            Field("accel_g", 7, "double", True, "acceleration in g, interleaved x,y,z (no counts)"),
+            Field("gyro_dps", 8, "double", True, "angular rate in deg/s, interleaved x,y,z (no counts)"),
+            Field("temp_degC", 9, "double", True, "die temperature in degC (no counts)"),
+        ),
+    ),
+    MessageDef(
+        "MagBatch",
+        "Magnetometer (AK8963) samples (topic /mag): uT = counts * asa_factor * ut_per_lsb.",
+        (
+            Field("first_sample_index", 1, "uint64", doc="index of the first magnetometer sample"),
+            Field("t_ns", 2, "sfixed64", True, "sensor time of each sample, ns since session start"),
+            Field("mag_counts", 3, "sfixed32", True, "raw HX,HY,HZ counts, interleaved x,y,z"),
+            Field("st2", 4, "bytes", doc="ST2 status byte of each sample (bit 3 HOFL overflow, bit 4 BITM)"),
+            Field("asa_factor", 5, "double", True, "sensitivity adjustment (ASA-128)/256+1 per axis (3)"),
+            Field("ut_per_lsb", 6, "double", doc="uT per LSB (0.15 at 16 bit, 0.6 at 14 bit)"),
+            Field("mag_uT", 7, "double", True, "field in uT after ASA, interleaved x,y,z (no counts)"),
+            Field(
+                "host_time_ns", 8, "int64", doc="host clock when the batch was read, ns since session start"
+            ),
+        ),
+    ),
+    MessageDef(
+        "PoseLabel",
+        "A labelled static hold (topic /poses): the sensor reads +1 g along up_sensor at rest.",
+        (
+            Field("name", 1, "string", doc="pose name, e.g. '+z' or '+z@90'"),
+            Field("start_ns", 2, "int64", doc="start of the hold, ns since session start"),
+            Field("end_ns", 3, "int64", doc="end of the hold (exclusive), ns since session start"),
+            Field("up_sensor", 4, "double", True, "unit up vector in the sensor frame (x,y,z)"),
+            Field("q_sensor_to_world", 5, "double", True, "nominal orientation (w,x,y,z); empty if unknown"),
+            Field("hold_index", 6, "uint32", doc="index of the hold in the protocol"),
+        ),
+    ),
+    MessageDef(
+        "Event",
+        "Something that happened while recording (topic /events): gaps, overflows, notes, prompts.",
+        (
+            Field("t_ns", 1, "int64", doc="sensor time, ns since session start"),
+            Field("kind", 2, "string", doc="gap, fifo_overflow, misaligned, i2c_error, retry, note, ..."),
+            Field("detail", 3, "string", doc="human-readable detail"),
+            Field("sample_index", 4, "int64", doc="device sample index concerned (-1: none)"),
+            Field("lost_samples", 5, "int64", doc="samples lost by this event"),
+        ),
+    ),
+    MessageDef(
+        "TruthBatch",
+        "Ground truth of a simulated session (topic /truth); vectors interleaved per sample.",
+        (
+            Field("t_ns", 1, "sfixed64", True, "time, ns since session start"),
+            Field("specific_force_g", 2, "double", True, "perfect accelerometer reading, sensor frame (g)"),
+            Field("omega_dps", 3, "double", True, "angular rate, sensor frame (deg/s)"),
+            Field("position_m", 4, "double", True, "position, world frame z up (m)"),
+            Field("velocity_mps", 5, "double", True, "velocity, world frame (m/s)"),
+            Field("q_sensor_to_world", 6, "double", True, "orientation quaternion (w,x,y,z)"),
+            Field("temp_degC", 7, "double", True, "die temperature (degC)"),
+        ),
+    ),
+    MessageDef(
+        "Vector3Batch",
+        "A derived 3-vector channel (topics /derived/...), e.g. calibrated acceleration.",
+        (
+            Field("t_ns", 1, "sfixed64", True, "time, ns since session start"),
+            Field("values", 2, "double", True, "values, interleaved x,y,z"),
+            Field("unit", 3, "string", doc="unit of values, e.g. 'g', 'm/s^2', 'deg/s'"),
+            Field("frame", 4, "string", doc="frame of values, e.g. 'sensor', 'world'"),
+        ),
+    ),
+)
+
+MESSAGE_DEFS: dict[str, MessageDef] = {m.name: m for m in MESSAGES}
+
+
+def full_name(message: str) -> str:
+    """Fully qualified protobuf name, e.g. 'accellog.v1.ImuBatch' (the MCAP schema name)."""
+    return f"{PACKAGE}.{message}"
+
+
+# ---------------------------------------------------------------------------------------------
+# descriptors and .proto text
+
+
+@cache
+def file_descriptor_proto():
+    """``google.protobuf.descriptor_pb2.FileDescriptorProto`` of all messages (proto3)."""
+    from google.protobuf import descriptor_pb2 as d
+
+    types = {
+        "uint64": d.FieldDescriptorProto.TYPE_UINT64,
+        "int64": d.FieldDescriptorProto.TYPE_INT64,
+        "uint32": d.FieldDescriptorProto.TYPE_UINT32,
+        "int32": d.FieldDescriptorProto.TYPE_INT32,
+        "double": d.FieldDescriptorProto.TYPE_DOUBLE,
+        "string": d.FieldDescriptorProto.TYPE_STRING,
+        "bytes": d.FieldDescriptorProto.TYPE_BYTES,
+        "sfixed64": d.FieldDescriptorProto.TYPE_SFIXED64,
+        "sfixed32": d.FieldDescriptorProto.TYPE_SFIXED32,
+    }
+    fdp = d.FileDescriptorProto(name=PROTO_FILE_NAME, package=PACKAGE, syntax="proto3")
+    for m in MESSAGES:
+        mp = fdp.message_type.add(name=m.name)
+        for f in m.fields:
+            mp.field.add(
+                name=f.name,
+                number=f.number,
+                type=types[f.type],
+                label=d.FieldDescriptorProto.LABEL_REPEATED
+                if f.repeated
+                else d.FieldDescriptorProto.LABEL_OPTIONAL,
+                json_name=_json_name(f.name),
+            )
+    return fdp
+
+
+def _json_name(name: str) -> str:
+    parts = name.split("_")
+    return parts[0] + "".join(p[:1].upper() + p[1:] for p in parts[1:])
+
+
+@cache
+def file_descriptor_set_bytes() -> bytes:
+    """Serialized FileDescriptorSet: the MCAP schema data for every accellog.v1 message."""
+    from google.protobuf import descriptor_pb2 as d
+
+    return d.FileDescriptorSet(file=[file_descriptor_proto()]).SerializeToString()
+
+
+def _wrap(text: str, indent: str, width: int = 100) -> list[str]:
+    import textwrap
+
+    return [indent + "// " + line for line in textwrap.wrap(text, width - len(indent) - 3)]
+
+
+def render_proto() -> str:
+    """The .proto text of ``MESSAGES`` (the content of schemas/accellog_v1.proto)."""
+    out = [
+        "// accellog MCAP message schemas, protobuf package accellog.v1.",
+        "// Generated from accellog/messages.py (python -m accellog.messages > schemas/accellog_v1.proto);",
+        "// tests/test_messages.py checks that this file and the runtime descriptors agree.",
+        "// Times are int64 ns since the session start; vectors are interleaved per sample (x,y,z).",
+        'syntax = "proto3";',
+        "",
+        f"package {PACKAGE};",
+    ]
+    for m in MESSAGES:
+        out.append("")
+        out += _wrap(m.doc, "")
+        out.append(f"message {m.name} {{")
+        for f in m.fields:
+            if f.doc:
+                out += _wrap(f.doc, "  ")
+            rep = "repeated " if f.repeated else ""
+            out.append(f"  {rep}{f.type} {f.name} = {f.number};")
+        out.append("}")
+    return "\n".join(out) + "\n"
+
+
+@cache
+def stock_message_class(message: str):
+    """The stock protobuf runtime's class for ``message`` (built from the same descriptors)."""
+    from google.protobuf import descriptor_pool, message_factory
+
+    pool = descriptor_pool.DescriptorPool()
+    pool.Add(file_descriptor_proto())
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(full_name(message)))
+
+
+# ---------------------------------------------------------------------------------------------
+# wire format
+
+
+def _varint(v: int) -> bytes:
+    if v < 0:
+        v += 1 << 64
+    out = bytearray()
+    while v >= 0x80:
+        out.append((v & 0x7F) | 0x80)
+        v >>= 7
+    out.append(v)
+    return bytes(out)
+
+
+def _read_varint(buf: bytes, pos: int) -> tuple[int, int]:
+    b = buf[pos]
+    if b < 0x80:
+        return b, pos + 1
+    result = b & 0x7F
+    shift = 7
+    pos += 1
+    while True:
+        b = buf[pos]
+        result |= (b & 0x7F) << shift
+        pos += 1
+        if b < 0x80:
+            return result, pos
+        shift += 7
+
+
+@dataclass(frozen=True)
+class _FieldCodec:
+    name: str
+    tag: bytes
+    kind: str  # 'packed', 'varint_u', 'varint_s', 'double', 'string', 'bytes'
+    dtype: np.dtype | None
+
+
+@cache
+def _codecs(message: str) -> tuple[tuple[_FieldCodec, ...], dict[int, _FieldCodec]]:
+    m = MESSAGE_DEFS[message]
+    codecs = []
+    for f in m.fields:
+        if f.repeated:
+            kind, wire, dtype = "packed", 2, _PACKED_TYPES[f.type]
+        else:
+            wire = _SCALAR_TYPES[f.type][0]
+            kind = {
+                "uint64": "varint_u",
+                "uint32": "varint_u",
+                "int64": "varint_s",
+                "int32": "varint_s",
+                "double": "double",
+                "string": "string",
+                "bytes": "bytes",
+            }[f.type]
+            dtype = None
+        codecs.append(_FieldCodec(f.name, _varint((f.number << 3) | wire), kind, dtype))
+    by_number = {f.number: c for f, c in zip(m.fields, codecs, strict=True)}
+    return tuple(codecs), by_number
+
+
+_DOUBLE = np.dtype("<f8")
+
+
+def encode(message: str, **values) -> bytes:
+    """Wire bytes of ``message`` with the given field values (arrays for repeated fields).
+
+    Repeated fields accept any array-like (flattened, cast to the field's little-endian dtype);
+    omitted fields and proto3 defaults are not written.
+    """
+    codecs, _ = _codecs(message)
+    parts: list[bytes] = []
+    for c in codecs:
+        v = values.pop(c.name, None)
+        if v is None:
+            continue
+        if c.kind == "packed":
+            arr = np.ascontiguousarray(v, dtype=c.dtype).reshape(-1)
+            if arr.size:
+                parts += (c.tag, _varint(arr.nbytes), arr.tobytes())
+        elif c.kind in ("varint_u", "varint_s"):
+            iv = int(v)
+            if iv:
+                parts += (c.tag, _varint(iv))
+        elif c.kind == "double":
+            b = _DOUBLE.type(v).tobytes()
+            if b != b"\0" * 8:
+                parts += (c.tag, b)
+        else:
+            b = v.encode("utf-8") if c.kind == "string" else bytes(v)
+            if b:
+                parts += (c.tag, _varint(len(b)), b)
+    if values:
+        raise TypeError(f"{message} has no field(s) {sorted(values)}")
+    return b"".join(parts)
+
+
+def _scan(message: str, data: bytes):
+    """Yield (codec, value) for each field of the wire bytes; packed values are (offset, length)."""
+    _, by_number = _codecs(message)
+    pos, end = 0, len(data)
+    while pos < end:
+        key, pos = _read_varint(data, pos)
+        number, wire = key >> 3, key & 7
+        c = by_number.get(number)
+        if wire == 2:
+            ln, pos = _read_varint(data, pos)
+            if c is not None:
+                yield c, (pos, ln)
+            pos += ln
+        elif wire == 0:
+            v, pos = _read_varint(data, pos)
+            if c is not None:
+                yield c, v
+        elif wire == 1:
+            if c is not None:
+                yield c, (pos, 8)
+            pos += 8
+        elif wire == 5:
+            if c is not None:
+                yield c, (pos, 4)
+            pos += 4
+        else:
+            raise ValueError(f"{message}: unsupported wire type {wire} at byte {pos}")
+    if pos != end:
+        raise ValueError(f"{message}: truncated message")
+
+
+def _scalar(c: _FieldCodec, data: bytes, v):
+    if c.kind == "varint_u":
+        return v
+    if c.kind == "varint_s":
+        return v - (1 << 64) if v >= 1 << 63 else v
+    off, ln = v
+    if c.kind == "double":
+        return float(np.frombuffer(data, _DOUBLE, 1, off)[0])
+    raw = data[off : off + ln]
+    return raw.decode("utf-8") if c.kind == "string" else bytes(raw)
+
+
+def decode(message: str, data: bytes) -> dict:
+    """Field values of one message: numpy arrays for repeated fields, Python scalars otherwise.
+
+    Absent fields get their proto3 default (0, 0.0, '', b'', empty array).
+    """
+    codecs, _ = _codecs(message)
+    out: dict = {}
+    packed: dict[str, list[bytes]] = {}
+    for c, v in _scan(message, data):
+        if c.kind == "packed":
+            off, ln = v if isinstance(v, tuple) else (None, None)
+            if off is None:  # unpacked varint element: not produced for our packed types
+                raise ValueError(f"{message}.{c.name}: unexpected varint for a packed field")
+            packed.setdefault(c.name, []).append(data[off : off + ln])
+        else:
+            out[c.name] = _scalar(c, data, v)
+    for c in codecs:
+        if c.kind == "packed":
+            out[c.name] = np.frombuffer(b"".join(packed.get(c.name, ())), c.dtype)
+        elif c.name not in out:
+            out[c.name] = {"string": "", "bytes": b"", "double": 0.0}.get(c.kind, 0)
+    return out
+
+
+class BatchDecoder:
+    """Decode many messages of one type and concatenate each field once (fast read-back).
+
+    ``add(data)`` records byte slices of packed fields and scalar values; ``result()`` returns, per
+    field, one concatenated array (packed fields), a list of per-message values (scalars), and
+    ``counts[field]``: elements contributed by each message (for packed fields).
+    """
+
+    def __init__(self, message: str) -> None:
+        self.message = message
+        self.codecs, _ = _codecs(message)
+        self._packed: dict[str, list] = {c.name: [] for c in self.codecs if c.kind == "packed"}
+        self._counts: dict[str, list[int]] = {c.name: [] for c in self.codecs if c.kind == "packed"}
+        self._scalars: dict[str, list] = {c.name: [] for c in self.codecs if c.kind != "packed"}
+        self.n_messages = 0
+
+    def add(self, data: bytes) -> None:
+        seen_packed: dict[str, int] = {}
+        seen_scalar: dict = {}
+        mv = memoryview(data)
+        for c, v in _scan(self.message, data):
+            if c.kind == "packed":
+                off, ln = v
+                self._packed[c.name].append(mv[off : off + ln])
+                seen_packed[c.name] = seen_packed.get(c.name, 0) + ln // c.dtype.itemsize
+            else:
+                seen_scalar[c.name] = _scalar(c, data, v)
+        for name, lst in self._counts.items():
+            lst.append(seen_packed.get(name, 0))
+        for c in self.codecs:
+            if c.kind != "packed":
+                self._scalars[c.name].append(
+                    seen_scalar.get(c.name, {"string": "", "bytes": b"", "double": 0.0}.get(c.kind, 0))
+                )
+        self.n_messages += 1
+
+    def result(self) -> tuple[dict[str, np.ndarray], dict[str, list], dict[str, np.ndarray]]:
+        """(arrays, scalars, counts): concatenated packed fields, per-message scalars, per-message sizes."""
+        arrays = {
+            c.name: np.frombuffer(bytearray().join(self._packed[c.name]), c.dtype)  # writable
+            for c in self.codecs
+            if c.kind == "packed"
+        }
+        counts = {k: np.asarray(v, dtype=np.int64) for k, v in self._counts.items()}
+        return arrays, self._scalars, counts
+
+
+if __name__ == "__main__":  # pragma: no cover
+    print(render_proto(), end="")
