@@ -543,17 +543,13 @@ class _Sink:
 
     def channel(self, schema: Schema | None, channel: Channel) -> str | None:
         """Message type of the channel if it is an accellog.v1 protobuf channel, else None."""
+        name = "" if schema is None else schema.name
         if schema is None or schema.encoding != "protobuf" or channel.message_encoding != "protobuf":
-            return None
-        name = schema.name
-        if not name.startswith(pb.PACKAGE + "."):
-            self.topics.setdefault(channel.topic, name)
-            return None
-        msg = name[len(pb.PACKAGE) + 1 :]
-        if msg not in pb.MESSAGE_DEFS:
+            self.topics.setdefault(channel.topic, f"{name or 'no schema'} as {channel.message_encoding}")
             return None
         self.topics.setdefault(channel.topic, name)
-        return msg
+        msg = name[len(pb.PACKAGE) + 1 :] if name.startswith(pb.PACKAGE + ".") else ""
+        return msg if msg in pb.MESSAGE_DEFS else None
 
     def add(self, schema: Schema | None, channel: Channel, data: bytes) -> None:
         self.n_messages += 1

@@ -31,7 +31,9 @@ def _parse_proto_file(text: str) -> dict[str, list[tuple[str, str, int, bool]]]:
 
 
 def test_proto_file_is_rendered_from_descriptions():
-    assert PROTO.read_text() == pb.render_proto(), "regenerate: python -m accellog.messages > schemas/accellog_v1.proto"
+    assert PROTO.read_text() == pb.render_proto(), (
+        "regenerate: python -m accellog.messages > schemas/accellog_v1.proto"
+    )
 
 
 def test_proto_file_agrees_with_runtime_descriptor_pool():
@@ -108,7 +110,13 @@ def test_negative_and_default_scalars():
     data = pb.encode("Event", t_ns=-5, kind="", detail="d", sample_index=-1, lost_samples=0)
     msg = pb.stock_message_class("Event").FromString(data)
     assert (msg.t_ns, msg.sample_index, msg.lost_samples, msg.kind) == (-5, -1, 0, "")
-    assert pb.decode("Event", data) == {"t_ns": -5, "kind": "", "detail": "d", "sample_index": -1, "lost_samples": 0}
+    assert pb.decode("Event", data) == {
+        "t_ns": -5,
+        "kind": "",
+        "detail": "d",
+        "sample_index": -1,
+        "lost_samples": 0,
+    }
 
 
 def test_unknown_field_is_rejected_on_encode():
