@@ -59,7 +59,7 @@ def synth_session(
         nxt = np.array(specs[i + 1].up_sensor) if i + 1 < len(specs) else up
         seg = slice(i * n_per, (i + 1) * n_per)
         ts = t[seg]
-        w = np.clip((ts - t_hold_end) / move_s, 0.0, 1.0)[:, None]
+        w = np.clip((ts - t_hold_end) / max(move_s, 1e-9), 0.0, 1.0)[:, None]
         v = (1 - w) * up + w * nxt
         f[seg] = g_scale * v / np.linalg.norm(v, axis=1, keepdims=True)
         labels.append(PoseLabel(sp.name, float(t0), float(t_hold_end), sp.up_sensor, sp.q_sensor_to_world, 0))
