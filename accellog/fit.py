@@ -387,9 +387,12 @@ def fit_model(
     w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(meas)
     prob = _Problem(model, obs, drv, w, float(gravity_g), _q_or_none(obs))
     th0 = model.initial_theta() if theta0 is None else np.asarray(theta0, float).copy()
-    J0 = _numjac(prob.resid, th0, _steps(model, th0))
     if check_rank:
-        rank_check(J0, model, obs, drv)
+        # Probe the rank at a generic point (zero-initial parameters at half their typical size):
+        # at theta0 a nonlinear parameter (tau of a zero warm-up amplitude) has no effect at all.
+        probe = model.initial_theta()
+        probe = np.where(probe == 0.0, 0.5 * model.param_typical, probe)
+        rank_check(_numjac(prob.resid, probe, _steps(model, probe)), model, obs, drv)
     if "tau_warmup_s" in model.index and theta0 is None:
         th0 = _warmup_init(prob, th0, prob.resid)
     theta = _solve(prob.resid, th0, model)
