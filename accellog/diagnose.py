@@ -187,9 +187,13 @@ def driver_signals(res: FitResult, obs: ObsTable, drivers: Mapping[str, np.ndarr
 def clock_from_host_time(t_sensor_s: np.ndarray, t_host_s: np.ndarray) -> dict:
     """Sample-clock error from host timestamps: t_host = (1 + eps_clock) t_sensor + c + jitter.
 
+    Host time is often stamped per read batch (every sample of a batch carries the batch's read
+    time), so only the last sample of each run of equal host times is used.
     Returns eps_clock (1), its 1-sigma (from the residual scatter) and ppm values."""
     ts = np.asarray(t_sensor_s, float)
     th = np.asarray(t_host_s, float)
+    last = np.flatnonzero(np.append(np.diff(th) != 0, True))
+    ts, th = ts[last], th[last]
     if ts.size < 3 or np.ptp(ts) <= 0:
         raise InputError("host time needs >= 3 samples over a non-zero time span")
     A = np.stack([ts - ts.mean(), np.ones_like(ts)], axis=1)
@@ -599,3 +603,63 @@ def true_theta(model: Model, values: Mapping[str, float] | None = None, seed: in
     for k, v in (values or {}).items():
         th[model.index[k]] = v
     return th
+
+
+def synthetic_session(
+    model: Model,
+    theta: np.ndarray,
+    *,
+    protocol: str | Sequence[PoseSpec] = "six",
+    hold_s: float = 10.0,
+    move_s: float = 2.0,
+    rate_hz: float = 200.0,
+    noise_density_g_rthz: float = 300e-6,
+    temp_path: Callable[[np.ndarray], np.ndarray] | None = None,
+    eps_clock: float = 0.0,
+    lsb_per_g: float = 16384.0,
+    seed: int = 0,
+):
+    """A labelled Session of static holds sampled at rate_hz straight from the measurement equation
+    (white noise of the given density, counts quantised at lsb_per_g). Host time runs
+    (1 + eps_clock) faster than sensor time, plus 1 ms of read jitter."""
+    from .session import PoseLabel, Session, SessionMeta
+
+    poses = parse_protocol(protocol, hold_s) if isinstance(protocol, str) else list(protocol)
+    rng = np.random.default_rng(seed)
+    dur = len(poses) * (hold_s + move_s) + move_s
+    n = int(dur * rate_hz)
+    t = np.arange(n) / rate_hz
+    labels, up, q = [], np.zeros((n, 3)), np.zeros((n, 4))
+    for k, p in enumerate(poses):
+        s0 = move_s + k * (hold_s + move_s)
+        labels.append(PoseLabel(p.name, s0, s0 + hold_s, p.up_sensor, p.q_sensor_to_world, k))
+        m = t >= s0 - move_s
+        up[m] = p.up_sensor
+        q[m] = p.q_sensor_to_world
+    up[~np.any(up, axis=1)] = poses[0].up_sensor
+    q[~np.any(q, axis=1)] = poses[0].q_sensor_to_world
+    T = temp_path(t) if temp_path is not None else np.full(n, 25.0)
+    drv = {"t_s": t, "temp_degC": T, "t_in_pose_s": np.zeros(n), "dtemp_degC_per_s": np.gradient(T, t)}
+    f = model.truth_g(theta, up, q, 1.0)
+    a = model.predict(theta, f, drv) + rng.standard_normal((n, 3)) * noise_density_g_rthz * np.sqrt(
+        rate_hz / 2
+    )
+    counts = np.clip(np.round(a * lsb_per_g), -32768, 32767).astype(np.int32)
+    host = t * (1.0 + eps_clock) + rng.uniform(0.0, 1e-3, n)
+    meta = SessionMeta(
+        source="emulator",
+        accel_range_g=2.0,
+        accel_lsb_per_g=lsb_per_g,
+        sample_rate_hz=rate_hz,
+        software="synthetic",
+    )
+    return Session(
+        meta=meta,
+        t_s=t,
+        sample_index=np.arange(n, dtype=np.int64),
+        accel_g=counts / lsb_per_g,
+        accel_counts=counts,
+        temp_degC=T,
+        host_time_s=host,
+        poses=labels,
+    )

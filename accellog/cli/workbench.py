@@ -1,0 +1,149 @@
+"""`accellog diagnose` (the model workbench) and `accellog effects` (the effect library)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from .app import app
+
+
+def _fmt(v, spec: str = ".3g") -> str:
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return "-"
+    return format(v, spec)
+
+
+@app.command()
+def effects(
+    effects_file: Annotated[
+        Path | None, typer.Option("--effects-file", help="Python file with user effects (docs/effects.md).")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable list on stdout.")] = False,
+) -> None:
+    """List the effect library: name, parameters with units, driver signals, meaning."""
+    from ..effects import describe, load_effects_file
+
+    ef = load_effects_file(effects_file) if effects_file else None
+    rows = describe(ef)
+    if as_json:
+        print(json.dumps(rows, indent=1))
+        return
+    t = Table(title="accellog effect library (names accepted by --add)")
+    for c in ("effect", "parameters [unit]", "drivers", "meaning", "revealed by"):
+        t.add_column(c, overflow="fold")
+    for r in rows:
+        params = (
+            ", ".join(f"{p} [{u}]" for p, u in zip(r["params"], r["units"], strict=True))
+            or "(none in static model)"
+        )
+        t.add_row(
+            r["effect"],
+            escape(params),
+            ", ".join(r["drivers"]) or "-",
+            escape(r["meaning"]),
+            escape(r["reveal"]),
+        )
+    Console(width=200).print(t)
+    print("presets: model1 = bias; model2 = bias+scale; model3 = bias+scale+cross_axis")
+
+
+@app.command()
+def diagnose(
+    session: Annotated[Path, typer.Argument(help="Recorded session (.mcap) with labelled static holds.")],
+    model: Annotated[str, typer.Option("--model", "-m", help="Preset or '+'-joined effects.")] = "model3",
+    add: Annotated[list[str] | None, typer.Option("--add", help="Extra effect (repeatable).")] = None,
+    effects_file: Annotated[
+        Path | None, typer.Option("--effects-file", help="Python file with user effects (docs/effects.md).")
+    ] = None,
+    window_s: Annotated[float, typer.Option(help="Averaging window within each hold (s).", min=0.01)] = 2.0,
+    unweighted: Annotated[
+        bool, typer.Option("--unweighted", help="Fit without sigma weights (seed).")
+    ] = False,
+    gravity_g: Annotated[float, typer.Option(help="Truth magnitude in g (local gravity / g0).")] = 1.0,
+    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable diagnosis on stdout.")] = False,
+) -> None:
+    """Fit a model, compare it with the noise floor and rank the effects that could be missing."""
+    from .. import diagnose as dg
+    from ..errors import InputError
+    from ..model import build_model
+
+    if not session.is_file():
+        raise InputError("session file not found", where=str(session))
+    from ..mcap_io import read_session
+    from ..segment import observations
+
+    sess = read_session(session)
+    obs = observations(sess, window_s=window_s)
+    m = build_model(model, add=add or [], effects_file=effects_file)
+    host = None
+    if sess.host_time_s is not None and np.all(np.isfinite(sess.host_time_s)) and sess.n > 2:
+        host = (sess.t_s, sess.host_time_s)
+    d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host)
+    if as_json:
+        out = d.to_dict()
+        out["session"] = str(session)
+        print(json.dumps(out, indent=1))
+        return
+    _print(d, str(session))
+
+
+def _print(d, source: str) -> None:
+    con = Console(width=160)
+    f = d.fit
+    con.print(f"[bold]{source}[/]: {f.n_obs} windows, model {d.model.name} ({d.model.n_params} params)")
+    t = Table(title="parameters (1-sigma: noise-only Cramer-Rao bound)")
+    for c in ("param", "value", "1-sigma", "unit"):
+        t.add_column(c, justify="right" if c in ("value", "1-sigma") else "left")
+    for n, v, s, u in zip(f.param_names, f.theta, f.sigma, f.param_units, strict=True):
+        t.add_row(n, f"{v:.6g}", f"{s:.2g}", u)
+    con.print(t)
+    t = Table(title="candidate effects (model + effect)")
+    for c in (
+        "#",
+        "effect",
+        "ident.",
+        "signif.",
+        "chi2/dof",
+        "dBIC",
+        "CV chi2/eq",
+        "p",
+        "reason / what to record",
+    ):
+        t.add_column(c, overflow="fold")
+    for c in d.candidates:
+        t.add_row(
+            str(c["rank"]),
+            c["effect"],
+            "yes" if c["identifiable"] else "no",
+            "YES" if c.get("significant") else "",
+            _fmt(c.get("chi2_dof")),
+            _fmt(c.get("delta_bic"), ".1f"),
+            _fmt(c.get("cv_chi2_per_eq")),
+            _fmt(c.get("p_value"), ".2g"),
+            escape(c.get("reason", "")),
+        )
+    con.print(t)
+    t = Table(title="residuals vs driver signals (top 10; dchi2 = drop if added as a term on that axis)")
+    for c in ("signal", "axis", "corr", "partial R^2", "dchi2", "p"):
+        t.add_column(c)
+    for s in d.driver_signals[:10]:
+        t.add_row(
+            s["signal"] + (" *" if s["significant"] else ""),
+            s["axis"],
+            f"{s['correlation']:+.2f}",
+            f"{s['partial_r2']:.3f}",
+            f"{s['delta_chi2']:.3g}",
+            f"{s['p_value']:.2g}",
+        )
+    con.print(t)
+    con.print(("[bold red]MISSING[/] " if d.missing else "[bold green]OK[/] ") + escape(d.verdict))
+    for a in d.advice:
+        con.print(f"  - {escape(a)}")
