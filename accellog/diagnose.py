@@ -536,6 +536,7 @@ def synthetic_obs(
     noise_density_g_rthz: float = 300e-6,
     temp_path: Callable[[np.ndarray], np.ndarray] | None = None,
     extra: Callable[[ObsTable], np.ndarray] | None = None,
+    extra_drivers: Callable[[ObsTable], dict[str, np.ndarray]] | None = None,
     gravity_g: float = 1.0,
     t0_s: float = 2.0,
     seed: int = 0,
@@ -544,7 +545,8 @@ def synthetic_obs(
 
     Holds of hold_s (s) separated by move_s, split into windows; sigma of a window mean of duration
     T is noise_density / sqrt(2 T) (white noise, one-sided density in g/sqrt(Hz)). temp_path(t_s)
-    gives the die temperature (degC); extra(obs) adds an (n,3) g term outside the model.
+    gives the die temperature (degC); extra(obs) adds an (n,3) g term outside the model;
+    extra_drivers(obs) gives user driver signals the model needs (e.g. {'humidity_pct': ...}).
     """
     poses = parse_protocol(protocol, hold_s) if isinstance(protocol, str) else list(protocol)
     rng = np.random.default_rng(seed)
@@ -576,7 +578,7 @@ def synthetic_obs(
         q_sensor_to_world=q,
         session=f"synthetic-{seed}",
     )
-    drv = obs_drivers(obs)
+    drv = obs_drivers(obs, extra_drivers(obs) if extra_drivers is not None else None)
     f = model.truth_g(theta, up, q, gravity_g)
     meas = model.predict(theta, f, drv)
     if extra is not None:
