@@ -19,9 +19,10 @@ from accellog.calibration import Calibration
 from accellog.drift import drift_from_session
 from accellog.evaluate import evaluate
 from accellog.fit import fit_model
+from accellog.importers import import_capstone, load_capstone_pose_table
 from accellog.model import build_model
 from accellog.segment import obs_from_pose_means
-from accellog.session import ObsTable, Session, SessionMeta
+from accellog.session import ObsTable, Session
 from accellog.units import SEED_LOCAL_GRAVITY_MPS2
 
 MODELS = ("model1", "model2", "model3")
@@ -29,23 +30,15 @@ MODELS = ("model1", "model2", "model3")
 
 def pose_table(path: Path) -> ObsTable:
     """Capstone six_position_data CSV -> one observation per pose (truth columns = up vector)."""
-    P = np.loadtxt(path, delimiter=",", skiprows=1)
-    truth, mean, std = P[:, [0, 3, 6]], P[:, [1, 4, 7]], P[:, [2, 5, 8]]
-    return obs_from_pose_means(truth, mean, std, 5400, session=str(path))
+    pt = load_capstone_pose_table(path)
+    return obs_from_pose_means(pt.truth_g, pt.mean_g, pt.std_g, 5400, names=pt.names, session=str(path))
 
 
 def static_test(path: Path) -> Session:
     """Capstone static test CSV (title line + malformed 3-name header for 4 columns) -> Session."""
-    T = np.loadtxt(path, delimiter=",", skiprows=2)
-    meta = SessionMeta(
-        source="import:capstone",
-        accel_lsb_per_g=16384.0,
-        accel_range_g=2,
-        local_gravity_mps2=SEED_LOCAL_GRAVITY_MPS2,
-    )
-    return Session(
-        meta=meta, t_s=T[:, 0], sample_index=np.arange(T.shape[0]), accel_g=T[:, 1:4], path=str(path)
-    )
+    s = import_capstone(path)
+    assert s.meta.local_gravity_mps2 == SEED_LOCAL_GRAVITY_MPS2 and s.meta.accel_lsb_per_g == 16384
+    return s
 
 
 def seed_cal(obs: ObsTable, model: str) -> Calibration:
