@@ -1,0 +1,120 @@
+"""`accellog import capstone|imucal|csv FILE -o OUT.mcap`: other tools' recordings -> accellog MCAP."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ..errors import InputError
+from ..session import Session
+from .app import app
+
+import_app = typer.Typer(
+    help="Import recordings (capstone CSV, imucal, generic CSV) into accellog MCAP files.",
+    no_args_is_help=True,
+)
+app.add_typer(import_app, name="import")
+
+OutOpt = Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file (written atomically).")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
+BatchOpt = Annotated[int, typer.Option("--batch-size", min=1, help="Samples per /imu message.")]
+
+
+def _facts(session: Session, src: Path, out: Path) -> dict:
+    t = session.t_s
+    return {
+        "input": str(src),
+        "output": str(out),
+        "source": session.meta.source,
+        "samples": session.n,
+        "duration_s": float(t[-1] - t[0]) if session.n else 0.0,
+        "sample_rate_hz": session.meta.sample_rate_hz,
+        "accel_storage": (
+            f"counts ({session.meta.accel_lsb_per_g:g} LSB/g)"
+            if session.accel_counts is not None
+            else "g (float64)"
+        ),
+        "source_unit": session.meta.extra.get("source_unit", ""),
+        "gyro": session.gyro_dps is not None,
+        "poses": [p.name for p in session.poses],
+        "events": len(session.events),
+    }
+
+
+def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: int) -> None:
+    from ..mcap_io import write_session
+
+    if out.exists() and out.is_dir():
+        raise InputError("output is a directory", where=str(out))
+    if not out.parent.exists():
+        raise InputError("output folder does not exist", where=str(out))
+    write_session(out, session, batch_size=batch_size)
+    facts = _facts(session, src, out)
+    if as_json:
+        typer.echo(json.dumps(facts))
+        return
+    table = Table(title=f"imported {src.name} -> {out.name}", show_header=False)
+    table.add_column("field", style="bold")
+    table.add_column("value")
+    for k, v in facts.items():
+        table.add_row(
+            k, ", ".join(v) if isinstance(v, list) else (f"{v:.6g}" if isinstance(v, float) else str(v))
+        )
+    Console().print(table)
+
+
+@import_app.command("capstone")
+def import_capstone_cmd(
+    file: Annotated[Path, typer.Argument(help="A capstone static test file (six_position_test_data*.csv).")],
+    out: OutOpt,
+    as_json: JsonOpt = False,
+    batch_size: BatchOpt = 500,
+) -> None:
+    """Capstone static test file (t in s; x, y, z in g) -> MCAP with one '+z' hold; counts at 16384 LSB/g."""
+    from ..importers import import_capstone
+
+    _write(import_capstone(file), file, out, as_json, batch_size)
+
+
+@import_app.command("imucal")
+def import_imucal_cmd(
+    file: Annotated[Path, typer.Argument(help="example_ferraris_session.csv or annotated_session.csv.")],
+    out: OutOpt,
+    sections: Annotated[
+        Path | None,
+        typer.Option(
+            "--sections", help="Section list JSON {label: {start, end}} (default <stem>_list.json)."
+        ),
+    ] = None,
+    rate_hz: Annotated[
+        float | None, typer.Option("--rate-hz", min=0.001, help="Sample rate (default 102.4 / 204.8 Hz).")
+    ] = None,
+    as_json: JsonOpt = False,
+    batch_size: BatchOpt = 500,
+) -> None:
+    """imucal Ferraris recording -> MCAP (x_p..z_a -> poses +x..-z; x_rot.. -> motion_segment events)."""
+    from ..importers import import_imucal
+
+    _write(import_imucal(file, sections, sample_rate_hz=rate_hz), file, out, as_json, batch_size)
+
+
+@import_app.command("csv")
+def import_csv_cmd(
+    file: Annotated[Path, typer.Argument(help="CSV with header t,ax,ay,az[,temp,gx,gy,gz,pose,true_*,q*].")],
+    out: OutOpt,
+    unit: Annotated[str, typer.Option("--unit", help="Unit of ax,ay,az: g, m/s^2 or counts.")] = "g",
+    lsb_per_g: Annotated[
+        float | None, typer.Option("--lsb-per-g", help="Counts per g (needed with --unit counts).")
+    ] = None,
+    as_json: JsonOpt = False,
+    batch_size: BatchOpt = 500,
+) -> None:
+    """Generic CSV -> MCAP. t in s, temp in degC, gyro in deg/s; 'pose' names label static holds."""
+    from ..importers import import_csv
+
+    _write(import_csv(file, unit=unit, lsb_per_g=lsb_per_g), file, out, as_json, batch_size)
