@@ -30,6 +30,11 @@ from .errors import InputError, ModelError
 from .model import Model
 from .session import ObsTable
 
+GEOMETRY_EFFECTS = {"fixture_tilt", "nonlin2", "nonlin3", "g_cross"}
+"""Effects whose identifiability is a property of the pose set; fit_model checks it explicitly.
+fixture_tilt in particular is refused without a face held at two rotations about the vertical:
+with six poses its estimate would rest entirely on the nominal yaw of each face."""
+
 RANK_TOL = 1e-9
 """Relative singular value of the column-normalised Jacobian below which a direction is unidentifiable."""
 
@@ -167,7 +172,10 @@ def _param_hint(pname: str, model: Model, obs: ObsTable, drivers: Mapping[str, n
     ax = pname[-1] if pname[-1] in AXES else ""
     if pname.startswith("S_") and len(pname) == 4 and pname[2] == pname[3]:
         have = [f for f in faces if f.endswith(ax)]
-        return f"scale of {ax} needs both +{ax} and -{ax} poses (have {', '.join(have) or 'none'})"
+        return (
+            f"scale of {ax} needs {ax} at two levels: both +{ax} and -{ax} poses "
+            f"(have {', '.join(have) or f'no {ax} pose'})"
+        )
     if pname.startswith("S_") and len(pname) == 4:
         j = pname[3]
         return f"{pname} (axis {pname[2]} sensing {j}) needs a pose with {j} up or down"
@@ -388,6 +396,10 @@ def fit_model(
     prob = _Problem(model, obs, drv, w, float(gravity_g), _q_or_none(obs))
     th0 = model.initial_theta() if theta0 is None else np.asarray(theta0, float).copy()
     if check_rank:
+        for name in GEOMETRY_EFFECTS & set(model.term_names):
+            why = effect_requirement(name, obs, drv, model)
+            if why:
+                raise ModelError(f"model {model.name} cannot be determined from this data: {why}")
         # Probe the rank at a generic point (zero-initial parameters at half their typical size):
         # at theta0 a nonlinear parameter (tau of a zero warm-up amplitude) has no effect at all.
         probe = model.initial_theta()
