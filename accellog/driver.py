@@ -133,6 +133,10 @@ class _BusFailure(Exception):
         self.errno = exc.errno
 
 
+class _SkipRead(Exception):
+    """The FIFO could not be reset after a failure: read nothing this time (internal)."""
+
+
 class _FifoLost(Exception):
     """A failed FIFO burst took bytes with it (internal)."""
 
@@ -358,6 +362,7 @@ class Mpu9250:
     def _fifo_reset(self) -> None:
         ctrl = self._rd(R.USER_CTRL)
         self._wr(R.USER_CTRL, (ctrl | R.USER_FIFO_EN | R.USER_FIFO_RST) & 0xFF)
+        self._rd(R.INT_STATUS)  # a FIFO_OFLOW from before the reset is stale
 
     def _gap(self, kind: str, detail: str, received: int, events: list[Event]) -> None:
         """Reset the FIFO, account for the samples lost since the last count, advance the index."""
@@ -447,6 +452,8 @@ class Mpu9250:
         try:
             if self._need_reset:
                 self._gap("i2c_error", "FIFO reset after an earlier bus failure", 0, events)
+                if self._need_reset:  # still not reset: its content is already counted as lost
+                    raise _SkipRead
             status = self._rd(R.INT_STATUS)
             t_count = int(self.clock_ns())
             count = self._fifo_count()
@@ -465,6 +472,8 @@ class Mpu9250:
                     self._next_index += count // pkt
         except _BusFailure as exc:
             self._gap("i2c_error", f"{exc} after {self.max_retries + 1} attempts", len(data) // pkt, events)
+        except _SkipRead:
+            pass
         events.extend(self._pending)
         self._pending = []
         n = len(data) // pkt

@@ -474,6 +474,12 @@ class EmulatedMpu9250:
     def write_word_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
         self._write(i2c_addr, register, bytes([value & 0xFF, (value >> 8) & 0xFF]))
 
+    def write_quick(self, i2c_addr: int, force: bool | None = None) -> None:
+        """Address-only probe: NAK (OSError 121) when nothing answers at i2c_addr."""
+        if not self._present(i2c_addr):
+            raise _nak()
+        self._inject(i2c_addr)
+
     def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
         return self._read(i2c_addr, self._ptr.get(i2c_addr, 0), 1)[0]
 
