@@ -118,7 +118,7 @@ def effect_requirement(
         need = 1.0 if name in ("temp_bias", "temp_scale") else 3.0
         if span < need:
             return (
-                f"{name} not identifiable: temperature spans only {span:.2g} degC (need >= {need:g}); "
+                f"{name} not identifiable: temperature spans only {span:.1f} degC (need >= {need:g}); "
                 "record a warm-up from power-up or a temperature sweep, with several windows per hold"
             )
     if name in ("time_drift", "warmup"):
