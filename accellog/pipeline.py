@@ -418,7 +418,8 @@ def load_pipeline(path: str | os.PathLike) -> dict:
         spec = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"line (\d+)", str(exc))
-        raise InputError(f"not valid TOML: {exc}", where=f"{p}:{m.group(1)}" if m else str(p)) from None
+        line = m.group(1) if m else str(max(len(text.splitlines()), 1))  # 'at end of document'
+        raise InputError(f"not valid TOML: {exc}", where=f"{p}:{line}") from None
     for table, body in spec.items():
         if table not in _SCHEMA:
             raise InputError(

@@ -11,7 +11,7 @@ import pytest
 from scipy.signal import lfilter
 
 from accellog.errors import InputError, ModelError
-from accellog.protocol import six_position
+from accellog.protocol import PoseSpec, six_position
 from accellog.segment import (
     check_coverage,
     detect_static,
@@ -42,10 +42,17 @@ def synth_session(
     jitter: float = 0.2,
     temp_degC: float = 30.0,
     label: bool = True,
+    ups: np.ndarray | None = None,
 ) -> Session:
-    """Labelled six-pose (or given poses) session; moves between holds are smooth 90-deg turns."""
+    """Labelled six-pose (or given poses, or arbitrary unit up vectors `ups`) session; moves between
+    holds are smooth turns."""
     rng = np.random.default_rng(seed)
     specs = six_position(hold_s) if poses is None else [s for s in six_position(hold_s) if s.name in poses]
+    if ups is not None:
+        specs = [
+            PoseSpec(f"u{i}", tuple(float(v) for v in u / np.linalg.norm(u)), (1.0, 0.0, 0.0, 0.0), hold_s)
+            for i, u in enumerate(ups)
+        ]
     n_per = round((hold_s + move_s) * rate_hz)
     n = n_per * len(specs)
     dt = (1.0 + jitter * (rng.random(n) - 0.5)) / rate_hz  # uneven sample times

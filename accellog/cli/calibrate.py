@@ -1,0 +1,220 @@
+"""Batch calibration commands: segment, fit, evaluate, drift, apply, run (pipelines).
+
+Each command calls a plain function of accellog.pipeline (run_fit, run_evaluate, run_drift,
+run_apply, run_pipeline) and prints rich tables, or machine-readable JSON on stdout with --json.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from .. import report
+from ..calibration import write_json_atomic
+from ..errors import InputError
+from ..pipeline import load_input, run_apply, run_drift, run_evaluate, run_fit, run_pipeline
+from ..segment import obs_to_dict, pose_stats
+from ..session import Session
+from .app import app
+
+_console = Console()
+
+JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON on stdout instead of tables.")]
+
+
+def _echo_json(data) -> None:
+    typer.echo(report.json_text(data))
+
+
+@app.command()
+def segment(
+    session: Annotated[Path, typer.Argument(help="Session (.mcap, or a CSV the importers read).")],
+    window_s: Annotated[float, typer.Option(help="Observation window within a hold (s).")] = 2.0,
+    trim_s: Annotated[float, typer.Option(help="Dropped at both ends of every hold (s).")] = 0.5,
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Write observations JSON here.")
+    ] = None,
+    json_out: JsonOpt = False,
+) -> None:
+    """Per-pose statistics (mean, std, autocorrelation-aware sem) and windowed observations."""
+    data = load_input(session)
+    if not isinstance(data, Session):
+        raise InputError("segment needs a recorded session (samples), not a pose table", where=str(session))
+    stats = pose_stats(data, trim_s=trim_s)
+    from ..segment import observations
+
+    obs = observations(data, window_s=window_s, trim_s=trim_s)
+    if output is not None:
+        write_json_atomic(output, obs_to_dict(obs))
+    if json_out:
+        _echo_json(
+            {"poses": [p.to_dict() for p in stats], "n_observations": obs.n, "output": str(output or "")}
+        )
+        return
+    from rich.table import Table
+
+    t = Table(title=f"{session}: {len(stats)} holds, {obs.n} observations of ~{window_s:g} s")
+    t.add_column("pose")
+    t.add_column("t (s)")
+    t.add_column("n", justify="right")
+    for ax in "xyz":
+        t.add_column(f"{ax} mean ± sem (g)", justify="right")
+    t.add_column("tau (samples)", justify="right")
+    t.add_column("T (degC)", justify="right")
+    for p in stats:
+        t.add_row(
+            p.name,
+            f"{p.start_s:.1f}-{p.end_s:.1f}",
+            str(p.n),
+            *(report.fmt_pm(float(m), float(s)) for m, s in zip(p.mean_g, p.sem_g, strict=True)),
+            "/".join(f"{x:.1f}" for x in p.tau_samples),
+            "-" if p.temp_degC is None else f"{p.temp_degC:.2f}",
+        )
+    _console.print(t)
+
+
+@app.command()
+def fit(
+    session: Annotated[
+        Path, typer.Argument(help="Calibration session (.mcap), pose table CSV or observations JSON.")
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Calibration JSON to write.")],
+    model: Annotated[
+        str, typer.Option("--model", "-m", help="model1 | model2 | model3 | effect+effect...")
+    ] = "model3",
+    add: Annotated[list[str] | None, typer.Option("--add", help="Add an effect (repeatable).")] = None,
+    effects_file: Annotated[Path | None, typer.Option(help="Python file with user effects.")] = None,
+    unweighted: Annotated[
+        bool, typer.Option("--unweighted", help="Unweighted least squares (the seed).")
+    ] = False,
+    orientation_free: Annotated[
+        bool,
+        typer.Option("--orientation-free", help="Fit |f| = g without pose labels (static holds detected)."),
+    ] = False,
+    gravity: Annotated[
+        str, typer.Option(help="'local' (truth g_local/g0, standard g) or 'seed' (truth 1).")
+    ] = "local",
+    local_gravity: Annotated[
+        float | None, typer.Option(help="Local gravity (m/s^2); default the session's.")
+    ] = None,
+    window_s: Annotated[float, typer.Option(help="Observation window (s).")] = 2.0,
+    trim_s: Annotated[float, typer.Option(help="Trim at both ends of every hold (s).")] = 0.5,
+    json_out: JsonOpt = False,
+) -> None:
+    """Fit an error model to static poses and write a calibration (parameters with 1-sigma)."""
+    out = run_fit(
+        session,
+        model,
+        add=add or [],
+        effects_file=effects_file,
+        weighted=not unweighted,
+        orientation_free=orientation_free,
+        gravity=gravity,
+        local_gravity_mps2=local_gravity,
+        window_s=window_s,
+        trim_s=trim_s,
+    )
+    out.cal.save(output)
+    if json_out:
+        d = out.to_dict()
+        d["output"] = str(output)
+        _echo_json(d)
+        return
+    _console.print(report.params_table(out.cal))
+    for w in out.fit.warnings:
+        _console.print(f"[yellow]warning:[/] {w}")
+    _console.print(f"wrote {output}")
+
+
+@app.command(name="evaluate")
+def evaluate_cmd(
+    test: Annotated[Path, typer.Argument(help="Static test session (one orientation).")],
+    cal: Annotated[list[Path], typer.Option("--cal", help="Calibration JSON (repeatable to compare).")],
+    until_s: Annotated[float | None, typer.Option(help="Use samples with t <= until_s only.")] = None,
+    max_samples: Annotated[int | None, typer.Option(help="Use the first N samples only.")] = None,
+    at_s: Annotated[float, typer.Option(help="Displacement table time (s).")] = 60.0,
+    json_out: JsonOpt = False,
+) -> None:
+    """Residual of calibrated static data vs gravity (mean +- sem, chi2 vs noise) and displacement."""
+    from ..calibration import load_calibration
+
+    cals = [load_calibration(c) for c in cal]
+    evs = run_evaluate(test, cals, until_s=until_s, max_samples=max_samples)
+    if json_out:
+        _echo_json({"raw": evs[0].to_dict(), "calibrated": [e.to_dict() for e in evs[1:]]})
+        return
+    report.print_tables([report.static_means_table(evs), report.displacement_table(evs, at_s=at_s)], _console)
+    drifted = [e for e in evs if e.drift_applied]
+    if drifted:
+        report.print_tables(
+            [
+                report.displacement_table(
+                    drifted, at_s=at_s, drift=True, title=f"after the drift model at {at_s:g} s"
+                )
+            ],
+            _console,
+        )
+    for e in evs:
+        for n in e.notes:
+            _console.print(f"[dim]{e.label}: {n}[/]")
+
+
+@app.command()
+def drift(
+    static: Annotated[Path, typer.Argument(help="Static session at rest (one orientation).")],
+    cal: Annotated[Path, typer.Option("--cal", help="Calibration JSON to apply first.")],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Calibration JSON with the drift model added.")
+    ],
+    until_s: Annotated[float | None, typer.Option(help="Fit on samples with t <= until_s.")] = None,
+    max_samples: Annotated[int | None, typer.Option(help="Fit on the first N samples.")] = None,
+    json_out: JsonOpt = False,
+) -> None:
+    """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
+    out = run_drift(static, cal, until_s=until_s, max_samples=max_samples)
+    out.cal.save(output)
+    if json_out:
+        d = out.to_dict()
+        d["output"] = str(output)
+        _echo_json(d)
+        return
+    rows = [("calibrated", out.fit_eval.disp_end_m)]
+    if out.fit_eval.disp_end_drift_m is not None:
+        rows.append(("calibrated + drift model", out.fit_eval.disp_end_drift_m))
+    report.print_tables(list(report.drift_table(rows, out.fit_eval.t_end_s, out.drift)), _console)
+    _console.print(f"wrote {output}")
+
+
+@app.command()
+def apply(
+    session: Annotated[Path, typer.Argument(help="Session (.mcap) to calibrate.")],
+    cal: Annotated[Path, typer.Option("--cal", help="Calibration JSON.")],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Output .mcap (copy + calibrated channels).")
+    ],
+) -> None:
+    """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
+    p = run_apply(session, cal, output)
+    _console.print(f"wrote {p}")
+
+
+@app.command()
+def run(
+    pipeline: Annotated[Path, typer.Argument(help="Pipeline TOML (see pipelines/).")],
+    sessions: Annotated[list[Path], typer.Argument(help="Input files in the order of pipeline.inputs.")],
+    output_dir: Annotated[
+        Path | None, typer.Option("-o", "--output-dir", help="Write calibrations + results.json.")
+    ] = None,
+    json_out: JsonOpt = False,
+) -> None:
+    """Run a pipeline file (segment -> fit -> evaluate -> drift -> report)."""
+    res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir)
+    if json_out:
+        _echo_json(res.to_dict())
+        return
+    report.print_tables(res.tables(), _console)
+    for w in res.written:
+        _console.print(f"wrote {w}")
