@@ -84,7 +84,7 @@ class EmulatedMpu9250:
         self.transactions = 0
         self.errors_injected = 0
         self.fifo_bytes_dropped = 0
-        self.fifo_samples_pushed = 0
+        self._fifo_pushed = 0
         self._k_next = 0  # global index of the next sample to take
         self._ak_reset()
         self._power_on_reset()
@@ -196,7 +196,7 @@ class EmulatedMpu9250:
             return
         if self._origin_pending:
             self._origin_k, self._origin_pending = k_first, False
-        self.fifo_samples_pushed += m
+        self._fifo_pushed += m
         sel = self.regs[R.FIFO_EN] & 0xF8
         pkt = 2 * bin(sel).count("1") + (4 if sel & R.FIFO_EN_ACCEL else 0)
         cap = R.FIFO_SIZE_BYTES
@@ -542,6 +542,18 @@ class EmulatedMpu9250:
         """Bytes in the FIFO now (after taking due samples)."""
         self._update()
         return len(self._fifo)
+
+    @property
+    def fifo_samples_pushed(self) -> int:
+        """Samples that entered the FIFO since power-on (including ones later dropped by overflow)."""
+        self._update()
+        return self._fifo_pushed
+
+    @property
+    def samples_taken(self) -> int:
+        """Samples the chip has taken since power-on (global index of the next one)."""
+        self._update()
+        return self._k_next
 
     @property
     def stream_origin_index(self) -> int | None:
