@@ -119,7 +119,7 @@ def test_rank_check_names_missing_poses():
 def test_rank_check_temperature_and_tilt_advice():
     m = build_model("model3+temp_bias")
     obs = synthetic_obs(m, true_theta(m), protocol="six", seed=1)  # temperature constant 25 degC
-    with pytest.raises(ModelError, match="temperature spans only 0.0 degC"):
+    with pytest.raises(ModelError, match=r"temperature spans only 0\.0 degC"):
         fit_model(obs, m)
     m = build_model("model3+fixture_tilt")
     obs = synthetic_obs(m, true_theta(m), protocol="six", seed=1)

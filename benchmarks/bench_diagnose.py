@@ -1,0 +1,75 @@
+"""Diagnose speed and estimator efficiency.
+
+1. A 24-pose session (30 s holds, 1 kHz, warm-up temperature path, hidden temp_bias) is generated
+   sample by sample, cut into 2 s windows by accellog.segment.observations (the window step), then
+   diagnosed against model3 with every library effect as a candidate (the diagnose step).
+   Goal: diagnose < 5 s.
+2. Parameter error vs Cramer-Rao bound: over seeds, RMS of (theta_hat - theta) / sigma per parameter
+   (1.0 = the fit attains the bound and its reported sigma is right).
+
+Run: python benchmarks/bench_diagnose.py
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from accellog.diagnose import diagnose, synthetic_obs, synthetic_session, true_theta
+from accellog.fit import fit_model
+from accellog.model import build_model
+from accellog.segment import observations
+
+
+def temp(t):
+    return 24.0 + 8.0 * (1.0 - np.exp(-t / 400.0)) + 1.5 * np.sin(2 * np.pi * t / 700.0)
+
+
+def main() -> None:
+    truth = build_model("model3+temp_bias")
+    th = true_theta(truth, seed=1)
+    t0 = time.perf_counter()
+    sess = synthetic_session(
+        truth, th, protocol="24", hold_s=30.0, move_s=3.0, rate_hz=1000.0, temp_path=temp
+    )
+    t1 = time.perf_counter()
+    obs = observations(sess, window_s=2.0)
+    t2 = time.perf_counter()
+    d = diagnose(obs, build_model("model3"))
+    t3 = time.perf_counter()
+    print(f"session: {sess.n} samples, {len(sess.poses)} holds -> {obs.n} windows")
+    print(f"{'step':<34}{'time s':>10}")
+    print(f"{'generate samples (not timed goal)':<34}{t1 - t0:>10.3f}")
+    print(f"{'windows (segment.observations)':<34}{t2 - t1:>10.3f}")
+    print(
+        f"{'diagnose, ' + str(len(d.candidates)) + ' candidates':<34}{t3 - t2:>10.3f}   goal < 5 s: {'OK' if t3 - t2 < 5 else 'MISSED'}"
+    )
+    print(f"{'windows + diagnose':<34}{t3 - t1:>10.3f}")
+    print(f"verdict: {d.verdict}")
+    print()
+    print("parameter error / Cramer-Rao bound (RMS over seeds of (theta_hat - theta)/sigma; 1.0 = efficient)")
+    print(
+        f"{'model (24 poses, 6 windows/hold)':<36}{'seeds':>6}{'min':>8}{'median':>8}{'max':>8}{'sd/CRB':>8}"
+    )
+    for name, n in (
+        ("model3", 200),
+        ("model3+temp_bias+temp_scale", 100),
+        ("model3+fixture_tilt+warmup", 60),
+    ):
+        m = build_model(name)
+        tht = true_theta(m, seed=2)
+        z, est, sig = [], [], []
+        for s in range(n):
+            o = synthetic_obs(m, tht, protocol="24", temp_path=temp, seed=500 + s)
+            r = fit_model(o, m)
+            z.append((r.theta - tht) / r.sigma)
+            est.append(r.theta)
+            sig.append(r.sigma)
+        rms = np.sqrt(np.mean(np.square(z), axis=0))
+        sd_ratio = np.median(np.std(est, axis=0, ddof=1) / np.mean(sig, axis=0))
+        print(f"{name:<36}{n:>6}{rms.min():>8.2f}{np.median(rms):>8.2f}{rms.max():>8.2f}{sd_ratio:>8.2f}")
+
+
+if __name__ == "__main__":
+    main()
