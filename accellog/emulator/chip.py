@@ -189,10 +189,13 @@ class EmulatedMpu9250:
         m = k_last - k_first + 1
         self._k_next = k_last + 1
         self._next_due_t = float(self._sample_time_s(self._k_next))
-        data, off = self._rows(k_last, k_last + 1)
+        fifo_on = self._fifo_active()
+        lo = max(k_first, k_last - R.FIFO_SIZE_BYTES // 2) if fifo_on else k_last
+        data, off = self._rows(lo, k_last + 1)  # one block covers the FIFO range and the latest
+        off += (k_last - lo) * R.PACKET_BYTES
         self._latest = data[off : off + R.PACKET_BYTES]
         self._int_status |= R.INT_RAW_DATA_RDY
-        if not self._fifo_active():
+        if not fifo_on:
             return
         if self._origin_pending:
             self._origin_k, self._origin_pending = k_first, False
