@@ -404,48 +404,85 @@ def decode(message: str, data: bytes) -> dict:
 class BatchDecoder:
     """Decode many messages of one type and concatenate each field once (fast read-back).
 
-    ``add(data)`` records byte slices of packed fields and scalar values; ``result()`` returns, per
-    field, one concatenated array (packed fields), a list of per-message values (scalars), and
-    ``counts[field]``: elements contributed by each message (for packed fields).
+    ``add(data)`` records byte slices of packed fields and scalar values (one tight loop per
+    message, no per-sample work); ``result()`` returns, per field, one concatenated array (packed
+    fields), a list of per-message values (scalars), and ``counts[field]``: elements contributed by
+    each message (packed fields).
     """
 
     def __init__(self, message: str) -> None:
         self.message = message
-        self.codecs, _ = _codecs(message)
+        self.codecs, by_number = _codecs(message)
+        # field number -> (is_packed, name, codec)
+        self._fields = {num: (c.kind == "packed", c.name, c) for num, c in by_number.items()}
         self._packed: dict[str, list] = {c.name: [] for c in self.codecs if c.kind == "packed"}
-        self._counts: dict[str, list[int]] = {c.name: [] for c in self.codecs if c.kind == "packed"}
-        self._scalars: dict[str, list] = {c.name: [] for c in self.codecs if c.kind != "packed"}
+        self._owner: dict[str, list[int]] = {c.name: [] for c in self.codecs if c.kind == "packed"}
+        self._rows: list[dict] = []
         self.n_messages = 0
 
     def add(self, data: bytes) -> None:
-        seen_packed: dict[str, int] = {}
-        seen_scalar: dict = {}
+        fields, packed, owner = self._fields, self._packed, self._owner
+        k = self.n_messages
+        row: dict = {}
         mv = memoryview(data)
-        for c, v in _scan(self.message, data):
-            if c.kind == "packed":
-                off, ln = v
-                self._packed[c.name].append(mv[off : off + ln])
-                seen_packed[c.name] = seen_packed.get(c.name, 0) + ln // c.dtype.itemsize
+        pos, end = 0, len(data)
+        while pos < end:
+            key = data[pos]
+            if key < 0x80:
+                pos += 1
             else:
-                seen_scalar[c.name] = _scalar(c, data, v)
-        for name, lst in self._counts.items():
-            lst.append(seen_packed.get(name, 0))
-        for c in self.codecs:
-            if c.kind != "packed":
-                self._scalars[c.name].append(
-                    seen_scalar.get(c.name, {"string": "", "bytes": b"", "double": 0.0}.get(c.kind, 0))
-                )
+                key, pos = _read_varint(data, pos)
+            wire = key & 7
+            f = fields.get(key >> 3)
+            if wire == 2:
+                ln = data[pos]
+                if ln < 0x80:
+                    pos += 1
+                else:
+                    ln, pos = _read_varint(data, pos)
+                if f is not None:
+                    if f[0]:
+                        packed[f[1]].append(mv[pos : pos + ln])
+                        owner[f[1]].append(k)
+                    else:
+                        row[f[1]] = _scalar(f[2], data, (pos, ln))
+                pos += ln
+            elif wire == 0:
+                v, pos = _read_varint(data, pos)
+                if f is not None:
+                    row[f[1]] = _scalar(f[2], data, v)
+            elif wire == 1:
+                if f is not None:
+                    row[f[1]] = _scalar(f[2], data, (pos, 8))
+                pos += 8
+            elif wire == 5:
+                pos += 4
+            else:
+                raise ValueError(f"{self.message}: unsupported wire type {wire} at byte {pos}")
+        if pos != end:
+            raise ValueError(f"{self.message}: truncated message")
+        self._rows.append(row)
         self.n_messages += 1
 
     def result(self) -> tuple[dict[str, np.ndarray], dict[str, list], dict[str, np.ndarray]]:
         """(arrays, scalars, counts): concatenated packed fields, per-message scalars, per-message sizes."""
-        arrays = {
-            c.name: np.frombuffer(bytearray().join(self._packed[c.name]), c.dtype)  # writable
+        arrays, counts = {}, {}
+        for c in self.codecs:
+            if c.kind != "packed":
+                continue
+            parts = self._packed[c.name]
+            arrays[c.name] = np.frombuffer(bytearray().join(parts), c.dtype)  # writable
+            sizes = np.fromiter((len(p) for p in parts), np.int64, len(parts)) // c.dtype.itemsize
+            counts[c.name] = np.bincount(
+                np.asarray(self._owner[c.name], dtype=np.int64), weights=sizes, minlength=self.n_messages
+            ).astype(np.int64)
+        defaults = {"string": "", "bytes": b"", "double": 0.0}
+        scalars = {
+            c.name: [r.get(c.name, defaults.get(c.kind, 0)) for r in self._rows]
             for c in self.codecs
-            if c.kind == "packed"
+            if c.kind != "packed"
         }
-        counts = {k: np.asarray(v, dtype=np.int64) for k, v in self._counts.items()}
-        return arrays, self._scalars, counts
+        return arrays, scalars, counts
 
 
 if __name__ == "__main__":  # pragma: no cover
