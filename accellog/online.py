@@ -2,17 +2,19 @@
 
 For samples i = 0..N-1 with sensor time t_i (s) and reading m_i (g):
 
-    f_i   = correct(m_i, drivers_i)                  (calibrated specific force, g; identity if none)
-    a_i   = (f_i - gravity_g) * g_mps2               (kinematic acceleration, m/s^2; sensor frame,
-                                                      static sessions: gravity_g = up vector, the
-                                                      seed's "subtract 9.797 on z")
+    f_i   = correct(m_i, drivers_i)                  (calibrated specific force, calibrated units;
+                                                      identity without a calibration)
+    a_i   = f_i * mps2_per_unit - up * g_local       (kinematic acceleration, m/s^2, sensor frame;
+                                                      a sensor at rest: the seed's "a = true * 9.797,
+                                                      minus 9.797 on z"; accellog.evaluate's residual)
     v_i   = v_{i-1} + dt_i (a_i + a_{i-1}) / 2       (trapezoid, v_0 = v0_mps)
     d_i   = d_{i-1} + dt_i (v_i + v_{i-1}) / 2       (trapezoid, d_0 = d0_m)
 
 The running sums are carried across batches with the same sequential accumulation order as
 ``np.cumsum`` over the whole session, so feeding a session batch by batch gives *bit-identical*
 numbers to ``scipy.integrate.cumulative_trapezoid(..., initial=0)`` applied twice to the whole
-session (see ``integrate_batch``).
+session, i.e. to ``accellog.integrate.displacement`` and ``accellog.evaluate`` (see
+``integrate_batch``).
 """
 
 from __future__ import annotations
@@ -59,27 +61,42 @@ def _cumtrapz_carry(y: np.ndarray, t: np.ndarray, y_prev, t_prev, acc_prev: np.n
 class OnlineIntegrator:
     """Incremental trapezoid double integration of (optionally corrected) accelerometer batches.
 
-    gravity_g: reading at rest to subtract (g, sensor frame; default (0,0,1): z up).
-    g_mps2: m/s^2 per g of the corrected reading (default standard gravity 9.80665; the seed uses
-    its local gravity 9.797 with truths of exactly +-1 g). correct: optional calibration,
-    ``correct(meas_g, drivers) -> f_g``.
+    up_sensor: unit up vector of the pose at rest (sensor frame; default (0,0,1): z up).
+    local_gravity_mps2: g_local (m/s^2) removed along up_sensor. mps2_per_unit: m/s^2 per unit of
+    the corrected reading (default g_local: truths of exactly 1, the seed's convention; a
+    Calibration gives ``cal.mps2_per_unit`` = g_local / truth_g). correct: optional calibration,
+    ``correct(meas_g, drivers) -> f``. ``from_calibration`` sets all of them from a Calibration.
     """
 
     def __init__(
         self,
         *,
-        gravity_g=(0.0, 0.0, 1.0),
-        g_mps2: float = STANDARD_GRAVITY_MPS2,
+        up_sensor=(0.0, 0.0, 1.0),
+        local_gravity_mps2: float = STANDARD_GRAVITY_MPS2,
+        mps2_per_unit: float | None = None,
         correct: CorrectFn | None = None,
         v0_mps=(0.0, 0.0, 0.0),
         d0_m=(0.0, 0.0, 0.0),
     ) -> None:
-        self.gravity_g = np.asarray(gravity_g, dtype=np.float64).reshape(3)
-        self.g_mps2 = float(g_mps2)
+        self.up_sensor = np.asarray(up_sensor, dtype=np.float64).reshape(3)
+        self.local_gravity_mps2 = float(local_gravity_mps2)
+        self.mps2_per_unit = float(local_gravity_mps2 if mps2_per_unit is None else mps2_per_unit)
+        self.gravity_mps2 = self.up_sensor * self.local_gravity_mps2
         self.correct = correct
         self._v0 = np.asarray(v0_mps, dtype=np.float64).reshape(3)
         self._d0 = np.asarray(d0_m, dtype=np.float64).reshape(3)
         self.reset()
+
+    @classmethod
+    def from_calibration(cls, cal, *, up_sensor=(0.0, 0.0, 1.0), local_gravity_mps2: float | None = None):
+        """Integrator applying an accellog.calibration.Calibration (its correct(), g_local, units)."""
+        g = float(local_gravity_mps2 or cal.local_gravity_mps2)
+        return cls(
+            up_sensor=up_sensor,
+            local_gravity_mps2=g,
+            mps2_per_unit=g / cal.truth_g,
+            correct=lambda m, d: cal.correct(m, d),
+        )
 
     def reset(self) -> None:
         """Forget all samples (start a new session)."""
@@ -113,7 +130,7 @@ class OnlineIntegrator:
             f = np.asarray(self.correct(m, drv), dtype=np.float64).reshape(-1, 3)
         else:
             f = m
-        a = (f - self.gravity_g) * self.g_mps2
+        a = f * self.mps2_per_unit - self.gravity_mps2
         if t.shape[0] == 0:
             e = np.empty((0, 3))
             return OnlineStep(t, f, a, e, e)
@@ -129,18 +146,20 @@ def integrate_batch(
     t_s: np.ndarray,
     meas_g: np.ndarray,
     *,
-    gravity_g=(0.0, 0.0, 1.0),
-    g_mps2: float = STANDARD_GRAVITY_MPS2,
+    up_sensor=(0.0, 0.0, 1.0),
+    local_gravity_mps2: float = STANDARD_GRAVITY_MPS2,
+    mps2_per_unit: float | None = None,
     correct: CorrectFn | None = None,
     drivers: Mapping[str, np.ndarray] | None = None,
 ) -> OnlineStep:
-    """Whole-session reference: the same equations with scipy's cumulative_trapezoid (initial=0)."""
-    from scipy.integrate import cumulative_trapezoid
+    """Whole-session reference: the same equations with accellog.integrate.displacement
+    (scipy cumulative_trapezoid, initial 0)."""
+    from .integrate import displacement
 
     t = np.asarray(t_s, dtype=np.float64)
     m = np.asarray(meas_g, dtype=np.float64).reshape(-1, 3)
     f = m if correct is None else np.asarray(correct(m, {"t_s": t, **(drivers or {})}), dtype=np.float64)
-    a = (f - np.asarray(gravity_g, dtype=np.float64)) * float(g_mps2)
-    v = cumulative_trapezoid(a, t, axis=0, initial=0)
-    d = cumulative_trapezoid(v, t, axis=0, initial=0)
+    unit = float(local_gravity_mps2 if mps2_per_unit is None else mps2_per_unit)
+    a = f * unit - np.asarray(up_sensor, dtype=np.float64) * float(local_gravity_mps2)
+    v, d = displacement(t, a, remove_gravity_mps2=None)
     return OnlineStep(t, f, a, v, d)

@@ -770,6 +770,22 @@ class LiveView:
 
             self._integrator = OnlineIntegrator()
 
+    @classmethod
+    def from_option(cls, option: str, *, integrate: bool = False) -> LiveView:
+        """From a CLI option: 'spawn', 'connect', 'connect URL', 'connect:URL', 'save FILE.rrd',
+        'save:FILE.rrd' or a path ending in .rrd."""
+        opt = option.strip()
+        head, _, rest = opt.partition(" ")
+        if head in ("connect", "save") and rest.strip():
+            opt = f"{head}:{rest.strip()}"
+        elif opt.endswith(".rrd") and not opt.startswith(("save:", "connect:")):
+            opt = f"save:{opt}"
+        return cls(RunRecording(opt, guard=True), integrate=integrate)
+
+    def wrap_ui(self, ui):
+        """A RecorderUI that forwards every call to ``ui`` (the terminal) and then to this view."""
+        return _TeeUI(ui, self)
+
     @property
     def failures(self) -> int:
         return self.run.failures
@@ -856,6 +872,33 @@ class LiveView:
         if msg:
             with contextlib.suppress(Exception):
                 self.run._on_failure(msg)
+
+
+class _TeeUI:
+    """RecorderUI calling the operator's UI first, then the (guarded) live view."""
+
+    def __init__(self, ui, live: LiveView) -> None:
+        self.ui, self.live = ui, live
+
+    def _both(self, name: str, *args) -> None:
+        if self.ui is not None:
+            getattr(self.ui, name)(*args)
+        try:
+            getattr(self.live, name)(*args)
+        except Exception as exc:  # the live view never stops the recorder
+            self.live.run._fail(f"live view: {name}: {exc}")
+
+    def prompt(self, index: int, total: int, pose) -> None:
+        self._both("prompt", index, total, pose)
+
+    def waiting(self, moving: bool, still_for_s: float) -> None:
+        self._both("waiting", moving, still_for_s)
+
+    def holding(self, pose, done_s: float) -> None:
+        self._both("holding", pose, done_s)
+
+    def finished_pose(self, label: PoseLabel) -> None:
+        self._both("finished_pose", label)
 
 
 def wait_for_port(host: str, port: int, timeout_s: float = 20.0) -> bool:

@@ -42,7 +42,7 @@ def _poses(t):
 def test_full_recording_reads_back(tmp_path: Path) -> None:
     t, raw = _session()
     cal = (raw - [0.09, 0.05, -0.25]) @ np.diag([1.0, 1.0, 1 / 1.02])
-    disp = integrate_batch(t, cal, g_mps2=9.797).disp_m
+    disp = integrate_batch(t, cal, local_gravity_mps2=9.797).disp_m
     poses = _poses(t)
     events = [
         Event(float(t[50]), "gap", "2 missing", 50, 2),
@@ -179,17 +179,17 @@ def test_online_integration_equals_batch(n_parts: int) -> None:
     def correct(m, drivers):
         return (m - [0.09, 0.05, -0.25]) * (1.0 + 1e-4 * (drivers["temp_degC"][:, None] - 25.0))
 
-    ref = integrate_batch(t, raw, g_mps2=9.797, correct=correct, drivers={"temp_degC": temp})
+    ref = integrate_batch(t, raw, local_gravity_mps2=9.797, correct=correct, drivers={"temp_degC": temp})
     rng = np.random.default_rng(n_parts)
     cuts = np.sort(rng.choice(np.arange(1, len(t)), n_parts - 1, replace=False))
-    oi = OnlineIntegrator(g_mps2=9.797, correct=correct)
+    oi = OnlineIntegrator(local_gravity_mps2=9.797, correct=correct)
     steps = [oi.push(t[p], raw[p], {"temp_degC": temp[p]}) for p in np.split(np.arange(len(t)), cuts)]
     for field in ("f_g", "accel_mps2", "vel_mps", "disp_m"):
         np.testing.assert_array_equal(np.concatenate([getattr(s, field) for s in steps]), getattr(ref, field))
     np.testing.assert_array_equal(oi.disp_m, ref.disp_m[-1])
     # and the trapezoid itself is right: constant 0.01 g along x for 2 s -> 1/2 a t^2
     tt = np.linspace(0.0, 2.0, 2001)
-    s = OnlineIntegrator(g_mps2=10.0).push(tt, np.tile([0.01, 0.0, 1.0], (len(tt), 1)))
+    s = OnlineIntegrator(local_gravity_mps2=10.0).push(tt, np.tile([0.01, 0.0, 1.0], (len(tt), 1)))
     np.testing.assert_allclose(s.disp_m[-1], [0.5 * 0.1 * 4.0, 0.0, 0.0], atol=1e-12)
 
 
