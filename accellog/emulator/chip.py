@@ -139,7 +139,7 @@ class EmulatedMpu9250:
             gyro_bandwidth_hz=R.gyro_bandwidth_hz(self.regs[R.CONFIG], self.regs[R.GYRO_CONFIG]),
         )
 
-    def _sample_time_s(self, k):
+    def _sample_time_s(self, k: np.ndarray | int | float) -> np.ndarray:
         """Motion time (s) of global sample k (current clock epoch)."""
         return self._t_r + (np.asarray(k, np.float64) - self._k_r + 1.0) * self._period_s
 
