@@ -67,7 +67,7 @@ def synth_session(
         seg = slice(i * n_per, (i + 1) * n_per)
         ts = t[seg]
         w = np.clip((ts - t_hold_end) / max(move_s, 1e-9), 0.0, 1.0)[:, None]
-        v = (1 - w) * up + w * nxt
+        v = (1 - w) * up + w * nxt + np.sin(np.pi * w) * np.array([0.6, 0.5, 0.4])  # never through 0
         f[seg] = g_scale * v / np.linalg.norm(v, axis=1, keepdims=True)
         labels.append(PoseLabel(sp.name, float(t0), float(t_hold_end), sp.up_sensor, sp.q_sensor_to_world, 0))
     white = rng.normal(0.0, noise_g * np.sqrt(1 - phi**2), (n, 3))
