@@ -6,6 +6,8 @@ import importlib
 import pkgutil
 import sys
 
+import typer
+
 from ..errors import AccellogError
 from .app import app
 
@@ -22,20 +24,18 @@ def main(argv: list[str] | None = None) -> int:
     except AccellogError as exc:
         print(f"accellog: error: {exc}", file=sys.stderr)
         return exc.exit_code
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, typer.Abort):
         print("accellog: interrupted", file=sys.stderr)
         return 130
-    except SystemExit as exc:  # typer/click exits (help, usage errors)
-        return int(exc.code or 0) if not isinstance(exc.code, str) else 1
-    except Exception as exc:  # click usage errors carry their own formatting
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
+    except typer.Exit as exc:
+        return int(exc.exit_code)
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except Exception as exc:
+        # typer bundles its own click: usage errors carry show() and exit_code.
+        if hasattr(exc, "show") and isinstance(getattr(exc, "exit_code", None), int):
             exc.show()
             return exc.exit_code
-        if isinstance(exc, click.exceptions.Abort):
-            print("accellog: aborted", file=sys.stderr)
-            return 1
         raise
     return rc if isinstance(rc, int) else 0
 

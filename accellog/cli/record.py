@@ -1,0 +1,262 @@
+"""`accellog record` (guided recording from hardware or the emulated chip) and `accellog simulate`."""
+
+from __future__ import annotations
+
+import platform
+import signal
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from .. import __version__
+from ..errors import DeviceError, InputError
+from ..protocol import PoseSpec, parse_protocol
+from ..session import Event, PoseLabel, SessionMeta
+from .app import app
+
+console = Console(stderr=True)
+
+
+class TerminalUI:
+    """Tells the operator what to do, on stderr (rich)."""
+
+    def __init__(self) -> None:
+        self._last_wait = -1.0
+        self._last_hold = -1
+
+    def prompt(self, index: int, total: int, pose: PoseSpec) -> None:
+        up = ", ".join(f"{v:+.0f}" for v in pose.up_sensor)
+        console.print(
+            f"[bold]pose {index + 1}/{total}: {pose.name}[/] - turn the sensor so that ({up}) points up, "
+            f"then hold it still for {pose.hold_s:g} s"
+        )
+        self._last_wait, self._last_hold = -1.0, -1
+
+    def waiting(self, moving: bool, still_for_s: float) -> None:
+        if not console.is_terminal:
+            return
+        if still_for_s > 0 and int(still_for_s * 2) != int(self._last_wait * 2):
+            console.print(f"  still for {still_for_s:.1f} s", end="\r")
+        self._last_wait = still_for_s
+
+    def holding(self, pose: PoseSpec, done_s: float) -> None:
+        if not console.is_terminal:
+            return
+        pct = int(100 * min(done_s / pose.hold_s, 1.0))
+        if pct // 10 != self._last_hold:
+            bar = "#" * (pct // 5) + "-" * (20 - pct // 5)
+            console.print(f"  holding {pose.name} [{bar}] {pct:3d}%", end="\r")
+            self._last_hold = pct // 10
+
+    def finished_pose(self, label: PoseLabel) -> None:
+        console.print(f"  {label.name}: held {label.end_s - label.start_s:.1f} s" + " " * 30)
+
+
+def _open_live(rerun: str | None):
+    """A live Rerun view for the recorder, or None. Failures of the viewer never stop recording."""
+    if not rerun:
+        return None
+    from ..rrd import LiveView
+
+    return LiveView.from_option(rerun)
+
+
+@app.command()
+def record(
+    out: Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file.")] = Path("session.mcap"),
+    sim: Annotated[
+        bool, typer.Option("--sim", help="Record from the emulated chip (default without --bus).")
+    ] = False,
+    bus: Annotated[
+        int | None, typer.Option("--bus", help="I2C bus number of real hardware (/dev/i2c-N).")
+    ] = None,
+    address: Annotated[str, typer.Option(help="I2C address of the MPU-9250 (0x68 or 0x69).")] = "0x68",
+    protocol: Annotated[str, typer.Option(help="'six', '24' or a list of poses like '+z,-z,+x@90'.")] = "six",
+    hold: Annotated[float, typer.Option(help="Hold time per pose (s).", min=1.0)] = 30.0,
+    wait: Annotated[str, typer.Option(help="'auto' (stillness detection) or 'enter'.")] = "auto",
+    rate: Annotated[float, typer.Option(help="Output data rate (Hz): 1000/(1+N).")] = 1000.0,
+    accel_range: Annotated[int, typer.Option(help="Accelerometer full scale (+-g): 2, 4, 8 or 16.")] = 2,
+    gyro_range: Annotated[int, typer.Option(help="Gyro full scale (+-deg/s): 250, 500, 1000, 2000.")] = 250,
+    dlpf: Annotated[int, typer.Option(help="Gyro/temp DLPF_CFG 1..6 and accel A_DLPFCFG.")] = 3,
+    mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Also record the AK8963 magnetometer.")] = True,
+    fast: Annotated[bool, typer.Option(help="With --sim: run on a simulated clock (no waiting).")] = False,
+    seed: Annotated[int, typer.Option(help="With --sim: noise seed.")] = 1,
+    rerun: Annotated[
+        str | None, typer.Option(help="Live view: 'spawn', 'connect URL' or 'save FILE.rrd'.")
+    ] = None,
+) -> None:
+    """Record a guided calibration session: the operator is told each pose, the hold is labelled."""
+    from ..driver import Mpu9250
+    from ..mcap_io import SessionWriter
+    from ..recorder import Recorder, RecorderUI
+
+    if accel_range not in (2, 4, 8, 16):
+        raise InputError(f"--accel-range {accel_range}: use 2, 4, 8 or 16 (g)")
+    if wait not in ("auto", "enter"):
+        raise InputError(f"--wait {wait!r}: use 'auto' or 'enter'")
+    poses = parse_protocol(protocol, hold)
+    div = 1000.0 / rate - 1
+    if rate <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
+        raise InputError(f"--rate {rate:g}: the chip supports 1000/(1+N) Hz, N = 0..255")
+    use_sim = sim or bus is None
+    try:
+        addr = int(address, 0)
+    except ValueError:
+        raise InputError(f"--address {address!r} is not a number (use 0x68 or 0x69)") from None
+
+    if use_sim:
+        from ..emulator.chip import EmulatedMpu9250
+        from ..emulator.clock import RealClock, SimClock
+        from ..simulate import Scenario, build_sensor_model
+
+        sc = Scenario(
+            protocol=protocol, hold_s=hold + 6.0, sample_rate_hz=rate, accel_range_g=accel_range, seed=seed
+        )
+        sc.validate()
+        model, _motion = build_sensor_model(sc)
+        clock = SimClock() if fast else RealClock()
+        device = EmulatedMpu9250(model, clock, seed=seed, address=addr)
+        sleep, clock_ns, source = clock.sleep, clock.now_ns, "emulator"
+    else:
+        try:
+            import smbus2
+
+            device = smbus2.SMBus(bus)
+        except (OSError, FileNotFoundError, PermissionError) as exc:
+            raise DeviceError(f"cannot open /dev/i2c-{bus}: {exc.strerror or exc}") from None
+        import time
+
+        sleep, clock_ns, source = time.sleep, None, "hardware"
+
+    driver = Mpu9250(device, address=addr, clock_ns=clock_ns)
+    info = driver.probe()
+    cfg = driver.configure(
+        accel_range_g=accel_range,
+        gyro_range_dps=gyro_range,
+        dlpf_cfg=dlpf,
+        a_dlpf_cfg=dlpf,
+        sample_rate_div=round(div),
+    )
+    read_mag = mag and info.has_magnetometer
+    if mag and not info.has_magnetometer:
+        console.print(
+            f"[yellow]{info.model} (WHO_AM_I=0x{info.who_am_i:02X}) has no magnetometer: not recorded[/]"
+        )
+    if read_mag:
+        driver.enable_magnetometer()
+    meta = SessionMeta(
+        source=source,
+        chip=info.model if source == "hardware" else f"emulated {info.model}",
+        who_am_i=info.who_am_i,
+        accel_range_g=float(accel_range),
+        gyro_range_dps=float(gyro_range),
+        accel_lsb_per_g=cfg.accel_lsb_per_g,
+        gyro_lsb_per_dps=cfg.gyro_lsb_per_dps,
+        dlpf_cfg=cfg.dlpf_cfg,
+        a_dlpf_cfg=cfg.a_dlpf_cfg,
+        sample_rate_hz=cfg.sample_rate_hz,
+        software=f"accellog {__version__}",
+        host=platform.node(),
+        protocol=protocol,
+    )
+    live = _open_live(rerun)
+    ui: RecorderUI = TerminalUI()
+    if live is not None:
+        ui = live.wrap_ui(ui)
+    # Ctrl-C: finish the current file cleanly (the writer's context closes it).
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    interrupted = False
+    with SessionWriter(out, meta) as writer:
+        driver.start()
+        rec = Recorder(
+            driver, writer, sleep=sleep, ui=ui, read_mag=read_mag, on_batch=live.on_batch if live else None
+        )
+        try:
+            rec.run(poses, wait=wait)
+        except KeyboardInterrupt:
+            interrupted = True
+            writer.write_event(
+                Event(
+                    rec.t_s, "note", "recording interrupted by the operator (Ctrl-C); file finished cleanly"
+                )
+            )
+    if live is not None:
+        live.close()
+    s = rec.summary
+    console.print(
+        f"wrote {out}: {s.samples} samples in {s.duration_s:.1f} s, {len(s.poses)} poses, "
+        f"{s.lost_samples} lost samples, {len(s.events)} events" + (" (interrupted)" if interrupted else "")
+    )
+
+
+@app.command()
+def simulate(
+    out: Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file.")] = Path("sim.mcap"),
+    scenario: Annotated[Path | None, typer.Option(help="Scenario TOML file (see accellog.simulate).")] = None,
+    protocol: Annotated[str | None, typer.Option(help="'six', '24' or a pose list.")] = None,
+    hold: Annotated[float | None, typer.Option(help="Hold time per pose (s).")] = None,
+    rate: Annotated[float | None, typer.Option(help="Output data rate (Hz).")] = None,
+    seed: Annotated[int | None, typer.Option(help="Noise seed of this session.")] = None,
+    chip_seed: Annotated[
+        int | None, typer.Option(help="Seed that draws the chip's error parameters.")
+    ] = None,
+    errors: Annotated[str | None, typer.Option(help="'datasheet' or 'perfect'.")] = None,
+    motion: Annotated[str | None, typer.Option(help="'poses' or 'robot'.")] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option("--set", help="Override an error field, e.g. --set temp_bias_g_per_degC=0.001,0,0"),
+    ] = None,
+    temperature: Annotated[
+        str | None,
+        typer.Option(help="'constant:T', 'warmup:T_start:T_end:tau_s' or 'ramp:T0:rate_degC_per_s'."),
+    ] = None,
+) -> None:
+    """Write a whole simulated session (emulated chip, simulated clock) without waiting."""
+    from ..simulate import Scenario
+    from ..simulate import simulate as run_simulation
+
+    sc = Scenario.from_toml(scenario) if scenario else Scenario()
+    for name, value in (
+        ("protocol", protocol),
+        ("hold_s", hold),
+        ("sample_rate_hz", rate),
+        ("seed", seed),
+        ("chip_seed", chip_seed),
+        ("errors", errors),
+        ("motion", motion),
+    ):
+        if value is not None:
+            setattr(sc, name, value)
+    for item in set_ or []:
+        key, sep, val = item.partition("=")
+        if not sep:
+            raise InputError(f"--set {item!r}: use FIELD=VALUE or FIELD=X,Y,Z")
+        try:
+            nums = [float(v) for v in val.split(",")]
+        except ValueError:
+            raise InputError(f"--set {item!r}: value is not a number") from None
+        sc.set[key.strip()] = nums if len(nums) > 1 else nums[0]
+    if temperature:
+        sc.temperature = parse_temperature_option(temperature)
+    sc.validate()
+    summary = run_simulation(sc, out)
+    console.print(
+        f"wrote {out}: {summary.samples} samples, {summary.duration_s:.1f} s simulated, "
+        f"{len(summary.poses)} poses, {summary.lost_samples} lost samples"
+    )
+
+
+def parse_temperature_option(text: str) -> dict:
+    """'constant:T' | 'warmup:T_start:T_end:tau_s' | 'ramp:T0:rate_degC_per_s' -> scenario dict."""
+    kind, *vals = text.split(":")
+    keys = {"constant": ["T"], "warmup": ["T_start", "T_end", "tau_s"], "ramp": ["T0", "rate_degC_per_s"]}
+    if kind not in keys or len(vals) != len(keys[kind]):
+        raise InputError(
+            f"--temperature {text!r}: use constant:T, warmup:T_start:T_end:tau_s or ramp:T0:rate"
+        )
+    try:
+        return {"kind": kind, **{k: float(v) for k, v in zip(keys[kind], vals, strict=True)}}
+    except ValueError:
+        raise InputError(f"--temperature {text!r}: values must be numbers") from None

@@ -1,0 +1,217 @@
+"""The recording loop: driver -> MCAP writer, with guided poses and labelled holds.
+
+``Recorder.run`` drains the chip's FIFO continuously (every sample of the whole session is
+written, moves included), tells the operator which pose is next, waits until the sensor has moved
+and then been still for ``settle_s`` (automatic stillness detection) or until the operator presses
+Enter, holds for the pose's duration, and writes a PoseLabel for the hold. Ctrl-C (or any error)
+finishes the file cleanly: the writer's context closes the MCAP with an event saying why.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from .protocol import PoseSpec
+from .session import Event, PoseLabel
+from .stillness import StillnessDetector
+
+NS = 1_000_000_000
+
+
+class RecorderUI(Protocol):
+    """What the loop tells the operator (terminal, live viewer, or nothing)."""
+
+    def prompt(self, index: int, total: int, pose: PoseSpec) -> None: ...
+    def waiting(self, moving: bool, still_for_s: float) -> None: ...
+    def holding(self, pose: PoseSpec, done_s: float) -> None: ...
+    def finished_pose(self, label: PoseLabel) -> None: ...
+
+
+class QuietUI:
+    """A RecorderUI that shows nothing (tests, simulation)."""
+
+    def prompt(self, index: int, total: int, pose: PoseSpec) -> None:
+        pass
+
+    def waiting(self, moving: bool, still_for_s: float) -> None:
+        pass
+
+    def holding(self, pose: PoseSpec, done_s: float) -> None:
+        pass
+
+    def finished_pose(self, label: PoseLabel) -> None:
+        pass
+
+
+class EnterKey:
+    """Non-blocking 'operator pressed Enter' flag read from stdin on a daemon thread."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        threading.Thread(target=self._run, daemon=True).start()
+
+    def _run(self) -> None:
+        for _line in sys.stdin:
+            self._event.set()
+
+    def pressed(self) -> bool:
+        if self._event.is_set():
+            self._event.clear()
+            return True
+        return False
+
+
+@dataclass
+class RecordSummary:
+    """What a recording produced (counts, not data)."""
+
+    samples: int = 0
+    batches: int = 0
+    lost_samples: int = 0
+    events: list[Event] = field(default_factory=list)
+    poses: list[PoseLabel] = field(default_factory=list)
+    duration_s: float = 0.0
+    interrupted: bool = False
+
+
+class Recorder:
+    """Connects a configured, started ``Mpu9250`` driver to a ``SessionWriter``.
+
+    sleep: how to wait between FIFO reads (real ``time.sleep`` or a simulated clock's sleep).
+    poll_s: time between FIFO reads (s); the 512-byte FIFO holds 36 samples, i.e. 36 ms at 1 kHz.
+    on_batch: optional callback (e.g. a live Rerun view) given every batch; it must not raise.
+    """
+
+    def __init__(
+        self,
+        driver,
+        writer,
+        *,
+        sleep: Callable[[float], None] = time.sleep,
+        poll_s: float = 0.02,
+        ui: RecorderUI | None = None,
+        stillness: StillnessDetector | None = None,
+        on_batch: Callable[[object, np.ndarray], None] | None = None,
+        read_mag: bool = False,
+    ) -> None:
+        self.driver = driver
+        self.writer = writer
+        self.sleep = sleep
+        self.poll_s = poll_s
+        self.ui = ui or QuietUI()
+        self.stillness = stillness or StillnessDetector()
+        self.on_batch = on_batch
+        self.read_mag = read_mag
+        self.summary = RecordSummary()
+        self._t_last_s = 0.0
+
+    # -- one read --------------------------------------------------------------------------------
+    def step(self) -> None:
+        """Wait one poll period, read the FIFO, write the batch and its events, update stillness."""
+        self.sleep(self.poll_s)
+        batch = self.driver.read()
+        for ev in batch.events:
+            self.writer.write_event(ev)
+            self.summary.events.append(ev)
+            self.summary.lost_samples += ev.lost_samples
+        n = len(batch.t_ns)
+        if n:
+            self.writer.write_imu(
+                batch.first_index,
+                batch.t_ns,
+                accel_counts=batch.accel_counts,
+                gyro_counts=batch.gyro_counts,
+                temp_counts=batch.temp_counts,
+                host_time_ns=batch.host_time_ns,
+            )
+            self.summary.samples += n
+            self.summary.batches += 1
+            t_s = batch.t_ns / NS
+            self._t_last_s = float(t_s[-1])
+            cfg = self.driver.config
+            accel_g = batch.accel_counts / cfg.accel_lsb_per_g
+            gyro_dps = batch.gyro_counts / cfg.gyro_lsb_per_dps
+            self.stillness.update(t_s, accel_g, gyro_dps)
+            if self.on_batch is not None:
+                self.on_batch(batch, accel_g)
+        if self.read_mag:
+            mag = self.driver.read_mag()
+            if mag is not None:
+                self.writer.write_mag_reading(mag)
+
+    @property
+    def t_s(self) -> float:
+        """Sensor time of the newest sample (s)."""
+        return self._t_last_s
+
+    def run_for(self, seconds: float) -> None:
+        """Record without prompting for ``seconds`` of sensor time."""
+        end = self.t_s + seconds
+        while self.t_s < end:
+            self.step()
+
+    # -- guided protocol -------------------------------------------------------------------------
+    def run(
+        self,
+        poses: Sequence[PoseSpec],
+        *,
+        wait: str = "auto",
+        timeout_s: float = 120.0,
+        enter: EnterKey | None = None,
+    ) -> RecordSummary:
+        """Guide the operator through ``poses`` and label each hold.
+
+        wait: 'auto' (stillness detection: after the first pose the sensor must first move, then be
+        still for settle_s) or 'enter' (the operator presses Enter when the pose is set).
+        A pose whose stillness is not reached within timeout_s is recorded as an event and skipped.
+        """
+        if wait == "enter" and enter is None:
+            enter = EnterKey()
+        for k, pose in enumerate(poses):
+            self.ui.prompt(k, len(poses), pose)
+            self.writer.write_event(Event(self.t_s, "pose_prompt", f"pose {k + 1}/{len(poses)}: {pose.name}"))
+            if not self._wait_ready(k, wait, timeout_s, enter):
+                ev = Event(self.t_s, "note", f"pose {pose.name}: not still within {timeout_s:g} s, skipped")
+                self.writer.write_event(ev)
+                self.summary.events.append(ev)
+                continue
+            start = self.t_s
+            moved = False
+            while self.t_s - start < pose.hold_s:
+                self.step()
+                self.ui.holding(pose, self.t_s - start)
+                if not self.stillness.still:
+                    moved = True
+            label = PoseLabel(pose.name, start, self.t_s, pose.up_sensor, pose.q_sensor_to_world, k)
+            if moved:
+                ev = Event(start, "note", f"pose {pose.name}: sensor moved during the hold")
+                self.writer.write_event(ev)
+                self.summary.events.append(ev)
+            self.writer.write_pose(label)
+            self.summary.poses.append(label)
+            self.ui.finished_pose(label)
+        self.summary.duration_s = self.t_s
+        return self.summary
+
+    def _wait_ready(self, k: int, wait: str, timeout_s: float, enter: EnterKey | None) -> bool:
+        start = self.t_s
+        moved = k == 0
+        while self.t_s - start < timeout_s:
+            self.step()
+            if wait == "enter":
+                if enter is not None and enter.pressed():
+                    return True
+                continue
+            if not self.stillness.still:
+                moved = True
+            self.ui.waiting(not self.stillness.still, self.stillness.still_for_s)
+            if moved and self.stillness.settled:
+                return True
+        return False

@@ -1,0 +1,239 @@
+"""Scenario -> session: record a whole session from the emulated chip on a simulated clock.
+
+The samples go through exactly the path real hardware uses: emulated registers -> ``Mpu9250``
+driver (FIFO bursts) -> ``Recorder`` -> ``SessionWriter``; only the clock is simulated, so an hour
+of 1 kHz data takes seconds. The scenario's pose labels are the holds the motion really has (the
+simulated operator labels each hold from its start to its end, minus a small margin).
+
+A scenario is a TOML file or the equivalent keyword arguments:
+
+```toml
+protocol = "six"            # 'six', '24' or a list like '+z,-z,+x@90'
+hold_s = 30.0
+move_s = 3.0
+sample_rate_hz = 1000.0     # 1000 / (1 + SMPLRT_DIV)
+accel_range_g = 2
+chip_seed = 7               # draws the chip's error parameters (same chip across sessions)
+seed = 1                    # noise of this session
+errors = "datasheet"        # 'datasheet' | 'perfect'
+local_gravity_mps2 = 9.80665
+fixture_tilt_deg = [0.0, 0.0]
+[set]                       # overrides of AccelErrors fields, e.g.
+temp_bias_g_per_degC = [0.001, -0.0005, 0.0008]
+[temperature]               # 'constant' (T), 'warmup' (T_start, T_end, tau_s) or 'ramp' (T0, rate)
+kind = "warmup"
+T_start = 25.0
+T_end = 40.0
+tau_s = 300.0
+```
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomllib
+
+from . import __version__
+from .errors import InputError
+from .protocol import parse_protocol
+from .session import PoseLabel, SessionMeta
+from .units import STANDARD_GRAVITY_MPS2
+
+_SMPLRT_DIV_BASE_HZ = 1000.0
+
+
+@dataclass
+class Scenario:
+    """Everything that defines a simulated session (see module docstring for the TOML form)."""
+
+    protocol: str = "six"
+    hold_s: float = 30.0
+    move_s: float = 3.0
+    sample_rate_hz: float = 1000.0
+    accel_range_g: int = 2
+    gyro_range_dps: int = 250
+    chip_seed: int = 7
+    seed: int = 1
+    errors: str = "datasheet"
+    set: dict[str, Any] = field(default_factory=dict)
+    gyro_errors: str = "datasheet"
+    temperature: dict[str, Any] = field(default_factory=lambda: {"kind": "constant", "T": 25.0})
+    local_gravity_mps2: float = STANDARD_GRAVITY_MPS2
+    fixture_tilt_deg: tuple[float, float] = (0.0, 0.0)
+    label_margin_s: float = 0.25
+    motion: str = "poses"
+    """'poses' (guided static holds) or 'robot' (the default robot path; see emulator.robot)."""
+    robot_path: str = "demo"
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> Scenario:
+        p = Path(path)
+        try:
+            data = tomllib.loads(p.read_text())
+        except FileNotFoundError:
+            raise InputError("scenario file not found", where=str(p)) from None
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"not valid TOML ({exc})", where=str(p)) from None
+        return cls.from_dict(data, where=str(p))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], where: str = "scenario") -> Scenario:
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise InputError(f"unknown scenario key(s) {unknown}; known: {sorted(names)}", where=where)
+        sc = cls(**data)
+        sc.validate(where)
+        return sc
+
+    def validate(self, where: str = "scenario") -> None:
+        div = _SMPLRT_DIV_BASE_HZ / self.sample_rate_hz - 1.0
+        if self.sample_rate_hz <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
+            raise InputError(
+                f"sample_rate_hz={self.sample_rate_hz:g} is not 1000/(1+N) for N in 0..255", where=where
+            )
+        if self.errors not in ("datasheet", "perfect"):
+            raise InputError(f"errors={self.errors!r}: use 'datasheet' or 'perfect'", where=where)
+        if self.motion not in ("poses", "robot"):
+            raise InputError(f"motion={self.motion!r}: use 'poses' or 'robot'", where=where)
+        parse_protocol(self.protocol, self.hold_s)
+
+    @property
+    def sample_rate_div(self) -> int:
+        return round(_SMPLRT_DIV_BASE_HZ / self.sample_rate_hz - 1.0)
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+
+def build_sensor_model(sc: Scenario):
+    """The emulator's physical model for a scenario: motion, error parameters, temperature path."""
+    from .emulator.poses import PoseSequenceMotion
+    from .emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
+
+    if sc.motion == "robot":
+        from .emulator import robot
+
+        motion = robot.path_by_name(sc.robot_path)
+    else:
+        motion = PoseSequenceMotion(
+            parse_protocol(sc.protocol, sc.hold_s),
+            move_s=sc.move_s,
+            fixture_tilt_deg=tuple(sc.fixture_tilt_deg),
+        )
+    accel = AccelErrors.datasheet(sc.chip_seed) if sc.errors == "datasheet" else AccelErrors.perfect()
+    if sc.set:
+        known = {f.name for f in dataclasses.fields(accel)}
+        bad = sorted(set(sc.set) - known)
+        if bad:
+            raise InputError(f"unknown accelerometer error field(s) {bad}; known: {sorted(known)}")
+        accel = dataclasses.replace(
+            accel, **{k: (np.asarray(v, float) if isinstance(v, list) else v) for k, v in sc.set.items()}
+        )
+    gyro = GyroErrors.datasheet(sc.chip_seed) if sc.gyro_errors == "datasheet" else GyroErrors.perfect()
+    temperature = temperature_path(sc.temperature)
+    model = SensorModel(
+        motion,
+        accel=accel,
+        gyro=gyro,
+        temperature=temperature,
+        seed=sc.seed,
+        local_gravity_mps2=sc.local_gravity_mps2,
+    )
+    return model, motion
+
+
+def temperature_path(spec: dict[str, Any]):
+    """TemperaturePath from {'kind': 'constant'|'warmup'|'ramp'|'points', ...} (degC, s)."""
+    from .emulator.temperature import TemperaturePath
+
+    kind = spec.get("kind", "constant")
+    try:
+        if kind == "constant":
+            return TemperaturePath.constant(float(spec.get("T", 25.0)))
+        if kind == "warmup":
+            return TemperaturePath.warmup(float(spec["T_start"]), float(spec["T_end"]), float(spec["tau_s"]))
+        if kind == "ramp":
+            return TemperaturePath.ramp(float(spec["T0"]), float(spec["rate_degC_per_s"]))
+        if kind == "points":
+            return TemperaturePath.points(spec["t_s"], spec["T"])
+    except KeyError as exc:
+        raise InputError(f"temperature kind {kind!r} needs key {exc}") from None
+    raise InputError(f"unknown temperature kind {kind!r}: use constant, warmup, ramp or points")
+
+
+def simulate(
+    sc: Scenario,
+    out: str | Path,
+    *,
+    duration_s: float | None = None,
+    poll_s: float = 0.025,
+    truth_step_s: float = 0.01,
+):
+    """Write the scenario's session to ``out`` (MCAP) on a simulated clock; return RecordSummary.
+
+    truth_step_s: spacing of the stored ground truth (s); it is for evaluation only.
+    """
+    from .driver import Mpu9250
+    from .emulator.chip import EmulatedMpu9250
+    from .emulator.clock import SimClock
+    from .mcap_io import SessionWriter
+    from .recorder import Recorder
+
+    model, motion = build_sensor_model(sc)
+    clock = SimClock()
+    chip = EmulatedMpu9250(model, clock, seed=sc.seed)
+    driver = Mpu9250(chip, clock_ns=clock.now_ns)
+    info = driver.probe()
+    cfg = driver.configure(
+        accel_range_g=sc.accel_range_g,
+        gyro_range_dps=sc.gyro_range_dps,
+        sample_rate_div=sc.sample_rate_div,
+    )
+    meta = SessionMeta(
+        source="emulator",
+        chip=f"emulated {info.model}",
+        who_am_i=info.who_am_i,
+        accel_range_g=float(sc.accel_range_g),
+        gyro_range_dps=float(sc.gyro_range_dps),
+        accel_lsb_per_g=cfg.accel_lsb_per_g,
+        gyro_lsb_per_dps=cfg.gyro_lsb_per_dps,
+        dlpf_cfg=cfg.dlpf_cfg,
+        a_dlpf_cfg=cfg.a_dlpf_cfg,
+        sample_rate_hz=cfg.sample_rate_hz,
+        local_gravity_mps2=sc.local_gravity_mps2,
+        software=f"accellog {__version__}",
+        host=platform.node(),
+        protocol=sc.protocol if sc.motion == "poses" else f"robot:{sc.robot_path}",
+        extra={"scenario": sc.to_json()},
+    )
+    total_s = motion.duration_s if duration_s is None else duration_s
+    out = Path(out)
+    tmp = out.with_name(out.name + ".part")
+    with SessionWriter(tmp, meta) as writer:
+        driver.start()
+        rec = Recorder(driver, writer, sleep=clock.sleep, poll_s=poll_s)
+        rec.run_for(total_s)
+        # Motion time starts when the chip is created, session time at the first FIFO sample:
+        # map the scenario's holds and truth onto the session's time axis.
+        m = sc.label_margin_s
+        for lab in motion.labels():
+            start_s, end_s = (float(v) for v in chip.session_time_s(np.array([lab.start_s, lab.end_s])))
+            if start_s < 0 or end_s > rec.t_s:
+                continue
+            label = PoseLabel(
+                lab.name, start_s + m, end_s - m, lab.up_sensor, lab.q_sensor_to_world, lab.hold_index
+            )
+            writer.write_pose(label)
+            rec.summary.poses.append(label)
+        writer.write_truth(chip.truth_for_session(np.arange(0.0, rec.t_s, truth_step_s)))
+    tmp.replace(out)
+    rec.summary.duration_s = rec.t_s
+    return rec.summary
