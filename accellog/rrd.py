@@ -658,33 +658,29 @@ def _timepanel():
 
 def build_blueprint(entities: Mapping[str, str]):
     """Layout for what was logged: sample streams with pose windows, temperature + events, tracks
-    (time series + 3D side by side), residual and ladder charts, documents and logs."""
+    (time series + 3D side by side), residual and ladder charts, documents and logs. With two or
+    more tracks (replay, compare) the tracks take the main area, one auto-scaled plot each."""
     import rerun.blueprint as rrb
 
     roles: dict[str, list[str]] = {}
     for ent, role in entities.items():
         roles.setdefault(role, []).append(ent)
     has_poses = "poses" in roles
-    left = []
+    samples = []
     for ent in sorted(e for r, es in roles.items() if r.startswith("samples:") for e in es):
         contents = ["$origin/**"] + ([f"/{POSES_ACTIVE}/**"] if has_poses else [])
-        left.append(rrb.TimeSeriesView(origin=f"/{ent}", contents=contents, name=ent.replace("/", " ")))
+        samples.append(rrb.TimeSeriesView(origin=f"/{ent}", contents=contents, name=ent.replace("/", " ")))
     if "temperature" in roles or "lost" in roles:
-        left.append(
+        samples.append(
             rrb.TimeSeriesView(
                 origin="/",
                 contents=[f"/{TEMPERATURE}", f"/{EVENTS_LOST}"],
                 name="temperature (degC) + lost samples",
             )
         )
-    right = []
-    if "track" in roles or "track3d" in roles:
-        right.append(
-            rrb.Horizontal(
-                rrb.TimeSeriesView(origin=f"/{TRACKS}", name="displacement (m)"),
-                rrb.Spatial3DView(origin="/world", name="tracks 3D (m)"),
-            )
-        )
+    tracks = sorted(roles.get("track", []))
+    track_views = [rrb.TimeSeriesView(origin=f"/{e}", name=f"{e.split('/', 1)[1]} (m)") for e in tracks]
+    world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)") if "track3d" in roles else None
     charts = []
     for model in sorted({e.split("/")[1] for e in roles.get("residual_bar", [])}):
         charts.append(rrb.BarChartView(origin=f"/{RESIDUALS}/{model}", name=f"residuals {model} (mg)"))
@@ -694,26 +690,46 @@ def build_blueprint(entities: Mapping[str, str]):
                 *[
                     rrb.BarChartView(origin=f"/{LADDER}/{m}", name=m)
                     for m in ("chi2_dof", "heldout_rms_mg", "drift_60s_m")
-                ]
+                ],
+                name="model ladder",
             )
         )
     if "ladder_step" in roles:
         charts.append(rrb.TimeSeriesView(origin=f"/{LADDER}/steps", name="ladder residuals (mg) vs driver"))
-    if charts:
-        right.append(rrb.Tabs(*charts) if len(charts) > 1 else charts[0])
     texts = [
         rrb.TextDocumentView(origin=f"/{e}", name=e[len(DOCS) + 1 :]) for e in sorted(roles.get("doc", []))
     ]
     if "textlog" in roles:
         texts.append(rrb.TextLogView(origin="/", name="events and poses"))
-    if texts:
-        right.append(rrb.Tabs(*texts))
-    cols = [c for c in (rrb.Vertical(*left) if left else None, rrb.Vertical(*right) if right else None) if c]
-    root = (
-        rrb.Horizontal(*cols, column_shares=[3, 2])
-        if len(cols) == 2
-        else (cols[0] if cols else rrb.Vertical())
-    )
+
+    def group(views, kind=rrb.Vertical):
+        views = [v for v in views if v is not None]
+        if not views:
+            return None
+        return views[0] if len(views) == 1 else kind(*views)
+
+    if len(track_views) >= 2:  # replay / compare: the tracks are the question
+        top = [rrb.Grid(*track_views, name="displacement per track"), group([world, group(texts, rrb.Tabs)])]
+        rows = [rrb.Horizontal(*[c for c in top if c is not None], column_shares=[3, 2])]
+        bottom = group([*samples, *charts], rrb.Tabs)
+        if bottom is not None:
+            rows.append(bottom)
+        root = rows[0] if len(rows) == 1 else rrb.Vertical(*rows, row_shares=[3, 1])
+    else:
+        left = group(samples if len(samples) <= 3 else [rrb.Tabs(*samples[:-1]), samples[-1]])
+        right = group(
+            [
+                group([*track_views, world], rrb.Horizontal),
+                group(charts, rrb.Tabs),
+                group(texts, rrb.Tabs),
+            ]
+        )
+        cols = [c for c in (left, right) if c is not None]
+        root = (
+            rrb.Horizontal(*cols, column_shares=[3, 2])
+            if len(cols) == 2
+            else (cols[0] if cols else rrb.Vertical())
+        )
     return rrb.Blueprint(root, _timepanel(), collapse_panels=True)
 
 

@@ -80,7 +80,8 @@ def wait_port(port: int, timeout_s: float, proc: subprocess.Popen | None = None)
     raise InputError(f"nothing listens on 127.0.0.1:{port} after {timeout_s:g} s")
 
 
-def _env() -> dict[str, str]:
+def rerun_env() -> dict[str, str]:
+    """Environment for rerun processes: analytics off."""
     return dict(os.environ, RERUN_ANALYTICS="0")
 
 
@@ -133,7 +134,7 @@ def serve_rrd(rrd_path: str | Path, *, timeout_s: float = 30.0) -> Iterator[WebV
         str(p),
     ]
     proc = subprocess.Popen(
-        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=_env(), start_new_session=True
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=rerun_env(), start_new_session=True
     )
     try:
         wait_port(web_port, timeout_s, proc)

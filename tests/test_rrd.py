@@ -129,7 +129,7 @@ def test_full_recording_reads_back(tmp_path: Path) -> None:
     for want in [
         ("TimeSeries", "/accel/raw"),
         ("TimeSeries", "/accel/calibrated"),
-        ("TimeSeries", "/tracks"),
+        ("TimeSeries", "/tracks/model3"),
         ("3D", "/world"),
         ("BarChart", "/residuals/model3"),
         ("TextDocument", "/docs/calibration/model3"),

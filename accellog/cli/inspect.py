@@ -1,0 +1,224 @@
+"""Inspection commands: replay a session (live view or .rrd), compare calibrations, view an .rrd.
+
+    accellog replay SESSION.mcap [--speed 1|4|max] [--cal cal.json ...] [--rrd FILE | --rerun spawn|connect URL]
+    accellog compare TEST.mcap --cal A.json --cal B.json ... [--rrd OUT.rrd] [--json]
+    accellog view RUN.rrd [--web] [--screenshot PNG]
+
+Session files are only read. .rrd files are written to a temporary name and renamed when complete.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ..errors import InputError
+from .app import app
+
+_console = Console()
+
+CalOpt = Annotated[list[Path] | None, typer.Option("--cal", help="Calibration JSON (repeatable).")]
+RrdOpt = Annotated[Path | None, typer.Option("--rrd", help="Write a Rerun recording (.rrd) here.")]
+RerunOpt = Annotated[
+    str | None,
+    typer.Option("--rerun", help="Live view instead of a file: 'spawn', 'connect' or 'connect URL'."),
+]
+UpOpt = Annotated[
+    str | None, typer.Option("--up", help="Up axis of the static session (+x..-z); default: inferred.")
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON on stdout instead of tables.")]
+
+
+def _load_session(path: Path):
+    if not path.is_file():
+        raise InputError("no such file", where=str(path))
+    from ..pipeline import load_input
+    from ..session import Session
+
+    data = load_input(path)
+    if not isinstance(data, Session):
+        raise InputError("replay needs a recorded session with samples, not a pose table", where=str(path))
+    return data
+
+
+def _sink(rrd: Path | None, rerun: str | None) -> str | None:
+    if rrd is not None and rerun is not None:
+        raise InputError("give either --rrd FILE or --rerun spawn|connect URL, not both")
+    if rrd is not None:
+        if rrd.suffix.lower() != ".rrd":
+            raise InputError("the recording file must end in .rrd", where=str(rrd))
+        return f"save:{rrd}"
+    if rerun is not None:
+        opt = rerun.strip()
+        head, _, rest = opt.partition(" ")
+        if head == "connect" and rest.strip():
+            return f"connect:{rest.strip()}"
+        if opt in ("spawn", "connect") or opt.startswith("connect:"):
+            return opt
+        raise InputError(f"--rerun {rerun!r}: use 'spawn', 'connect' or 'connect URL'")
+    return None
+
+
+def _table(res, title: str) -> Table:
+    t = Table(title=title)
+    for c in ("track", "x (m)", "y (m)", "z (m)", "|d| (m)", "drift model"):
+        t.add_column(c, justify="left" if c in ("track", "drift model") else "right")
+    for tr in res.tracks:
+        d = tr.final_m
+        t.add_row(
+            tr.label,
+            f"{d[0]:+.3f}",
+            f"{d[1]:+.3f}",
+            f"{d[2]:+.3f}",
+            f"{np.linalg.norm(d):.3f}",
+            "applied" if tr.disp_end_drift_m is not None else "-",
+        )
+    return t
+
+
+def _run(
+    session: Path,
+    cal: list[Path] | None,
+    sink: str | None,
+    *,
+    speed: str | None,
+    up: str | None,
+    raw: bool,
+    label: list[str] | None,
+    compare_mode: bool,
+):
+    from ..replay import compare as compare_fn
+    from ..replay import replay as replay_fn
+    from ..rrd import RunRecording
+
+    s = _load_session(session)
+    cals = list(cal or [])
+    rec = (
+        RunRecording(sink, recording_id=f"accellog-{'compare' if compare_mode else 'replay'}")
+        if sink
+        else None
+    )
+    try:
+        if compare_mode:
+            res = compare_fn(s, cals, labels=label, recording=rec, up_sensor=up, include_raw=raw)
+        else:
+            res = replay_fn(
+                s, cals=cals, labels=label, speed=speed, recording=rec, up_sensor=up, include_raw=raw
+            )
+    except BaseException:
+        if rec is not None:
+            rec.abort()
+        raise
+    if rec is not None:
+        rec.close()
+        res.rrd = str(sink)[5:] if str(sink).startswith("save:") else sink
+        msg = rec.report()
+        if msg:
+            _console.print(f"[yellow]{msg}[/]")
+    return res
+
+
+@app.command()
+def replay(
+    session: Annotated[Path, typer.Argument(help="Recorded session (.mcap; importable CSVs also work).")],
+    speed: Annotated[str, typer.Option(help="Sensor seconds per wall second: 1, 4, ... or 'max'.")] = "1",
+    cal: CalOpt = None,
+    label: Annotated[list[str] | None, typer.Option("--label", help="Track label per --cal.")] = None,
+    rrd: RrdOpt = None,
+    rerun: RerunOpt = None,
+    up: UpOpt = None,
+    raw: Annotated[bool, typer.Option("--raw/--no-raw", help="Also integrate the raw reading.")] = True,
+    json_out: JsonOpt = False,
+) -> None:
+    """Feed a session through online correction + integration in sensor time, logging raw and
+    calibrated accel and displacement tracks to a live viewer or an .rrd."""
+    from ..replay import parse_speed
+
+    parse_speed(speed)  # fail early on a bad value
+    sink = _sink(rrd, rerun)
+    res = _run(session, cal, sink, speed=speed, up=up, raw=raw, label=label, compare_mode=False)
+    if json_out:
+        typer.echo(json.dumps(res.to_dict(), indent=2))
+        return
+    _console.print(
+        _table(res, f"{session.name}: {res.n} samples, {res.duration_s:.1f} s replayed in {res.wall_s:.1f} s")
+    )
+    for tr in res.tracks:
+        for n in tr.notes:
+            _console.print(f"[dim]{n}[/]")
+    if res.rrd:
+        _console.print(f"recording: {res.rrd}")
+
+
+@app.command()
+def compare(
+    test: Annotated[Path, typer.Argument(help="Static test session (.mcap or capstone CSV).")],
+    cal: CalOpt = None,
+    label: Annotated[list[str] | None, typer.Option("--label", help="Track label per --cal.")] = None,
+    rrd: RrdOpt = None,
+    up: UpOpt = None,
+    raw: Annotated[bool, typer.Option("--raw/--no-raw", help="Include the uncalibrated track.")] = True,
+    json_out: JsonOpt = False,
+) -> None:
+    """Displacement tracks of several calibrations of one test session side by side, with their
+    final drift (terminal table, --json, and a document in the .rrd)."""
+    if not cal:
+        raise InputError("compare needs at least one --cal calibration.json")
+    res = _run(test, cal, _sink(rrd, None), speed="max", up=up, raw=raw, label=label, compare_mode=True)
+    if json_out:
+        typer.echo(json.dumps(res.to_dict(), indent=2))
+        return
+    _console.print(_table(res, f"{test.name}: final displacement after {res.duration_s:.1f} s"))
+    for tr in res.tracks:
+        for n in tr.notes:
+            _console.print(f"[dim]{n}[/]")
+    if res.rrd:
+        _console.print(f"recording: {res.rrd}")
+
+
+@app.command()
+def view(
+    recording: Annotated[Path, typer.Argument(help="A Rerun recording (.rrd).")],
+    web: Annotated[
+        bool, typer.Option("--web", help="Serve to the web viewer on 127.0.0.1 (prints the URL).")
+    ] = False,
+    screenshot: Annotated[
+        Path | None,
+        typer.Option("--screenshot", help="Save a PNG of the web viewer (headless Chromium) and exit."),
+    ] = None,
+    width: Annotated[int, typer.Option(help="Screenshot width (px).", min=200)] = 1400,
+    height: Annotated[int, typer.Option(help="Screenshot height (px).", min=200)] = 900,
+    wait_s: Annotated[float, typer.Option(help="Longest wait for the viewer to render (s).", min=1.0)] = 90.0,
+) -> None:
+    """Open an .rrd: native viewer (default), web viewer on 127.0.0.1 (--web), or a PNG (--screenshot)."""
+    from .. import viewer
+
+    if not recording.is_file():
+        raise InputError("no such .rrd file", where=str(recording))
+    if screenshot is not None:
+        stats = viewer.screenshot_rrd(recording, screenshot, size=(width, height), wait_s=wait_s)
+        _console.print(f"{screenshot}: {stats.colors} colours, {100 * stats.non_background:.0f}% drawn")
+        if not stats.looks_rendered():
+            raise InputError(
+                "the viewer did not render within the wait (blank screenshot)", where=str(screenshot)
+            )
+        return
+    if web:
+        with viewer.serve_rrd(recording) as v:
+            _console.print(f"web viewer: {v.url}  (Ctrl-C to stop)")
+            try:
+                while v.proc.poll() is None:
+                    time.sleep(0.5)
+            except KeyboardInterrupt:
+                pass
+        return
+    import subprocess
+
+    subprocess.Popen([viewer.rerun_binary(), str(recording)], env=viewer.rerun_env(), start_new_session=True)
