@@ -128,11 +128,11 @@ def parse_speed(text: str | float | None) -> float | None:
     if isinstance(text, (int, float)):
         v = float(text)
     else:
-        s = str(text).strip().lower().rstrip("x")
+        s = str(text).strip().lower()
         if s in ("max", "inf", "0"):
             return None
         try:
-            v = float(s)
+            v = float(s[:-1] if s.endswith("x") else s)
         except ValueError:
             raise InputError(f"--speed {text!r}: give a factor such as 1, 4 or 'max'") from None
     if not np.isfinite(v) or v <= 0:
