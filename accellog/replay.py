@@ -36,6 +36,9 @@ MAX_BATCH_S = 60.0
 """Sensor seconds per batch when replaying as fast as possible (columnar logging)."""
 PACED_UPDATES_PER_S = 20.0
 """Batches per wall-clock second when pacing (--speed 1, 4, ...)."""
+SLOW_SERIES_HZ = 100.0
+"""Displacement tracks and temperature are smooth: their time series are logged at about this rate
+(every k-th sample, plus the last sample of the session); accel is logged at the full rate."""
 
 
 @dataclass
@@ -281,6 +284,8 @@ def replay(
     t_pace0 = clock()
     last_3d = clock()
     stride = max(1, s.n // 20_000)
+    rate_hz = (s.n - 1) / span if span > 0 else 1.0
+    slow = max(1, round(rate_hz / SLOW_SERIES_HZ))
     for i0, i1 in itertools.pairwise(bounds.tolist()):
         sl = slice(int(i0), int(i1))
         tb = t[sl]
@@ -289,23 +294,25 @@ def replay(
             if wait > 0:
                 sleep(wait)
         raw = s.accel_g[sl]
+        pos = np.arange(int(i0), int(i1))
+        keep = (pos % slow == 0) | (pos == s.n - 1)  # decimated slow series (last sample kept)
         if rec is not None:
             rec.log_samples("raw", tb, s.sample_index[sl], raw, "g")
             if s.temp_degC is not None:
-                rec.log_temperature(tb, s.temp_degC[sl])
+                rec.log_temperature(tb[keep], s.temp_degC[sl][keep])
         for tr in tracks:
             drv = {k: v[sl] for k, v in tr.drivers.items()}
             step = tr.integ.push(tb, raw, drv)
             d = tr.drift.apply(tb, step.disp_m) if tr.drift is not None else step.disp_m
-            tr.parts.append(d[(np.arange(int(i0), int(i1)) % stride) == 0])
+            tr.parts.append(d[pos % stride == 0])
             tr.last = d[-1]
             if rec is not None:
                 if tr.cal is not None:
                     rec.log_samples(tr.label, tb, None, step.f_g, "g")
                 rec.log_series(
                     f"tracks/{_slug(tr.label)}",
-                    tb,
-                    d,
+                    tb[keep],
+                    d[keep],
                     [f"{tr.label} {a} (m)" for a in AXES],
                     role="track",
                 )
