@@ -71,6 +71,7 @@ class Scenario:
     motion: str = "poses"
     """'poses' (guided static holds) or 'robot' (the default robot path; see emulator.robot)."""
     robot_path: str = "demo"
+    """'demo' (a 64 s closed loop with ramps, a banked turn and 9 stops) or 'long' (10 min)."""
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Scenario:
@@ -121,7 +122,10 @@ def build_sensor_model(sc: Scenario):
     if sc.motion == "robot":
         from .emulator import robot
 
-        motion = robot.path_by_name(sc.robot_path)
+        paths = {"demo": robot.demo_loop, "long": robot.long_run}
+        if sc.robot_path not in paths:
+            raise InputError(f"robot_path={sc.robot_path!r}: use one of {sorted(paths)}")
+        motion = paths[sc.robot_path](local_gravity_mps2=sc.local_gravity_mps2)
     else:
         motion = PoseSequenceMotion(
             parse_protocol(sc.protocol, sc.hold_s),

@@ -1,0 +1,270 @@
+"""`accellog demo`: the whole story on the emulated chip, in about a minute.
+
+1. Record (simulated clock, same driver and MCAP path as hardware) a six-position calibration
+   session and two 60 s static sessions of one emulated MPU-9250 with datasheet-typical errors.
+2. Fit the seed's Models 1-3 (with uncertainties), evaluate them on a static test (the seed's
+   Tables 4 and 5), fit the drift polynomial on one static session and apply it to the other (the
+   seed's final table).
+3. Workbench: a 24-pose session recorded while the chip warms up hides temperature effects from
+   Model 3; ``diagnose`` finds the missing effect, it is added, and the error falls on a held-out
+   session recorded at another temperature (ladder table).
+4. Moving robot: strapdown tracks per calibration with ZUPT against the true path.
+5. Everything goes to one .rrd with a saved blueprint.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+
+from .simulate import Scenario, simulate
+
+CHIP_SEED = 7
+"""One emulated chip for every session of the demo (its error parameters come from this seed)."""
+
+
+@dataclass
+class DemoResult:
+    out_dir: Path
+    rrd: Path | None
+    fits: dict = field(default_factory=dict)
+    evals: list = field(default_factory=list)
+    drift: object | None = None
+    final_rows: list = field(default_factory=list)
+    ladder: list = field(default_factory=list)
+    discovered: list[str] = field(default_factory=list)
+    tracks: list = field(default_factory=list)
+    seconds: dict = field(default_factory=dict)
+
+
+def _sessions(out: Path, quick: bool) -> dict[str, Path]:
+    hold = 15.0 if quick else 30.0
+    warm = {"kind": "warmup", "T_start": 22.0, "T_end": 42.0, "tau_s": 250.0}
+    specs = {
+        "calibration": Scenario(protocol="six", hold_s=hold, chip_seed=CHIP_SEED, seed=1),
+        "static_drift": Scenario(protocol="+z", hold_s=62.0, chip_seed=CHIP_SEED, seed=2),
+        "static_test": Scenario(protocol="+z", hold_s=62.0, chip_seed=CHIP_SEED, seed=3),
+        "warmup_24": Scenario(
+            protocol="24",
+            hold_s=10.0 if quick else 15.0,
+            move_s=2.0,
+            chip_seed=CHIP_SEED,
+            seed=4,
+            temperature=warm,
+        ),
+        "heldout_24": Scenario(
+            protocol="24",
+            hold_s=10.0 if quick else 15.0,
+            move_s=2.0,
+            chip_seed=CHIP_SEED,
+            seed=5,
+            temperature={"kind": "warmup", "T_start": 30.0, "T_end": 45.0, "tau_s": 200.0},
+        ),
+        "static_hot": Scenario(
+            protocol="+z",
+            hold_s=62.0,
+            chip_seed=CHIP_SEED,
+            seed=6,
+            temperature={"kind": "constant", "T": 40.0},
+        ),
+        "robot": Scenario(motion="robot", chip_seed=CHIP_SEED, seed=8),
+    }
+    paths = {}
+    for name, sc in specs.items():
+        p = out / f"{name}.mcap"
+        simulate(sc, p)
+        paths[name] = p
+    return paths
+
+
+def run_demo(
+    out_dir: Path, *, rrd: Path | None, quick: bool = False, console: Console | None = None
+) -> DemoResult:
+    """Run the demo, print its tables, write sessions / calibrations / .rrd under out_dir."""
+    from .diagnose import diagnose, heldout_residual
+    from .mcap_io import read_session
+    from .model import build_model
+    from .pipeline import run_drift, run_evaluate, run_fit
+    from .report import (
+        displacement_table,
+        drift_table,
+        params_table,
+        print_tables,
+        static_means_table,
+    )
+    from .segment import observations
+    from .track_eval import run_session_tracks
+
+    con = console or Console()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    res = DemoResult(out_dir=out, rrd=rrd)
+    t0 = time.perf_counter()
+    con.rule("[bold]1. record sessions from the emulated MPU-9250 (simulated clock)")
+    paths = _sessions(out, quick)
+    S = {k: read_session(p) for k, p in paths.items()}
+    res.seconds["simulate"] = time.perf_counter() - t0
+    for k, s in S.items():
+        con.print(
+            f"  {paths[k].name}: {s.n} samples, {s.t_s[-1]:.0f} s, {len(s.poses)} holds, {s.lost_samples()} lost"
+        )
+
+    con.rule("[bold]2. the seed's procedure: Models 1-3, static test, drift model")
+    t1 = time.perf_counter()
+    cal_obs = observations(S["calibration"])
+    for m in ("model1", "model2", "model3"):
+        res.fits[m] = run_fit(S["calibration"], m, obs=cal_obs)
+        res.fits[m].cal.save(out / f"cal_{m}.json")
+    print_tables([params_table(res.fits["model3"].cal, title="Model 3 parameters (± 1σ, Cramér-Rao)")], con)
+    cals = [res.fits[m].cal for m in ("model1", "model2", "model3")]
+    res.evals = run_evaluate(S["static_test"], cals, labels=["Model 1", "Model 2", "Model 3"])
+    print_tables(
+        [static_means_table(res.evals, "Table 4: static test, mean residual after calibration")], con
+    )
+    print_tables([displacement_table(res.evals, 60.0, title="Table 5: integrated displacement at 60 s")], con)
+    res.drift = run_drift(S["static_drift"], res.fits["model3"].cal)
+    res.drift.cal.save(out / "cal_model3_drift.json")
+    ev_d = run_evaluate(
+        S["static_test"], [res.fits["model3"].cal, res.drift.cal], labels=["Model 3", "Model 3 + drift"]
+    )
+    raw, m3, m3d = ev_d
+    res.final_rows = [
+        ("No calibration", raw.disp_end_m),
+        ("Model 3", m3.disp_end_m),
+        (
+            "Model 3 and displacement model",
+            m3d.disp_end_drift_m if m3d.disp_end_drift_m is not None else m3d.disp_end_m,
+        ),
+    ]
+    tbl, qtbl = drift_table(res.final_rows, m3.t_end_s, res.drift.drift)
+    print_tables([tbl, qtbl], con)
+    res.seconds["seed procedure"] = time.perf_counter() - t1
+
+    con.rule("[bold]3. workbench: a warm-up hides an effect from Model 3")
+    t2 = time.perf_counter()
+    obs = observations(S["warmup_24"])
+    held = observations(S["heldout_24"])
+    model = build_model("model3")
+    steps: list[tuple[str, list[str]]] = [("model1", []), ("model2", []), ("model3", [])]
+    diags = []
+    for _ in range(3):
+        d = diagnose(obs, model)
+        diags.append(d)
+        con.print(f"  [bold]{model.name}[/]: χ²/dof {d.fit.chi2_dof:.3g} - {d.verdict}")
+        if not d.missing or d.best is None:
+            break
+        res.discovered.append(d.best)
+        model = model.with_terms([d.best])
+        steps.append(("model3", list(res.discovered)))
+    for a in diags[-1].advice[:3]:
+        con.print(f"  advice: {a}")
+    rows = []
+    for preset, add in steps:
+        fo = run_fit(S["warmup_24"], preset, add=add, obs=obs)
+        r = heldout_residual(fo.fit, held)
+        ev = run_evaluate(S["static_hot"], [fo.cal], include_raw=False, labels=[fo.fit.model.name])[0]
+        rows.append(
+            {
+                "model": fo.fit.model.name,
+                "n_params": fo.fit.model.n_params,
+                "chi2_dof": fo.fit.chi2_dof,
+                "rms_g": fo.fit.rms_g,
+                "heldout_rms_g": float(np.sqrt(np.mean(r**2))),
+                "heldout_noise_g": float(np.sqrt(np.mean(np.asarray(held.sigma_g) ** 2))),
+                "drift_60s_m": float(np.linalg.norm(ev.disp_at(60.0))),
+                "warnings": fo.fit.warnings,
+                "fit": fo,
+            }
+        )
+    res.ladder = rows
+    print_tables([_ladder_table(rows)], con)
+    res.seconds["workbench"] = time.perf_counter() - t2
+
+    con.rule("[bold]4. moving robot: strapdown tracks with ZUPT vs the true path")
+    t3 = time.perf_counter()
+    found = rows[-1]["fit"].cal
+    res.tracks = run_session_tracks(
+        S["robot"], {"Model 3": res.fits["model3"].cal, f"{rows[-1]['model']}": found}, use_zupt=True
+    )
+    from rich.table import Table
+
+    tt = Table(title=f"robot run ({S['robot'].t_s[-1]:.0f} s): position error against the truth")
+    for c in ("calibration", "final (m)", "RMS (m)", "final without ZUPT (m)", "ZUPT stops"):
+        tt.add_column(c, justify="left" if c == "calibration" else "right")
+    for r in res.tracks:
+        e0 = r.error_without_zupt.final_error_m if r.error_without_zupt is not None else float("nan")
+        tt.add_row(
+            r.name,
+            f"{r.error.final_error_m:.3g}",
+            f"{r.error.rms_error_m:.3g}",
+            f"{e0:.3g}",
+            str(r.error.zupt_stops),
+        )
+    print_tables([tt], con)
+    res.seconds["robot"] = time.perf_counter() - t3
+
+    if rrd is not None:
+        t4 = time.perf_counter()
+        _write_rrd(rrd, S, res, diags, obs)
+        res.seconds["rrd"] = time.perf_counter() - t4
+        con.print(f"wrote {rrd} (open it with: accellog view {rrd})")
+    con.print(f"sessions and calibrations in {out}/ ; total {time.perf_counter() - t0:.1f} s")
+    return res
+
+
+def _ladder_table(rows: list[dict]):
+    from rich.table import Table
+
+    t = Table(title="watch the error fall: calibration fit, held-out session, 60 s static drift at 40 °C")
+    for c in ("model", "params", "χ²/dof (fit)", "held-out RMS (mg)", "noise floor (mg)", "60 s drift (m)"):
+        t.add_column(c, justify="left" if c == "model" else "right")
+    for r in rows:
+        t.add_row(
+            r["model"],
+            str(r["n_params"]),
+            f"{r['chi2_dof']:.3g}",
+            f"{r['heldout_rms_g'] * 1000:.3g}",
+            f"{r['heldout_noise_g'] * 1000:.3g}",
+            f"{r['drift_60s_m']:.3g}",
+        )
+    t.caption = "held-out: another warm-up session of the same chip; drift: |displacement| of a 60 s static test at 40 °C"
+    return t
+
+
+def _write_rrd(path: Path, S: dict, res: DemoResult, diags: list, obs) -> None:
+    from .report import drift_table
+    from .rrd import LadderRow, RunRecording
+    from .views import log_diagnosis, log_evaluations, log_fit, log_session, log_track_runs, table_markdown
+
+    with RunRecording(f"save:{path}", recording_id="accellog-demo") as rec:
+        log_session(rec, S["calibration"], calibrations={"Model 3": res.fits["model3"].cal})
+        for m, fo in res.fits.items():
+            log_fit(rec, fo, m)
+        log_evaluations(rec, res.evals)
+        tbl, qtbl = drift_table(res.final_rows, res.evals[0].t_end_s, res.drift.drift)
+        rec.log_document(
+            "results/drift model", table_markdown(tbl) + "\n" + (table_markdown(qtbl) if qtbl else "")
+        )
+        for i, d in enumerate(diags):
+            log_diagnosis(rec, d, obs, label=f"step {i + 1}")
+        rec.log_ladder(
+            [
+                LadderRow(
+                    step=r["model"],
+                    added=r["model"].split("+")[-1] if "+" in r["model"] else "",
+                    chi2_dof=r["chi2_dof"],
+                    heldout_rms_mg=r["heldout_rms_g"] * 1000,
+                    drift_60s_m=r["drift_60s_m"],
+                    t_s=np.asarray(obs.t_s),
+                    residual_g=np.asarray(r["fit"].fit.residual_g),
+                    driver_name="temperature (degC)",
+                    driver=None if obs.temp_degC is None else np.asarray(obs.temp_degC),
+                )
+                for r in res.ladder
+            ]
+        )
+        log_track_runs(rec, res.tracks, S["robot"].truth)
