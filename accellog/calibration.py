@@ -126,6 +126,8 @@ class Calibration:
     software: str = f"accellog {__version__}"
     created_utc: str = ""
     drift: DriftModel | None = None
+    gyro: dict | None = None
+    """Gyro calibration (accellog.gyro_cal.GyroCalibration.to_dict()), when the session allowed it."""
     path: str | None = None
 
     # ------------------------------------------------------------------ derived
@@ -252,6 +254,7 @@ class Calibration:
             "sensor": dict(self.sensor),
             "sources": list(self.sources),
             "drift": self.drift.to_dict() if self.drift is not None else None,
+            "gyro": self.gyro,
         }
 
     def save(self, path: str | os.PathLike) -> None:
@@ -378,6 +381,7 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         software=str(d.get("software", "")),
         created_utc=str(d.get("created_utc", "")),
         drift=DriftModel.from_dict(d["drift"], where=where) if d.get("drift") else None,
+        gyro=d.get("gyro") or None,
     )
     try:
         model = cal.model

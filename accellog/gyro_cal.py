@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError, ModelError
-from .rotations import quat_conjugate, quat_multiply
+from .rotations import quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize
 from .session import PoseLabel
-from .strapdown import integrate_gyro
+from .strapdown import prefix_quat_product
 
 PARAM_NAMES = [f"M{'xyz'[i]}{'xyz'[j]}" for i in range(3) for j in range(3)]
 """Names of the entries of M (row-major): M_ij maps true rate j into measured axis i."""
@@ -194,13 +194,31 @@ def fit_gyro_bias(
     return cal
 
 
-def _relative_rotations(t: np.ndarray, w_true: np.ndarray, mids: np.ndarray) -> np.ndarray:
-    """Body-frame rotation (K-1,4) integrated from each mid time to the next."""
-    out = []
+def _block_increments(t: np.ndarray, w_dps: np.ndarray, mids: np.ndarray, block_s: float) -> tuple:
+    """Trapezoid rotation increments (rad, body frame) summed over blocks of ~block_s, with block
+    edges on every mid index; returns (increments (B,3), block index of each mid (K,)).
+
+    Summing increments inside a block is exact for rotation about a fixed axis (the protocol's
+    moves) and second order in (rate x block_s) otherwise; the increments are linear in the
+    rate, so a gyro matrix correction can be applied to the blocks instead of every sample."""
+    w = np.deg2rad(w_dps)
+    inc = 0.5 * (w[:-1] + w[1:]) * np.diff(t)[:, None]  # step i: from sample i to i+1
+    edges = [int(mids[0])]
     for a, b in itertools.pairwise(mids):
-        q = integrate_gyro(t[a : b + 1], w_true[a : b + 1], np.array([1.0, 0.0, 0.0, 0.0]))
-        out.append(q[-1])
-    return np.array(out)
+        n = max(1, int(np.ceil((t[b] - t[a]) / block_s)))
+        edges.extend(np.linspace(a, b, n + 1).round().astype(int)[1:].tolist())
+    edges = np.unique(np.asarray(edges))
+    csum = np.concatenate([np.zeros((1, 3)), np.cumsum(inc, axis=0)])
+    blocks = np.diff(csum[edges], axis=0)
+    return blocks, np.searchsorted(edges, mids)
+
+
+def _relative_rotations(blocks: np.ndarray, at: np.ndarray, m_inv: np.ndarray) -> np.ndarray:
+    """Body-frame rotation (K-1,4) from each mid to the next, with rates corrected by m_inv."""
+    phi = blocks @ m_inv.T
+    dq = np.concatenate([[[1.0, 0.0, 0.0, 0.0]], quat_from_rotvec(phi)])
+    q = quat_normalize(prefix_quat_product(dq))
+    return quat_normalize(quat_multiply(quat_conjugate(q[at[:-1]]), q[at[1:]]))
 
 
 def _rotvec_deg(q: np.ndarray) -> np.ndarray:
@@ -246,11 +264,12 @@ def fit_gyro_matrix(
     diag_idx = [0, 4, 8]
     free_all = diag_idx if model == "scale" else list(range(9))
 
+    blocks, at = _block_increments(t, w_unb, mids, block_s=0.01)
+
     def residuals(p: np.ndarray, free: list[int]) -> np.ndarray:
         m = np.eye(3).ravel()
         m[free] = p
-        w_true = np.linalg.solve(m.reshape(3, 3), w_unb.T).T
-        dq_int = _relative_rotations(t, w_true, mids)
+        dq_int = _relative_rotations(blocks, at, np.linalg.inv(m.reshape(3, 3)))
         return _rotvec_deg(quat_multiply(quat_conjugate(dq_nom), dq_int)).ravel()
 
     # which entries of M do the rotations excite? (finite-difference sensitivity at M = I)

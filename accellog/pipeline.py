@@ -150,13 +150,15 @@ def run_fit(
     trim_s: float = 0.5,
     n_per_pose: int | None = None,
     obs: ObsTable | None = None,
+    gyro: bool = True,
 ) -> FitOutcome:
     """Segment (if needed) and fit one model; returns the calibration with its uncertainties.
 
     gravity: 'seed' (truth 1 per pose) or 'local' (g_local/g0 standard g). local_gravity_mps2:
     default the session's (meta.local_gravity_mps2), g0 for pose tables. orientation_free: fit
     |correct(reading)| = truth_g without pose labels; unlabelled sessions are segmented by
-    detect_static (threshold sweep scored by the orientation-free residual).
+    detect_static (threshold sweep scored by the orientation-free residual). gyro: also
+    calibrate the gyro from the session's holds and the moves between them (stored in cal.gyro).
     """
     from .fit import fit_model, fit_orientation_free
     from .model import build_model
@@ -209,7 +211,23 @@ def run_fit(
         sources=[source_entry(src or (data.path if isinstance(data, Session) else None), kind)],
         sensor=sensor,
     )
+    if gyro and isinstance(data, Session):
+        cal.gyro = _gyro_calibration(data)
     return FitOutcome(obs=obs, fit=fit, cal=cal)
+
+
+def _gyro_calibration(session: Session) -> dict | None:
+    """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
+    session, stored next to the accelerometer's; None when the session has no gyro or holds."""
+    from .errors import AccellogError
+    from .gyro_cal import calibrate_gyro
+
+    if session.gyro_dps is None or len(session.poses) < 2:
+        return None
+    try:
+        return calibrate_gyro(session.t_s, session.gyro_dps, session.poses, session.temp_degC).to_dict()
+    except AccellogError:
+        return None
 
 
 # ------------------------------------------------------------------------------------------ evaluate / drift
