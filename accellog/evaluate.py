@@ -12,7 +12,10 @@ For a session at rest in one orientation (up vector u, sensor frame):
     and after the drift model when the calibration carries one (d - 1/2 q2 t^2 - q1 t - q0).
 
 `cal=None` evaluates the raw reading (the seed's "No calibration" row: a = reading * g_local).
-`evaluate_poses` evaluates a multi-pose session window by window (no displacement).
+`evaluate_poses` evaluates a multi-pose session window by window; its displacement at 60 s is per
+hold, extrapolated from the hold's mean residual as if it persisted from rest:
+d_k(60 s) = 1/2 mean_r_k (m/s^2) (60 s)^2 (holds are shorter than 60 s; for a constant residual this
+is what the double integral gives).
 """
 
 from __future__ import annotations
@@ -349,34 +352,74 @@ class PoseEvaluation:
     rms_g: float
     chi2: float
     dof: int
+    mps2_per_unit: float = float("nan")
+    """m/s^2 per unit of the evaluated output (calibration's, or g_local for the raw reading)."""
+    mean_resid_all_g: np.ndarray | None = None
+    """(3,) mean residual over every window of every hold (g)."""
+    at_s: float = 60.0
+
+    @property
+    def disp_at_m(self) -> np.ndarray:
+        """(poses,3) m: per-hold displacement at at_s, 1/2 mean_r (m/s^2) at_s^2 (see module doc)."""
+        return 0.5 * self.mean_resid_g * self.mps2_per_unit * self.at_s**2
 
     def to_dict(self) -> dict:
+        d60 = self.disp_at_m
+        worst = d60[np.argmax(np.abs(d60), axis=0), np.arange(3)] if d60.size else np.full(3, np.nan)
+        mean_all = self.mean_resid_all_g if self.mean_resid_all_g is not None else np.full(3, np.nan)
         return {
             "label": self.label,
             "session": self.session,
+            "kind": "poses",
             "poses": {
-                n: {"mean_residual_g": m.tolist(), "sem_g": s.tolist()}
-                for n, m, s in zip(self.pose_names, self.mean_resid_g, self.sem_g, strict=True)
+                n: {
+                    "mean_residual_g": m.tolist(),
+                    "sem_g": s.tolist(),
+                    "mean_residual_mps2": (m * self.mps2_per_unit).tolist(),
+                    f"displacement_{self.at_s:g}s_m": d.tolist(),
+                }
+                for n, m, s, d in zip(self.pose_names, self.mean_resid_g, self.sem_g, d60, strict=True)
             },
             "rms_g": self.rms_g,
+            "rms_mps2": self.rms_g * self.mps2_per_unit,
+            "mean_residual_mps2": dict(zip(AXES, (mean_all * self.mps2_per_unit).tolist(), strict=True)),
             "chi2": self.chi2,
             "dof": self.dof,
             "chi2_dof": self.chi2 / self.dof if self.dof else None,
+            "chi2_noise": self.chi2,
+            "chi2_noise_dof": self.chi2 / self.dof if self.dof else None,
+            "mps2_per_unit": self.mps2_per_unit,
+            f"displacement_{self.at_s:g}s_m": worst.tolist(),
+            "displacement_note": f"per hold, extrapolated from rest: 1/2 mean residual ({self.at_s:g} s)^2; "
+            "top level: the hold with the largest |d| per axis",
         }
 
 
 def evaluate_poses(
-    session: Session, cal: Calibration, *, window_s: float = 2.0, trim_s: float = 0.5
+    session: Session,
+    cal: Calibration | None,
+    *,
+    window_s: float = 2.0,
+    trim_s: float = 0.5,
+    at_s: float = 60.0,
+    local_gravity_mps2: float | None = None,
 ) -> PoseEvaluation:
-    """Residual corrected - truth_g * up per window of every labelled hold; chi2 against sigma_g."""
+    """Residual corrected - truth_g * up per window of every labelled hold; chi2 against sigma_g.
+
+    cal=None: the raw reading against up (truth 1, unit g_local: the seed's "No calibration")."""
     from .fit import obs_drivers
 
     obs = observations(session, window_s=window_s, trim_s=trim_s)
-    model = cal.model
-    drv = {k: v for k, v in obs_drivers(obs).items() if k in model.required_drivers}
-    f = model.correct(cal.theta, obs.meas_g, drv)
-    truth = model.truth_g(cal.theta, obs.up_sensor, obs.q_sensor_to_world, cal.truth_g)
-    r = f - truth
+    if cal is None:
+        r = np.asarray(obs.meas_g, float) - np.asarray(obs.up_sensor, float)
+        unit = float(local_gravity_mps2 or session.meta.local_gravity_mps2)
+    else:
+        model = cal.model
+        drv = {k: v for k, v in obs_drivers(obs).items() if k in model.required_drivers}
+        f = model.correct(cal.theta, obs.meas_g, drv)
+        truth = model.truth_g(cal.theta, obs.up_sensor, obs.q_sensor_to_world, cal.truth_g)
+        r = f - truth
+        unit = cal.mps2_per_unit
     k = len(obs.pose_names)
     mean = np.zeros((k, 3))
     sem = np.zeros((k, 3))
@@ -386,7 +429,7 @@ def evaluate_poses(
         mean[i] = np.sum(r[m] * w, axis=0) / np.sum(w, axis=0)
         sem[i] = 1.0 / np.sqrt(np.sum(w, axis=0))
     return PoseEvaluation(
-        label=cal.model_spec.get("name", "calibrated"),
+        label=cal.model_spec.get("name", "calibrated") if cal is not None else "no calibration",
         session=session.path or session.meta.source,
         pose_names=list(obs.pose_names),
         mean_resid_g=mean,
@@ -394,4 +437,7 @@ def evaluate_poses(
         rms_g=float(np.sqrt(np.mean(r**2))),
         chi2=float(np.sum((r / obs.sigma_g) ** 2)),
         dof=int(r.size),
+        mps2_per_unit=float(unit),
+        mean_resid_all_g=r.mean(axis=0),
+        at_s=float(at_s),
     )

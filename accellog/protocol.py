@@ -4,6 +4,11 @@ A pose is named by the sensor axis that points up ('+z' = z axis up, the sensor 
 for the 24-pose protocol, a rotation about the vertical ('+z@90' = z up, turned 90 deg about the
 world vertical). The nominal orientation is q_sensor_to_world = q_yaw(deg) * q_face, where q_face
 turns the face's up axis onto world +z.
+
+Off-axis poses (cube edges and corners, for nonlin3 and g_cross) join two or three distinct signed
+axes: '+x+y' has up = (1, 1, 0)/sqrt(2) (a 45 deg tilt between x and y), '+x-y+z' has up =
+(1, -1, 1)/sqrt(3); q_face is then the shortest rotation of that up vector onto world +z, and
+'@<deg>' adds the same yaw about the vertical.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from .session import POSE_UP_VECTORS
 SIX_POSITION_ORDER = ("+z", "-z", "+y", "-y", "+x", "-x")
 """The seed's order (z+, z-, y+, y-, x+, x-)."""
 
-_POSE_RE = re.compile(r"^([+-][xyz])(?:@(-?\d+(?:\.\d+)?))?$")
+_POSE_RE = re.compile(r"^((?:[+-][xyz]){1,3})(?:@(-?\d+(?:\.\d+)?))?$")
 
 
 @dataclass(frozen=True)
@@ -34,14 +39,21 @@ class PoseSpec:
 
 
 def pose_spec(name: str, hold_s: float) -> PoseSpec:
-    """Parse a pose name '+x' .. '-z', optionally '@<yaw deg>' about the vertical."""
+    """Parse a pose name '+x' .. '-z' (or an edge/corner '+x+y', '+x-y+z'), optionally '@<yaw deg>'
+    about the vertical. up = normalised sum of the named axes' unit vectors."""
     m = _POSE_RE.match(name.strip())
-    if not m:
+    faces = [] if not m else [m.group(1)[i : i + 2] for i in range(0, len(m.group(1)), 2)]
+    if not m or len({f[1] for f in faces}) != len(faces):
         raise InputError(
-            f"unknown pose name {name!r}: use +x,-x,+y,-y,+z,-z, optionally with @<deg> (e.g. '+z@90')"
+            f"unknown pose name {name!r}: use +x,-x,+y,-y,+z,-z (or an edge/corner of distinct axes such "
+            "as '+x+y', '+x-y+z'), optionally with @<deg> (e.g. '+z@90')"
         )
-    face, yaw = m.group(1), float(m.group(2) or 0.0)
-    up = POSE_UP_VECTORS[face]
+    yaw = float(m.group(2) or 0.0)
+    if len(faces) == 1:
+        up = POSE_UP_VECTORS[faces[0]]
+    else:
+        v = np.sum([POSE_UP_VECTORS[f] for f in faces], axis=0)
+        up = tuple(float(c) for c in v / np.linalg.norm(v))
     q_face = quat_between(np.array(up), np.array([0.0, 0.0, 1.0]))
     q = quat_multiply(quat_from_axis_angle([0.0, 0.0, 1.0], np.deg2rad(yaw)), q_face)
     return PoseSpec(name.strip(), up, tuple(float(v) for v in q), float(hold_s))

@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from .. import report
+from .. import report, views
 from ..calibration import write_json_atomic
 from ..errors import InputError
 from ..pipeline import load_input, run_apply, run_drift, run_evaluate, run_fit, run_pipeline
@@ -23,10 +23,21 @@ from .app import app
 _console = Console()
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON on stdout instead of tables.")]
+RrdOpt = Annotated[
+    Path | None,
+    typer.Option("--rrd", help="Also write a Rerun recording (.rrd) of this run (open: accellog view)."),
+]
 
 
 def _echo_json(data) -> None:
     typer.echo(report.json_text(data))
+
+
+def _recording(path: Path):
+    """A RunRecording saving to path (written to a temporary name, renamed when complete)."""
+    from ..rrd import RunRecording
+
+    return RunRecording(f"save:{path}")
 
 
 @app.command()
@@ -103,10 +114,12 @@ def fit(
     window_s: Annotated[float, typer.Option(help="Observation window (s).")] = 2.0,
     trim_s: Annotated[float, typer.Option(help="Trim at both ends of every hold (s).")] = 0.5,
     json_out: JsonOpt = False,
+    rrd: RrdOpt = None,
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma)."""
+    data = load_input(session)
     out = run_fit(
-        session,
+        data,
         model,
         add=add or [],
         effects_file=effects_file,
@@ -118,6 +131,11 @@ def fit(
         trim_s=trim_s,
     )
     out.cal.save(output)
+    if rrd is not None:
+        with _recording(rrd) as rec:
+            if isinstance(data, Session):
+                views.log_session(rec, data, calibrations={out.fit.model.name: out.cal})
+            views.log_fit(rec, out)
     if json_out:
         d = out.to_dict()
         d["output"] = str(output)
@@ -138,11 +156,20 @@ def evaluate_cmd(
     at_s: Annotated[float, typer.Option(help="Displacement table time (s).")] = 60.0,
     json_out: JsonOpt = False,
 ) -> None:
-    """Residual of calibrated static data vs gravity (mean +- sem, chi2 vs noise) and displacement."""
+    """Residual of calibrated static data vs gravity (mean +- sem, chi2 vs noise) and displacement.
+
+    A session with several labelled holds is evaluated window by window (per-hold mean residual,
+    RMS, chi2 vs the noise estimate, displacement at --at-s extrapolated per hold from rest)."""
     from ..calibration import load_calibration
 
     cals = [load_calibration(c) for c in cal]
-    evs = run_evaluate(test, cals, until_s=until_s, max_samples=max_samples)
+    data = load_input(test)
+    if isinstance(data, Session) and len(data.poses) > 1:
+        _evaluate_holds(data, cals, at_s, json_out, until_s is not None or max_samples is not None)
+        return
+    evs = run_evaluate(
+        data if isinstance(data, Session) else test, cals, until_s=until_s, max_samples=max_samples
+    )
     if json_out:
         _echo_json({"raw": evs[0].to_dict(), "calibrated": [e.to_dict() for e in evs[1:]]})
         return
@@ -162,6 +189,32 @@ def evaluate_cmd(
             _console.print(f"[dim]{e.label}: {n}[/]")
 
 
+def _evaluate_holds(session: Session, cals: list, at_s: float, json_out: bool, cut: bool) -> None:
+    """`evaluate` on a multi-pose session: evaluate_poses for the raw reading and each calibration."""
+    from ..evaluate import evaluate_poses
+
+    if cut:
+        raise InputError(
+            "--until-s/--max-samples cut a single static hold; this session has "
+            f"{len(session.poses)} labelled holds",
+            where=session.path,
+        )
+    g = cals[0].local_gravity_mps2 if cals else None
+    pes = [evaluate_poses(session, None, at_s=at_s, local_gravity_mps2=g)]
+    pes += [evaluate_poses(session, c, at_s=at_s) for c in cals]
+    if json_out:
+        _echo_json({"kind": "poses", "raw": pes[0].to_dict(), "calibrated": [p.to_dict() for p in pes[1:]]})
+        return
+    report.print_tables([report.pose_eval_table(p) for p in pes], _console)
+    for p in pes:
+        d = p.to_dict()[f"displacement_{at_s:g}s_m"]
+        _console.print(
+            f"{p.label}: RMS {p.rms_g * p.mps2_per_unit:.4g} m/s^2, chi2/dof {p.chi2 / max(p.dof, 1):.3g}; "
+            f"worst hold displacement at {at_s:g} s (from rest, extrapolated) "
+            + ", ".join(f"{a} {v:+.3g} m" for a, v in zip("xyz", d, strict=True))
+        )
+
+
 @app.command()
 def drift(
     static: Annotated[Path, typer.Argument(help="Static session at rest (one orientation).")],
@@ -172,10 +225,17 @@ def drift(
     until_s: Annotated[float | None, typer.Option(help="Fit on samples with t <= until_s.")] = None,
     max_samples: Annotated[int | None, typer.Option(help="Fit on the first N samples.")] = None,
     json_out: JsonOpt = False,
+    rrd: RrdOpt = None,
 ) -> None:
     """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
-    out = run_drift(static, cal, until_s=until_s, max_samples=max_samples)
+    data = load_input(static)
+    out = run_drift(data, cal, until_s=until_s, max_samples=max_samples)
     out.cal.save(output)
+    if rrd is not None:
+        with _recording(rrd) as rec:
+            if isinstance(data, Session):
+                views.log_session(rec, data, calibrations={"calibrated + drift model": out.cal})
+            views.log_evaluations(rec, [out.fit_eval])
     if json_out:
         d = out.to_dict()
         d["output"] = str(output)
@@ -209,9 +269,20 @@ def run(
         Path | None, typer.Option("-o", "--output-dir", help="Write calibrations + results.json.")
     ] = None,
     json_out: JsonOpt = False,
+    rrd: RrdOpt = None,
 ) -> None:
     """Run a pipeline file (segment -> fit -> evaluate -> drift -> report)."""
     res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir)
+    if rrd is not None:
+        with _recording(rrd) as rec:
+            for name, fo in res.fits.items():
+                views.log_fit(rec, fo, name)
+            views.log_evaluations(rec, res.evaluations)
+            if res.drift_evaluations:
+                views.log_evaluations(rec, res.drift_evaluations, truth_label=None)
+            rec.log_document(
+                "results/tables", "\n".join(views.table_markdown(t) for t in res.tables() if t is not None)
+            )
     if json_out:
         _echo_json(res.to_dict())
         return
