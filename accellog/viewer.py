@@ -183,6 +183,7 @@ class Chromium:
         )
         self._ws = None
         self._id = 0
+        self._events: set[str] = set()
         try:
             wait_port(self.port, timeout_s, self.proc)
             self._attach()
@@ -222,13 +223,24 @@ class Chromium:
             if left <= 0:
                 raise InputError(f"chromium did not answer {method} within {self.timeout_s:g} s")
             msg = json.loads(self._ws.recv(timeout=left))
+            self._handle(msg)
             if msg.get("id") == my_id:
                 if "error" in msg:
                     raise InputError(f"chromium: {method}: {msg['error'].get('message')}")
                 return msg.get("result", {})
 
-    def navigate(self, url: str) -> None:
+    def navigate(self, url: str, *, load_timeout_s: float = 20.0) -> None:
+        """Open url and wait (at most load_timeout_s) for its load event."""
+        self._events.clear()
         self.call("Page.navigate", url=url)
+        end = time.monotonic() + load_timeout_s
+        while "Page.loadEventFired" not in self._events and time.monotonic() < end:
+            with contextlib.suppress(TimeoutError):
+                self._handle(json.loads(self._ws.recv(timeout=max(0.01, end - time.monotonic()))))
+
+    def _handle(self, msg: dict) -> None:
+        if "method" in msg:
+            self._events.add(msg["method"])
 
     def screenshot_png(self) -> bytes:
         """PNG of the current viewport."""
@@ -264,14 +276,12 @@ class PixelStats:
     std: float
 
     def looks_rendered(self, blank: PixelStats | None = None) -> bool:
-        """Heuristic: many colours and a good share of non-background pixels (more than a blank page)."""
-        ok = self.colors >= 1500 and self.non_background >= 0.1
+        """Heuristic: many colours (a loading screen has ~300, a drawn recording thousands) and a share
+        of non-background pixels, both well above a blank page's when one is given."""
+        ok = self.colors >= 1000 and self.non_background >= 0.05
         if blank is not None:
-            ok = (
-                ok
-                and self.colors >= 4 * max(blank.colors, 1)
-                and self.non_background > blank.non_background + 0.03
-            )
+            ok = ok and self.colors >= 20 * max(blank.colors, 1)
+            ok = ok and self.non_background > blank.non_background + 0.03
         return ok
 
 
