@@ -29,7 +29,7 @@ import numpy as np
 
 from .errors import InputError
 from .online import OnlineIntegrator
-from .rrd import AXES, RunRecording
+from .rrd import AXES, AXIS_COLORS, RunRecording
 from .session import Session
 
 MAX_BATCH_S = 60.0
@@ -315,6 +315,7 @@ def replay(
                     d[keep],
                     [f"{tr.label} {a} (m)" for a in AXES],
                     role="track",
+                    colors=AXIS_COLORS,
                 )
         if rec is not None and speed_f is not None and clock() - last_3d > 1.0:
             last_3d = clock()

@@ -82,7 +82,8 @@ _EVENT_LEVEL = {
     "pose_prompt": "INFO",
 }
 
-_AXIS_COLORS = [(230, 80, 80), (80, 190, 80), (80, 130, 240)]
+AXIS_COLORS = [(230, 80, 80), (80, 190, 80), (80, 130, 240)]
+"""Series colours of the x, y, z axes in every plot (RGB)."""
 _TRACK_COLORS = [
     (240, 160, 40),
     (60, 170, 230),
@@ -321,7 +322,7 @@ class RunRecording:
         entity = f"{slug(kind)}/{slug(name)}"
         names = [f"{name} {a} ({unit})" for a in AXES]
         self.log_series(
-            entity, t_s, values, names, sample_index=sample_index, role=f"samples:{kind}", colors=_AXIS_COLORS
+            entity, t_s, values, names, sample_index=sample_index, role=f"samples:{kind}", colors=AXIS_COLORS
         )
 
     def log_poses(self, poses: Sequence[PoseLabel]) -> None:
@@ -427,9 +428,7 @@ class RunRecording:
             self._entities[ent] = "residual_bar"
             self.rec.log(
                 ent,
-                rr.BarChart(
-                    res_mg[:, k], color=_AXIS_COLORS[k], abscissa=pos + 0.25 * (k - 1), widths=[0.25]
-                ),
+                rr.BarChart(res_mg[:, k], color=AXIS_COLORS[k], abscissa=pos + 0.25 * (k - 1), widths=[0.25]),
                 static=True,
             )
         self.rec.log(base, rr.AnyValues(pose=list(pose_names)), static=True)
@@ -474,7 +473,7 @@ class RunRecording:
             [f"{label} {a} (m)" for a in AXES],
             None,
             "track",
-            _AXIS_COLORS,
+            AXIS_COLORS,
             False,
             False,
         )
@@ -567,7 +566,7 @@ class RunRecording:
                 [f"{i} {r.step} res {a} (mg)" for a in AXES],
                 None,
                 "ladder_step",
-                _AXIS_COLORS,
+                AXIS_COLORS,
                 True,
                 False,
             )
@@ -667,7 +666,7 @@ def build_blueprint(entities: Mapping[str, str]):
         roles.setdefault(role, []).append(ent)
     has_poses = "poses" in roles
     samples = []
-    for ent in sorted(e for r, es in roles.items() if r.startswith("samples:") for e in es):
+    for ent in [e for r, es in roles.items() if r.startswith("samples:") for e in es]:  # logged order
         contents = ["$origin/**"] + ([f"/{POSES_ACTIVE}/**"] if has_poses else [])
         samples.append(rrb.TimeSeriesView(origin=f"/{ent}", contents=contents, name=ent.replace("/", " ")))
     if "temperature" in roles or "lost" in roles:
@@ -678,7 +677,7 @@ def build_blueprint(entities: Mapping[str, str]):
                 name="temperature (degC) + lost samples",
             )
         )
-    tracks = sorted(roles.get("track", []))
+    tracks = roles.get("track", [])  # logged order (raw first in replays)
     track_views = [rrb.TimeSeriesView(origin=f"/{e}", name=f"{e.split('/', 1)[1]} (m)") for e in tracks]
     world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)") if "track3d" in roles else None
     charts = []

@@ -1,0 +1,99 @@
+"""Make the README screenshot: a demo .rrd of the seed study, opened in the web viewer in headless Chromium.
+
+The demo is a real pipeline run on the capstone final trial (../shared/data): models 1-3 fitted on the
+six-position table (residuals per pose), the drift model fitted on the 60 s static test, and the
+test's displacement tracks of every calibration side by side (accellog.replay.compare).
+
+    python tools/screenshot.py [--data ../shared/data] [--rrd docs/images/demo.rrd] [--png docs/images/demo.png]
+
+Needs chromium (apt) and websockets (pip). --native uses `rerun --headless --screenshot-to` instead
+(needs a Vulkan driver such as mesa-vulkan-drivers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+os.environ.setdefault("RERUN_ANALYTICS", "0")
+
+from accellog.importers import import_capstone  # noqa: E402
+from accellog.pipeline import run_drift, run_fit  # noqa: E402
+from accellog.replay import compare  # noqa: E402
+from accellog.rrd import RunRecording  # noqa: E402
+
+
+def build_demo(data: Path, rrd: Path) -> None:
+    """Seed study -> .rrd: residuals of models 1-3, parameter table, tracks with and without drift model."""
+    ft = data / "capstone" / "final_trial"
+    table, test = ft / "six_position_data.csv", ft / "six_position_test_data.csv"
+    if not table.is_file():
+        raise SystemExit(f"capstone data not found under {data} (use --data)")
+    session = import_capstone(test)
+    rec = RunRecording(f"save:{rrd}", recording_id="accellog-demo")
+    cals, labels = [], []
+    rows = ["| model | chi2/dof | rms (mg) | b_x (g) | b_y (g) | b_z (g) |", "|---|---|---|---|---|---|"]
+    for model in ("model1", "model2", "model3"):
+        out = run_fit(table, model, gravity="seed", weighted=False, local_gravity_mps2=9.797)
+        fit = out.fit
+        rec.log_residuals(model, out.obs.pose_names, out.obs.meas_g, fit.predicted_g)
+        idx = [fit.param_names.index(f"b_{a}") for a in "xyz"]
+        b, sb = fit.theta[idx], fit.sigma[idx]
+        rows.append(
+            f"| {model} | {fit.chi2_dof:.3g} | {1000 * fit.rms_g:.2f} | "
+            + " | ".join(f"{b[i]:+.5f} +- {sb[i]:.5f}" for i in range(3))
+            + " |"
+        )
+        cals.append(out.cal)
+        labels.append(model)
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "model3.json"
+        cals[-1].save(p)
+        drift = run_drift(test, p).cal
+    cals.append(drift)
+    labels.append("model3 + drift")
+    rec.log_document(
+        "calibration/seed final trial", "### Seed final trial, unweighted fits\n\n" + "\n".join(rows) + "\n"
+    )
+    res = compare(session, cals, labels=labels, recording=rec, up_sensor="+z")
+    rec.close()
+    for t in res.tracks:
+        print(f"{t.label:16s} final displacement {t.final_m.round(3).tolist()} m")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data")
+    ap.add_argument("--rrd", type=Path, default=REPO / "docs" / "images" / "demo.rrd")
+    ap.add_argument("--png", type=Path, default=REPO / "docs" / "images" / "demo.png")
+    ap.add_argument("--size", default="1400x900")
+    ap.add_argument("--native", action="store_true", help="native viewer with --screenshot-to (Vulkan)")
+    ap.add_argument("--keep-rrd", action="store_true", help="keep the demo .rrd next to the PNG")
+    a = ap.parse_args()
+    w, h = (int(v) for v in a.size.split("x"))
+    a.png.parent.mkdir(parents=True, exist_ok=True)
+    rrd = a.rrd if a.keep_rrd else Path(tempfile.mkdtemp()) / "demo.rrd"
+    build_demo(a.data, rrd)
+    if a.native:
+        from accellog.viewer import free_port, rerun_binary, rerun_env
+
+        cmd = [rerun_binary(), "--headless", "--bind", "127.0.0.1", "--port", str(free_port())]
+        cmd += ["--window-size", f"{w}x{h}", "--screenshot-to", str(a.png), str(rrd)]
+        subprocess.run(cmd, check=True, env=rerun_env(), timeout=120)
+    else:
+        from accellog.viewer import screenshot_rrd
+
+        stats = screenshot_rrd(rrd, a.png, size=(w, h), wait_s=120.0)
+        print(f"{a.png}: {stats.colors} colours, {100 * stats.non_background:.0f}% drawn")
+        if not stats.looks_rendered():
+            raise SystemExit("the viewer did not render (blank screenshot)")
+
+
+if __name__ == "__main__":
+    main()
