@@ -276,9 +276,9 @@ class PixelStats:
     std: float
 
     def looks_rendered(self, blank: PixelStats | None = None) -> bool:
-        """Heuristic: many colours (a loading screen has ~300, a drawn recording thousands) and a share
+        """Heuristic: many colours (a loading screen has ~300, a drawn recording 1000 or more) and a share
         of non-background pixels, both well above a blank page's when one is given."""
-        ok = self.colors >= 1000 and self.non_background >= 0.05
+        ok = self.colors >= 600 and self.non_background >= 0.05
         if blank is not None:
             ok = ok and self.colors >= 20 * max(blank.colors, 1)
             ok = ok and self.non_background > blank.non_background + 0.03
