@@ -184,6 +184,7 @@ class Chromium:
         self._ws = None
         self._id = 0
         self._events: set[str] = set()
+        self._stack = contextlib.ExitStack()
         try:
             wait_port(self.port, timeout_s, self.proc)
             self._attach()
@@ -205,7 +206,7 @@ class Chromium:
                 time.sleep(0.1)
         if ws_url is None:
             raise InputError("chromium opened no page")
-        self._ws = connect(ws_url, max_size=None, open_timeout=self.timeout_s)
+        self._ws = self._stack.enter_context(connect(ws_url, max_size=None, open_timeout=self.timeout_s))
         w, h = self.size
         self.call("Emulation.setDeviceMetricsOverride", width=w, height=h, deviceScaleFactor=1, mobile=False)
         self.call("Page.enable")
@@ -254,7 +255,7 @@ class Chromium:
     def close(self) -> None:
         if self._ws is not None:
             with contextlib.suppress(Exception):
-                self._ws.close()
+                self._stack.close()
             self._ws = None
         stop_process(self.proc)
         shutil.rmtree(self._profile, ignore_errors=True)
