@@ -121,6 +121,22 @@ def effect_requirement(
                 f"{name} not identifiable: temperature spans only {span:.1f} degC (need >= {need:g}); "
                 "record a warm-up from power-up or a temperature sweep, with several windows per hold"
             )
+    if name in ("temp_bias2", "temp_scale", "temp_scale2"):
+        # a curve through k temperature levels needs k >= terms: at two levels dT and dT^2 are the same
+        # signal (plateaus); scale terms need the levels while each axis is vertical (|f_i| > 0.5 g)
+        T = drivers["temp_degC"]
+        need = 2 if name == "temp_scale" else 3
+        rows = (
+            {"any pose": np.ones(T.shape, bool)}
+            if name == "temp_bias2"
+            else {f"axis {a} up/down": np.abs(up[:, i]) > 0.5 for i, a in enumerate(AXES)}
+        )
+        bad = [k for k, m in rows.items() if _levels(T[m], 0.5) < need]
+        if bad:
+            return (
+                f"{name} not identifiable: fewer than {need} temperature levels (0.5 degC apart) for "
+                f"{', '.join(bad)}; hold the poses at {need} or more temperatures (a sweep or warm-up)"
+            )
     if name in ("time_drift", "warmup"):
         span = float(np.ptp(drivers["t_s"]))
         if span < 60.0:
