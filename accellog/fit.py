@@ -171,8 +171,10 @@ def effect_requirement(
 
 
 DRIVER_HINT = {
-    "temp_degC": "record the die temperature (TEMP_OUT) with the session",
-    "dtemp_degC_per_s": "record the die temperature (TEMP_OUT) with the session",
+    "temp_degC": "record the die temperature (TEMP_OUT) with the session, during a warm-up or a "
+    "temperature sweep of a few degC",
+    "dtemp_degC_per_s": "record the die temperature (TEMP_OUT) with the session, during a warm-up or a "
+    "temperature sweep of a few degC",
     "t_s": "observation times are missing",
     "t_in_pose_s": "label the static holds",
 }

@@ -57,7 +57,13 @@ def effects(
 
 @app.command()
 def diagnose(
-    session: Annotated[Path, typer.Argument(help="Recorded session (.mcap) with labelled static holds.")],
+    session: Annotated[
+        Path,
+        typer.Argument(
+            help="Session with labelled static holds (.mcap, or a CSV the importers read: capstone pose "
+            "table or static test file, generic CSV), or an observations JSON."
+        ),
+    ],
     model: Annotated[str, typer.Option("--model", "-m", help="Preset or '+'-joined effects.")] = "model3",
     add: Annotated[list[str] | None, typer.Option("--add", help="Extra effect (repeatable).")] = None,
     effects_file: Annotated[
@@ -77,15 +83,19 @@ def diagnose(
 
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
-    from ..mcap_io import read_session
+    from ..pipeline import load_input
     from ..segment import observations
+    from ..session import ObsTable
 
-    sess = read_session(session)
-    obs = observations(sess, window_s=window_s)
+    data = load_input(session)  # pose tables (per-pose means) and observation files: ObsTable
     m = build_model(model, add=add or [], effects_file=effects_file)
     host = None
-    if sess.host_time_s is not None and np.all(np.isfinite(sess.host_time_s)) and sess.n > 2:
-        host = (sess.t_s, sess.host_time_s)
+    if isinstance(data, ObsTable):
+        obs = data
+    else:
+        obs = observations(data, window_s=window_s)
+        if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
+            host = (data.t_s, data.host_time_s)
     d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host)
     if as_json:
         out = d.to_dict()
