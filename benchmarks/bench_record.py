@@ -214,9 +214,7 @@ def main() -> None:
 
         live = run_live(args.live_s, d / "live.mcap")
         w = live["wall_s"]
-        tab2 = Table(
-            title=f"(b) live 1 kHz recording on the RealClock, {w:.1f} s wall (goal < 10 % of one core)"
-        )
+        tab2 = Table(title=f"(b) live 1 kHz, RealClock, {w:.0f} s (goal < 10 % of one core)")
         for col in ("part", "CPU s", "share of one core"):
             tab2.add_column(col, justify="left" if col == "part" else "right")
         rest = live["cpu_s"] - live["chip_s"]
