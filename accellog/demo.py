@@ -33,6 +33,7 @@ class DemoResult:
     rrd: Path | None
     fits: dict = field(default_factory=dict)
     evals: list = field(default_factory=list)
+    drift_evals: list = field(default_factory=list)
     drift: object | None = None
     final_rows: list = field(default_factory=list)
     ladder: list = field(default_factory=list)
@@ -131,7 +132,7 @@ def run_demo(
     print_tables([displacement_table(res.evals, 60.0, title="Table 5: integrated displacement at 60 s")], con)
     res.drift = run_drift(S["static_drift"], res.fits["model3"].cal)
     res.drift.cal.save(out / "cal_model3_drift.json")
-    ev_d = run_evaluate(
+    res.drift_evals = ev_d = run_evaluate(
         S["static_test"], [res.fits["model3"].cal, res.drift.cal], labels=["Model 3", "Model 3 + drift"]
     )
     raw, m3, m3d = ev_d
@@ -244,11 +245,14 @@ def _write_rrd(path: Path, S: dict, res: DemoResult, diags: list, obs) -> None:
     from .rrd import LadderRow, RunRecording
     from .views import log_diagnosis, log_evaluations, log_fit, log_session, log_track_runs, table_markdown
 
-    with RunRecording(f"save:{path}", recording_id="accellog-demo") as rec:
+    labels = [e.label for e in res.evals] + ["Model 3 + drift model", "truth (at rest)"]
+    with RunRecording(f"save:{path}", recording_id="accellog-demo", blueprint=demo_blueprint(labels)) as rec:
         log_session(rec, S["calibration"], calibrations={"Model 3": res.fits["model3"].cal})
         for m, fo in res.fits.items():
             log_fit(rec, fo, m)
         log_evaluations(rec, res.evals)
+        m3d = res.drift_evals[-1]
+        rec.log_track("test/Model 3 + drift model", m3d.t_s, m3d.disp_drift_series_m)
         tbl, qtbl = drift_table(res.final_rows, res.evals[0].t_end_s, res.drift.drift)
         rec.log_document(
             "results/drift model", table_markdown(tbl) + "\n" + (table_markdown(qtbl) if qtbl else "")
@@ -263,7 +267,8 @@ def _write_rrd(path: Path, S: dict, res: DemoResult, diags: list, obs) -> None:
                     chi2_dof=r["chi2_dof"],
                     heldout_rms_mg=r["heldout_rms_g"] * 1000,
                     drift_60s_m=r["drift_60s_m"],
-                    t_s=np.asarray(obs.t_s),
+                    # residuals of Model 3 and of the final model only, so the plot stays readable
+                    t_s=np.asarray(obs.t_s) if r["model"] == "model3" or r is res.ladder[-1] else None,
                     residual_g=np.asarray(r["fit"].fit.residual_g),
                     driver_name="temperature (degC)",
                     driver=None if obs.temp_degC is None else np.asarray(obs.temp_degC),
@@ -272,3 +277,103 @@ def _write_rrd(path: Path, S: dict, res: DemoResult, diags: list, obs) -> None:
             ]
         )
         log_track_runs(rec, res.tracks, S["robot"].truth)
+
+
+def _whole_range_plot(**kw):
+    """A time-series view that always shows its whole time range (the demo's sessions differ in
+    length and share the sensor_time timeline, so a cursor-relative window would hide data)."""
+    import rerun.blueprint as rrb
+
+    whole = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
+    return rrb.TimeSeriesView(
+        time_ranges=rrb.VisibleTimeRange("sensor_time", start=whole.start, end=whole.end),
+        axis_x=rrb.TimeAxis(link="Independent", view_range=whole),
+        **kw,
+    )
+
+
+def demo_blueprint(test_labels: list[str], first: int = 0):
+    """The demo's layout: one tab per chapter of the story (static test, calibration, workbench,
+    robot); test_labels: the static test's tracks, one auto-scaled plot each (m)."""
+    import rerun.blueprint as rrb
+
+    from .rrd import DOCS, LADDER, POSES_ACTIVE, RESIDUALS, TEMPERATURE, TRACKS, WORLD_TRACKS, slug_path
+
+    calibration = rrb.Horizontal(
+        rrb.Vertical(
+            _whole_range_plot(
+                origin="/accel/raw",
+                contents=["$origin/**", f"/{POSES_ACTIVE}/**"],
+                name="raw accel (g) + holds",
+            ),
+            _whole_range_plot(origin="/accel/Model_3", name="calibrated accel, Model 3 (g)"),
+            _whole_range_plot(origin=f"/{TEMPERATURE}", name="temperature (degC)"),
+        ),
+        rrb.Vertical(
+            rrb.Tabs(
+                *[
+                    rrb.BarChartView(origin=f"/{RESIDUALS}/{m}", name=f"{m}: measured - predicted (mg)")
+                    for m in ("model1", "model2", "model3")
+                ]
+            ),
+            rrb.TextDocumentView(origin=f"/{DOCS}/parameters/model3", name="Model 3 parameters"),
+        ),
+        column_shares=[3, 2],
+        name="1 calibration session",
+    )
+    static = rrb.Horizontal(
+        rrb.Grid(
+            *[
+                _whole_range_plot(origin=f"/{TRACKS}/test/{slug_path(lab)}", name=f"{lab}: displacement (m)")
+                for lab in test_labels
+            ],
+            name="static test: integrated displacement per calibration",
+        ),
+        rrb.Vertical(
+            rrb.Spatial3DView(origin=f"/{WORLD_TRACKS}/test", name="static test tracks 3D (m)"),
+            rrb.Tabs(
+                rrb.TextDocumentView(origin=f"/{DOCS}/results/static_test", name="Tables 4 and 5"),
+                rrb.TextDocumentView(origin=f"/{DOCS}/results/drift_model", name="drift model"),
+            ),
+        ),
+        name="2 static test",
+    )
+    workbench = rrb.Horizontal(
+        rrb.Vertical(
+            rrb.Horizontal(
+                *[
+                    rrb.BarChartView(origin=f"/{LADDER}/{m}", name=m)
+                    for m in ("chi2_dof", "heldout_rms_mg", "drift_60s_m")
+                ],
+                name="model ladder",
+            ),
+            _whole_range_plot(
+                origin=f"/{LADDER}/steps",
+                name="residuals (mg): Model 3 vs final model, and temperature (degC)",
+            ),
+        ),
+        rrb.Tabs(
+            rrb.TextDocumentView(origin=f"/{DOCS}/ladder", name="ladder"),
+            rrb.Tabs(
+                *[
+                    rrb.TextDocumentView(origin=f"/{DOCS}/workbench/step_{i}", name=f"diagnosis {i}")
+                    for i in (1, 2, 3)
+                ]
+            ),
+        ),
+        column_shares=[3, 2],
+        name="3 workbench",
+    )
+    robot = rrb.Horizontal(
+        rrb.Spatial3DView(origin=f"/{WORLD_TRACKS}/robot", name="robot tracks vs truth (m)"),
+        rrb.Vertical(
+            _whole_range_plot(origin=f"/{TRACKS}/robot", name="robot position per calibration (m)"),
+            rrb.TextDocumentView(origin=f"/{DOCS}/results/moving_robot", name="position errors"),
+        ),
+        name="4 moving robot",
+    )
+    return rrb.Blueprint(
+        rrb.Tabs(static, calibration, workbench, robot, active_tab=first),
+        rrb.TimePanel(timeline="sensor_time", play_state="following", state="collapsed"),
+        collapse_panels=True,
+    )

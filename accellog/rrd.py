@@ -101,6 +101,11 @@ def slug(text: str) -> str:
     return s or "unnamed"
 
 
+def slug_path(label: str) -> str:
+    """Entity sub-path of a label; '/' groups it ('test/Model 3' -> 'test/Model_3')."""
+    return "/".join(slug(p) for p in str(label).split("/") if p.strip()) or "unnamed"
+
+
 def _as_2d(values: np.ndarray, n: int, what: str) -> np.ndarray:
     v = np.asarray(values, dtype=np.float64)
     if v.ndim == 1:
@@ -464,13 +469,14 @@ class RunRecording:
     def _log_track(self, label: str, t_s: np.ndarray, disp_m: np.ndarray) -> None:
         d = np.asarray(disp_m, dtype=np.float64).reshape(-1, 3)
         color = _TRACK_COLORS[self._n_tracks % len(_TRACK_COLORS)]
-        if f"{TRACKS}/{slug(label)}" not in self._entities:
+        if f"{TRACKS}/{slug_path(label)}" not in self._entities:
             self._n_tracks += 1
+        name = str(label).rsplit("/", 1)[-1]
         self._log_series(
-            f"{TRACKS}/{slug(label)}",
+            f"{TRACKS}/{slug_path(label)}",
             t_s,
             d,
-            [f"{label} {a} (m)" for a in AXES],
+            [f"{name} {a} (m)" for a in AXES],
             None,
             "track",
             AXIS_COLORS,
@@ -494,9 +500,10 @@ class RunRecording:
             d_strip = d[keep]
         else:
             d_strip = d
-        ent = f"{WORLD_TRACKS}/{slug(label)}"
+        ent = f"{WORLD_TRACKS}/{slug_path(label)}"
         self._entities[ent] = "track3d"
         final = d[-1]
+        label = str(label).rsplit("/", 1)[-1]
         self.rec.log(ent, rr.LineStrips3D([d_strip], colors=[color], labels=[label]), static=True)
         self.rec.log(
             f"{ent}/final",

@@ -83,20 +83,23 @@ def log_fit(rec, outcome, label: str | None = None) -> None:
     )
 
 
-def log_evaluations(rec, evals: Sequence, *, truth_label: str | None = "truth (at rest)") -> None:
-    """Displacement tracks of a static test per calibration (+ after the drift model) and tables."""
+def log_evaluations(
+    rec, evals: Sequence, *, truth_label: str | None = "truth (at rest)", group: str = "test"
+) -> None:
+    """Displacement tracks of a static test per calibration (+ after the drift model) and tables,
+    at /tracks/{group}/{label} and /world/tracks/{group}/{label}."""
     from .report import displacement_table, static_means_table
 
     t_ref = None
     for ev in evals:
         if ev.t_s is None or ev.disp_series_m is None:
             continue
-        rec.log_track(f"test {ev.label}", ev.t_s, ev.disp_series_m)
+        rec.log_track(f"{group}/{ev.label}", ev.t_s, ev.disp_series_m)
         if ev.disp_drift_series_m is not None:
-            rec.log_track(f"test {ev.label} + drift model", ev.t_s, ev.disp_drift_series_m)
+            rec.log_track(f"{group}/{ev.label} + drift model", ev.t_s, ev.disp_drift_series_m)
         t_ref = ev.t_s
     if truth_label and t_ref is not None:
-        rec.log_track(truth_label, t_ref[[0, -1]], np.zeros((2, 3)))
+        rec.log_track(f"{group}/{truth_label}", t_ref[[0, -1]], np.zeros((2, 3)))
     if evals:
         md = table_markdown(static_means_table(evals)) + "\n" + table_markdown(displacement_table(evals))
         rec.log_document("results/static test", md)
@@ -122,13 +125,13 @@ def log_diagnosis(rec, diag, obs, label: str = "diagnose") -> None:
 def log_track_runs(rec, runs: Sequence, truth=None) -> None:
     """Moving-robot tracks per calibration next to the true path, and their error table."""
     if truth is not None:
-        rec.log_track("robot truth", truth.t_s, truth.position_m)
+        rec.log_track("robot/truth", truth.t_s, truth.position_m)
     lines = [
         "| calibration | final error (m) | RMS error (m) | ZUPT stops | final error without ZUPT (m) |",
         "|---|---|---|---|---|",
     ]
     for r in runs:
-        rec.log_track(f"robot {r.name}", r.track.t_s, r.track.position_m)
+        rec.log_track(f"robot/{r.name}", r.track.t_s, r.track.position_m)
         e0 = r.error_without_zupt.final_error_m if r.error_without_zupt is not None else float("nan")
         lines.append(
             f"| {r.name} | {r.error.final_error_m:.3g} | {r.error.rms_error_m:.3g} | {r.error.zupt_stops} | {e0:.3g} |"
