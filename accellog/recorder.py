@@ -113,8 +113,9 @@ class Recorder:
         self._t_last_s = 0.0
 
     # -- one read --------------------------------------------------------------------------------
-    def step(self) -> None:
-        """Wait one poll period, read the FIFO, write the batch and its events, update stillness."""
+    def step(self, *, detect_stillness: bool = True) -> None:
+        """Wait one poll period, read the FIFO, write the batch and its events, update stillness
+        (skipped with detect_stillness=False: unguided recording does not need it)."""
         self.sleep(self.poll_s)
         batch = self.driver.read()
         for ev in batch.events:
@@ -138,7 +139,8 @@ class Recorder:
             cfg = self.driver.config
             accel_g = batch.accel_counts / cfg.accel_lsb_per_g
             gyro_dps = batch.gyro_counts / cfg.gyro_lsb_per_dps
-            self.stillness.update(t_s, accel_g, gyro_dps)
+            if detect_stillness:
+                self.stillness.update(t_s, accel_g, gyro_dps)
             if self.on_batch is not None:
                 self.on_batch(batch, accel_g)
         if self.read_mag:
@@ -155,7 +157,7 @@ class Recorder:
         """Record without prompting for ``seconds`` of sensor time."""
         end = self.t_s + seconds
         while self.t_s < end:
-            self.step()
+            self.step(detect_stillness=False)
 
     # -- guided protocol -------------------------------------------------------------------------
     def run(

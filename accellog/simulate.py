@@ -90,6 +90,8 @@ class Scenario:
         unknown = sorted(set(data) - names)
         if unknown:
             raise InputError(f"unknown scenario key(s) {unknown}; known: {sorted(names)}", where=where)
+        for key, value in data.items():
+            _check_type(key, value, where)
         sc = cls(**data)
         sc.validate(where)
         return sc
@@ -112,6 +114,35 @@ class Scenario:
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+
+_FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s"}
+_INT_KEYS = {"accel_range_g", "gyro_range_dps", "chip_seed", "seed"}
+_STR_KEYS = {"protocol", "errors", "gyro_errors", "motion", "robot_path"}
+_TABLE_KEYS = {"set", "temperature"}
+
+
+def _check_type(key: str, value: Any, where: str) -> None:
+    """One-line InputError when a scenario value has the wrong type (TOML is typed)."""
+
+    def bad(expected: str) -> InputError:
+        return InputError(f"scenario key {key!r} must be {expected}, got {value!r}", where=where)
+
+    is_num = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if key in _FLOAT_KEYS and not is_num:
+        raise bad("a number")
+    if key in _INT_KEYS and (not isinstance(value, int) or isinstance(value, bool)):
+        raise bad("an integer")
+    if key in _STR_KEYS and not isinstance(value, str):
+        raise bad("a string")
+    if key in _TABLE_KEYS and not isinstance(value, dict):
+        raise bad("a table")
+    if key == "fixture_tilt_deg" and not (
+        isinstance(value, (list, tuple))
+        and len(value) == 2
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    ):
+        raise bad("two numbers [about x, about y] in degrees")
 
 
 def build_sensor_model(sc: Scenario):
@@ -138,9 +169,19 @@ def build_sensor_model(sc: Scenario):
         bad = sorted(set(sc.set) - known)
         if bad:
             raise InputError(f"unknown accelerometer error field(s) {bad}; known: {sorted(known)}")
-        accel = dataclasses.replace(
-            accel, **{k: (np.asarray(v, float) if isinstance(v, list) else v) for k, v in sc.set.items()}
-        )
+        values = {}
+        for k, v in sc.set.items():
+            try:
+                arr = np.asarray(v, float)
+            except (TypeError, ValueError):
+                raise InputError(f"error field {k!r}: {v!r} is not a number or a list of numbers") from None
+            default = np.asarray(getattr(accel, k), float)
+            if arr.shape != default.shape and arr.ndim != 0:
+                raise InputError(
+                    f"{k} must be {default.size} numbers (shape {default.shape}), got shape {arr.shape}"
+                )
+            values[k] = float(arr) if default.ndim == 0 else np.broadcast_to(arr, default.shape).copy()
+        accel = dataclasses.replace(accel, **values)
     gyro = GyroErrors.datasheet(sc.chip_seed) if sc.gyro_errors == "datasheet" else GyroErrors.perfect()
     temperature = temperature_path(sc.temperature)
     model = SensorModel(

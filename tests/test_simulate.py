@@ -107,11 +107,6 @@ def test_toml_scenario_errors(tmp_path, capsys, body, needles):
     assert not out.exists() and not list(tmp_path.glob("out.mcap*"))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="Scenario.from_dict does not check value types: a wrongly typed TOML value ends in a "
-    "ValueError/TypeError traceback instead of a one-line InputError (accellog/simulate.py)",
-)
 @pytest.mark.parametrize(
     "body",
     ['hold_s = "abc"\n', 'sample_rate_hz = "fast"\n', "protocol = 6\n", 'seed = "x"\n', "set = 3\n"],

@@ -177,6 +177,7 @@ def record(
             rec.run(poses, wait=wait)
         except KeyboardInterrupt:
             interrupted = True
+            rec.summary.duration_s = rec.t_s
             writer.write_event(
                 Event(
                     rec.t_s, "note", "recording interrupted by the operator (Ctrl-C); file finished cleanly"
