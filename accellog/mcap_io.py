@@ -18,13 +18,22 @@ the first sample; publish_time = start_time_unix_ns + host_time_ns.
 Crash safety: the writer ends the current chunk and flushes the OS file at least every
 ``flush_interval_s`` of sensor time or wall time, so a killed recorder loses at most that much data
 (plus the chunk being written); ``read_session`` salvages every complete chunk of an unfinished file.
+
+Reading: a finished file in the canonical layout is read by ``_fast_collect`` (file mapped, footer and
+summary parsed with struct, chunks decompressed ~4 MiB at a time into a reused buffer, records walked,
+every channel's payloads decoded at once by ``messages.decode_batch`` and appended into arrays sized
+once); anything else, or any surprise on the way, goes to the generic reader (mcap's SeekingReader +
+``BatchDecoder``, with salvage of unfinished files). Both give identical Sessions (tests check it).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
+import mmap
 import os
+import struct
 import time
 from collections.abc import Iterable
 from pathlib import Path
@@ -59,6 +68,9 @@ _TOPIC_MESSAGE = {
     TOPIC_EVENTS: "Event",
     TOPIC_TRUTH: "TruthBatch",
 }
+# read_session / read_vector3 try the vectorised reader first; False forces the generic reader (tests and
+# benchmarks compare the two).
+FAST_READ = True
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
 
@@ -512,11 +524,14 @@ def write_session(
 # reader
 
 
+_Decoder = pb.BatchDecoder | pb.DecodedBatch  # n_messages and result() (arrays, scalars, counts)
+
+
 @dataclasses.dataclass
 class _Collected:
     metadata: dict[str, str]
     topics: dict[str, str]  # topic -> schema name
-    decoders: dict[str, pb.BatchDecoder]
+    decoders: dict[str, _Decoder]
     recovered: str | None  # None: finished file; else what was salvaged
 
 
@@ -537,7 +552,7 @@ class _Sink:
     def __init__(self, topics: Iterable[str] | None) -> None:
         self.want = None if topics is None else set(topics)
         self.topics: dict[str, str] = {}
-        self.decoders: dict[str, pb.BatchDecoder] = {}
+        self.decoders: dict[str, _Decoder] = {}
         self.metadata: dict[str, str] = {}
         self.n_messages = 0
 
@@ -565,8 +580,21 @@ class _Sink:
 
 
 def _collect(path: Path, topics: Iterable[str] | None = None) -> _Collected:
-    """Read every message of ``topics`` (all if None); salvage unfinished files chunk by chunk."""
+    """Read every message of ``topics`` (all if None); salvage unfinished files chunk by chunk.
+
+    Finished files in the canonical layout take the vectorised ``_fast_collect``; anything else (and
+    any surprise on the way) takes the generic path (mcap's reader + ``BatchDecoder``), which gives
+    the same result wherever both apply.
+    """
     _check_file(path)
+    fast = _fast_collect(path, topics) if FAST_READ else None
+    if fast is not None:
+        return fast
+    return _generic_collect(path, topics)
+
+
+def _generic_collect(path: Path, topics: Iterable[str] | None = None) -> _Collected:
+    """``_collect`` with mcap's SeekingReader and one ``BatchDecoder.add`` per message."""
     sink = _Sink(topics)
     try:
         with open(path, "rb") as f:
@@ -585,6 +613,288 @@ def _collect(path: Path, topics: Iterable[str] | None = None) -> _Collected:
     except (McapError, EOFError, ValueError, OSError, IndexError, KeyError) as exc:
         fast_error = exc
     return _recover(path, topics, fast_error)
+
+
+# ---------------------------------------------------------------------------------------------
+# fast path: walk the MCAP file with struct/numpy, decode every batch channel at once
+
+
+class _NotFast(Exception):
+    """The fast reader met something outside the canonical layout: the generic reader decides."""
+
+
+_REC = struct.Struct("<BQ")  # record prefix: opcode u8, content length u64
+_U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
+_OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
+_OP_CHUNK_INDEX, _OP_METADATA, _OP_METADATA_INDEX = 0x08, 0x0C, 0x0D
+_SUMMARY_OPS = {
+    0x03,
+    0x04,
+    0x08,
+    0x0A,
+    0x0B,
+    0x0D,
+    0x0E,
+}  # schema, channel, chunk/attachment/metadata index, ...
+_FOOTER_SIZE = 9 + 20
+_MESSAGE_HEADER = 2 + 4 + 8 + 8  # channel_id u16, sequence u32, log_time u64, publish_time u64
+_Bytes = bytes | mmap.mmap  # the file: mapped read-only (no copy) by _fast_collect
+_GROUP_BYTES = 4 << 20  # decompressed bytes decoded at a time (fits in L2/L3 cache)
+_PAD = 16  # zero bytes after the decompressed records (vectorised reads may look a few bytes ahead)
+
+
+def _fast_collect(path: Path, topics: Iterable[str] | None = None) -> _Collected | None:
+    """``_collect`` of a finished file without per-message Python; None if the generic path must decide.
+
+    Reads the footer and summary section (schemas, channels, chunk and metadata indexes) with struct,
+    decompresses every chunk in summary order (zstd, lz4 or none) into one buffer, walks its records,
+    and decodes each accellog channel with ``messages.decode_batch``: the same chunks, messages, order
+    and bytes as mcap's SeekingReader with ``iter_messages(log_time_order=False)``. Unfinished files
+    (no footer magic or no summary) and anything unexpected return None.
+    """
+    try:
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            return _fast_parse(data, topics)
+    except Exception:  # an optimisation only: on any surprise the generic reader decides
+        return None
+
+
+def _str_at(data: _Bytes, pos: int) -> tuple[str, int]:
+    n = _U32.unpack_from(data, pos)[0]
+    end = pos + 4 + n
+    if end > len(data):
+        raise _NotFast("string past the end")
+    return str(data[pos + 4 : end], "utf-8"), end
+
+
+def _map_end(data: _Bytes, pos: int) -> int:
+    return pos + 4 + _U32.unpack_from(data, pos)[0]
+
+
+def _schema_at(data: _Bytes, c: int) -> tuple[Schema, int]:
+    sid = _U16.unpack_from(data, c)[0]
+    name, q = _str_at(data, c + 2)
+    encoding, q = _str_at(data, q)
+    end = _map_end(data, q)
+    return Schema(id=sid, name=name, encoding=encoding, data=data[q + 4 : end]), end
+
+
+def _channel_at(data: _Bytes, c: int) -> tuple[Channel, int]:
+    cid, sid = struct.unpack_from("<HH", data, c)
+    topic, q = _str_at(data, c + 4)
+    encoding, q = _str_at(data, q)
+    return Channel(id=cid, topic=topic, message_encoding=encoding, schema_id=sid, metadata={}), _map_end(
+        data, q
+    )
+
+
+def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> _Collected:
+    size = len(data)
+    if size < 2 * len(MCAP_MAGIC) + _FOOTER_SIZE or data[-len(MCAP_MAGIC) :] != MCAP_MAGIC:
+        raise _NotFast("no footer magic: unfinished file")
+    footer = size - len(MCAP_MAGIC) - _FOOTER_SIZE
+    if _REC.unpack_from(data, footer) != (_OP_FOOTER, 20):
+        raise _NotFast("no footer")
+    summary_start = _U64.unpack_from(data, footer + 9)[0]
+    if summary_start == 0 or summary_start >= footer:
+        raise _NotFast("no summary section")
+
+    # summary section: every record parsed must fill its declared length exactly
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    chunk_index_at: list[int] = []
+    chunk_index_len: list[int] = []
+    metadata_at: list[int] = []
+    pos = summary_start
+    while pos < footer:
+        op, ln = _REC.unpack_from(data, pos)
+        c, e = pos + 9, pos + 9 + ln
+        if op not in _SUMMARY_OPS or e > footer:
+            raise _NotFast(f"summary record {op:#x}")
+        if op == _OP_SCHEMA:
+            sch, q = _schema_at(data, c)
+            schemas[sch.id] = sch
+        elif op == _OP_CHANNEL:
+            ch, q = _channel_at(data, c)
+            channels[ch.id] = ch
+        elif op == _OP_CHUNK_INDEX:
+            chunk_index_at.append(c)
+            chunk_index_len.append(ln)
+            q = e
+        elif op == _OP_METADATA_INDEX:
+            metadata_at.append(_U64.unpack_from(data, c)[0])
+            q = _str_at(data, c + 16)[1]
+        else:
+            q = e
+        if q != e:
+            raise _NotFast(f"summary record {op:#x} length")
+        pos = e
+    if pos != footer or not chunk_index_at:
+        raise _NotFast("summary without chunk indexes")
+    if len({ch.topic for ch in channels.values()}) != len(channels):
+        raise _NotFast("topic on several channels")
+
+    # chunk indexes (vectorised): start offset of each chunk, in summary order
+    buf = np.frombuffer(data, np.uint8)
+    ci = np.asarray(chunk_index_at, dtype=np.int64)
+    map_len = pb.read_le(buf, ci + 32, "<u4").astype(np.int64)
+    comp_len = pb.read_le(buf, ci + 44 + map_len, "<u4").astype(np.int64)
+    if np.any(32 + 4 + map_len + 8 + 4 + comp_len + 16 != np.asarray(chunk_index_len)):
+        raise _NotFast("chunk index length")
+    chunk_at = pb.read_le(buf, ci + 16, "<u8").astype(np.int64)
+    if np.any(chunk_at > footer - 49) or np.any(buf[chunk_at] != _OP_CHUNK):
+        raise _NotFast("chunk index does not point at a chunk")
+    # chunk: start, end u64, uncompressed_size u64, crc u32, compression string, records (u64 length)
+    c = chunk_at + 9
+    usize = pb.read_le(buf, c + 16, "<u8").astype(np.int64)
+    name_len = pb.read_le(buf, c + 28, "<u4").astype(np.int64)
+    if np.any(name_len > 4):
+        raise _NotFast("compression")
+    rec_len = pb.read_le(buf, c + 32 + name_len, "<u8")
+    if np.any(rec_len > np.uint64(size)):
+        raise _NotFast("chunk past the end")
+    rec_at = c + 40 + name_len
+    rec_end = rec_at + rec_len.astype(np.int64)
+    if np.any(rec_end > footer):
+        raise _NotFast("chunk past the end")
+    # chunks in groups of about _GROUP_BYTES decompressed: each group is decoded while in the CPU cache
+    sink = _Sink(topics)
+    message_of: dict[int, str | None] = {}  # channel id -> accellog message type (None: not decoded)
+    parts: dict[int, pb.BatchAccumulator] = {}
+    name_at, name_len, rec_at, rec_end = (
+        (c + 32).tolist(),
+        name_len.tolist(),
+        rec_at.tolist(),
+        rec_end.tolist(),
+    )
+    chunks = _Decompressor(data)
+    usize_list = usize.tolist()
+    done = (np.cumsum(usize) / max(1, int(usize.sum()))).tolist()  # fraction read after each chunk
+    for g0, g1 in _groups(usize):
+        records, used = chunks.records(
+            name_at[g0:g1], name_len[g0:g1], rec_at[g0:g1], rec_end[g0:g1], usize_list[g0:g1]
+        )
+        messages = _message_starts(records, usize_list[g0:g1])
+        if not messages.shape[0]:
+            continue
+        rb = np.frombuffer(records, np.uint8, used + _PAD)
+        msg_len = pb.read_le(rb, messages + 1, "<u8")
+        if np.any(msg_len < _MESSAGE_HEADER):
+            raise _NotFast("short message record")
+        channel_id = pb.read_le(rb, messages + 9, "<u2")
+        payload_at = messages + 9 + _MESSAGE_HEADER
+        payload_end = messages + 9 + msg_len.astype(np.int64)
+        ids, first = np.unique(channel_id, return_index=True)
+        for cid in ids[np.argsort(first)].tolist():
+            if cid not in message_of:  # first message of the channel, as the generic sink sees it
+                ch = channels[cid]
+                wanted = sink.want is None or ch.topic in sink.want
+                schema = None if ch.schema_id == 0 else schemas[ch.schema_id]
+                message_of[cid] = sink.channel(schema, ch) if wanted else None
+                parts[cid] = pb.BatchAccumulator(message_of[cid] or "")
+            msg = message_of[cid]
+            if msg is None:
+                continue
+            sel = slice(None) if ids.shape[0] == 1 else np.flatnonzero(channel_id == cid)
+            dec = pb.decode_batch(msg, rb, payload_at[sel], payload_end[sel])
+            if dec is None:
+                raise _NotFast(f"{channels[cid].topic}: not canonical protobuf")
+            parts[cid].add(dec, done[g1 - 1])
+    for cid, msg in message_of.items():
+        if msg is not None:
+            sink.decoders[channels[cid].topic] = parts[cid].finish()
+    for ch in channels.values():
+        sink.channel(schemas.get(ch.schema_id), ch)
+
+    for at in metadata_at:
+        op, ln = _REC.unpack_from(data, at)
+        if op != _OP_METADATA:
+            raise _NotFast("metadata index does not point at metadata")
+        name, q = _str_at(data, at + 9)
+        end = _map_end(data, q)
+        kv: dict[str, str] = {}
+        q += 4
+        while q < end:
+            k, q = _str_at(data, q)
+            kv[k], q = _str_at(data, q)
+        if q != end or end != at + 9 + ln:
+            raise _NotFast("metadata record length")
+        if name == "session":
+            sink.metadata = kv
+    return _Collected(sink.metadata, sink.topics, sink.decoders, None)
+
+
+def _groups(usize: np.ndarray) -> list[tuple[int, int]]:
+    """Consecutive runs of chunks holding about _GROUP_BYTES of records each (at least one chunk)."""
+    bounds = [0]
+    total = 0
+    for i, u in enumerate(usize.tolist()):
+        if total and total + u > _GROUP_BYTES:
+            bounds.append(i)
+            total = 0
+        total += u
+    bounds.append(usize.shape[0])
+    return list(itertools.pairwise(bounds))
+
+
+class _Decompressor:
+    """Decompresses runs of chunks into one reused buffer (fresh memory per group would cost page faults)."""
+
+    def __init__(self, data: _Bytes) -> None:
+        import lz4.frame
+        import zstandard
+
+        self.data = data
+        self.zstd = zstandard.ZstdDecompressor().decompress
+        self.lz4 = lz4.frame.decompress
+        self.buf = bytearray()
+
+    def records(
+        self, name_at: list[int], name_len: list[int], at: list[int], end: list[int], usize: list[int]
+    ) -> tuple[bytearray, int]:
+        """(buffer, n): the chunks' records back to back in buffer[:n], then _PAD zero bytes."""
+        total = sum(usize)
+        if len(self.buf) < total + _PAD:
+            self.buf = bytearray(total + _PAD)
+        buf, data, mv = self.buf, self.data, memoryview(self.data)
+        pos = 0
+        for na, nl, a, b, u in zip(name_at, name_len, at, end, usize, strict=True):
+            comp = data[na : na + nl]
+            if comp == b"zstd":
+                out = self.zstd(mv[a:b], max_output_size=u)
+            elif comp == b"lz4":
+                out = self.lz4(mv[a:b])
+            elif comp == b"":
+                out = mv[a:b]
+            else:
+                raise _NotFast(f"compression {comp!r}")
+            if len(out) != u:
+                raise _NotFast("chunk size")
+            buf[pos : pos + u] = out
+            pos += u
+        buf[pos : pos + _PAD] = bytes(_PAD)
+        return buf, pos
+
+
+def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
+    """Offsets of the Message records in the concatenated chunk records (each chunk must be whole)."""
+    unpack = _REC.unpack_from
+    starts: list[int] = []
+    add = starts.append
+    pos = 0
+    for end in itertools.accumulate(usize):
+        while pos < end:
+            op, ln = unpack(records, pos)
+            if op == _OP_MESSAGE:
+                add(pos)
+            elif op in (_OP_SCHEMA, _OP_CHANNEL):  # read by content in mcap: length must agree
+                q = (_schema_at if op == _OP_SCHEMA else _channel_at)(records, pos + 9)[1]
+                if q != pos + 9 + ln:
+                    raise _NotFast("schema/channel record length in a chunk")
+            pos += 9 + ln
+        if pos != end:
+            raise _NotFast("record across a chunk boundary")
+    return np.asarray(starts, dtype=np.int64)
 
 
 def _recover(path: Path, topics: Iterable[str] | None, why: Exception) -> _Collected:
@@ -668,9 +978,15 @@ def read_session(path: str | Path) -> Session:
     t_ns = arrays["t_ns"]
     starts = np.cumsum(n_per) - n_per
     first = np.asarray(scalars["first_sample_index"], dtype=np.int64)
-    sample_index = np.repeat(first - starts, n_per) + np.arange(n, dtype=np.int64)
+    offset = first - starts  # sample_index[i] = offset[k] + i for the samples i of message k
+    if np.all(offset == offset[0]):  # no gap anywhere: one arange
+        sample_index = np.arange(offset[0], offset[0] + n, dtype=np.int64)
+    else:
+        sample_index = np.repeat(offset, n_per) + np.arange(n, dtype=np.int64)
+    full = n_per > 0  # samples out of order <=> a message starts below the previous one's last index
+    in_order = not np.any(first[full][1:] < (first + n_per - 1)[full][:-1])
     host = np.asarray(scalars["host_time_ns"], dtype=np.int64)
-    host_time_s = np.repeat(host, n_per) / NS_PER_S if np.any(host != 0) else None
+    host_time_s = np.repeat(host / NS_PER_S, n_per) if np.any(host != 0) else None
 
     accel_counts = _reshape(arrays["accel_counts"], n, 3, "accel_counts", where)
     accel_g = _reshape(arrays["accel_g"], n, 3, "accel_g", where)
@@ -689,7 +1005,7 @@ def read_session(path: str | Path) -> Session:
     if temp_degC is None and temp_counts is not None:
         temp_degC = temp_counts_to_degC(temp_counts.astype(np.float64))
 
-    if n > 1 and np.any(np.diff(sample_index) < 0):  # batches out of order: sort samples once
+    if not in_order:  # batches out of order: sort samples once
         order = np.argsort(sample_index, kind="stable")
         sample_index, t_ns = sample_index[order], t_ns[order]
         fix = [accel_g, accel_counts, gyro_dps, gyro_counts, temp_degC, temp_counts, host_time_s]
@@ -719,7 +1035,7 @@ def read_session(path: str | Path) -> Session:
     return session
 
 
-def _read_mag(session: Session, dec: pb.BatchDecoder | None, where: str) -> None:
+def _read_mag(session: Session, dec: _Decoder | None, where: str) -> None:
     if dec is None or dec.n_messages == 0:
         return
     arrays, scalars, counts = dec.result()
@@ -742,7 +1058,7 @@ def _read_mag(session: Session, dec: pb.BatchDecoder | None, where: str) -> None
     session.mag_uT = mag_uT
 
 
-def _messages(dec: pb.BatchDecoder | None):
+def _messages(dec: _Decoder | None):
     """Per-message dicts of a small-message channel (poses, events)."""
     if dec is None:
         return []
@@ -757,7 +1073,7 @@ def _messages(dec: pb.BatchDecoder | None):
     return out
 
 
-def _read_poses(dec: pb.BatchDecoder | None) -> list[PoseLabel]:
+def _read_poses(dec: _Decoder | None) -> list[PoseLabel]:
     return [
         PoseLabel(
             name=d["name"],
@@ -773,14 +1089,14 @@ def _read_poses(dec: pb.BatchDecoder | None) -> list[PoseLabel]:
     ]
 
 
-def _read_events(dec: pb.BatchDecoder | None) -> list[Event]:
+def _read_events(dec: _Decoder | None) -> list[Event]:
     return [
         Event(d["t_ns"] / NS_PER_S, d["kind"], d["detail"], int(d["sample_index"]), int(d["lost_samples"]))
         for d in _messages(dec)
     ]
 
 
-def _read_truth(dec: pb.BatchDecoder | None, where: str) -> Truth | None:
+def _read_truth(dec: _Decoder | None, where: str) -> Truth | None:
     if dec is None or dec.n_messages == 0:
         return None
     a, _, counts = dec.result()

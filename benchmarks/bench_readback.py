@@ -1,25 +1,38 @@
-"""MCAP read-back speed: read_session of a 1 kHz session vs the same arrays from raw .npy files.
+"""MCAP read-back speed: read_session of a 1 kHz session vs reading the same arrays from raw binary files.
 
-Usage: python benchmarks/bench_readback.py [--minutes 60] [--repeat 3]
+Usage: python benchmarks/bench_readback.py [--minutes 60] [--repeat 5] [--no-generic]
 
-Simulated static recording (seeded): accel/gyro/temp counts with noise, per-FIFO host times. Layouts:
-- write_session: 500-sample messages, 1 MiB zstd chunks (imports, simulations);
-- recorder: 36-sample messages (one FIFO read each), 64 KiB chunks flushed every 0.5 s (SessionWriter
-  defaults, crash-safe).
-Baselines: np.load of t_ns, accel/gyro/temp counts, host time (.npy, uncompressed), alone and followed
-by the same conversions read_session does (counts -> g, deg/s, degC; ns -> s). Ratios are measured
-side by side in one run, best of --repeat (warm page cache).
+Data: a simulated static recording (seeded): accel/gyro/temp counts with noise, one host time per
+36-sample FIFO read. MCAP layouts (same format, same schema, one message per batch):
+- recorder: 36-sample messages (one FIFO read each) written by SessionWriter with its defaults
+  (chunk ended and flushed every 0.5 s: crash-safe), zstd (default) or lz4;
+- write_session: whole-session writer (imports, simulations), 1 MiB zstd chunks (messages are still
+  split wherever host time changes, i.e. every 36 samples here).
+Baselines, holding exactly the arrays a Session gets (same dtypes; t_ns i8, sample_index i8,
+accel/gyro counts i4 (n,3), temp counts i4, host time ns i8 per sample):
+- raw binary: one flat uncompressed .bin file read with one readinto + zero-copy views;
+- raw binary + conversions: the same followed by read_session's unit conversions (ns -> s,
+  counts -> g, deg/s, degC);
+- raw .npy: one np.load per array (for reference).
+Floors: mapping the MCAP file and decompressing its chunks (no parsing, no decoding): the part of
+read_session no decoder can avoid. 'generic' rows are the reader before the vectorised path (mcap's
+reader + per-message BatchDecoder; accellog.mcap_io.FAST_READ = False), timed once.
+Every file is read once before timing (page cache warm); each figure is the best of --repeat runs,
+interleaved round-robin so that load from other processes hits all variants alike.
 """
 
 from __future__ import annotations
 
 import argparse
+import mmap
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from accellog import mcap_io
 from accellog.mcap_io import SessionWriter, read_session, write_session
 from accellog.session import Session, SessionMeta
 from accellog.units import temp_counts_to_degC
@@ -28,6 +41,7 @@ NS = 1_000_000_000
 
 
 def simulate(n: int, seed: int = 0) -> Session:
+    """n samples at 1 kHz: counts of a nearly level sensor with noise, warm-up temperature, FIFO host times."""
     rng = np.random.default_rng(seed)
     t_ns = np.arange(n, dtype=np.int64) * 1_000_000
     up = np.array([0.02, -0.01, 1.0])
@@ -54,10 +68,11 @@ def simulate(n: int, seed: int = 0) -> Session:
     )
 
 
-def write_recorder_layout(path: Path, s: Session) -> None:
+def write_recorder_layout(path: Path, s: Session, compression: str = "zstd") -> None:
+    """As the recorder writes: one message per 36-sample FIFO read, SessionWriter defaults otherwise."""
     t_ns = np.round(s.t_s * NS).astype(np.int64)
     host = np.round(s.host_time_s * NS).astype(np.int64)
-    with SessionWriter(path, s.meta) as w:
+    with SessionWriter(path, s.meta, compression=compression) as w:
         for i in range(0, s.n, 36):
             j = min(i + 36, s.n)
             w.write_imu(
@@ -65,76 +80,181 @@ def write_recorder_layout(path: Path, s: Session) -> None:
             )
 
 
-def best(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+# the arrays of a Session that are stored, in the raw files: name -> (dtype, shape per sample)
+RAW = {
+    "t_ns": ("<i8", ()),
+    "sample_index": ("<i8", ()),
+    "accel_counts": ("<i4", (3,)),
+    "gyro_counts": ("<i4", (3,)),
+    "temp_counts": ("<i4", ()),
+    "host_time_ns": ("<i8", ()),
+}
+
+
+def raw_arrays(s: Session) -> dict[str, np.ndarray]:
+    return {
+        "t_ns": np.round(s.t_s * NS).astype(np.int64),
+        "sample_index": s.sample_index.astype(np.int64),
+        "accel_counts": s.accel_counts,
+        "gyro_counts": s.gyro_counts,
+        "temp_counts": s.temp_counts,
+        "host_time_ns": np.round(s.host_time_s * NS).astype(np.int64),
+    }
+
+
+def read_raw_bin(path: Path, n: int) -> dict[str, np.ndarray]:
+    """One readinto of the flat file, then zero-copy views (the cheapest way to get the arrays)."""
+    buf = np.empty(path.stat().st_size, np.uint8)
+    with open(path, "rb", buffering=0) as f:
+        f.readinto(buf)
+    out, pos = {}, 0
+    for name, (dt, shape) in RAW.items():
+        count = n * int(np.prod(shape, dtype=np.int64))
+        out[name] = np.frombuffer(buf, dt, count, pos).reshape((n, *shape))
+        pos += count * np.dtype(dt).itemsize
+    return out
+
+
+def convert(a: dict[str, np.ndarray]) -> tuple:
+    """read_session's unit conversions: ns -> s, counts -> g, deg/s, degC."""
+    return (
+        a["t_ns"] / NS,
+        a["accel_counts"] / 16384.0,
+        a["gyro_counts"] / 131.0,
+        temp_counts_to_degC(a["temp_counts"].astype(np.float64)),
+        a["host_time_ns"] / NS,
+    )
+
+
+def decompress_floor(path: Path) -> Callable[[], None]:
+    """Read the file and decompress every chunk (spans from mcap's summary, found once, untimed)."""
+    import lz4.frame
+    import zstandard
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        spans = []
+        for ci in summary.chunk_indexes:
+            f.seek(ci.chunk_start_offset + 9 + 28)
+            name_len = int.from_bytes(f.read(4), "little")
+            start = ci.chunk_start_offset + 9 + 32 + name_len + 8
+            spans.append((start, start + ci.compressed_size, ci.uncompressed_size, ci.compression))
+
+    def run() -> None:  # the file mapped as read_session maps it (no copy)
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            data = memoryview(mm)
+            dctx = zstandard.ZstdDecompressor()
+            for a, b, u, comp in spans:
+                if comp == "zstd":
+                    dctx.decompress(data[a:b], max_output_size=u)
+                elif comp == "lz4":
+                    lz4.frame.decompress(data[a:b])
+            data.release()
+
+    return run
+
+
+def generic_read(path: Path) -> Session:
+    mcap_io.FAST_READ = False
+    try:
+        return read_session(path)
+    finally:
+        mcap_io.FAST_READ = True
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--minutes", type=float, default=60.0)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--no-generic", action="store_true", help="skip the (slow) generic-reader rows")
     args = ap.parse_args()
     n = int(args.minutes * 60 * 1000)
     s = simulate(n)
-    with tempfile.TemporaryDirectory() as d:
-        d = Path(d)
-        names = ("t_ns", "accel_counts", "gyro_counts", "temp_counts", "host_ns")
-        arrays = (
-            np.round(s.t_s * NS).astype(np.int64),
-            s.accel_counts,
-            s.gyro_counts,
-            s.temp_counts,
-            np.round(s.host_time_s * NS).astype(np.int64),
-        )
-        for name, a in zip(names, arrays, strict=True):
-            np.save(d / f"{name}.npy", a)
-        npy_bytes = sum((d / f"{nm}.npy").stat().st_size for nm in names)
+    rows: list[tuple[str, Callable[[], object], Path | list[Path], float]] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        arrays = raw_arrays(s)
+        raw_bin = d / "raw.bin"
+        with open(raw_bin, "wb") as f:
+            for name in RAW:
+                f.write(np.ascontiguousarray(arrays[name]).tobytes())
+        npys = [d / f"{name}.npy" for name in RAW]
+        for name, p in zip(RAW, npys, strict=True):
+            np.save(p, arrays[name])
 
-        t0 = time.perf_counter()
-        write_session(d / "ws.mcap", s)
-        t_write_ws = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        write_recorder_layout(d / "rec.mcap", s)
-        t_write_rec = time.perf_counter() - t0
+        files: dict[str, tuple[Path, float]] = {}
+        for key, writer in (
+            ("rec", lambda p: write_recorder_layout(p, s)),
+            ("rec_lz4", lambda p: write_recorder_layout(p, s, "lz4")),
+            ("ws", lambda p: write_session(p, s)),
+        ):
+            p = d / f"{key}.mcap"
+            t0 = time.perf_counter()
+            writer(p)
+            files[key] = (p, time.perf_counter() - t0)
+            r = read_session(p)
+            for name, a in raw_arrays(r).items():
+                assert np.array_equal(a, arrays[name]), (key, name)
+            del r
 
-        def raw_load():
-            return [np.load(d / f"{nm}.npy") for nm in names]
+        rows += [
+            ("raw binary (1 flat .bin, readinto)", lambda: read_raw_bin(raw_bin, n), raw_bin, float("nan")),
+            (
+                "raw binary + the same conversions",
+                lambda: convert(read_raw_bin(raw_bin, n)),
+                raw_bin,
+                float("nan"),
+            ),
+            ("raw .npy (np.load per array)", lambda: [np.load(p) for p in npys], npys, float("nan")),
+        ]
+        labels = {
+            "rec": "MCAP recorder 36/msg, zstd (default)",
+            "rec_lz4": "MCAP recorder 36/msg, lz4",
+            "ws": "MCAP write_session, 1 MiB zstd chunks",
+        }
+        for key, (p, tw) in files.items():
+            rows.append((labels[key] + ": read_session", lambda p=p: read_session(p), p, tw))
+            rows.append(
+                (f"  floor ({key}): read file + decompress only", decompress_floor(p), p, float("nan"))
+            )
 
-        def raw_convert():
-            t, ac, gc, tc, h = raw_load()
-            return t / NS, ac / 16384.0, gc / 131.0, temp_counts_to_degC(tc.astype(np.float64)), h / NS
+        best = {name: float("inf") for name, *_ in rows}
+        for fn in (r[1] for r in rows):  # warm the page cache and every code path
+            fn()
+        for _ in range(args.repeat):
+            for name, fn, _, _ in rows:
+                t0 = time.perf_counter()
+                fn()
+                best[name] = min(best[name], time.perf_counter() - t0)
+        generic: dict[str, float] = {}
+        if not args.no_generic:
+            for key in ("rec", "ws"):
+                t0 = time.perf_counter()
+                generic_read(files[key][0])
+                generic[key] = time.perf_counter() - t0
 
-        r = read_session(d / "ws.mcap")
-        assert np.array_equal(r.accel_counts, s.accel_counts) and np.array_equal(r.host_time_s, s.host_time_s)
-        r = read_session(d / "rec.mcap")
-        assert np.array_equal(r.accel_counts, s.accel_counts) and np.array_equal(r.host_time_s, s.host_time_s)
-        del r
+        def size(p: Path | list[Path]) -> float:
+            return sum(q.stat().st_size for q in (p if isinstance(p, list) else [p])) / 1e6
 
-        t_raw = best(raw_load, args.repeat)
-        t_rawc = best(raw_convert, args.repeat)
-        t_ws = best(lambda: read_session(d / "ws.mcap"), args.repeat)
-        t_rec = best(lambda: read_session(d / "rec.mcap"), args.repeat)
-        size_ws = (d / "ws.mcap").stat().st_size
-        size_rec = (d / "rec.mcap").stat().st_size
+        sizes = {name: size(p) for name, _, p, _ in rows}
+        file_mb = {key: size(p) for key, (p, _) in files.items()}
 
-    mb = 1e6
+    t_raw = best["raw binary (1 flat .bin, readinto)"]
+    t_rawc = best["raw binary + the same conversions"]
     print(
-        f"read-back of {args.minutes:g} min at 1 kHz = {n:,} samples (accel+gyro+temp counts, t_ns, host time)"
+        f"read-back of {args.minutes:g} min at 1 kHz = {n:,} samples (accel+gyro+temp counts, t_ns, "
+        f"sample index, host time); best of {args.repeat}, wall time"
     )
-    print(f"{'variant':<42} {'read s':>8} {'vs npy':>8} {'vs npy+conv':>12} {'size MB':>9} {'write s':>8}")
-    rows = [
-        ("raw .npy (np.load only)", t_raw, npy_bytes, float("nan")),
-        ("raw .npy + same conversions", t_rawc, npy_bytes, float("nan")),
-        ("MCAP write_session (500/msg, 1 MiB zstd)", t_ws, size_ws, t_write_ws),
-        ("MCAP recorder (36/msg, 64 KiB, 0.5 s flush)", t_rec, size_rec, t_write_rec),
-    ]
-    for name, t, size, tw in rows:
-        print(f"{name:<42} {t:8.3f} {t / t_raw:8.2f} {t / t_rawc:12.2f} {size / mb:9.1f} {tw:8.2f}")
+    head = f"{'variant':<58} {'read s':>8} {'vs raw':>7} {'vs raw+conv':>12} {'size MB':>8} {'write s':>8}"
+    print(head)
+    print("-" * len(head))
+    for name, _, _, tw in rows:
+        t = best[name]
+        print(f"{name:<58} {t:8.3f} {t / t_raw:7.2f} {t / t_rawc:12.2f} {sizes[name]:8.1f} {tw:8.2f}")
+    for key, t in generic.items():
+        name = labels[key] + ": generic reader (before), 1 run"
+        print(f"{name:<58} {t:8.3f} {t / t_raw:7.2f} {t / t_rawc:12.2f} {file_mb[key]:8.1f}")
 
 
 if __name__ == "__main__":
