@@ -87,6 +87,7 @@ class Recorder:
     sleep: how to wait between FIFO reads (real ``time.sleep`` or a simulated clock's sleep).
     poll_s: time between FIFO reads (s); the 512-byte FIFO holds 36 samples, i.e. 36 ms at 1 kHz.
     on_batch: optional callback (e.g. a live Rerun view) given every batch; it must not raise.
+    on_pose: optional callback (label, mean_g (3,), std_g (3,), n) after every labelled hold.
     """
 
     def __init__(
@@ -99,6 +100,7 @@ class Recorder:
         ui: RecorderUI | None = None,
         stillness: StillnessDetector | None = None,
         on_batch: Callable[[object, np.ndarray], None] | None = None,
+        on_pose: Callable[[PoseLabel, np.ndarray, np.ndarray, int], None] | None = None,
         read_mag: bool = False,
     ) -> None:
         self.driver = driver
@@ -108,7 +110,12 @@ class Recorder:
         self.ui = ui or QuietUI()
         self.stillness = stillness or StillnessDetector()
         self.on_batch = on_batch
+        self.on_pose = on_pose
         self.read_mag = read_mag
+        self._hold_sum = np.zeros(3)
+        self._hold_sq = np.zeros(3)
+        self._hold_n = 0
+        self._holding = False
         self.summary = RecordSummary()
         self._t_last_s = 0.0
 
@@ -141,6 +148,10 @@ class Recorder:
             gyro_dps = batch.gyro_counts / cfg.gyro_lsb_per_dps
             if detect_stillness:
                 self.stillness.update(t_s, accel_g, gyro_dps)
+            if self._holding:
+                self._hold_sum += accel_g.sum(axis=0)
+                self._hold_sq += (accel_g**2).sum(axis=0)
+                self._hold_n += n
             if self.on_batch is not None:
                 self.on_batch(batch, accel_g)
         if self.read_mag:
@@ -186,11 +197,13 @@ class Recorder:
                 continue
             start = self.t_s
             moved = False
+            self._hold_sum[:], self._hold_sq[:], self._hold_n, self._holding = 0.0, 0.0, 0, True
             while self.t_s - start < pose.hold_s:
                 self.step()
                 self.ui.holding(pose, self.t_s - start)
                 if not self.stillness.still:
                     moved = True
+            self._holding = False
             label = PoseLabel(pose.name, start, self.t_s, pose.up_sensor, pose.q_sensor_to_world, k)
             if moved:
                 ev = Event(start, "note", f"pose {pose.name}: sensor moved during the hold")
@@ -199,6 +212,10 @@ class Recorder:
             self.writer.write_pose(label)
             self.summary.poses.append(label)
             self.ui.finished_pose(label)
+            if self.on_pose is not None and self._hold_n > 1:
+                mean = self._hold_sum / self._hold_n
+                std = np.sqrt(np.maximum(self._hold_sq / self._hold_n - mean**2, 0.0))
+                self.on_pose(label, mean, std, self._hold_n)
         self.summary.duration_s = self.t_s
         return self.summary
 

@@ -7,6 +7,7 @@ import signal
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 from rich.console import Console
 
@@ -52,6 +53,52 @@ class TerminalUI:
 
     def finished_pose(self, label: PoseLabel) -> None:
         console.print(f"  {label.name}: held {label.end_s - label.start_s:.1f} s" + " " * 30)
+
+
+class RunningCalibration:
+    """Refits the richest seed model the holds so far determine and shows it in the live view."""
+
+    def __init__(self, live) -> None:
+        self.live = live
+        self.rows: list[tuple[str, tuple, np.ndarray, np.ndarray, int]] = []
+
+    def __call__(self, label: PoseLabel, mean_g: np.ndarray, std_g: np.ndarray, n: int) -> None:
+        try:
+            self._update(label, mean_g, std_g, n)
+        except Exception as exc:  # the live view must never stop the recording
+            console.print(f"[yellow]live calibration skipped: {exc}[/]")
+
+    def _update(self, label: PoseLabel, mean_g: np.ndarray, std_g: np.ndarray, n: int) -> None:
+        from ..errors import AccellogError
+        from ..fit import fit_model
+        from ..model import build_model
+        from ..report import params_table
+        from ..segment import obs_from_pose_means
+        from ..views import table_markdown
+
+        self.rows.append((label.name, label.up_sensor, mean_g, std_g, n))
+        names = [r[0] for r in self.rows]
+        obs = obs_from_pose_means(
+            np.array([r[1] for r in self.rows]),
+            np.array([r[2] for r in self.rows]),
+            np.array([r[3] for r in self.rows]),
+            np.array([r[4] for r in self.rows]),
+            names=names,
+            session="live",
+        )
+        text = f"holds so far: {', '.join(names)}\n\n"
+        for preset in ("model3", "model2", "model1"):
+            try:
+                res = fit_model(obs, build_model(preset))
+            except AccellogError as exc:
+                text += f"- {preset}: not yet determined ({exc})\n"
+                continue
+            from ..calibration import Calibration
+
+            cal = Calibration.from_fit(res, obs=obs, gravity_convention="local")
+            text += "\n" + table_markdown(params_table(cal, title=f"running {preset}"))
+            break
+        self.live.running_calibration(text)
 
 
 def _open_live(rerun: str | None):
@@ -171,7 +218,13 @@ def record(
     with SessionWriter(out, meta) as writer:
         driver.start()
         rec = Recorder(
-            driver, writer, sleep=sleep, ui=ui, read_mag=read_mag, on_batch=live.on_batch if live else None
+            driver,
+            writer,
+            sleep=sleep,
+            ui=ui,
+            read_mag=read_mag,
+            on_batch=live.on_batch if live else None,
+            on_pose=RunningCalibration(live) if live else None,
         )
         try:
             rec.run(poses, wait=wait)
