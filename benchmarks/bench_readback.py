@@ -216,7 +216,7 @@ def main() -> None:
         for key, (p, tw) in files.items():
             rows.append((labels[key] + ": read_session", lambda p=p: read_session(p), p, tw))
             rows.append(
-                (f"  floor ({key}): read file + decompress only", decompress_floor(p), p, float("nan"))
+                (f"  floor ({key}): map file + decompress only", decompress_floor(p), p, float("nan"))
             )
 
         best = {name: float("inf") for name, *_ in rows}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -17,6 +18,7 @@ import pytest
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import Writer
 
+from accellog import mcap_io
 from accellog import messages as pb
 from accellog.errors import InputError
 from accellog.mcap_io import (
@@ -402,3 +404,181 @@ def test_bad_files_give_one_line_errors(tmp_path):
         w.write_event(Event(0.0, "note", "nothing recorded"))
     with pytest.raises(InputError, match="no IMU samples"):
         read_session(no_samples)
+
+
+# --- the vectorised reader (_fast_collect) against the generic one (mcap reader + BatchDecoder) -----------
+
+
+def _read_both(path, monkeypatch) -> tuple[Session, Session]:
+    fast = read_session(path)
+    monkeypatch.setattr(mcap_io, "FAST_READ", False)
+    generic = read_session(path)
+    monkeypatch.setattr(mcap_io, "FAST_READ", True)
+    return fast, generic
+
+
+def _same_value(x, y) -> bool:
+    if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+        return (
+            isinstance(x, np.ndarray)
+            and isinstance(y, np.ndarray)
+            and x.dtype == y.dtype
+            and x.shape == y.shape
+            and x.tobytes() == y.tobytes()
+        )
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return type(x) is type(y) and all(
+            _same_value(getattr(x, f.name), getattr(y, f.name)) for f in dataclasses.fields(x)
+        )
+    if isinstance(x, list | tuple):
+        return type(x) is type(y) and len(x) == len(y) and all(map(_same_value, x, y))
+    return type(x) is type(y) and (x == y or (x != x and y != y))
+
+
+def _assert_identical(a: Session, b: Session) -> None:
+    """Bit-identical Sessions: every field, dtype, shape, pose, event (types included)."""
+    for f in dataclasses.fields(Session):
+        assert _same_value(getattr(a, f.name), getattr(b, f.name)), f.name
+
+
+def _recorder_file(path, seed: int, compression: str = "zstd", shuffle: bool = False):
+    """As the recorder writes: FIFO reads of 30-40 samples, gaps, events, poses, mag, derived, truth."""
+    rng = np.random.default_rng(seed)
+    meta = _meta()
+    batches, i = [], 0
+    while i < 9000:
+        n = int(rng.integers(30, 41))
+        if rng.random() < 0.02:
+            i += int(rng.integers(1, 50))  # lost samples
+        batches.append((i, n))
+        i += n
+    if shuffle:  # batches out of order (and one overlapping the previous): read_session sorts samples
+        rng.shuffle(batches)
+        batches.append((batches[-1][0] + 3, 10))
+    with SessionWriter(path, meta, compression=compression, flush_interval_s=0.25) as w:
+        for k, (i, n) in enumerate(batches):
+            idx = i + np.arange(n)
+            ac = rng.integers(-32768, 32768, (n, 3))
+            w.write_imu(
+                i, idx * 1_000_000, ac, ac[:, ::-1], idx % 3000, host_time_ns=int(idx[-1]) * 1_000_000 + 7
+            )
+            if k % 3 == 0:
+                w.write_mag(
+                    [int(idx[0]) * 1_000_000],
+                    mag_counts=[[k, -k, 2 * k]],
+                    st2=[16],
+                    asa_factor=[1.1, 0.9, 1.0],
+                    ut_per_lsb=0.15,
+                )
+            if k % 50 == 0:
+                w.write_event(Event(i / 1000, "gap", f"batch {k} ✓", i, k % 4))
+                w.write_pose(PoseLabel(f"+z@{k}", i / 1000, i / 1000 + 0.5, (0.0, 0.6, 0.8), None, k))
+        w.write_vector3("accel_cal", np.arange(5) * 1000, np.arange(15.0).reshape(5, 3), "g")
+        w.write_truth(_session(seed, n=3000).truth, batch_size=128)
+    return path
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_fast_reader_equals_generic_recorder_files(tmp_path, monkeypatch, compression):
+    p = _recorder_file(tmp_path / "r.mcap", seed=1, compression=compression)
+    assert mcap_io._fast_collect(p) is not None  # the fast path is taken
+    fast, generic = _read_both(p, monkeypatch)
+    _assert_identical(fast, generic)
+    assert (
+        fast.n > 8000 and fast.mag_t_s is not None and fast.poses and fast.events and fast.truth is not None
+    )
+    assert read_vector3(p, "accel_cal")[1].tolist() == np.arange(15.0).reshape(5, 3).tolist()
+
+
+def test_fast_reader_equals_generic_out_of_order_batches(tmp_path, monkeypatch):
+    p = _recorder_file(tmp_path / "s.mcap", seed=2, shuffle=True)
+    assert mcap_io._fast_collect(p) is not None
+    fast, generic = _read_both(p, monkeypatch)
+    _assert_identical(fast, generic)
+    assert np.all(np.diff(fast.sample_index) >= 0)
+
+
+@pytest.mark.parametrize(
+    ("batch_size", "chunk_size", "compression"),
+    [(36, 32 * 1024, "zstd"), (500, 1024 * 1024, "lz4"), (7, 4096, "none")],
+)
+def test_fast_reader_equals_generic_write_session(tmp_path, monkeypatch, batch_size, chunk_size, compression):
+    s = _session(seed=5, n=12_000)
+    p = write_session(
+        tmp_path / "w.mcap", s, batch_size=batch_size, chunk_size=chunk_size, compression=compression
+    )
+    assert mcap_io._fast_collect(p) is not None
+    fast, generic = _read_both(p, monkeypatch)
+    _assert_identical(fast, generic)
+    _assert_same(s, fast)
+
+
+def test_fast_reader_equals_generic_value_fields(tmp_path, monkeypatch):
+    rng = np.random.default_rng(6)
+    n = 5001
+    imported = Session(
+        meta=SessionMeta(source="import:csv", sample_rate_hz=100.0, extra={"source_unit": "m/s^2"}),
+        t_s=np.cumsum(rng.uniform(0.004, 0.006, n)),
+        sample_index=np.arange(n),
+        accel_g=rng.normal(size=(n, 3)),
+        gyro_dps=rng.normal(size=(n, 3)),
+        temp_degC=rng.normal(30, 1, n),
+    )
+    both = _session(seed=7, n=4000)
+    both.accel_g = both.accel_g + 1e-3  # counts and values stored
+    for i, s in enumerate((imported, both)):
+        p = write_session(tmp_path / f"v{i}.mcap", s, batch_size=333)
+        assert mcap_io._fast_collect(p) is not None
+        fast, generic = _read_both(p, monkeypatch)
+        _assert_identical(fast, generic)
+
+
+def test_fast_reader_declines_truncated_files(tmp_path, monkeypatch):
+    full = _recorder_file(tmp_path / "full.mcap", seed=8).read_bytes()
+    for frac in (0.3, 0.7, 0.9999):
+        cut = tmp_path / f"cut{frac}.mcap"
+        cut.write_bytes(full[: int(len(full) * frac)])
+        assert mcap_io._fast_collect(cut) is None  # unfinished: the generic reader salvages it
+        fast, generic = _read_both(cut, monkeypatch)
+        _assert_identical(fast, generic)
+        assert fast.events[-1].kind == "recovered"
+
+
+def _foreign_imu_file(path, payloads: list[bytes]) -> None:
+    """A valid MCAP file of accellog.v1.ImuBatch messages written byte by byte by another program."""
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        w.add_metadata("session", mcap_io.meta_to_metadata(_meta()))
+        sid = w.register_schema(pb.full_name("ImuBatch"), "protobuf", pb.file_descriptor_set_bytes())
+        cid = w.register_channel("/imu", "protobuf", sid)
+        for k, data in enumerate(payloads):
+            w.add_message(cid, log_time=k, publish_time=k, data=data, sequence=k)
+        w.finish()
+
+
+def test_fast_reader_falls_back_on_foreign_encodings(tmp_path, monkeypatch):
+    good = [
+        pb.encode(
+            "ImuBatch", first_sample_index=10 * k, t_ns=np.arange(10) + 10 * k, accel_counts=np.ones(30)
+        )
+        for k in range(20)
+    ]
+    # field 1 after field 2 and an unknown field 12: valid protobuf, not our canonical layout
+    reordered = pb.encode("ImuBatch", t_ns=np.arange(10) + 200, accel_counts=np.ones(30)) + pb.encode(
+        "ImuBatch", first_sample_index=200
+    )
+    unknown = pb.encode(
+        "ImuBatch", first_sample_index=210, t_ns=np.arange(10) + 210, accel_counts=np.ones(30)
+    )
+    unknown += bytes([12 << 3]) + b"\x05"
+    p = tmp_path / "foreign.mcap"
+    _foreign_imu_file(p, [*good, reordered, unknown])
+    assert mcap_io._fast_collect(p) is None
+    fast, generic = _read_both(p, monkeypatch)
+    _assert_identical(fast, generic)
+    assert fast.n == 220 and np.array_equal(fast.sample_index, np.arange(220))
+    ok = tmp_path / "canonical.mcap"
+    _foreign_imu_file(ok, good)  # the same writer with canonical payloads: fast path
+    assert mcap_io._fast_collect(ok) is not None
+    _assert_identical(*_read_both(ok, monkeypatch))

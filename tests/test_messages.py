@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import re
 from pathlib import Path
 
@@ -145,3 +146,140 @@ def test_batch_decoder_concatenates_and_counts():
     assert scalars["host_time_ns"] == list(range(50))
     assert np.array_equal(counts["t_ns"], [len(t) for t in ref_t])
     assert arrays["gyro_counts"].size == 0
+
+
+# --- vectorised decoding (decode_batch / BatchAccumulator), checked against BatchDecoder --------------
+
+
+def _reference(message: str, msgs: list[bytes]):
+    dec = pb.BatchDecoder(message)
+    for m in msgs:
+        dec.add(m)
+    return dec.result()
+
+
+def _assert_results_equal(got, ref) -> None:
+    (a1, s1, c1), (a2, s2, c2) = got, ref
+    assert list(a1) == list(a2) and list(s1) == list(s2) and list(c1) == list(c2)
+    for k in a2:
+        assert a1[k].dtype == a2[k].dtype and a1[k].flags.writeable, k
+        assert np.array_equal(a1[k], a2[k], equal_nan=True) and a1[k].tobytes() == a2[k].tobytes(), k
+    for k in c2:
+        assert c1[k].dtype == c2[k].dtype and np.array_equal(c1[k], c2[k]), k
+    for k in s2:  # same Python values and types (floats compared bit for bit)
+        assert [_bits(v) for v in s1[k]] == [_bits(v) for v in s2[k]], k
+
+
+def _bits(v):
+    return (float, np.float64(v).tobytes()) if isinstance(v, float) else (type(v), v)
+
+
+def _pack(msgs: list[bytes], gap: bytes = b"\xaa" * 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Messages in one buffer with junk between them (as payloads sit between MCAP record headers)."""
+    buf = gap + gap.join(msgs) + gap
+    lens = np.array([len(m) for m in msgs], dtype=np.int64)
+    starts = len(gap) + np.concatenate([[0], np.cumsum(lens + len(gap))[:-1]]).astype(np.int64)
+    return np.frombuffer(buf, np.uint8), starts, starts + lens
+
+
+@pytest.mark.parametrize("message", [m.name for m in pb.MESSAGES])
+@pytest.mark.parametrize("sizes", ["equal", "few", "many"])
+def test_decode_batch_equals_batch_decoder(message, sizes):
+    rng = np.random.default_rng(sum(map(ord, message + sizes)))
+    msgs = []
+    for i in range(300):
+        n = {"equal": 36, "few": int(rng.choice([1, 35, 36, 37])), "many": int(rng.integers(1, 200))}[sizes]
+        vals = _random_values(message, rng, n)
+        if sizes == "equal":  # every repeated field present: all messages of one length per field
+            vals = {
+                k: (np.resize(v, n * (4 if "q_" in k else 3)) if isinstance(v, np.ndarray) else v)
+                for k, v in vals.items()
+            }
+        if i % 7 == 0:  # scalars at their defaults are not written
+            vals.update({k: type(v)() for k, v in vals.items() if not isinstance(v, np.ndarray)})
+        msgs.append(pb.encode(message, **vals))
+    buf, starts, ends = _pack(msgs)
+    got = pb.decode_batch(message, buf, starts, ends)
+    assert got is not None and got.n_messages == len(msgs)
+    _assert_results_equal(got.result(), _reference(message, msgs))
+
+
+def test_decode_batch_scalars_extremes():
+    msgs = [
+        pb.encode("Event", t_ns=-(2**63), kind="é" * 200, sample_index=-1, lost_samples=2**63 - 1),
+        pb.encode("Event"),
+        pb.encode("Event", t_ns=127, detail="x" * 128, sample_index=128, lost_samples=16384),
+    ]
+    msgs.append(pb.encode("ImuBatch", first_sample_index=2**64 - 1, host_time_ns=-5, t_ns=[1]))
+    buf, starts, ends = _pack(msgs[:3])
+    _assert_results_equal(pb.decode_batch("Event", buf, starts, ends).result(), _reference("Event", msgs[:3]))
+    buf, starts, ends = _pack(msgs[3:])
+    _assert_results_equal(
+        pb.decode_batch("ImuBatch", buf, starts, ends).result(), _reference("ImuBatch", msgs[3:])
+    )
+    got = pb.decode_batch("ImuBatch", buf, starts, ends).result()[1]
+    assert got["first_sample_index"] == [2**64 - 1] and got["host_time_ns"] == [-5]
+    empty = pb.decode_batch("ImuBatch", buf, starts[:0], ends[:0])
+    _assert_results_equal(empty.result(), _reference("ImuBatch", []))
+
+
+def _key(number: int, wire: int) -> bytes:
+    return bytes([(number << 3) | wire])
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        pb.encode("ImuBatch", t_ns=[5]) + pb.encode("ImuBatch", first_sample_index=3),  # field order 2, 1
+        pb.encode("ImuBatch", t_ns=[5]) + pb.encode("ImuBatch", t_ns=[6]),  # repeated field
+        pb.encode("ImuBatch", t_ns=[5]) + _key(15, 0) + b"\x01",  # unknown field
+        _key(1, 2) + b"\x00",  # wrong wire type for a varint field
+        _key(2, 2) + b"\x04" + b"\0" * 4,  # packed sfixed64 of 4 bytes
+        _key(2, 2) + b"\x10" + b"\0" * 8,  # length past the end of the message
+        _key(1, 0) + b"\xff" * 10 + b"\x01",  # varint longer than 64 bits
+        _key(1, 0) + b"\xff\xff",  # varint cut by the end of the message
+        _key(6, 5) + b"\0" * 4,  # fixed32 wire type
+        bytes([0x80 | 8, 0x01]) + b"\x05",  # two-byte key (non-minimal encoding of field 1)
+    ],
+)
+def test_decode_batch_refuses_non_canonical(bad):
+    good = pb.encode("ImuBatch", first_sample_index=7, t_ns=[1, 2], accel_counts=np.ones(6, np.int32))
+    buf, starts, ends = _pack([good, bad, good])
+    assert pb.decode_batch("ImuBatch", buf, starts, ends) is None
+    buf, starts, ends = _pack([good, good])
+    assert pb.decode_batch("ImuBatch", buf, starts, ends) is not None
+
+
+def test_decode_batch_refuses_bad_utf8():
+    bad = _key(2, 2) + b"\x02\xc3\x28"
+    buf, starts, ends = _pack([pb.encode("Event", kind="ok"), bad])
+    assert pb.decode_batch("Event", buf, starts, ends) is None
+
+
+def test_gather_bytes_paths():
+    rng = np.random.default_rng(3)
+    buf = rng.integers(0, 256, 100_000, dtype=np.uint8)
+    for lengths in (
+        np.full(50, 12),  # one length: whole rows
+        rng.choice([0, 12, 24, 432], 500),  # few lengths (and empty pieces)
+        rng.integers(0, 400, 500) * 4,  # more lengths than groups: 4-byte items
+    ):
+        offsets = rng.integers(0, 100_000 - 2000, lengths.shape[0])
+        got = pb.gather_bytes(buf, offsets, lengths, 4)
+        ref = np.concatenate([buf[o : o + n] for o, n in zip(offsets, lengths, strict=True)])
+        assert np.array_equal(got, ref)
+    assert pb.gather_bytes(buf, offsets[:0], lengths[:0]).shape == (0,)
+
+
+@pytest.mark.parametrize("done_scale", [1.0, 0.25, 4.0])  # exact, too small (grows), too large (trims)
+def test_batch_accumulator_joins_parts(done_scale):
+    rng = np.random.default_rng(5)
+    msgs = [
+        pb.encode("ImuBatch", **_random_values("ImuBatch", rng, int(rng.integers(1, 40)))) for _ in range(200)
+    ]
+    acc = pb.BatchAccumulator("ImuBatch")
+    cuts = [0, 1, 50, 51, 120, 200]
+    for a, b in itertools.pairwise(cuts):
+        buf, starts, ends = _pack(msgs[a:b])
+        acc.add(pb.decode_batch("ImuBatch", buf, starts, ends), min(1.0, b / 200 * done_scale))
+    _assert_results_equal(acc.finish().result(), _reference("ImuBatch", msgs))
