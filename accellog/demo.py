@@ -368,7 +368,12 @@ def demo_blueprint(test_labels: list[str], first: int = 0):
         rrb.Spatial3DView(origin=f"/{WORLD_TRACKS}/robot", name="robot tracks vs truth (m)"),
         rrb.Vertical(
             _whole_range_plot(origin=f"/{TRACKS}/robot", name="robot position per calibration (m)"),
-            rrb.TextDocumentView(origin=f"/{DOCS}/results/moving_robot", name="position errors"),
+            _whole_range_plot(
+                origin="/",
+                contents=["/errors/robot/**", "/zupt/robot/**"],
+                name="position error (m) and ZUPT stops",
+            ),
+            rrb.TextDocumentView(origin=f"/{DOCS}/results/robot_tracks", name="position errors"),
         ),
         name="4 moving robot",
     )

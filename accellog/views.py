@@ -122,21 +122,38 @@ def log_diagnosis(rec, diag, obs, label: str = "diagnose") -> None:
     rec.log_residuals(f"{label} {diag.model.name}", names, measured, predicted)
 
 
-def log_track_runs(rec, runs: Sequence, truth=None) -> None:
-    """Moving-robot tracks per calibration next to the true path, and their error table."""
+def log_track_runs(rec, runs: Sequence, truth=None, group: str = "robot") -> None:
+    """Moving-robot tracks per calibration next to the true path (time series and 3D), the
+    position error over time (m) per calibration, the stops ZUPT used, and the error table."""
+    from .rrd import slug_path
+
     if truth is not None:
-        rec.log_track("robot/truth", truth.t_s, truth.position_m)
+        rec.log_track(f"{group}/truth", truth.t_s, truth.position_m)
     lines = [
         "| calibration | final error (m) | RMS error (m) | ZUPT stops | final error without ZUPT (m) |",
         "|---|---|---|---|---|",
     ]
     for r in runs:
-        rec.log_track(f"robot/{r.name}", r.track.t_s, r.track.position_m)
+        t, p = r.track.t_s, r.track.position_m
+        rec.log_track(f"{group}/{r.name}", t, p)
+        if truth is not None:
+            ref = np.column_stack([np.interp(t, truth.t_s, truth.position_m[:, i]) for i in range(3)])
+            err = np.linalg.norm(p - ref, axis=1)
+            rec.log_series(
+                f"errors/{group}/{slug_path(r.name)}", t, err, [f"{r.name} |error| (m)"], role="track_error"
+            )
+        if r.zupt is not None and len(r.zupt.intervals_s):
+            iv = np.asarray(r.zupt.intervals_s, float).reshape(-1, 2)
+            ts = np.repeat(iv.ravel(), 1)
+            on = np.tile([1.0, 0.0], len(iv))
+            rec.log_series(
+                f"zupt/{group}/{slug_path(r.name)}", ts, on, [f"{r.name}: ZUPT stop"], role="zupt", step=True
+            )
         e0 = r.error_without_zupt.final_error_m if r.error_without_zupt is not None else float("nan")
         lines.append(
             f"| {r.name} | {r.error.final_error_m:.3g} | {r.error.rms_error_m:.3g} | {r.error.zupt_stops} | {e0:.3g} |"
         )
-    rec.log_document("results/moving robot", "\n".join(lines) + "\n")
+    rec.log_document(f"results/{group} tracks", "\n".join(lines) + "\n")
 
 
 def _num(v) -> str:

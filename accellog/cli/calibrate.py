@@ -155,6 +155,7 @@ def evaluate_cmd(
     max_samples: Annotated[int | None, typer.Option(help="Use the first N samples only.")] = None,
     at_s: Annotated[float, typer.Option(help="Displacement table time (s).")] = 60.0,
     json_out: JsonOpt = False,
+    rrd: RrdOpt = None,
 ) -> None:
     """Residual of calibrated static data vs gravity (mean +- sem, chi2 vs noise) and displacement.
 
@@ -170,6 +171,13 @@ def evaluate_cmd(
     evs = run_evaluate(
         data if isinstance(data, Session) else test, cals, until_s=until_s, max_samples=max_samples
     )
+    if rrd is not None:
+        with _recording(rrd) as rec:
+            if isinstance(data, Session):
+                views.log_session(
+                    rec, data, calibrations={e.label: c for e, c in zip(evs[1:], cals, strict=True)}
+                )
+            views.log_evaluations(rec, evs)
     if json_out:
         _echo_json({"raw": evs[0].to_dict(), "calibrated": [e.to_dict() for e in evs[1:]]})
         return

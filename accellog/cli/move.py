@@ -42,6 +42,10 @@ def track_cmd(
         bool, typer.Option("--zupt/--no-zupt", help="Zero-velocity updates at detected stops.")
     ] = True,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable results on stdout.")] = False,
+    rrd: Annotated[
+        Path | None,
+        typer.Option("--rrd", help="Also write a Rerun recording: tracks vs truth, errors, stops."),
+    ] = None,
 ) -> None:
     """Integrate the session (gyro attitude + accel) per calibration; print the final and RMS
     position error against the truth (simulations) or the loop-closure error (real runs)."""
@@ -60,6 +64,13 @@ def track_cmd(
             name += "'"
         cals[name] = c
     runs = run_session_tracks(session, cals, use_zupt=zupt)
+    if rrd is not None:
+        from ..rrd import RunRecording
+        from ..views import log_session, log_track_runs
+
+        with RunRecording(f"save:{rrd}") as rec:
+            log_session(rec, session)
+            log_track_runs(rec, runs, session.truth, group="track")
     reference = runs[0].error.reference
     if as_json:
         out = {

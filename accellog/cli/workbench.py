@@ -75,6 +75,10 @@ def diagnose(
     ] = False,
     gravity_g: Annotated[float, typer.Option(help="Truth magnitude in g (local gravity / g0).")] = 1.0,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable diagnosis on stdout.")] = False,
+    rrd: Annotated[
+        Path | None,
+        typer.Option("--rrd", help="Also write a Rerun recording: residuals per pose, verdict, candidates."),
+    ] = None,
 ) -> None:
     """Fit a model, compare it with the noise floor and rank the effects that could be missing."""
     from .. import diagnose as dg
@@ -97,6 +101,21 @@ def diagnose(
         if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
             host = (data.t_s, data.host_time_s)
     d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host)
+    if rrd is not None:
+        from ..rrd import RunRecording
+        from ..views import log_diagnosis, log_session
+
+        with RunRecording(f"save:{rrd}") as rec:
+            if not isinstance(data, ObsTable):
+                log_session(rec, data)
+            log_diagnosis(rec, d, obs)
+            rec.log_series(
+                "residuals/windows",
+                np.asarray(obs.t_s, float),
+                np.asarray(d.fit.residual_g, float) * 1000.0,
+                [f"{d.model.name} residual {a} (mg)" for a in "xyz"],
+                points=True,
+            )
     if as_json:
         out = d.to_dict()
         out["session"] = str(session)
