@@ -5,9 +5,9 @@ Usage: python benchmarks/bench_readback.py [--minutes 60] [--repeat 5] [--no-gen
 Data: a simulated static recording (seeded): accel/gyro/temp counts with noise, one host time per
 36-sample FIFO read. MCAP layouts (same format, same schema, one message per batch):
 - recorder: 36-sample messages (one FIFO read each) written by SessionWriter with its defaults
-  (chunk ended and flushed every 0.5 s: crash-safe), zstd (default) or lz4;
-- write_session: whole-session writer (imports, simulations), 1 MiB zstd chunks (messages are still
-  split wherever host time changes, i.e. every 36 samples here).
+  (chunk ended and flushed every 0.5 s: crash-safe), lz4 (default) or zstd;
+- write_session: whole-session writer (imports, simulations), 1 MiB chunks, lz4 (default) or zstd
+  (messages are still split wherever host time changes, i.e. every 36 samples here).
 Baselines, holding exactly the arrays a Session gets (same dtypes; t_ns i8, sample_index i8,
 accel/gyro counts i4 (n,3), temp counts i4, host time ns i8 per sample):
 - raw binary: one flat uncompressed .bin file read with one readinto + zero-copy views;
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from accellog import mcap_io
-from accellog.mcap_io import SessionWriter, read_session, write_session
+from accellog.mcap_io import DEFAULT_COMPRESSION, SessionWriter, read_session, write_session
 from accellog.session import Session, SessionMeta
 from accellog.units import temp_counts_to_degC
 
@@ -68,7 +68,7 @@ def simulate(n: int, seed: int = 0) -> Session:
     )
 
 
-def write_recorder_layout(path: Path, s: Session, compression: str = "zstd") -> None:
+def write_recorder_layout(path: Path, s: Session, compression: str = DEFAULT_COMPRESSION) -> None:
     """As the recorder writes: one message per 36-sample FIFO read, SessionWriter defaults otherwise."""
     t_ns = np.round(s.t_s * NS).astype(np.int64)
     host = np.round(s.host_time_s * NS).astype(np.int64)
@@ -185,9 +185,10 @@ def main() -> None:
 
         files: dict[str, tuple[Path, float]] = {}
         for key, writer in (
-            ("rec", lambda p: write_recorder_layout(p, s)),
-            ("rec_lz4", lambda p: write_recorder_layout(p, s, "lz4")),
-            ("ws", lambda p: write_session(p, s)),
+            ("rec", lambda p: write_recorder_layout(p, s, "lz4")),
+            ("rec_zstd", lambda p: write_recorder_layout(p, s, "zstd")),
+            ("ws", lambda p: write_session(p, s, compression="lz4")),
+            ("ws_zstd", lambda p: write_session(p, s, compression="zstd")),
         ):
             p = d / f"{key}.mcap"
             t0 = time.perf_counter()
@@ -209,9 +210,10 @@ def main() -> None:
             ("raw .npy (np.load per array)", lambda: [np.load(p) for p in npys], npys, float("nan")),
         ]
         labels = {
-            "rec": "MCAP recorder 36/msg, zstd (default)",
-            "rec_lz4": "MCAP recorder 36/msg, lz4",
-            "ws": "MCAP write_session, 1 MiB zstd chunks",
+            "rec": "MCAP recorder 36/msg, lz4 (default)",
+            "rec_zstd": "MCAP recorder 36/msg, zstd",
+            "ws": "MCAP write_session, 1 MiB lz4 chunks (default)",
+            "ws_zstd": "MCAP write_session, 1 MiB zstd chunks",
         }
         for key, (p, tw) in files.items():
             rows.append((labels[key] + ": read_session", lambda p=p: read_session(p), p, tw))
@@ -229,7 +231,7 @@ def main() -> None:
                 best[name] = min(best[name], time.perf_counter() - t0)
         generic: dict[str, float] = {}
         if not args.no_generic:
-            for key in ("rec", "ws"):
+            for key in ("rec", "rec_zstd", "ws_zstd"):
                 t0 = time.perf_counter()
                 generic_read(files[key][0])
                 generic[key] = time.perf_counter() - t0
