@@ -19,10 +19,34 @@ from typing import Protocol
 import numpy as np
 
 from .protocol import PoseSpec
-from .session import Event, PoseLabel
+from .session import Event, PoseLabel, SessionMeta
 from .stillness import StillnessDetector
 
 NS = 1_000_000_000
+
+
+def session_meta(info, cfg, *, source: str, protocol: str, **fields) -> SessionMeta:
+    """SessionMeta of a recording from the driver's ChipInfo and DriverConfig (+ extra fields)."""
+    import platform
+
+    from . import __version__
+
+    return SessionMeta(
+        source=source,
+        chip=info.model if source == "hardware" else f"emulated {info.model}",
+        who_am_i=info.who_am_i,
+        accel_range_g=float(cfg.accel_range_g),
+        gyro_range_dps=float(cfg.gyro_range_dps),
+        accel_lsb_per_g=cfg.accel_lsb_per_g,
+        gyro_lsb_per_dps=cfg.gyro_lsb_per_dps,
+        dlpf_cfg=cfg.dlpf_cfg,
+        a_dlpf_cfg=cfg.a_dlpf_cfg,
+        sample_rate_hz=cfg.sample_rate_hz,
+        software=f"accellog {__version__}",
+        host=platform.node(),
+        protocol=protocol,
+        **fields,
+    )
 
 
 class RecorderUI(Protocol):

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import platform
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,10 +39,9 @@ from typing import Any
 import numpy as np
 import tomllib
 
-from . import __version__
 from .errors import InputError
 from .protocol import parse_protocol
-from .session import PoseLabel, SessionMeta
+from .session import PoseLabel
 from .units import STANDARD_GRAVITY_MPS2
 
 _SMPLRT_DIV_BASE_HZ = 1000.0
@@ -230,7 +228,7 @@ def simulate(
     from .emulator.chip import EmulatedMpu9250
     from .emulator.clock import SimClock
     from .mcap_io import SessionWriter
-    from .recorder import Recorder
+    from .recorder import Recorder, session_meta
 
     model, motion = build_sensor_model(sc)
     clock = SimClock()
@@ -242,21 +240,12 @@ def simulate(
         gyro_range_dps=sc.gyro_range_dps,
         sample_rate_div=sc.sample_rate_div,
     )
-    meta = SessionMeta(
+    meta = session_meta(
+        info,
+        cfg,
         source="emulator",
-        chip=f"emulated {info.model}",
-        who_am_i=info.who_am_i,
-        accel_range_g=float(sc.accel_range_g),
-        gyro_range_dps=float(sc.gyro_range_dps),
-        accel_lsb_per_g=cfg.accel_lsb_per_g,
-        gyro_lsb_per_dps=cfg.gyro_lsb_per_dps,
-        dlpf_cfg=cfg.dlpf_cfg,
-        a_dlpf_cfg=cfg.a_dlpf_cfg,
-        sample_rate_hz=cfg.sample_rate_hz,
-        local_gravity_mps2=sc.local_gravity_mps2,
-        software=f"accellog {__version__}",
-        host=platform.node(),
         protocol=sc.protocol if sc.motion == "poses" else f"robot:{sc.robot_path}",
+        local_gravity_mps2=sc.local_gravity_mps2,
         extra={"scenario": sc.to_json()},
     )
     total_s = motion.duration_s if duration_s is None else duration_s

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import platform
 import signal
 from pathlib import Path
 from typing import Annotated
@@ -11,10 +10,9 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from .. import __version__
 from ..errors import DeviceError, InputError
 from ..protocol import PoseSpec, parse_protocol
-from ..session import Event, PoseLabel, SessionMeta
+from ..session import Event, PoseLabel
 from .app import app
 
 console = Console(stderr=True)
@@ -137,7 +135,7 @@ def record(
     """Record a guided calibration session: the operator is told each pose, the hold is labelled."""
     from ..driver import Mpu9250
     from ..mcap_io import SessionWriter
-    from ..recorder import Recorder, RecorderUI
+    from ..recorder import Recorder, RecorderUI, session_meta
 
     if accel_range not in (2, 4, 8, 16):
         raise InputError(f"--accel-range {accel_range}: use 2, 4, 8 or 16 (g)")
@@ -193,21 +191,7 @@ def record(
         )
     if read_mag:
         driver.enable_magnetometer()
-    meta = SessionMeta(
-        source=source,
-        chip=info.model if source == "hardware" else f"emulated {info.model}",
-        who_am_i=info.who_am_i,
-        accel_range_g=float(accel_range),
-        gyro_range_dps=float(gyro_range),
-        accel_lsb_per_g=cfg.accel_lsb_per_g,
-        gyro_lsb_per_dps=cfg.gyro_lsb_per_dps,
-        dlpf_cfg=cfg.dlpf_cfg,
-        a_dlpf_cfg=cfg.a_dlpf_cfg,
-        sample_rate_hz=cfg.sample_rate_hz,
-        software=f"accellog {__version__}",
-        host=platform.node(),
-        protocol=protocol,
-    )
+    meta = session_meta(info, cfg, source=source, protocol=protocol)
     live = _open_live(rerun)
     ui: RecorderUI = TerminalUI()
     if live is not None:
