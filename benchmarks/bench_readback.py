@@ -248,15 +248,15 @@ def main() -> None:
         f"read-back of {args.minutes:g} min at 1 kHz = {n:,} samples (accel+gyro+temp counts, t_ns, "
         f"sample index, host time); best of {args.repeat}, wall time"
     )
-    head = f"{'variant':<58} {'read s':>8} {'vs raw':>7} {'vs raw+conv':>12} {'size MB':>8} {'write s':>8}"
+    head = f"{'variant':<66} {'read s':>8} {'vs raw':>7} {'vs raw+conv':>12} {'size MB':>8} {'write s':>8}"
     print(head)
     print("-" * len(head))
     for name, _, _, tw in rows:
         t = best[name]
-        print(f"{name:<58} {t:8.3f} {t / t_raw:7.2f} {t / t_rawc:12.2f} {sizes[name]:8.1f} {tw:8.2f}")
+        print(f"{name:<66} {t:8.3f} {t / t_raw:7.2f} {t / t_rawc:12.2f} {sizes[name]:8.1f} {tw:8.2f}")
     for key, t in generic.items():
         name = labels[key] + ": generic reader (before), 1 run"
-        print(f"{name:<58} {t:8.3f} {t / t_raw:7.2f} {t / t_rawc:12.2f} {file_mb[key]:8.1f}")
+        print(f"{name:<66} {t:8.3f} {t / t_raw:7.2f} {t / t_rawc:12.2f} {file_mb[key]:8.1f}")
 
 
 if __name__ == "__main__":
