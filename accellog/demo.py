@@ -14,11 +14,11 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 from rich.console import Console
 
 from .simulate import Scenario, simulate
@@ -86,12 +86,18 @@ def _sessions(out: Path, quick: bool) -> dict[str, Path]:
 
 
 def run_demo(
-    out_dir: Path, *, rrd: Path | None, quick: bool = False, console: Console | None = None
+    out_dir: Path,
+    *,
+    rrd: Path | None,
+    quick: bool = False,
+    console: Console | None = None,
+    first_tab: int = 0,
 ) -> DemoResult:
-    """Run the demo, print its tables, write sessions / calibrations / .rrd under out_dir."""
-    from .diagnose import diagnose, heldout_residual
+    """Run the demo, print its tables, write sessions / calibrations / .rrd under out_dir.
+
+    first_tab: the blueprint tab shown when the recording opens (0 static test, 1 calibration,
+    2 workbench, 3 robot)."""
     from .mcap_io import read_session
-    from .model import build_model
     from .pipeline import run_drift, run_evaluate, run_fit
     from .report import (
         displacement_table,
@@ -102,8 +108,9 @@ def run_demo(
     )
     from .segment import observations
     from .track_eval import run_session_tracks
+    from .workbench import discover, ladder_rows, ladder_table, steps_for
 
-    con = console or Console()
+    con = console or Console(width=None if sys.stdout.isatty() else 120)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     res = DemoResult(out_dir=out, rrd=rrd)
@@ -152,41 +159,19 @@ def run_demo(
     t2 = time.perf_counter()
     obs = observations(S["warmup_24"])
     held = observations(S["heldout_24"])
-    model = build_model("model3")
-    steps: list[tuple[str, list[str]]] = [("model1", []), ("model2", []), ("model3", [])]
-    diags = []
-    for _ in range(3):
-        d = diagnose(obs, model)
-        diags.append(d)
-        con.print(f"  [bold]{model.name}[/]: χ²/dof {d.fit.chi2_dof:.3g} - {d.verdict}")
-        if not d.missing or d.best is None:
-            break
-        res.discovered.append(d.best)
-        model = model.with_terms([d.best])
-        steps.append(("model3", list(res.discovered)))
+    found = discover(obs, "model3", on_step=lambda d: con.print(f"  {d.verdict}"))
+    diags = found.diagnoses
+    res.discovered = list(found.added)
     for a in diags[-1].advice[:3]:
         con.print(f"  advice: {a}")
-    rows = []
-    for preset, add in steps:
-        last = (preset, add) == steps[-1]
-        fo = run_fit(S["warmup_24"], preset, add=add, obs=obs, gyro=last)
-        r = heldout_residual(fo.fit, held)
-        ev = run_evaluate(S["static_hot"], [fo.cal], include_raw=False, labels=[fo.fit.model.name])[0]
-        rows.append(
-            {
-                "model": fo.fit.model.name,
-                "n_params": fo.fit.model.n_params,
-                "chi2_dof": fo.fit.chi2_dof,
-                "rms_g": fo.fit.rms_g,
-                "heldout_rms_g": float(np.sqrt(np.mean(r**2))),
-                "heldout_noise_g": float(np.sqrt(np.mean(np.asarray(held.sigma_g) ** 2))),
-                "drift_60s_m": float(np.linalg.norm(ev.disp_at(60.0))),
-                "warnings": fo.fit.warnings,
-                "fit": fo,
-            }
-        )
+    rows = ladder_rows(S["warmup_24"], obs, steps_for(found), heldout=held, static_test=S["static_hot"])
     res.ladder = rows
-    print_tables([_ladder_table(rows)], con)
+    table = ladder_table(rows)
+    table.caption = (
+        "held-out: a 24-pose session of the same chip on another temperature path; "
+        "drift: |displacement| of a 60 s static test at 40 °C"
+    )
+    print_tables([table], con)
     res.seconds["workbench"] = time.perf_counter() - t2
 
     con.rule("[bold]4. moving robot: strapdown tracks with ZUPT vs the true path")
@@ -214,39 +199,23 @@ def run_demo(
 
     if rrd is not None:
         t4 = time.perf_counter()
-        _write_rrd(rrd, S, res, diags, obs)
+        _write_rrd(rrd, S, res, diags, obs, first_tab)
         res.seconds["rrd"] = time.perf_counter() - t4
         con.print(f"wrote {rrd} (open it with: accellog view {rrd})")
     con.print(f"sessions and calibrations in {out}/ ; total {time.perf_counter() - t0:.1f} s")
     return res
 
 
-def _ladder_table(rows: list[dict]):
-    from rich.table import Table
-
-    t = Table(title="watch the error fall: calibration fit, held-out session, 60 s static drift at 40 °C")
-    for c in ("model", "params", "χ²/dof (fit)", "held-out RMS (mg)", "noise floor (mg)", "60 s drift (m)"):
-        t.add_column(c, justify="left" if c == "model" else "right")
-    for r in rows:
-        t.add_row(
-            r["model"],
-            str(r["n_params"]),
-            f"{r['chi2_dof']:.3g}",
-            f"{r['heldout_rms_g'] * 1000:.3g}",
-            f"{r['heldout_noise_g'] * 1000:.3g}",
-            f"{r['drift_60s_m']:.3g}",
-        )
-    t.caption = "held-out: a 24-pose session of the same chip on another temperature path; drift: |displacement| of a 60 s static test at 40 °C"
-    return t
-
-
-def _write_rrd(path: Path, S: dict, res: DemoResult, diags: list, obs) -> None:
+def _write_rrd(path: Path, S: dict, res: DemoResult, diags: list, obs, first_tab: int = 0) -> None:
     from .report import drift_table
-    from .rrd import LadderRow, RunRecording
+    from .rrd import RunRecording
     from .views import log_diagnosis, log_evaluations, log_fit, log_session, log_track_runs, table_markdown
+    from .workbench import log_ladder
 
     labels = [e.label for e in res.evals] + ["Model 3 + drift model", "truth (at rest)"]
-    with RunRecording(f"save:{path}", recording_id="accellog-demo", blueprint=demo_blueprint(labels)) as rec:
+    with RunRecording(
+        f"save:{path}", recording_id="accellog-demo", blueprint=demo_blueprint(labels, first=first_tab)
+    ) as rec:
         log_session(rec, S["calibration"], calibrations={"Model 3": res.fits["model3"].cal})
         for m, fo in res.fits.items():
             log_fit(rec, fo, m)
@@ -259,23 +228,7 @@ def _write_rrd(path: Path, S: dict, res: DemoResult, diags: list, obs) -> None:
         )
         for i, d in enumerate(diags):
             log_diagnosis(rec, d, obs, label=f"step {i + 1}")
-        rec.log_ladder(
-            [
-                LadderRow(
-                    step=r["model"],
-                    added=r["model"].split("+")[-1] if "+" in r["model"] else "",
-                    chi2_dof=r["chi2_dof"],
-                    heldout_rms_mg=r["heldout_rms_g"] * 1000,
-                    drift_60s_m=r["drift_60s_m"],
-                    # residuals of Model 3 and of the final model only, so the plot stays readable
-                    t_s=np.asarray(obs.t_s) if r["model"] == "model3" or r is res.ladder[-1] else None,
-                    residual_g=np.asarray(r["fit"].fit.residual_g),
-                    driver_name="temperature (degC)",
-                    driver=None if obs.temp_degC is None else np.asarray(obs.temp_degC),
-                )
-                for r in res.ladder
-            ]
-        )
+        log_ladder(rec, res.ladder, obs)
         log_track_runs(rec, res.tracks, S["robot"].truth)
 
 

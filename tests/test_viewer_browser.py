@@ -1,4 +1,4 @@
-"""The web viewer in a real headless Chromium: a demo-like .rrd renders (not blank, not an error page).
+"""The web viewer in a real headless Chromium: the demo's .rrd renders (not blank, not an error page).
 
 Needs the `chromium` apt package and the `websockets` pip package; skipped without Chromium unless
 ACCELLOG_REQUIRE_BROWSER=1 (CI), where a missing browser fails the test.
@@ -13,9 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.online import integrate_batch
 from accellog.rrd import RunRecording
-from accellog.session import Event, PoseLabel
 from accellog.viewer import Chromium, find_chromium, pixel_stats, screenshot_rrd, serve_rrd
 
 pytestmark = pytest.mark.browser
@@ -35,31 +33,12 @@ def chromium() -> str:
 
 
 def _demo_rrd(path: Path) -> None:
-    """Six holds of a seeded session: raw + calibrated accel, poses, temperature, residuals, tracks."""
-    rng = np.random.default_rng(7)
-    ups = [(0, 0, 1), (0, 0, -1), (0, 1, 0), (0, -1, 0), (1, 0, 0), (-1, 0, 0)]
-    rate, hold = 100.0, 5.0
-    f = np.concatenate([np.tile(np.array(u, float), (int(rate * hold), 1)) for u in ups])
-    t = np.arange(f.shape[0]) / rate
-    raw = f @ np.diag([1.01, 0.99, 1.02]).T + [0.09, 0.05, -0.25] + rng.normal(0, 0.01, f.shape)
-    cal = (raw - [0.09, 0.05, -0.25]) @ np.diag([1 / 1.01, 1 / 0.99, 1 / 1.02])
-    poses = [
-        PoseLabel(n, k * hold + 0.5, (k + 1) * hold - 0.5, u, None, k)
-        for k, (n, u) in enumerate(zip(["+z", "-z", "+y", "-y", "+x", "-x"], ups, strict=True))
-    ]
-    means = np.array([raw[(t >= p.start_s) & (t < p.end_s)].mean(axis=0) for p in poses])
-    with RunRecording(f"save:{path}", recording_id="browser-demo") as rec:
-        rec.log_samples("raw", t, np.arange(t.size), raw, "g")
-        rec.log_samples("calibrated", t, np.arange(t.size), cal, "g")
-        rec.log_poses(poses)
-        rec.log_temperature(t, 30.0 + 0.05 * t)
-        rec.log_events([Event(12.0, "gap", "3 missing", 1200, 3)])
-        rec.log_residuals("model2", [p.name for p in poses], means, means + rng.normal(0, 0.003, means.shape))
-        st = t[: int(30 * rate)]
-        for lab, bias_g in (("raw", [0.004, -0.002, 0.006]), ("model2", [-0.0004, 0.0007, 0.0002])):
-            acc = np.tile([0.0, 0.0, 1.0], (st.size, 1)) + bias_g + rng.normal(0, 0.001, (st.size, 3))
-            rec.log_track(lab, st, integrate_batch(st, acc).disp_m)
-        rec.log_document("calibration/model2", "| param | value |\n|---|---|\n| b_x | +0.0900 +- 0.0001 g |")
+    """The recording `accellog demo --quick` writes (the same code path as the README's demo)."""
+    from rich.console import Console
+
+    from accellog.demo import run_demo
+
+    run_demo(path.parent / "demo-out", rrd=path, quick=True, console=Console(file=io.StringIO()))
 
 
 def test_web_viewer_renders_demo_recording(chromium: str, tmp_path: Path) -> None:

@@ -1,10 +1,11 @@
-"""Make the README screenshot: a demo .rrd of the seed study, opened in the web viewer in headless Chromium.
+"""Make the README screenshots: `accellog demo`'s recording (one picture per tab) and the seed study,
+opened in the web viewer in headless Chromium.
 
-The demo is a real pipeline run on the capstone final trial (../shared/data): models 1-3 fitted on the
+    python tools/screenshot.py [--tabs 0 2 3] [--out docs/images]
+
+The seed-study picture is a real pipeline run on the capstone final trial (../shared/data): models 1-3 fitted on the
 six-position table (residuals per pose), the drift model fitted on the 60 s static test, and the
 test's displacement tracks of every calibration side by side (accellog.replay.compare).
-
-    python tools/screenshot.py [--data ../shared/data] [--rrd docs/images/demo.rrd] [--png docs/images/demo.png]
 
 Needs chromium (apt) and websockets (pip). --native uses `rerun --headless --screenshot-to` instead
 (needs a Vulkan driver such as mesa-vulkan-drivers).
@@ -13,6 +14,7 @@ Needs chromium (apt) and websockets (pip). --native uses `rerun --headless --scr
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import subprocess
 import sys
@@ -67,32 +69,56 @@ def build_demo(data: Path, rrd: Path) -> None:
         print(f"{t.label:16s} final displacement {t.final_m.round(3).tolist()} m")
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data")
-    ap.add_argument("--rrd", type=Path, default=REPO / "docs" / "images" / "demo.rrd")
-    ap.add_argument("--png", type=Path, default=REPO / "docs" / "images" / "demo.png")
-    ap.add_argument("--size", default="1400x900")
-    ap.add_argument("--native", action="store_true", help="native viewer with --screenshot-to (Vulkan)")
-    ap.add_argument("--keep-rrd", action="store_true", help="keep the demo .rrd next to the PNG")
-    a = ap.parse_args()
-    w, h = (int(v) for v in a.size.split("x"))
-    a.png.parent.mkdir(parents=True, exist_ok=True)
-    rrd = a.rrd if a.keep_rrd else Path(tempfile.mkdtemp()) / "demo.rrd"
-    build_demo(a.data, rrd)
-    if a.native:
+TAB_NAMES = {0: "demo", 1: "calibration", 2: "workbench", 3: "robot"}
+
+
+def shoot(rrd: Path, png: Path, size: tuple[int, int], native: bool) -> None:
+    if native:
         from accellog.viewer import free_port, rerun_binary, rerun_env
 
         cmd = [rerun_binary(), "--headless", "--bind", "127.0.0.1", "--port", str(free_port())]
-        cmd += ["--window-size", f"{w}x{h}", "--screenshot-to", str(a.png), str(rrd)]
+        cmd += ["--window-size", f"{size[0]}x{size[1]}", "--screenshot-to", str(png), str(rrd)]
         subprocess.run(cmd, check=True, env=rerun_env(), timeout=120)
-    else:
-        from accellog.viewer import screenshot_rrd
+        return
+    from accellog.viewer import screenshot_rrd
 
-        stats = screenshot_rrd(rrd, a.png, size=(w, h), wait_s=120.0)
-        print(f"{a.png}: {stats.colors} colours, {100 * stats.non_background:.0f}% drawn")
-        if not stats.looks_rendered():
-            raise SystemExit("the viewer did not render (blank screenshot)")
+    stats = screenshot_rrd(rrd, png, size=size, wait_s=120.0)
+    print(f"{png}: {stats.colors} colours, {100 * stats.non_background:.0f}% drawn")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description="README screenshots: `accellog demo` recordings (one per tab) "
+        "and the seed study (capstone data) in the web viewer, headless."
+    )
+    ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data")
+    ap.add_argument("--out", type=Path, default=REPO / "docs" / "images")
+    ap.add_argument(
+        "--tabs",
+        type=int,
+        nargs="*",
+        default=[0, 2, 3],
+        help="demo tabs (0 static test, 1 calibration, 2 workbench, 3 robot)",
+    )
+    ap.add_argument("--no-capstone", action="store_true", help="skip the seed-study picture")
+    ap.add_argument("--size", default="1400x900")
+    ap.add_argument("--native", action="store_true", help="native viewer with --screenshot-to (Vulkan)")
+    a = ap.parse_args()
+    w, h = (int(v) for v in a.size.split("x"))
+    a.out.mkdir(parents=True, exist_ok=True)
+    from rich.console import Console
+
+    from accellog.demo import run_demo
+
+    with tempfile.TemporaryDirectory() as d:
+        for tab in a.tabs:
+            rrd = Path(d) / f"demo_tab{tab}.rrd"
+            run_demo(Path(d) / "demo", rrd=rrd, console=Console(file=io.StringIO()), first_tab=tab)
+            shoot(rrd, a.out / f"{TAB_NAMES[tab]}.png", (w, h), a.native)
+        if not a.no_capstone:
+            rrd = Path(d) / "capstone.rrd"
+            build_demo(a.data, rrd)
+            shoot(rrd, a.out / "capstone.png", (w, h), a.native)
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from ..errors import InputError
 from .app import app
 
 
@@ -82,7 +83,6 @@ def diagnose(
 ) -> None:
     """Fit a model, compare it with the noise floor and rank the effects that could be missing."""
     from .. import diagnose as dg
-    from ..errors import InputError
     from ..model import build_model
 
     if not session.is_file():
@@ -176,3 +176,105 @@ def _print(d, source: str) -> None:
     con.print(("[bold red]MISSING[/] " if d.missing else "[bold green]OK[/] ") + escape(d.verdict))
     for a in d.advice:
         con.print(f"  - {escape(a)}")
+
+
+@app.command(name="workbench")
+def workbench_cmd(
+    session: Annotated[
+        Path, typer.Argument(help="Calibration session with labelled static holds (.mcap or CSV).")
+    ],
+    heldout: Annotated[
+        Path | None, typer.Option(help="Another session of the same sensor: judges each step out of sample.")
+    ] = None,
+    static: Annotated[
+        Path | None, typer.Option(help="A static test session: |displacement| after --at-s per step.")
+    ] = None,
+    model: Annotated[
+        str, typer.Option("--model", "-m", help="Start model (preset or '+'-joined).")
+    ] = "model3",
+    max_steps: Annotated[int, typer.Option(help="At most this many effects are added.", min=0)] = 4,
+    effects_file: Annotated[
+        Path | None, typer.Option("--effects-file", help="Python file with user effects (docs/effects.md).")
+    ] = None,
+    at_s: Annotated[float, typer.Option(help="Drift time of the static test (s).")] = 60.0,
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Write the final model's calibration JSON.")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable ladder on stdout.")] = False,
+    rrd: Annotated[
+        Path | None, typer.Option("--rrd", help="Also write a Rerun recording of the ladder.")
+    ] = None,
+) -> None:
+    """Diagnose, add the missing effect, refit - until the model fits to the noise; then the ladder
+    model1 -> model2 -> model3 -> + each found effect, judged on held-out data and a static test."""
+    from ..pipeline import load_input
+    from ..segment import observations
+    from ..session import Session
+    from ..workbench import discover, ladder_json, ladder_rows, ladder_table, log_ladder, steps_for
+
+    data = load_input(session)
+    if not isinstance(data, Session):
+        raise InputError(
+            "the workbench needs a recorded session (samples), not a pose table", where=str(session)
+        )
+    obs = observations(data)
+    held = observations(_session(heldout)) if heldout is not None else None
+    test = _session(static) if static is not None else None
+    host = None
+    if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
+        host = (data.t_s, data.host_time_s)
+    con = Console(stderr=as_json, width=160)
+    found = discover(
+        obs,
+        model,
+        max_steps=max_steps,
+        effects_file=effects_file,
+        host_time=host,
+        on_step=lambda d: con.print(d.verdict),
+    )
+    rows = ladder_rows(
+        data, obs, steps_for(found), heldout=held, static_test=test, effects_file=effects_file, at_s=at_s
+    )
+    if output is not None:
+        rows[-1]["fit"].cal.save(output)
+    if rrd is not None:
+        from ..rrd import RunRecording
+        from ..views import log_diagnosis, log_session
+
+        with RunRecording(f"save:{rrd}") as rec:
+            log_session(rec, data, calibrations={found.final_model: rows[-1]["fit"].cal})
+            for i, d in enumerate(found.diagnoses, 1):
+                log_diagnosis(rec, d, obs, label=f"step {i}")
+            log_ladder(rec, rows, obs, at_s=at_s)
+    if as_json:
+        print(
+            json.dumps(
+                {
+                    "session": str(session),
+                    "start": found.start,
+                    "added": found.added,
+                    "final_model": found.final_model,
+                    "verdicts": [d.verdict for d in found.diagnoses],
+                    "advice": found.diagnoses[-1].advice,
+                    "ladder": ladder_json(rows),
+                },
+                indent=1,
+                default=float,
+            )
+        )
+        return
+    for a in found.diagnoses[-1].advice:
+        con.print(f"advice: {a}")
+    con.print(ladder_table(rows, at_s=at_s))
+    if output is not None:
+        con.print(f"wrote {output} ({found.final_model})")
+
+
+def _session(path: Path):
+    from ..pipeline import load_input
+    from ..session import Session
+
+    data = load_input(path)
+    if not isinstance(data, Session):
+        raise InputError("expected a recorded session (samples), not a pose table", where=str(path))
+    return data

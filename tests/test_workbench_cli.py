@@ -1,0 +1,95 @@
+"""`accellog workbench`: the discovery loop and the ladder on emulated sessions with a hidden
+temperature effect (found, added, error falls to the noise floor) and on a clean one (nothing added)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from rrd_readback import load_rrd
+
+from accellog.cli import main
+from accellog.simulate import Scenario, simulate
+
+HOT = {"kind": "points", "t_s": [0.0, 60.0, 130.0, 200.0], "T": [22.0, 40.0, 28.0, 36.0]}
+HOT2 = {"kind": "points", "t_s": [0.0, 70.0, 140.0, 200.0], "T": [30.0, 44.0, 33.0, 41.0]}
+
+
+def _sc(seed: int, temperature: dict, **set_) -> Scenario:
+    errors = {
+        "bias_g": [0.04, -0.03, 0.06],
+        "scale": [0.02, -0.01, 0.015],
+        "noise_density_g_per_rtHz": 300e-6,
+        **set_,
+    }
+    return Scenario(
+        protocol="24",
+        hold_s=6.0,
+        move_s=2.0,
+        sample_rate_hz=200.0,
+        errors="perfect",
+        set=errors,
+        chip_seed=3,
+        seed=seed,
+        temperature=temperature,
+    )
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    d = tmp_path_factory.mktemp("wb")
+    tb = {"temp_bias_g_per_degC": [0.0012, -0.0008, 0.001]}
+    paths = {
+        "hidden": _sc(1, HOT, **tb),
+        "heldout": _sc(2, HOT2, **tb),
+        "clean": _sc(3, HOT),
+        "clean_heldout": _sc(4, HOT2),
+    }
+    for name, sc in paths.items():
+        simulate(sc, d / f"{name}.mcap")
+    return d
+
+
+def test_hidden_temperature_effect_is_found_and_the_error_falls(sessions, capsys):
+    d = sessions
+    rrd = d / "wb.rrd"
+    rc = main(
+        [
+            "workbench",
+            str(d / "hidden.mcap"),
+            "--heldout",
+            str(d / "heldout.mcap"),
+            "--json",
+            "--rrd",
+            str(rrd),
+        ]
+    )
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["added"] == ["temp_bias"]
+    ladder = out["ladder"]
+    assert [r["model"] for r in ladder] == ["model1", "model2", "model3", "model3+temp_bias"]
+    m3, final = ladder[2], ladder[-1]
+    assert m3["chi2_dof"] > 20 and final["chi2_dof"] < 1.5
+    assert final["heldout_rms_g"] < 1.3 * final["heldout_noise_g"] < m3["heldout_rms_g"] / 5
+    assert "nothing is missing" in out["verdicts"][-1]
+    bars = load_rrd(rrd).bar_values("/ladder/heldout_rms_mg")
+    np.testing.assert_allclose(bars, [r["heldout_rms_g"] * 1000 for r in ladder], rtol=1e-9)
+
+
+def test_clean_session_adds_nothing(sessions, capsys):
+    d = sessions
+    rc = main(["workbench", str(d / "clean.mcap"), "--heldout", str(d / "clean_heldout.mcap"), "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["added"] == [] and out["final_model"] == "model3"
+    assert out["ladder"][-1]["heldout_rms_g"] < 1.3 * out["ladder"][-1]["heldout_noise_g"]
+
+
+def test_pose_table_is_refused_with_one_line(tmp_path, capsys):
+    csv = tmp_path / "poses.csv"
+    csv.write_text("x_true (g),x_mean (g),x_std,y_true (g),y_mean (g),y_std,z_true (g),z_mean (g),z_std\n")
+    rc = main(["workbench", str(csv)])
+    err = capsys.readouterr().err.strip()
+    assert rc != 0 and err.startswith("accellog: error:") and "\n" not in err
