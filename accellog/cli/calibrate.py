@@ -164,12 +164,18 @@ def evaluate_cmd(
     from ..calibration import load_calibration
 
     cals = [load_calibration(c) for c in cal]
+    names = [c.model_spec.get("name", "") for c in cals]
+    labels = [p.stem for p in cal] if len(set(names)) < len(names) else None  # tell same-model files apart
     data = load_input(test)
     if isinstance(data, Session) and len(data.poses) > 1:
         _evaluate_holds(data, cals, at_s, json_out, until_s is not None or max_samples is not None)
         return
     evs = run_evaluate(
-        data if isinstance(data, Session) else test, cals, until_s=until_s, max_samples=max_samples
+        data if isinstance(data, Session) else test,
+        cals,
+        until_s=until_s,
+        max_samples=max_samples,
+        labels=labels,
     )
     if rrd is not None:
         with _recording(rrd) as rec:
@@ -297,3 +303,53 @@ def run(
     report.print_tables(res.tables(), _console)
     for w in res.written:
         _console.print(f"wrote {w}")
+
+
+@app.command()
+def integrate(
+    session: Annotated[Path, typer.Argument(help="Static session (one orientation) to integrate.")],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="CSV: t_s, velocity (m/s) and displacement (m).")
+    ],
+    cal: Annotated[
+        Path | None, typer.Option("--cal", help="Calibration JSON (default: the raw reading).")
+    ] = None,
+    until_s: Annotated[float | None, typer.Option(help="Use samples with t <= until_s only.")] = None,
+    json_out: JsonOpt = False,
+) -> None:
+    """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
+    local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
+    import io
+
+    import numpy as np
+
+    from ..calibration import load_calibration
+    from ..integrate import cumtrapz
+
+    data = load_input(session)
+    if not isinstance(data, Session):
+        raise InputError("integrate needs a recorded session (samples), not a pose table", where=str(session))
+    c = load_calibration(cal) if cal is not None else None
+    ev = run_evaluate(data, [c] if c else [], include_raw=c is None, until_s=until_s)[-1]
+    t, d = ev.t_s, ev.disp_series_m
+    v = cumtrapz(t, ev.resid_series_mps2)  # the residual acceleration (m/s^2) is what integrates to d
+    buf = io.StringIO()
+    buf.write("t_s,vx_mps,vy_mps,vz_mps,x_m,y_m,z_m\n")
+    np.savetxt(buf, np.column_stack([t, v, d]), delimiter=",", fmt="%.9g")
+    tmp = output.with_name(f".{output.name}.tmp")
+    tmp.write_text(buf.getvalue())
+    tmp.replace(output)
+    summary = {
+        "session": str(session),
+        "calibration": str(cal) if cal else None,
+        "label": ev.label,
+        "t_end_s": ev.t_end_s,
+        "disp_end_m": ev.disp_end_m.tolist(),
+        "displacement_at_s": {f"{ts:g}": ev.disp_at(ts).tolist() for ts in ev.times_s},
+        "output": str(output),
+    }
+    if json_out:
+        _echo_json(summary)
+        return
+    report.print_tables([report.displacement_table([ev], at_s=float(ev.times_s[-1]))], _console)
+    _console.print(f"wrote {output} ({len(t)} rows)")

@@ -1,0 +1,135 @@
+"""`accellog report`: the last stage - tables from the JSON artifacts the other stages write.
+
+Reads calibration files (`fit -o`, `drift -o`), `evaluate --json`, `integrate --json` and
+`workbench --json` outputs, and prints their tables (rich), or markdown with --markdown to paste
+into a lab notebook or an issue.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ..errors import InputError
+from ..report import fmt_pm
+from .app import app
+
+AXES = ("x", "y", "z")
+
+
+def _params(d: dict, name: str) -> Table:
+    model = d.get("model", {})
+    t = Table(title=f"{name}: {model.get('name', '')} ({', '.join(model.get('terms', []))})")
+    for c in ("parameter", "value ± 1σ", "unit"):
+        t.add_column(c, justify="right" if c.startswith("value") else "left")
+    for p in d["params"]:
+        t.add_row(p["name"], fmt_pm(float(p["value"]), float(p.get("sigma") or 0.0)), p.get("unit", ""))
+    fit = d.get("fit", {})
+    if fit.get("chi2_dof") is not None:
+        t.caption = (
+            f"chi2/dof {fit['chi2_dof']:.4g}, residual RMS {1000 * fit.get('rms_g', float('nan')):.4g} mg"
+        )
+    return t
+
+
+def _evaluations(rows: list[dict], name: str) -> list[Table]:
+    t4 = Table(title=f"{name}: mean residual after calibration (m/s²)")
+    t5 = Table(title=f"{name}: integrated displacement (m)")
+    t4.add_column("model")
+    t5.add_column("model")
+    for a in AXES:
+        t4.add_column(f"{a} mean", justify="right")
+    t4.add_column("χ² noise/dof", justify="right")
+    times = rows[0].get("displacement", {}).get("times_s", [])
+    for ts in times:
+        t5.add_column(f"at {ts:g} s (x, y, z)", justify="right")
+    for r in rows:
+        m, s = r["mean_residual_mps2"], r.get("sem_mps2", {})
+        t4.add_row(
+            r["label"],
+            *(fmt_pm(m[a], s.get(a, 0.0)) for a in AXES),
+            f"{r.get('chi2_noise_dof', float('nan')):.3g}",
+        )
+        disp = r.get("displacement", {})
+        t5.add_row(r["label"], *(_vec(d) for d in disp.get("disp_m", [])))
+        if disp.get("disp_after_drift_m"):
+            t5.add_row(f"{r['label']} + drift model", *(_vec(d) for d in disp["disp_after_drift_m"]))
+    return [t4, t5] if times else [t4]
+
+
+def _vec(v) -> str:
+    """'x, y, z' (4 significant digits), '-' where a value is missing (e.g. past the session's end)."""
+    return "-" if v is None else ", ".join("-" if x is None else f"{x:.4g}" for x in v)
+
+
+def _ladder(rows: list[dict], name: str) -> Table:
+    t = Table(title=f"{name}: model ladder")
+    for c in ("model", "params", "χ²/dof", "held-out RMS (mg)", "noise floor (mg)", "60 s drift (m)"):
+        t.add_column(c, justify="left" if c == "model" else "right")
+    for r in rows:
+        t.add_row(
+            r["model"],
+            str(r["n_params"]),
+            f"{r['chi2_dof']:.3g}",
+            f"{1000 * r['heldout_rms_g']:.3g}" if "heldout_rms_g" in r else "-",
+            f"{1000 * r['heldout_noise_g']:.3g}" if "heldout_noise_g" in r else "-",
+            f"{r['drift_60s_m']:.3g}" if "drift_60s_m" in r else "-",
+        )
+    return t
+
+
+def tables_for(d: Any, name: str) -> list[Table]:
+    """The tables of one JSON artifact, by what it contains; InputError for anything else."""
+    if isinstance(d, dict) and d.get("format") == "accellog.calibration":
+        return [_params(d, name)]
+    if isinstance(d, dict) and "raw" in d and "calibrated" in d and d.get("kind") != "poses":
+        return _evaluations([x for x in [d["raw"], *d["calibrated"]] if x], name)
+    if isinstance(d, dict) and "ladder" in d:
+        return [_ladder(d["ladder"], name)]
+    if isinstance(d, dict) and "disp_end_m" in d and "displacement_at_s" in d:
+        t = Table(title=f"{name}: {d.get('label', '')} displacement (m)")
+        t.add_column("t (s)", justify="right")
+        for a in AXES:
+            t.add_column(f"{a} (m)", justify="right")
+        for ts, v in d["displacement_at_s"].items():
+            t.add_row(ts, *_vec(v).split(", ") if v and None not in v else ["-"] * 3)
+        t.add_row(f"{d['t_end_s']:.2f} (end)", *(f"{x:.4g}" for x in d["disp_end_m"]))
+        return [t]
+    raise InputError(
+        "not an accellog artifact this command can render (calibration JSON, evaluate/integrate/workbench --json)",
+        where=name,
+    )
+
+
+@app.command()
+def report(
+    files: Annotated[
+        list[Path], typer.Argument(help="JSON artifacts: calibrations, evaluate/integrate/workbench --json.")
+    ],
+    markdown: Annotated[bool, typer.Option("--markdown", help="Markdown tables on stdout.")] = False,
+) -> None:
+    """Print the tables of stage artifacts (parameters ± 1σ, the seed's tables, the model ladder)."""
+    from ..views import table_markdown
+
+    tables: list[Table] = []
+    for f in files:
+        try:
+            d = json.loads(f.read_text())
+        except FileNotFoundError:
+            raise InputError("no such file", where=str(f)) from None
+        except json.JSONDecodeError as exc:
+            raise InputError(f"not JSON (line {exc.lineno}: {exc.msg})", where=str(f)) from None
+        except (UnicodeDecodeError, IsADirectoryError):
+            raise InputError("not a JSON text file", where=str(f)) from None
+        tables += tables_for(d, f.name)
+    if markdown:
+        typer.echo("\n".join(table_markdown(t) for t in tables))
+        return
+    con = Console(width=140)
+    for t in tables:
+        con.print(t)
