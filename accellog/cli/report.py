@@ -97,7 +97,7 @@ def tables_for(d: Any, name: str) -> list[Table]:
         for a in AXES:
             t.add_column(f"{a} (m)", justify="right")
         for ts, v in d["displacement_at_s"].items():
-            t.add_row(ts, *_vec(v).split(", ") if v and None not in v else ["-"] * 3)
+            t.add_row(ts, *([f"{x:.4g}" for x in v] if v and None not in v else ["-"] * 3))
         t.add_row(f"{d['t_end_s']:.2f} (end)", *(f"{x:.4g}" for x in d["disp_end_m"]))
         return [t]
     raise InputError(
