@@ -19,6 +19,7 @@ optional displacement-drift model (accellog.drift).
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import hashlib
 import json
 import os
@@ -141,9 +142,10 @@ class Calibration:
         """m/s^2 per unit of the calibrated output: local_gravity_mps2 / truth_g."""
         return self.local_gravity_mps2 / self.truth_g
 
-    @property
+    @functools.cached_property
     def model(self):
-        """The accellog.model.Model of this calibration (rebuilt from the spec)."""
+        """The accellog.model.Model of this calibration, built from the spec once (a user effects
+        file is imported and its SHA-256 checked on first use, not on every correct())."""
         from .model import model_from_spec
 
         return model_from_spec(self.model_spec)

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, stats
 
-from .effects import AXES
+from .effects import AXES, all_effects
 from .errors import InputError, ModelError
 from .model import Model
 from .session import ObsTable
@@ -97,8 +97,6 @@ def effect_requirement(
     name: str, obs: ObsTable, drivers: Mapping[str, np.ndarray], model: Model
 ) -> str | None:
     """Why the data cannot reveal effect `name` (what to record), or None if it may."""
-    from .effects import all_effects
-
     lib = all_effects(model.effects_file)
     e = lib.get(name)
     if e is None:
@@ -230,7 +228,8 @@ class FitResult:
     sigma_scaled: np.ndarray = field(default_factory=lambda: np.zeros(0))
     warnings: list[str] = field(default_factory=list)
     jacobian: np.ndarray | None = None
-    """Whitened Jacobian d(residual/sigma)/d(theta) at the solution (rows: obs-major, axis-minor)."""
+    """Jacobian d(w residual)/d(theta) at the solution, w = 1/sigma_g when weighted (whitened), else 1
+    (rows: obs-major, axis-minor)."""
 
     def params(self) -> dict[str, float]:
         return self.model.params_dict(self.theta)
@@ -268,6 +267,25 @@ def _sigma_ok(obs: ObsTable) -> bool:
     return s.shape == obs.meas_g.shape and bool(np.all(np.isfinite(s) & (s > 0)))
 
 
+def _checked(
+    obs: ObsTable, model: Model, weighted: bool, drivers: Mapping[str, np.ndarray] | None
+) -> tuple[np.ndarray, dict[str, np.ndarray], bool]:
+    """(meas_g (n,3), drivers, sigma usable) after the input checks shared by both fits (InputError)."""
+    if obs.n == 0:
+        raise InputError("no observations to fit")
+    meas = np.asarray(obs.meas_g, float)
+    if not np.all(np.isfinite(meas)):
+        raise InputError("observations contain NaN/inf readings")
+    drv = obs_drivers(obs, drivers)
+    model.check_drivers(drv, obs.n)
+    sig_ok = _sigma_ok(obs)
+    if weighted and not sig_ok:
+        raise InputError(
+            "weighted fit needs finite positive sigma_g for every observation (or weighted=False)"
+        )
+    return meas, drv, sig_ok
+
+
 def _numjac(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
     cols = []
     for k in range(theta.size):
@@ -279,11 +297,9 @@ def _numjac(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return np.stack(cols, axis=1) if cols else np.zeros((fun(theta).size, 0))
 
 
-def rank_check(
-    J: np.ndarray, model: Model, obs: ObsTable, drivers: Mapping[str, np.ndarray], what: str = "fit"
-) -> tuple[float, list[str]]:
+def rank_check(J: np.ndarray, model: Model, obs: ObsTable, drivers: Mapping[str, np.ndarray]) -> float:
     """Raise ModelError if the column-normalised Jacobian is rank deficient, naming the
-    parameters in its null space and what data would determine them; return (condition, [])."""
+    parameters in its null space and what data would determine them; return its condition number."""
     norms = np.linalg.norm(J, axis=0)
     names = model.param_names
     zero = [names[k] for k in range(len(names)) if norms[k] == 0 or not np.isfinite(norms[k])]
@@ -308,7 +324,7 @@ def rank_check(
             f"model {model.name} cannot be determined from this data: {', '.join(bad)} not "
             f"identifiable ({'; '.join(hints)}); faces present: {', '.join(pose_faces(obs))}"
         )
-    return cond, []
+    return cond
 
 
 @dataclass
@@ -398,18 +414,7 @@ def fit_model(
 ) -> FitResult:
     """Least-squares fit of `model` to labelled static observations (truth = gravity_g * up_sensor,
     tilted when the model has fixture_tilt). `drivers`: extra driver signals aligned with rows."""
-    if obs.n == 0:
-        raise InputError("no observations to fit")
-    meas = np.asarray(obs.meas_g, float)
-    if not np.all(np.isfinite(meas)):
-        raise InputError("observations contain NaN/inf readings")
-    drv = obs_drivers(obs, drivers)
-    model.check_drivers(drv, obs.n)
-    sig_ok = _sigma_ok(obs)
-    if weighted and not sig_ok:
-        raise InputError(
-            "weighted fit needs finite positive sigma_g for every observation (or weighted=False)"
-        )
+    meas, drv, sig_ok = _checked(obs, model, weighted, drivers)
     w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(meas)
     prob = _Problem(model, obs, drv, w, float(gravity_g), _q_or_none(obs))
     th0 = model.initial_theta() if theta0 is None else np.asarray(theta0, float).copy()
@@ -454,8 +459,7 @@ def _result(prob: _Problem, theta: np.ndarray, weighted: bool, sig_ok: bool, met
     sigma = np.sqrt(np.clip(np.diag(cov), 0, None))
     scale = max(1.0, chi2_dof) if weighted and np.isfinite(chi2_dof) else 1.0
     S, b = model.S_b(theta)
-    warns = _acceptance(model, theta, S, b, chi2_dof, p, sigma, weighted, dof)
-    Jw = J if weighted else J / 1.0
+    warns = _acceptance(model, S, b, chi2_dof, p, sigma, weighted, dof)
     return FitResult(
         model=model,
         theta=theta,
@@ -479,11 +483,20 @@ def _result(prob: _Problem, theta: np.ndarray, weighted: bool, sig_ok: bool, met
         method=method,
         sigma_scaled=sigma * np.sqrt(scale),
         warnings=warns,
-        jacobian=Jw,
+        jacobian=J,
     )
 
 
-def _acceptance(model, theta, S, b, chi2_dof, p, sigma, weighted, dof) -> list[str]:
+def _acceptance(
+    model: Model,
+    S: np.ndarray,
+    b: np.ndarray,
+    chi2_dof: float,
+    p: float,
+    sigma: np.ndarray,
+    weighted: bool,
+    dof: int,
+) -> list[str]:
     """ArduPilot-like acceptance checks as warnings (scale 0.8-1.2, |offset| < 1 g, residual vs noise)."""
     w: list[str] = []
     d = np.diag(S)
@@ -527,14 +540,7 @@ def fit_orientation_free(
             "an orientation-free fit cannot determine all 6 cross_axis terms (3 of them are a rotation "
             "of the frame): use misalignment_tri instead, e.g. 'bias+scale+misalignment_tri'"
         )
-    meas = np.asarray(obs.meas_g, float)
-    drv = obs_drivers(obs, drivers)
-    model.check_drivers(drv, obs.n)
-    sig_ok = _sigma_ok(obs)
-    if weighted and not sig_ok:
-        raise InputError(
-            "weighted fit needs finite positive sigma_g for every observation (or weighted=False)"
-        )
+    meas, drv, sig_ok = _checked(obs, model, weighted, drivers)
     if sig_ok:
         dirs = meas / np.linalg.norm(meas, axis=1, keepdims=True)
         sig_n = np.sqrt(np.sum((dirs * obs.sigma_g) ** 2, axis=1))
@@ -598,5 +604,8 @@ def fit_orientation_free(
         out.chi2 = float(np.sum((r / wn / sig_n) ** 2))
         out.chi2_dof = out.chi2 / dof if dof > 0 else np.nan
         out.p_value = float(stats.chi2.sf(out.chi2, dof)) if dof > 0 else np.nan
-    out.sigma_scaled = out.sigma * np.sqrt(max(1.0, out.chi2_dof) if np.isfinite(out.chi2_dof) else 1.0)
+    scale = max(1.0, out.chi2_dof) if weighted and np.isfinite(out.chi2_dof) else 1.0
+    out.sigma_scaled = out.sigma * np.sqrt(scale)  # as _result: the unweighted cov already carries s^2
+    # the acceptance checks of _result saw the labelled-style statistics: redo them on the fitted ones
+    out.warnings = _acceptance(model, out.S, out.b, out.chi2_dof, out.p_value, out.sigma, weighted, dof)
     return out
