@@ -20,7 +20,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .effects import AXES, CROSS_NAMES, DRIVER_HELP, LIBRARY, PRESETS, Effect, EffectsFile, load_effects_file
+from .effects import (
+    AXES,
+    CROSS_NAMES,
+    DRIVER_HELP,
+    LIBRARY,
+    PRESETS,
+    TRI_NAMES,
+    Effect,
+    EffectsFile,
+    all_effects,
+    load_effects_file,
+)
 from .errors import ModelError
 from .rotations import quat_from_rotvec, rotate_inverse
 
@@ -50,9 +61,7 @@ class Model:
         t_ref_degC: float = 25.0,
         name: str | None = None,
     ) -> None:
-        lib = dict(LIBRARY)
-        if effects_file is not None:
-            lib.update(effects_file.effects)
+        lib = all_effects(effects_file)
         unknown = [t for t in terms if t not in lib]
         if unknown:
             raise ModelError(
@@ -163,7 +172,7 @@ class Model:
         sc = self._p(theta, "scale")
         sdiag = np.ones(3) if sc is None else sc.copy()
         C = np.zeros((3, 3))
-        for term, names in (("cross_axis", CROSS_NAMES), ("misalignment_tri", ("S_yx", "S_zx", "S_zy"))):
+        for term, names in (("cross_axis", CROSS_NAMES), ("misalignment_tri", TRI_NAMES)):
             v = self._p(theta, term)
             if v is not None:
                 for nm, val in zip(names, v, strict=True):

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError, ModelError
-from .noise import sem_autocorr
+from .noise import integrated_autocorr_time, sem_autocorr
 from .session import POSE_UP_VECTORS, ObsTable, PoseLabel, Session
 
 UNIT_NORM_RANGE_G = (0.5, 2.0)
@@ -318,7 +318,7 @@ def observations(
         starts = np.unique(np.searchsorted(t, edges))
         starts = starts[starts < n_all]
         mean, std, n = _window_stats(acc, starts)
-        _, tau = sem_autocorr(acc, quantum=quantum)
+        tau = integrated_autocorr_time(acc)
         sigma = np.maximum(std * np.sqrt(tau[None, :] / n[:, None]), quantum / np.sqrt(12.0 * n[:, None]))
         tmid = np.add.reduceat(t - t[0], starts) / n + t[0]
         if p.name not in name_id:
@@ -508,13 +508,15 @@ def detect_static(
     min_len = max(int(np.ceil(min_interval_s * rate)), 2)
     best: tuple[float, list[PoseLabel], int] | None = None
     max_found = 0
+    csum = np.concatenate([np.zeros((1, 3)), np.cumsum(acc, axis=0)])
+    # label [start_s, end_s) covers samples a..b-1: end at the next sample's time (one period past the end)
+    t_end = np.append(t[1:], t[-1] + 1.0 / rate)
     for k in k_values:
         starts, stops = _runs(stat < k * ref)
         keep = (stops - starts) >= min_len
         starts, stops = starts[keep], stops[keep]
         if starts.size == 0:
             continue
-        csum = np.concatenate([np.zeros((1, 3)), np.cumsum(acc, axis=0)])
         means = (csum[stops] - csum[starts]) / (stops - starts)[:, None]
         norms = np.linalg.norm(means, axis=1)
         dirs = means / np.maximum(norms, 1e-12)[:, None]
@@ -526,7 +528,7 @@ def detect_static(
             PoseLabel(
                 name=f"static{j:02d}",
                 start_s=float(t[a]),
-                end_s=float(t[b - 1]),
+                end_s=float(t_end[b - 1]),
                 up_sensor=tuple(float(v) for v in dirs[j]),
                 hold_index=j,
             )
