@@ -155,7 +155,10 @@ class SessionWriter:
         self._flush_s = float(flush_interval_s)
         self._flush_ns = _ns(self._flush_s) if math.isfinite(self._flush_s) else None
         self._base_ns = int(meta.start_time_unix_ns)
-        self._f = open(self.path, "wb")  # noqa: SIM115 (closed in close())
+        try:
+            self._f = open(self.path, "wb")  # noqa: SIM115 (closed in close())
+        except OSError as exc:
+            raise InputError(f"cannot create the MCAP file: {exc.strerror or exc}", where=str(path)) from None
         self._w = Writer(
             self._f, chunk_size=chunk_size, compression=_COMPRESSION[compression], enable_data_crcs=True
         )
@@ -542,8 +545,11 @@ class _Collected:
 def _check_file(path: Path) -> None:
     if not path.is_file():
         raise InputError("no such file", where=str(path))
-    with open(path, "rb") as f:
-        head = f.read(len(MCAP_MAGIC))
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", where=str(path)) from None
     if not head:
         raise InputError("empty file (0 bytes), not an MCAP session", where=str(path))
     if head != MCAP_MAGIC:

@@ -251,23 +251,27 @@ def simulate(
     total_s = motion.duration_s if duration_s is None else duration_s
     out = Path(out)
     tmp = out.with_name(out.name + ".part")
-    with SessionWriter(tmp, meta) as writer:
-        driver.start()
-        rec = Recorder(driver, writer, sleep=clock.sleep, poll_s=poll_s)
-        rec.run_for(total_s)
-        # Motion time starts when the chip is created, session time at the first FIFO sample:
-        # map the scenario's holds and truth onto the session's time axis.
-        m = sc.label_margin_s
-        for lab in motion.labels():
-            start_s, end_s = (float(v) for v in chip.session_time_s(np.array([lab.start_s, lab.end_s])))
-            if start_s < 0 or end_s > rec.t_s:
-                continue
-            label = PoseLabel(
-                lab.name, start_s + m, end_s - m, lab.up_sensor, lab.q_sensor_to_world, lab.hold_index
-            )
-            writer.write_pose(label)
-            rec.summary.poses.append(label)
-        writer.write_truth(chip.truth_for_session(np.arange(0.0, rec.t_s, truth_step_s)))
-    tmp.replace(out)
+    try:
+        with SessionWriter(tmp, meta) as writer:
+            driver.start()
+            rec = Recorder(driver, writer, sleep=clock.sleep, poll_s=poll_s)
+            rec.run_for(total_s)
+            # Motion time starts when the chip is created, session time at the first FIFO sample:
+            # map the scenario's holds and truth onto the session's time axis.
+            m = sc.label_margin_s
+            for lab in motion.labels():
+                start_s, end_s = (float(v) for v in chip.session_time_s(np.array([lab.start_s, lab.end_s])))
+                if start_s < 0 or end_s > rec.t_s:
+                    continue
+                label = PoseLabel(
+                    lab.name, start_s + m, end_s - m, lab.up_sensor, lab.q_sensor_to_world, lab.hold_index
+                )
+                writer.write_pose(label)
+                rec.summary.poses.append(label)
+            writer.write_truth(chip.truth_for_session(np.arange(0.0, rec.t_s, truth_step_s)))
+        tmp.replace(out)
+    except BaseException:  # never leave a half-written session behind (Ctrl-C, errors)
+        tmp.unlink(missing_ok=True)
+        raise
     rec.summary.duration_s = rec.t_s
     return rec.summary

@@ -175,53 +175,61 @@ def record(
 
         sleep, clock_ns, source = time.sleep, None, "hardware"
 
-    driver = Mpu9250(device, address=addr, clock_ns=clock_ns)
-    info = driver.probe()
-    cfg = driver.configure(
-        accel_range_g=accel_range,
-        gyro_range_dps=gyro_range,
-        dlpf_cfg=dlpf,
-        a_dlpf_cfg=dlpf,
-        sample_rate_div=round(div),
-    )
-    read_mag = mag and info.has_magnetometer
-    if mag and not info.has_magnetometer:
-        console.print(
-            f"[yellow]{info.model} (WHO_AM_I=0x{info.who_am_i:02X}) has no magnetometer: not recorded[/]"
+    old_sigterm = signal.getsignal(signal.SIGTERM)
+    live = None
+    try:
+        driver = Mpu9250(device, address=addr, clock_ns=clock_ns)
+        info = driver.probe()
+        cfg = driver.configure(
+            accel_range_g=accel_range,
+            gyro_range_dps=gyro_range,
+            dlpf_cfg=dlpf,
+            a_dlpf_cfg=dlpf,
+            sample_rate_div=round(div),
         )
-    if read_mag:
-        driver.enable_magnetometer()
-    meta = session_meta(info, cfg, source=source, protocol=protocol)
-    live = _open_live(rerun)
-    ui: RecorderUI = TerminalUI()
-    if live is not None:
-        ui = live.wrap_ui(ui)
-    # Ctrl-C: finish the current file cleanly (the writer's context closes it).
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
-    interrupted = False
-    with SessionWriter(out, meta) as writer:
-        driver.start()
-        rec = Recorder(
-            driver,
-            writer,
-            sleep=sleep,
-            ui=ui,
-            read_mag=read_mag,
-            on_batch=live.on_batch if live else None,
-            on_pose=RunningCalibration(live) if live else None,
-        )
-        try:
-            rec.run(poses, wait=wait)
-        except KeyboardInterrupt:
-            interrupted = True
-            rec.summary.duration_s = rec.t_s
-            writer.write_event(
-                Event(
-                    rec.t_s, "note", "recording interrupted by the operator (Ctrl-C); file finished cleanly"
-                )
+        read_mag = mag and info.has_magnetometer
+        if mag and not info.has_magnetometer:
+            console.print(
+                f"[yellow]{info.model} (WHO_AM_I=0x{info.who_am_i:02X}) has no magnetometer: not recorded[/]"
             )
-    if live is not None:
-        live.close()
+        if read_mag:
+            driver.enable_magnetometer()
+        meta = session_meta(info, cfg, source=source, protocol=protocol)
+        live = _open_live(rerun)
+        ui: RecorderUI = TerminalUI()
+        if live is not None:
+            ui = live.wrap_ui(ui)
+        # Ctrl-C: finish the current file cleanly (the writer's context closes it).
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
+        interrupted = False
+        with SessionWriter(out, meta) as writer:
+            driver.start()
+            rec = Recorder(
+                driver,
+                writer,
+                sleep=sleep,
+                ui=ui,
+                read_mag=read_mag,
+                on_batch=live.on_batch if live else None,
+                on_pose=RunningCalibration(live) if live else None,
+            )
+            try:
+                rec.run(poses, wait=wait)
+            except KeyboardInterrupt:
+                interrupted = True
+                rec.summary.duration_s = rec.t_s
+                writer.write_event(
+                    Event(
+                        rec.t_s,
+                        "note",
+                        "recording interrupted by the operator (Ctrl-C); file finished cleanly",
+                    )
+                )
+    finally:
+        signal.signal(signal.SIGTERM, old_sigterm)
+        if live is not None:
+            live.close()
+        device.close()  # the /dev/i2c-N file of real hardware (a no-op for the emulated chip)
     s = rec.summary
     console.print(
         f"wrote {out}: {s.samples} samples in {s.duration_s:.1f} s, {len(s.poses)} poses, "
