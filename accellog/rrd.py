@@ -70,6 +70,8 @@ TRACK_3D_MAX_POINTS = 20_000
 """The 3D line strip of a track is decimated to at most this many points (last point kept)."""
 
 DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
+SPAWN_PORT = 9876
+"""Port of the native viewer started by the 'spawn' sink (bound to 127.0.0.1 only)."""
 
 _EVENT_LEVEL = {
     "gap": "WARN",
@@ -162,6 +164,23 @@ class _SinkWatch:
         self._stop.set()
 
 
+def _spawn_viewer(port: int, timeout_s: float = 20.0) -> None:
+    """Start the native viewer listening on 127.0.0.1:port (``rr.spawn`` would bind 0.0.0.0), unless
+    a viewer already listens there; wait until it accepts connections."""
+    import subprocess
+
+    from .viewer import rerun_binary, rerun_env
+
+    if wait_for_port("127.0.0.1", port, 0.0):
+        return
+    cmd = [rerun_binary(), "--bind", "127.0.0.1", "--port", str(port), "--expect-data-soon"]
+    subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=rerun_env(), start_new_session=True
+    )
+    if not wait_for_port("127.0.0.1", port, timeout_s):
+        raise InputError(f"the spawned viewer does not listen on 127.0.0.1:{port} after {timeout_s:g} s")
+
+
 def _parse_sink(sink: str) -> tuple[str, str]:
     if sink.startswith("save:"):
         path = sink[5:]
@@ -213,6 +232,7 @@ class RunRecording:
         self._final: Path | None = None
         self._lock = threading.Lock()
         self._n_tracks = 0
+        self._n_poses = 0  # holds logged so far: /poses/active/{k} numbers them across calls
         self.rec = rr.RecordingStream(app_id, recording_id=recording_id, send_properties=False)
         with contextlib.suppress(AttributeError):
             self.rec.set_log_time_enabled(False)  # reproducible files: no wall-clock timeline
@@ -236,8 +256,9 @@ class RunRecording:
 
     def _connect(self, bp) -> None:
         if self.kind == "spawn":
-            self.rec.spawn(default_blueprint=bp)
-            host, port = "127.0.0.1", 9876
+            host, port = "127.0.0.1", SPAWN_PORT
+            _spawn_viewer(port)
+            self.rec.connect_grpc(f"rerun+http://{host}:{port}/proxy", default_blueprint=bp)
         else:
             self.rec.connect_grpc(self.target, default_blueprint=bp)
             u = urllib.parse.urlparse(self.target.replace("rerun+", "", 1))
@@ -331,7 +352,9 @@ class RunRecording:
         )
 
     def log_poses(self, poses: Sequence[PoseLabel]) -> None:
-        """Hold windows: a 0/1 step series per hold (named by its label) + a TextLog at each start."""
+        """Hold windows: a 0/1 step series per hold (named by its label) + a TextLog at each start.
+
+        Holds are numbered in logging order across calls (k = 0, 1, ... at ``/poses/active/{k:02d}``)."""
         self._guarded(self._log_poses, list(poses))
 
     def _log_poses(self, poses: list[PoseLabel]) -> None:
@@ -339,7 +362,9 @@ class RunRecording:
 
         if not poses:
             return
-        for k, p in enumerate(poses):
+        k0 = self._n_poses
+        self._n_poses += len(poses)
+        for k, p in enumerate(poses, start=k0):
             t = np.array([p.start_s, p.end_s], dtype=np.float64)
             self._log_series(
                 f"{POSES_ACTIVE}/{k:02d}",
@@ -484,12 +509,15 @@ class RunRecording:
             False,
         )
         if d.shape[0]:
-            self.log_track_3d(label, d, color=color)
+            self._log_track_3d(label, d, color)
 
     def log_track_3d(
         self, label: str, disp_m: np.ndarray, *, color: tuple[int, int, int] | None = None
     ) -> None:
-        """Static 3D line strip of a whole track (decimated, last point kept) + its final point."""
+        """Static 3D line strip of a whole track (m; decimated, last point kept) + its final point."""
+        self._guarded(self._log_track_3d, label, disp_m, color)
+
+    def _log_track_3d(self, label: str, disp_m: np.ndarray, color: tuple[int, int, int] | None) -> None:
         import rerun as rr
 
         d = np.asarray(disp_m, dtype=np.float64).reshape(-1, 3)
@@ -628,6 +656,9 @@ class RunRecording:
             else:
                 self._guarded(self.rec.flush, timeout_sec=2.0)
                 self._guarded(self.rec.disconnect)
+        except BaseException:
+            self.abort()  # no half-written file left behind
+            raise
         finally:
             self._closed = True
         if self._tmp is not None and self._final is not None:
@@ -924,12 +955,13 @@ class _TeeUI:
 
 
 def wait_for_port(host: str, port: int, timeout_s: float = 20.0) -> bool:
-    """True once a TCP connection to host:port succeeds within timeout_s."""
+    """True once a TCP connection to host:port succeeds within timeout_s (s; 0: one attempt)."""
     end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
+    while True:
         try:
             with socket.create_connection((host, port), timeout=0.5):
                 return True
         except OSError:
+            if time.monotonic() >= end:
+                return False
             time.sleep(0.1)
-    return False

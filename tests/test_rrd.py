@@ -316,3 +316,20 @@ def test_live_view_to_file_records_prompts_and_batches(tmp_path: Path) -> None:
     _, d = r.series("tracks/live")
     assert d.shape == (60 * 36, 3)
     assert hashlib.sha256(out.read_bytes()).hexdigest()  # file complete and readable
+
+
+def test_live_holds_logged_one_by_one_keep_their_own_series(tmp_path: Path) -> None:
+    """The recorder reports each finished hold separately: hold k still lands at poses/active/{k:02d}
+    with its own label (not every hold on entry 00 under the first hold's name)."""
+    t, _ = _session(n=4000)
+    out = tmp_path / "holds.rrd"
+    live = LiveView(RunRecording(f"save:{out}"))
+    for p in _poses(t):
+        live.finished_pose(p)
+    live.close()
+    r = load_rrd(out)
+    for k, p in enumerate(_poses(t)):
+        tp, vp = r.series(f"poses/active/{k:02d}")
+        np.testing.assert_allclose(tp, [p.start_s, p.end_s], atol=1e-9)
+        np.testing.assert_array_equal(vp[:, 0], [1.0, 0.0])
+        assert r.static(f"poses/active/{k:02d}", "SeriesLines:names") == [f"pose {p.name}"]

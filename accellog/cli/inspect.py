@@ -221,4 +221,5 @@ def view(
         return
     import subprocess
 
-    subprocess.Popen([viewer.rerun_binary(), str(recording)], env=viewer.rerun_env(), start_new_session=True)
+    cmd = [viewer.rerun_binary(), "--bind", "127.0.0.1", str(recording)]  # its viewer server: local only
+    subprocess.Popen(cmd, env=viewer.rerun_env(), start_new_session=True)
