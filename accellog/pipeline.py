@@ -101,6 +101,12 @@ def _name(x: Session | ObsTable) -> str:
     return (x.path or x.meta.source) if isinstance(x, Session) else x.session
 
 
+def _path_of(x: Session | ObsTable) -> str | None:
+    """The file a loaded input came from (a pose table keeps its path in ObsTable.session)."""
+    p = x.path if isinstance(x, Session) else x.session
+    return p if p and Path(p).is_file() else None
+
+
 def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
     if gravity not in GRAVITY_CONVENTIONS:
         raise InputError(f"unknown gravity convention {gravity!r}: use 'seed' or 'local'")
@@ -208,7 +214,7 @@ def run_fit(
         obs=obs,
         gravity_convention=gravity,
         local_gravity_mps2=float(local_gravity_mps2),
-        sources=[source_entry(src or (data.path if isinstance(data, Session) else None), kind)],
+        sources=[source_entry(src or _path_of(data), kind)],
         sensor=sensor,
     )
     if gyro and isinstance(data, Session):
@@ -260,7 +266,7 @@ def run_evaluate(
 ) -> list[Evaluation]:
     """Evaluate calibration(s) on a static test session; the raw reading first when include_raw."""
     s = _session(test, "evaluate")
-    cals = list(cal) if isinstance(cal, (list, tuple)) else [_cal(cal)]
+    cals = [_cal(c) for c in cal] if isinstance(cal, (list, tuple)) else [_cal(cal)]
     out = []
     if include_raw:
         g = cals[0].local_gravity_mps2 if cals else None
@@ -432,6 +438,8 @@ def load_pipeline(path: str | os.PathLike) -> dict:
         text = p.read_text()
     except FileNotFoundError:
         raise InputError("no such pipeline file", where=str(p)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read as text: {exc.__class__.__name__}", where=str(p)) from None
     try:
         spec = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -501,6 +509,12 @@ def load_pipeline(path: str | os.PathLike) -> dict:
     if dm is not None and dm not in models:
         raise InputError(
             f"'drift.model' = {dm!r} is not in fit.models", where=f"{p}:{_line_of(text, 'drift', 'model')}"
+        )
+    ts = spec.get("evaluate", {}).get("times_s")
+    if ts is not None and not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in ts):
+        raise InputError(
+            f"'evaluate.times_s' must be a list of numbers (s), got {ts!r}",
+            where=f"{p}:{_line_of(text, 'evaluate', 'times_s')}",
         )
     gv = spec["fit"].get("gravity", "local")
     if gv not in GRAVITY_CONVENTIONS:

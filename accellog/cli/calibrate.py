@@ -168,7 +168,9 @@ def evaluate_cmd(
     labels = [p.stem for p in cal] if len(set(names)) < len(names) else None  # tell same-model files apart
     data = load_input(test)
     if isinstance(data, Session) and len(data.poses) > 1:
-        _evaluate_holds(data, cals, at_s, json_out, until_s is not None or max_samples is not None)
+        _evaluate_holds(
+            data, cals, at_s, json_out, until_s is not None or max_samples is not None, rrd, labels
+        )
         return
     evs = run_evaluate(
         data if isinstance(data, Session) else test,
@@ -203,8 +205,17 @@ def evaluate_cmd(
             _console.print(f"[dim]{e.label}: {n}[/]")
 
 
-def _evaluate_holds(session: Session, cals: list, at_s: float, json_out: bool, cut: bool) -> None:
-    """`evaluate` on a multi-pose session: evaluate_poses for the raw reading and each calibration."""
+def _evaluate_holds(
+    session: Session,
+    cals: list,
+    at_s: float,
+    json_out: bool,
+    cut: bool,
+    rrd: Path | None = None,
+    labels: list[str] | None = None,
+) -> None:
+    """`evaluate` on a multi-pose session: evaluate_poses for the raw reading and each calibration;
+    --rrd: the session (raw and calibrated) and the per-pose residual tables."""
     from ..evaluate import evaluate_poses
 
     if cut:
@@ -216,6 +227,13 @@ def _evaluate_holds(session: Session, cals: list, at_s: float, json_out: bool, c
     g = cals[0].local_gravity_mps2 if cals else None
     pes = [evaluate_poses(session, None, at_s=at_s, local_gravity_mps2=g)]
     pes += [evaluate_poses(session, c, at_s=at_s) for c in cals]
+    if rrd is not None:
+        with _recording(rrd) as rec:
+            views.log_session(
+                rec, session, calibrations=dict(zip(labels or [p.label for p in pes[1:]], cals, strict=True))
+            )
+            md = "\n".join(views.table_markdown(report.pose_eval_table(p)) for p in pes)
+            rec.log_document("results/poses", md)
     if json_out:
         _echo_json({"kind": "poses", "raw": pes[0].to_dict(), "calibrated": [p.to_dict() for p in pes[1:]]})
         return
