@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
+from .integrate import cumtrapz
 from .rotations import quat_from_axis_angle, quat_from_rotvec, quat_multiply, quat_normalize, rotate
 from .units import STANDARD_GRAVITY_MPS2
 
@@ -61,13 +62,6 @@ def integrate_gyro(t_s: np.ndarray, gyro_dps: np.ndarray, q0) -> np.ndarray:
     phi = 0.5 * (w[:-1] + w[1:]) * dt + np.cross(w[:-1], w[1:]) * dt**2 / 12.0
     dq = np.concatenate([np.asarray(q0, float)[None, :], quat_from_rotvec(phi)])
     return quat_normalize(prefix_quat_product(dq))
-
-
-def cumtrapz(y: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Cumulative trapezoid integral of y (N,...) over t (N,), starting at 0."""
-    dt = np.diff(t).reshape((-1,) + (1,) * (y.ndim - 1))
-    inc = 0.5 * (y[1:] + y[:-1]) * dt
-    return np.concatenate([np.zeros_like(y[:1]), np.cumsum(inc, axis=0)])
 
 
 def tilt_quaternion(accel_g: np.ndarray, yaw_rad: float = 0.0) -> np.ndarray:
@@ -142,6 +136,6 @@ def strapdown(
     q = integrate_gyro(t, w, q0)
     acc = rotate(q, a * STANDARD_GRAVITY_MPS2)
     acc[:, 2] -= local_gravity_mps2
-    vel = np.asarray(v0, float) + cumtrapz(acc, t)
-    pos = np.asarray(p0, float) + cumtrapz(vel, t)
-    return Track(t_s=t, q=q, velocity_mps=vel, position_m=pos * np.ones((1, 3)), name=name)
+    vel = np.asarray(v0, float) + cumtrapz(t, acc)
+    pos = np.asarray(p0, float) + cumtrapz(t, vel)
+    return Track(t_s=t, q=q, velocity_mps=vel, position_m=pos, name=name)

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
-from .strapdown import Track, cumtrapz
+from .integrate import cumtrapz
+from .strapdown import Track
 
 
 @dataclass
@@ -123,7 +124,7 @@ def apply_zupt(track: Track, intervals: np.ndarray, *, v0=0.0) -> ZuptResult:
         knots_e = np.concatenate([(v[0] - np.asarray(v0, float) * np.ones(3))[None, :], knots_e])
     err = np.stack([np.interp(t, knots_t, knots_e[:, c]) for c in range(3)], axis=1)
     vc = v - err
-    pc = track.position_m[0] + cumtrapz(vc, t)
+    pc = track.position_m[0] + cumtrapz(t, vc)
     out = Track(t_s=t, q=track.q, velocity_mps=vc, position_m=pc, name=track.name)
     return ZuptResult(
         track=out,
