@@ -29,7 +29,7 @@ import numpy as np
 
 from .errors import InputError
 from .online import OnlineIntegrator
-from .rrd import AXES, AXIS_COLORS, RunRecording
+from .rrd import AXES, AXIS_COLORS, TRACKS, RunRecording, slug
 from .session import Session
 
 MAX_BATCH_S = 60.0
@@ -310,7 +310,7 @@ def replay(
                 if tr.cal is not None:
                     rec.log_samples(tr.label, tb, None, step.f_g, "g")
                 rec.log_series(
-                    f"tracks/{_slug(tr.label)}",
+                    f"{TRACKS}/{slug(tr.label)}",
                     tb[keep],
                     d[keep],
                     [f"{tr.label} {a} (m)" for a in AXES],
@@ -345,12 +345,6 @@ def replay(
     if rec is not None:
         rec.log_document("replay/final_displacement", res.markdown())
     return res
-
-
-def _slug(label: str) -> str:
-    from .rrd import slug
-
-    return slug(label)
 
 
 def compare(

@@ -21,8 +21,6 @@ from rich.table import Table
 
 from .session import Session
 
-AXES = ("x", "y", "z")
-
 
 def table_markdown(table: Table) -> str:
     """A rich Table as a markdown table (title as a heading, caption below)."""
@@ -144,10 +142,14 @@ def log_track_runs(rec, runs: Sequence, truth=None, group: str = "robot") -> Non
             )
         if r.zupt is not None and len(r.zupt.intervals_s):
             iv = np.asarray(r.zupt.intervals_s, float).reshape(-1, 2)
-            ts = np.repeat(iv.ravel(), 1)
-            on = np.tile([1.0, 0.0], len(iv))
+            on = np.tile([1.0, 0.0], len(iv))  # 1 from each stop's start, 0 from its end
             rec.log_series(
-                f"zupt/{group}/{slug_path(r.name)}", ts, on, [f"{r.name}: ZUPT stop"], role="zupt", step=True
+                f"zupt/{group}/{slug_path(r.name)}",
+                iv.ravel(),
+                on,
+                [f"{r.name}: ZUPT stop"],
+                role="zupt",
+                step=True,
             )
         e0 = r.error_without_zupt.final_error_m if r.error_without_zupt is not None else float("nan")
         lines.append(

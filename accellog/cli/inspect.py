@@ -9,7 +9,6 @@ Session files are only read. .rrd files are written to a temporary name and rena
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Annotated
@@ -125,6 +124,21 @@ def _run(
     return res
 
 
+def _print_result(res, title: str, json_out: bool) -> None:
+    """Strict JSON (NaN -> null) on stdout, or the final-displacement table, notes and .rrd path."""
+    if json_out:
+        from ..calibration import dumps
+
+        typer.echo(dumps(res.to_dict(), indent=2))
+        return
+    _console.print(_table(res, title))
+    for tr in res.tracks:
+        for n in tr.notes:
+            _console.print(f"[dim]{n}[/]")
+    if res.rrd:
+        _console.print(f"recording: {res.rrd}")
+
+
 @app.command()
 def replay(
     session: Annotated[Path, typer.Argument(help="Recorded session (.mcap; importable CSVs also work).")],
@@ -144,17 +158,8 @@ def replay(
     parse_speed(speed)  # fail early on a bad value
     sink = _sink(rrd, rerun)
     res = _run(session, cal, sink, speed=speed, up=up, raw=raw, label=label, compare_mode=False)
-    if json_out:
-        typer.echo(json.dumps(res.to_dict(), indent=2))
-        return
-    _console.print(
-        _table(res, f"{session.name}: {res.n} samples, {res.duration_s:.1f} s replayed in {res.wall_s:.1f} s")
-    )
-    for tr in res.tracks:
-        for n in tr.notes:
-            _console.print(f"[dim]{n}[/]")
-    if res.rrd:
-        _console.print(f"recording: {res.rrd}")
+    title = f"{session.name}: {res.n} samples, {res.duration_s:.1f} s replayed in {res.wall_s:.1f} s"
+    _print_result(res, title, json_out)
 
 
 @app.command()
@@ -172,15 +177,7 @@ def compare(
     if not cal:
         raise InputError("compare needs at least one --cal calibration.json")
     res = _run(test, cal, _sink(rrd, None), speed="max", up=up, raw=raw, label=label, compare_mode=True)
-    if json_out:
-        typer.echo(json.dumps(res.to_dict(), indent=2))
-        return
-    _console.print(_table(res, f"{test.name}: final displacement after {res.duration_s:.1f} s"))
-    for tr in res.tracks:
-        for n in tr.notes:
-            _console.print(f"[dim]{n}[/]")
-    if res.rrd:
-        _console.print(f"recording: {res.rrd}")
+    _print_result(res, f"{test.name}: final displacement after {res.duration_s:.1f} s", json_out)
 
 
 @app.command()

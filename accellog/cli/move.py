@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -12,17 +11,6 @@ from rich.table import Table
 
 from ..errors import InputError
 from .app import app
-
-
-def _clean(o):
-    """NaN/inf -> None, recursively (strict JSON)."""
-    if isinstance(o, float):
-        return o if o == o and abs(o) != float("inf") else None
-    if isinstance(o, dict):
-        return {k: _clean(v) for k, v in o.items()}
-    if isinstance(o, list | tuple):
-        return [_clean(v) for v in o]
-    return o
 
 
 def _fmt(x: float, unit: str = "m") -> str:
@@ -49,7 +37,7 @@ def track_cmd(
 ) -> None:
     """Integrate the session (gyro attitude + accel) per calibration; print the final and RMS
     position error against the truth (simulations) or the loop-closure error (real runs)."""
-    from ..calibration import load_calibration
+    from ..calibration import dumps, load_calibration
     from ..mcap_io import read_session
     from ..track_eval import run_session_tracks
 
@@ -85,7 +73,7 @@ def track_cmd(
                 for r in runs
             ],
         }
-        typer.echo(json.dumps(_clean(out), allow_nan=False, indent=1))
+        typer.echo(dumps(out, indent=1))  # NaN/inf -> null
         return
     what = (
         "vs truth" if reference == "truth" else "loop closure (no truth: the path must return to its start)"
