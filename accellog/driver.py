@@ -138,7 +138,11 @@ class _SkipRead(Exception):
 
 
 class _FifoLost(Exception):
-    """A failed FIFO burst took bytes with it (internal)."""
+    """A FIFO read failed part way (internal): ``good`` holds the whole packets read before it."""
+
+    def __init__(self, good: bytes, why: str) -> None:
+        super().__init__(why)
+        self.good = good
 
 
 class Mpu9250:
@@ -383,7 +387,11 @@ class Mpu9250:
         self._span = (now, self._next_index)
 
     def _read_fifo_bytes(self, n_packets: int, count_bytes: int) -> bytes:
-        """Read n whole packets in bursts; a failed burst is retried after re-reading the count."""
+        """Read n whole packets in bursts; a failed burst is retried after re-reading the count.
+
+        Raises _FifoLost, holding the packets read before, when a failed burst consumed FIFO bytes or a
+        transfer still fails after max_retries.
+        """
         pkt = R.PACKET_BYTES
         out = bytearray()
         left = n_packets
@@ -399,21 +407,22 @@ class Mpu9250:
                         raise DeviceError(
                             f"I2C FIFO read failed: errno {exc.errno} ({exc.strerror})"
                         ) from None
+                    what = f"FIFO read of {k * pkt} B: errno {exc.errno} ({exc.strerror or exc})"
                     if attempt >= self.max_retries:
-                        raise _BusFailure(f"FIFO read of {k * pkt} B", exc) from None
+                        raise _FifoLost(bytes(out), f"{what} after {attempt + 1} attempts") from None
                     attempt += 1
                     self.retries += 1
+                    idx = self._next_index + len(out) // pkt
                     self._pending.append(
-                        Event(
-                            self._t_sensor_s(self._next_index + len(out) // pkt),
-                            "retry",
-                            f"FIFO read of {k * pkt} B: errno {exc.errno}, attempt {attempt + 1}",
-                            self._next_index + len(out) // pkt,
-                        )
+                        Event(self._t_sensor_s(idx), "retry", f"{what}, attempt {attempt + 1}", idx)
                     )
                     # did the failed burst take data with it?
-                    if self._fifo_count() < count_bytes - len(out):
-                        raise _FifoLost() from None
+                    try:
+                        taken = self._fifo_count() < count_bytes - len(out)
+                    except _BusFailure as bf:
+                        raise _FifoLost(bytes(out), f"{bf} after {self.max_retries + 1} attempts") from None
+                    if taken:
+                        raise _FifoLost(bytes(out), "a failed FIFO read consumed data") from None
             left -= k
         return bytes(out)
 
@@ -462,16 +471,18 @@ class Mpu9250:
             elif count % pkt:
                 self._gap("misaligned", f"FIFO count {count} B is not whole packets: reset", 0, events)
             elif count:
+                first = self._next_index
                 try:
                     data = self._read_fifo_bytes(count // pkt, count)
-                except _FifoLost:
-                    self._gap("i2c_error", "a failed FIFO read consumed data: reset", 0, events)
+                except _FifoLost as exc:  # keep the packets read before the failure, then reset
+                    data = exc.good
+                    self._next_index += len(data) // pkt
+                    self._gap("i2c_error", f"{exc}: reset", len(data) // pkt, events)
                 else:
                     self._last_count_ns = t_count
-                    first = self._next_index
                     self._next_index += count // pkt
         except _BusFailure as exc:
-            self._gap("i2c_error", f"{exc} after {self.max_retries + 1} attempts", len(data) // pkt, events)
+            self._gap("i2c_error", f"{exc} after {self.max_retries + 1} attempts", 0, events)
         except _SkipRead:
             pass
         events.extend(self._pending)

@@ -221,6 +221,25 @@ def test_persistent_bus_errors_lose_samples_that_are_all_accounted():
     check_alignment(chip, batches)
 
 
+def test_failed_fallback_read_keeps_the_packets_read_before_it():
+    """SMBus-only reads (28-byte bursts): a burst that fails for good or eats FIFO bytes costs the
+    samples from there on (accounted), not the packets already read in the same drain."""
+    clock, chip, drv = make(retries=0, seed=5, support_i2c_rdwr=False)
+    drv.configure()
+    drv.start()
+    chip.i2c_error_rate = 0.02  # every error is final (max_retries = 0); half of them eat FIFO bytes
+    batches = run(clock, drv, 400)
+    errors = [(b, e) for b in batches for e in b.events if e.kind == "i2c_error"]
+    assert len(errors) > 5
+    # a drain cut short keeps its first packets: samples right up to the event's index
+    partial = [b for b, e in errors if b.n and e.sample_index == b.first_index + b.n]
+    assert len(partial) >= 3
+    lost = sum(e.lost_samples for b in batches for e in b.events)
+    received = sum(b.n for b in batches)
+    assert received + lost + chip.fifo_count // 14 == pytest.approx(chip.fifo_samples_pushed, abs=3)
+    check_alignment(chip, batches)
+
+
 def test_gap_estimate_uses_measured_rate_with_clock_error():
     clock, chip, drv = make(clock_error=0.02)  # chip runs 2 % slow: 980.4 samples per host second
     drv.configure()
