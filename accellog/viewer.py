@@ -49,6 +49,14 @@ def rerun_binary() -> str:
     return found
 
 
+def _require(module: str, pip_name: str) -> None:
+    """InputError (one line, not a traceback) when an optional screenshot dependency is missing."""
+    import importlib.util
+
+    if importlib.util.find_spec(module) is None:
+        raise InputError(f"screenshots need the {pip_name} package: pip install {pip_name}")
+
+
 def find_chromium() -> str | None:
     """Path of a Chromium/Chrome executable ($ACCELLOG_CHROMIUM first), or None."""
     env = os.environ.get("ACCELLOG_CHROMIUM")
@@ -150,6 +158,7 @@ class Chromium:
     def __init__(
         self, *, size: tuple[int, int] = (1400, 900), exe: str | None = None, timeout_s: float = 30.0
     ):
+        _require("websockets", "websockets")
         self.exe = exe or find_chromium()
         if not self.exe:
             raise InputError("chromium not found: apt-get install chromium (or set ACCELLOG_CHROMIUM)")
@@ -223,7 +232,10 @@ class Chromium:
             left = end - time.monotonic()
             if left <= 0:
                 raise InputError(f"chromium did not answer {method} within {self.timeout_s:g} s")
-            msg = json.loads(self._ws.recv(timeout=left))
+            try:
+                msg = json.loads(self._ws.recv(timeout=left))
+            except TimeoutError:
+                raise InputError(f"chromium did not answer {method} within {self.timeout_s:g} s") from None
             self._handle(msg)
             if msg.get("id") == my_id:
                 if "error" in msg:
@@ -244,7 +256,7 @@ class Chromium:
             self._events.add(msg["method"])
 
     def screenshot_png(self) -> bytes:
-        """PNG of the current viewport."""
+        """PNG of the current viewport (bytes)."""
         res = self.call("Page.captureScreenshot", format="png", fromSurface=True)
         return base64.b64decode(res["data"])
 
@@ -288,6 +300,7 @@ class PixelStats:
 
 def pixel_stats(png: bytes) -> PixelStats:
     """PixelStats of a PNG image."""
+    _require("PIL", "pillow")
     from PIL import Image
 
     img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.uint8)
@@ -311,6 +324,9 @@ def screenshot_url(
     """Open url in headless Chromium, wait (real time) until the page looks rendered and stable
     for settle_s (at least min_wait_s, at most wait_s), save the PNG; returns its PixelStats."""
     out = Path(png_path)
+    if not out.parent.is_dir():
+        raise InputError("folder does not exist", where=str(out.parent))
+    _require("PIL", "pillow")
     with Chromium(size=size) as ch:
         ch.navigate(url)
         start = time.monotonic()
