@@ -478,6 +478,17 @@ def heldout_residual(
     return np.asarray(obs.meas_g, float) - m.predict(res.theta, f, drv)
 
 
+def heldout_stats(res: FitResult, heldout: ObsTable) -> dict[str, float]:
+    """Held-out residual RMS (g), held-out noise floor RMS(sigma_g) (g) and mean (r / sigma_g)^2."""
+    r = heldout_residual(res, heldout)
+    sig = np.asarray(heldout.sigma_g, float)
+    return {
+        "heldout_rms_g": float(np.sqrt(np.mean(r**2))),
+        "heldout_noise_g": float(np.sqrt(np.mean(sig**2))),
+        "heldout_chi2_dof": float(np.mean((r / sig) ** 2)),
+    }
+
+
 def ladder(
     obs: ObsTable,
     steps: Sequence[Model],
@@ -499,10 +510,7 @@ def ladder(
             "warnings": res.warnings,
         }
         if heldout_obs is not None:
-            r = heldout_residual(res, heldout_obs)
-            row["heldout_rms_g"] = float(np.sqrt(np.mean(r**2)))
-            row["heldout_noise_g"] = float(np.sqrt(np.mean(np.asarray(heldout_obs.sigma_g, float) ** 2)))
-            row["heldout_chi2_dof"] = float(np.mean((r / heldout_obs.sigma_g) ** 2))
+            row.update(heldout_stats(res, heldout_obs))
         out.append(row)
     return out
 

@@ -228,6 +228,18 @@ def check_static(
             )
 
 
+def _checked_holds(
+    session: Session, trim_s: float, min_samples: int, check_units: bool, check_moving: bool
+) -> list[tuple[PoseLabel, slice]]:
+    """Validated holds (see _hold_slices), optionally checked for units (|a| ~ 1 g) and motion."""
+    holds = _hold_slices(session, trim_s, min_samples)
+    if check_units:
+        _check_units(session, holds)
+    if check_moving:
+        check_static(session, holds)
+    return holds
+
+
 def _temp_slope(t: np.ndarray, temp: np.ndarray) -> float:
     """Least-squares slope dT/dt (degC/s)."""
     tc = t - t.mean()
@@ -244,11 +256,7 @@ def pose_stats(
     check_moving: bool = True,
 ) -> list[PoseStats]:
     """Per-hold statistics (mean, std, autocorrelation-aware sem, tau, temperature, times)."""
-    holds = _hold_slices(session, trim_s, min_samples)
-    if check_units:
-        _check_units(session, holds)
-    if check_moving:
-        check_static(session, holds)
+    holds = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
     q = _quantum_g(session)
     out = []
     for p, sl in holds:
@@ -297,11 +305,7 @@ def observations(
     """
     if not window_s > 0:
         raise InputError(f"window_s must be > 0 s, got {window_s}")
-    holds = _hold_slices(session, trim_s, min_samples)
-    if check_units:
-        _check_units(session, holds)
-    if check_moving:
-        check_static(session, holds)
+    holds = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
     quantum = _quantum_g(session)
     names: list[str] = []
     name_id: dict[str, int] = {}

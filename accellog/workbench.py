@@ -75,7 +75,7 @@ def ladder_rows(
     """Fit each step (preset, added effects) and judge it: chi2/dof and RMS on the calibration
     windows, held-out residual RMS and noise floor (g), |displacement| of the static test at at_s (m).
     Each row keeps its FitOutcome under 'fit' (not JSON)."""
-    from .diagnose import heldout_residual
+    from .diagnose import heldout_stats
     from .pipeline import run_evaluate, run_fit
 
     rows = []
@@ -93,10 +93,7 @@ def ladder_rows(
             "fit": fo,
         }
         if heldout is not None:
-            r = heldout_residual(fo.fit, heldout)
-            row["heldout_rms_g"] = float(np.sqrt(np.mean(r**2)))
-            row["heldout_noise_g"] = float(np.sqrt(np.mean(np.asarray(heldout.sigma_g, float) ** 2)))
-            row["heldout_chi2_dof"] = float(np.mean((r / heldout.sigma_g) ** 2))
+            row.update(heldout_stats(fo.fit, heldout))
         if static_test is not None:
             ev = run_evaluate(
                 static_test, [fo.cal], include_raw=False, labels=[fo.fit.model.name], times_s=(at_s,)

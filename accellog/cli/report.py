@@ -7,7 +7,7 @@ into a lab notebook or an issue.
 
 from __future__ import annotations
 
-import json
+import re
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -15,6 +15,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ..calibration import read_json
 from ..errors import InputError
 from ..report import fmt_pm
 from .app import app
@@ -68,17 +69,20 @@ def _vec(v) -> str:
 
 
 def _ladder(rows: list[dict], name: str) -> Table:
+    """Workbench ladder rows; the static-test drift column is `drift_<at_s>s_m` (workbench --at-s)."""
+    drift_key = next((k for r in rows for k in r if re.fullmatch(r"drift_.+s_m", k)), "drift_60s_m")
+    at = drift_key[len("drift_") : -len("s_m")]
     t = Table(title=f"{name}: model ladder")
-    for c in ("model", "params", "χ²/dof", "held-out RMS (mg)", "noise floor (mg)", "60 s drift (m)"):
+    for c in ("model", "params", "χ²/dof", "held-out RMS (mg)", "noise floor (mg)", f"{at} s drift (m)"):
         t.add_column(c, justify="left" if c == "model" else "right")
     for r in rows:
         t.add_row(
             r["model"],
             str(r["n_params"]),
-            f"{r['chi2_dof']:.3g}",
-            f"{1000 * r['heldout_rms_g']:.3g}" if "heldout_rms_g" in r else "-",
-            f"{1000 * r['heldout_noise_g']:.3g}" if "heldout_noise_g" in r else "-",
-            f"{r['drift_60s_m']:.3g}" if "drift_60s_m" in r else "-",
+            "-" if r.get("chi2_dof") is None else f"{r['chi2_dof']:.3g}",
+            f"{1000 * r['heldout_rms_g']:.3g}" if r.get("heldout_rms_g") is not None else "-",
+            f"{1000 * r['heldout_noise_g']:.3g}" if r.get("heldout_noise_g") is not None else "-",
+            f"{r[drift_key]:.3g}" if r.get(drift_key) is not None else "-",
         )
     return t
 
@@ -118,15 +122,7 @@ def report(
 
     tables: list[Table] = []
     for f in files:
-        try:
-            d = json.loads(f.read_text())
-        except FileNotFoundError:
-            raise InputError("no such file", where=str(f)) from None
-        except json.JSONDecodeError as exc:
-            raise InputError(f"not JSON (line {exc.lineno}: {exc.msg})", where=str(f)) from None
-        except (UnicodeDecodeError, IsADirectoryError):
-            raise InputError("not a JSON text file", where=str(f)) from None
-        tables += tables_for(d, f.name)
+        tables += tables_for(read_json(f), f.name)
     if markdown:
         typer.echo("\n".join(table_markdown(t) for t in tables))
         return

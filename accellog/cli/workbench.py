@@ -13,6 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ..errors import InputError
+from ..report import json_text
 from .app import app
 
 
@@ -119,7 +120,7 @@ def diagnose(
     if as_json:
         out = d.to_dict()
         out["session"] = str(session)
-        print(json.dumps(out, indent=1))
+        print(json_text(out))
         return
     _print(d, str(session))
 
@@ -207,7 +208,7 @@ def workbench_cmd(
 ) -> None:
     """Diagnose, add the missing effect, refit - until the model fits to the noise; then the ladder
     model1 -> model2 -> model3 -> + each found effect, judged on held-out data and a static test."""
-    from ..pipeline import load_input
+    from ..pipeline import _session, load_input
     from ..segment import observations
     from ..session import Session
     from ..workbench import discover, ladder_json, ladder_rows, ladder_table, log_ladder, steps_for
@@ -218,8 +219,8 @@ def workbench_cmd(
             "the workbench needs a recorded session (samples), not a pose table", where=str(session)
         )
     obs = observations(data)
-    held = observations(_session(heldout)) if heldout is not None else None
-    test = _session(static) if static is not None else None
+    held = observations(_session(heldout, "--heldout")) if heldout is not None else None
+    test = _session(static, "--static") if static is not None else None
     host = None
     if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
         host = (data.t_s, data.host_time_s)
@@ -248,7 +249,7 @@ def workbench_cmd(
             log_ladder(rec, rows, obs, at_s=at_s)
     if as_json:
         print(
-            json.dumps(
+            json_text(
                 {
                     "session": str(session),
                     "start": found.start,
@@ -257,9 +258,7 @@ def workbench_cmd(
                     "verdicts": [d.verdict for d in found.diagnoses],
                     "advice": found.diagnoses[-1].advice,
                     "ladder": ladder_json(rows),
-                },
-                indent=1,
-                default=float,
+                }
             )
         )
         return
@@ -268,13 +267,3 @@ def workbench_cmd(
     con.print(ladder_table(rows, at_s=at_s))
     if output is not None:
         con.print(f"wrote {output} ({found.final_model})")
-
-
-def _session(path: Path):
-    from ..pipeline import load_input
-    from ..session import Session
-
-    data = load_input(path)
-    if not isinstance(data, Session):
-        raise InputError("expected a recorded session (samples), not a pose table", where=str(path))
-    return data
