@@ -29,6 +29,8 @@ CHIP_SEED = 7
 
 @dataclass
 class DemoResult:
+    """Everything the demo computed (write_rrd turns it into a recording)."""
+
     out_dir: Path
     rrd: Path | None
     fits: dict = field(default_factory=dict)
@@ -40,6 +42,12 @@ class DemoResult:
     discovered: list[str] = field(default_factory=list)
     tracks: list = field(default_factory=list)
     seconds: dict = field(default_factory=dict)
+    sessions: dict = field(default_factory=dict)
+    """name -> Session of every simulated session."""
+    diagnoses: list = field(default_factory=list)
+    """Workbench diagnoses, one per discovery step."""
+    workbench_obs: object | None = None
+    """Observations (ObsTable) of the warm-up session the workbench diagnosed."""
 
 
 def _sessions(out: Path, quick: bool) -> dict[str, Path]:
@@ -117,7 +125,7 @@ def run_demo(
     t0 = time.perf_counter()
     con.rule("[bold]1. record sessions from the emulated MPU-9250 (simulated clock)")
     paths = _sessions(out, quick)
-    S = {k: read_session(p) for k, p in paths.items()}
+    S = res.sessions = {k: read_session(p) for k, p in paths.items()}
     res.seconds["simulate"] = time.perf_counter() - t0
     for k, s in S.items():
         con.print(
@@ -160,7 +168,8 @@ def run_demo(
     obs = observations(S["warmup_24"])
     held = observations(S["heldout_24"])
     found = discover(obs, "model3", on_step=lambda d: con.print(f"  {d.verdict}"))
-    diags = found.diagnoses
+    diags = res.diagnoses = found.diagnoses
+    res.workbench_obs = obs
     res.discovered = list(found.added)
     for a in diags[-1].advice[:3]:
         con.print(f"  advice: {a}")
@@ -199,23 +208,24 @@ def run_demo(
 
     if rrd is not None:
         t4 = time.perf_counter()
-        _write_rrd(rrd, S, res, diags, obs, first_tab)
+        write_rrd(res, rrd, first_tab)
         res.seconds["rrd"] = time.perf_counter() - t4
         con.print(f"wrote {rrd} (open it with: accellog view {rrd})")
     con.print(f"sessions and calibrations in {out}/ ; total {time.perf_counter() - t0:.1f} s")
     return res
 
 
-def _write_rrd(path: Path, S: dict, res: DemoResult, diags: list, obs, first_tab: int = 0) -> None:
+def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
+    """The demo's recording of res at path, opening on tab first_tab (see demo_blueprint)."""
     from .report import drift_table
     from .rrd import RunRecording
     from .views import log_diagnosis, log_evaluations, log_fit, log_session, log_track_runs, table_markdown
     from .workbench import log_ladder
 
+    S, diags, obs = res.sessions, res.diagnoses, res.workbench_obs
     labels = [e.label for e in res.evals] + ["Model 3 + drift model", "truth (at rest)"]
-    with RunRecording(
-        f"save:{path}", recording_id="accellog-demo", blueprint=demo_blueprint(labels, first=first_tab)
-    ) as rec:
+    bp = demo_blueprint(labels, first=first_tab, n_diagnoses=len(diags))
+    with RunRecording(f"save:{path}", recording_id="accellog-demo", blueprint=bp) as rec:
         log_session(rec, S["calibration"], calibrations={"Model 3": res.fits["model3"].cal})
         for m, fo in res.fits.items():
             log_fit(rec, fo, m)
@@ -237,20 +247,33 @@ def _whole_range_plot(**kw):
     length and share the sensor_time timeline, so a cursor-relative window would hide data)."""
     import rerun.blueprint as rrb
 
+    from .rrd import MAIN_TIMELINE
+
     whole = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
     return rrb.TimeSeriesView(
-        time_ranges=rrb.VisibleTimeRange("sensor_time", start=whole.start, end=whole.end),
+        time_ranges=rrb.VisibleTimeRange(MAIN_TIMELINE, start=whole.start, end=whole.end),
         axis_x=rrb.TimeAxis(link="Independent", view_range=whole),
         **kw,
     )
 
 
-def demo_blueprint(test_labels: list[str], first: int = 0):
+def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3):
     """The demo's layout: one tab per chapter of the story (static test, calibration, workbench,
-    robot); test_labels: the static test's tracks, one auto-scaled plot each (m)."""
+    robot); test_labels: the static test's tracks, one auto-scaled plot each (m); n_diagnoses: the
+    workbench steps logged at /docs/workbench/step_{i}, i = 1..n_diagnoses."""
     import rerun.blueprint as rrb
 
-    from .rrd import DOCS, LADDER, POSES_ACTIVE, RESIDUALS, TEMPERATURE, TRACKS, WORLD_TRACKS, slug_path
+    from .rrd import (
+        DOCS,
+        LADDER,
+        POSES_ACTIVE,
+        RESIDUALS,
+        TEMPERATURE,
+        TRACKS,
+        WORLD_TRACKS,
+        slug_path,
+        time_panel,
+    )
 
     calibration = rrb.Horizontal(
         rrb.Vertical(
@@ -310,7 +333,7 @@ def demo_blueprint(test_labels: list[str], first: int = 0):
             rrb.Tabs(
                 *[
                     rrb.TextDocumentView(origin=f"/{DOCS}/workbench/step_{i}", name=f"diagnosis {i}")
-                    for i in (1, 2, 3)
+                    for i in range(1, n_diagnoses + 1)
                 ]
             ),
         ),
@@ -332,6 +355,6 @@ def demo_blueprint(test_labels: list[str], first: int = 0):
     )
     return rrb.Blueprint(
         rrb.Tabs(static, calibration, workbench, robot, active_tab=first),
-        rrb.TimePanel(timeline="sensor_time", play_state="following", state="collapsed"),
+        time_panel(),
         collapse_panels=True,
     )

@@ -687,7 +687,8 @@ class RunRecording:
 
 
 # -- blueprints --------------------------------------------------------------------------------------
-def _timepanel():
+def time_panel():
+    """Time panel on sensor_time, following new data, collapsed (shared by every blueprint)."""
     import rerun.blueprint as rrb
 
     return rrb.TimePanel(timeline=MAIN_TIMELINE, play_state="following", state="collapsed")
@@ -767,7 +768,7 @@ def build_blueprint(entities: Mapping[str, str]):
             if len(cols) == 2
             else (cols[0] if cols else rrb.Vertical())
         )
-    return rrb.Blueprint(root, _timepanel(), collapse_panels=True)
+    return rrb.Blueprint(root, time_panel(), collapse_panels=True)
 
 
 def live_blueprint():
@@ -800,7 +801,7 @@ def live_blueprint():
             ),
             column_shares=[3, 2],
         ),
-        _timepanel(),
+        time_panel(),
         collapse_panels=True,
     )
 

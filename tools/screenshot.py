@@ -38,7 +38,14 @@ def build_demo(data: Path, rrd: Path) -> None:
     if not table.is_file():
         raise SystemExit(f"capstone data not found under {data} (use --data)")
     session = import_capstone(test)
-    rec = RunRecording(f"save:{rrd}", recording_id="accellog-demo")
+    with RunRecording(f"save:{rrd}", recording_id="accellog-demo") as rec:
+        res = _seed_study(rec, table, test, session)
+    for t in res.tracks:
+        print(f"{t.label:16s} final displacement {t.final_m.round(3).tolist()} m")
+
+
+def _seed_study(rec: RunRecording, table: Path, test: Path, session):
+    """Fits, drift model and compare() of the capstone final trial, logged to rec."""
     cals, labels = [], []
     rows = ["| model | chi2/dof | rms (mg) | b_x (g) | b_y (g) | b_z (g) |", "|---|---|---|---|---|---|"]
     for model in ("model1", "model2", "model3"):
@@ -63,10 +70,7 @@ def build_demo(data: Path, rrd: Path) -> None:
     rec.log_document(
         "calibration/seed final trial", "### Seed final trial, unweighted fits\n\n" + "\n".join(rows) + "\n"
     )
-    res = compare(session, cals, labels=labels, recording=rec, up_sensor="+z")
-    rec.close()
-    for t in res.tracks:
-        print(f"{t.label:16s} final displacement {t.final_m.round(3).tolist()} m")
+    return compare(session, cals, labels=labels, recording=rec, up_sensor="+z")
 
 
 TAB_NAMES = {0: "demo", 1: "calibration", 2: "workbench", 3: "robot"}
@@ -108,12 +112,14 @@ def main() -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     from rich.console import Console
 
-    from accellog.demo import run_demo
+    from accellog.demo import run_demo, write_rrd
 
     with tempfile.TemporaryDirectory() as d:
+        if a.tabs:  # one demo run; one recording per tab (they differ only in the tab shown first)
+            res = run_demo(Path(d) / "demo", rrd=None, console=Console(file=io.StringIO()))
         for tab in a.tabs:
             rrd = Path(d) / f"demo_tab{tab}.rrd"
-            run_demo(Path(d) / "demo", rrd=rrd, console=Console(file=io.StringIO()), first_tab=tab)
+            write_rrd(res, rrd, first_tab=tab)
             shoot(rrd, a.out / f"{TAB_NAMES[tab]}.png", (w, h), a.native)
         if not a.no_capstone:
             rrd = Path(d) / "capstone.rrd"
