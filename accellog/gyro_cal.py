@@ -155,6 +155,7 @@ def fit_gyro_bias(
     """
     t = np.asarray(t_s, float)
     w = np.asarray(gyro_dps, float)
+    temp = None if temp_degC is None else np.asarray(temp_degC, float)
     iv = _holds(holds)
     if iv.shape[0] == 0:
         raise InputError("no static holds: the gyro bias cannot be estimated")
@@ -169,14 +170,14 @@ def fit_gyro_bias(
         for a, b in itertools.pairwise(idx):
             if b - a >= 2:
                 means.append(w[a:b].mean(axis=0))
-                temps.append(np.nan if temp_degC is None else float(np.mean(temp_degC[a:b])))
+                temps.append(np.nan if temp is None else float(np.mean(temp[a:b])))
     if len(means) < 2:
         raise InputError(
             f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
         )
     y = np.array(means)
     tt = np.array(temps)
-    use_temp = temp_degC is not None and np.isfinite(tt).all() and np.ptp(tt) >= min_temp_span_degC
+    use_temp = temp is not None and np.isfinite(tt).all() and np.ptp(tt) >= min_temp_span_degC
     cols = [np.ones(len(y))] + ([tt - t_ref_degC] if use_temp else [])
     A = np.stack(cols, axis=1)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import InputError
 from .units import STANDARD_GRAVITY_MPS2
 
 CorrectFn = Callable[[np.ndarray, Mapping[str, np.ndarray]], np.ndarray]
@@ -124,7 +125,7 @@ class OnlineIntegrator:
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         m = np.asarray(meas_g, dtype=np.float64).reshape(-1, 3)
         if t.shape[0] != m.shape[0]:
-            raise ValueError(f"{t.shape[0]} times for {m.shape[0]} samples")
+            raise InputError(f"{t.shape[0]} times for {m.shape[0]} samples")
         if self.correct is not None and t.shape[0]:
             drv = {"t_s": t, **(drivers or {})}
             f = np.asarray(self.correct(m, drv), dtype=np.float64).reshape(-1, 3)

@@ -78,36 +78,41 @@ def turn(to_yaw_deg: float, duration_s: float = 2.5) -> Segment:
     return Segment(duration_s, yaw_deg=to_yaw_deg)
 
 
+def _tilted_run(
+    what: str,
+    distance_m: float,
+    channel: str,
+    angle_deg: float,
+    speed_mps: float,
+    accel_s: float,
+    tilt_s: float,
+) -> list[Segment]:
+    """Rest -> accelerate -> tilt channel ('grade_deg' | 'roll_deg') to angle_deg over tilt_s -> cruise
+    -> tilt back to 0 -> decelerate -> rest; the cruise makes the run cover distance_m (m)."""
+    cruise_s = distance_m / speed_mps - accel_s - 2 * tilt_s
+    if cruise_s < 0:
+        raise InputError(f"{what} run of {distance_m} m is too short for its transitions")
+    return [
+        Segment(accel_s, speed_mps=speed_mps),
+        Segment(tilt_s, **{channel: angle_deg}),
+        Segment(cruise_s),
+        Segment(tilt_s, **{channel: 0.0}),
+        Segment(accel_s, speed_mps=0.0),
+    ]
+
+
 def ramp_run(
     distance_m: float, grade_deg: float, speed_mps: float = 1.0, accel_s: float = 2.0, pitch_s: float = 1.5
 ) -> list[Segment]:
     """Rest -> accelerate -> drive onto a ramp of grade_deg -> leave it -> decelerate -> rest."""
-    cruise_s = distance_m / speed_mps - accel_s - 2 * pitch_s
-    if cruise_s < 0:
-        raise InputError(f"ramp run of {distance_m} m is too short for its transitions")
-    return [
-        Segment(accel_s, speed_mps=speed_mps),
-        Segment(pitch_s, grade_deg=grade_deg),
-        Segment(cruise_s),
-        Segment(pitch_s, grade_deg=0.0),
-        Segment(accel_s, speed_mps=0.0),
-    ]
+    return _tilted_run("ramp", distance_m, "grade_deg", grade_deg, speed_mps, accel_s, pitch_s)
 
 
 def banked_run(
     distance_m: float, roll_deg: float, speed_mps: float = 1.0, accel_s: float = 2.0, roll_s: float = 1.5
 ) -> list[Segment]:
     """Rest -> accelerate -> roll onto a banked section -> roll back -> decelerate -> rest."""
-    cruise_s = distance_m / speed_mps - accel_s - 2 * roll_s
-    if cruise_s < 0:
-        raise InputError(f"banked run of {distance_m} m is too short for its transitions")
-    return [
-        Segment(accel_s, speed_mps=speed_mps),
-        Segment(roll_s, roll_deg=roll_deg),
-        Segment(cruise_s),
-        Segment(roll_s, roll_deg=0.0),
-        Segment(accel_s, speed_mps=0.0),
-    ]
+    return _tilted_run("banked", distance_m, "roll_deg", roll_deg, speed_mps, accel_s, roll_s)
 
 
 def _smootherstep(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
