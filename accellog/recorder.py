@@ -140,6 +140,7 @@ class Recorder:
         self._hold_sq = np.zeros(3)
         self._hold_n = 0
         self._holding = False
+        self._hold_first_s: float | None = None
         self.summary = RecordSummary()
         self._t_last_s = 0.0
 
@@ -173,6 +174,8 @@ class Recorder:
             if detect_stillness:
                 self.stillness.update(t_s, accel_g, gyro_dps)
             if self._holding:
+                if self._hold_first_s is None:
+                    self._hold_first_s = float(t_s[0])
                 self._hold_sum += accel_g.sum(axis=0)
                 self._hold_sq += (accel_g**2).sum(axis=0)
                 self._hold_n += n
@@ -222,13 +225,17 @@ class Recorder:
             start = self.t_s
             moved = False
             self._hold_sum[:], self._hold_sq[:], self._hold_n, self._holding = 0.0, 0.0, 0, True
+            self._hold_first_s = None
             while self.t_s - start < pose.hold_s:
                 self.step()
                 self.ui.holding(pose, self.t_s - start)
                 if not self.stillness.still:
                     moved = True
             self._holding = False
-            label = PoseLabel(pose.name, start, self.t_s, pose.up_sensor, pose.q_sensor_to_world, k)
+            # [first hold sample, last hold sample + one period): exactly the samples of the hold
+            first = self._hold_first_s if self._hold_first_s is not None else start
+            end = self.t_s + 1.0 / self.driver.config.sample_rate_hz
+            label = PoseLabel(pose.name, first, end, pose.up_sensor, pose.q_sensor_to_world, k)
             if moved:
                 ev = Event(start, "note", f"pose {pose.name}: sensor moved during the hold")
                 self.writer.write_event(ev)

@@ -103,7 +103,7 @@ def test_guided_run_labels_inside_true_holds(tmp_path):
     holds = rig.true_holds_s()
     for p, (h0, h1) in zip(s.poses, holds, strict=True):
         assert h0 <= p.start_s and p.end_s <= h1, (p, h0, h1)
-        assert 5.0 <= p.end_s - p.start_s < 5.0 + 0.05  # the pose's hold time, to one FIFO read
+        assert 5.0 - 1e-9 <= p.end_s - p.start_s < 5.0 + 0.05  # the pose's hold time, to one FIFO read
     # after each prompt the recorder waited for the move, then for stillness: settle_s (1 s) counted
     # from the start of the first still 0.5 s window, which may reach back into the move's tail
     for p, (h0, _) in zip(s.poses[1:], holds[1:], strict=True):
