@@ -48,7 +48,9 @@ def test_fit_rrd_has_raw_calibrated_holds_and_residuals(sessions, capsys):
     expected = np.array([fo.fit.residual_g[fo.obs.pose_id == k].mean(axis=0) for k in range(6)]) * 1000
     bars = np.column_stack([r.bar_values(f"/residuals/model3/{a}") for a in "xyz"])
     np.testing.assert_allclose(bars, expected, rtol=1e-6, atol=1e-9)
-    np.testing.assert_allclose(cal.theta, [p["value"] for p in fit["params"]] if "params" in fit else cal.theta)
+    np.testing.assert_allclose(
+        cal.theta, [p["value"] for p in fit["params"]] if "params" in fit else cal.theta
+    )
     assert any(v["class"] == "BarChart" for v in r.views())
     assert any(e.startswith("/docs/parameters") for e in r.entities)
 
