@@ -160,16 +160,16 @@ def test_cli_effects_lists_library(capsys):
     assert "accellog: error:" in capsys.readouterr().err
 
 
-def test_correct_is_fast_for_long_sessions():
-    """3.6e6 samples (1 h at 1 kHz) with a temperature-dependent S: vectorised, no Python loops."""
-    import time
-
+def test_correct_handles_long_sessions_vectorised():
+    """3.6e6 samples (1 h at 1 kHz) with a temperature-dependent S in one call; the inverse is exact
+    (its speed is measured in benchmarks/bench_fit_speed.py, not here)."""
     m = build_model("model3", add=["temp_bias", "temp_scale"])
     th = true_theta(m, seed=1)
     n = 3_600_000
     a = np.tile([0.01, -0.02, 1.0], (n, 1))
     drv = {"temp_degC": np.linspace(20, 40, n)}
-    t0 = time.perf_counter()
     f = m.correct(th, a, drv)
-    assert f.shape == (n, 3)
-    assert time.perf_counter() - t0 < 20.0  # generous bound (shared CI machine); typical < 1 s
+    assert f.shape == (n, 3) and np.all(np.isfinite(f))
+    idx = np.array([0, 1, n // 3, n // 2, n - 1])
+    back = m.predict(th, f[idx], {"temp_degC": drv["temp_degC"][idx]})
+    np.testing.assert_allclose(back, a[idx], atol=1e-12)
