@@ -187,8 +187,10 @@ class Chromium:
             f"--window-size={size[0]},{size[1]}",
             "about:blank",
         ]
+        # Chromium's own temporary files go to the profile folder, removed on close.
+        env = {**os.environ, "TMPDIR": self._profile}
         self.proc = subprocess.Popen(
-            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, env=env
         )
         self._ws = None
         self._id = 0
