@@ -11,10 +11,12 @@ import typer
 from ..errors import AccellogError
 from .app import app
 
-# Every module in this package registers its commands on `app` when imported.
-for _mod in pkgutil.iter_modules(__path__):
-    if _mod.name != "app":
-        importlib.import_module(f"{__name__}.{_mod.name}")
+# Every module in this package registers its commands on `app` when imported; the help lists the
+# panels in this order (the story: record, calibrate, discover, inspect, move), then any others.
+_ORDER = ["demo", "record", "imports", "calibrate", "report", "workbench", "inspect", "move"]
+_names = [m.name for m in pkgutil.iter_modules(__path__) if m.name != "app"]
+for _name in sorted(_names, key=lambda n: (_ORDER.index(n) if n in _ORDER else len(_ORDER), n)):
+    importlib.import_module(f"{__name__}.{_name}")
 
 
 def main(argv: list[str] | None = None) -> int:

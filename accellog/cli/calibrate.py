@@ -40,7 +40,7 @@ def _recording(path: Path):
     return RunRecording(f"save:{path}")
 
 
-@app.command()
+@app.command(rich_help_panel="2. Calibrate")
 def segment(
     session: Annotated[Path, typer.Argument(help="Session (.mcap, or a CSV the importers read).")],
     window_s: Annotated[float, typer.Option(help="Observation window within a hold (s).")] = 2.0,
@@ -87,7 +87,7 @@ def segment(
     _console.print(t)
 
 
-@app.command()
+@app.command(rich_help_panel="2. Calibrate")
 def fit(
     session: Annotated[
         Path, typer.Argument(help="Calibration session (.mcap), pose table CSV or observations JSON.")
@@ -147,7 +147,7 @@ def fit(
     _console.print(f"wrote {output}")
 
 
-@app.command(name="evaluate")
+@app.command(name="evaluate", rich_help_panel="2. Calibrate")
 def evaluate_cmd(
     test: Annotated[Path, typer.Argument(help="Static test session (one orientation).")],
     cal: Annotated[list[Path], typer.Option("--cal", help="Calibration JSON (repeatable to compare).")],
@@ -247,7 +247,7 @@ def _evaluate_holds(
         )
 
 
-@app.command()
+@app.command(rich_help_panel="2. Calibrate")
 def drift(
     static: Annotated[Path, typer.Argument(help="Static session at rest (one orientation).")],
     cal: Annotated[Path, typer.Option("--cal", help="Calibration JSON to apply first.")],
@@ -280,7 +280,7 @@ def drift(
     _console.print(f"wrote {output}")
 
 
-@app.command()
+@app.command(rich_help_panel="2. Calibrate")
 def apply(
     session: Annotated[Path, typer.Argument(help="Session (.mcap) to calibrate.")],
     cal: Annotated[Path, typer.Option("--cal", help="Calibration JSON.")],
@@ -293,7 +293,7 @@ def apply(
     _console.print(f"wrote {p}")
 
 
-@app.command()
+@app.command(rich_help_panel="2. Calibrate")
 def run(
     pipeline: Annotated[Path, typer.Argument(help="Pipeline TOML (see pipelines/).")],
     sessions: Annotated[list[Path], typer.Argument(help="Input files in the order of pipeline.inputs.")],
@@ -323,7 +323,7 @@ def run(
         _console.print(f"wrote {w}")
 
 
-@app.command()
+@app.command(rich_help_panel="2. Calibrate")
 def integrate(
     session: Annotated[Path, typer.Argument(help="Static session (one orientation) to integrate.")],
     output: Annotated[

@@ -10,7 +10,7 @@ import typer
 from .app import app
 
 
-@app.command()
+@app.command(rich_help_panel="Start here")
 def demo(
     out: Annotated[
         Path, typer.Option("-o", "--out", help="Folder for sessions, calibrations and the .rrd.")

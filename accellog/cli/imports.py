@@ -18,7 +18,7 @@ import_app = typer.Typer(
     help="Import recordings (capstone CSV, imucal, generic CSV) into accellog MCAP files.",
     no_args_is_help=True,
 )
-app.add_typer(import_app, name="import")
+app.add_typer(import_app, name="import", rich_help_panel="1. Record")
 
 OutOpt = Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file (written atomically).")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]

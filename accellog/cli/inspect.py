@@ -139,7 +139,7 @@ def _print_result(res, title: str, json_out: bool) -> None:
         _console.print(f"recording: {res.rrd}")
 
 
-@app.command()
+@app.command(rich_help_panel="4. Inspect")
 def replay(
     session: Annotated[Path, typer.Argument(help="Recorded session (.mcap; importable CSVs also work).")],
     speed: Annotated[str, typer.Option(help="Sensor seconds per wall second: 1, 4, ... or 'max'.")] = "1",
@@ -162,7 +162,7 @@ def replay(
     _print_result(res, title, json_out)
 
 
-@app.command()
+@app.command(rich_help_panel="4. Inspect")
 def compare(
     test: Annotated[Path, typer.Argument(help="Static test session (.mcap or capstone CSV).")],
     cal: CalOpt = None,
@@ -180,7 +180,7 @@ def compare(
     _print_result(res, f"{test.name}: final displacement after {res.duration_s:.1f} s", json_out)
 
 
-@app.command()
+@app.command(rich_help_panel="4. Inspect")
 def view(
     recording: Annotated[Path, typer.Argument(help="A Rerun recording (.rrd).")],
     web: Annotated[

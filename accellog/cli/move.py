@@ -17,7 +17,7 @@ def _fmt(x: float, unit: str = "m") -> str:
     return "-" if x != x else f"{x:.3g} {unit}"
 
 
-@app.command("track")
+@app.command("track", rich_help_panel="5. Move")
 def track_cmd(
     session_path: Annotated[
         Path, typer.Argument(metavar="SESSION.mcap", help="Recorded or simulated session.")

@@ -108,7 +108,7 @@ def _open_live(rerun: str | None):
     return LiveView.from_option(rerun)
 
 
-@app.command()
+@app.command(rich_help_panel="1. Record")
 def record(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file.")] = Path("session.mcap"),
     sim: Annotated[
@@ -237,7 +237,7 @@ def record(
     )
 
 
-@app.command()
+@app.command(rich_help_panel="1. Record")
 def simulate(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file.")] = Path("sim.mcap"),
     scenario: Annotated[Path | None, typer.Option(help="Scenario TOML file (see accellog.simulate).")] = None,

@@ -110,7 +110,7 @@ def tables_for(d: Any, name: str) -> list[Table]:
     )
 
 
-@app.command()
+@app.command(rich_help_panel="2. Calibrate")
 def report(
     files: Annotated[
         list[Path], typer.Argument(help="JSON artifacts: calibrations, evaluate/integrate/workbench --json.")

@@ -23,7 +23,7 @@ def _fmt(v, spec: str = ".3g") -> str:
     return format(v, spec)
 
 
-@app.command()
+@app.command(rich_help_panel="3. Discover")
 def effects(
     effects_file: Annotated[
         Path | None, typer.Option("--effects-file", help="Python file with user effects (docs/effects.md).")
@@ -57,7 +57,7 @@ def effects(
     print("presets: model1 = bias; model2 = bias+scale; model3 = bias+scale+cross_axis")
 
 
-@app.command()
+@app.command(rich_help_panel="3. Discover")
 def diagnose(
     session: Annotated[
         Path,
@@ -179,7 +179,7 @@ def _print(d, source: str) -> None:
         con.print(f"  - {escape(a)}")
 
 
-@app.command(name="workbench")
+@app.command(name="workbench", rich_help_panel="3. Discover")
 def workbench_cmd(
     session: Annotated[
         Path, typer.Argument(help="Calibration session with labelled static holds (.mcap or CSV).")
