@@ -308,15 +308,21 @@ def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
         raise
 
 
+def read_text(path: str | os.PathLike, what: str = "file") -> str:
+    """The text of a file, or InputError naming it when it is missing or not text."""
+    p = Path(path)
+    try:
+        return p.read_text()
+    except FileNotFoundError:
+        raise InputError(f"no such {what}", where=str(p)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read as text: {exc.__class__.__name__}", where=str(p)) from None
+
+
 def read_json(path: str | os.PathLike) -> Any:
     """Parsed JSON, or InputError naming the file (and line) when missing or malformed."""
     p = Path(path)
-    try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise InputError("no such file", where=str(p)) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as text: {exc.__class__.__name__}", where=str(p)) from None
+    text = read_text(p)
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import tomllib
 
-from .calibration import Calibration, load_calibration, read_json, source_entry
+from .calibration import Calibration, load_calibration, read_json, read_text, source_entry
 from .drift import DriftModel, drift_from_session
 from .errors import InputError, ModelError
 from .evaluate import Evaluation, PoseEvaluation, evaluate, evaluate_poses
@@ -434,12 +434,7 @@ def _line_of(text: str, table: str, key: str | None = None) -> int:
 def load_pipeline(path: str | os.PathLike) -> dict:
     """Parse and validate a pipeline TOML file; InputError naming the file:line and key."""
     p = Path(path)
-    try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise InputError("no such pipeline file", where=str(p)) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as text: {exc.__class__.__name__}", where=str(p)) from None
+    text = read_text(p, "pipeline file")
     try:
         spec = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
