@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rich.console import Console
+from rich.table import Table
 
 from .simulate import Scenario, simulate
 
@@ -185,12 +186,9 @@ def run_demo(
 
     con.rule("[bold]4. moving robot: strapdown tracks with ZUPT vs the true path")
     t3 = time.perf_counter()
-    found = rows[-1]["fit"].cal
     res.tracks = run_session_tracks(
-        S["robot"], {"Model 3": res.fits["model3"].cal, f"{rows[-1]['model']}": found}, use_zupt=True
+        S["robot"], {"Model 3": res.fits["model3"].cal, rows[-1]["model"]: rows[-1]["fit"].cal}, use_zupt=True
     )
-    from rich.table import Table
-
     tt = Table(title=f"robot run ({S['robot'].t_s[-1]:.0f} s): position error against the truth")
     for c in ("calibration", "final (m)", "RMS (m)", "final without ZUPT (m)", "ZUPT stops"):
         tt.add_column(c, justify="left" if c == "calibration" else "right")
