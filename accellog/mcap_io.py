@@ -36,6 +36,7 @@ import os
 import struct
 import time
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -780,36 +781,25 @@ def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> _Collected:
     chunks = _Decompressor(data)
     usize_list = usize.tolist()
     done = (np.cumsum(usize) / max(1, int(usize.sum()))).tolist()  # fraction read after each chunk
-    for g0, g1 in _groups(usize):
-        records, used = chunks.records(
-            name_at[g0:g1], name_len[g0:g1], rec_at[g0:g1], rec_end[g0:g1], usize_list[g0:g1]
+    groups = _groups(usize)
+
+    def decompress(i: int) -> tuple[bytearray, int]:
+        g0, g1 = groups[i]
+        return chunks.records(
+            name_at[g0:g1], name_len[g0:g1], rec_at[g0:g1], rec_end[g0:g1], usize_list[g0:g1], i % 2
         )
-        messages = _message_starts(records, usize_list[g0:g1])
-        if not messages.shape[0]:
-            continue
-        rb = np.frombuffer(records, np.uint8, used + _PAD)
-        msg_len = pb.read_le(rb, messages + 1, "<u8")
-        if np.any(msg_len < _MESSAGE_HEADER):
-            raise _NotFast("short message record")
-        channel_id = pb.read_le(rb, messages + 9, "<u2")
-        payload_at = messages + 9 + _MESSAGE_HEADER
-        payload_end = messages + 9 + msg_len.astype(np.int64)
-        ids, first = np.unique(channel_id, return_index=True)
-        for cid in ids[np.argsort(first)].tolist():
-            if cid not in message_of:  # first message of the channel, as the generic sink sees it
-                ch = channels[cid]
-                wanted = sink.want is None or ch.topic in sink.want
-                schema = None if ch.schema_id == 0 else schemas[ch.schema_id]
-                message_of[cid] = sink.channel(schema, ch) if wanted else None
-                parts[cid] = pb.BatchAccumulator(message_of[cid] or "")
-            msg = message_of[cid]
-            if msg is None:
-                continue
-            sel = slice(None) if ids.shape[0] == 1 else np.flatnonzero(channel_id == cid)
-            dec = pb.decode_batch(msg, rb, payload_at[sel], payload_end[sel])
-            if dec is None:
-                raise _NotFast(f"{channels[cid].topic}: not canonical protobuf")
-            parts[cid].add(dec, done[g1 - 1])
+
+    # group i + 1 is decompressed in a thread (lz4/zstd release the GIL) while group i is decoded;
+    # leaving the with-block (also on an exception) waits for it, before the file is unmapped
+    with ThreadPoolExecutor(1) as pool:
+        pending = pool.submit(decompress, 0)
+        for i, (g0, g1) in enumerate(groups):
+            records, used = pending.result()
+            if i + 1 < len(groups):
+                pending = pool.submit(decompress, i + 1)
+            _decode_group(
+                records, used, usize_list[g0:g1], done[g1 - 1], channels, schemas, sink, message_of, parts
+            )
     for cid, msg in message_of.items():
         if msg is not None:
             sink.decoders[channels[cid].topic] = parts[cid].finish()
@@ -832,6 +822,53 @@ def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> _Collected:
         if name == "session":
             sink.metadata = kv
     return _Collected(sink.metadata, sink.topics, sink.decoders, None)
+
+
+def _decode_group(
+    records: bytearray,
+    used: int,
+    usize: list[int],
+    done: float,
+    channels: dict[int, Channel],
+    schemas: dict[int, Schema],
+    sink: _Sink,
+    message_of: dict[int, str | None],
+    parts: dict[int, pb.BatchAccumulator],
+) -> None:
+    """Decode the messages of one group of decompressed chunks into the channels' accumulators."""
+    messages = _message_starts(records, usize)
+    if not messages.shape[0]:
+        return
+    rb = np.frombuffer(records, np.uint8, used + _PAD)
+    msg_len = pb.read_le(rb, messages + 1, "<u8")
+    if np.any(msg_len < _MESSAGE_HEADER):
+        raise _NotFast("short message record")
+    channel_id = pb.read_le(rb, messages + 9, "<u2")
+    payload_at = messages + 9 + _MESSAGE_HEADER
+    payload_end = messages + 9 + msg_len.astype(np.int64)
+    ids, first = np.unique(channel_id, return_index=True)
+    for cid in ids[np.argsort(first)].tolist():
+        if cid not in message_of:  # first message of the channel, as the generic sink sees it
+            ch = channels[cid]
+            wanted = sink.want is None or ch.topic in sink.want
+            schema = None if ch.schema_id == 0 else schemas[ch.schema_id]
+            message_of[cid] = sink.channel(schema, ch) if wanted else None
+            parts[cid] = pb.BatchAccumulator(message_of[cid] or "")
+        msg = message_of[cid]
+        if msg is None:
+            continue
+        sel = slice(None) if ids.shape[0] == 1 else np.flatnonzero(channel_id == cid)
+        acc, frac = parts[cid], done
+        dec = pb.decode_batch(
+            msg,
+            rb,
+            payload_at[sel],
+            payload_end[sel],
+            lambda nm, dt, k, a=acc, f=frac: a.reserve(nm, dt, k, f),
+        )
+        if dec is None:
+            raise _NotFast(f"{channels[cid].topic}: not canonical protobuf")
+        acc.add(dec, frac)
 
 
 def _groups(usize: np.ndarray) -> list[tuple[int, int]]:
@@ -857,16 +894,24 @@ class _Decompressor:
         self.data = data
         self.zstd = zstandard.ZstdDecompressor().decompress
         self.lz4 = lz4.frame.decompress
-        self.buf = bytearray()
+        self.bufs = [bytearray(), bytearray()]
 
     def records(
-        self, name_at: list[int], name_len: list[int], at: list[int], end: list[int], usize: list[int]
+        self,
+        name_at: list[int],
+        name_len: list[int],
+        at: list[int],
+        end: list[int],
+        usize: list[int],
+        slot: int = 0,
     ) -> tuple[bytearray, int]:
-        """(buffer, n): the chunks' records back to back in buffer[:n], then _PAD zero bytes."""
+        """(buffer, n): the chunks' records back to back in buffer[:n], then _PAD zero bytes.
+
+        Two buffers (slot 0 or 1): one is filled while the other is decoded."""
         total = sum(usize)
-        if len(self.buf) < total + _PAD:
-            self.buf = bytearray(total + _PAD)
-        buf, data, mv = self.buf, self.data, memoryview(self.data)
+        if len(self.bufs[slot]) < total + _PAD:
+            self.bufs[slot] = bytearray(total + _PAD)
+        buf, data, mv = self.bufs[slot], self.data, memoryview(self.data)  # released on return
         pos = 0
         for na, nl, a, b, u in zip(name_at, name_len, at, end, usize, strict=True):
             comp = data[na : na + nl]
@@ -887,24 +932,44 @@ class _Decompressor:
 
 
 def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
-    """Offsets of the Message records in the concatenated chunk records (each chunk must be whole)."""
+    """Offsets of the Message records in the concatenated chunk records (each chunk must be whole).
+
+    Walks the record chain; at a Message record of length L it guesses that the records that follow
+    are Messages of the same length (the usual case: same fields, same varint sizes) and checks all
+    those guesses at once with numpy (opcode, length, no record across a chunk end), keeping the run
+    up to the first miss, so the Python walk only steps where the record layout changes.
+    """
     unpack = _REC.unpack_from
-    starts: list[int] = []
-    add = starts.append
-    pos = 0
-    for end in itertools.accumulate(usize):
-        while pos < end:
-            op, ln = unpack(records, pos)
-            if op == _OP_MESSAGE:
-                add(pos)
-            elif op in (_OP_SCHEMA, _OP_CHANNEL):  # read by content in mcap: length must agree
-                q = (_schema_at if op == _OP_SCHEMA else _channel_at)(records, pos + 9)[1]
-                if q != pos + 9 + ln:
-                    raise _NotFast("schema/channel record length in a chunk")
-            pos += 9 + ln
-        if pos != end:
+    ends = list(itertools.accumulate(usize))
+    total = ends[-1] if ends else 0
+    ends_arr = np.asarray(ends, dtype=np.int64)
+    rb = np.frombuffer(records, np.uint8)
+    runs: list[np.ndarray] = []
+    pos, k = 0, 0
+    while pos < total:
+        while pos >= ends[k]:  # next chunk (a record never crosses a chunk end)
+            k += 1
+        op, ln = unpack(records, pos)
+        nxt = pos + 9 + ln
+        if nxt > ends[k]:
             raise _NotFast("record across a chunk boundary")
-    return np.asarray(starts, dtype=np.int64)
+        if op == _OP_MESSAGE:
+            stride = 9 + ln
+            guess = np.arange(pos, total - stride + 1, stride, dtype=np.int64)  # guess[0] == pos: checked
+            ok = (rb[guess] == _OP_MESSAGE) & (pb.read_le(rb, guess + 1, "<u8") == ln)
+            ok &= np.searchsorted(ends_arr, guess, "right") == np.searchsorted(
+                ends_arr, guess + (stride - 1), "right"
+            )
+            m = guess.shape[0] if ok.all() else int(np.argmin(ok))
+            runs.append(guess[:m])
+            pos = int(guess[m - 1]) + stride
+            continue
+        if op in (_OP_SCHEMA, _OP_CHANNEL):  # read by content in mcap: length must agree
+            q = (_schema_at if op == _OP_SCHEMA else _channel_at)(records, pos + 9)[1]
+            if q != nxt:
+                raise _NotFast("schema/channel record length in a chunk")
+        pos = nxt
+    return np.concatenate(runs) if runs else np.zeros(0, np.int64)
 
 
 def _recover(path: Path, topics: Iterable[str] | None, why: Exception) -> _Collected:

@@ -13,6 +13,7 @@ same message gives the same bytes (tests check this; it is what makes the files 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 
@@ -509,31 +510,40 @@ def read_le(buf: np.ndarray, offsets: np.ndarray, dtype: str | np.dtype) -> np.n
 _MAX_LENGTH_GROUPS = 64  # gather_bytes: message-sized copies per distinct length up to this many lengths
 
 
-def gather_bytes(buf: np.ndarray, offsets: np.ndarray, lengths: np.ndarray, unit: int = 1) -> np.ndarray:
-    """Concatenation of buf[offsets[k] : offsets[k] + lengths[k]] over k (new uint8 array).
+def gather_bytes(
+    buf: np.ndarray, offsets: np.ndarray, lengths: np.ndarray, unit: int = 1, out: np.ndarray | None = None
+) -> np.ndarray:
+    """Concatenation of buf[offsets[k] : offsets[k] + lengths[k]] over k (uint8 array).
 
+    Written into ``out`` (contiguous uint8, lengths.sum() bytes) if given, else into a new array.
     Messages of equal length are copied as whole rows (one fancy-indexing pass per distinct length);
     with more than a few distinct lengths, ``unit``-byte items (every length a multiple of unit) are
     gathered instead.
     """
     total = int(lengths.sum())
+    if out is None:
+        out = np.empty(total, np.uint8)
+    elif out.shape != (total,):
+        raise ValueError(f"gather_bytes: out has {out.shape} bytes, expected {total}")
     if total == 0:
-        return np.empty(0, np.uint8)
+        return out
     keep = lengths > 0
     if not keep.all():
         offsets, lengths = offsets[keep], lengths[keep]
     if np.all(lengths == lengths[0]):
-        return byte_window(buf, int(lengths[0]))[offsets].reshape(-1)
+        size = int(lengths[0])
+        out.reshape(-1, size)[...] = byte_window(buf, size)[offsets]
+        return out
     sizes = np.unique(lengths)
     out_start = np.cumsum(lengths) - lengths
     if sizes.shape[0] <= _MAX_LENGTH_GROUPS:
-        out = np.empty(total, np.uint8)
         for size in sizes.tolist():
             k = np.flatnonzero(lengths == size)
             byte_window(out, size)[out_start[k]] = byte_window(buf, size)[offsets[k]]
         return out
     items = np.repeat(offsets - out_start, lengths // unit) + np.arange(0, total, unit)
-    return byte_window(buf, unit)[items].reshape(-1)
+    out.reshape(-1, unit)[...] = byte_window(buf, unit)[items]
+    return out
 
 
 @dataclass
@@ -545,6 +555,7 @@ class DecodedBatch:
     arrays: dict[str, np.ndarray]
     scalars: dict[str, list]
     counts: dict[str, np.ndarray]
+    placed: frozenset[str] = frozenset()  # arrays already written in place by BatchAccumulator.reserve
 
     def result(self) -> tuple[dict[str, np.ndarray], dict[str, list], dict[str, np.ndarray]]:
         """(arrays, scalars, counts), as ``BatchDecoder.result()`` (new dicts; the arrays are shared)."""
@@ -569,22 +580,30 @@ class BatchAccumulator:
         self._scalars: dict[str, list] = {}
         self._counts: dict[str, list[np.ndarray]] = {}
 
+    def reserve(self, name: str, dtype: np.dtype, count: int, done: float) -> np.ndarray:
+        """The next ``count`` items of array ``name``, to be filled in place (then ``add`` the part
+        with ``name`` in ``placed``): the decoder writes straight into the final array, no copy.
+
+        The view is valid until the next ``reserve``/``add`` (the array may be reallocated)."""
+        self._dtypes.setdefault(name, np.dtype(dtype))
+        used = self._used.get(name, 0)
+        need = used + count
+        store = self._store.get(name)
+        if store is None or need > store.shape[0]:
+            cap = max(need, int(need / max(done, 1e-6) * 1.02) + 64)
+            if store is None:
+                store = self._store[name] = np.empty(cap, dtype)
+            else:
+                store.resize(cap, refcheck=False)  # realloc: views handed out before are dead
+        self._used[name] = need
+        return store[used:need]
+
     def add(self, part: DecodedBatch, done: float) -> None:
         for name, a in part.arrays.items():
             self._dtypes.setdefault(name, a.dtype)
-            used = self._used.get(name, 0)
-            need = used + a.shape[0]
-            if need == used:
+            if name in part.placed or a.shape[0] == 0:
                 continue
-            store = self._store.get(name)
-            if store is None or need > store.shape[0]:
-                cap = max(need, int(need / max(done, 1e-6) * 1.02) + 64)
-                if store is None:
-                    store = self._store[name] = np.empty(cap, a.dtype)
-                else:
-                    store.resize(cap, refcheck=False)  # realloc: no view of it exists
-            store[used:need] = a
-            self._used[name] = need
+            self.reserve(name, a.dtype, a.shape[0], done)[:] = a
         for name, v in part.scalars.items():
             self._scalars.setdefault(name, []).extend(v)
         for name, c in part.counts.items():
@@ -636,8 +655,18 @@ def _varints(buf: np.ndarray, pos: np.ndarray, end: np.ndarray) -> tuple[np.ndar
     return val, after
 
 
-def decode_batch(message: str, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> DecodedBatch | None:
+def decode_batch(
+    message: str,
+    buf: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    reserve: Callable[[str, np.dtype, int], np.ndarray] | None = None,
+) -> DecodedBatch | None:
     """Decode the messages buf[starts[k] : ends[k]] (uint8 array) all at once, field by field with numpy.
+
+    ``reserve(name, dtype, count)`` (e.g. ``BatchAccumulator.reserve`` with ``done`` bound), if given,
+    provides the destination of each packed field: the payloads are gathered straight into it and the
+    field is listed in ``placed`` of the result (if None is returned, what was reserved is garbage).
 
     Accepts the canonical encoding (what ``encode`` and the stock runtime write): one-byte keys with the
     schema's wire type, field numbers strictly increasing within a message (no repeats, no unknown
@@ -702,13 +731,20 @@ def decode_batch(message: str, buf: np.ndarray, starts: np.ndarray, ends: np.nda
         active = active[pos[active] < end[active]]
 
     arrays, scalars, counts = {}, {}, {}
+    placed: list[str] = []
     for c in codecs:
         if c.kind == "packed":
             size = c.dtype.itemsize
             ln = lens[c.name]
             if np.any(ln % size):
                 return None
-            arrays[c.name] = gather_bytes(buf, offs[c.name], ln, size).view(c.dtype)
+            if reserve is None:
+                arrays[c.name] = gather_bytes(buf, offs[c.name], ln, size).view(c.dtype)
+            else:
+                dst = reserve(c.name, c.dtype, int(ln.sum()) // size)
+                gather_bytes(buf, offs[c.name], ln, size, out=dst.view(np.uint8))
+                arrays[c.name] = dst
+                placed.append(c.name)
             counts[c.name] = ln // size
         elif c.kind in ("string", "bytes"):
             ln = lens[c.name]
@@ -727,7 +763,7 @@ def decode_batch(message: str, buf: np.ndarray, starts: np.ndarray, ends: np.nda
             scalars[c.name] = vals[c.name].view(_DOUBLE).tolist()
         else:
             scalars[c.name] = vals[c.name].tolist()
-    return DecodedBatch(message, n, arrays, scalars, counts)
+    return DecodedBatch(message, n, arrays, scalars, counts, frozenset(placed))
 
 
 if __name__ == "__main__":  # pragma: no cover
