@@ -50,7 +50,7 @@ from . import __version__
 from . import messages as pb
 from .errors import InputError
 from .session import Event, PoseLabel, Session, SessionMeta, Truth
-from .units import temp_counts_to_degC
+from .units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC, temp_counts_to_degC
 
 NS_PER_S = 1_000_000_000
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -1021,6 +1021,21 @@ def _reshape(arr: np.ndarray, n: int, width: int, what: str, where: str) -> np.n
     return arr.reshape(n, width) if width > 1 else arr
 
 
+_SPLIT_MIN = 200_000  # _split_run: samples below which one thread does it all
+
+
+def _split_run(fn, n: int) -> None:
+    """fn(0, n/2) on a worker thread and fn(n/2, n) here, concurrently (numpy releases the GIL)."""
+    if n < _SPLIT_MIN:
+        fn(0, n)
+        return
+    mid = n // 2
+    with ThreadPoolExecutor(1) as pool:
+        first = pool.submit(fn, 0, mid)
+        fn(mid, n)
+        first.result()
+
+
 def read_session(path: str | Path) -> Session:
     """Read an accellog MCAP file into a Session (fast; recovers unfinished/truncated files).
 
@@ -1063,6 +1078,7 @@ def read_session(path: str | Path) -> Session:
     host = np.asarray(scalars["host_time_ns"], dtype=np.int64)
     host_time_s = np.repeat(host / NS_PER_S, n_per) if np.any(host != 0) else None
 
+    lsb_a = lsb_g = temp_c = None  # conversions to do from counts (filled in halves on 2 threads)
     accel_counts = _reshape(arrays["accel_counts"], n, 3, "accel_counts", where)
     accel_g = _reshape(arrays["accel_g"], n, 3, "accel_g", where)
     if accel_g is None:
@@ -1070,19 +1086,37 @@ def read_session(path: str | Path) -> Session:
             raise InputError("IMU batches carry neither accel_counts nor accel_g", where=where)
         if not meta.accel_lsb_per_g:
             raise InputError("accel_counts without accel_lsb_per_g in the session metadata", where=where)
-        accel_g = accel_counts / meta.accel_lsb_per_g
+        accel_g = np.empty(accel_counts.shape)  # = accel_counts / accel_lsb_per_g, filled below
+        lsb_a = meta.accel_lsb_per_g
     gyro_counts = _reshape(arrays["gyro_counts"], n, 3, "gyro_counts", where)
     gyro_dps = _reshape(arrays["gyro_dps"], n, 3, "gyro_dps", where)
     if gyro_dps is None and gyro_counts is not None and meta.gyro_lsb_per_dps:
-        gyro_dps = gyro_counts / meta.gyro_lsb_per_dps
+        gyro_dps = np.empty(gyro_counts.shape)  # = gyro_counts / gyro_lsb_per_dps
+        lsb_g = meta.gyro_lsb_per_dps
     temp_counts = _reshape(arrays["temp_counts"], n, 1, "temp_counts", where)
     temp_degC = _reshape(arrays["temp_degC"], n, 1, "temp_degC", where)
     if temp_degC is None and temp_counts is not None:
-        temp_degC = temp_counts_to_degC(temp_counts.astype(np.float64))
+        temp_degC = np.empty(n)  # = temp_counts_to_degC(temp_counts)
+        temp_c = temp_counts
+    t_s = np.empty(n)
+
+    def convert(lo: int, hi: int) -> None:
+        """Unit conversions of samples lo..hi into the preallocated float64 arrays (no temporaries)."""
+        np.divide(t_ns[lo:hi], NS_PER_S, out=t_s[lo:hi])
+        if lsb_a is not None:
+            np.divide(accel_counts[lo:hi], lsb_a, out=accel_g[lo:hi])
+        if lsb_g is not None:
+            np.divide(gyro_counts[lo:hi], lsb_g, out=gyro_dps[lo:hi])
+        if temp_c is not None:
+            out = temp_degC[lo:hi]  # temp_counts_to_degC: counts / 333.87 + 21, the same two operations
+            np.divide(temp_c[lo:hi], TEMP_LSB_PER_DEGC, out=out)
+            np.add(out, TEMP_OFFSET_DEGC, out=out)
+
+    _split_run(convert, n)
 
     if not in_order:  # batches out of order: sort samples once
         order = np.argsort(sample_index, kind="stable")
-        sample_index, t_ns = sample_index[order], t_ns[order]
+        sample_index, t_s = sample_index[order], t_s[order]
         fix = [accel_g, accel_counts, gyro_dps, gyro_counts, temp_degC, temp_counts, host_time_s]
         accel_g, accel_counts, gyro_dps, gyro_counts, temp_degC, temp_counts, host_time_s = (
             None if a is None else a[order] for a in fix
@@ -1090,7 +1124,7 @@ def read_session(path: str | Path) -> Session:
 
     session = Session(
         meta=meta,
-        t_s=t_ns / NS_PER_S,
+        t_s=t_s,
         sample_index=sample_index,
         accel_g=accel_g,
         accel_counts=accel_counts,
