@@ -655,6 +655,90 @@ def _varints(buf: np.ndarray, pos: np.ndarray, end: np.ndarray) -> tuple[np.ndar
     return val, after
 
 
+def _uniform_layout(
+    buf: np.ndarray,
+    pos: np.ndarray,
+    end: np.ndarray,
+    key_to_field: np.ndarray,
+    numbers: np.ndarray,
+    field_codecs: list[_FieldCodec],
+    offs: dict[str, np.ndarray],
+    lens: dict[str, np.ndarray],
+    vals: dict[str, np.ndarray],
+) -> bool:
+    """``decode_batch``'s field walk when every message has the layout of the first one (the usual case).
+
+    The first message is walked in Python under the canonical rules; then every message is checked to
+    have the same length, the same key and length bytes at the same places, and varints of the same byte
+    count (continuation bits) there, with a few vectorised column reads. Fills offs/lens/vals as the
+    general walk would and returns True; False (nothing filled) if any of this does not hold.
+    """
+    n = pos.shape[0]
+    if n < 2:
+        return False
+    size = int(end[0] - pos[0])
+    if size <= 0 or np.any(end - pos != size):
+        return False
+    t = bytes(buf[int(pos[0]) : int(pos[0]) + size])
+    fixed: list[int] = []  # offsets of bytes every message must share (keys, lengths)
+    varint_at: list[tuple[str, int, int]] = []  # (field, offset, bytes)
+    double_at: list[tuple[str, int]] = []
+    span_at: list[tuple[str, int, int]] = []  # (field, data offset, length)
+    p, last = 0, 0
+    while p < size:
+        f = int(key_to_field[t[p]])
+        if f < 0 or int(numbers[f]) <= last:
+            return False
+        last = int(numbers[f])
+        c = field_codecs[f]
+        fixed.append(p)
+        p += 1
+        if c.kind == "double":
+            if p + 8 > size:
+                return False
+            double_at.append((c.name, p))
+            p += 8
+            continue
+        q = p
+        while q < size and t[q] >= 0x80:
+            q += 1
+        if q >= size or q - p >= 9:  # runs past the message, or over 63 bits: the general walk decides
+            return False
+        if c.name in offs:
+            if c.kind != "packed":  # strings need a UTF-8 check per message
+                return False
+            ln = sum((t[p + j] & 0x7F) << (7 * j) for j in range(q + 1 - p))
+            fixed += range(p, q + 1)
+            p = q + 1
+            if p + ln > size:
+                return False
+            span_at.append((c.name, p, ln))
+            p += ln
+        else:
+            varint_at.append((c.name, p, q + 1 - p))
+            p = q + 1
+    rel = np.asarray(fixed, dtype=np.int64)
+    if np.any(buf[pos[:, None] + rel] != np.frombuffer(t, np.uint8)[rel]):
+        return False
+    columns = {}
+    for name, o, k in varint_at:
+        cols = buf[pos[:, None] + np.arange(o, o + k)]
+        if np.any(cols[:, :-1] < 0x80) or np.any(cols[:, -1] >= 0x80):
+            return False
+        columns[name] = cols
+    for name, cols in columns.items():
+        v = np.zeros(n, np.uint64)
+        for j in range(cols.shape[1]):
+            v |= (cols[:, j] & 0x7F).astype(np.uint64) << np.uint64(7 * j)
+        vals[name][:] = v
+    for name, o in double_at:
+        vals[name][:] = read_le(buf, pos + o, "<u8")
+    for name, o, ln in span_at:
+        offs[name][:] = pos + o
+        lens[name][:] = ln
+    return True
+
+
 def decode_batch(
     message: str,
     buf: np.ndarray,
@@ -690,7 +774,8 @@ def decode_batch(
     lens = {name: np.zeros(n, np.int64) for name in offs}
     vals = {c.name: np.zeros(n, np.uint64) for c in codecs if c.kind not in offs}
     last = np.zeros(n, np.int64)  # field number read last in each message
-    active = np.flatnonzero(pos < end)
+    uniform = _uniform_layout(buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals)
+    active = pos[:0] if uniform else np.flatnonzero(pos < end)
     while active.shape[0]:
         p = pos[active]
         field = key_to_field[buf[p]]

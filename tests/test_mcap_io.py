@@ -582,3 +582,33 @@ def test_fast_reader_falls_back_on_foreign_encodings(tmp_path, monkeypatch):
     _foreign_imu_file(ok, good)  # the same writer with canonical payloads: fast path
     assert mcap_io._fast_collect(ok) is not None
     _assert_identical(*_read_both(ok, monkeypatch))
+
+
+def test_fast_reader_equals_generic_steady_recorder_stream(tmp_path, monkeypatch):
+    """The common case: 36-sample FIFO reads (record walk guesses hit, one message layout per group,
+    except where the first_sample_index varint grows at 128 and 16384), read in many small chunk
+    groups (decompressed ahead on a thread) with the unit conversions split over two threads."""
+    meta = _meta()
+    rng = np.random.default_rng(5)
+    n = 20_000
+    ac = rng.integers(-32768, 32768, (n, 3))
+    p = tmp_path / "steady.mcap"
+    with SessionWriter(p, meta, compression="lz4") as w:
+        for i in range(0, n, 36):
+            j = min(i + 36, n)
+            idx = np.arange(i, j)
+            w.write_imu(i, idx * 1_000_000, ac[i:j], ac[i:j, ::-1], idx % 3000, host_time_ns=(1 << 40) + j)
+    uniform = []
+    real = mcap_io.pb._uniform_layout
+    monkeypatch.setattr(mcap_io.pb, "_uniform_layout", lambda *a: uniform.append(real(*a)) or uniform[-1])
+    monkeypatch.setattr(mcap_io, "_GROUP_BYTES", 16 << 10)
+    monkeypatch.setattr(mcap_io, "_SPLIT_MIN", 1000)
+    fast, generic = _read_both(p, monkeypatch)
+    _assert_identical(fast, generic)
+    assert (
+        fast.n == n
+        and np.array_equal(fast.accel_counts, ac)
+        and np.array_equal(fast.sample_index, np.arange(n))
+    )
+    assert np.array_equal(fast.accel_g, ac / meta.accel_lsb_per_g)
+    assert len(uniform) > 20 and any(uniform) and not all(uniform)  # both field walks were taken
