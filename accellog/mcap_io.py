@@ -20,9 +20,10 @@ Crash safety: the writer ends the current chunk and flushes the OS file at least
 (plus the chunk being written); ``read_session`` salvages every complete chunk of an unfinished file.
 
 Reading: a finished file in the canonical layout is read by ``_fast_collect`` (file mapped, footer and
-summary parsed with struct, chunks decompressed ~4 MiB at a time into a reused buffer, records walked,
-every channel's payloads decoded at once by ``messages.decode_batch`` and appended into arrays sized
-once); anything else, or any surprise on the way, goes to the generic reader (mcap's SeekingReader +
+summary parsed with struct, chunks decompressed ~4 MiB at a time into two reused buffers, the next group
+on a worker thread while this one is decoded, records walked by checked guesses (runs of equal-length
+messages), every channel's payloads decoded at once by ``messages.decode_batch`` straight into arrays
+sized once; unit conversions into preallocated arrays, in two halves on two threads); anything else, or any surprise on the way, goes to the generic reader (mcap's SeekingReader +
 ``BatchDecoder``, with salvage of unfinished files). Both give identical Sessions (tests check it).
 """
 
