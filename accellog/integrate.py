@@ -21,17 +21,25 @@ DEFAULT_TIMES_S = (10.0, 30.0, 60.0)
 """Times at which the seed reports the integrated displacement (s)."""
 
 
-def _check_time(t_s: np.ndarray, where: str | None) -> None:
+def check_time(t_s: np.ndarray, where: str | None = None) -> None:
+    """InputError unless t_s (s) is 1-D, finite, strictly increasing and has >= 2 samples."""
     if t_s.ndim != 1 or t_s.shape[0] < 2:
-        raise InputError("need at least two samples to integrate", where=where)
+        raise InputError("need at least 2 samples to integrate", where=where)
     if not np.all(np.isfinite(t_s)):
         raise InputError("timestamps contain NaN or infinite values", where=where)
     dt = np.diff(t_s)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
         raise InputError(
-            f"timestamps not strictly increasing at sample {i + 1} (t = {t_s[i + 1]:.6f} s)", where=where
+            f"timestamps not strictly increasing at sample {i + 1} (t = {t_s[i + 1]:.6f} s): they must increase",
+            where=where,
         )
+
+
+def runs(mask: np.ndarray) -> np.ndarray:
+    """(K,2) [start, end) index pairs of the runs of True in a boolean mask."""
+    d = np.diff(np.concatenate([[0], np.asarray(mask).astype(np.int8), [0]]))
+    return np.stack([np.flatnonzero(d == 1), np.flatnonzero(d == -1)], axis=1)
 
 
 def cumtrapz(t_s: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -53,7 +61,7 @@ def displacement(
     """
     t = np.asarray(t_s, float)
     a = np.asarray(accel_mps2, float)
-    _check_time(t, where)
+    check_time(t, where)
     if a.shape[0] != t.shape[0]:
         raise InputError(f"{a.shape[0]} acceleration rows for {t.shape[0]} timestamps", where=where)
     if not np.all(np.isfinite(a)):

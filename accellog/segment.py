@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError, ModelError
+from .integrate import runs
 from .noise import integrated_autocorr_time, sem_autocorr
 from .session import POSE_UP_VECTORS, ObsTable, PoseLabel, Session
 
@@ -453,12 +454,6 @@ def _moving_var_norm(x: np.ndarray, w: int) -> np.ndarray:
     return out
 
 
-def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(starts, stops) of runs of True."""
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-
-
 def _distinct(dirs: np.ndarray, angle_deg: float) -> int:
     """Number of distinct directions (greedy clustering by angle)."""
     reps: list[np.ndarray] = []
@@ -516,7 +511,7 @@ def detect_static(
     # label [start_s, end_s) covers samples a..b-1: end at the next sample's time (one period past the end)
     t_end = np.append(t[1:], t[-1] + 1.0 / rate)
     for k in k_values:
-        starts, stops = _runs(stat < k * ref)
+        starts, stops = runs(stat < k * ref).T
         keep = (stops - starts) >= min_len
         starts, stops = starts[keep], stops[keep]
         if starts.size == 0:

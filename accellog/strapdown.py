@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
-from .integrate import cumtrapz
+from .integrate import check_time, cumtrapz
 from .rotations import quat_from_axis_angle, quat_from_rotvec, quat_multiply, quat_normalize, rotate
 from .units import STANDARD_GRAVITY_MPS2
 
@@ -122,11 +122,7 @@ def strapdown(
         raise InputError(
             f"strapdown needs t (N,), accel (N,3), gyro (N,3); got {t.shape}, {a.shape}, {w.shape}"
         )
-    if t.size < 2:
-        raise InputError("strapdown needs at least 2 samples")
-    if not np.all(np.diff(t) > 0):
-        i = int(np.argmin(np.diff(t) > 0))
-        raise InputError(f"sample times do not increase at sample {i + 1} (t = {t[i + 1]:.6f} s)")
+    check_time(t)
     if not (np.isfinite(a).all() and np.isfinite(w).all()):
         raise InputError("accel or gyro holds NaN/inf samples")
     if correct_accel is not None:

@@ -24,6 +24,7 @@ import numpy as np
 
 from .errors import InputError
 from .integrate import cumtrapz
+from .integrate import runs as run_bounds
 from .strapdown import Track
 
 
@@ -55,12 +56,6 @@ def _moving_mean(x: np.ndarray, n: int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo)
 
 
-def _runs(mask: np.ndarray) -> np.ndarray:
-    """(K,2) [start, end) index pairs of the True runs in mask."""
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return np.stack([np.flatnonzero(d == 1), np.flatnonzero(d == -1)], axis=1)
-
-
 def detect_stationary(
     t_s: np.ndarray,
     accel_g: np.ndarray,
@@ -89,7 +84,7 @@ def detect_stationary(
     var = np.maximum(_moving_mean(an * an, n) - m1 * m1, 0.0)
     wn = _moving_mean(np.linalg.norm(w, axis=1), n)
     mask = (np.sqrt(var) < accel_std_g) & (wn < gyro_dps_max) & (np.abs(m1 - 1.0) < accel_norm_tol_g)
-    runs = _runs(mask)
+    runs = run_bounds(mask)
     if runs.size == 0:
         return runs
     t_lo = t[runs[:, 0]] + trim_s
