@@ -355,8 +355,12 @@ def integrate(
     buf.write("t_s,vx_mps,vy_mps,vz_mps,x_m,y_m,z_m\n")
     np.savetxt(buf, np.column_stack([t, v, d]), delimiter=",", fmt="%.9g")
     tmp = output.with_name(f".{output.name}.tmp")
-    tmp.write_text(buf.getvalue())
-    tmp.replace(output)
+    try:
+        tmp.write_text(buf.getvalue())
+        tmp.replace(output)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"cannot write the CSV: {exc.strerror or exc}", where=str(output)) from None
     summary = {
         "session": str(session),
         "calibration": str(cal) if cal else None,
