@@ -49,6 +49,11 @@ def session_meta(info, cfg, *, source: str, protocol: str, **fields) -> SessionM
     )
 
 
+class StopRequested(Exception):
+    """The operator asked to stop (Ctrl-C, SIGTERM). Raised only between FIFO reads, so the MCAP
+    writer is never interrupted half-way through a message and the file can be finished cleanly."""
+
+
 class RecorderUI(Protocol):
     """What the loop tells the operator (terminal, live viewer, or nothing)."""
 
@@ -112,6 +117,7 @@ class Recorder:
     poll_s: time between FIFO reads (s); the 512-byte FIFO holds 36 samples, i.e. 36 ms at 1 kHz.
     on_batch: optional callback (e.g. a live Rerun view) given every batch; it must not raise.
     on_pose: optional callback (label, mean_g (3,), std_g (3,), n) after every labelled hold.
+    stop: optional event (set by a signal handler); the loop stops at the next FIFO read.
     """
 
     def __init__(
@@ -126,6 +132,7 @@ class Recorder:
         on_batch: Callable[[object, np.ndarray], None] | None = None,
         on_pose: Callable[[PoseLabel, np.ndarray, np.ndarray, int], None] | None = None,
         read_mag: bool = False,
+        stop: threading.Event | None = None,
     ) -> None:
         self.driver = driver
         self.writer = writer
@@ -136,6 +143,7 @@ class Recorder:
         self.on_batch = on_batch
         self.on_pose = on_pose
         self.read_mag = read_mag
+        self.stop = stop
         self._hold_sum = np.zeros(3)
         self._hold_sq = np.zeros(3)
         self._hold_n = 0
@@ -147,7 +155,10 @@ class Recorder:
     # -- one read --------------------------------------------------------------------------------
     def step(self, *, detect_stillness: bool = True) -> None:
         """Wait one poll period, read the FIFO, write the batch and its events, update stillness
-        (skipped with detect_stillness=False: unguided recording does not need it)."""
+        (skipped with detect_stillness=False: unguided recording does not need it).
+        Raises StopRequested (before reading) once the stop event is set."""
+        if self.stop is not None and self.stop.is_set():
+            raise StopRequested
         self.sleep(self.poll_s)
         batch = self.driver.read()
         for ev in batch.events:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import signal
+import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -135,7 +136,7 @@ def record(
     """Record a guided calibration session: the operator is told each pose, the hold is labelled."""
     from ..driver import Mpu9250
     from ..mcap_io import SessionWriter
-    from ..recorder import Recorder, RecorderUI, session_meta
+    from ..recorder import Recorder, RecorderUI, StopRequested, session_meta
 
     if accel_range not in (2, 4, 8, 16):
         raise InputError(f"--accel-range {accel_range}: use 2, 4, 8 or 16 (g)")
@@ -175,7 +176,10 @@ def record(
 
         sleep, clock_ns, source = time.sleep, None, "hardware"
 
-    old_sigterm = signal.getsignal(signal.SIGTERM)
+    # Ctrl-C / SIGTERM only set a flag; the recorder stops at its next FIFO read and the writer's
+    # context finishes the file (an exception raised inside the MCAP writer could corrupt it).
+    stop = threading.Event()
+    old_handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
     live = None
     try:
         driver = Mpu9250(device, address=addr, clock_ns=clock_ns)
@@ -199,8 +203,6 @@ def record(
         ui: RecorderUI = TerminalUI()
         if live is not None:
             ui = live.wrap_ui(ui)
-        # Ctrl-C: finish the current file cleanly (the writer's context closes it).
-        signal.signal(signal.SIGTERM, signal.default_int_handler)
         interrupted = False
         with SessionWriter(out, meta) as writer:
             driver.start()
@@ -212,10 +214,14 @@ def record(
                 read_mag=read_mag,
                 on_batch=live.on_batch if live else None,
                 on_pose=RunningCalibration(live) if live else None,
+                stop=stop,
             )
+            for sig in old_handlers:
+                signal.signal(sig, lambda *_: stop.set())
+            console.print(f"recording to {out} (Ctrl-C finishes the file)")
             try:
                 rec.run(poses, wait=wait)
-            except KeyboardInterrupt:
+            except StopRequested:
                 interrupted = True
                 rec.summary.duration_s = rec.t_s
                 writer.write_event(
@@ -226,7 +232,8 @@ def record(
                     )
                 )
     finally:
-        signal.signal(signal.SIGTERM, old_sigterm)
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
         if live is not None:
             live.close()
         device.close()  # the /dev/i2c-N file of real hardware (a no-op for the emulated chip)
