@@ -13,10 +13,12 @@ Bias: every static hold is cut into window_s windows; the window means obey mean
 fitted per axis by least squares; sigma = sqrt(s^2 (A^T A)^-1) with s^2 the residual variance of
 the window means (so hold-to-hold scatter, e.g. from bias instability, widens the uncertainty).
 
-Scale/misalignment: for consecutive holds a, b whose nominal orientations q_a, q_b are known,
-integrate the corrected rate from the middle of a to the middle of b (accellog.strapdown) and
-compare with the nominal change dq_nom = q_a^-1 q_b: residual = rotation vector of
-dq_nom^-1 dq_int (deg). M is found by nonlinear least squares (scipy); parameters the rotations do
+Scale/misalignment: for consecutive holds a, b, integrate the corrected rate from the middle of a
+to the middle of b (accellog.strapdown) and compare what gravity can check: the up vector of a,
+carried through dq_int, must land on the up vector of b (residual dq_int^-1 up_a - up_b, deg;
+yaw about the vertical is free, so a hand-held operator's turns do no harm). With
+reference='orientation' (known headings: a fixture, a vehicle) the whole nominal change
+dq_nom = q_a^-1 q_b is compared instead: residual = rotation vector of dq_nom^-1 dq_int (deg). M is found by nonlinear least squares (scipy); parameters the rotations do
 not excite (e.g. x/y scale when the robot only turns about z) are held at the identity and
 reported as undetermined (sigma NaN). Covariance = s^2 (J^T J)^-1, s^2 = max(RSS/dof, s_min^2).
 """
@@ -30,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError, ModelError
-from .rotations import quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize
+from .rotations import quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize, rotate_inverse
 from .session import PoseLabel
 from .strapdown import prefix_quat_product
 
@@ -240,18 +242,26 @@ def fit_gyro_matrix(
     *,
     model: str = "full",
     floor_deg: float = 0.05,
+    reference: str = "gravity",
 ) -> GyroCalibration:
     """Scale ('scale': diag M) or scale + cross-axis ('full': all of M) from rotations between
-    consecutive labelled poses with known q_sensor_to_world (see module doc). Returns a copy of
-    base with matrix, matrix_sigma, undetermined and rotation_rms_deg filled in.
+    consecutive labelled poses (see module doc). Returns a copy of base with matrix,
+    matrix_sigma, undetermined and rotation_rms_deg filled in.
 
+    reference: 'gravity' (default) compares only what gravity sees: the up vector of hold a,
+    carried through the integrated rotation, must land on the up vector of hold b (residual
+    dq_int^-1 up_a - up_b, deg; rotations about the vertical are not used, so an operator who
+    turns the sensor freely between holds does no harm); 'orientation' compares the whole
+    nominal rotation q_a^-1 q_b (for fixtures or vehicles whose heading is known).
     floor_deg: smallest residual scatter assumed (deg, nominal pose orientation error).
     """
     from scipy.optimize import least_squares
 
     if model not in ("scale", "full"):
         raise InputError(f"unknown gyro model {model!r}: use 'scale' or 'full'")
-    known = [p for p in poses if p.q_sensor_to_world is not None]
+    if reference not in ("gravity", "orientation"):
+        raise InputError(f"unknown gyro reference {reference!r}: use 'gravity' or 'orientation'")
+    known = [p for p in poses if reference == "gravity" or p.q_sensor_to_world is not None]
     if len(known) < 2:
         raise InputError("fewer than 2 labelled poses with known orientation: gyro scale cannot be fitted")
     t = np.asarray(t_s, float)
@@ -260,8 +270,12 @@ def fit_gyro_matrix(
     )
     mids = np.searchsorted(t, [0.5 * (p.start_s + p.end_s) for p in known])
     mids = np.clip(mids, 0, t.size - 1)
-    qn = np.array([p.q_sensor_to_world for p in known], float)
-    dq_nom = quat_multiply(quat_conjugate(qn[:-1]), qn[1:])
+    if reference == "orientation":
+        qn = np.array([p.q_sensor_to_world for p in known], float)
+        dq_nom = quat_multiply(quat_conjugate(qn[:-1]), qn[1:])
+    else:
+        up = np.array([p.up_sensor for p in known], float)
+        up /= np.linalg.norm(up, axis=1, keepdims=True)
     diag_idx = [0, 4, 8]
     free_all = diag_idx if model == "scale" else list(range(9))
 
@@ -271,7 +285,13 @@ def fit_gyro_matrix(
         m = np.eye(3).ravel()
         m[free] = p
         dq_int = _relative_rotations(blocks, at, np.linalg.inv(m.reshape(3, 3)))
-        return _rotvec_deg(quat_multiply(quat_conjugate(dq_nom), dq_int)).ravel()
+        if reference == "orientation":
+            return _rotvec_deg(quat_multiply(quat_conjugate(dq_nom), dq_int)).ravel()
+        # up_a (world-fixed) seen from the sensor at hold b: v_b = dq_int^-1 v_a; the difference of
+        # unit vectors is the tilt error in rad for small errors (and, unlike a cross product,
+        # it does not vanish for a vector pointing the opposite way)
+        pred = rotate_inverse(dq_int, up[:-1])
+        return np.rad2deg(pred - up[1:]).ravel()
 
     # which entries of M do the rotations excite? (finite-difference sensitivity at M = I)
     p_init = np.eye(3).ravel()[free_all]
@@ -326,10 +346,13 @@ def calibrate_gyro(
     temp_degC: np.ndarray | None = None,
     *,
     model: str = "full",
+    reference: str = "gravity",
     **bias_kw,
 ) -> GyroCalibration:
-    """fit_gyro_bias on the poses' holds, then fit_gyro_matrix when >= 2 poses have known orientation."""
+    """fit_gyro_bias on the poses' holds, then fit_gyro_matrix (see there for reference) when
+    there are >= 2 holds to rotate between (with known orientations for reference='orientation')."""
     cal = fit_gyro_bias(t_s, gyro_dps, poses, temp_degC, **bias_kw)
-    if sum(p.q_sensor_to_world is not None for p in poses) >= 2:
-        cal = fit_gyro_matrix(t_s, gyro_dps, poses, cal, temp_degC, model=model)
+    n_ref = len(poses) if reference == "gravity" else sum(p.q_sensor_to_world is not None for p in poses)
+    if n_ref >= 2:
+        cal = fit_gyro_matrix(t_s, gyro_dps, poses, cal, temp_degC, model=model, reference=reference)
     return cal
