@@ -1,11 +1,13 @@
 """Zero-velocity updates: find where the sensor stands still and take the velocity error out.
 
 Detection (vectorised, centred moving windows of window_s seconds):
-    stationary_k  <=>  std_window(|a|) < accel_std_g  and  mean_window(|w|) < gyro_dps
+    stationary_k  <=>  std_window(|a|) < accel_std_g  and  | mean_window(w) - b_w | < gyro_dps_max
                        and | mean_window(|a|) - 1 | < accel_norm_tol_g
-then runs shorter than min_duration_s are dropped. The gyro should have its bias removed first
-(a turn in place changes no acceleration; only the rate shows it), and vehicles are told from
-standing still by their vibration (a constant-speed cruise is otherwise invisible to an IMU).
+then runs shorter than min_duration_s are dropped. b_w (deg/s) is a residual gyro bias: the median
+windowed rate where the accel is still and the rate steady, so a bias left by the calibration
+(e.g. at another temperature) does not hide the stops, while a turn in place (no change in
+acceleration, only the rate shows it) still counts as motion. Vehicles are told from standing
+still by their vibration (a constant-speed cruise is otherwise invisible to an IMU).
 
 Correction (standard ZUPT smoothing, velocity only): at stationary samples the true velocity is 0,
 so the velocity error there is the integrated velocity itself; over each moving stretch between
@@ -82,8 +84,16 @@ def detect_stationary(
     an = np.linalg.norm(a, axis=1)
     m1 = _moving_mean(an, n)
     var = np.maximum(_moving_mean(an * an, n) - m1 * m1, 0.0)
-    wn = _moving_mean(np.linalg.norm(w, axis=1), n)
-    mask = (np.sqrt(var) < accel_std_g) & (wn < gyro_dps_max) & (np.abs(m1 - 1.0) < accel_norm_tol_g)
+    still_a = (np.sqrt(var) < accel_std_g) & (np.abs(m1 - 1.0) < accel_norm_tol_g)
+    # A gyro bias left by the calibration (e.g. at another temperature) must not hide the stops:
+    # estimate it as the median rate over windows where the accel is still and the rate steady
+    # (windowed std below gyro_dps_max / 2), then test the magnitude of the de-biased rate.
+    w_mean = np.column_stack([_moving_mean(w[:, i], n) for i in range(3)])
+    w_var = np.column_stack([_moving_mean(w[:, i] ** 2, n) for i in range(3)]) - w_mean**2
+    steady = still_a & (np.sqrt(np.maximum(w_var, 0.0)).max(axis=1) < 0.5 * gyro_dps_max)
+    bias = np.median(w_mean[steady], axis=0) if steady.any() else np.zeros(3)
+    wn = np.linalg.norm(w_mean - bias, axis=1)
+    mask = still_a & (wn < gyro_dps_max)
     runs = run_bounds(mask)
     if runs.size == 0:
         return runs
