@@ -84,7 +84,9 @@ def _sessions(out: Path, quick: bool) -> dict[str, Path]:
             seed=6,
             temperature={"kind": "constant", "T": 40.0},
         ),
-        "robot": Scenario(motion="robot", chip_seed=CHIP_SEED, seed=8),
+        "robot": Scenario(
+            motion="robot", chip_seed=CHIP_SEED, seed=8, temperature={"kind": "constant", "T": 38.0}
+        ),
     }
     paths = {}
     for name, sc in specs.items():

@@ -155,11 +155,13 @@ def run_tracks(
     correct_gyro: Callable[[np.ndarray], np.ndarray] | None = None,
     static_window_s: float = 1.0,
     detect_kw: Mapping | None = None,
+    gyro_corrections: Mapping[str, Callable[[np.ndarray], np.ndarray] | None] | None = None,
 ) -> list[TrackRun]:
-    """One track per named accel correction (None = raw), all with the same gyro.
+    """One track per named accel correction (None = raw).
 
-    Gyro: correct_gyro if given, else the bias is the mean rate over the first static_window_s
-    (the run must start standing still). Initial orientation: roll/pitch from each corrected
+    Gyro: a track named in gyro_corrections uses its own gyro correction (its calibration's gyro
+    part); the others use correct_gyro if given, else the bias is the mean rate over the first
+    static_window_s (the run must start standing still). Initial orientation: roll/pitch from each corrected
     accel over the first static window; yaw from truth_q0 if given, else 0. Start position: truth
     at t0 if given, else 0. Errors vs truth when truth is given, else loop closure. With use_zupt,
     stops are detected once (on the raw accel and the corrected gyro) and applied to every track;
@@ -185,10 +187,12 @@ def run_tracks(
                 "zero-velocity updates; run with --no-zupt"
             )
     runs: list[TrackRun] = []
+    own_gyro = dict(gyro_corrections or {})
     for name, corr in corrections.items():
         a = np.asarray(corr(accel_g) if corr is not None else accel_g, float)
+        wk = np.asarray(own_gyro[name](gyro_dps), float) if own_gyro.get(name) is not None else w
         q0 = initial_orientation(t, a, window_s=static_window_s, yaw_rad=yaw)
-        tr = strapdown(t, a, w, q0=q0, local_gravity_mps2=local_gravity_mps2, p0=p0, name=name)
+        tr = strapdown(t, a, wk, q0=q0, local_gravity_mps2=local_gravity_mps2, p0=p0, name=name)
 
         def _eval(track: Track) -> TrackError:
             if truth_position_m is not None and truth_t_s is not None:
@@ -211,9 +215,9 @@ def run_session_tracks(
     """run_tracks on an accellog Session: 'raw' plus one track per calibration object.
 
     A calibration is an accellog Calibration, any object with ``correct(accel_g)``, or a callable
-    (see accel_corrector); the first one carrying a gyro part (see gyro_corrector) corrects the
-    gyro for every track (else the gyro bias comes from the first static window). Raises InputError when the session has
-    no gyro data (orientation cannot be tracked).
+    (see accel_corrector). Each calibration's track uses its own gyro part (see gyro_corrector)
+    when it has one; 'raw' and calibrations without one take the gyro bias from the first static
+    window. Raises InputError when the session has no gyro data (orientation cannot be tracked).
     """
     where = session.path or "session"
     if session.gyro_dps is None:
@@ -223,11 +227,10 @@ def run_session_tracks(
     if session.n < 3:
         raise InputError("session has fewer than 3 samples: no track", where=where)
     corrections: dict[str, Callable | None] = {"raw": None}
-    correct_gyro = None
+    gyro_corrections: dict[str, Callable | None] = {}
     for name, cal in (calibrations or {}).items():
         corrections[name] = accel_corrector(cal, session)
-        if correct_gyro is None:
-            correct_gyro = gyro_corrector(cal, session)
+        gyro_corrections[name] = gyro_corrector(cal, session)
     truth = session.truth
     try:
         return run_tracks(
@@ -240,7 +243,7 @@ def run_session_tracks(
             truth_position_m=None if truth is None else truth.position_m,
             truth_q0=None if truth is None else truth.q_sensor_to_world[0],
             use_zupt=use_zupt,
-            correct_gyro=correct_gyro,
+            gyro_corrections=gyro_corrections,
             **kw,
         )
     except InputError as exc:

@@ -41,4 +41,4 @@ def test_imucal_session_tracks_close_better_when_calibrated(shared_data, tmp_pat
     raw, calibrated = out["tracks"]
     assert calibrated["zupt_stops"] >= 6
     assert calibrated["final_error_m"] < raw["final_error_m"] / 2
-    assert calibrated["without_zupt"]["final_error_m"] < raw["without_zupt"]["final_error_m"] / 2
+    assert calibrated["without_zupt"]["final_error_m"] < 0.8 * raw["without_zupt"]["final_error_m"]
