@@ -125,7 +125,7 @@ def ladder_table(rows: Sequence[dict], at_s: float = 60.0):
     if has_drift:
         cols += [f"{at_s:g} s drift (m)"]
     for c in cols:
-        t.add_column(c, justify="left" if c == "model" else "right", overflow="fold")
+        t.add_column(c, justify="left" if c == "model" else "right", overflow="fold", no_wrap=c == "model")
     for r in rows:
         cells = [r["model"], str(r["n_params"]), f"{r['chi2_dof']:.3g}", f"{r['rms_g'] * 1000:.3g}"]
         if has_held:
