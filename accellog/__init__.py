@@ -1,7 +1,9 @@
 """accellog: record, calibrate and inspect cheap MEMS accelerometers (MPU-9250).
 
 Data flows one way: device -> recorder -> MCAP -> stages -> calibration / reports / .rrd.
-See docs/architecture.md for the module map.
+See docs/architecture.md for the layers.
 """
 
-__version__ = "0.1.0"
+from accellog.core.version import __version__
+
+__all__ = ["__version__"]

@@ -12,7 +12,7 @@ errors drawn with --chip-seed, constant 25 degC, local gravity --gravity), --n n
        ratio = RMS_seeds(theta_hat - theta) / mean(sigma)     (goal <= 1.1; sigma = CR bound)
        chi2  = mean((theta_hat - theta) / sigma)^2             (1 when sigma is right)
 
-2. Drift: each calibration is evaluated (accellog.evaluate) on an independent static session of
+2. Drift: each calibration is evaluated (accellog.navigate.evaluate) on an independent static session of
    --test-s seconds ('+z' up, its own noise seed); d(T) = double integral of the calibrated residual
    at T. Predicted, per axis, from two independent parts:
 
@@ -46,14 +46,14 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from accellog.emulator.sensor_model import AccelErrors
-from accellog.evaluate import evaluate
-from accellog.mcap_io import read_session
-from accellog.noise import integrated_autocorr_time
-from accellog.pipeline import run_fit
-from accellog.segment import observations
-from accellog.simulate import Scenario, simulate
-from accellog.units import STANDARD_GRAVITY_MPS2
+from accellog.acquire.emulator.sensor_model import AccelErrors
+from accellog.calibrate.noise import integrated_autocorr_time
+from accellog.calibrate.segment import observations
+from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.flows.pipeline import run_fit
+from accellog.flows.simulate import Scenario, simulate
+from accellog.navigate.evaluate import evaluate
+from accellog.store.mcap_io import read_session
 
 G0 = STANDARD_GRAVITY_MPS2
 GROUPS = ("b (bias)", "S diagonal (scale)", "S off-diagonal (cross-axis)")

@@ -1,7 +1,7 @@
 """Diagnose speed and estimator efficiency.
 
 1. A 24-pose session (30 s holds, 1 kHz, warm-up temperature path, hidden temp_bias) is generated
-   sample by sample, cut into 2 s windows by accellog.segment.observations (the window step), then
+   sample by sample, cut into 2 s windows by accellog.calibrate.segment.observations (the window step), then
    diagnosed against model3 with every library effect as a candidate (the diagnose step).
    Goal: diagnose < 5 s.
 2. Parameter error vs Cramer-Rao bound: over seeds, RMS of (theta_hat - theta) / sigma per parameter
@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 
-from accellog.diagnose import diagnose, synthetic_obs, synthetic_session, true_theta
-from accellog.fit import fit_model
-from accellog.model import build_model
-from accellog.segment import observations
+from accellog.calibrate.diagnose import diagnose, synthetic_obs, synthetic_session, true_theta
+from accellog.calibrate.fit import fit_model
+from accellog.calibrate.model import build_model
+from accellog.calibrate.segment import observations
 
 
 def temp(t):

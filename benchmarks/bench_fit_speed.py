@@ -20,14 +20,14 @@ from rich.console import Console
 from rich.table import Table
 from scipy.signal import lfilter
 
-from accellog.calibration import Calibration
-from accellog.evaluate import evaluate
-from accellog.fit import fit_model
-from accellog.mcap_io import read_session, write_session
-from accellog.model import build_model
-from accellog.protocol import six_position
-from accellog.segment import observations
-from accellog.session import PoseLabel, Session, SessionMeta
+from accellog.calibrate.calibration import Calibration
+from accellog.calibrate.fit import fit_model
+from accellog.calibrate.model import build_model
+from accellog.calibrate.segment import observations
+from accellog.core.protocol import six_position
+from accellog.core.session import PoseLabel, Session, SessionMeta
+from accellog.navigate.evaluate import evaluate
+from accellog.store.mcap_io import read_session, write_session
 
 RATE_HZ = 1000.0
 LSB = 16384.0

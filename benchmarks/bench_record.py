@@ -1,7 +1,7 @@
 """Recording speed: simulated sessions as a multiple of real time, and CPU share when recording live.
 
 (a) Simulated recording (goal >= 100x real time): a 1 kHz six-position session through the whole
-    path ``accellog.simulate.simulate`` uses (emulated chip -> Mpu9250 FIFO driver -> Recorder ->
+    path ``accellog.flows.simulate.simulate`` uses (emulated chip -> Mpu9250 FIFO driver -> Recorder ->
     SessionWriter MCAP, plus pose labels and the truth channel) on a SimClock, for --minutes
     simulated minutes each (default 10 and 60). Side by side on the 10-minute session, the parts:
     Recorder + SessionWriter without labels/truth, the same with stillness detection switched off,
@@ -29,14 +29,14 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from accellog.driver import Mpu9250
-from accellog.emulator.chip import EmulatedMpu9250
-from accellog.emulator.clock import RealClock, SimClock
-from accellog.mcap_io import SessionWriter, read_session
-from accellog.recorder import Recorder
-from accellog.session import SessionMeta
-from accellog.simulate import Scenario, build_sensor_model, simulate
-from accellog.stillness import StillnessDetector
+from accellog.acquire.driver import Mpu9250
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import RealClock, SimClock
+from accellog.acquire.recorder import Recorder
+from accellog.acquire.stillness import StillnessDetector
+from accellog.core.session import SessionMeta
+from accellog.flows.simulate import Scenario, build_sensor_model, simulate
+from accellog.store.mcap_io import SessionWriter, read_session
 
 BUS_METHODS = ("read_byte_data", "write_byte_data", "read_i2c_block_data", "write_i2c_block_data", "i2c_rdwr")
 
@@ -106,7 +106,7 @@ def timed_call(fn) -> tuple[float, float, int, float]:
 
 
 def run_simulate(sc: Scenario, out: Path) -> tuple[int, float]:
-    """Whole path: accellog.simulate.simulate. (samples, simulated s)."""
+    """Whole path: accellog.flows.simulate.simulate. (samples, simulated s)."""
     s = simulate(sc, out)
     return s.samples, s.duration_s
 

@@ -2,8 +2,8 @@
 
 Goal (issue #4): logging adds under 50 % to read + correct + integrate.
 
-    baseline: read_session + model3 correct + double trapezoid (accellog.evaluate, one batch)
-    replay:   accellog.replay.replay(..., speed=max) without a recording (online, batch by batch)
+    baseline: read_session + model3 correct + double trapezoid (accellog.navigate.evaluate, one batch)
+    replay:   accellog.flows.replay.replay(..., speed=max) without a recording (online, batch by batch)
     replay + .rrd: the same, logging raw + calibrated accel, temperature and tracks to a file
 
 The session (3.6 M samples, int16 counts, seeded) is synthesised once with mcap_io.write_session.
@@ -22,13 +22,13 @@ import numpy as np
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
-from accellog.calibration import load_calibration
-from accellog.evaluate import evaluate
-from accellog.mcap_io import read_session, write_session
-from accellog.pipeline import run_fit
-from accellog.replay import replay
-from accellog.rrd import RunRecording
-from accellog.session import PoseLabel, Session, SessionMeta
+from accellog.calibrate.calibration import load_calibration
+from accellog.core.session import PoseLabel, Session, SessionMeta
+from accellog.flows.pipeline import run_fit
+from accellog.flows.replay import replay
+from accellog.navigate.evaluate import evaluate
+from accellog.present.rrd import RunRecording
+from accellog.store.mcap_io import read_session, write_session
 
 LSB = 16384.0
 

@@ -15,11 +15,11 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from accellog.emulator.robot import long_run
-from accellog.rotations import quat_from_rotvec, quat_multiply
-from accellog.session import POSE_UP_VECTORS
-from accellog.strapdown import prefix_quat_product, strapdown
-from accellog.track_eval import run_tracks
+from accellog.acquire.emulator.robot import long_run
+from accellog.core.rotations import prefix_quat_product, quat_from_rotvec, quat_multiply
+from accellog.core.session import POSE_UP_VECTORS
+from accellog.navigate.strapdown import strapdown
+from accellog.navigate.track_eval import run_tracks
 
 HZ = 1000.0
 

@@ -12,8 +12,8 @@ from mcap.writer import Writer
 from test_segment import synth_session
 
 from accellog.cli import main
-from accellog.mcap_io import write_session
-from accellog.session import PoseLabel
+from accellog.core.session import PoseLabel
+from accellog.store.mcap_io import write_session
 
 
 def _fails(capsys, argv: list[str], *needles: str, out: Path | None = None) -> str:

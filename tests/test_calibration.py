@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from test_segment import B_TRUE, S_TRUE, synth_session
 
-from accellog.calibration import Calibration, load_calibration, rate_of_change, session_drivers
-from accellog.errors import InputError
-from accellog.fit import fit_model
-from accellog.model import build_model
-from accellog.segment import observations
-from accellog.units import STANDARD_GRAVITY_MPS2
+from accellog.calibrate.calibration import Calibration, load_calibration, rate_of_change, session_drivers
+from accellog.calibrate.fit import fit_model
+from accellog.calibrate.model import build_model
+from accellog.calibrate.segment import observations
+from accellog.core.errors import InputError
+from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.cli import main
-from accellog.diagnose import (
+from accellog.calibrate.diagnose import (
     cube_poses,
     diagnose,
     heldout_residual,
@@ -18,8 +17,9 @@ from accellog.diagnose import (
     synthetic_session,
     true_theta,
 )
-from accellog.fit import fit_model
-from accellog.model import build_model
+from accellog.calibrate.fit import fit_model
+from accellog.calibrate.model import build_model
+from accellog.cli import main
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -143,7 +143,7 @@ def test_non_identifiable_advice():
 
 
 def test_cli_diagnose_on_mcap(tmp_path, capsys):
-    from accellog.mcap_io import write_session
+    from accellog.store.mcap_io import write_session
 
     truth = build_model("model3+temp_bias")
     th = true_theta(truth, seed=2)

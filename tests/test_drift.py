@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 from test_segment import synth_session
 
-from accellog.calibration import Calibration
-from accellog.drift import LIMITS, DriftModel, drift_from_session, fit_drift
-from accellog.fit import fit_model
-from accellog.integrate import displacement
-from accellog.model import build_model
-from accellog.segment import observations
+from accellog.calibrate.calibration import Calibration
+from accellog.calibrate.drift_model import LIMITS, DriftModel
+from accellog.calibrate.fit import fit_model
+from accellog.calibrate.model import build_model
+from accellog.calibrate.segment import observations
+from accellog.navigate.drift import drift_from_session, fit_drift
+from accellog.navigate.integrate import displacement
 
 
 def test_fit_recovers_polynomial_and_sigma_is_honest():
@@ -53,7 +54,7 @@ def test_drift_stage_on_sessions_reduces_displacement():
     a.poses, b.poses = [], []
     cal_d, dm = drift_from_session(a, cal)
     assert cal_d.drift is dm and cal.drift is None
-    from accellog.evaluate import evaluate
+    from accellog.navigate.evaluate import evaluate
 
     ev = evaluate(b, cal_d)
     assert ev.drift_applied

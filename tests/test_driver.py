@@ -8,13 +8,13 @@ import warnings
 import numpy as np
 import pytest
 
-from accellog import registers as R
-from accellog.driver import FifoBatch, Mpu9250
-from accellog.emulator.chip import EmulatedMpu9250
-from accellog.emulator.clock import SimClock
-from accellog.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
-from accellog.errors import DeviceError, InputError
-from accellog.kinematics import Kinematics
+from accellog.acquire import registers as R
+from accellog.acquire.driver import FifoBatch, Mpu9250
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import SimClock
+from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
+from accellog.core.errors import DeviceError, InputError
+from accellog.core.kinematics import Kinematics
 
 
 class WobbleMotion:

@@ -7,13 +7,13 @@ import pytest
 import smbus2
 from smbus2 import SMBus, i2c_msg
 
-from accellog.driver import Mpu9250
-from accellog.emulator.chip import EmulatedMpu9250
-from accellog.emulator.clock import SimClock
-from accellog.emulator.i2c_dev import emulated_i2c_bus
-from accellog.emulator.poses import PoseSequenceMotion
-from accellog.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
-from accellog.protocol import six_position
+from accellog.acquire.driver import Mpu9250
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import SimClock
+from accellog.acquire.emulator.i2c_dev import emulated_i2c_bus
+from accellog.acquire.emulator.poses import PoseSequenceMotion
+from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
+from accellog.core.protocol import six_position
 
 
 def _chip(clock: SimClock, seed: int = 2) -> EmulatedMpu9250:

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from accellog.calibrate.diagnose import cube_poses, true_theta
+from accellog.calibrate.effects import LIBRARY, load_effects_file
+from accellog.calibrate.model import build_model, model_from_spec
 from accellog.cli import main
-from accellog.diagnose import cube_poses, true_theta
-from accellog.effects import LIBRARY, load_effects_file
-from accellog.errors import InputError, ModelError
-from accellog.model import build_model, model_from_spec
+from accellog.core.errors import InputError, ModelError
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 ARCH_NAMES = [
@@ -143,7 +143,7 @@ def test_bad_effects_files(tmp_path):
         load_effects_file(empty)
     clash = tmp_path / "clash.py"
     clash.write_text(
-        "from accellog.effects import Effect\nE = Effect('bias', (), contribution=lambda p, f, d: f*0)\n"
+        "from accellog.calibrate.effects import Effect\nE = Effect('bias', (), contribution=lambda p, f, d: f*0)\n"
     )
     with pytest.raises(InputError, match="clashes"):
         load_effects_file(clash)

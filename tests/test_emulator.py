@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from smbus2 import i2c_msg
 
-from accellog import registers as R
-from accellog.emulator.chip import EmulatedMpu9250
-from accellog.emulator.clock import RealClock, SimClock
-from accellog.emulator.poses import PoseSequenceMotion
-from accellog.emulator.sensor_model import AccelErrors, SensorModel
-from accellog.protocol import six_position
+from accellog.acquire import registers as R
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import RealClock, SimClock
+from accellog.acquire.emulator.poses import PoseSequenceMotion
+from accellog.acquire.emulator.sensor_model import AccelErrors, SensorModel
+from accellog.core.protocol import six_position
 
 A = 0x68
 AK = R.AK8963_ADDRESS

@@ -7,15 +7,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from accellog.driver import Mpu9250
-from accellog.emulator.chip import EmulatedMpu9250
-from accellog.emulator.clock import SimClock
-from accellog.emulator.poses import PoseSequenceMotion
-from accellog.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
-from accellog.emulator.temperature import TemperaturePath
-from accellog.errors import InputError
-from accellog.protocol import parse_protocol, six_position
-from accellog.rotations import quat_conjugate, quat_multiply, rotate_inverse
+from accellog.acquire.driver import Mpu9250
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import SimClock
+from accellog.acquire.emulator.poses import PoseSequenceMotion
+from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
+from accellog.acquire.emulator.temperature import TemperaturePath
+from accellog.core.errors import InputError
+from accellog.core.protocol import parse_protocol, six_position
+from accellog.core.rotations import quat_conjugate, quat_multiply, rotate_inverse
 
 ODR = 1000.0
 KW = dict(

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from test_segment import synth_session
 
-from accellog.calibration import Calibration
-from accellog.errors import InputError
-from accellog.evaluate import evaluate, evaluate_poses
-from accellog.fit import fit_model
-from accellog.model import build_model
-from accellog.segment import observations
+from accellog.calibrate.calibration import Calibration
+from accellog.calibrate.fit import fit_model
+from accellog.calibrate.model import build_model
+from accellog.calibrate.segment import observations
+from accellog.core.errors import InputError
+from accellog.navigate.evaluate import evaluate, evaluate_poses
 
 G = 9.80665
 

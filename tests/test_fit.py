@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accellog.diagnose import cube_poses, synthetic_obs, true_theta
-from accellog.errors import InputError, ModelError
-from accellog.fit import fit_model, fit_orientation_free
-from accellog.model import build_model
-from accellog.session import ObsTable
+from accellog.calibrate.diagnose import cube_poses, synthetic_obs, true_theta
+from accellog.calibrate.fit import fit_model, fit_orientation_free
+from accellog.calibrate.model import build_model
+from accellog.core.errors import InputError, ModelError
+from accellog.core.session import ObsTable
 
 
 def _temp(t):

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from accellog.emulator.robot import demo_loop
-from accellog.errors import InputError
-from accellog.gyro_cal import GyroCalibration, calibrate_gyro, fit_gyro_bias, fit_gyro_matrix
-from accellog.protocol import six_position
-from accellog.rotations import quat_conjugate, quat_multiply
-from accellog.session import PoseLabel
+from accellog.acquire.emulator.robot import demo_loop
+from accellog.calibrate.gyro import GyroCalibration, calibrate_gyro, fit_gyro_bias, fit_gyro_matrix
+from accellog.core.errors import InputError
+from accellog.core.protocol import six_position
+from accellog.core.rotations import quat_conjugate, quat_multiply
+from accellog.core.session import PoseLabel
 
 HZ = 200.0
 M_TRUE = np.array([[1.02, 0.008, -0.012], [-0.006, 0.985, 0.01], [0.015, -0.007, 1.03]])

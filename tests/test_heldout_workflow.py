@@ -25,8 +25,8 @@ import numpy as np
 import pytest
 
 from accellog.cli import main
-from accellog.mcap_io import read_session
-from accellog.simulate import Scenario, simulate
+from accellog.flows.simulate import Scenario, simulate
+from accellog.store.mcap_io import read_session
 
 RATE_HZ = 200.0
 CHIP = {

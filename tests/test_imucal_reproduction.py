@@ -16,10 +16,10 @@ import json
 import numpy as np
 import pytest
 
-from accellog.fit import fit_model
-from accellog.model import build_model
-from accellog.segment import obs_from_pose_means
-from accellog.units import STANDARD_GRAVITY_MPS2
+from accellog.calibrate.fit import fit_model
+from accellog.calibrate.model import build_model
+from accellog.calibrate.segment import obs_from_pose_means
+from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 G_IMUCAL = 9.81  # m/s^2, imucal's default 'grav'
 LSB_PER_G = 2048.0  # +-16 g: the data quantum (counts per g) -- any scale works, it cancels below

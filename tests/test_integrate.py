@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accellog.errors import InputError
-from accellog.integrate import displacement, values_at
+from accellog.core.errors import InputError
+from accellog.navigate.integrate import displacement, values_at
 
 
 def test_constant_bias_gives_half_a_t_squared_on_uneven_times():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from accellog.cli import main
-from accellog.simulate import Scenario, simulate
+from accellog.flows.simulate import Scenario, simulate
 
 
 @pytest.fixture(scope="module")

@@ -18,10 +18,11 @@ import pytest
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import Writer
 
-from accellog import mcap_io
-from accellog import messages as pb
-from accellog.errors import InputError
-from accellog.mcap_io import (
+from accellog.core.errors import InputError
+from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
+from accellog.store import mcap_io
+from accellog.store import messages as pb
+from accellog.store.mcap_io import (
     SessionWriter,
     read_attachments,
     read_session,
@@ -29,7 +30,6 @@ from accellog.mcap_io import (
     session_summary,
     write_session,
 )
-from accellog.session import Event, PoseLabel, Session, SessionMeta, Truth
 
 NS = 1_000_000_000
 
@@ -332,8 +332,8 @@ _KILL_SCRIPT = textwrap.dedent(
     """
     import sys, time
     import numpy as np
-    from accellog.mcap_io import SessionWriter
-    from accellog.session import SessionMeta
+    from accellog.store.mcap_io import SessionWriter
+    from accellog.core.session import SessionMeta
 
     meta = SessionMeta(source="emulator", accel_lsb_per_g=16384.0, gyro_lsb_per_dps=131.0, sample_rate_hz=1000.0)
     with SessionWriter(sys.argv[1], meta) as w:

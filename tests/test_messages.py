@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2
 
-from accellog import messages as pb
+from accellog.store import messages as pb
 
 PROTO = Path(__file__).resolve().parents[1] / "schemas" / "accellog_v1.proto"
 
@@ -33,7 +33,7 @@ def _parse_proto_file(text: str) -> dict[str, list[tuple[str, str, int, bool]]]:
 
 def test_proto_file_is_rendered_from_descriptions():
     assert PROTO.read_text() == pb.render_proto(), (
-        "regenerate: python -m accellog.messages > schemas/accellog_v1.proto"
+        "regenerate: python -m accellog.store.messages > schemas/accellog_v1.proto"
     )
 
 

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from test_segment import synth_session
 
-from accellog.calibration import load_calibration
+from accellog.calibrate.calibration import load_calibration
 from accellog.cli import main
-from accellog.errors import InputError
-from accellog.mcap_io import read_attachments, read_session, read_vector3, write_session
-from accellog.pipeline import load_pipeline, run_fit, run_pipeline
+from accellog.core.errors import InputError
+from accellog.flows.pipeline import load_pipeline, run_fit, run_pipeline
+from accellog.store.mcap_io import read_attachments, read_session, read_vector3, write_session
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import RealClock
+from accellog.acquire.emulator.i2c_dev import emulated_i2c_bus
+from accellog.acquire.emulator.poses import PoseSequenceMotion
+from accellog.acquire.emulator.sensor_model import AccelErrors, SensorModel
 from accellog.cli import main
-from accellog.emulator.chip import EmulatedMpu9250
-from accellog.emulator.clock import RealClock
-from accellog.emulator.i2c_dev import emulated_i2c_bus
-from accellog.emulator.poses import PoseSequenceMotion
-from accellog.emulator.sensor_model import AccelErrors, SensorModel
-from accellog.mcap_io import read_session
-from accellog.protocol import parse_protocol
+from accellog.core.protocol import parse_protocol
+from accellog.store.mcap_io import read_session
 
 
 def test_record_from_bus_through_real_smbus2(tmp_path, capsys):

@@ -1,4 +1,4 @@
-"""accellog.recorder on the emulated chip: guided holds labelled inside the true static holds, timeouts,
+"""accellog.acquire.recorder on the emulated chip: guided holds labelled inside the true static holds, timeouts,
 every sample written or accounted for, and `accellog record` surviving Ctrl-C and kill -9.
 
 In-process tests use the SimClock (a guided six-pose session takes about a second); the signal tests
@@ -20,17 +20,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.driver import Mpu9250
-from accellog.emulator.chip import EmulatedMpu9250
-from accellog.emulator.clock import SimClock
-from accellog.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
-from accellog.kinematics import Kinematics
-from accellog.mcap_io import SessionWriter, read_session
-from accellog.protocol import parse_protocol
-from accellog.recorder import Recorder
-from accellog.rotations import quat_from_axis_angle, rotate_inverse
-from accellog.session import Session, SessionMeta
-from accellog.simulate import Scenario, build_sensor_model
+from accellog.acquire.driver import Mpu9250
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import SimClock
+from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
+from accellog.acquire.recorder import Recorder
+from accellog.core.kinematics import Kinematics
+from accellog.core.protocol import parse_protocol
+from accellog.core.rotations import quat_from_axis_angle, rotate_inverse
+from accellog.core.session import Session, SessionMeta
+from accellog.flows.simulate import Scenario, build_sensor_model
+from accellog.store.mcap_io import SessionWriter, read_session
 
 RATE_HZ = 200.0
 PACKET_BYTES = 14

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from accellog.cli import main
-from accellog.errors import InputError
-from accellog.evaluate import evaluate
-from accellog.mcap_io import read_session, write_session
-from accellog.pipeline import run_drift, run_fit
-from accellog.replay import compare, replay
-from accellog.rrd import RunRecording
-from accellog.session import PoseLabel, Session, SessionMeta
+from accellog.core.errors import InputError
+from accellog.core.session import PoseLabel, Session, SessionMeta
+from accellog.flows.pipeline import run_drift, run_fit
+from accellog.flows.replay import compare, replay
+from accellog.navigate.evaluate import evaluate
+from accellog.present.rrd import RunRecording
+from accellog.store.mcap_io import read_session, write_session
 
 sys.path.insert(0, str(Path(__file__).parent))
 from rrd_readback import load_rrd
@@ -88,7 +88,7 @@ def _sha(p: Path) -> str:
 
 
 def test_replay_tracks_equal_batch_evaluation_and_rrd(files, tmp_path: Path) -> None:
-    from accellog.calibration import load_calibration
+    from accellog.calibrate.calibration import load_calibration
 
     before = _sha(files["test"])
     mtime = files["test"].stat().st_mtime_ns
@@ -233,7 +233,7 @@ def test_replay_cli_and_errors(files, tmp_path: Path, capsys) -> None:
 def test_compare_seed_final_trial(shared_data: Path, tmp_path: Path) -> None:
     """Real data: the capstone final trial, full model + drift model -> about a metre (slides: -1, -1, -7 m
     on the 300 s file; here the 60 s fit file itself, where the drift model leaves centimetres)."""
-    from accellog.importers import import_capstone
+    from accellog.store.importers import import_capstone
 
     ft = shared_data / "capstone" / "final_trial"
     cal = run_fit(

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accellog.emulator.robot import RobotPathMotion, Segment, demo_loop, drive, long_run, stop, turn
-from accellog.errors import InputError
-from accellog.rotations import quat_conjugate, quat_multiply, rotate
-from accellog.units import STANDARD_GRAVITY_MPS2
+from accellog.acquire.emulator.robot import RobotPathMotion, Segment, demo_loop, drive, long_run, stop, turn
+from accellog.core.errors import InputError
+from accellog.core.rotations import quat_conjugate, quat_multiply, rotate
+from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 H = 1e-4
 """Finite-difference step (s) for the consistency checks."""

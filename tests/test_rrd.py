@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.errors import InputError
-from accellog.online import OnlineIntegrator, integrate_batch
-from accellog.rrd import LadderRow, LiveView, RunRecording, wait_for_port
-from accellog.session import Event, PoseLabel
-from accellog.viewer import rerun_binary, stop_process
+from accellog.core.errors import InputError
+from accellog.core.session import Event, PoseLabel
+from accellog.navigate.online import OnlineIntegrator, integrate_batch
+from accellog.present.rrd import LadderRow, LiveView, RunRecording, wait_for_port
+from accellog.present.viewer import rerun_binary, stop_process
 
 sys.path.insert(0, str(Path(__file__).parent))
 from rrd_readback import load_rrd

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from rrd_readback import load_rrd
 
-from accellog.calibration import load_calibration
+from accellog.calibrate.calibration import load_calibration
 from accellog.cli import main
-from accellog.mcap_io import read_session
-from accellog.pipeline import run_fit
-from accellog.simulate import Scenario, simulate
+from accellog.flows.pipeline import run_fit
+from accellog.flows.simulate import Scenario, simulate
+from accellog.store.mcap_io import read_session
 
 
 @pytest.fixture(scope="module")

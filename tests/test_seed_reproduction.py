@@ -15,15 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibration import Calibration
-from accellog.drift import drift_from_session
-from accellog.evaluate import evaluate
-from accellog.fit import fit_model
-from accellog.importers import import_capstone, load_capstone_pose_table
-from accellog.model import build_model
-from accellog.segment import obs_from_pose_means
-from accellog.session import ObsTable, Session
-from accellog.units import SEED_LOCAL_GRAVITY_MPS2
+from accellog.calibrate.calibration import Calibration
+from accellog.calibrate.fit import fit_model
+from accellog.calibrate.model import build_model
+from accellog.calibrate.segment import obs_from_pose_means
+from accellog.core.session import ObsTable, Session
+from accellog.core.units import SEED_LOCAL_GRAVITY_MPS2
+from accellog.navigate.drift import drift_from_session
+from accellog.navigate.evaluate import evaluate
+from accellog.store.importers import import_capstone, load_capstone_pose_table
 
 MODELS = ("model1", "model2", "model3")
 

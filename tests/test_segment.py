@@ -10,9 +10,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from accellog.errors import InputError, ModelError
-from accellog.protocol import PoseSpec, six_position
-from accellog.segment import (
+from accellog.calibrate.segment import (
     check_coverage,
     detect_static,
     obs_from_pose_means,
@@ -20,7 +18,9 @@ from accellog.segment import (
     pose_stats,
     with_labels,
 )
-from accellog.session import PoseLabel, Session, SessionMeta
+from accellog.core.errors import InputError, ModelError
+from accellog.core.protocol import PoseSpec, six_position
+from accellog.core.session import PoseLabel, Session, SessionMeta
 
 S_TRUE = np.array([[1.01, 0.004, -0.006], [0.003, 0.985, 0.008], [-0.005, 0.002, 1.02]])
 B_TRUE = np.array([0.03, -0.02, 0.05])

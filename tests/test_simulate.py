@@ -1,4 +1,4 @@
-"""accellog.simulate and `accellog simulate`: scenario validation, TOML files, --set overrides, pose
+"""accellog.flows.simulate and `accellog simulate`: scenario validation, TOML files, --set overrides, pose
 labels against the true motion, the truth channel against the samples, reproducibility by seed.
 
 Every session goes through the real path (emulated chip -> driver -> Recorder -> MCAP) and is read
@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors
+from accellog.acquire.registers import ACCEL_DLPF_BANDWIDTH_HZ, GYRO_DLPF_BANDWIDTH_HZ
 from accellog.cli import main
-from accellog.emulator.sensor_model import AccelErrors, GyroErrors
-from accellog.mcap_io import read_session
-from accellog.registers import ACCEL_DLPF_BANDWIDTH_HZ, GYRO_DLPF_BANDWIDTH_HZ
-from accellog.session import Session
-from accellog.simulate import Scenario, simulate
-from accellog.units import STANDARD_GRAVITY_MPS2
+from accellog.core.session import Session
+from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.flows.simulate import Scenario, simulate
+from accellog.store.mcap_io import read_session
 
 RATE_HZ = 200.0
 BASE = dict(protocol="six", hold_s=4.0, move_s=1.5, sample_rate_hz=RATE_HZ, chip_seed=7, seed=1)

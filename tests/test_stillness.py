@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from accellog.stillness import StillnessDetector
+from accellog.acquire.stillness import StillnessDetector
 
 
 def _feed(

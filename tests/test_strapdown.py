@@ -5,14 +5,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accellog.emulator.robot import demo_loop
-from accellog.errors import InputError
-from accellog.integrate import cumtrapz
-from accellog.rotations import quat_from_rotvec, quat_multiply, quat_normalize, rotate_inverse
-from accellog.strapdown import (
+from accellog.acquire.emulator.robot import demo_loop
+from accellog.core.errors import InputError
+from accellog.core.rotations import (
+    prefix_quat_product,
+    quat_from_rotvec,
+    quat_multiply,
+    quat_normalize,
+    rotate_inverse,
+)
+from accellog.core.timeseries import cumtrapz
+from accellog.navigate.strapdown import (
     initial_orientation,
     integrate_gyro,
-    prefix_quat_product,
     strapdown,
     tilt_quaternion,
     yaw_of,

@@ -1,7 +1,7 @@
 """Track evaluation and the `accellog track` pipeline: the ordering physics predicts, on simulated runs.
 
 Two levels: (1) errors made directly from the measurement equation with numpy (self-contained);
-(2) the emulator's SensorModel -> MCAP -> calibrations fitted by accellog.fit -> `accellog track`.
+(2) the emulator's SensorModel -> MCAP -> calibrations fitted by accellog.calibrate.fit -> `accellog track`.
 """
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import json
 import numpy as np
 import pytest
 
-from accellog.emulator.robot import RobotPathMotion, Segment, demo_loop
-from accellog.errors import InputError
-from accellog.session import POSE_UP_VECTORS, ObsTable, Session, SessionMeta
-from accellog.strapdown import Track
-from accellog.track_eval import evaluate_track, loop_closure, run_session_tracks, run_tracks
+from accellog.acquire.emulator.robot import RobotPathMotion, Segment, demo_loop
+from accellog.core.errors import InputError
+from accellog.core.session import POSE_UP_VECTORS, ObsTable, Session, SessionMeta
+from accellog.navigate.strapdown import Track
+from accellog.navigate.track_eval import evaluate_track, loop_closure, run_session_tracks, run_tracks
 
 UP6 = np.array(list(POSE_UP_VECTORS.values()))
 C_ERR = np.array([[0.0, 0.012, -0.010], [0.008, 0.0, 0.011], [-0.009, 0.010, 0.0]])
@@ -114,8 +114,8 @@ HZ = 200.0
 
 
 def _emulated_session(motion, *, gyro: bool = True, seed: int = 3) -> Session:
-    from accellog.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
-    from accellog.emulator.temperature import TemperaturePath
+    from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
+    from accellog.acquire.emulator.temperature import TemperaturePath
 
     accel = AccelErrors(
         bias_g=B0,
@@ -139,7 +139,7 @@ def _emulated_session(motion, *, gyro: bool = True, seed: int = 3) -> Session:
     meta = SessionMeta(source="emulator", accel_lsb_per_g=16384.0, gyro_lsb_per_dps=131.0, sample_rate_hz=HZ)
     ac = blk.accel_counts.astype(np.int32)
     gc = blk.gyro_counts.astype(np.int32)
-    from accellog.units import temp_counts_to_degC
+    from accellog.core.units import temp_counts_to_degC
 
     return Session(
         meta=meta,
@@ -158,10 +158,10 @@ def _emulated_session(motion, *, gyro: bool = True, seed: int = 3) -> Session:
 
 def _calibration_file(path, model: str, temps_degC: list[float]):
     """Fit accellog's model to simulated six-pose means (measurement equation of AccelErrors)."""
-    from accellog.calibration import Calibration
-    from accellog.emulator.sensor_model import AccelErrors
-    from accellog.fit import fit_model
-    from accellog.model import build_model
+    from accellog.acquire.emulator.sensor_model import AccelErrors
+    from accellog.calibrate.calibration import Calibration
+    from accellog.calibrate.fit import fit_model
+    from accellog.calibrate.model import build_model
 
     acc = AccelErrors(bias_g=B0, scale=np.diag(S_ERR) - 1.0, cross_axis=C_ERR, temp_bias_g_per_degC=BT)
     rng = np.random.default_rng(len(temps_degC))
@@ -188,7 +188,7 @@ def _calibration_file(path, model: str, temps_degC: list[float]):
 
 @pytest.fixture(scope="module")
 def emulated_files(tmp_path_factory):
-    from accellog.mcap_io import write_session
+    from accellog.store.mcap_io import write_session
 
     d = tmp_path_factory.mktemp("track")
     sess = write_session(d / "loop.mcap", _emulated_session(demo_loop()))
@@ -226,7 +226,7 @@ def test_emulated_run_through_cli(emulated_files, capsys):
 
 
 def test_loop_closure_without_truth(emulated_files):
-    from accellog.mcap_io import read_session
+    from accellog.store.mcap_io import read_session
 
     _, sess, _ = emulated_files
     s = read_session(sess)
@@ -238,7 +238,7 @@ def test_loop_closure_without_truth(emulated_files):
 
 def test_cli_bad_input(tmp_path, capsys):
     from accellog.cli import main
-    from accellog.mcap_io import write_session
+    from accellog.store.mcap_io import write_session
 
     no_gyro = write_session(tmp_path / "nogyro.mcap", _emulated_session(demo_loop(), gyro=False))
     assert main(["track", str(no_gyro)]) != 0

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.rrd import RunRecording
-from accellog.viewer import Chromium, find_chromium, pixel_stats, screenshot_rrd, serve_rrd
+from accellog.present.rrd import RunRecording
+from accellog.present.viewer import Chromium, find_chromium, pixel_stats, screenshot_rrd, serve_rrd
 
 pytestmark = pytest.mark.browser
 
@@ -36,7 +36,7 @@ def _demo_rrd(path: Path) -> None:
     """The recording `accellog demo --quick` writes (the same code path as the README's demo)."""
     from rich.console import Console
 
-    from accellog.demo import run_demo
+    from accellog.flows.demo import run_demo
 
     run_demo(path.parent / "demo-out", rrd=path, quick=True, console=Console(file=io.StringIO()))
 

@@ -10,7 +10,7 @@ import pytest
 from rrd_readback import load_rrd
 
 from accellog.cli import main
-from accellog.simulate import Scenario, simulate
+from accellog.flows.simulate import Scenario, simulate
 
 HOT = {"kind": "points", "t_s": [0.0, 60.0, 130.0, 200.0], "T": [22.0, 40.0, 28.0, 36.0]}
 HOT2 = {"kind": "points", "t_s": [0.0, 70.0, 140.0, 200.0], "T": [30.0, 44.0, 33.0, 41.0]}

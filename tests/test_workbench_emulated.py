@@ -31,13 +31,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from accellog.calibrate.diagnose import diagnose, ladder
+from accellog.calibrate.model import build_model
+from accellog.calibrate.segment import observations
 from accellog.cli import main
-from accellog.diagnose import diagnose, ladder
-from accellog.mcap_io import read_session, write_session
-from accellog.model import build_model
-from accellog.segment import observations
-from accellog.session import Session
-from accellog.simulate import Scenario, simulate
+from accellog.core.session import Session
+from accellog.flows.simulate import Scenario, simulate
+from accellog.store.mcap_io import read_session, write_session
 
 REPO = Path(__file__).resolve().parents[1]
 CREEP_FILE = REPO / "examples" / "effects_creep.py"

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accellog.emulator.robot import RobotPathMotion, Segment, demo_loop, stop
-from accellog.errors import InputError
-from accellog.integrate import cumtrapz
-from accellog.strapdown import Track, strapdown
-from accellog.zupt import apply_zupt, detect_stationary, zupt
+from accellog.acquire.emulator.robot import RobotPathMotion, Segment, demo_loop, stop
+from accellog.core.errors import InputError
+from accellog.core.timeseries import cumtrapz
+from accellog.navigate.strapdown import Track, strapdown
+from accellog.navigate.zupt import apply_zupt, detect_stationary, zupt
 
 HZ = 200.0
 

@@ -5,7 +5,7 @@ opened in the web viewer in headless Chromium.
 
 The seed-study picture is a real pipeline run on the capstone final trial (../shared/data): models 1-3 fitted on the
 six-position table (residuals per pose), the drift model fitted on the 60 s static test, and the
-test's displacement tracks of every calibration side by side (accellog.replay.compare).
+test's displacement tracks of every calibration side by side (accellog.flows.replay.compare).
 
 Needs chromium (apt) and websockets (pip). --native uses `rerun --headless --screenshot-to` instead
 (needs a Vulkan driver such as mesa-vulkan-drivers).
@@ -25,10 +25,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
-from accellog.importers import import_capstone  # noqa: E402
-from accellog.pipeline import run_drift, run_fit  # noqa: E402
-from accellog.replay import compare  # noqa: E402
-from accellog.rrd import RunRecording  # noqa: E402
+from accellog.flows.pipeline import run_drift, run_fit  # noqa: E402
+from accellog.flows.replay import compare  # noqa: E402
+from accellog.present.rrd import RunRecording  # noqa: E402
+from accellog.store.importers import import_capstone  # noqa: E402
 
 
 def build_demo(data: Path, rrd: Path) -> None:
@@ -78,13 +78,13 @@ TAB_NAMES = {0: "demo", 1: "calibration", 2: "workbench", 3: "robot"}
 
 def shoot(rrd: Path, png: Path, size: tuple[int, int], native: bool) -> None:
     if native:
-        from accellog.viewer import free_port, rerun_binary, rerun_env
+        from accellog.present.viewer import free_port, rerun_binary, rerun_env
 
         cmd = [rerun_binary(), "--headless", "--bind", "127.0.0.1", "--port", str(free_port())]
         cmd += ["--window-size", f"{size[0]}x{size[1]}", "--screenshot-to", str(png), str(rrd)]
         subprocess.run(cmd, check=True, env=rerun_env(), timeout=120)
         return
-    from accellog.viewer import screenshot_rrd
+    from accellog.present.viewer import screenshot_rrd
 
     stats = screenshot_rrd(rrd, png, size=size, wait_s=120.0)
     print(f"{png}: {stats.colors} colours, {100 * stats.non_background:.0f}% drawn")
@@ -112,7 +112,7 @@ def main() -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     from rich.console import Console
 
-    from accellog.demo import run_demo, write_rrd
+    from accellog.flows.demo import run_demo, write_rrd
 
     with tempfile.TemporaryDirectory() as d:
         if a.tabs:  # one demo run; one recording per tab (they differ only in the tab shown first)

@@ -8,8 +8,8 @@ import sys
 
 import typer
 
-from ..errors import AccellogError
-from .app import app
+from accellog.cli.app import app
+from accellog.core.errors import AccellogError
 
 # Every module in this package registers its commands on `app` when imported; the help lists the
 # panels in this order (the story: record, calibrate, discover, inspect, move), then any others.

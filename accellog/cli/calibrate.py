@@ -1,6 +1,6 @@
 """Batch calibration commands: segment, fit, evaluate, drift, apply, run (pipelines).
 
-Each command calls a plain function of accellog.pipeline (run_fit, run_evaluate, run_drift,
+Each command calls a plain function of accellog.flows.pipeline (run_fit, run_evaluate, run_drift,
 run_apply, run_pipeline) and prints rich tables, or machine-readable JSON on stdout with --json.
 """
 
@@ -12,13 +12,14 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from .. import report, views
-from ..calibration import write_json_atomic
-from ..errors import InputError
-from ..pipeline import load_input, run_apply, run_drift, run_evaluate, run_fit, run_pipeline
-from ..segment import obs_to_dict, pose_stats
-from ..session import Session
-from .app import app
+from accellog.calibrate.calibration import write_json_atomic
+from accellog.calibrate.segment import obs_to_dict, pose_stats
+from accellog.cli.app import app
+from accellog.core.errors import InputError
+from accellog.core.session import Session
+from accellog.flows.pipeline import load_input, run_apply, run_drift, run_evaluate, run_fit, run_pipeline
+from accellog.present import tables as report
+from accellog.present import views
 
 _console = Console()
 
@@ -35,7 +36,7 @@ def _echo_json(data) -> None:
 
 def _recording(path: Path):
     """A RunRecording saving to path (written to a temporary name, renamed when complete)."""
-    from ..rrd import RunRecording
+    from accellog.present.rrd import RunRecording
 
     return RunRecording(f"save:{path}")
 
@@ -55,7 +56,7 @@ def segment(
     if not isinstance(data, Session):
         raise InputError("segment needs a recorded session (samples), not a pose table", where=str(session))
     stats = pose_stats(data, trim_s=trim_s)
-    from ..segment import observations
+    from accellog.calibrate.segment import observations
 
     obs = observations(data, window_s=window_s, trim_s=trim_s)
     if output is not None:
@@ -161,7 +162,7 @@ def evaluate_cmd(
 
     A session with several labelled holds is evaluated window by window (per-hold mean residual,
     RMS, chi2 vs the noise estimate, displacement at --at-s extrapolated per hold from rest)."""
-    from ..calibration import load_calibration
+    from accellog.calibrate.calibration import load_calibration
 
     cals = [load_calibration(c) for c in cal]
     names = [c.model_spec.get("name", "") for c in cals]
@@ -216,7 +217,7 @@ def _evaluate_holds(
 ) -> None:
     """`evaluate` on a multi-pose session: evaluate_poses for the raw reading and each calibration;
     --rrd: the session (raw and calibrated) and the per-pose residual tables."""
-    from ..evaluate import evaluate_poses
+    from accellog.navigate.evaluate import evaluate_poses
 
     if cut:
         raise InputError(
@@ -341,8 +342,8 @@ def integrate(
 
     import numpy as np
 
-    from ..calibration import load_calibration
-    from ..integrate import cumtrapz
+    from accellog.calibrate.calibration import load_calibration
+    from accellog.core.timeseries import cumtrapz
 
     data = load_input(session)
     if not isinstance(data, Session):

@@ -1,4 +1,4 @@
-"""`accellog demo`: the main job on the emulated chip (see accellog.demo)."""
+"""`accellog demo`: the main job on the emulated chip (see accellog.flows.demo)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from .app import app
+from accellog.cli.app import app
 
 
 @app.command(rich_help_panel="Start here")
@@ -21,6 +21,6 @@ def demo(
 ) -> None:
     """Simulate calibration, static and moving sessions on the emulated MPU-9250; fit Models 1-3,
     print the seed's tables, find a hidden effect with the workbench, track a moving robot."""
-    from ..demo import run_demo
+    from accellog.flows.demo import run_demo
 
     run_demo(out, rrd=None if no_rrd else (rrd or out / "demo.rrd"), quick=quick)

@@ -10,9 +10,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ..errors import InputError
-from ..session import Session
-from .app import app
+from accellog.cli.app import app
+from accellog.core.errors import InputError
+from accellog.core.session import Session
 
 import_app = typer.Typer(
     help="Import recordings (capstone CSV, imucal, generic CSV) into accellog MCAP files.",
@@ -47,7 +47,7 @@ def _facts(session: Session, src: Path, out: Path) -> dict:
 
 
 def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: int) -> None:
-    from ..mcap_io import write_session
+    from accellog.store.mcap_io import write_session
 
     if out.exists() and out.is_dir():
         raise InputError("output is a directory", where=str(out))
@@ -76,7 +76,7 @@ def import_capstone_cmd(
     batch_size: BatchOpt = 500,
 ) -> None:
     """Capstone static test file (t in s; x, y, z in g) -> MCAP with one '+z' hold; counts at 16384 LSB/g."""
-    from ..importers import import_capstone
+    from accellog.store.importers import import_capstone
 
     _write(import_capstone(file), file, out, as_json, batch_size)
 
@@ -98,7 +98,7 @@ def import_imucal_cmd(
     batch_size: BatchOpt = 500,
 ) -> None:
     """imucal Ferraris recording -> MCAP (x_p..z_a -> poses +x..-z; x_rot.. -> motion_segment events)."""
-    from ..importers import import_imucal
+    from accellog.store.importers import import_imucal
 
     _write(import_imucal(file, sections, sample_rate_hz=rate_hz), file, out, as_json, batch_size)
 
@@ -115,6 +115,6 @@ def import_csv_cmd(
     batch_size: BatchOpt = 500,
 ) -> None:
     """Generic CSV -> MCAP. t in s, temp in degC, gyro in deg/s; 'pose' names label static holds."""
-    from ..importers import import_csv
+    from accellog.store.importers import import_csv
 
     _write(import_csv(file, unit=unit, lsb_per_g=lsb_per_g), file, out, as_json, batch_size)

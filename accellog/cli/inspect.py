@@ -18,8 +18,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ..errors import InputError
-from .app import app
+from accellog.cli.app import app
+from accellog.core.errors import InputError
 
 _console = Console()
 
@@ -38,8 +38,8 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON on 
 def _load_session(path: Path):
     if not path.is_file():
         raise InputError("no such file", where=str(path))
-    from ..pipeline import load_input
-    from ..session import Session
+    from accellog.core.session import Session
+    from accellog.flows.pipeline import load_input
 
     data = load_input(path)
     if not isinstance(data, Session):
@@ -93,9 +93,9 @@ def _run(
     label: list[str] | None,
     compare_mode: bool,
 ):
-    from ..replay import compare as compare_fn
-    from ..replay import replay as replay_fn
-    from ..rrd import RunRecording
+    from accellog.flows.replay import compare as compare_fn
+    from accellog.flows.replay import replay as replay_fn
+    from accellog.present.rrd import RunRecording
 
     s = _load_session(session)
     cals = list(cal or [])
@@ -127,7 +127,7 @@ def _run(
 def _print_result(res, title: str, json_out: bool) -> None:
     """Strict JSON (NaN -> null) on stdout, or the final-displacement table, notes and .rrd path."""
     if json_out:
-        from ..calibration import dumps
+        from accellog.calibrate.calibration import dumps
 
         typer.echo(dumps(res.to_dict(), indent=2))
         return
@@ -153,7 +153,7 @@ def replay(
 ) -> None:
     """Feed a session through online correction + integration in sensor time, logging raw and
     calibrated accel and displacement tracks to a live viewer or an .rrd."""
-    from ..replay import parse_speed
+    from accellog.flows.replay import parse_speed
 
     parse_speed(speed)  # fail early on a bad value
     sink = _sink(rrd, rerun)
@@ -195,7 +195,7 @@ def view(
     wait_s: Annotated[float, typer.Option(help="Longest wait for the viewer to render (s).", min=1.0)] = 90.0,
 ) -> None:
     """Open an .rrd: native viewer (default), web viewer on 127.0.0.1 (--web), or a PNG (--screenshot)."""
-    from .. import viewer
+    from accellog.present import viewer
 
     if not recording.is_file():
         raise InputError("no such .rrd file", where=str(recording))

@@ -9,8 +9,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ..errors import InputError
-from .app import app
+from accellog.cli.app import app
+from accellog.core.errors import InputError
 
 
 def _fmt(x: float, unit: str = "m") -> str:
@@ -37,9 +37,9 @@ def track_cmd(
 ) -> None:
     """Integrate the session (gyro attitude + accel) per calibration; print the final and RMS
     position error against the truth (simulations) or the loop-closure error (real runs)."""
-    from ..calibration import dumps, load_calibration
-    from ..mcap_io import read_session
-    from ..track_eval import run_session_tracks
+    from accellog.calibrate.calibration import dumps, load_calibration
+    from accellog.navigate.track_eval import run_session_tracks
+    from accellog.store.mcap_io import read_session
 
     if not session_path.is_file():
         raise InputError("no such session file", where=str(session_path))
@@ -53,8 +53,8 @@ def track_cmd(
         cals[name] = c
     runs = run_session_tracks(session, cals, use_zupt=zupt)
     if rrd is not None:
-        from ..rrd import RunRecording
-        from ..views import log_session, log_track_runs
+        from accellog.present.rrd import RunRecording
+        from accellog.present.views import log_session, log_track_runs
 
         with RunRecording(f"save:{rrd}") as rec:
             log_session(rec, session)

@@ -11,10 +11,10 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from ..errors import DeviceError, InputError
-from ..protocol import PoseSpec, parse_protocol
-from ..session import Event, PoseLabel
-from .app import app
+from accellog.cli.app import app
+from accellog.core.errors import DeviceError, InputError
+from accellog.core.protocol import PoseSpec, parse_protocol
+from accellog.core.session import Event, PoseLabel
 
 console = Console(stderr=True)
 
@@ -68,12 +68,12 @@ class RunningCalibration:
             console.print(f"[yellow]live calibration skipped: {exc}[/]")
 
     def _update(self, label: PoseLabel, mean_g: np.ndarray, std_g: np.ndarray, n: int) -> None:
-        from ..errors import AccellogError
-        from ..fit import fit_model
-        from ..model import build_model
-        from ..report import params_table
-        from ..segment import obs_from_pose_means
-        from ..views import table_markdown
+        from accellog.calibrate.fit import fit_model
+        from accellog.calibrate.model import build_model
+        from accellog.calibrate.segment import obs_from_pose_means
+        from accellog.core.errors import AccellogError
+        from accellog.present.tables import params_table
+        from accellog.present.views import table_markdown
 
         self.rows.append((label.name, label.up_sensor, mean_g, std_g, n))
         names = [r[0] for r in self.rows]
@@ -92,7 +92,7 @@ class RunningCalibration:
             except AccellogError as exc:
                 text += f"- {preset}: not yet determined ({exc})\n"
                 continue
-            from ..calibration import Calibration
+            from accellog.calibrate.calibration import Calibration
 
             cal = Calibration.from_fit(res, obs=obs, gravity_convention="local")
             text += "\n" + table_markdown(params_table(cal, title=f"running {preset}"))
@@ -104,7 +104,7 @@ def _open_live(rerun: str | None):
     """A live Rerun view for the recorder, or None. Failures of the viewer never stop recording."""
     if not rerun:
         return None
-    from ..rrd import LiveView
+    from accellog.present.rrd import LiveView
 
     return LiveView.from_option(rerun)
 
@@ -134,9 +134,9 @@ def record(
     ] = None,
 ) -> None:
     """Record a guided calibration session: the operator is told each pose, the hold is labelled."""
-    from ..driver import Mpu9250
-    from ..mcap_io import SessionWriter
-    from ..recorder import Recorder, RecorderUI, StopRequested, session_meta
+    from accellog.acquire.driver import Mpu9250
+    from accellog.acquire.recorder import Recorder, RecorderUI, StopRequested, session_meta
+    from accellog.store.mcap_io import SessionWriter
 
     if accel_range not in (2, 4, 8, 16):
         raise InputError(f"--accel-range {accel_range}: use 2, 4, 8 or 16 (g)")
@@ -153,9 +153,9 @@ def record(
         raise InputError(f"--address {address!r} is not a number (use 0x68 or 0x69)") from None
 
     if use_sim:
-        from ..emulator.chip import EmulatedMpu9250
-        from ..emulator.clock import RealClock, SimClock
-        from ..simulate import Scenario, build_sensor_model
+        from accellog.acquire.emulator.chip import EmulatedMpu9250
+        from accellog.acquire.emulator.clock import RealClock, SimClock
+        from accellog.flows.simulate import Scenario, build_sensor_model
 
         sc = Scenario(
             protocol=protocol, hold_s=hold + 6.0, sample_rate_hz=rate, accel_range_g=accel_range, seed=seed
@@ -247,7 +247,9 @@ def record(
 @app.command(rich_help_panel="1. Record")
 def simulate(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file.")] = Path("sim.mcap"),
-    scenario: Annotated[Path | None, typer.Option(help="Scenario TOML file (see accellog.simulate).")] = None,
+    scenario: Annotated[
+        Path | None, typer.Option(help="Scenario TOML file (see accellog.flows.simulate).")
+    ] = None,
     protocol: Annotated[str | None, typer.Option(help="'six', '24' or a pose list.")] = None,
     hold: Annotated[float | None, typer.Option(help="Hold time per pose (s).")] = None,
     rate: Annotated[float | None, typer.Option(help="Output data rate (Hz).")] = None,
@@ -267,8 +269,8 @@ def simulate(
     ] = None,
 ) -> None:
     """Write a whole simulated session (emulated chip, simulated clock) without waiting."""
-    from ..simulate import Scenario
-    from ..simulate import simulate as run_simulation
+    from accellog.flows.simulate import Scenario
+    from accellog.flows.simulate import simulate as run_simulation
 
     sc = Scenario.from_toml(scenario) if scenario else Scenario()
     for name, value in (

@@ -15,10 +15,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ..calibration import read_json
-from ..errors import InputError
-from ..report import fmt_pm
-from .app import app
+from accellog.calibrate.calibration import read_json
+from accellog.cli.app import app
+from accellog.core.errors import InputError
+from accellog.present.tables import fmt_pm
 
 AXES = ("x", "y", "z")
 
@@ -118,7 +118,7 @@ def report(
     markdown: Annotated[bool, typer.Option("--markdown", help="Markdown tables on stdout.")] = False,
 ) -> None:
     """Print the tables of stage artifacts (parameters ± 1σ, the seed's tables, the model ladder)."""
-    from ..views import table_markdown
+    from accellog.present.views import table_markdown
 
     tables: list[Table] = []
     for f in files:

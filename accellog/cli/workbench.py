@@ -12,9 +12,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from ..errors import InputError
-from ..report import json_text
-from .app import app
+from accellog.cli.app import app
+from accellog.core.errors import InputError
+from accellog.present.tables import json_text
 
 
 def _fmt(v, spec: str = ".3g") -> str:
@@ -31,7 +31,7 @@ def effects(
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable list on stdout.")] = False,
 ) -> None:
     """List the effect library: name, parameters with units, driver signals, meaning."""
-    from ..effects import describe, load_effects_file
+    from accellog.calibrate.effects import describe, load_effects_file
 
     ef = load_effects_file(effects_file) if effects_file else None
     rows = describe(ef)
@@ -83,14 +83,14 @@ def diagnose(
     ] = None,
 ) -> None:
     """Fit a model, compare it with the noise floor and rank the effects that could be missing."""
-    from .. import diagnose as dg
-    from ..model import build_model
+    from accellog.calibrate import diagnose as dg
+    from accellog.calibrate.model import build_model
 
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
-    from ..pipeline import load_input
-    from ..segment import observations
-    from ..session import ObsTable
+    from accellog.calibrate.segment import observations
+    from accellog.core.session import ObsTable
+    from accellog.flows.pipeline import load_input
 
     data = load_input(session)  # pose tables (per-pose means) and observation files: ObsTable
     m = build_model(model, add=add or [], effects_file=effects_file)
@@ -103,8 +103,8 @@ def diagnose(
             host = (data.t_s, data.host_time_s)
     d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host)
     if rrd is not None:
-        from ..rrd import RunRecording
-        from ..views import log_diagnosis, log_session
+        from accellog.present.rrd import RunRecording
+        from accellog.present.views import log_diagnosis, log_session
 
         with RunRecording(f"save:{rrd}") as rec:
             if not isinstance(data, ObsTable):
@@ -208,10 +208,17 @@ def workbench_cmd(
 ) -> None:
     """Diagnose, add the missing effect, refit - until the model fits to the noise; then the ladder
     model1 -> model2 -> model3 -> + each found effect, judged on held-out data and a static test."""
-    from ..pipeline import _session, load_input
-    from ..segment import observations
-    from ..session import Session
-    from ..workbench import discover, ladder_json, ladder_rows, ladder_table, log_ladder, steps_for
+    from accellog.calibrate.segment import observations
+    from accellog.core.session import Session
+    from accellog.flows.pipeline import _session, load_input
+    from accellog.flows.workbench import (
+        discover,
+        ladder_json,
+        ladder_rows,
+        ladder_table,
+        log_ladder,
+        steps_for,
+    )
 
     data = load_input(session)
     if not isinstance(data, Session):
@@ -239,8 +246,8 @@ def workbench_cmd(
     if output is not None:
         rows[-1]["fit"].cal.save(output)
     if rrd is not None:
-        from ..rrd import RunRecording
-        from ..views import log_diagnosis, log_session
+        from accellog.present.rrd import RunRecording
+        from accellog.present.views import log_diagnosis, log_session
 
         with RunRecording(f"save:{rrd}") as rec:
             log_session(rec, data, calibrations={found.final_model: rows[-1]["fit"].cal})

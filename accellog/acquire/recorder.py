@@ -1,0 +1,278 @@
+"""The recording loop: driver -> MCAP writer, with guided poses and labelled holds.
+
+``Recorder.run`` drains the chip's FIFO continuously (every sample of the whole session is
+written, moves included), tells the operator which pose is next, waits until the sensor has moved
+and then been still for ``settle_s`` (automatic stillness detection) or until the operator presses
+Enter, holds for the pose's duration, and writes a PoseLabel for the hold. Ctrl-C (or any error)
+finishes the file cleanly: the writer's context closes the MCAP with an event saying why.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from accellog.acquire.stillness import StillnessDetector
+from accellog.core.protocol import PoseSpec
+from accellog.core.session import Event, PoseLabel, SessionMeta
+
+NS = 1_000_000_000
+
+
+def session_meta(info, cfg, *, source: str, protocol: str, **fields) -> SessionMeta:
+    """SessionMeta of a recording from the driver's ChipInfo and DriverConfig (+ extra fields)."""
+    import platform
+
+    from accellog.core.version import __version__
+
+    return SessionMeta(
+        source=source,
+        chip=info.model if source == "hardware" else f"emulated {info.model}",
+        who_am_i=info.who_am_i,
+        accel_range_g=float(cfg.accel_range_g),
+        gyro_range_dps=float(cfg.gyro_range_dps),
+        accel_lsb_per_g=cfg.accel_lsb_per_g,
+        gyro_lsb_per_dps=cfg.gyro_lsb_per_dps,
+        dlpf_cfg=cfg.dlpf_cfg,
+        a_dlpf_cfg=cfg.a_dlpf_cfg,
+        sample_rate_hz=cfg.sample_rate_hz,
+        software=f"accellog {__version__}",
+        host=platform.node(),
+        protocol=protocol,
+        **fields,
+    )
+
+
+class StopRequested(Exception):
+    """The operator asked to stop (Ctrl-C, SIGTERM). Raised only between FIFO reads, so the MCAP
+    writer is never interrupted half-way through a message and the file can be finished cleanly."""
+
+
+class RecorderUI(Protocol):
+    """What the loop tells the operator (terminal, live viewer, or nothing)."""
+
+    def prompt(self, index: int, total: int, pose: PoseSpec) -> None: ...
+    def waiting(self, moving: bool, still_for_s: float) -> None: ...
+    def holding(self, pose: PoseSpec, done_s: float) -> None: ...
+    def finished_pose(self, label: PoseLabel) -> None: ...
+
+
+class QuietUI:
+    """A RecorderUI that shows nothing (tests, simulation)."""
+
+    def prompt(self, index: int, total: int, pose: PoseSpec) -> None:
+        pass
+
+    def waiting(self, moving: bool, still_for_s: float) -> None:
+        pass
+
+    def holding(self, pose: PoseSpec, done_s: float) -> None:
+        pass
+
+    def finished_pose(self, label: PoseLabel) -> None:
+        pass
+
+
+class EnterKey:
+    """Non-blocking 'operator pressed Enter' flag read from stdin on a daemon thread."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        threading.Thread(target=self._run, daemon=True).start()
+
+    def _run(self) -> None:
+        for _line in sys.stdin:
+            self._event.set()
+
+    def pressed(self) -> bool:
+        if self._event.is_set():
+            self._event.clear()
+            return True
+        return False
+
+
+@dataclass
+class RecordSummary:
+    """What a recording produced (counts, not data)."""
+
+    samples: int = 0
+    batches: int = 0
+    lost_samples: int = 0
+    events: list[Event] = field(default_factory=list)
+    poses: list[PoseLabel] = field(default_factory=list)
+    duration_s: float = 0.0
+    interrupted: bool = False
+
+
+class Recorder:
+    """Connects a configured, started ``Mpu9250`` driver to a ``SessionWriter``.
+
+    sleep: how to wait between FIFO reads (real ``time.sleep`` or a simulated clock's sleep).
+    poll_s: time between FIFO reads (s); the 512-byte FIFO holds 36 samples, i.e. 36 ms at 1 kHz.
+    on_batch: optional callback (e.g. a live Rerun view) given every batch; it must not raise.
+    on_pose: optional callback (label, mean_g (3,), std_g (3,), n) after every labelled hold.
+    stop: optional event (set by a signal handler); the loop stops at the next FIFO read.
+    """
+
+    def __init__(
+        self,
+        driver,
+        writer,
+        *,
+        sleep: Callable[[float], None] = time.sleep,
+        poll_s: float = 0.02,
+        ui: RecorderUI | None = None,
+        stillness: StillnessDetector | None = None,
+        on_batch: Callable[[object, np.ndarray], None] | None = None,
+        on_pose: Callable[[PoseLabel, np.ndarray, np.ndarray, int], None] | None = None,
+        read_mag: bool = False,
+        stop: threading.Event | None = None,
+    ) -> None:
+        self.driver = driver
+        self.writer = writer
+        self.sleep = sleep
+        self.poll_s = poll_s
+        self.ui = ui or QuietUI()
+        self.stillness = stillness or StillnessDetector()
+        self.on_batch = on_batch
+        self.on_pose = on_pose
+        self.read_mag = read_mag
+        self.stop = stop
+        self._hold_sum = np.zeros(3)
+        self._hold_sq = np.zeros(3)
+        self._hold_n = 0
+        self._holding = False
+        self._hold_first_s: float | None = None
+        self.summary = RecordSummary()
+        self._t_last_s = 0.0
+
+    # -- one read --------------------------------------------------------------------------------
+    def step(self, *, detect_stillness: bool = True) -> None:
+        """Wait one poll period, read the FIFO, write the batch and its events, update stillness
+        (skipped with detect_stillness=False: unguided recording does not need it).
+        Raises StopRequested (before reading) once the stop event is set."""
+        if self.stop is not None and self.stop.is_set():
+            raise StopRequested
+        self.sleep(self.poll_s)
+        batch = self.driver.read()
+        for ev in batch.events:
+            self.writer.write_event(ev)
+            self.summary.events.append(ev)
+            self.summary.lost_samples += ev.lost_samples
+        n = len(batch.t_ns)
+        if n:
+            self.writer.write_imu(
+                batch.first_index,
+                batch.t_ns,
+                accel_counts=batch.accel_counts,
+                gyro_counts=batch.gyro_counts,
+                temp_counts=batch.temp_counts,
+                host_time_ns=batch.host_time_ns,
+            )
+            self.summary.samples += n
+            self.summary.batches += 1
+            t_s = batch.t_ns / NS
+            self._t_last_s = float(t_s[-1])
+            cfg = self.driver.config
+            accel_g = batch.accel_counts / cfg.accel_lsb_per_g
+            gyro_dps = batch.gyro_counts / cfg.gyro_lsb_per_dps
+            if detect_stillness:
+                self.stillness.update(t_s, accel_g, gyro_dps)
+            if self._holding:
+                if self._hold_first_s is None:
+                    self._hold_first_s = float(t_s[0])
+                self._hold_sum += accel_g.sum(axis=0)
+                self._hold_sq += (accel_g**2).sum(axis=0)
+                self._hold_n += n
+            if self.on_batch is not None:
+                self.on_batch(batch, accel_g)
+        if self.read_mag:
+            mag = self.driver.read_mag()
+            if mag is not None:
+                self.writer.write_mag_reading(mag)
+
+    @property
+    def t_s(self) -> float:
+        """Sensor time of the newest sample (s)."""
+        return self._t_last_s
+
+    def run_for(self, seconds: float) -> None:
+        """Record without prompting for ``seconds`` of sensor time."""
+        end = self.t_s + seconds
+        while self.t_s < end:
+            self.step(detect_stillness=False)
+
+    # -- guided protocol -------------------------------------------------------------------------
+    def run(
+        self,
+        poses: Sequence[PoseSpec],
+        *,
+        wait: str = "auto",
+        timeout_s: float = 120.0,
+        enter: EnterKey | None = None,
+    ) -> RecordSummary:
+        """Guide the operator through ``poses`` and label each hold.
+
+        wait: 'auto' (stillness detection: after the first pose the sensor must first move, then be
+        still for settle_s) or 'enter' (the operator presses Enter when the pose is set).
+        A pose whose stillness is not reached within timeout_s is recorded as an event and skipped.
+        """
+        if wait == "enter" and enter is None:
+            enter = EnterKey()
+        for k, pose in enumerate(poses):
+            self.ui.prompt(k, len(poses), pose)
+            self.writer.write_event(Event(self.t_s, "pose_prompt", f"pose {k + 1}/{len(poses)}: {pose.name}"))
+            if not self._wait_ready(k, wait, timeout_s, enter):
+                ev = Event(self.t_s, "note", f"pose {pose.name}: not still within {timeout_s:g} s, skipped")
+                self.writer.write_event(ev)
+                self.summary.events.append(ev)
+                continue
+            start = self.t_s
+            moved = False
+            self._hold_sum[:], self._hold_sq[:], self._hold_n, self._holding = 0.0, 0.0, 0, True
+            self._hold_first_s = None
+            while self.t_s - start < pose.hold_s:
+                self.step()
+                self.ui.holding(pose, self.t_s - start)
+                if not self.stillness.still:
+                    moved = True
+            self._holding = False
+            # [first hold sample, last hold sample + one period): exactly the samples of the hold
+            first = self._hold_first_s if self._hold_first_s is not None else start
+            end = self.t_s + 1.0 / self.driver.config.sample_rate_hz
+            label = PoseLabel(pose.name, first, end, pose.up_sensor, pose.q_sensor_to_world, k)
+            if moved:
+                ev = Event(start, "note", f"pose {pose.name}: sensor moved during the hold")
+                self.writer.write_event(ev)
+                self.summary.events.append(ev)
+            self.writer.write_pose(label)
+            self.summary.poses.append(label)
+            self.ui.finished_pose(label)
+            if self.on_pose is not None and self._hold_n > 1:
+                mean = self._hold_sum / self._hold_n
+                std = np.sqrt(np.maximum(self._hold_sq / self._hold_n - mean**2, 0.0))
+                self.on_pose(label, mean, std, self._hold_n)
+        self.summary.duration_s = self.t_s
+        return self.summary
+
+    def _wait_ready(self, k: int, wait: str, timeout_s: float, enter: EnterKey | None) -> bool:
+        start = self.t_s
+        moved = k == 0
+        while self.t_s - start < timeout_s:
+            self.step()
+            if wait == "enter":
+                if enter is not None and enter.pressed():
+                    return True
+                continue
+            if not self.stillness.still:
+                moved = True
+            self.ui.waiting(not self.stillness.still, self.stillness.still_for_s)
+            if moved and self.stillness.settled:
+                return True
+        return False

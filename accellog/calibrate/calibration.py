@@ -1,0 +1,409 @@
+"""Calibration: a fitted error model in a JSON file, and its application to readings.
+
+A calibration inverts the measurement equation of its model (accellog.calibrate.model):
+
+    reading a' (g) = predict(theta, f, drivers)   ->   f = correct(theta, a', drivers)   (g)
+
+and states the gravity convention of the fit: the true specific force of a static pose was
+truth_g * up (truth_g = 1 for the seed's convention, i.e. the output unit is one *local* g;
+truth_g = g_local / g0 for standard g). Integration then uses
+
+    a (m/s^2) = f * mps2_per_unit,   mps2_per_unit = local_gravity_mps2 / truth_g.
+
+File format ('accellog.calibration', format_version 1): units, model spec (terms), parameters with
+values, 1-sigma and units, covariance, S and b at reference conditions, gravity convention,
+temperature at calibration, fit statistics, source files with SHA-256, software version and an
+optional displacement-drift model (accellog.navigate.drift).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import functools
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from accellog.calibrate.drift_model import DriftModel
+from accellog.core.errors import InputError, ModelError
+from accellog.core.session import ObsTable, Session
+from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.core.version import __version__
+
+FORMAT = "accellog.calibration"
+FORMAT_VERSION = 1
+UNITS = {"accel_in": "g", "accel_out": "g (see gravity.truth_g)", "time": "s", "temperature": "degC"}
+
+
+def sha256_file(path: str | os.PathLike) -> str | None:
+    """Hex SHA-256 of a file, or None if it cannot be read."""
+    try:
+        h = hashlib.sha256()
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        return h.hexdigest()
+    except OSError:
+        return None
+
+
+def source_entry(path: str | None, kind: str = "") -> dict[str, Any]:
+    """{'path', 'sha256', 'kind'} of an input file (sha256 None when unreadable)."""
+    return {"path": path, "sha256": sha256_file(path) if path else None, "kind": kind}
+
+
+def rate_of_change(t_s: np.ndarray, y: np.ndarray, span_s: float = 5.0) -> np.ndarray:
+    """Local least-squares slope dy/dt over a centred window of span_s (unit of y per s), vectorised
+    with cumulative sums; suits quantised signals such as TEMP_OUT."""
+    t = np.asarray(t_s, float)
+    y = np.asarray(y, float)
+    n = t.size
+    if n < 2:
+        return np.zeros(n)
+    lo = np.searchsorted(t, t - span_s / 2, side="left")
+    hi = np.searchsorted(t, t + span_s / 2, side="right")
+    tc = t - t.mean()
+    yc = y - y.mean()
+
+    def csum(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([[0.0], np.cumsum(x)])
+
+    c1, ct, cy, ctt, cty = csum(np.ones(n)), csum(tc), csum(yc), csum(tc * tc), csum(tc * yc)
+    k = c1[hi] - c1[lo]
+    st, sy, stt, sty = ct[hi] - ct[lo], cy[hi] - cy[lo], ctt[hi] - ctt[lo], cty[hi] - cty[lo]
+    den = k * stt - st * st
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = np.where(den > 1e-12 * np.maximum(k * stt, 1e-300), (k * sty - st * sy) / den, 0.0)
+    return slope
+
+
+def session_drivers(session: Session, needed: list[str] | None = None) -> dict[str, np.ndarray]:
+    """Per-sample driver signals of a session: t_s, temp_degC, dtemp_degC_per_s (5 s local slope),
+    t_in_pose_s (time since the start of the latest pose label at or before each sample; t_s when
+    the session has no labels). Only `needed` drivers are computed when given."""
+    want = set(needed) if needed is not None else {"t_s", "temp_degC", "dtemp_degC_per_s", "t_in_pose_s"}
+    d: dict[str, np.ndarray] = {}
+    t = session.t_s
+    if "t_s" in want:
+        d["t_s"] = t
+    if session.temp_degC is not None:
+        if "temp_degC" in want:
+            d["temp_degC"] = session.temp_degC
+        if "dtemp_degC_per_s" in want:
+            d["dtemp_degC_per_s"] = rate_of_change(t, session.temp_degC)
+    if "t_in_pose_s" in want:
+        if session.poses:
+            starts = np.sort(np.array([p.start_s for p in session.poses]))
+            k = np.searchsorted(starts, t, side="right") - 1
+            d["t_in_pose_s"] = np.where(k >= 0, t - starts[np.maximum(k, 0)], t)
+        else:
+            d["t_in_pose_s"] = t
+    return d
+
+
+@dataclass
+class Calibration:
+    """A fitted accelerometer calibration (see module docstring for the conventions)."""
+
+    model_spec: dict
+    param_names: list[str]
+    param_units: list[str]
+    theta: np.ndarray
+    cov: np.ndarray
+    truth_g: float = 1.0
+    gravity_convention: str = "seed"
+    local_gravity_mps2: float = STANDARD_GRAVITY_MPS2
+    temperature: dict = field(default_factory=dict)
+    fit: dict = field(default_factory=dict)
+    sources: list[dict] = field(default_factory=list)
+    sensor: dict = field(default_factory=dict)
+    software: str = f"accellog {__version__}"
+    created_utc: str = ""
+    drift: DriftModel | None = None
+    gyro: dict | None = None
+    """Gyro calibration (accellog.calibrate.gyro.GyroCalibration.to_dict()), when the session allowed it."""
+    path: str | None = None
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def sigma(self) -> np.ndarray:
+        """1-sigma of each parameter (sqrt of the covariance diagonal)."""
+        return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+
+    @property
+    def mps2_per_unit(self) -> float:
+        """m/s^2 per unit of the calibrated output: local_gravity_mps2 / truth_g."""
+        return self.local_gravity_mps2 / self.truth_g
+
+    @functools.cached_property
+    def model(self):
+        """The accellog.calibrate.model.Model of this calibration, built from the spec once (a user effects
+        file is imported and its SHA-256 checked on first use, not on every correct())."""
+        from accellog.calibrate.model import model_from_spec
+
+        return model_from_spec(self.model_spec)
+
+    @property
+    def terms(self) -> list[str]:
+        return list(self.model_spec.get("terms", []))
+
+    def S_b(self) -> tuple[np.ndarray, np.ndarray]:
+        """Linear part at reference conditions: S (3,3), b (3,) g."""
+        return self.model.S_b(self.theta)
+
+    # ------------------------------------------------------------------ apply
+    def correct(
+        self, data: Session | np.ndarray, drivers: Mapping[str, np.ndarray] | None = None
+    ) -> np.ndarray:
+        """Calibrated specific force f (n,3) in calibrated units (see truth_g) from a Session or a
+        reading array (n,3) g; arrays need `drivers` for models with temperature/time terms."""
+        model = self.model
+        if isinstance(data, Session):
+            meas = data.accel_g
+            drv = dict(session_drivers(data, model.required_drivers))
+            if drivers:
+                drv.update(drivers)
+        else:
+            meas = np.atleast_2d(np.asarray(data, float))
+            drv = dict(drivers or {})
+        if meas.ndim != 2 or meas.shape[1] != 3:
+            raise InputError(f"readings must be (n,3) g, got shape {meas.shape}")
+        return model.correct(self.theta, meas, drv)
+
+    def correct_mps2(
+        self, data: Session | np.ndarray, drivers: Mapping[str, np.ndarray] | None = None
+    ) -> np.ndarray:
+        """Calibrated specific force in m/s^2 (correct() * mps2_per_unit)."""
+        return self.correct(data, drivers) * self.mps2_per_unit
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_fit(
+        cls,
+        fit: Any,
+        *,
+        obs: ObsTable | None = None,
+        gravity_convention: str = "seed",
+        local_gravity_mps2: float = STANDARD_GRAVITY_MPS2,
+        sources: list[dict] | None = None,
+        sensor: dict | None = None,
+    ) -> Calibration:
+        """From an accellog.calibrate.fit.FitResult (truth_g = fit.gravity_g)."""
+        temp: dict[str, Any] = {"t_ref_degC": fit.model.t_ref_degC}
+        if obs is not None and obs.temp_degC is not None and np.isfinite(obs.temp_degC).all():
+            temp.update(
+                mean_degC=float(np.mean(obs.temp_degC)),
+                min_degC=float(np.min(obs.temp_degC)),
+                max_degC=float(np.max(obs.temp_degC)),
+            )
+        fd = fit.to_dict()
+        fit_info = {
+            k: fd.get(k)
+            for k in ("method", "weighted", "chi2", "dof", "chi2_dof", "p_value", "rms_g", "n_obs")
+        }
+        fit_info["warnings"] = list(fit.warnings)
+        fit_info["sigma_scaled"] = [float(x) for x in fit.sigma_scaled] if len(fit.sigma_scaled) else None
+        return cls(
+            model_spec=fit.model.to_spec(),
+            param_names=list(fit.param_names),
+            param_units=list(fit.param_units),
+            theta=np.asarray(fit.theta, float).copy(),
+            cov=np.asarray(fit.cov, float).copy(),
+            truth_g=float(fit.gravity_g),
+            gravity_convention=gravity_convention,
+            local_gravity_mps2=float(local_gravity_mps2),
+            temperature=temp,
+            fit=fit_info,
+            sources=list(sources or []),
+            sensor=dict(sensor or {}),
+            created_utc=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        )
+
+    # ------------------------------------------------------------------ file
+    def to_dict(self) -> dict:
+        S, b = self.S_b()
+        sig = self.sigma
+        return {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "software": self.software,
+            "created_utc": self.created_utc,
+            "units": dict(UNITS),
+            "equation": "a' = S u + b (+ model terms); calibrated f = model.correct(theta, a')",
+            "model": dict(self.model_spec),
+            "params": [
+                {"name": n, "value": float(v), "sigma": float(s), "unit": u}
+                for n, v, s, u in zip(self.param_names, self.theta, sig, self.param_units, strict=True)
+            ],
+            "covariance": np.asarray(self.cov, float).tolist(),
+            "S": S.tolist(),
+            "b_g": b.tolist(),
+            "gravity": {
+                "convention": self.gravity_convention,
+                "truth_g": self.truth_g,
+                "local_gravity_mps2": self.local_gravity_mps2,
+                "mps2_per_unit": self.mps2_per_unit,
+            },
+            "temperature": dict(self.temperature),
+            "fit": dict(self.fit),
+            "sensor": dict(self.sensor),
+            "sources": list(self.sources),
+            "drift": self.drift.to_dict() if self.drift is not None else None,
+            "gyro": self.gyro,
+        }
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the JSON file atomically (temp file + rename)."""
+        write_json_atomic(path, self.to_dict())
+        self.path = str(path)
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def dumps(data: Any, indent: int | None = 2) -> str:
+    """JSON text; NaN/inf become null (strict JSON)."""
+
+    def clean(x: Any) -> Any:
+        if isinstance(x, float):
+            return x if np.isfinite(x) else None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if isinstance(x, np.ndarray):
+            return clean(x.tolist())
+        if isinstance(x, np.generic):
+            return clean(x.item())
+        return x
+
+    return json.dumps(clean(data), indent=indent, default=_json_default, allow_nan=False)
+
+
+def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
+    """Write JSON to a temporary file beside `path`, then rename it into place."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    text = dumps(data)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text + "\n")
+        os.replace(tmp, p)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def read_text(path: str | os.PathLike, what: str = "file") -> str:
+    """The text of a file, or InputError naming it when it is missing or not text."""
+    p = Path(path)
+    try:
+        return p.read_text()
+    except FileNotFoundError:
+        raise InputError(f"no such {what}", where=str(p)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read as text: {exc.__class__.__name__}", where=str(p)) from None
+
+
+def read_json(path: str | os.PathLike) -> Any:
+    """Parsed JSON, or InputError naming the file (and line) when missing or malformed."""
+    p = Path(path)
+    text = read_text(p)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(
+            f"not valid JSON: {exc.msg} (column {exc.colno})", where=f"{p}:{exc.lineno}"
+        ) from None
+
+
+def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
+    """Validate and build a Calibration from its JSON dict (InputError on a bad or foreign file)."""
+    if not isinstance(d, dict):
+        raise InputError("not an accellog calibration file (top level is not an object)", where=where)
+    if d.get("format") != FORMAT:
+        if "cal_type" in d and "K_a" in d:
+            raise InputError(
+                f"this is an imucal calibration (cal_type {d.get('cal_type')!r}), not an accellog calibration: "
+                "fit one with `accellog fit`",
+                where=where,
+            )
+        keys = ", ".join(sorted(d)[:6])
+        raise InputError(
+            f"not an accellog calibration file (no format '{FORMAT}'; keys: {keys})", where=where
+        )
+    ver = d.get("format_version")
+    if not isinstance(ver, int) or ver > FORMAT_VERSION or ver < 1:
+        raise InputError(
+            f"calibration format_version {ver!r} is not supported (this accellog reads <= {FORMAT_VERSION})",
+            where=where,
+        )
+    try:
+        params = d["params"]
+        names = [str(p["name"]) for p in params]
+        units = [str(p["unit"]) for p in params]
+        theta = np.array([float(p["value"]) for p in params])
+        cov = np.asarray(d["covariance"], float)
+        grav = d["gravity"]
+        spec = d["model"]
+        truth_g = float(grav["truth_g"])
+        lg = float(grav["local_gravity_mps2"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(
+            f"calibration file is missing or has a malformed field: {exc}", where=where
+        ) from None
+    k = theta.size
+    if cov.shape != (k, k):
+        raise InputError(f"covariance is {cov.shape}, expected ({k}, {k}) for {k} parameters", where=where)
+    if not np.isfinite(theta).all():
+        raise InputError("calibration parameters contain NaN/null values", where=where)
+    if not (truth_g > 0 and lg > 0):
+        raise InputError(f"gravity truth_g {truth_g} and local_gravity_mps2 {lg} must be > 0", where=where)
+    cal = Calibration(
+        model_spec=dict(spec),
+        param_names=names,
+        param_units=units,
+        theta=theta,
+        cov=cov,
+        truth_g=truth_g,
+        gravity_convention=str(grav.get("convention", "")),
+        local_gravity_mps2=lg,
+        temperature=dict(d.get("temperature") or {}),
+        fit=dict(d.get("fit") or {}),
+        sources=list(d.get("sources") or []),
+        sensor=dict(d.get("sensor") or {}),
+        software=str(d.get("software", "")),
+        created_utc=str(d.get("created_utc", "")),
+        drift=DriftModel.from_dict(d["drift"], where=where) if d.get("drift") else None,
+        gyro=d.get("gyro") or None,
+    )
+    try:
+        model = cal.model
+    except ModelError as exc:
+        raise InputError(f"calibration model cannot be rebuilt: {exc}", where=where) from None
+    if model.param_names != names:
+        raise InputError(
+            f"parameter names {names} do not match model {model.name!r} ({model.param_names})", where=where
+        )
+    return cal
+
+
+def load_calibration(path: str | os.PathLike) -> Calibration:
+    """Read a calibration JSON file; one-line InputError on missing, malformed or foreign files."""
+    cal = calibration_from_dict(read_json(path), where=str(path))
+    cal.path = str(path)
+    return cal

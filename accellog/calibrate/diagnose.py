@@ -1,0 +1,675 @@
+"""The model workbench: is the model at the noise floor, and if not, which physical effect is missing?
+
+diagnose(obs, model) fits the model, compares residuals with the noise (chi2/dof against sigma_g),
+then tries every library effect as a candidate (model + effect) and ranks them by
+
+- delta chi2 and an F test:  F = (dchi2 / dk) / (chi2_c / dof_c),  p = P(F_{dk, dof_c} > F);
+- information criteria:      dBIC = -dchi2 + dk ln m,  dAIC = -dchi2 + 2 dk  (m = equations);
+- out of sample:             leave-one-hold-out chi2 per row, r_cv,g = (I - H_gg)^-1 r_g (whitened
+                             hat matrix H = J (J^T J)^-1 J^T; exact for linear models, one-step for
+                             nonlinear), compared on the holds both models can predict.
+
+A candidate is *significant* when p < alpha / n_candidates, dBIC < -10 and its CV score improves.
+The driver-signal view projects each signal (temperature, its rate, t, t_in_pose, gravity components,
+squares, products, rotation about the vertical, user signals) onto the residual after removing what
+the model can already absorb: dchi2 = (r . c_perp)^2 / |c_perp|^2 per (signal, axis), so an effect
+the library lacks still shows itself. Effects the data cannot reveal are reported with what to record.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from accellog.calibrate.effects import AXES, LIBRARY, all_effects
+from accellog.calibrate.fit import FitResult, effect_requirement, fit_model, obs_drivers
+from accellog.calibrate.model import Model
+from accellog.core.errors import InputError, ModelError
+from accellog.core.protocol import PoseSpec, parse_protocol
+from accellog.core.rotations import quat_between, quat_conjugate, quat_multiply
+from accellog.core.session import ObsTable
+
+ALPHA = 1e-3
+"""Family-wise false-alarm rate of the candidate tests (Bonferroni over candidates)."""
+DBIC_MIN = -10.0
+"""A candidate must lower BIC by more than 10 ("very strong" evidence) to count."""
+
+
+# ---------------------------------------------------------------------------------------------
+# statistics helpers
+
+
+def _groups(obs: ObsTable) -> list[np.ndarray]:
+    """Row indices of each hold (pose_id)."""
+    pid = np.asarray(obs.pose_id)
+    return [np.flatnonzero(pid == g) for g in np.unique(pid)]
+
+
+def cv_scores(res: FitResult, obs: ObsTable) -> np.ndarray:
+    """Leave-one-hold-out chi2 of each hold (inf where the rest cannot predict it).
+
+    Whitened residual r and Jacobian J (rows obs-major, axis-minor); for hold g with rows G:
+    r_cv = (I - H_GG)^-1 r_G, H = J (J^T J)^+ J^T.
+    """
+    J = res.jacobian
+    sig = np.asarray(obs.sigma_g, float)
+    r = (res.residual_g / sig).ravel()
+    if J is None:
+        return np.full(len(_groups(obs)), np.inf)
+    if not res.weighted:  # jacobian of unweighted residuals: whiten it
+        J = J / sig.ravel()[:, None]
+    A = np.linalg.pinv(J.T @ J)
+    out = []
+    for g in _groups(obs):
+        rows = (g[:, None] * 3 + np.arange(3)).ravel()
+        Jg = J[rows]
+        M = np.eye(rows.size) - Jg @ A @ Jg.T
+        ev = np.linalg.eigvalsh(0.5 * (M + M.T))
+        if ev.min() < 1e-8:
+            out.append(np.inf)
+            continue
+        rc = np.linalg.solve(M, r[rows])
+        out.append(float(rc @ rc))
+    return np.asarray(out)
+
+
+def _cv_compare(cv_a: np.ndarray, cv_b: np.ndarray, obs: ObsTable) -> tuple[float, float, int]:
+    """Mean CV chi2 per equation of models a and b over holds both can predict."""
+    ok = np.isfinite(cv_a) & np.isfinite(cv_b)
+    sizes = np.array([g.size * 3 for g in _groups(obs)])
+    if not ok.any():
+        return np.nan, np.nan, 0
+    m = sizes[ok].sum()
+    return float(cv_a[ok].sum() / m), float(cv_b[ok].sum() / m), int(ok.sum())
+
+
+def _yaw_deg(obs: ObsTable) -> np.ndarray | None:
+    """Rotation about the vertical of each row (deg): q = q_yaw * q_face, q_face = up -> +z."""
+    q = obs.q_sensor_to_world
+    if q is None or not np.all(np.isfinite(q)):
+        return None
+    q = np.asarray(q, float)
+    up = np.asarray(obs.up_sensor, float)
+    qf = np.stack([quat_between(u, np.array([0.0, 0.0, 1.0])) for u in up])
+    qy = quat_multiply(q, quat_conjugate(qf))
+    return np.rad2deg(2.0 * np.arctan2(qy[:, 3], qy[:, 0]))
+
+
+def driver_signal_table(
+    obs: ObsTable, drivers: Mapping[str, np.ndarray], gravity_g: float = 1.0
+) -> dict[str, np.ndarray]:
+    """Candidate explanatory signals, each (n,) or (n,3) (per-axis), named with units."""
+    f = gravity_g * np.asarray(obs.up_sensor, float)
+    sig: dict[str, np.ndarray] = {}
+    if "temp_degC" in drivers:
+        dT = drivers["temp_degC"] - 25.0
+        sig["temp_degC"] = dT
+        sig["temp_degC^2"] = dT**2
+        sig["temp_degC*f_axis (g degC)"] = dT[:, None] * f
+    if "dtemp_degC_per_s" in drivers:
+        sig["dtemp_degC_per_s"] = drivers["dtemp_degC_per_s"]
+    sig["t_s"] = drivers["t_s"]
+    sig["t_s^2"] = drivers["t_s"] ** 2
+    sig["exp(-t_s/60)"] = np.exp(-drivers["t_s"] / 60.0)
+    sig["exp(-t_s/600)"] = np.exp(-drivers["t_s"] / 600.0)
+    sig["t_in_pose_s"] = drivers["t_in_pose_s"]
+    sig["t_in_pose_s^2"] = drivers["t_in_pose_s"] ** 2
+    for i, a in enumerate(AXES):
+        sig[f"f_{a} (g)"] = f[:, i]
+        sig[f"f_{a}^2 (g^2)"] = f[:, i] ** 2
+        sig[f"f_{a}^3 (g^3)"] = f[:, i] ** 3
+        sig[f"|f_{a}| (g)"] = np.abs(f[:, i])
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        sig[f"f_{AXES[i]}*f_{AXES[j]} (g^2)"] = f[:, i] * f[:, j]
+    yaw = _yaw_deg(obs)
+    if yaw is not None:
+        sig["cos(yaw about vertical)"] = np.cos(np.deg2rad(yaw))
+        sig["sin(yaw about vertical)"] = np.sin(np.deg2rad(yaw))
+    std = {"t_s", "t_in_pose_s", "temp_degC", "dtemp_degC_per_s"}
+    for k, v in drivers.items():
+        if k not in std:
+            sig[k] = np.asarray(v, float)
+            sig[f"{k}^2"] = np.asarray(v, float) ** 2
+    return sig
+
+
+def driver_signals(res: FitResult, obs: ObsTable, drivers: Mapping[str, np.ndarray]) -> list[dict]:
+    """Residuals against every driver signal: correlation, partial R^2 and the chi2 drop if the
+    signal were added as one more additive term on that axis (after projecting out the model)."""
+    sig = np.asarray(obs.sigma_g, float)
+    J = res.jacobian if res.weighted else res.jacobian / sig.ravel()[:, None]
+    rw = res.residual_g / sig
+    r = rw.ravel()
+    chi2 = float(r @ r)
+    Q, Rr = np.linalg.qr(J) if J.shape[1] else (np.zeros((r.size, 0)), None)
+    if J.shape[1]:
+        keep = np.abs(np.diag(Rr)) > 1e-12 * max(np.abs(np.diag(Rr)).max(), 1e-300)
+        Q = Q[:, keep]
+    dof = max(res.dof - 1, 1)
+    rows = []
+    table = driver_signal_table(obs, drivers, res.gravity_g)
+    n_tests = 3 * len(table)
+    for name, s in table.items():
+        s = np.asarray(s, float)
+        for i, a in enumerate(AXES):
+            col = s[:, i] if s.ndim == 2 else s
+            if np.ptp(col) == 0:
+                continue
+            c = np.zeros_like(rw)
+            c[:, i] = col / sig[:, i]
+            c = c.ravel()
+            cp = c - Q @ (Q.T @ c)
+            nc = float(cp @ cp)
+            if nc <= 1e-12 * float(c @ c):
+                continue  # the model already contains this signal on this axis
+            d = float(r @ cp) ** 2 / nc
+            F = d / max((chi2 - d) / dof, 1e-300)
+            p = float(stats.f.sf(F, 1, dof))
+            corr = float(np.corrcoef(rw[:, i], col)[0, 1]) if np.std(rw[:, i]) > 0 else 0.0
+            rows.append(
+                {
+                    "signal": name,
+                    "axis": a,
+                    "correlation": corr,
+                    "partial_r2": d / chi2 if chi2 > 0 else 0.0,
+                    "delta_chi2": d,
+                    "p_value": p,
+                    "significant": bool(p < ALPHA / n_tests and d > 25.0),
+                }
+            )
+    rows.sort(key=lambda x: -x["delta_chi2"])
+    return rows
+
+
+def clock_from_host_time(t_sensor_s: np.ndarray, t_host_s: np.ndarray) -> dict:
+    """Sample-clock error from host timestamps: t_host = (1 + eps_clock) t_sensor + c + jitter.
+
+    Host time is often stamped per read batch (every sample of a batch carries the batch's read
+    time), so only the last sample of each run of equal host times is used.
+    Returns eps_clock (1), its 1-sigma (from the residual scatter) and ppm values."""
+    ts = np.asarray(t_sensor_s, float)
+    th = np.asarray(t_host_s, float)
+    last = np.flatnonzero(np.append(np.diff(th) != 0, True))
+    ts, th = ts[last], th[last]
+    if ts.size < 3 or np.ptp(ts) <= 0:
+        raise InputError("host time needs >= 3 samples over a non-zero time span")
+    A = np.stack([ts - ts.mean(), np.ones_like(ts)], axis=1)
+    coef, *_ = np.linalg.lstsq(A, th, rcond=None)
+    res = th - A @ coef
+    s2 = float(res @ res) / max(ts.size - 2, 1)
+    sig = float(np.sqrt(s2 / np.sum((ts - ts.mean()) ** 2)))
+    eps = float(coef[0] - 1.0)
+    return {"eps_clock": eps, "sigma": sig, "eps_ppm": eps * 1e6, "sigma_ppm": sig * 1e6}
+
+
+# ---------------------------------------------------------------------------------------------
+# diagnosis
+
+
+@dataclass
+class Diagnosis:
+    """Result of diagnose(); to_dict() is the --json output."""
+
+    model: Model
+    fit: FitResult
+    noise_floor_g: float
+    missing: bool
+    verdict: str
+    candidates: list[dict]
+    driver_signals: list[dict]
+    advice: list[str]
+    best: str | None = None
+    clock: dict | None = None
+    cv_base: float = np.nan
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self, max_signals: int = 30) -> dict:
+        return {
+            "model": self.model.name,
+            "model_spec": self.model.to_spec(),
+            "n_obs": self.fit.n_obs,
+            "chi2": _j(self.fit.chi2),
+            "dof": self.fit.dof,
+            "chi2_dof": _j(self.fit.chi2_dof),
+            "p_value": _j(self.fit.p_value),
+            "rms_g": self.fit.rms_g,
+            "noise_floor_g": self.noise_floor_g,
+            "missing": self.missing,
+            "best": self.best,
+            "verdict": self.verdict,
+            "candidates": [{k: _j(v) for k, v in c.items()} for c in self.candidates],
+            "driver_signals": [{k: _j(v) for k, v in s.items()} for s in self.driver_signals[:max_signals]],
+            "advice": list(self.advice),
+            "clock": self.clock,
+            "fit": self.fit.to_dict(),
+        }
+
+
+def _j(v):
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    if isinstance(v, np.floating):
+        return _j(float(v))
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+def default_candidates(model: Model) -> list[str]:
+    """Every library (and user-file) effect not in the model and not conflicting with it."""
+    out = []
+    for name, e in all_effects(model.effects_file).items():
+        if name in model.term_names:
+            continue
+        if any(c in model.term_names for c in e.conflicts):
+            continue
+        out.append(name)
+    return out
+
+
+def diagnose(
+    obs: ObsTable,
+    model: Model,
+    *,
+    candidates: Sequence[str] | None = None,
+    weighted: bool = True,
+    gravity_g: float = 1.0,
+    drivers: Mapping[str, np.ndarray] | None = None,
+    host_time: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Diagnosis:
+    """Fit `model`, test it against the noise floor, rank candidate effects, show driver signals.
+
+    host_time: optional (t_sensor_s, t_host_s) sample times to estimate the sample-clock error.
+    The test statistics always use sigma_g (the noise estimate); weighted=False only changes the
+    parameter estimates (the seed's unweighted fit).
+    """
+    sig = np.asarray(obs.sigma_g, float)
+    if not (sig.shape == obs.meas_g.shape and np.all(np.isfinite(sig) & (sig > 0))):
+        raise InputError("diagnose needs a noise estimate: finite positive sigma_g for every observation")
+    drv = obs_drivers(obs, drivers)
+    base = fit_model(obs, model, weighted=weighted, gravity_g=gravity_g, drivers=drivers)
+    m_eq = base.residual_g.size
+    floor = float(np.sqrt(np.mean(sig**2)))
+    cv_b_all = cv_scores(base, obs)
+    cands = list(candidates) if candidates is not None else default_candidates(model)
+    lib = all_effects(model.effects_file)
+    unknown = [c for c in cands if c not in lib]
+    if unknown:
+        raise ModelError(f"unknown candidate effect(s) {unknown}; valid: {', '.join(lib)}")
+    n_tests = max(1, sum(1 for c in cands if lib[c].static))
+    rows: list[dict] = []
+    clock = None
+    for name in cands:
+        row: dict = {"effect": name, "n_params": len(lib[name].params), "identifiable": False}
+        if name == "clock" and host_time is not None:
+            clock = clock_from_host_time(*host_time)
+            z = abs(clock["eps_clock"]) / max(clock["sigma"], 1e-300)
+            row.update(
+                identifiable=True,
+                significant=bool(z > 5 and abs(clock["eps_ppm"]) > 1.0),
+                p_value=float(2 * stats.norm.sf(z)),
+                reason=f"from host time: eps_clock = {clock['eps_ppm']:.1f} +- {clock['sigma_ppm']:.1f} ppm "
+                "(sample period is (1 + eps)/ODR; correct integration time, not static readings)",
+            )
+            rows.append(row)
+            continue
+        reason = effect_requirement(name, obs, drv, model)
+        if reason is not None:
+            row["reason"] = reason
+            rows.append(row)
+            continue
+        cm = model.with_terms([name])
+        try:
+            cr = fit_model(obs, cm, weighted=weighted, gravity_g=gravity_g, drivers=drivers)
+        except ModelError as exc:
+            row["reason"] = str(exc)
+            rows.append(row)
+            continue
+        dk = cm.n_params - model.n_params
+        dchi2 = base.chi2 - cr.chi2
+        F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
+        p = float(stats.f.sf(F, max(dk, 1), max(cr.dof, 1))) if cr.dof > 0 else np.nan
+        cv_c, cv_b, n_cv = _cv_compare(cv_scores(cr, obs), cv_b_all, obs)
+        dbic = -dchi2 + dk * np.log(m_eq)
+        daic = -dchi2 + 2 * dk
+        sl = cm.slices[name]
+        weak = [
+            n
+            for n, s, t in zip(cm.param_names[sl], cr.sigma[sl], cm.param_typical[sl], strict=True)
+            if s > t and n != "tau_warmup_s"
+        ]
+        signif = bool(cr.dof > 0 and p < ALPHA / n_tests and dbic < DBIC_MIN and (n_cv == 0 or cv_c < cv_b))
+        row.update(
+            identifiable=True,
+            significant=signif,
+            chi2_dof=cr.chi2_dof,
+            delta_chi2=dchi2,
+            delta_chi2_dof=base.chi2_dof - cr.chi2_dof,
+            F=F,
+            p_value=p,
+            delta_bic=float(dbic),
+            delta_aic=float(daic),
+            cv_chi2_per_eq=cv_c,
+            cv_chi2_per_eq_base=cv_b,
+            cv_holds=n_cv,
+            params={
+                n: [float(v), float(s)]
+                for n, v, s in zip(cm.param_names[sl], cr.theta[sl], cr.sigma[sl], strict=True)
+            },
+            reason=(
+                f"chi2/dof {base.chi2_dof:.3g} -> {cr.chi2_dof:.3g}, dBIC {dbic:.1f}, "
+                f"CV chi2/eq {cv_b:.3g} -> {cv_c:.3g}"
+                + (f"; weakly determined: {', '.join(weak)} 1-sigma above typical size" if weak else "")
+            ),
+        )
+        rows.append(row)
+    # rank: significant first, then by dBIC (identifiable), then the rest
+    rows.sort(
+        key=lambda r: (
+            not r.get("significant", False),
+            not r["identifiable"],
+            r.get("delta_bic", np.inf) if np.isfinite(r.get("delta_bic", np.inf)) else np.inf,
+        )
+    )
+    for k, r in enumerate(rows, 1):
+        r["rank"] = k
+    signals = driver_signals(base, obs, drv)
+    sig_cands = [r for r in rows if r.get("significant") and r["effect"] != "clock"]
+    if len(sig_cands) > 1:  # second round: does each runner-up still help on top of the best?
+        mb = model.with_terms([sig_cands[0]["effect"]])
+        rb = fit_model(obs, mb, weighted=weighted, gravity_g=gravity_g, drivers=drivers)
+        for r in sig_cands[1:4]:
+            try:
+                r2 = fit_model(
+                    obs, mb.with_terms([r["effect"]]), weighted=weighted, gravity_g=gravity_g, drivers=drivers
+                )
+            except ModelError:
+                r["given_best"] = "not identifiable together with " + sig_cands[0]["effect"]
+                continue
+            dk = r2.model.n_params - mb.n_params
+            F = ((rb.chi2 - r2.chi2) / dk) / max(r2.chi2 / max(r2.dof, 1), 1e-300)
+            p2 = float(stats.f.sf(F, dk, max(r2.dof, 1)))
+            r["p_value_given_best"] = p2
+            r["given_best"] = (
+                f"still significant on top of {sig_cands[0]['effect']} (p = {p2:.2g})"
+                if p2 < ALPHA / n_tests and (rb.chi2 - r2.chi2) > dk * np.log(m_eq) + 10
+                else f"explained by {sig_cands[0]['effect']} (p = {p2:.2g} once it is added)"
+            )
+    base_bad = bool(np.isfinite(base.p_value) and base.p_value < ALPHA and base.dof > 0)
+    missing = base_bad or bool(sig_cands)
+    best = sig_cands[0]["effect"] if sig_cands else None
+    verdict, advice = _verdict(model, base, floor, missing, sig_cands, signals, rows, clock)
+    return Diagnosis(
+        model=model,
+        fit=base,
+        noise_floor_g=floor,
+        missing=missing,
+        verdict=verdict,
+        candidates=rows,
+        driver_signals=signals,
+        advice=advice,
+        best=best,
+        clock=clock,
+        cv_base=float(np.sum(cv_b_all[np.isfinite(cv_b_all)]) / max(m_eq, 1)),
+    )
+
+
+def _verdict(model, base, floor, missing, sig_cands, signals, rows, clock) -> tuple[str, list[str]]:
+    ratio = float(np.sqrt(base.chi2_dof)) if np.isfinite(base.chi2_dof) else np.nan
+    head = (
+        f"{model.name}: chi2/dof = {base.chi2_dof:.3g} (p = {base.p_value:.2g}, dof {base.dof}), "
+        f"residual RMS {base.rms_g * 1e3:.3g} mg vs noise floor {floor * 1e3:.3g} mg"
+    )
+    advice: list[str] = []
+    strong_sig = [s for s in signals if s["significant"]]
+    if not missing:
+        verdict = f"{head}: the model fits to the noise floor; nothing is missing."
+    elif sig_cands:
+        b = sig_cands[0]
+        verdict = (
+            f"{head}: residuals are {ratio:.1f}x the noise, something is missing. Most likely: "
+            f"{b['effect']} ({b['reason']}, p = {b['p_value']:.2g})."
+        )
+        advice.append(f"refit with --add {b['effect']}")
+        if b["chi2_dof"] > 1.0 + 6.0 * np.sqrt(2.0 / max(base.dof, 1)) and b["chi2_dof"] > 1.5:
+            advice.append(
+                f"with {b['effect']} chi2/dof is still {b['chi2_dof']:.3g}: more is missing; run diagnose "
+                f"again on --model {model.name}+{b['effect']}"
+            )
+        for r in sig_cands[1:4]:
+            if "given_best" in r:
+                advice.append(f"{r['effect']}: {r['given_best']}")
+    else:
+        top = strong_sig[0] if strong_sig else (signals[0] if signals else None)
+        verdict = (
+            f"{head}: residuals are {ratio:.1f}x the noise, but no identifiable library effect explains them."
+        )
+        if top is not None:
+            advice.append(
+                f"strongest unexplained driver signal: {top['signal']} on axis {top['axis']} "
+                f"(partial R^2 = {top['partial_r2']:.2f}); write a user effect (docs/effects.md) and "
+                "load it with --effects-file"
+            )
+    for r in rows:
+        if not r["identifiable"] and r.get("reason"):
+            advice.append(f"{r['effect']}: {r['reason']}")
+    if clock is not None and abs(clock["eps_ppm"]) > 5 * clock["sigma_ppm"]:
+        advice.append(
+            f"clock: sample clock off by {clock['eps_ppm']:.0f} ppm: integrate with host-corrected time"
+        )
+    return verdict, advice
+
+
+# ---------------------------------------------------------------------------------------------
+# ladder
+
+
+def heldout_residual(
+    res: FitResult, obs: ObsTable, drivers: Mapping[str, np.ndarray] | None = None
+) -> np.ndarray:
+    """Residual (n,3) g of a fitted model on other observations (same poses labelling)."""
+    m = res.model
+    drv = obs_drivers(obs, drivers)
+    q = None if obs.q_sensor_to_world is None else np.asarray(obs.q_sensor_to_world, float)
+    f = m.truth_g(res.theta, obs.up_sensor, q, res.gravity_g)
+    return np.asarray(obs.meas_g, float) - m.predict(res.theta, f, drv)
+
+
+def heldout_stats(res: FitResult, heldout: ObsTable) -> dict[str, float]:
+    """Held-out residual RMS (g), held-out noise floor RMS(sigma_g) (g) and mean (r / sigma_g)^2."""
+    r = heldout_residual(res, heldout)
+    sig = np.asarray(heldout.sigma_g, float)
+    return {
+        "heldout_rms_g": float(np.sqrt(np.mean(r**2))),
+        "heldout_noise_g": float(np.sqrt(np.mean(sig**2))),
+        "heldout_chi2_dof": float(np.mean((r / sig) ** 2)),
+    }
+
+
+def ladder(
+    obs: ObsTable,
+    steps: Sequence[Model],
+    heldout_obs: ObsTable | None = None,
+    *,
+    weighted: bool = True,
+    gravity_g: float = 1.0,
+) -> list[dict]:
+    """One row per model: n_params, chi2/dof and RMS on the calibration data, held-out RMS (g)
+    and held-out noise floor (RMS of sigma_g) when heldout_obs is given."""
+    out = []
+    for m in steps:
+        res = fit_model(obs, m, weighted=weighted, gravity_g=gravity_g)
+        row = {
+            "model": m.name,
+            "n_params": m.n_params,
+            "chi2_dof": _j(res.chi2_dof),
+            "rms_g": res.rms_g,
+            "warnings": res.warnings,
+        }
+        if heldout_obs is not None:
+            row.update(heldout_stats(res, heldout_obs))
+        out.append(row)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# synthetic observations (tests, benchmarks, docs)
+
+
+def cube_poses(hold_s: float = 30.0) -> list[PoseSpec]:
+    """26 poses: 6 faces, 12 edges, 8 corners of a cube (off-axis gravity for nonlin3, g_cross)."""
+    out = []
+    for v in np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).T.reshape(-1, 3):
+        if not v.any():
+            continue
+        up = v / np.linalg.norm(v)
+        q = quat_between(up, np.array([0.0, 0.0, 1.0]))
+        name = ",".join(f"{'+' if c > 0 else '-'}{a}" for c, a in zip(v, AXES, strict=True) if c)
+        out.append(PoseSpec(name, tuple(float(x) for x in up), tuple(float(x) for x in q), hold_s))
+    return out
+
+
+def synthetic_obs(
+    model: Model,
+    theta: np.ndarray,
+    *,
+    protocol: str | Sequence[PoseSpec] = "six",
+    hold_s: float = 30.0,
+    move_s: float = 5.0,
+    windows_per_hold: int = 6,
+    repeats: int = 1,
+    noise_density_g_rthz: float = 300e-6,
+    temp_path: Callable[[np.ndarray], np.ndarray] | None = None,
+    extra: Callable[[ObsTable], np.ndarray] | None = None,
+    extra_drivers: Callable[[ObsTable], dict[str, np.ndarray]] | None = None,
+    gravity_g: float = 1.0,
+    t0_s: float = 2.0,
+    seed: int = 0,
+) -> ObsTable:
+    """Window means straight from the measurement equation with seeded white noise.
+
+    Holds of hold_s (s) separated by move_s, split into windows; sigma of a window mean of duration
+    T is noise_density / sqrt(2 T) (white noise, one-sided density in g/sqrt(Hz)). temp_path(t_s)
+    gives the die temperature (degC); extra(obs) adds an (n,3) g term outside the model;
+    extra_drivers(obs) gives user driver signals the model needs (e.g. {'humidity_pct': ...}).
+    """
+    poses = parse_protocol(protocol, hold_s) if isinstance(protocol, str) else list(protocol)
+    rng = np.random.default_rng(seed)
+    seq = [(f"{p.name}#{r}" if repeats > 1 else p.name, p) for r in range(repeats) for p in poses]
+    w = hold_s / windows_per_hold
+    k = np.arange(windows_per_hold)
+    t_in = (k + 0.5) * w
+    starts = t0_s + np.arange(len(seq)) * (hold_s + move_s)
+    t = (starts[:, None] + t_in[None, :]).ravel()
+    n = t.size
+    pid = np.repeat(np.arange(len(seq)), windows_per_hold)
+    up = np.array([p.up_sensor for _, p in seq], float)[pid]
+    q = np.array([p.q_sensor_to_world for _, p in seq], float)[pid]
+    T = temp_path(t) if temp_path is not None else np.full(n, 25.0)
+    dTdt = (temp_path(t + 0.5) - temp_path(t - 0.5)) / 1.0 if temp_path is not None else np.zeros(n)
+    sigma = np.full((n, 3), noise_density_g_rthz / np.sqrt(2.0 * w))
+    obs = ObsTable(
+        meas_g=np.zeros((n, 3)),
+        sigma_g=sigma,
+        up_sensor=up,
+        pose_id=pid,
+        pose_names=[s for s, _ in seq],
+        t_s=t,
+        t_in_pose_s=np.tile(t_in, len(seq)),
+        n_samples=np.full(n, round(w * 1000)),
+        std_g=np.full((n, 3), noise_density_g_rthz * np.sqrt(500.0)),
+        temp_degC=np.asarray(T, float),
+        dtemp_degC_per_s=np.asarray(dTdt, float),
+        q_sensor_to_world=q,
+        session=f"synthetic-{seed}",
+    )
+    drv = obs_drivers(obs, extra_drivers(obs) if extra_drivers is not None else None)
+    f = model.truth_g(theta, up, q, gravity_g)
+    meas = model.predict(theta, f, drv)
+    if extra is not None:
+        meas = meas + extra(obs)
+    obs.meas_g = meas + rng.standard_normal((n, 3)) * sigma
+    return obs
+
+
+def true_theta(model: Model, values: Mapping[str, float] | None = None, seed: int = 1) -> np.ndarray:
+    """Plausible MPU-9250 parameters: bias ~ 50 mg, scale 1 +- 2 %, cross-axis ~ 1 %, other
+    effects at their typical size (random signs), overridden by `values`."""
+    rng = np.random.default_rng(seed)
+    th = model.initial_theta()
+    for e in model.effects:
+        sl = model.slices[e.name]
+        if e.name in LIBRARY and e.name not in ("warmup", "fixture_tilt"):
+            th[sl] = th[sl] + np.array([p.typical for p in e.params]) * rng.choice(
+                [-1.0, 1.0], len(e.params)
+            ) * rng.uniform(0.7, 1.3, len(e.params))
+        if e.name == "warmup":
+            th[sl] = [4e-3, -3e-3, 5e-3, 90.0]
+        if e.name == "fixture_tilt":
+            th[sl] = [3e-3, -2e-3]
+    for k, v in (values or {}).items():
+        th[model.index[k]] = v
+    return th
+
+
+def synthetic_session(
+    model: Model,
+    theta: np.ndarray,
+    *,
+    protocol: str | Sequence[PoseSpec] = "six",
+    hold_s: float = 10.0,
+    move_s: float = 2.0,
+    rate_hz: float = 200.0,
+    noise_density_g_rthz: float = 300e-6,
+    temp_path: Callable[[np.ndarray], np.ndarray] | None = None,
+    eps_clock: float = 0.0,
+    lsb_per_g: float = 16384.0,
+    seed: int = 0,
+):
+    """A labelled Session of static holds sampled at rate_hz straight from the measurement equation
+    (white noise of the given density, counts quantised at lsb_per_g). Host time runs
+    (1 + eps_clock) faster than sensor time, plus 1 ms of read jitter."""
+    from accellog.core.session import PoseLabel, Session, SessionMeta
+
+    poses = parse_protocol(protocol, hold_s) if isinstance(protocol, str) else list(protocol)
+    rng = np.random.default_rng(seed)
+    dur = len(poses) * (hold_s + move_s) + move_s
+    n = int(dur * rate_hz)
+    t = np.arange(n) / rate_hz
+    labels, up, q = [], np.zeros((n, 3)), np.zeros((n, 4))
+    for k, p in enumerate(poses):
+        s0 = move_s + k * (hold_s + move_s)
+        labels.append(PoseLabel(p.name, s0, s0 + hold_s, p.up_sensor, p.q_sensor_to_world, k))
+        m = t >= s0 - move_s
+        up[m] = p.up_sensor
+        q[m] = p.q_sensor_to_world
+    up[~np.any(up, axis=1)] = poses[0].up_sensor
+    q[~np.any(q, axis=1)] = poses[0].q_sensor_to_world
+    T = temp_path(t) if temp_path is not None else np.full(n, 25.0)
+    drv = {"t_s": t, "temp_degC": T, "t_in_pose_s": np.zeros(n), "dtemp_degC_per_s": np.gradient(T, t)}
+    f = model.truth_g(theta, up, q, 1.0)
+    a = model.predict(theta, f, drv) + rng.standard_normal((n, 3)) * noise_density_g_rthz * np.sqrt(
+        rate_hz / 2
+    )
+    counts = np.clip(np.round(a * lsb_per_g), -32768, 32767).astype(np.int32)
+    host = t * (1.0 + eps_clock) + rng.uniform(0.0, 1e-3, n)
+    meta = SessionMeta(
+        source="emulator",
+        accel_range_g=2.0,
+        accel_lsb_per_g=lsb_per_g,
+        sample_rate_hz=rate_hz,
+        software="synthetic",
+    )
+    return Session(
+        meta=meta,
+        t_s=t,
+        sample_index=np.arange(n, dtype=np.int64),
+        accel_g=counts / lsb_per_g,
+        accel_counts=counts,
+        temp_degC=T,
+        host_time_s=host,
+        poses=labels,
+    )

@@ -1,0 +1,611 @@
+"""Least-squares fit of a Model to static observations, with parameter uncertainties.
+
+Residual of row r, axis i: e_ri = meas_ri - predict(theta, f_r)_i, f_r = model.truth_g(theta, up_r, q_r, g).
+Weighted fit minimises chi2 = sum (e_ri / sigma_ri)^2 (sigma_g = standard error of each window mean);
+unweighted minimises sum e_ri^2 (the seed's published fits).
+
+Covariance convention:
+- weighted: cov = (J^T W J)^-1, W = diag(1/sigma^2) -- the Cramer-Rao bound for known noise; it is
+  NOT rescaled by chi2/dof (if chi2/dof >> 1 the model misses an effect: a warning says so and
+  `sigma_scaled` = sigma * sqrt(max(1, chi2/dof)) gives the conservative value);
+- unweighted: cov = s^2 (J^T J)^-1 with s^2 = sum e^2 / dof (residual variance).
+chi2/dof is always computed against the noise estimate sigma_g (when it is finite and positive).
+
+Solver: scipy.optimize.least_squares (Levenberg-Marquardt) with a central-difference Jacobian scaled
+by each parameter's typical magnitude, then Gauss-Newton polishing; linear models converge in one
+step. Before fitting, a rank check on the column-normalised Jacobian refuses (ModelError) models
+the data cannot determine, naming the parameters and the poses or signals that are missing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, stats
+
+from accellog.calibrate.effects import AXES, all_effects
+from accellog.calibrate.model import Model
+from accellog.core.errors import InputError, ModelError
+from accellog.core.session import ObsTable
+
+GEOMETRY_EFFECTS = {"fixture_tilt", "nonlin2", "nonlin3", "g_cross"}
+"""Effects whose identifiability is a property of the pose set; fit_model checks it explicitly.
+fixture_tilt in particular is refused without a face held at two rotations about the vertical:
+with six poses its estimate would rest entirely on the nominal yaw of each face."""
+
+RANK_TOL = 1e-9
+"""Relative singular value of the column-normalised Jacobian below which a direction is unidentifiable."""
+
+
+def obs_drivers(obs: ObsTable, extra: Mapping[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """Driver signals of the observation rows: t_s, t_in_pose_s, temp_degC, dtemp_degC_per_s (when
+    recorded and finite) plus `extra` (user signals, arrays aligned with rows)."""
+    d: dict[str, np.ndarray] = {
+        "t_s": np.asarray(obs.t_s, float),
+        "t_in_pose_s": np.asarray(obs.t_in_pose_s, float),
+    }
+    for key in ("temp_degC", "dtemp_degC_per_s"):
+        v = getattr(obs, key)
+        if v is not None and np.all(np.isfinite(v)):
+            d[key] = np.asarray(v, float)
+    for k, v in (extra or {}).items():
+        arr = np.asarray(v, float)
+        if arr.shape[0] != obs.n:
+            raise InputError(f"driver {k!r} has {arr.shape[0]} rows, observations have {obs.n}")
+        d[k] = arr
+    return d
+
+
+def _q_or_none(obs: ObsTable) -> np.ndarray | None:
+    q = obs.q_sensor_to_world
+    return None if q is None else np.asarray(q, float)
+
+
+def pose_faces(obs: ObsTable) -> list[str]:
+    """Distinct faces present ('+x' ... '-z' for on-axis poses, 'off-axis' otherwise)."""
+    out = []
+    for u in np.unique(np.round(np.asarray(obs.up_sensor, float), 3), axis=0):
+        k = int(np.argmax(np.abs(u)))
+        if abs(abs(u[k]) - 1.0) < 1e-3:
+            out.append(("+" if u[k] > 0 else "-") + AXES[k])
+        else:
+            out.append("off-axis")
+    return sorted(set(out))
+
+
+def _levels(x: np.ndarray, step: float = 0.05) -> int:
+    return int(np.unique(np.round(np.asarray(x, float) / step)).size)
+
+
+def yaw_groups(obs: ObsTable) -> int:
+    """Largest number of distinct orientations (rotations about the vertical) of any one face."""
+    q = _q_or_none(obs)
+    if q is None or not np.all(np.isfinite(q)):
+        return 0
+    up = np.round(np.asarray(obs.up_sensor, float), 3)
+    qs = np.round(q * np.sign(q[:, :1] + 1e-12), 3)
+    best = 0
+    for u in np.unique(up, axis=0):
+        m = np.all(up == u, axis=1)
+        best = max(best, np.unique(qs[m], axis=0).shape[0])
+    return best
+
+
+def effect_requirement(
+    name: str, obs: ObsTable, drivers: Mapping[str, np.ndarray], model: Model
+) -> str | None:
+    """Why the data cannot reveal effect `name` (what to record), or None if it may."""
+    lib = all_effects(model.effects_file)
+    e = lib.get(name)
+    if e is None:
+        return f"unknown effect {name!r}"
+    if not e.static:
+        return (
+            "not identifiable from static pose means: a sample-clock error scales time, which shows "
+            "as sensor time drifting against host time (supply host timestamps) and in integration"
+        )
+    for d in e.drivers:
+        if d not in drivers:
+            return f"needs driver {d!r} ({DRIVER_HINT.get(d, 'not in this data')})"
+    up = np.asarray(obs.up_sensor, float)
+    if name in ("temp_bias", "temp_scale", "temp_bias2", "temp_scale2"):
+        T = drivers["temp_degC"]
+        span = float(np.ptp(T))
+        need = 1.0 if name in ("temp_bias", "temp_scale") else 3.0
+        if span < need:
+            return (
+                f"{name} not identifiable: temperature spans only {span:.1f} degC (need >= {need:g}); "
+                "record a warm-up from power-up or a temperature sweep, with several windows per hold"
+            )
+    if name in ("temp_bias2", "temp_scale", "temp_scale2"):
+        # a curve through k temperature levels needs k >= terms: at two levels dT and dT^2 are the same
+        # signal (plateaus); scale terms need the levels while each axis is vertical (|f_i| > 0.5 g)
+        T = drivers["temp_degC"]
+        need = 2 if name == "temp_scale" else 3
+        rows = (
+            {"any pose": np.ones(T.shape, bool)}
+            if name == "temp_bias2"
+            else {f"axis {a} up/down": np.abs(up[:, i]) > 0.5 for i, a in enumerate(AXES)}
+        )
+        bad = [k for k, m in rows.items() if _levels(T[m], 0.5) < need]
+        if bad:
+            return (
+                f"{name} not identifiable: fewer than {need} temperature levels (0.5 degC apart) for "
+                f"{', '.join(bad)}; hold the poses at {need} or more temperatures (a sweep or warm-up)"
+            )
+    if name in ("time_drift", "warmup"):
+        span = float(np.ptp(drivers["t_s"]))
+        if span < 60.0:
+            return f"{name} needs observations spread over >= 60 s (have {span:.0f} s)"
+        if name == "warmup" and float(np.min(drivers["t_s"])) > 600.0:
+            return "warmup needs data from the first minutes after power-up (first window starts late)"
+    if name == "fixture_tilt" and yaw_groups(obs) < 2:
+        return (
+            "fixture_tilt not identifiable: no face is held at two rotations about the vertical; "
+            "record the 24-pose protocol (each face at 0/90/180/270 deg, --protocol 24)"
+        )
+    if name == "nonlin2":
+        bad = [a for i, a in enumerate(AXES) if _levels(up[:, i]) < 3]
+        if bad:
+            return f"nonlin2 needs each axis at three levels (+1, 0, -1 g); missing for {', '.join(bad)}"
+    if name == "nonlin3":
+        bad = [a for i, a in enumerate(AXES) if _levels(up[:, i]) < 4]
+        if bad:
+            return (
+                f"nonlin3 needs poses off the axes (f at four levels, e.g. 45 deg tilts or cube "
+                f"edges/corners): missing for {', '.join(bad)}; at +-1 g it is indistinguishable from scale"
+            )
+    if name == "g_cross":
+        prods = np.stack([up[:, 0] * up[:, 1], up[:, 0] * up[:, 2], up[:, 1] * up[:, 2]], axis=1)
+        bad = [p for k, p in enumerate(("xy", "xz", "yz")) if _levels(prods[:, k], 0.05) < 3]
+        if bad:
+            return (
+                "g_cross needs poses off the axes so that f_j f_k takes several values (cube edges, "
+                f"45 deg tilts in both directions): missing for products {', '.join(bad)}"
+            )
+    return None
+
+
+DRIVER_HINT = {
+    "temp_degC": "record the die temperature (TEMP_OUT) with the session, during a warm-up or a "
+    "temperature sweep of a few degC",
+    "dtemp_degC_per_s": "record the die temperature (TEMP_OUT) with the session, during a warm-up or a "
+    "temperature sweep of a few degC",
+    "t_s": "observation times are missing",
+    "t_in_pose_s": "label the static holds",
+}
+
+
+def _param_hint(pname: str, model: Model, obs: ObsTable, drivers: Mapping[str, np.ndarray]) -> str:
+    faces = pose_faces(obs)
+    for e in model.effects:
+        if pname in e.param_names:
+            break
+    else:  # pragma: no cover
+        return ""
+    ax = pname[-1] if pname[-1] in AXES else ""
+    if pname.startswith("S_") and len(pname) == 4 and pname[2] == pname[3]:
+        have = [f for f in faces if f.endswith(ax)]
+        return (
+            f"scale of {ax} needs {ax} at two levels: both +{ax} and -{ax} poses "
+            f"(have {', '.join(have) or f'no {ax} pose'})"
+        )
+    if pname.startswith("S_") and len(pname) == 4:
+        j = pname[3]
+        return f"{pname} (axis {pname[2]} sensing {j}) needs a pose with {j} up or down"
+    if pname.startswith("b_"):
+        return f"bias of {ax} needs {ax} readings at known orientations"
+    reason = effect_requirement(e.name, obs, drivers, model)
+    return reason or f"{e.name}: {e.reveal}"
+
+
+@dataclass
+class FitResult:
+    """Outcome of a fit. residual_g = meas - predicted; S, b: linear part at reference conditions."""
+
+    model: Model
+    theta: np.ndarray
+    cov: np.ndarray
+    sigma: np.ndarray
+    param_names: list[str]
+    param_units: list[str]
+    predicted_g: np.ndarray
+    residual_g: np.ndarray
+    truth_g: np.ndarray
+    chi2: float
+    dof: int
+    chi2_dof: float
+    p_value: float
+    rms_g: float
+    weighted: bool
+    S: np.ndarray
+    b: np.ndarray
+    n_obs: int
+    gravity_g: float
+    method: str = "labelled"
+    sigma_scaled: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    warnings: list[str] = field(default_factory=list)
+    jacobian: np.ndarray | None = None
+    """Jacobian d(w residual)/d(theta) at the solution, w = 1/sigma_g when weighted (whitened), else 1
+    (rows: obs-major, axis-minor)."""
+
+    def params(self) -> dict[str, float]:
+        return self.model.params_dict(self.theta)
+
+    def to_dict(self) -> dict:
+        """JSON-able summary: parameters with units and 1-sigma, fit statistics, warnings."""
+        return {
+            "model": self.model.to_spec(),
+            "method": self.method,
+            "weighted": self.weighted,
+            "gravity_g": self.gravity_g,
+            "params": [
+                {"name": n, "value": float(v), "sigma": float(s), "unit": u}
+                for n, v, s, u in zip(self.param_names, self.theta, self.sigma, self.param_units, strict=True)
+            ],
+            "cov": self.cov.tolist(),
+            "S": self.S.tolist(),
+            "b_g": self.b.tolist(),
+            "chi2": _f(self.chi2),
+            "dof": self.dof,
+            "chi2_dof": _f(self.chi2_dof),
+            "p_value": _f(self.p_value),
+            "rms_g": self.rms_g,
+            "n_obs": self.n_obs,
+            "warnings": list(self.warnings),
+        }
+
+
+def _f(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _sigma_ok(obs: ObsTable) -> bool:
+    s = np.asarray(obs.sigma_g, float)
+    return s.shape == obs.meas_g.shape and bool(np.all(np.isfinite(s) & (s > 0)))
+
+
+def _checked(
+    obs: ObsTable, model: Model, weighted: bool, drivers: Mapping[str, np.ndarray] | None
+) -> tuple[np.ndarray, dict[str, np.ndarray], bool]:
+    """(meas_g (n,3), drivers, sigma usable) after the input checks shared by both fits (InputError)."""
+    if obs.n == 0:
+        raise InputError("no observations to fit")
+    meas = np.asarray(obs.meas_g, float)
+    if not np.all(np.isfinite(meas)):
+        raise InputError("observations contain NaN/inf readings")
+    drv = obs_drivers(obs, drivers)
+    model.check_drivers(drv, obs.n)
+    sig_ok = _sigma_ok(obs)
+    if weighted and not sig_ok:
+        raise InputError(
+            "weighted fit needs finite positive sigma_g for every observation (or weighted=False)"
+        )
+    return meas, drv, sig_ok
+
+
+def _numjac(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    cols = []
+    for k in range(theta.size):
+        tp = theta.copy()
+        tm = theta.copy()
+        tp[k] += steps[k]
+        tm[k] -= steps[k]
+        cols.append((fun(tp) - fun(tm)) / (2.0 * steps[k]))
+    return np.stack(cols, axis=1) if cols else np.zeros((fun(theta).size, 0))
+
+
+def rank_check(J: np.ndarray, model: Model, obs: ObsTable, drivers: Mapping[str, np.ndarray]) -> float:
+    """Raise ModelError if the column-normalised Jacobian is rank deficient, naming the
+    parameters in its null space and what data would determine them; return its condition number."""
+    norms = np.linalg.norm(J, axis=0)
+    names = model.param_names
+    zero = [names[k] for k in range(len(names)) if norms[k] == 0 or not np.isfinite(norms[k])]
+    bad: list[str] = list(zero)
+    cond = np.inf
+    if not zero and J.shape[1]:
+        Jn = J / norms
+        _, s, vt = np.linalg.svd(Jn, full_matrices=False)
+        cond = float(s[0] / s[-1]) if s[-1] > 0 else np.inf
+        null = vt[s < RANK_TOL * s[0]]
+        for v in null:
+            bad += [names[k] for k in np.flatnonzero(np.abs(v) > 0.2) if names[k] not in bad]
+    if J.shape[0] < J.shape[1]:
+        raise ModelError(
+            f"model {model.name} has {J.shape[1]} parameters but the data give only {J.shape[0]} "
+            f"equations ({obs.n} observations x 3 axes): record more poses (faces present: "
+            f"{', '.join(pose_faces(obs))})"
+        )
+    if bad:
+        hints = list(dict.fromkeys(_param_hint(p, model, obs, drivers) for p in bad))
+        raise ModelError(
+            f"model {model.name} cannot be determined from this data: {', '.join(bad)} not "
+            f"identifiable ({'; '.join(hints)}); faces present: {', '.join(pose_faces(obs))}"
+        )
+    return cond
+
+
+@dataclass
+class _Problem:
+    model: Model
+    obs: ObsTable
+    drivers: dict[str, np.ndarray]
+    w: np.ndarray  # (n,3) 1/sigma or ones
+    gravity_g: float
+    q: np.ndarray | None
+
+    def predicted(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        f = self.model.truth_g(theta, self.obs.up_sensor, self.q, self.gravity_g)
+        return self.model.predict(theta, f, self.drivers), f
+
+    def resid(self, theta: np.ndarray) -> np.ndarray:
+        return ((self.obs.meas_g - self.predicted(theta)[0]) * self.w).ravel()
+
+
+def _steps(model: Model, theta: np.ndarray) -> np.ndarray:
+    return np.maximum(1e-4 * model.param_typical, 1e-7 * np.abs(theta))
+
+
+def _solve(fun, theta0: np.ndarray, model: Model, linear: bool | None = None) -> np.ndarray:
+    """LM from theta0 (skipped for linear problems), then Gauss-Newton polishing."""
+    steps = lambda th: _steps(model, th)  # noqa: E731
+    jac = lambda th: _numjac(fun, th, steps(th))  # noqa: E731
+    theta = theta0.copy()
+    if not (model.is_linear if linear is None else linear):
+        sol = optimize.least_squares(
+            fun, theta, jac=jac, method="lm", x_scale=model.param_typical, xtol=1e-12, ftol=1e-12, gtol=1e-12
+        )
+        theta = sol.x
+    r = fun(theta)
+    cost = float(r @ r)
+    for _ in range(6):
+        J = jac(theta)
+        step, *_ = np.linalg.lstsq(J, -r, rcond=None)
+        for lam in (1.0, 0.5, 0.25):
+            cand = theta + lam * step
+            rc = fun(cand)
+            c = float(rc @ rc)
+            if np.isfinite(c) and c <= cost:
+                break
+        else:
+            break
+        converged = np.all(np.abs(cand - theta) <= 1e-13 * np.maximum(1.0, np.abs(theta)))
+        theta, r, cost = cand, rc, c
+        if converged:
+            break
+    return theta
+
+
+def _warmup_init(problem: _Problem, theta0: np.ndarray, wfun) -> np.ndarray:
+    """Grid over tau_warmup_s (model linear given tau): best start for the nonlinear fit."""
+    k = problem.model.index["tau_warmup_s"]
+    span = max(float(np.ptp(problem.drivers["t_s"])), 1.0)
+    best, best_cost = theta0, np.inf
+    free = [i for i in range(theta0.size) if i != k]
+    for tau in np.geomspace(max(span / 300, 1.0), span, 9):
+        th = theta0.copy()
+        th[k] = tau
+
+        def f_sub(x, th=th):
+            t2 = th.copy()
+            t2[free] = x
+            return wfun(t2)
+
+        J = _numjac(f_sub, th[free], _steps(problem.model, th)[free])
+        x, *_ = np.linalg.lstsq(J, -f_sub(th[free]), rcond=None)
+        th[free] += x
+        c = float(np.sum(wfun(th) ** 2))
+        if c < best_cost:
+            best, best_cost = th, c
+    return best
+
+
+def fit_model(
+    obs: ObsTable,
+    model: Model,
+    *,
+    weighted: bool = True,
+    gravity_g: float = 1.0,
+    drivers: Mapping[str, np.ndarray] | None = None,
+    theta0: np.ndarray | None = None,
+    check_rank: bool = True,
+) -> FitResult:
+    """Least-squares fit of `model` to labelled static observations (truth = gravity_g * up_sensor,
+    tilted when the model has fixture_tilt). `drivers`: extra driver signals aligned with rows."""
+    meas, drv, sig_ok = _checked(obs, model, weighted, drivers)
+    w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(meas)
+    prob = _Problem(model, obs, drv, w, float(gravity_g), _q_or_none(obs))
+    th0 = model.initial_theta() if theta0 is None else np.asarray(theta0, float).copy()
+    if check_rank:
+        for name in GEOMETRY_EFFECTS & set(model.term_names):
+            why = effect_requirement(name, obs, drv, model)
+            if why:
+                raise ModelError(f"model {model.name} cannot be determined from this data: {why}")
+        # Probe the rank at a generic point (zero-initial parameters at half their typical size):
+        # at theta0 a nonlinear parameter (tau of a zero warm-up amplitude) has no effect at all.
+        probe = model.initial_theta()
+        probe = np.where(probe == 0.0, 0.5 * model.param_typical, probe)
+        rank_check(_numjac(prob.resid, probe, _steps(model, probe)), model, obs, drv)
+    if "tau_warmup_s" in model.index and theta0 is None:
+        th0 = _warmup_init(prob, th0, prob.resid)
+    theta = _solve(prob.resid, th0, model)
+    return _result(prob, theta, weighted, sig_ok, method="labelled")
+
+
+def _result(prob: _Problem, theta: np.ndarray, weighted: bool, sig_ok: bool, method: str) -> FitResult:
+    model, obs = prob.model, prob.obs
+    pred, f = prob.predicted(theta)
+    res = np.asarray(obs.meas_g, float) - pred
+    J = _numjac(prob.resid, theta, _steps(model, theta))
+    n_eq = res.size
+    k = model.n_params
+    dof = n_eq - k
+    JtJ = J.T @ J
+    try:
+        cov = np.linalg.inv(JtJ)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(JtJ)
+    rss_w = float(np.sum((res * prob.w) ** 2))
+    if sig_ok:
+        chi2 = float(np.sum((res / np.asarray(obs.sigma_g, float)) ** 2))
+        chi2_dof = chi2 / dof if dof > 0 else np.nan
+        p = float(stats.chi2.sf(chi2, dof)) if dof > 0 else np.nan
+    else:
+        chi2, chi2_dof, p = np.nan, np.nan, np.nan
+    if not weighted:
+        cov = cov * (rss_w / dof if dof > 0 else np.nan)
+    sigma = np.sqrt(np.clip(np.diag(cov), 0, None))
+    scale = max(1.0, chi2_dof) if weighted and np.isfinite(chi2_dof) else 1.0
+    S, b = model.S_b(theta)
+    warns = _acceptance(model, S, b, chi2_dof, p, sigma, weighted, dof)
+    return FitResult(
+        model=model,
+        theta=theta,
+        cov=cov,
+        sigma=sigma,
+        param_names=list(model.param_names),
+        param_units=list(model.param_units),
+        predicted_g=pred,
+        residual_g=res,
+        truth_g=f,
+        chi2=chi2,
+        dof=dof,
+        chi2_dof=chi2_dof,
+        p_value=p,
+        rms_g=float(np.sqrt(np.mean(res**2))),
+        weighted=weighted,
+        S=S,
+        b=b,
+        n_obs=obs.n,
+        gravity_g=prob.gravity_g,
+        method=method,
+        sigma_scaled=sigma * np.sqrt(scale),
+        warnings=warns,
+        jacobian=J,
+    )
+
+
+def _acceptance(
+    model: Model,
+    S: np.ndarray,
+    b: np.ndarray,
+    chi2_dof: float,
+    p: float,
+    sigma: np.ndarray,
+    weighted: bool,
+    dof: int,
+) -> list[str]:
+    """ArduPilot-like acceptance checks as warnings (scale 0.8-1.2, |offset| < 1 g, residual vs noise)."""
+    w: list[str] = []
+    d = np.diag(S)
+    for i, a in enumerate(AXES):
+        if not 0.8 <= d[i] <= 1.2:
+            w.append(f"scale of {a} = {d[i]:.4f} outside 0.8-1.2: wrong pose labels or axis signs?")
+        if abs(b[i]) >= 1.0:
+            w.append(f"offset of {a} = {b[i]:.3f} g exceeds 1 g: wrong pose labels or range?")
+    if dof == 0:
+        w.append("no degrees of freedom left: the fit interpolates the data, residuals say nothing")
+    if np.isfinite(chi2_dof) and dof > 0 and chi2_dof > 3.0 and p < 1e-3:
+        w.append(
+            f"residuals are {np.sqrt(chi2_dof):.1f}x the noise floor (chi2/dof = {chi2_dof:.3g}): the model "
+            "misses an effect (run `accellog diagnose`)"
+            + ("; parameter sigmas are the noise-only bound, see sigma_scaled" if weighted else "")
+        )
+    for n, s, t in zip(model.param_names, sigma, model.param_typical, strict=True):
+        if np.isfinite(s) and s > t:
+            w.append(f"{n} poorly determined: 1-sigma {s:.3g} exceeds its typical size {t:.3g}")
+    return w
+
+
+def fit_orientation_free(
+    obs: ObsTable,
+    model: Model,
+    *,
+    weighted: bool = True,
+    gravity_g: float = 1.0,
+    drivers: Mapping[str, np.ndarray] | None = None,
+) -> FitResult:
+    """Fit without pose labels (imu_tk / ArduPilot): minimise sum ((|f_r| - g) / sigma_r)^2 with
+    f_r = model.correct(theta, meas_r); sigma_r = |(f_r/|f_r|) . sigma_r| (projected noise).
+
+    The rotation of the sensor frame is unobservable, so full cross_axis (6) cannot be fitted: use
+    misalignment_tri (3). Needs >= 9 well-spread orientations for bias+scale+misalignment_tri.
+    """
+    if model.has("fixture_tilt"):
+        raise ModelError("fixture_tilt needs pose labels: the orientation-free fit cannot use it")
+    if model.has("cross_axis"):
+        raise ModelError(
+            "an orientation-free fit cannot determine all 6 cross_axis terms (3 of them are a rotation "
+            "of the frame): use misalignment_tri instead, e.g. 'bias+scale+misalignment_tri'"
+        )
+    meas, drv, sig_ok = _checked(obs, model, weighted, drivers)
+    if sig_ok:
+        dirs = meas / np.linalg.norm(meas, axis=1, keepdims=True)
+        sig_n = np.sqrt(np.sum((dirs * obs.sigma_g) ** 2, axis=1))
+    else:
+        sig_n = np.ones(obs.n)
+    wn = 1.0 / sig_n if weighted else np.ones(obs.n)
+
+    def fun(theta):
+        f = model.correct(theta, meas, drv)
+        return (np.linalg.norm(f, axis=1) - gravity_g) * wn
+
+    th0 = model.initial_theta()
+    J0 = _numjac(fun, th0, _steps(model, th0))
+    if J0.shape[0] < J0.shape[1]:
+        raise ModelError(
+            f"orientation-free fit of {model.name} needs >= {model.n_params} distinct static "
+            f"orientations, have {obs.n}"
+        )
+    norms = np.linalg.norm(J0, axis=0)
+    _, s, vt = np.linalg.svd(J0 / np.where(norms > 0, norms, 1.0), full_matrices=False)
+    if np.any(norms == 0) or s[-1] < 1e-7 * s[0]:
+        bad = [model.param_names[k] for k in np.flatnonzero((norms == 0) | (np.abs(vt[-1]) > 0.2))]
+        raise ModelError(
+            f"orientation-free fit cannot determine {', '.join(bad)}: record more, well-spread "
+            "orientations (>= 9, including tilted ones)"
+        )
+    theta = _solve(fun, th0, model, linear=False)
+    # Truth implied by the fit: the corrected direction scaled to gravity.
+    f = model.correct(theta, meas, drv)
+    f_true = gravity_g * f / np.linalg.norm(f, axis=1, keepdims=True)
+    up = f_true / gravity_g
+    obs2 = ObsTable(
+        meas_g=obs.meas_g,
+        sigma_g=obs.sigma_g,
+        up_sensor=up,
+        pose_id=obs.pose_id,
+        pose_names=obs.pose_names,
+        t_s=obs.t_s,
+        t_in_pose_s=obs.t_in_pose_s,
+        n_samples=obs.n_samples,
+        std_g=obs.std_g,
+        temp_degC=obs.temp_degC,
+        dtemp_degC_per_s=obs.dtemp_degC_per_s,
+        q_sensor_to_world=None,
+        session=obs.session,
+    )
+    w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(meas)
+    prob = _Problem(model, obs2, drv, w, float(gravity_g), None)
+    out = _result(prob, theta, weighted, sig_ok, method="orientation_free")
+    # Covariance from the norm residuals (the quantity actually fitted).
+    J = _numjac(fun, theta, _steps(model, theta))
+    cov = np.linalg.pinv(J.T @ J)
+    r = fun(theta)
+    dof = obs.n - model.n_params
+    if not weighted:
+        cov = cov * (float(r @ r) / dof if dof > 0 else np.nan)
+    out.cov = cov
+    out.sigma = np.sqrt(np.clip(np.diag(cov), 0, None))
+    out.dof = dof
+    if sig_ok:
+        out.chi2 = float(np.sum((r / wn / sig_n) ** 2))
+        out.chi2_dof = out.chi2 / dof if dof > 0 else np.nan
+        out.p_value = float(stats.chi2.sf(out.chi2, dof)) if dof > 0 else np.nan
+    scale = max(1.0, out.chi2_dof) if weighted and np.isfinite(out.chi2_dof) else 1.0
+    out.sigma_scaled = out.sigma * np.sqrt(scale)  # as _result: the unweighted cov already carries s^2
+    # the acceptance checks of _result saw the labelled-style statistics: redo them on the fitted ones
+    out.warnings = _acceptance(model, out.S, out.b, out.chi2_dof, out.p_value, out.sigma, weighted, dof)
+    return out

@@ -1,0 +1,364 @@
+"""Gyro calibration: zero-rate bias (and its temperature slope) from static holds; scale and
+misalignment from known rotations between labelled poses.
+
+Gyro measurement model (the accelerometer's effect library idea, on the rate; deg/s):
+
+    w_meas = M w_true + b0 + b_T (T - T_ref) + noise,    M = I + scale/cross-axis terms
+    correct:  w_true = M^-1 (w_meas - b0 - b_T (T - T_ref))
+
+Effects: 'bias' (b0), 'temp_bias' (b_T, deg/s/degC, fitted only when the holds span at least
+min_temp_span_degC), 'scale' (diag M), 'cross_axis' (off-diagonal M).
+
+Bias: every static hold is cut into window_s windows; the window means obey mean = b0 + b_T dT,
+fitted per axis by least squares; sigma = sqrt(s^2 (A^T A)^-1) with s^2 the residual variance of
+the window means (so hold-to-hold scatter, e.g. from bias instability, widens the uncertainty).
+
+Scale/misalignment: for consecutive holds a, b, integrate the corrected rate from the middle of a
+to the middle of b (accellog.navigate.strapdown) and compare what gravity can check: the up vector of a,
+carried through dq_int, must land on the up vector of b (residual dq_int^-1 up_a - up_b, deg;
+yaw about the vertical is free, so a hand-held operator's turns do no harm). With
+reference='orientation' (known headings: a fixture, a vehicle) the whole nominal change
+dq_nom = q_a^-1 q_b is compared instead: residual = rotation vector of dq_nom^-1 dq_int (deg). M is found by nonlinear least squares (scipy); parameters the rotations do
+not excite (e.g. x/y scale when the robot only turns about z) are held at the identity and
+reported as undetermined (sigma NaN). Covariance = s^2 (J^T J)^-1, s^2 = max(RSS/dof, s_min^2).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from accellog.core.errors import InputError, ModelError
+from accellog.core.rotations import (
+    prefix_quat_product,
+    quat_conjugate,
+    quat_from_rotvec,
+    quat_multiply,
+    quat_normalize,
+    rotate_inverse,
+)
+from accellog.core.session import PoseLabel
+
+PARAM_NAMES = [f"M{'xyz'[i]}{'xyz'[j]}" for i in range(3) for j in range(3)]
+"""Names of the entries of M (row-major): M_ij maps true rate j into measured axis i."""
+
+
+@dataclass
+class GyroCalibration:
+    """Gyro model w_meas = M w_true + b0 + b_T (T - T_ref) (deg/s), with 1-sigma uncertainties."""
+
+    bias_dps: np.ndarray
+    bias_sigma_dps: np.ndarray
+    temp_bias_dps_per_degC: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    temp_bias_sigma_dps_per_degC: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    t_ref_degC: float = 25.0
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(3))
+    """M (3,3): scale on the diagonal (1 + s), cross-axis off the diagonal."""
+    matrix_sigma: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    effects: list[str] = field(default_factory=lambda: ["bias"])
+    undetermined: list[str] = field(default_factory=list)
+    """Entries of M the rotations did not determine (held at the identity)."""
+    n_holds: int = 0
+    rotation_rms_deg: float = float("nan")
+    """RMS of the rotation residuals after the scale/misalignment fit (deg)."""
+
+    def bias_at(self, temp_degC: np.ndarray | float | None = None) -> np.ndarray:
+        """Bias (deg/s): b0 + b_T (T - T_ref); (3,) without temperature, (N,3) with an (N,) array."""
+        if temp_degC is None:
+            return np.asarray(self.bias_dps, float)
+        dt = np.asarray(temp_degC, float) - self.t_ref_degC
+        return self.bias_dps + np.multiply.outer(dt, self.temp_bias_dps_per_degC)
+
+    def correct(self, gyro_dps: np.ndarray, temp_degC: np.ndarray | None = None) -> np.ndarray:
+        """w_true = M^-1 (w_meas - b(T)) for (N,3) rates in deg/s (temperature in degC or None)."""
+        tc = temp_degC if np.any(self.temp_bias_dps_per_degC != 0) else None
+        w = np.asarray(gyro_dps, float) - self.bias_at(tc)
+        return np.linalg.solve(self.matrix, w.T).T
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict (NaN -> None), keys with units."""
+
+        def lst(x):
+            a = np.asarray(x, float)
+            return np.where(np.isfinite(a), a, np.nan).tolist() if a.ndim else float(a)
+
+        def clean(v):
+            if isinstance(v, list):
+                return [clean(x) for x in v]
+            return None if isinstance(v, float) and not np.isfinite(v) else v
+
+        return {
+            "model": "w_meas = M w_true + b0 + b_T (T - T_ref)",
+            "units": "deg/s, degC",
+            "bias_dps": clean(lst(self.bias_dps)),
+            "bias_sigma_dps": clean(lst(self.bias_sigma_dps)),
+            "temp_bias_dps_per_degC": clean(lst(self.temp_bias_dps_per_degC)),
+            "temp_bias_sigma_dps_per_degC": clean(lst(self.temp_bias_sigma_dps_per_degC)),
+            "t_ref_degC": float(self.t_ref_degC),
+            "matrix": clean(lst(self.matrix)),
+            "matrix_sigma": clean(lst(self.matrix_sigma)),
+            "effects": list(self.effects),
+            "undetermined": list(self.undetermined),
+            "n_holds": int(self.n_holds),
+            "rotation_rms_deg": clean(float(self.rotation_rms_deg)),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> GyroCalibration:
+        """Inverse of to_dict (None -> NaN). Raises InputError on missing/malformed keys."""
+
+        def arr(key, shape, default=None):
+            v = d.get(key, default)
+            if v is None:
+                raise InputError(f"gyro calibration lacks {key!r}")
+            a = np.array(v, dtype=object)
+            a = np.where(a == None, np.nan, a).astype(float)  # noqa: E711
+            if a.shape != shape:
+                raise InputError(f"gyro calibration {key!r} has shape {a.shape}, expected {shape}")
+            return a
+
+        try:
+            rms = d.get("rotation_rms_deg")
+            return cls(
+                bias_dps=arr("bias_dps", (3,)),
+                bias_sigma_dps=arr("bias_sigma_dps", (3,)),
+                temp_bias_dps_per_degC=arr("temp_bias_dps_per_degC", (3,), [0.0] * 3),
+                temp_bias_sigma_dps_per_degC=arr("temp_bias_sigma_dps_per_degC", (3,), [None] * 3),
+                t_ref_degC=float(d.get("t_ref_degC", 25.0)),
+                matrix=arr("matrix", (3, 3), np.eye(3).tolist()),
+                matrix_sigma=arr("matrix_sigma", (3, 3), [[None] * 3] * 3),
+                effects=[str(e) for e in d.get("effects", ["bias"])],
+                undetermined=[str(e) for e in d.get("undetermined", [])],
+                n_holds=int(d.get("n_holds", 0)),
+                rotation_rms_deg=float("nan") if rms is None else float(rms),
+            )
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"malformed gyro calibration: {exc}") from None
+
+
+def _holds(holds: Sequence[PoseLabel] | np.ndarray) -> np.ndarray:
+    """(K,2) start/end times (s) from PoseLabels or an array of intervals."""
+    if len(holds) and isinstance(holds[0], PoseLabel):
+        return np.array([[h.start_s, h.end_s] for h in holds], float)
+    return np.asarray(holds, float).reshape(-1, 2)
+
+
+def fit_gyro_bias(
+    t_s: np.ndarray,
+    gyro_dps: np.ndarray,
+    holds: Sequence[PoseLabel] | np.ndarray,
+    temp_degC: np.ndarray | None = None,
+    *,
+    t_ref_degC: float = 25.0,
+    window_s: float = 1.0,
+    min_temp_span_degC: float = 2.0,
+    trim_s: float = 0.2,
+) -> GyroCalibration:
+    """Bias (and temp_bias when the holds span >= min_temp_span_degC) from static holds (see module doc).
+
+    holds: PoseLabels or (K,2) start/end times (s); trim_s is cut from both ends of each hold.
+    """
+    t = np.asarray(t_s, float)
+    w = np.asarray(gyro_dps, float)
+    temp = None if temp_degC is None else np.asarray(temp_degC, float)
+    iv = _holds(holds)
+    if iv.shape[0] == 0:
+        raise InputError("no static holds: the gyro bias cannot be estimated")
+    means, temps = [], []
+    for lo, hi in iv:
+        lo, hi = lo + trim_s, hi - trim_s
+        n_win = int((hi - lo) // window_s)
+        if n_win < 1:
+            continue
+        edges = lo + window_s * np.arange(n_win + 1)
+        idx = np.searchsorted(t, edges)
+        for a, b in itertools.pairwise(idx):
+            if b - a >= 2:
+                means.append(w[a:b].mean(axis=0))
+                temps.append(np.nan if temp is None else float(np.mean(temp[a:b])))
+    if len(means) < 2:
+        raise InputError(
+            f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
+        )
+    y = np.array(means)
+    tt = np.array(temps)
+    use_temp = temp is not None and np.isfinite(tt).all() and np.ptp(tt) >= min_temp_span_degC
+    cols = [np.ones(len(y))] + ([tt - t_ref_degC] if use_temp else [])
+    A = np.stack(cols, axis=1)
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    dof = max(len(y) - A.shape[1], 1)
+    s2 = ((y - A @ coef) ** 2).sum(axis=0) / dof
+    cov_unit = np.linalg.inv(A.T @ A)
+    sig = np.sqrt(np.outer(np.diag(cov_unit), s2))
+    cal = GyroCalibration(
+        bias_dps=coef[0], bias_sigma_dps=sig[0], t_ref_degC=t_ref_degC, n_holds=int(iv.shape[0])
+    )
+    if use_temp:
+        cal.temp_bias_dps_per_degC = coef[1]
+        cal.temp_bias_sigma_dps_per_degC = sig[1]
+        cal.effects = ["bias", "temp_bias"]
+    return cal
+
+
+def _block_increments(t: np.ndarray, w_dps: np.ndarray, mids: np.ndarray, block_s: float) -> tuple:
+    """Trapezoid rotation increments (rad, body frame) summed over blocks of ~block_s, with block
+    edges on every mid index; returns (increments (B,3), block index of each mid (K,)).
+
+    Summing increments inside a block is exact for rotation about a fixed axis (the protocol's
+    moves) and second order in (rate x block_s) otherwise; the increments are linear in the
+    rate, so a gyro matrix correction can be applied to the blocks instead of every sample."""
+    w = np.deg2rad(w_dps)
+    inc = 0.5 * (w[:-1] + w[1:]) * np.diff(t)[:, None]  # step i: from sample i to i+1
+    edges = [int(mids[0])]
+    for a, b in itertools.pairwise(mids):
+        n = max(1, int(np.ceil((t[b] - t[a]) / block_s)))
+        edges.extend(np.linspace(a, b, n + 1).round().astype(int)[1:].tolist())
+    edges = np.unique(np.asarray(edges))
+    csum = np.concatenate([np.zeros((1, 3)), np.cumsum(inc, axis=0)])
+    blocks = np.diff(csum[edges], axis=0)
+    return blocks, np.searchsorted(edges, mids)
+
+
+def _relative_rotations(blocks: np.ndarray, at: np.ndarray, m_inv: np.ndarray) -> np.ndarray:
+    """Body-frame rotation (K-1,4) from each mid to the next, with rates corrected by m_inv."""
+    phi = blocks @ m_inv.T
+    dq = np.concatenate([[[1.0, 0.0, 0.0, 0.0]], quat_from_rotvec(phi)])
+    q = quat_normalize(prefix_quat_product(dq))
+    return quat_normalize(quat_multiply(quat_conjugate(q[at[:-1]]), q[at[1:]]))
+
+
+def _rotvec_deg(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (deg) of unit quaternions (K,4), shortest arc."""
+    q = q * np.where(q[:, :1] < 0, -1.0, 1.0)
+    s = np.linalg.norm(q[:, 1:], axis=1)
+    ang = 2.0 * np.arctan2(s, q[:, 0])
+    k = np.where(s > 1e-12, ang / np.where(s > 1e-12, s, 1.0), 2.0)
+    return np.rad2deg(k[:, None] * q[:, 1:])
+
+
+def fit_gyro_matrix(
+    t_s: np.ndarray,
+    gyro_dps: np.ndarray,
+    poses: Sequence[PoseLabel],
+    base: GyroCalibration,
+    temp_degC: np.ndarray | None = None,
+    *,
+    model: str = "full",
+    floor_deg: float = 0.05,
+    reference: str = "gravity",
+) -> GyroCalibration:
+    """Scale ('scale': diag M) or scale + cross-axis ('full': all of M) from rotations between
+    consecutive labelled poses (see module doc). Returns a copy of base with matrix,
+    matrix_sigma, undetermined and rotation_rms_deg filled in.
+
+    reference: 'gravity' (default) compares only what gravity sees: the up vector of hold a,
+    carried through the integrated rotation, must land on the up vector of hold b (residual
+    dq_int^-1 up_a - up_b, deg; rotations about the vertical are not used, so an operator who
+    turns the sensor freely between holds does no harm); 'orientation' compares the whole
+    nominal rotation q_a^-1 q_b (for fixtures or vehicles whose heading is known).
+    floor_deg: smallest residual scatter assumed (deg, nominal pose orientation error).
+    """
+    from scipy.optimize import least_squares
+
+    if model not in ("scale", "full"):
+        raise InputError(f"unknown gyro model {model!r}: use 'scale' or 'full'")
+    if reference not in ("gravity", "orientation"):
+        raise InputError(f"unknown gyro reference {reference!r}: use 'gravity' or 'orientation'")
+    known = [p for p in poses if reference == "gravity" or p.q_sensor_to_world is not None]
+    if len(known) < 2:
+        raise InputError("fewer than 2 labelled poses with known orientation: gyro scale cannot be fitted")
+    t = np.asarray(t_s, float)
+    w_unb = np.asarray(gyro_dps, float) - base.bias_at(
+        temp_degC if np.any(base.temp_bias_dps_per_degC != 0) else None
+    )
+    mids = np.searchsorted(t, [0.5 * (p.start_s + p.end_s) for p in known])
+    mids = np.clip(mids, 0, t.size - 1)
+    if reference == "orientation":
+        qn = np.array([p.q_sensor_to_world for p in known], float)
+        dq_nom = quat_multiply(quat_conjugate(qn[:-1]), qn[1:])
+    else:
+        up = np.array([p.up_sensor for p in known], float)
+        up /= np.linalg.norm(up, axis=1, keepdims=True)
+    diag_idx = [0, 4, 8]
+    free_all = diag_idx if model == "scale" else list(range(9))
+
+    blocks, at = _block_increments(t, w_unb, mids, block_s=0.01)
+
+    def residuals(p: np.ndarray, free: list[int]) -> np.ndarray:
+        m = np.eye(3).ravel()
+        m[free] = p
+        dq_int = _relative_rotations(blocks, at, np.linalg.inv(m.reshape(3, 3)))
+        if reference == "orientation":
+            return _rotvec_deg(quat_multiply(quat_conjugate(dq_nom), dq_int)).ravel()
+        # up_a (world-fixed) seen from the sensor at hold b: v_b = dq_int^-1 v_a; the difference of
+        # unit vectors is the tilt error in rad for small errors (and, unlike a cross product,
+        # it does not vanish for a vector pointing the opposite way)
+        pred = rotate_inverse(dq_int, up[:-1])
+        return np.rad2deg(pred - up[1:]).ravel()
+
+    # which entries of M do the rotations excite? (finite-difference sensitivity at M = I)
+    p_init = np.eye(3).ravel()[free_all]
+    r0 = residuals(p_init, free_all)
+    h = 1e-4
+    sens = np.array(
+        [
+            np.linalg.norm(residuals(p_init + h * np.eye(len(free_all))[i], free_all) - r0) / h
+            for i in range(len(free_all))
+        ]
+    )
+    # a 1 % error in M_ij must move some rotation by > 10 floor_deg-ish to be determinable
+    free = [f for f, s in zip(free_all, sens, strict=True) if s * 0.01 > floor_deg]
+    undetermined = [PARAM_NAMES[f] for f in free_all if f not in free]
+    if not free:
+        raise ModelError("the rotations between labelled poses are too small to determine any gyro scale")
+    sol = least_squares(residuals, np.eye(3).ravel()[free], args=(free,), x_scale=0.01)
+    r = sol.fun
+    dof = r.size - len(free)
+    s2 = max(float(r @ r) / dof, floor_deg**2) if dof > 0 else floor_deg**2
+    jtj = sol.jac.T @ sol.jac
+    if np.linalg.cond(jtj) > 1e12:
+        raise ModelError(f"gyro {model} model is not determined by these rotations (rank deficient)")
+    cov = s2 * np.linalg.inv(jtj)
+    m = np.eye(3).ravel()
+    m[free] = sol.x
+    msig = np.full(9, np.nan)
+    msig[free] = np.sqrt(np.diag(cov))
+    offdiag_free = [f for f in free if f not in diag_idx]
+    effects = [e for e in base.effects if e not in ("scale", "cross_axis")] + ["scale"]
+    if offdiag_free:
+        effects.append("cross_axis")
+    return GyroCalibration(
+        bias_dps=base.bias_dps,
+        bias_sigma_dps=base.bias_sigma_dps,
+        temp_bias_dps_per_degC=base.temp_bias_dps_per_degC,
+        temp_bias_sigma_dps_per_degC=base.temp_bias_sigma_dps_per_degC,
+        t_ref_degC=base.t_ref_degC,
+        matrix=m.reshape(3, 3),
+        matrix_sigma=msig.reshape(3, 3),
+        effects=effects,
+        undetermined=undetermined,
+        n_holds=base.n_holds,
+        rotation_rms_deg=float(np.sqrt(np.mean(r**2))),
+    )
+
+
+def calibrate_gyro(
+    t_s: np.ndarray,
+    gyro_dps: np.ndarray,
+    poses: Sequence[PoseLabel],
+    temp_degC: np.ndarray | None = None,
+    *,
+    model: str = "full",
+    reference: str = "gravity",
+    **bias_kw,
+) -> GyroCalibration:
+    """fit_gyro_bias on the poses' holds, then fit_gyro_matrix (see there for reference) when
+    there are >= 2 holds to rotate between (with known orientations for reference='orientation')."""
+    cal = fit_gyro_bias(t_s, gyro_dps, poses, temp_degC, **bias_kw)
+    n_ref = len(poses) if reference == "gravity" else sum(p.q_sensor_to_world is not None for p in poses)
+    if n_ref >= 2:
+        cal = fit_gyro_matrix(t_s, gyro_dps, poses, cal, temp_degC, model=model, reference=reference)
+    return cal

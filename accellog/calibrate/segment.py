@@ -1,0 +1,606 @@
+"""Static holds -> statistics and observation tables for fitting (stage 'segment').
+
+A labelled hold [start_s, end_s) is trimmed by trim_s at both ends (the hand that turned the cube
+is still settling) and cut into windows of about window_s; each window gives one observation
+
+    meas_g = window mean (g),   sigma_g = std_window * sqrt(tau_hold / n_window)   (g)
+
+where tau_hold is the hold's integrated autocorrelation time (samples, accellog.calibrate.noise). Several
+windows per hold keep slow effects (temperature, warm-up, time drift) visible to the fit.
+
+Checks (each raises InputError naming the pose and time): no labels, overlapping or duplicated
+labels, too few samples, NaN readings, a reading far from 1 g at rest (wrong units, e.g. counts
+declared as g), and a hold labelled static that moves (window variance far above the noise, or a
+window mean that wanders from the hold's median by more than a few degrees).
+
+`detect_static` finds static intervals in unlabelled data (imu_tk's variance detector with a
+threshold sweep) for the orientation-free fit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from accellog.calibrate.noise import integrated_autocorr_time, sem_autocorr
+from accellog.core.errors import InputError, ModelError
+from accellog.core.session import POSE_UP_VECTORS, ObsTable, PoseLabel, Session
+from accellog.core.timeseries import runs
+
+UNIT_NORM_RANGE_G = (0.5, 2.0)
+"""A reading at rest must have |a| in this range (g); outside it the units are wrong."""
+MOVING_STD_FACTOR = 6.0
+"""A check window whose std (norm over axes) exceeds this multiple of the session noise moves."""
+MOVING_MEAN_SHIFT_G = 0.05
+"""A check window whose mean leaves the hold's median by more than this (g, ~3 deg) moves."""
+
+
+@dataclass
+class PoseStats:
+    """Statistics of one labelled hold after trimming (accelerations in g)."""
+
+    name: str
+    hold_index: int
+    up_sensor: np.ndarray  # (3,) nominal up vector
+    start_s: float  # first used sample time (s)
+    end_s: float  # last used sample time (s)
+    n: int  # samples used
+    mean_g: np.ndarray  # (3,)
+    std_g: np.ndarray  # (3,) sample standard deviation
+    sem_g: np.ndarray  # (3,) autocorrelation-aware standard error of the mean
+    tau_samples: np.ndarray  # (3,) integrated autocorrelation time
+    temp_degC: float | None = None  # mean die temperature
+    dtemp_degC_per_s: float | None = None  # temperature slope over the hold
+
+    @property
+    def n_eff(self) -> np.ndarray:
+        """Effective sample size n / tau per axis."""
+        return self.n / self.tau_samples
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "hold_index": self.hold_index,
+            "up_sensor": self.up_sensor.tolist(),
+            "start_s": self.start_s,
+            "end_s": self.end_s,
+            "n": self.n,
+            "mean_g": self.mean_g.tolist(),
+            "std_g": self.std_g.tolist(),
+            "sem_g": self.sem_g.tolist(),
+            "tau_samples": self.tau_samples.tolist(),
+            "n_eff": self.n_eff.tolist(),
+            "temp_degC": self.temp_degC,
+            "dtemp_degC_per_s": self.dtemp_degC_per_s,
+        }
+
+
+def _where(session: Session) -> str:
+    return session.path or f"session ({session.meta.source})"
+
+
+def _quantum_g(session: Session) -> float:
+    lsb = session.meta.accel_lsb_per_g
+    return 1.0 / lsb if lsb else 0.0
+
+
+def pose_name_for_up(up: np.ndarray) -> str:
+    """'+z' etc. for an up vector along an axis, else 'up(x,y,z)'."""
+    for name, vec in POSE_UP_VECTORS.items():
+        if np.allclose(up, vec, atol=1e-9):
+            return name
+    return "up(" + ",".join(f"{v:.3f}" for v in up) + ")"
+
+
+def _hold_slices(session: Session, trim_s: float, min_samples: int) -> list[tuple[PoseLabel, slice]]:
+    """Validated (label, sample slice) for every hold, in time order."""
+    where = _where(session)
+    if not session.poses:
+        raise InputError(
+            "session has no pose labels: record it with a pose protocol, or use the orientation-free "
+            "fit (static intervals are then detected automatically)",
+            where=where,
+        )
+    if session.n == 0:
+        raise InputError("session has no samples", where=where)
+    labels = sorted(session.poses, key=lambda p: p.start_s)
+    seen: dict[tuple[str, int], PoseLabel] = {}
+    for p in labels:
+        key = (p.name, p.hold_index)
+        if key in seen:
+            q = seen[key]
+            raise InputError(
+                f"pose {p.name!r} (hold {p.hold_index}) is labelled twice: {q.start_s:.2f}-{q.end_s:.2f} s "
+                f"and {p.start_s:.2f}-{p.end_s:.2f} s",
+                where=where,
+            )
+        seen[key] = p
+        if not p.end_s > p.start_s:
+            raise InputError(f"pose {p.name!r} has end {p.end_s} s <= start {p.start_s} s", where=where)
+    for a, b in itertools.pairwise(labels):
+        if b.start_s < a.end_s - 1e-9:
+            raise InputError(
+                f"poses {a.name!r} ({a.start_s:.2f}-{a.end_s:.2f} s) and {b.name!r} "
+                f"({b.start_s:.2f}-{b.end_s:.2f} s) overlap",
+                where=where,
+            )
+    out = []
+    for p in labels:
+        up = np.asarray(p.up_sensor, float)
+        if up.shape != (3,) or not np.isfinite(up).all() or abs(np.linalg.norm(up) - 1.0) > 1e-3:
+            raise InputError(f"pose {p.name!r}: up vector {p.up_sensor} is not a unit 3-vector", where=where)
+        t0, t1 = p.start_s + trim_s, p.end_s - trim_s
+        sl = session.slice_time(t0, t1) if t1 > t0 else slice(0, 0)
+        n = sl.stop - sl.start
+        if n < min_samples:
+            raise InputError(
+                f"pose {p.name!r} ({p.start_s:.2f}-{p.end_s:.2f} s) has {n} samples after trimming "
+                f"{trim_s} s at each end (need >= {min_samples}): hold longer or lower --trim",
+                where=where,
+            )
+        acc = session.accel_g[sl]
+        bad = ~np.isfinite(acc).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(
+                f"pose {p.name!r}: accel is NaN/inf at t = {session.t_s[sl][i]:.3f} s "
+                f"({int(bad.sum())} bad samples)",
+                where=where,
+            )
+        out.append((p, sl))
+    return out
+
+
+def _check_units(session: Session, holds: list[tuple[PoseLabel, slice]]) -> None:
+    lo, hi = UNIT_NORM_RANGE_G
+    for p, sl in holds:
+        norm = float(np.linalg.norm(session.accel_g[sl].mean(axis=0)))
+        if not lo <= norm <= hi:
+            hint = " (are raw counts declared as g? check accel_lsb_per_g)" if norm > hi else ""
+            raise InputError(
+                f"pose {p.name!r}: |accel| at rest is {norm:.4g} g, expected about 1 g{hint}",
+                where=_where(session),
+            )
+
+
+def _window_stats(x: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mean, std (ddof=1), n) of x (n,k) over windows beginning at indices `starts` (sorted)."""
+    ref = x.mean(axis=0)
+    xc = x - ref
+    n = np.diff(np.append(starts, x.shape[0]))
+    s1 = np.add.reduceat(xc, starts, axis=0)
+    s2 = np.add.reduceat(xc * xc, starts, axis=0)
+    mean_c = s1 / n[:, None]
+    var = np.maximum(s2 - n[:, None] * mean_c**2, 0.0) / np.maximum(n - 1, 1)[:, None]
+    return mean_c + ref, np.sqrt(var), n
+
+
+def check_static(
+    session: Session,
+    holds: list[tuple[PoseLabel, slice]] | None = None,
+    *,
+    trim_s: float = 0.5,
+    window_s: float = 0.5,
+    std_factor: float = MOVING_STD_FACTOR,
+    mean_shift_g: float = MOVING_MEAN_SHIFT_G,
+) -> None:
+    """Raise InputError if a hold labelled static moves.
+
+    Each hold is cut into window_s windows; the noise reference is the median window std per axis
+    over the whole session (most windows are static). A window moves if its std norm exceeds
+    std_factor * reference (and 4 quanta), or its mean leaves the hold's median by > mean_shift_g.
+    """
+    holds = holds if holds is not None else _hold_slices(session, trim_s, 2)
+    per_hold = []
+    for p, sl in holds:
+        t = session.t_s[sl]
+        edges = np.arange(t[0], t[-1], window_s)
+        starts = np.unique(np.searchsorted(t, edges))
+        mean, std, n = _window_stats(session.accel_g[sl], starts)
+        per_hold.append((p, t, starts, mean, std, n))
+    all_std = np.concatenate([h[4][h[5] > 2] for h in per_hold]) if per_hold else np.zeros((0, 3))
+    if all_std.shape[0] == 0:
+        return
+    ref = float(np.linalg.norm(np.median(all_std, axis=0)))
+    limit = max(std_factor * ref, 4.0 * _quantum_g(session))
+    for p, t, starts, mean, std, n in per_hold:
+        snorm = np.linalg.norm(std, axis=1)
+        shift = np.linalg.norm(mean - np.median(mean, axis=0), axis=1)
+        bad_std = (snorm > limit) & (n > 2)
+        bad_mean = shift > mean_shift_g
+        bad = bad_std | bad_mean
+        if bad.any():
+            j = int(np.argmax(bad))
+            t0 = t[starts[j]]
+            t1 = t[starts[j + 1] - 1] if j + 1 < len(starts) else t[-1]
+            why = (
+                f"accel std {snorm[j]:.4g} g is {snorm[j] / max(ref, 1e-12):.0f}x the session noise {ref:.3g} g"
+                if bad_std[j]
+                else f"mean moved {shift[j]:.3g} g from the hold's median"
+            )
+            raise InputError(
+                f"pose {p.name!r} is labelled static but moves at t = {t0:.2f}-{t1:.2f} s: {why}; "
+                "relabel or trim the hold",
+                where=_where(session),
+            )
+
+
+def _checked_holds(
+    session: Session, trim_s: float, min_samples: int, check_units: bool, check_moving: bool
+) -> list[tuple[PoseLabel, slice]]:
+    """Validated holds (see _hold_slices), optionally checked for units (|a| ~ 1 g) and motion."""
+    holds = _hold_slices(session, trim_s, min_samples)
+    if check_units:
+        _check_units(session, holds)
+    if check_moving:
+        check_static(session, holds)
+    return holds
+
+
+def _temp_slope(t: np.ndarray, temp: np.ndarray) -> float:
+    """Least-squares slope dT/dt (degC/s)."""
+    tc = t - t.mean()
+    den = float(tc @ tc)
+    return float(tc @ (temp - temp.mean()) / den) if den > 0 else 0.0
+
+
+def pose_stats(
+    session: Session,
+    *,
+    trim_s: float = 0.5,
+    min_samples: int = 20,
+    check_units: bool = True,
+    check_moving: bool = True,
+) -> list[PoseStats]:
+    """Per-hold statistics (mean, std, autocorrelation-aware sem, tau, temperature, times)."""
+    holds = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
+    q = _quantum_g(session)
+    out = []
+    for p, sl in holds:
+        acc = session.accel_g[sl]
+        t = session.t_s[sl]
+        sem, tau = sem_autocorr(acc, quantum=q)
+        temp = dtemp = None
+        if session.temp_degC is not None:
+            tt = session.temp_degC[sl]
+            temp = float(tt.mean())
+            dtemp = _temp_slope(t, tt)
+        out.append(
+            PoseStats(
+                name=p.name,
+                hold_index=p.hold_index,
+                up_sensor=np.asarray(p.up_sensor, float),
+                start_s=float(t[0]),
+                end_s=float(t[-1]),
+                n=int(acc.shape[0]),
+                mean_g=acc.mean(axis=0),
+                std_g=acc.std(axis=0, ddof=1),
+                sem_g=sem,
+                tau_samples=tau,
+                temp_degC=temp,
+                dtemp_degC_per_s=dtemp,
+            )
+        )
+    return out
+
+
+def observations(
+    session: Session,
+    window_s: float = 2.0,
+    trim_s: float = 0.5,
+    *,
+    min_samples: int = 20,
+    check_units: bool = True,
+    check_moving: bool = True,
+) -> ObsTable:
+    """ObsTable with one row per window of about window_s in every trimmed hold.
+
+    Rows: meas_g = window mean, sigma_g = std_window sqrt(tau_hold / n_window) (floored at the
+    quantum / sqrt(12 n)), t_s = mean sample time of the window, t_in_pose_s = t_s - label start,
+    temp_degC = window mean, dtemp_degC_per_s = slope of the window means within the hold (the
+    in-window slope for a single-window hold), q = the label's nominal orientation (NaN if unknown).
+    """
+    if not window_s > 0:
+        raise InputError(f"window_s must be > 0 s, got {window_s}")
+    holds = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
+    quantum = _quantum_g(session)
+    names: list[str] = []
+    name_id: dict[str, int] = {}
+    cols: dict[str, list[np.ndarray]] = {
+        k: [] for k in ("meas", "sigma", "std", "up", "pid", "t", "tin", "n", "temp", "dtemp", "q")
+    }
+    has_temp = session.temp_degC is not None
+    for p, sl in holds:
+        acc = session.accel_g[sl]
+        t = session.t_s[sl]
+        n_all = acc.shape[0]
+        nwin = max(1, int(np.floor((t[-1] - t[0]) / window_s + 1e-9)))
+        edges = t[0] + (t[-1] - t[0]) * np.arange(nwin) / nwin
+        starts = np.unique(np.searchsorted(t, edges))
+        starts = starts[starts < n_all]
+        mean, std, n = _window_stats(acc, starts)
+        tau = integrated_autocorr_time(acc)
+        sigma = np.maximum(std * np.sqrt(tau[None, :] / n[:, None]), quantum / np.sqrt(12.0 * n[:, None]))
+        tmid = np.add.reduceat(t - t[0], starts) / n + t[0]
+        if p.name not in name_id:
+            name_id[p.name] = len(names)
+            names.append(p.name)
+        k = len(starts)
+        cols["meas"].append(mean)
+        cols["sigma"].append(sigma)
+        cols["std"].append(std)
+        cols["up"].append(np.tile(np.asarray(p.up_sensor, float), (k, 1)))
+        cols["pid"].append(np.full(k, name_id[p.name]))
+        cols["t"].append(tmid)
+        cols["tin"].append(tmid - p.start_s)
+        cols["n"].append(n)
+        q = np.asarray(p.q_sensor_to_world, float) if p.q_sensor_to_world is not None else np.full(4, np.nan)
+        cols["q"].append(np.tile(q, (k, 1)))
+        if has_temp:
+            temp = session.temp_degC[sl]
+            tw = np.add.reduceat(temp, starts) / n
+            dtw = np.gradient(tw, tmid) if k >= 2 else np.array([_temp_slope(t, temp)])
+            cols["temp"].append(tw)
+            cols["dtemp"].append(dtw)
+    return ObsTable(
+        meas_g=np.concatenate(cols["meas"]),
+        sigma_g=np.concatenate(cols["sigma"]),
+        up_sensor=np.concatenate(cols["up"]),
+        pose_id=np.concatenate(cols["pid"]).astype(int),
+        pose_names=names,
+        t_s=np.concatenate(cols["t"]),
+        t_in_pose_s=np.concatenate(cols["tin"]),
+        n_samples=np.concatenate(cols["n"]).astype(int),
+        std_g=np.concatenate(cols["std"]),
+        temp_degC=np.concatenate(cols["temp"]) if has_temp else None,
+        dtemp_degC_per_s=np.concatenate(cols["dtemp"]) if has_temp else None,
+        q_sensor_to_world=np.concatenate(cols["q"]),
+        session=session.path or session.meta.source,
+    )
+
+
+def obs_from_pose_means(
+    up: np.ndarray,
+    mean_g: np.ndarray,
+    std_g: np.ndarray,
+    n: int | np.ndarray,
+    *,
+    names: Sequence[str] | None = None,
+    session: str = "",
+    where: str | None = None,
+) -> ObsTable:
+    """ObsTable with one row per pose from summary means (the seed's six_position_data CSVs).
+
+    up: (k,3) true reading / 1 g (the seed's x_true, y_true, z_true columns), mean_g, std_g: (k,3);
+    n: samples per pose (scalar or (k,)). sigma_g = std_g / sqrt(n): the summaries carry no
+    autocorrelation information, so this naive standard error is too small (documented limit).
+    """
+    up = np.atleast_2d(np.asarray(up, float))
+    mean_g = np.atleast_2d(np.asarray(mean_g, float))
+    std_g = np.atleast_2d(np.asarray(std_g, float))
+    k = up.shape[0]
+    if up.shape != (k, 3) or mean_g.shape != (k, 3) or std_g.shape != (k, 3):
+        raise InputError(
+            f"pose table shapes differ: up {up.shape}, mean {mean_g.shape}, std {std_g.shape}", where=where
+        )
+    for arr, what in ((up, "truth"), (mean_g, "mean"), (std_g, "std")):
+        if not np.isfinite(arr).all():
+            row = int(np.argmax(~np.isfinite(arr).all(axis=1)))
+            raise InputError(f"{what} of pose row {row + 1} is NaN", where=where)
+    nn = np.broadcast_to(np.asarray(n, float), (k,)).astype(float)
+    pose_names = list(names) if names is not None else [pose_name_for_up(u) for u in up]
+    dup = {x for x in pose_names if pose_names.count(x) > 1}
+    if dup:
+        raise InputError(f"pose(s) {sorted(dup)} appear more than once in the pose table", where=where)
+    return ObsTable(
+        meas_g=mean_g.copy(),
+        sigma_g=std_g / np.sqrt(nn)[:, None],
+        up_sensor=up.copy(),
+        pose_id=np.arange(k),
+        pose_names=pose_names,
+        t_s=np.zeros(k),
+        t_in_pose_s=np.zeros(k),
+        n_samples=nn.astype(int),
+        std_g=std_g.copy(),
+        q_sensor_to_world=np.full((k, 4), np.nan),
+        session=session,
+    )
+
+
+def check_coverage(obs: ObsTable, needs_scale: bool = True, where: str | None = None) -> None:
+    """Raise ModelError if the poses cannot determine the model.
+
+    Bias-only needs one pose; a scale or 3x3 model needs up vectors that are affinely independent in
+    3-D (rank [up 1] = 4), e.g. both sides of every axis. The message lists the missing faces.
+    """
+    if obs.n == 0:
+        raise ModelError("no observations to fit", where=where or obs.session or None)
+    if not needs_scale:
+        return
+    ups = np.unique(np.round(obs.up_sensor, 6), axis=0)
+    A = np.c_[ups, np.ones(ups.shape[0])]
+    # Per axis i, bias and scale separate only with two different up_i values.
+    spread = np.ptp(ups, axis=0) if ups.shape[0] else np.zeros(3)
+    if np.linalg.matrix_rank(A) < 4 or np.any(spread < 0.5):
+        have = {pose_name_for_up(u) for u in ups}
+        missing = [f for f in POSE_UP_VECTORS if f not in have]
+        raise ModelError(
+            f"poses {sorted(have)} cannot separate bias from scale: missing {', '.join(missing) or 'distinct poses'}",
+            where=where or obs.session or None,
+        )
+
+
+# ---------------------------------------------------------------- automatic static detection
+
+
+def _moving_var_norm(x: np.ndarray, w: int) -> np.ndarray:
+    """||var over a centred window of w samples||_2 (per-axis variances), inf at the edges."""
+    n = x.shape[0]
+    out = np.full(n, np.inf)
+    if n < w:
+        return out
+    xc = x - x.mean(axis=0)
+    c1 = np.concatenate([np.zeros((1, 3)), np.cumsum(xc, axis=0)])
+    c2 = np.concatenate([np.zeros((1, 3)), np.cumsum(xc * xc, axis=0)])
+    s1 = c1[w:] - c1[:-w]
+    s2 = c2[w:] - c2[:-w]
+    var = np.maximum(s2 / w - (s1 / w) ** 2, 0.0)
+    h = w // 2
+    out[h : h + var.shape[0]] = np.linalg.norm(var, axis=1)
+    return out
+
+
+def _distinct(dirs: np.ndarray, angle_deg: float) -> int:
+    """Number of distinct directions (greedy clustering by angle)."""
+    reps: list[np.ndarray] = []
+    cos_lim = np.cos(np.deg2rad(angle_deg))
+    for d in dirs:  # a few dozen intervals at most
+        if not reps or np.max(np.asarray(reps) @ d) < cos_lim:
+            reps.append(d)
+    return len(reps)
+
+
+def detect_static(
+    session: Session,
+    *,
+    window_samples: int = 101,
+    init_static_s: float | None = None,
+    k_values: Sequence[float] = tuple(range(2, 11)),
+    min_interval_s: float = 1.0,
+    min_poses: int = 9,
+    distinct_angle_deg: float = 10.0,
+    cost: Callable[[list[PoseLabel]], float] | None = None,
+) -> list[PoseLabel]:
+    """Static intervals of unlabelled data as PoseLabels (imu_tk's detector with a threshold sweep).
+
+    Statistic: s = ||per-axis variance over a centred window of window_samples||. Reference
+    r = ||per-axis variance of the first init_static_s seconds|| (the recording starts still), or,
+    when None, the 5th percentile of s. For each k in k_values the intervals with s < k r lasting
+    >= min_interval_s are candidates; with `cost` (e.g. an orientation-free fit's residual) the k
+    with the lowest cost is kept (as imu_tk), otherwise the k giving the most distinct poses (ties:
+    the smallest k). up_sensor of each label = its mean reading normalised (an estimate, not truth).
+    Raises InputError when fewer than min_poses distinct orientations (> distinct_angle_deg apart)
+    are found.
+    """
+    where = _where(session)
+    acc = session.accel_g
+    t = session.t_s
+    if session.n < window_samples:
+        raise InputError(
+            f"{session.n} samples are too few for static detection (window {window_samples})", where=where
+        )
+    if not np.isfinite(acc).all():
+        i = int(np.argmax(~np.isfinite(acc).all(axis=1)))
+        raise InputError(f"accel is NaN/inf at t = {t[i]:.3f} s", where=where)
+    stat = _moving_var_norm(acc, window_samples)
+    if init_static_s is not None:
+        sl = session.slice_time(t[0], t[0] + init_static_s)
+        ref = float(np.linalg.norm(acc[sl].var(axis=0)))
+    else:
+        ref = float(np.percentile(stat[np.isfinite(stat)], 5))
+    ref = max(ref, (_quantum_g(session) ** 2) / 12.0, 1e-15)
+    rate = (session.n - 1) / max(t[-1] - t[0], 1e-12)
+    min_len = max(int(np.ceil(min_interval_s * rate)), 2)
+    best: tuple[float, list[PoseLabel], int] | None = None
+    max_found = 0
+    csum = np.concatenate([np.zeros((1, 3)), np.cumsum(acc, axis=0)])
+    # label [start_s, end_s) covers samples a..b-1: end at the next sample's time (one period past the end)
+    t_end = np.append(t[1:], t[-1] + 1.0 / rate)
+    for k in k_values:
+        starts, stops = runs(stat < k * ref).T
+        keep = (stops - starts) >= min_len
+        starts, stops = starts[keep], stops[keep]
+        if starts.size == 0:
+            continue
+        means = (csum[stops] - csum[starts]) / (stops - starts)[:, None]
+        norms = np.linalg.norm(means, axis=1)
+        dirs = means / np.maximum(norms, 1e-12)[:, None]
+        nd = _distinct(dirs, distinct_angle_deg)
+        max_found = max(max_found, nd)
+        if nd < min_poses:
+            continue
+        labels = [
+            PoseLabel(
+                name=f"static{j:02d}",
+                start_s=float(t[a]),
+                end_s=float(t_end[b - 1]),
+                up_sensor=tuple(float(v) for v in dirs[j]),
+                hold_index=j,
+            )
+            for j, (a, b) in enumerate(zip(starts, stops, strict=True))
+        ]
+        score = float(cost(labels)) if cost is not None else -float(nd)
+        if best is None or score < best[0]:
+            best = (score, labels, nd)
+    if best is None:
+        raise InputError(
+            f"found at most {max_found} distinct static orientations (need >= {min_poses} for an "
+            f"orientation-free fit): hold the sensor still for >= {min_interval_s:g} s in more orientations",
+            where=where,
+        )
+    return best[1]
+
+
+def with_labels(session: Session, labels: list[PoseLabel]) -> Session:
+    """A shallow copy of session with its pose labels replaced."""
+    return dataclasses.replace(session, poses=list(labels))
+
+
+# ---------------------------------------------------------------- observation files (stage artifact)
+
+OBS_FORMAT = "accellog.observations"
+_OBS_ARRAYS = (
+    "meas_g",
+    "sigma_g",
+    "up_sensor",
+    "pose_id",
+    "t_s",
+    "t_in_pose_s",
+    "n_samples",
+    "std_g",
+    "temp_degC",
+    "dtemp_degC_per_s",
+    "q_sensor_to_world",
+)
+
+
+def obs_to_dict(obs: ObsTable) -> dict:
+    """JSON-able ObsTable (format 'accellog.observations' v1; arrays as lists; g, s, degC)."""
+    d: dict = {
+        "format": OBS_FORMAT,
+        "format_version": 1,
+        "pose_names": list(obs.pose_names),
+        "session": obs.session,
+    }
+    for k in _OBS_ARRAYS:
+        v = getattr(obs, k)
+        d[k] = None if v is None else np.asarray(v).tolist()
+    return d
+
+
+def obs_from_dict(d: dict, where: str | None = None) -> ObsTable:
+    """Inverse of obs_to_dict; InputError naming the field on malformed input."""
+    if not isinstance(d, dict) or d.get("format") != OBS_FORMAT:
+        raise InputError(f"not an accellog observations file (format '{OBS_FORMAT}')", where=where)
+    try:
+        kw = {}
+        for k in _OBS_ARRAYS:
+            v = d.get(k)
+            kw[k] = (
+                None if v is None else np.asarray(v, dtype=int if k in ("pose_id", "n_samples") else float)
+            )
+        obs = ObsTable(pose_names=list(d["pose_names"]), session=str(d.get("session", "")), **kw)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"malformed observations file: {exc}", where=where) from None
+    n = obs.meas_g.shape[0] if obs.meas_g is not None else -1
+    for k in _OBS_ARRAYS:
+        v = getattr(obs, k)
+        if k in ("temp_degC", "dtemp_degC_per_s", "q_sensor_to_world") and v is None:
+            continue
+        if v is None or v.shape[0] != n:
+            raise InputError(f"observations field {k!r} missing or not {n} rows", where=where)
+    return obs

@@ -1,0 +1,381 @@
+"""`accellog demo`: the whole story on the emulated chip, in about ten seconds.
+
+1. Record (simulated clock, same driver and MCAP path as hardware) a six-position calibration
+   session, static sessions, 24-pose sessions on two temperature paths and a robot run, all from
+   one emulated MPU-9250 with datasheet-typical errors.
+2. Fit the seed's Models 1-3 (with uncertainties), evaluate them on a static test (the seed's
+   Tables 4 and 5), fit the drift polynomial on one static session and apply it to the other (the
+   seed's final table).
+3. Moving robot at 38 degC: strapdown tracks with ZUPT against the true path; Model 3, fitted at
+   25 degC, does worse than no calibration.
+4. Workbench: a 24-pose session recorded while the chip heats and cools; ``diagnose`` finds what
+   Model 3 is missing, it is added, and the error falls: on the calibration data, on a held-out
+   session at another temperature, on a hot static test (ladder table) and on the robot.
+5. Everything goes to one .rrd with a saved blueprint (one tab per chapter).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from accellog.flows.simulate import Scenario, simulate
+
+CHIP_SEED = 7
+"""One emulated chip for every session of the demo (its error parameters come from this seed)."""
+
+
+@dataclass
+class DemoResult:
+    """Everything the demo computed (write_rrd turns it into a recording)."""
+
+    out_dir: Path
+    rrd: Path | None
+    fits: dict = field(default_factory=dict)
+    evals: list = field(default_factory=list)
+    drift_evals: list = field(default_factory=list)
+    drift: object | None = None
+    final_rows: list = field(default_factory=list)
+    ladder: list = field(default_factory=list)
+    discovered: list[str] = field(default_factory=list)
+    tracks: list = field(default_factory=list)
+    seconds: dict = field(default_factory=dict)
+    sessions: dict = field(default_factory=dict)
+    """name -> Session of every simulated session."""
+    diagnoses: list = field(default_factory=list)
+    """Workbench diagnoses, one per discovery step."""
+    workbench_obs: object | None = None
+    """Observations (ObsTable) of the warm-up session the workbench diagnosed."""
+
+
+def _sessions(out: Path, quick: bool) -> dict[str, Path]:
+    hold = 15.0 if quick else 30.0
+    # Heating then a fan: temperature goes up and down, so temperature effects are not confounded
+    # with time (a single warm-up curve cannot tell temp_bias from warmup or time_drift).
+    warm = {"kind": "points", "t_s": [0.0, 120.0, 250.0, 420.0], "T": [22.0, 40.0, 28.0, 36.0]}
+    warm2 = {"kind": "points", "t_s": [0.0, 100.0, 260.0, 420.0], "T": [30.0, 44.0, 33.0, 41.0]}
+    specs = {
+        "calibration": Scenario(protocol="six", hold_s=hold, chip_seed=CHIP_SEED, seed=1),
+        "static_drift": Scenario(protocol="+z", hold_s=62.0, chip_seed=CHIP_SEED, seed=2),
+        "static_test": Scenario(protocol="+z", hold_s=62.0, chip_seed=CHIP_SEED, seed=3),
+        "warmup_24": Scenario(
+            protocol="24",
+            hold_s=10.0 if quick else 15.0,
+            move_s=2.0,
+            chip_seed=CHIP_SEED,
+            seed=4,
+            temperature=warm,
+        ),
+        "heldout_24": Scenario(
+            protocol="24",
+            hold_s=10.0 if quick else 15.0,
+            move_s=2.0,
+            chip_seed=CHIP_SEED,
+            seed=5,
+            temperature=warm2,
+        ),
+        "static_hot": Scenario(
+            protocol="+z",
+            hold_s=62.0,
+            chip_seed=CHIP_SEED,
+            seed=6,
+            temperature={"kind": "constant", "T": 40.0},
+        ),
+        "robot": Scenario(
+            motion="robot", chip_seed=CHIP_SEED, seed=8, temperature={"kind": "constant", "T": 38.0}
+        ),
+    }
+    paths = {}
+    for name, sc in specs.items():
+        p = out / f"{name}.mcap"
+        simulate(sc, p)
+        paths[name] = p
+    return paths
+
+
+def run_demo(
+    out_dir: Path,
+    *,
+    rrd: Path | None,
+    quick: bool = False,
+    console: Console | None = None,
+    first_tab: int = 0,
+) -> DemoResult:
+    """Run the demo, print its tables, write sessions / calibrations / .rrd under out_dir.
+
+    first_tab: the blueprint tab shown when the recording opens (0 static test, 1 calibration,
+    2 workbench, 3 robot)."""
+    from accellog.calibrate.segment import observations
+    from accellog.flows.pipeline import run_drift, run_evaluate, run_fit
+    from accellog.flows.workbench import discover, ladder_rows, ladder_table, steps_for
+    from accellog.navigate.track_eval import run_session_tracks
+    from accellog.present.tables import (
+        displacement_table,
+        drift_table,
+        params_table,
+        print_tables,
+        static_means_table,
+    )
+    from accellog.store.mcap_io import read_session
+
+    con = console or Console(width=None if sys.stdout.isatty() else 120)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    res = DemoResult(out_dir=out, rrd=rrd)
+    t0 = time.perf_counter()
+    con.rule("[bold]1. record sessions from the emulated MPU-9250 (simulated clock)")
+    paths = _sessions(out, quick)
+    S = res.sessions = {k: read_session(p) for k, p in paths.items()}
+    res.seconds["simulate"] = time.perf_counter() - t0
+    for k, s in S.items():
+        con.print(
+            f"  {paths[k].name}: {s.n} samples, {s.t_s[-1]:.0f} s, {len(s.poses)} holds, {s.lost_samples()} lost"
+        )
+
+    con.rule("[bold]2. the seed's procedure: Models 1-3, static test, drift model")
+    t1 = time.perf_counter()
+    cal_obs = observations(S["calibration"])
+    for m in ("model1", "model2", "model3"):
+        res.fits[m] = run_fit(S["calibration"], m, obs=cal_obs)
+        res.fits[m].cal.save(out / f"cal_{m}.json")
+    print_tables([params_table(res.fits["model3"].cal, title="Model 3 parameters (± 1σ, Cramér-Rao)")], con)
+    cals = [res.fits[m].cal for m in ("model1", "model2", "model3")]
+    res.evals = run_evaluate(S["static_test"], cals, labels=["Model 1", "Model 2", "Model 3"])
+    print_tables(
+        [static_means_table(res.evals, "Table 4: static test, mean residual after calibration")], con
+    )
+    print_tables([displacement_table(res.evals, 60.0, title="Table 5: integrated displacement at 60 s")], con)
+    res.drift = run_drift(S["static_drift"], res.fits["model3"].cal)
+    res.drift.cal.save(out / "cal_model3_drift.json")
+    res.drift_evals = ev_d = run_evaluate(
+        S["static_test"], [res.fits["model3"].cal, res.drift.cal], labels=["Model 3", "Model 3 + drift"]
+    )
+    raw, m3, m3d = ev_d
+    res.final_rows = [
+        ("No calibration", raw.disp_end_m),
+        ("Model 3", m3.disp_end_m),
+        (
+            "Model 3 and displacement model",
+            m3d.disp_end_drift_m if m3d.disp_end_drift_m is not None else m3d.disp_end_m,
+        ),
+    ]
+    tbl, qtbl = drift_table(res.final_rows, m3.t_end_s, res.drift.drift)
+    print_tables([tbl, qtbl], con)
+    res.seconds["seed procedure"] = time.perf_counter() - t1
+
+    con.rule("[bold]3. a moving robot at 38 °C: strapdown tracks with ZUPT vs the true path")
+    t3 = time.perf_counter()
+    robot = S["robot"]
+    first = run_session_tracks(robot, {"Model 3": res.fits["model3"].cal}, use_zupt=True)
+    print_tables([_robot_table(first, robot, "raw gyro bias from the first second at rest")], con)
+    con.print(
+        "  Model 3 was fitted at 25 °C; at 38 °C it does worse than no calibration. What is it missing?"
+    )
+    res.seconds["robot"] = time.perf_counter() - t3
+
+    con.rule("[bold]4. workbench: heating and cooling reveal what Model 3 is missing")
+    t2 = time.perf_counter()
+    obs = observations(S["warmup_24"])
+    held = observations(S["heldout_24"])
+    found = discover(obs, "model3", on_step=lambda d: con.print(f"  {d.verdict}"))
+    diags = res.diagnoses = found.diagnoses
+    res.workbench_obs = obs
+    res.discovered = list(found.added)
+    for a in diags[-1].advice[:3]:
+        con.print(f"  advice: {a}")
+    rows = ladder_rows(S["warmup_24"], obs, steps_for(found), heldout=held, static_test=S["static_hot"])
+    res.ladder = rows
+    table = ladder_table(rows)
+    table.caption = (
+        "held-out: a 24-pose session of the same chip on another temperature path; "
+        "drift: |displacement| of a 60 s static test at 40 °C"
+    )
+    print_tables([table], con)
+    # the robot again, with the model the workbench found (its gyro part carries the temperature terms)
+    res.tracks = (
+        first + run_session_tracks(robot, {rows[-1]["model"]: rows[-1]["fit"].cal}, use_zupt=True)[1:]
+    )
+    print_tables([_robot_table(res.tracks, robot, "and with the model the workbench found")], con)
+    res.seconds["workbench"] = time.perf_counter() - t2
+
+    if rrd is not None:
+        t4 = time.perf_counter()
+        write_rrd(res, rrd, first_tab)
+        res.seconds["rrd"] = time.perf_counter() - t4
+        con.print(f"wrote {rrd} (open it with: accellog view {rrd})")
+    con.print(f"sessions and calibrations in {out}/ ; total {time.perf_counter() - t0:.1f} s")
+    return res
+
+
+def _robot_table(runs, robot, note: str) -> Table:
+    """Final / RMS position error (m) of robot tracks against the truth, with and without ZUPT."""
+    tt = Table(title=f"robot run ({robot.t_s[-1]:.0f} s at 38 °C): position error against the truth ({note})")
+    for c in ("calibration", "final (m)", "RMS (m)", "final without ZUPT (m)", "ZUPT stops"):
+        tt.add_column(c, justify="left" if c == "calibration" else "right", overflow="fold")
+    for r in runs:
+        e0 = r.error_without_zupt.final_error_m if r.error_without_zupt is not None else float("nan")
+        tt.add_row(
+            r.name,
+            f"{r.error.final_error_m:.3g}",
+            f"{r.error.rms_error_m:.3g}",
+            f"{e0:.3g}",
+            str(r.error.zupt_stops),
+        )
+    return tt
+
+
+def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
+    """The demo's recording of res at path, opening on tab first_tab (see demo_blueprint)."""
+    from accellog.flows.workbench import log_ladder
+    from accellog.present.rrd import RunRecording
+    from accellog.present.tables import drift_table
+    from accellog.present.views import (
+        log_diagnosis,
+        log_evaluations,
+        log_fit,
+        log_session,
+        log_track_runs,
+        table_markdown,
+    )
+
+    S, diags, obs = res.sessions, res.diagnoses, res.workbench_obs
+    labels = [e.label for e in res.evals] + ["Model 3 + drift model", "truth (at rest)"]
+    bp = demo_blueprint(labels, first=first_tab, n_diagnoses=len(diags))
+    with RunRecording(f"save:{path}", recording_id="accellog-demo", blueprint=bp) as rec:
+        log_session(rec, S["calibration"], calibrations={"Model 3": res.fits["model3"].cal})
+        for m, fo in res.fits.items():
+            log_fit(rec, fo, m)
+        log_evaluations(rec, res.evals)
+        m3d = res.drift_evals[-1]
+        rec.log_track("test/Model 3 + drift model", m3d.t_s, m3d.disp_drift_series_m)
+        tbl, qtbl = drift_table(res.final_rows, res.evals[0].t_end_s, res.drift.drift)
+        rec.log_document(
+            "results/drift model", table_markdown(tbl) + "\n" + (table_markdown(qtbl) if qtbl else "")
+        )
+        for i, d in enumerate(diags):
+            log_diagnosis(rec, d, obs, label=f"step {i + 1}")
+        log_ladder(rec, res.ladder, obs)
+        log_track_runs(rec, res.tracks, S["robot"].truth)
+
+
+def _whole_range_plot(**kw):
+    """A time-series view that always shows its whole time range (the demo's sessions differ in
+    length and share the sensor_time timeline, so a cursor-relative window would hide data)."""
+    import rerun.blueprint as rrb
+
+    from accellog.present.rrd import MAIN_TIMELINE
+
+    whole = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
+    return rrb.TimeSeriesView(
+        time_ranges=rrb.VisibleTimeRange(MAIN_TIMELINE, start=whole.start, end=whole.end),
+        axis_x=rrb.TimeAxis(link="Independent", view_range=whole),
+        **kw,
+    )
+
+
+def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3):
+    """The demo's layout: one tab per chapter of the story (static test, calibration, workbench,
+    robot); test_labels: the static test's tracks, one auto-scaled plot each (m); n_diagnoses: the
+    workbench steps logged at /docs/workbench/step_{i}, i = 1..n_diagnoses."""
+    import rerun.blueprint as rrb
+
+    from accellog.present.rrd import (
+        DOCS,
+        LADDER,
+        POSES_ACTIVE,
+        RESIDUALS,
+        TEMPERATURE,
+        TRACKS,
+        WORLD_TRACKS,
+        slug_path,
+        time_panel,
+    )
+
+    calibration = rrb.Horizontal(
+        rrb.Vertical(
+            _whole_range_plot(
+                origin="/accel/raw",
+                contents=["$origin/**", f"/{POSES_ACTIVE}/**"],
+                name="raw accel (g) + holds",
+            ),
+            _whole_range_plot(origin="/accel/Model_3", name="calibrated accel, Model 3 (g)"),
+            _whole_range_plot(origin=f"/{TEMPERATURE}", name="temperature (degC)"),
+        ),
+        rrb.Vertical(
+            rrb.Tabs(
+                *[
+                    rrb.BarChartView(origin=f"/{RESIDUALS}/{m}", name=f"{m}: measured - predicted (mg)")
+                    for m in ("model1", "model2", "model3")
+                ]
+            ),
+            rrb.TextDocumentView(origin=f"/{DOCS}/parameters/model3", name="Model 3 parameters"),
+        ),
+        column_shares=[3, 2],
+        name="1 calibration session",
+    )
+    static = rrb.Horizontal(
+        rrb.Grid(
+            *[
+                _whole_range_plot(origin=f"/{TRACKS}/test/{slug_path(lab)}", name=f"{lab}: displacement (m)")
+                for lab in test_labels
+            ],
+            name="static test: integrated displacement per calibration",
+        ),
+        rrb.Vertical(
+            rrb.Spatial3DView(origin=f"/{WORLD_TRACKS}/test", name="static test tracks 3D (m)"),
+            rrb.Tabs(
+                rrb.TextDocumentView(origin=f"/{DOCS}/results/static_test", name="Tables 4 and 5"),
+                rrb.TextDocumentView(origin=f"/{DOCS}/results/drift_model", name="drift model"),
+            ),
+        ),
+        name="2 static test",
+    )
+    workbench = rrb.Horizontal(
+        rrb.Vertical(
+            rrb.Horizontal(
+                *[
+                    rrb.BarChartView(origin=f"/{LADDER}/{m}", name=m)
+                    for m in ("chi2_dof", "heldout_rms_mg", "drift_60s_m")
+                ],
+                name="model ladder",
+            ),
+            _whole_range_plot(
+                origin=f"/{LADDER}/steps",
+                name="residuals (mg): Model 3 vs final model, and temperature (degC)",
+            ),
+        ),
+        rrb.Tabs(
+            rrb.TextDocumentView(origin=f"/{DOCS}/ladder", name="ladder"),
+            rrb.Tabs(
+                *[
+                    rrb.TextDocumentView(origin=f"/{DOCS}/workbench/step_{i}", name=f"diagnosis {i}")
+                    for i in range(1, n_diagnoses + 1)
+                ]
+            ),
+        ),
+        column_shares=[3, 2],
+        name="3 workbench",
+    )
+    robot = rrb.Horizontal(
+        rrb.Spatial3DView(origin=f"/{WORLD_TRACKS}/robot", name="robot tracks vs truth (m)"),
+        rrb.Vertical(
+            _whole_range_plot(origin=f"/{TRACKS}/robot", name="robot position per calibration (m)"),
+            _whole_range_plot(
+                origin="/",
+                contents=["/errors/robot/**", "/zupt/robot/**"],
+                name="position error (m) and ZUPT stops",
+            ),
+            rrb.TextDocumentView(origin=f"/{DOCS}/results/robot_tracks", name="position errors"),
+        ),
+        name="4 moving robot",
+    )
+    return rrb.Blueprint(
+        rrb.Tabs(static, calibration, workbench, robot, active_tab=first),
+        time_panel(),
+        collapse_panels=True,
+    )

@@ -1,0 +1,370 @@
+"""Replay a recorded session through online correction + integration, paced in sensor time.
+
+The MCAP file is only read (``accellog.store.mcap_io.read_session`` opens it read-only); the samples
+are fed batch by batch through ``accellog.navigate.online.OnlineIntegrator`` (one per track: the raw
+reading and each calibration) and logged to a ``RunRecording`` as they go, sleeping so that
+sensor time advances ``speed`` times faster than wall time (``speed=None``: as fast as possible).
+
+For a session at rest with up vector u (sensor frame), every track is
+
+    a = correct(reading) * mps2_per_unit - u * g_local     (m/s^2; raw: correct = identity)
+    d = double trapezoid integral of a over the real timestamps (m)
+    d_drift = d - (1/2 q2 t^2 + q1 t + q0)                 (when the calibration has a drift model)
+
+which is exactly what ``accellog.navigate.evaluate`` computes in one batch (tested for equality).
+``compare`` replays one test session with several calibrations side by side.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from accellog.core.errors import InputError
+from accellog.core.session import Session
+from accellog.navigate.online import OnlineIntegrator
+from accellog.present.rrd import AXES, AXIS_COLORS, TRACKS, RunRecording, slug
+
+MAX_BATCH_S = 60.0
+"""Sensor seconds per batch when replaying as fast as possible (columnar logging)."""
+PACED_UPDATES_PER_S = 20.0
+"""Batches per wall-clock second when pacing (--speed 1, 4, ...)."""
+SLOW_SERIES_HZ = 100.0
+"""Displacement tracks and temperature are smooth: their time series are logged at about this rate
+(every k-th sample, plus the last sample of the session); accel is logged at the full rate."""
+
+
+@dataclass
+class TrackResult:
+    """Final state of one replayed track (m)."""
+
+    label: str
+    disp_end_m: np.ndarray
+    disp_end_drift_m: np.ndarray | None = None
+    calibration: str | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def final_m(self) -> np.ndarray:
+        """Reported displacement: after the drift model when one was applied."""
+        return self.disp_end_drift_m if self.disp_end_drift_m is not None else self.disp_end_m
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "label": self.label,
+            "calibration": self.calibration,
+            "disp_end_m": self.disp_end_m.tolist(),
+            "disp_end_after_drift_m": None
+            if self.disp_end_drift_m is None
+            else self.disp_end_drift_m.tolist(),
+            "final_m": self.final_m.tolist(),
+            "final_norm_m": float(np.linalg.norm(self.final_m)),
+            "notes": list(self.notes),
+        }
+
+
+@dataclass
+class ReplayResult:
+    """What a replay produced: per-track final displacement, timing, the orientation used."""
+
+    session: str
+    n: int
+    t_end_s: float
+    duration_s: float
+    wall_s: float
+    speed: float | None
+    up_sensor: np.ndarray
+    local_gravity_mps2: float
+    tracks: list[TrackResult]
+    rrd: str | None = None
+
+    def track(self, label: str) -> TrackResult:
+        for t in self.tracks:
+            if t.label == label:
+                return t
+        raise KeyError(label)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "session": self.session,
+            "samples": self.n,
+            "t_end_s": self.t_end_s,
+            "duration_s": self.duration_s,
+            "wall_s": self.wall_s,
+            "speed": self.speed,
+            "up_sensor": self.up_sensor.tolist(),
+            "local_gravity_mps2": self.local_gravity_mps2,
+            "tracks": [t.to_dict() for t in self.tracks],
+            "rrd": self.rrd,
+        }
+
+    def markdown(self) -> str:
+        """Final drift table (markdown) for the .rrd document panel."""
+        rows = [
+            f"### Final displacement after {self.duration_s:.1f} s ({Path(self.session).name}, up "
+            f"({self.up_sensor[0]:+.0f}, {self.up_sensor[1]:+.0f}, {self.up_sensor[2]:+.0f}), "
+            f"g_local {self.local_gravity_mps2:.4f} m/s^2)\n",
+            "| track | x (m) | y (m) | z (m) | abs (m) | drift model |",
+            "|---|---|---|---|---|---|",
+        ]
+        for t in self.tracks:
+            d = t.final_m
+            rows.append(
+                f"| {t.label} | {d[0]:+.3f} | {d[1]:+.3f} | {d[2]:+.3f} | {np.linalg.norm(d):.3f} | "
+                f"{'applied' if t.disp_end_drift_m is not None else '-'} |"
+            )
+        notes = [n for t in self.tracks for n in t.notes]
+        return "\n".join(rows) + ("\n\n" + "\n".join(f"- {n}" for n in notes) if notes else "") + "\n"
+
+
+def parse_speed(text: str | float | None) -> float | None:
+    """'max' -> None (no pacing); '1', '4', '0.5' -> that factor (sensor s per wall s)."""
+    if text is None:
+        return None
+    if isinstance(text, (int, float)):
+        v = float(text)
+    else:
+        s = str(text).strip().lower()
+        if s in ("max", "inf", "0"):
+            return None
+        try:
+            v = float(s[:-1] if s.endswith("x") else s)
+        except ValueError:
+            raise InputError(f"--speed {text!r}: give a factor such as 1, 4 or 'max'") from None
+    if not np.isfinite(v) or v <= 0:
+        raise InputError(f"--speed {text!r}: must be a positive factor or 'max'")
+    return v
+
+
+def parse_up(text: str | Sequence[float] | None) -> np.ndarray | None:
+    """'+z', '-x', ... or a 3-vector -> unit up vector (sensor frame); None stays None."""
+    if text is None:
+        return None
+    if isinstance(text, str):
+        from accellog.core.session import POSE_UP_VECTORS
+
+        key = text.strip().lower()
+        if key not in POSE_UP_VECTORS:
+            raise InputError(f"--up {text!r}: use +x, -x, +y, -y, +z or -z")
+        return np.asarray(POSE_UP_VECTORS[key], dtype=np.float64)
+    v = np.asarray(text, dtype=np.float64).reshape(3)
+    return v / np.linalg.norm(v)
+
+
+def infer_up(session: Session) -> tuple[np.ndarray, str | None]:
+    """Up vector of a static session: its single pose label, else the dominant axis of the mean."""
+    if len(session.poses) == 1:
+        return np.asarray(session.poses[0].up_sensor, dtype=np.float64), None
+    m = np.nanmean(session.accel_g, axis=0)
+    i = int(np.argmax(np.abs(m)))
+    up = np.zeros(3)
+    up[i] = np.sign(m[i]) or 1.0
+    why = "several pose labels" if session.poses else "no pose label"
+    return up, f"orientation from the mean reading ({why}): {'+' if up[i] > 0 else '-'}{AXES[i]} up"
+
+
+@dataclass
+class _Track:
+    label: str
+    integ: OnlineIntegrator
+    cal: Any = None
+    drivers: dict[str, np.ndarray] = field(default_factory=dict)
+    drift: Any = None
+    notes: list[str] = field(default_factory=list)
+    parts: list[np.ndarray] = field(default_factory=list)  # decimated displacement for the 3D strip
+    last: np.ndarray | None = None  # displacement at the newest sample (m)
+
+
+def _open_session(session: Session | str | os.PathLike) -> Session:
+    if isinstance(session, Session):
+        return session
+    p = Path(session)
+    if not p.is_file():
+        raise InputError("no such session file", where=str(p))
+    from accellog.store.mcap_io import read_session
+
+    return read_session(p)
+
+
+def _load_cal(c: Any):
+    if isinstance(c, (str, os.PathLike)):
+        from accellog.calibrate.calibration import load_calibration
+
+        return load_calibration(c)
+    return c
+
+
+def _label_of(cal: Any, fallback: str) -> str:
+    if getattr(cal, "path", None):
+        return Path(cal.path).stem
+    spec = getattr(cal, "model_spec", None) or {}
+    return str(spec.get("name") or fallback)
+
+
+def replay(
+    session: Session | str | os.PathLike,
+    *,
+    cals: Sequence[Any] = (),
+    labels: Sequence[str] | None = None,
+    speed: float | str | None = None,
+    recording: RunRecording | None = None,
+    up_sensor: str | Sequence[float] | None = None,
+    include_raw: bool = True,
+    apply_drift: bool = True,
+    batch_s: float | None = None,
+    sleep: Callable[[float], None] = time.sleep,
+    clock: Callable[[], float] = time.monotonic,
+) -> ReplayResult:
+    """Replay a session (path or Session) through online correction + integration.
+
+    cals: Calibration objects or JSON paths (one track each, after the raw track when include_raw).
+    speed: sensor seconds per wall second (None/'max': no pacing). recording: where to log (raw and
+    calibrated accel, temperature, poses, events, tracks, final table); None logs nothing.
+    """
+    t_wall0 = clock()
+    speed_f = parse_speed(speed)
+    s = _open_session(session)
+    where = s.path or s.meta.source
+    if s.n < 2:
+        raise InputError(f"session has {s.n} samples: nothing to replay", where=where)
+    up = parse_up(up_sensor)
+    notes: list[str] = []
+    if up is None:
+        up, note = infer_up(s)
+        if note:
+            notes.append(note)
+    cal_objs = [_load_cal(c) for c in cals]
+    if labels is not None and len(labels) != len(cal_objs):
+        raise InputError(f"{len(labels)} labels for {len(cal_objs)} calibrations")
+    g_local = float(cal_objs[0].local_gravity_mps2) if cal_objs else float(s.meta.local_gravity_mps2)
+    tracks: list[_Track] = []
+    if include_raw:
+        tracks.append(_Track("raw", OnlineIntegrator(up_sensor=up, local_gravity_mps2=g_local)))
+    used: set[str] = {t.label for t in tracks}
+    for i, cal in enumerate(cal_objs):
+        lab = labels[i] if labels is not None else _label_of(cal, f"cal{i + 1}")
+        while lab in used:
+            lab = f"{lab}'"
+        used.add(lab)
+        from accellog.calibrate.calibration import session_drivers
+
+        tr = _Track(lab, OnlineIntegrator.from_calibration(cal, up_sensor=up), cal=cal)
+        tr.drivers = session_drivers(s, cal.model.required_drivers)
+        dm = getattr(cal, "drift", None)
+        if dm is not None and apply_drift:
+            if dm.up_sensor is not None and not np.allclose(dm.up_sensor, up, atol=1e-6):
+                tr.notes.append(f"{lab}: drift model not applied (fitted with up {list(dm.up_sensor)})")
+            else:
+                tr.drift = dm
+        tracks.append(tr)
+    if not tracks:
+        raise InputError("nothing to replay: no calibration given and the raw track is off")
+
+    t = s.t_s
+    rec = recording
+    if rec is not None:
+        if s.poses:
+            rec.log_poses(s.poses)
+        if s.events:
+            rec.log_events(s.events)
+
+    # batch bounds in sensor time
+    span = float(t[-1] - t[0])
+    if batch_s is None:
+        batch_s = MAX_BATCH_S if speed_f is None else max(speed_f / PACED_UPDATES_PER_S, 1e-3)
+    edges = np.searchsorted(t, t[0] + np.arange(0.0, span + batch_s, batch_s)[1:], side="left")
+    bounds = np.unique(np.r_[0, edges, s.n])
+    t_pace0 = clock()
+    last_3d = clock()
+    stride = max(1, s.n // 20_000)
+    rate_hz = (s.n - 1) / span if span > 0 else 1.0
+    slow = max(1, round(rate_hz / SLOW_SERIES_HZ))
+    for i0, i1 in itertools.pairwise(bounds.tolist()):
+        sl = slice(int(i0), int(i1))
+        tb = t[sl]
+        if speed_f is not None:
+            wait = t_pace0 + (float(tb[-1]) - float(t[0])) / speed_f - clock()
+            if wait > 0:
+                sleep(wait)
+        raw = s.accel_g[sl]
+        pos = np.arange(int(i0), int(i1))
+        keep = (pos % slow == 0) | (pos == s.n - 1)  # decimated slow series (last sample kept)
+        if rec is not None:
+            rec.log_samples("raw", tb, s.sample_index[sl], raw, "g")
+            if s.temp_degC is not None:
+                rec.log_temperature(tb[keep], s.temp_degC[sl][keep])
+        for tr in tracks:
+            drv = {k: v[sl] for k, v in tr.drivers.items()}
+            step = tr.integ.push(tb, raw, drv)
+            d = tr.drift.apply(tb, step.disp_m) if tr.drift is not None else step.disp_m
+            tr.parts.append(d[pos % stride == 0])
+            tr.last = d[-1]
+            if rec is not None:
+                if tr.cal is not None:
+                    rec.log_samples(tr.label, tb, None, step.f_g, "g")
+                rec.log_series(
+                    f"{TRACKS}/{slug(tr.label)}",
+                    tb[keep],
+                    d[keep],
+                    [f"{tr.label} {a} (m)" for a in AXES],
+                    role="track",
+                    colors=AXIS_COLORS,
+                )
+        if rec is not None and speed_f is not None and clock() - last_3d > 1.0:
+            last_3d = clock()
+            for tr in tracks:
+                rec.log_track_3d(tr.label, np.concatenate([*tr.parts, tr.last[None, :]]))
+
+    results = []
+    for tr in tracks:
+        d_end = tr.integ.disp_m
+        d_drift = tr.drift.apply(np.array([t[-1]]), d_end[None, :])[0] if tr.drift is not None else None
+        results.append(TrackResult(tr.label, d_end, d_drift, getattr(tr.cal, "path", None), notes=tr.notes))
+        if rec is not None:
+            final = d_drift if d_drift is not None else d_end
+            rec.log_track_3d(tr.label, np.concatenate([*tr.parts, final[None, :]]))
+    res = ReplayResult(
+        session=str(where),
+        n=s.n,
+        t_end_s=float(t[-1]),
+        duration_s=span,
+        wall_s=clock() - t_wall0,
+        speed=speed_f,
+        up_sensor=up,
+        local_gravity_mps2=g_local,
+        tracks=results,
+    )
+    res.tracks[0].notes[:0] = notes
+    if rec is not None:
+        rec.log_document("replay/final_displacement", res.markdown())
+    return res
+
+
+def compare(
+    test_session: Session | str | os.PathLike,
+    cals: Sequence[Any],
+    *,
+    labels: Sequence[str] | None = None,
+    recording: RunRecording | None = None,
+    up_sensor: str | Sequence[float] | None = None,
+    include_raw: bool = True,
+) -> ReplayResult:
+    """Tracks of several calibrations of one static test session side by side (as fast as possible)."""
+    if not cals:
+        raise InputError("compare needs at least one --cal")
+    return replay(
+        test_session,
+        cals=cals,
+        labels=labels,
+        speed=None,
+        recording=recording,
+        up_sensor=up_sensor,
+        include_raw=include_raw,
+    )

@@ -1,0 +1,277 @@
+"""Scenario -> session: record a whole session from the emulated chip on a simulated clock.
+
+The samples go through exactly the path real hardware uses: emulated registers -> ``Mpu9250``
+driver (FIFO bursts) -> ``Recorder`` -> ``SessionWriter``; only the clock is simulated, so an hour
+of 1 kHz data takes seconds. The scenario's pose labels are the holds the motion really has (the
+simulated operator labels each hold from its start to its end, minus a small margin).
+
+A scenario is a TOML file or the equivalent keyword arguments:
+
+```toml
+protocol = "six"            # 'six', '24' or a list like '+z,-z,+x@90'
+hold_s = 30.0
+move_s = 3.0
+sample_rate_hz = 1000.0     # 1000 / (1 + SMPLRT_DIV)
+accel_range_g = 2
+chip_seed = 7               # draws the chip's error parameters (same chip across sessions)
+seed = 1                    # noise of this session
+errors = "datasheet"        # 'datasheet' | 'perfect'
+local_gravity_mps2 = 9.80665
+fixture_tilt_deg = [0.0, 0.0]
+[set]                       # overrides of AccelErrors fields, e.g.
+temp_bias_g_per_degC = [0.001, -0.0005, 0.0008]
+[temperature]               # 'constant' (T), 'warmup' (T_start, T_end, tau_s) or 'ramp' (T0, rate)
+kind = "warmup"
+T_start = 25.0
+T_end = 40.0
+tau_s = 300.0
+```
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomllib
+
+from accellog.core.errors import InputError
+from accellog.core.protocol import parse_protocol
+from accellog.core.session import PoseLabel
+from accellog.core.units import STANDARD_GRAVITY_MPS2
+
+_SMPLRT_DIV_BASE_HZ = 1000.0
+
+
+@dataclass
+class Scenario:
+    """Everything that defines a simulated session (see module docstring for the TOML form)."""
+
+    protocol: str = "six"
+    hold_s: float = 30.0
+    move_s: float = 3.0
+    sample_rate_hz: float = 1000.0
+    accel_range_g: int = 2
+    gyro_range_dps: int = 250
+    chip_seed: int = 7
+    seed: int = 1
+    errors: str = "datasheet"
+    set: dict[str, Any] = field(default_factory=dict)
+    gyro_errors: str = "datasheet"
+    temperature: dict[str, Any] = field(default_factory=lambda: {"kind": "constant", "T": 25.0})
+    local_gravity_mps2: float = STANDARD_GRAVITY_MPS2
+    fixture_tilt_deg: tuple[float, float] = (0.0, 0.0)
+    label_margin_s: float = 0.25
+    motion: str = "poses"
+    """'poses' (guided static holds) or 'robot' (the default robot path; see emulator.robot)."""
+    robot_path: str = "demo"
+    """'demo' (a 64 s closed loop with ramps, a banked turn and 9 stops) or 'long' (10 min)."""
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> Scenario:
+        p = Path(path)
+        try:
+            data = tomllib.loads(p.read_text())
+        except FileNotFoundError:
+            raise InputError("scenario file not found", where=str(p)) from None
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"not valid TOML ({exc})", where=str(p)) from None
+        return cls.from_dict(data, where=str(p))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], where: str = "scenario") -> Scenario:
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise InputError(f"unknown scenario key(s) {unknown}; known: {sorted(names)}", where=where)
+        for key, value in data.items():
+            _check_type(key, value, where)
+        sc = cls(**data)
+        sc.validate(where)
+        return sc
+
+    def validate(self, where: str = "scenario") -> None:
+        div = _SMPLRT_DIV_BASE_HZ / self.sample_rate_hz - 1.0
+        if self.sample_rate_hz <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
+            raise InputError(
+                f"sample_rate_hz={self.sample_rate_hz:g} is not 1000/(1+N) for N in 0..255", where=where
+            )
+        if self.errors not in ("datasheet", "perfect"):
+            raise InputError(f"errors={self.errors!r}: use 'datasheet' or 'perfect'", where=where)
+        if self.motion not in ("poses", "robot"):
+            raise InputError(f"motion={self.motion!r}: use 'poses' or 'robot'", where=where)
+        parse_protocol(self.protocol, self.hold_s)
+
+    @property
+    def sample_rate_div(self) -> int:
+        return round(_SMPLRT_DIV_BASE_HZ / self.sample_rate_hz - 1.0)
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+
+_FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s"}
+_INT_KEYS = {"accel_range_g", "gyro_range_dps", "chip_seed", "seed"}
+_STR_KEYS = {"protocol", "errors", "gyro_errors", "motion", "robot_path"}
+_TABLE_KEYS = {"set", "temperature"}
+
+
+def _check_type(key: str, value: Any, where: str) -> None:
+    """One-line InputError when a scenario value has the wrong type (TOML is typed)."""
+
+    def bad(expected: str) -> InputError:
+        return InputError(f"scenario key {key!r} must be {expected}, got {value!r}", where=where)
+
+    is_num = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if key in _FLOAT_KEYS and not is_num:
+        raise bad("a number")
+    if key in _INT_KEYS and (not isinstance(value, int) or isinstance(value, bool)):
+        raise bad("an integer")
+    if key in _STR_KEYS and not isinstance(value, str):
+        raise bad("a string")
+    if key in _TABLE_KEYS and not isinstance(value, dict):
+        raise bad("a table")
+    if key == "fixture_tilt_deg" and not (
+        isinstance(value, (list, tuple))
+        and len(value) == 2
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    ):
+        raise bad("two numbers [about x, about y] in degrees")
+
+
+def build_sensor_model(sc: Scenario):
+    """The emulator's physical model for a scenario: motion, error parameters, temperature path."""
+    from accellog.acquire.emulator.poses import PoseSequenceMotion
+    from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
+
+    if sc.motion == "robot":
+        from accellog.acquire.emulator import robot
+
+        paths = {"demo": robot.demo_loop, "long": robot.long_run}
+        if sc.robot_path not in paths:
+            raise InputError(f"robot_path={sc.robot_path!r}: use one of {sorted(paths)}")
+        motion = paths[sc.robot_path](local_gravity_mps2=sc.local_gravity_mps2)
+    else:
+        motion = PoseSequenceMotion(
+            parse_protocol(sc.protocol, sc.hold_s),
+            move_s=sc.move_s,
+            fixture_tilt_deg=tuple(sc.fixture_tilt_deg),
+        )
+    accel = AccelErrors.datasheet(sc.chip_seed) if sc.errors == "datasheet" else AccelErrors.perfect()
+    if sc.set:
+        known = {f.name for f in dataclasses.fields(accel)}
+        bad = sorted(set(sc.set) - known)
+        if bad:
+            raise InputError(f"unknown accelerometer error field(s) {bad}; known: {sorted(known)}")
+        values = {}
+        for k, v in sc.set.items():
+            try:
+                arr = np.asarray(v, float)
+            except (TypeError, ValueError):
+                raise InputError(f"error field {k!r}: {v!r} is not a number or a list of numbers") from None
+            default = np.asarray(getattr(accel, k), float)
+            if arr.shape != default.shape and arr.ndim != 0:
+                raise InputError(
+                    f"{k} must be {default.size} numbers (shape {default.shape}), got shape {arr.shape}"
+                )
+            values[k] = float(arr) if default.ndim == 0 else np.broadcast_to(arr, default.shape).copy()
+        accel = dataclasses.replace(accel, **values)
+    gyro = GyroErrors.datasheet(sc.chip_seed) if sc.gyro_errors == "datasheet" else GyroErrors.perfect()
+    temperature = temperature_path(sc.temperature)
+    model = SensorModel(
+        motion,
+        accel=accel,
+        gyro=gyro,
+        temperature=temperature,
+        seed=sc.seed,
+        local_gravity_mps2=sc.local_gravity_mps2,
+    )
+    return model, motion
+
+
+def temperature_path(spec: dict[str, Any]):
+    """TemperaturePath from {'kind': 'constant'|'warmup'|'ramp'|'points', ...} (degC, s)."""
+    from accellog.acquire.emulator.temperature import TemperaturePath
+
+    kind = spec.get("kind", "constant")
+    try:
+        if kind == "constant":
+            return TemperaturePath.constant(float(spec.get("T", 25.0)))
+        if kind == "warmup":
+            return TemperaturePath.warmup(float(spec["T_start"]), float(spec["T_end"]), float(spec["tau_s"]))
+        if kind == "ramp":
+            return TemperaturePath.ramp(float(spec["T0"]), float(spec["rate_degC_per_s"]))
+        if kind == "points":
+            return TemperaturePath.points(spec["t_s"], spec["T"])
+    except KeyError as exc:
+        raise InputError(f"temperature kind {kind!r} needs key {exc}") from None
+    raise InputError(f"unknown temperature kind {kind!r}: use constant, warmup, ramp or points")
+
+
+def simulate(
+    sc: Scenario,
+    out: str | Path,
+    *,
+    duration_s: float | None = None,
+    poll_s: float = 0.025,
+    truth_step_s: float = 0.01,
+):
+    """Write the scenario's session to ``out`` (MCAP) on a simulated clock; return RecordSummary.
+
+    truth_step_s: spacing of the stored ground truth (s); it is for evaluation only.
+    """
+    from accellog.acquire.driver import Mpu9250
+    from accellog.acquire.emulator.chip import EmulatedMpu9250
+    from accellog.acquire.emulator.clock import SimClock
+    from accellog.acquire.recorder import Recorder, session_meta
+    from accellog.store.mcap_io import SessionWriter
+
+    model, motion = build_sensor_model(sc)
+    clock = SimClock()
+    chip = EmulatedMpu9250(model, clock, seed=sc.seed)
+    driver = Mpu9250(chip, clock_ns=clock.now_ns)
+    info = driver.probe()
+    cfg = driver.configure(
+        accel_range_g=sc.accel_range_g,
+        gyro_range_dps=sc.gyro_range_dps,
+        sample_rate_div=sc.sample_rate_div,
+    )
+    meta = session_meta(
+        info,
+        cfg,
+        source="emulator",
+        protocol=sc.protocol if sc.motion == "poses" else f"robot:{sc.robot_path}",
+        local_gravity_mps2=sc.local_gravity_mps2,
+        extra={"scenario": sc.to_json()},
+    )
+    total_s = motion.duration_s if duration_s is None else duration_s
+    out = Path(out)
+    tmp = out.with_name(out.name + ".part")
+    try:
+        with SessionWriter(tmp, meta) as writer:
+            driver.start()
+            rec = Recorder(driver, writer, sleep=clock.sleep, poll_s=poll_s)
+            rec.run_for(total_s)
+            # Motion time starts when the chip is created, session time at the first FIFO sample:
+            # map the scenario's holds and truth onto the session's time axis.
+            m = sc.label_margin_s
+            for lab in motion.labels():
+                start_s, end_s = (float(v) for v in chip.session_time_s(np.array([lab.start_s, lab.end_s])))
+                if start_s < 0 or end_s > rec.t_s:
+                    continue
+                label = PoseLabel(
+                    lab.name, start_s + m, end_s - m, lab.up_sensor, lab.q_sensor_to_world, lab.hold_index
+                )
+                writer.write_pose(label)
+                rec.summary.poses.append(label)
+            writer.write_truth(chip.truth_for_session(np.arange(0.0, rec.t_s, truth_step_s)))
+        tmp.replace(out)
+    except BaseException:  # never leave a half-written session behind (Ctrl-C, errors)
+        tmp.unlink(missing_ok=True)
+        raise
+    rec.summary.duration_s = rec.t_s
+    return rec.summary

@@ -1,0 +1,168 @@
+"""The model workbench loop: diagnose, add the most likely missing effect, refit, until the model
+fits to the noise floor; then the ladder of model-building steps, each judged on the calibration
+data (chi^2/dof), on a held-out session (residual RMS vs its noise floor) and on a static test
+(|displacement| after 60 s).
+
+    steps: model1 -> model2 -> model3 -> model3 + e1 -> model3 + e1 + e2 ...
+
+``discover`` never adds an effect diagnose does not find significant and identifiable, so a clean
+session stops at the start model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from accellog.core.session import ObsTable, Session
+
+BASE_STEPS = ("model1", "model2")
+
+
+@dataclass
+class Discovery:
+    """What the loop found: the diagnoses in order and the effects added (names for --add)."""
+
+    start: str
+    diagnoses: list = field(default_factory=list)
+    added: list[str] = field(default_factory=list)
+
+    @property
+    def final_model(self) -> str:
+        return "+".join([self.start, *self.added])
+
+
+def discover(
+    obs: ObsTable,
+    start: str = "model3",
+    *,
+    max_steps: int = 4,
+    effects_file: str | Path | None = None,
+    host_time: tuple[np.ndarray, np.ndarray] | None = None,
+    on_step: Callable[[object], None] | None = None,
+) -> Discovery:
+    """Diagnose `start`, add diagnose's best candidate, repeat while something is missing."""
+    from accellog.calibrate.diagnose import diagnose
+    from accellog.calibrate.model import build_model
+
+    model = build_model(start, effects_file=effects_file)
+    out = Discovery(start=start)
+    for _ in range(max_steps + 1):
+        d = diagnose(obs, model, host_time=host_time)
+        out.diagnoses.append(d)
+        if on_step is not None:
+            on_step(d)
+        if not d.missing or d.best is None or d.best in out.added or len(out.added) >= max_steps:
+            break
+        out.added.append(d.best)
+        model = model.with_terms([d.best])
+    return out
+
+
+def ladder_rows(
+    calibration: Session,
+    obs: ObsTable,
+    steps: Sequence[tuple[str, list[str]]],
+    *,
+    heldout: ObsTable | None = None,
+    static_test: Session | None = None,
+    effects_file: str | Path | None = None,
+    at_s: float = 60.0,
+) -> list[dict]:
+    """Fit each step (preset, added effects) and judge it: chi2/dof and RMS on the calibration
+    windows, held-out residual RMS and noise floor (g), |displacement| of the static test at at_s (m).
+    Each row keeps its FitOutcome under 'fit' (not JSON)."""
+    from accellog.calibrate.diagnose import heldout_stats
+    from accellog.flows.pipeline import run_evaluate, run_fit
+
+    rows = []
+    for i, (preset, add) in enumerate(steps):
+        fo = run_fit(
+            calibration, preset, add=list(add), effects_file=effects_file, obs=obs, gyro=i == len(steps) - 1
+        )
+        row = {
+            "model": fo.fit.model.name,
+            "added": list(add),
+            "n_params": fo.fit.model.n_params,
+            "chi2_dof": float(fo.fit.chi2_dof),
+            "rms_g": float(fo.fit.rms_g),
+            "warnings": list(fo.fit.warnings),
+            "fit": fo,
+        }
+        if heldout is not None:
+            row.update(heldout_stats(fo.fit, heldout))
+        if static_test is not None:
+            ev = run_evaluate(
+                static_test, [fo.cal], include_raw=False, labels=[fo.fit.model.name], times_s=(at_s,)
+            )[0]
+            row[f"drift_{at_s:g}s_m"] = float(np.linalg.norm(ev.disp_at(at_s)))
+        rows.append(row)
+    return rows
+
+
+def steps_for(discovery: Discovery) -> list[tuple[str, list[str]]]:
+    """model1, model2, the start model, then one step per added effect."""
+    steps = [(p, []) for p in BASE_STEPS if p != discovery.start]
+    steps.append((discovery.start, []))
+    for k in range(1, len(discovery.added) + 1):
+        steps.append((discovery.start, discovery.added[:k]))
+    return steps
+
+
+def ladder_table(rows: Sequence[dict], at_s: float = 60.0):
+    """Rich table of ladder rows (mg for residuals, m for drift)."""
+    from rich.table import Table
+
+    t = Table(title="watch the error fall: each step of model building")
+    cols = ["model", "params", "χ²/dof (fit)", "RMS (mg)"]
+    has_held = any("heldout_rms_g" in r for r in rows)
+    has_drift = any(f"drift_{at_s:g}s_m" in r for r in rows)
+    if has_held:
+        cols += ["held-out RMS (mg)", "noise floor (mg)"]
+    if has_drift:
+        cols += [f"{at_s:g} s drift (m)"]
+    for c in cols:
+        t.add_column(c, justify="left" if c == "model" else "right", overflow="fold", no_wrap=c == "model")
+    for r in rows:
+        cells = [r["model"], str(r["n_params"]), f"{r['chi2_dof']:.3g}", f"{r['rms_g'] * 1000:.3g}"]
+        if has_held:
+            cells += [
+                f"{r.get('heldout_rms_g', np.nan) * 1000:.3g}",
+                f"{r.get('heldout_noise_g', np.nan) * 1000:.3g}",
+            ]
+        if has_drift:
+            cells += [f"{r.get(f'drift_{at_s:g}s_m', np.nan):.3g}"]
+        t.add_row(*cells)
+    return t
+
+
+def ladder_json(rows: Sequence[dict]) -> list[dict]:
+    """Ladder rows without the fit objects (for --json)."""
+    return [{k: v for k, v in r.items() if k != "fit"} for r in rows]
+
+
+def log_ladder(rec, rows: Sequence[dict], obs: ObsTable, at_s: float = 60.0) -> None:
+    """The ladder in a RunRecording: bars per metric, and the residuals of the start model and of
+    the final model next to the temperature (the usual driver of what was missing)."""
+    from accellog.present.rrd import LadderRow
+
+    show = {rows[-1]["model"]} | {r["model"] for r in rows if not r["added"] and r["model"] not in BASE_STEPS}
+    rec.log_ladder(
+        [
+            LadderRow(
+                step=r["model"],
+                added="+".join(r["added"]),
+                chi2_dof=r["chi2_dof"],
+                heldout_rms_mg=r.get("heldout_rms_g", np.nan) * 1000,
+                drift_60s_m=r.get(f"drift_{at_s:g}s_m", np.nan),
+                t_s=np.asarray(obs.t_s) if r["model"] in show else None,
+                residual_g=np.asarray(r["fit"].fit.residual_g),
+                driver_name="temperature (degC)",
+                driver=None if obs.temp_degC is None else np.asarray(obs.temp_degC),
+            )
+            for r in rows
+        ]
+    )

@@ -1,0 +1,166 @@
+"""Rich tables and JSON helpers for the batch stages (the seed's three tables and more).
+
+- `params_table`: every parameter with value +- 1-sigma and unit, plus fit statistics;
+- `static_means_table` (seed Table 4): mean residual of the calibrated static test per axis with
+  +- its autocorrelation-aware standard error (m/s^2), chi2 against the noise;
+- `displacement_table` (seed Table 5): integrated displacement at a time per model (m);
+- `drift_table` (the seed's final table): before / after the drift model, and the q with +-.
+Every column names its unit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from accellog.calibrate.calibration import Calibration, dumps
+from accellog.calibrate.drift_model import DriftModel
+from accellog.navigate.evaluate import Evaluation, PoseEvaluation
+
+AXES = ("x", "y", "z")
+
+
+def fmt_pm(value: float, sigma: float, digits: int = 4) -> str:
+    """'v +- s' with s to 2 significant digits and v to the same decimal place (g-style fallback)."""
+    if not np.isfinite(sigma) or sigma <= 0:
+        return f"{value:.{digits}g}"
+    dec = max(0, -int(np.floor(np.log10(sigma))) + 1)
+    if dec > 12:
+        return f"{value:.6g} ± {sigma:.2g}"
+    return f"{value:.{dec}f} ± {sigma:.{dec}f}"
+
+
+def params_table(cal: Calibration, title: str | None = None) -> Table:
+    """Parameters of a calibration: name, value +- 1-sigma, unit; caption with fit statistics."""
+    t = Table(title=title or f"calibration {cal.model_spec.get('name', '')} (terms: {', '.join(cal.terms)})")
+    t.add_column("parameter")
+    t.add_column("value ± 1σ", justify="right")
+    t.add_column("unit")
+    for n, v, s, u in zip(cal.param_names, cal.theta, cal.sigma, cal.param_units, strict=True):
+        t.add_row(n, fmt_pm(float(v), float(s)), u)
+    f = cal.fit
+    parts = []
+    if f.get("rms_g") is not None:
+        parts.append(f"residual RMS {f['rms_g'] * 1000:.4g} mg")
+    if f.get("chi2_dof") is not None:
+        parts.append(f"chi2/dof {f['chi2_dof']:.4g} (dof {f.get('dof')})")
+    parts.append("weighted" if f.get("weighted") else "unweighted")
+    parts.append(
+        f"truth {cal.truth_g:.6g} g/pose ({cal.gravity_convention}), g_local {cal.local_gravity_mps2} m/s²"
+    )
+    t.caption = "; ".join(parts)
+    return t
+
+
+def static_means_table(
+    evals: Sequence[Evaluation], title: str = "static test: mean residual after calibration"
+) -> Table:
+    """Seed Table 4: per row, mean of (calibrated - expected) per axis +- sem (m/s^2)."""
+    t = Table(title=title)
+    t.add_column("model")
+    for ax in AXES:
+        t.add_column(f"{ax} mean (m/s²)", justify="right")
+    t.add_column("RMS (m/s²)", justify="right")
+    t.add_column("χ² noise (dof 3)", justify="right")
+    for ev in evals:
+        t.add_row(
+            ev.label,
+            *(fmt_pm(float(m), float(s)) for m, s in zip(ev.mean_resid_mps2, ev.sem_mps2, strict=True)),
+            f"{ev.rms_mps2:.4g}",
+            f"{ev.chi2_noise:.3g}",
+        )
+    if evals:
+        t.caption = f"{evals[0].session}: {evals[0].n} samples, {evals[0].duration_s:.1f} s; ± = autocorrelation-aware sem"
+    return t
+
+
+def displacement_table(
+    evals: Sequence[Evaluation], at_s: float = 60.0, drift: bool = False, title: str | None = None
+) -> Table:
+    """Seed Table 5: integrated displacement (m) at at_s per row (after the drift model if drift)."""
+    t = Table(title=title or f"integrated displacement at {at_s:g} s")
+    t.add_column("model")
+    for ax in AXES:
+        t.add_column(f"{ax} (m)", justify="right")
+    t.add_column("t used (s)", justify="right")
+    for ev in evals:
+        i = int(np.argmin(np.abs(ev.times_s - at_s)))
+        d = ev.disp_at(at_s, drift=drift)
+        t.add_row(
+            ev.label + (" + drift model" if drift and ev.drift_applied else ""),
+            *(f"{v:.4g}" for v in d),
+            f"{ev.t_used_s[i]:.2f}",
+        )
+    return t
+
+
+def drift_table(
+    rows: Sequence[tuple[str, np.ndarray]], t_end_s: float, model: DriftModel | None = None
+) -> tuple[Table, Table | None]:
+    """The seed's final table (label, displacement (3,) m at t_end_s) and the drift q +- 1-sigma."""
+    t = Table(title=f"displacement of the static test at {t_end_s:.2f} s")
+    t.add_column("calibration")
+    for ax in AXES:
+        t.add_column(f"{ax} (m)", justify="right")
+    for label, d in rows:
+        t.add_row(label, *(f"{v:.4g}" for v in d))
+    if model is None:
+        return t, None
+    q = Table(title="drift model d' = d + ½ q2 t² + q1 t + q0")
+    q.add_column("axis")
+    q.add_column("q0 (m)", justify="right")
+    q.add_column("q1 (m/s)", justify="right")
+    q.add_column("q2 (m/s²)", justify="right")
+    q.add_column("RMS resid (m)", justify="right")
+    for i, ax in enumerate(AXES):
+        q.add_row(
+            ax,
+            *(fmt_pm(float(model.q[i, k]), float(model.sigma[i, k])) for k in range(3)),
+            f"{model.rms_residual_m[i]:.3g}",
+        )
+    q.caption = "limits: " + model.limits
+    return t, q
+
+
+def ladder_table(rows: Sequence[dict[str, Any]], title: str = "model ladder") -> Table:
+    """One row per fitted model: name, n params, residual RMS (mg), chi2/dof, warnings count."""
+    t = Table(title=title)
+    for c in ("model", "params", "RMS (mg)", "χ²/dof", "warnings"):
+        t.add_column(c, justify="left" if c == "model" else "right")
+    for r in rows:
+        t.add_row(
+            r["model"],
+            str(r["n_params"]),
+            f"{r['rms_g'] * 1000:.4g}",
+            "-" if r.get("chi2_dof") is None else f"{r['chi2_dof']:.4g}",
+            str(len(r.get("warnings", []))),
+        )
+    return t
+
+
+def pose_eval_table(pe: PoseEvaluation) -> Table:
+    """Mean residual per pose (mg) +- sem of a multi-pose evaluation."""
+    t = Table(title=f"{pe.label} on {pe.session}: residual per pose")
+    t.add_column("pose")
+    for ax in AXES:
+        t.add_column(f"{ax} (mg)", justify="right")
+    for n, m, s in zip(pe.pose_names, pe.mean_resid_g, pe.sem_g, strict=True):
+        t.add_row(n, *(fmt_pm(float(a) * 1000, float(b) * 1000) for a, b in zip(m, s, strict=True)))
+    t.caption = f"RMS {pe.rms_g * 1000:.4g} mg, chi2/dof {pe.chi2 / max(pe.dof, 1):.3g}"
+    return t
+
+
+def print_tables(tables: Sequence[Table | None], console: Console | None = None) -> None:
+    console = console or Console()
+    for t in tables:
+        if t is not None:
+            console.print(t)
+
+
+def json_text(data: Any) -> str:
+    """Strict JSON text of results (numpy arrays as lists, NaN as null)."""
+    return dumps(data)

@@ -1,0 +1,372 @@
+"""Serve an .rrd to Rerun's web viewer on 127.0.0.1 and screenshot it in headless Chromium.
+
+``serve_rrd`` runs ``rerun --serve-web --bind 127.0.0.1`` (the viewer bundled in the rerun-sdk
+wheel) on free ports; ``Chromium`` drives a headless browser over the DevTools protocol
+(websocket, 127.0.0.1 only, fresh profile, no background networking); ``screenshot_rrd`` waits in
+real time until the viewer has drawn the recording and saves a PNG. Nothing here writes to the
+.rrd: the server only reads it.
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import io
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+import urllib.parse
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from accellog.core.errors import InputError
+
+CHROMIUM_CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "chrome")
+
+
+def rerun_binary() -> str:
+    """Path of the rerun executable bundled with rerun-sdk (not the Python wrapper script)."""
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).parent / "rerun"
+        if exe.exists():
+            return str(exe)
+    except ImportError:
+        pass
+    found = shutil.which("rerun")
+    if not found:
+        raise InputError("the rerun executable was not found (pip install rerun-sdk)")
+    return found
+
+
+def _require(module: str, pip_name: str) -> None:
+    """InputError (one line, not a traceback) when an optional screenshot dependency is missing."""
+    import importlib.util
+
+    if importlib.util.find_spec(module) is None:
+        raise InputError(f"screenshots need the {pip_name} package: pip install {pip_name}")
+
+
+def find_chromium() -> str | None:
+    """Path of a Chromium/Chrome executable ($ACCELLOG_CHROMIUM first), or None."""
+    env = os.environ.get("ACCELLOG_CHROMIUM")
+    if env:
+        return env
+    for name in CHROMIUM_CANDIDATES:
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+def free_port() -> int:
+    """A TCP port free on 127.0.0.1 right now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_port(port: int, timeout_s: float, proc: subprocess.Popen | None = None) -> None:
+    """Wait until 127.0.0.1:port accepts connections (or the process died / time is up)."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if proc is not None and proc.poll() is not None:
+            raise InputError(f"{Path(str(proc.args[0])).name} exited with code {proc.returncode}")
+        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=0.5):
+            return
+        time.sleep(0.1)
+    raise InputError(f"nothing listens on 127.0.0.1:{port} after {timeout_s:g} s")
+
+
+def rerun_env() -> dict[str, str]:
+    """Environment for rerun processes: analytics off."""
+    return dict(os.environ, RERUN_ANALYTICS="0")
+
+
+def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
+    """Terminate a process we started (its own process group), then kill it if it lingers."""
+    if proc.poll() is not None:
+        return
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+@dataclass
+class WebViewer:
+    """A running ``rerun --serve-web`` for one .rrd: open ``url`` in a browser."""
+
+    proc: subprocess.Popen
+    grpc_port: int
+    web_port: int
+
+    @property
+    def url(self) -> str:
+        data = urllib.parse.quote(f"rerun+http://127.0.0.1:{self.grpc_port}/proxy", safe="")
+        return f"http://127.0.0.1:{self.web_port}/?url={data}&renderer=webgl"
+
+
+@contextlib.contextmanager
+def serve_rrd(rrd_path: str | Path, *, timeout_s: float = 30.0) -> Iterator[WebViewer]:
+    """Serve rrd_path to the web viewer on 127.0.0.1 (free ports); stopped on exit."""
+    p = Path(rrd_path)
+    if not p.is_file():
+        raise InputError("no such .rrd file", where=str(p))
+    grpc_port, web_port = free_port(), free_port()
+    while web_port == grpc_port:
+        web_port = free_port()
+    cmd = [
+        rerun_binary(),
+        "--serve-web",
+        "--bind",
+        "127.0.0.1",
+        "--port",
+        str(grpc_port),
+        "--web-viewer-port",
+        str(web_port),
+        str(p),
+    ]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=rerun_env(), start_new_session=True
+    )
+    try:
+        wait_port(web_port, timeout_s, proc)
+        wait_port(grpc_port, timeout_s, proc)
+        yield WebViewer(proc, grpc_port, web_port)
+    finally:
+        stop_process(proc)
+
+
+class Chromium:
+    """Headless Chromium driven over the DevTools protocol (127.0.0.1, throw-away profile)."""
+
+    def __init__(
+        self, *, size: tuple[int, int] = (1400, 900), exe: str | None = None, timeout_s: float = 30.0
+    ):
+        _require("websockets", "websockets")
+        self.exe = exe or find_chromium()
+        if not self.exe:
+            raise InputError("chromium not found: apt-get install chromium (or set ACCELLOG_CHROMIUM)")
+        self.size = size
+        self.timeout_s = timeout_s
+        self._profile = tempfile.mkdtemp(prefix="accellog-chromium-")
+        self.port = free_port()
+        cmd = [
+            self.exe,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--no-default-browser-check",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--disable-extensions",
+            "--disable-default-apps",
+            "--metrics-recording-only",
+            "--mute-audio",
+            "--remote-debugging-address=127.0.0.1",
+            f"--remote-debugging-port={self.port}",
+            f"--user-data-dir={self._profile}",
+            f"--window-size={size[0]},{size[1]}",
+            "about:blank",
+        ]
+        # Chromium's own temporary files go to the profile folder, removed on close.
+        env = {**os.environ, "TMPDIR": self._profile}
+        self.proc = subprocess.Popen(
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, env=env
+        )
+        self._ws = None
+        self._id = 0
+        self._events: set[str] = set()
+        self._stack = contextlib.ExitStack()
+        try:
+            wait_port(self.port, timeout_s, self.proc)
+            self._attach()
+        except BaseException:
+            self.close()
+            raise
+
+    def _attach(self) -> None:
+        from websockets.sync.client import connect
+
+        end = time.monotonic() + self.timeout_s
+        ws_url = None
+        while ws_url is None and time.monotonic() < end:
+            with urllib.request.urlopen(f"http://127.0.0.1:{self.port}/json/list", timeout=5) as r:
+                pages = [t for t in json.load(r) if t.get("type") == "page"]
+            if pages:
+                ws_url = pages[0]["webSocketDebuggerUrl"]
+            else:
+                time.sleep(0.1)
+        if ws_url is None:
+            raise InputError("chromium opened no page")
+        self._ws = self._stack.enter_context(connect(ws_url, max_size=None, open_timeout=self.timeout_s))
+        w, h = self.size
+        self.call("Emulation.setDeviceMetricsOverride", width=w, height=h, deviceScaleFactor=1, mobile=False)
+        self.call("Page.enable")
+        self.call("Runtime.enable")
+
+    def call(self, method: str, **params) -> dict:
+        """Send one DevTools command and return its result (events in between are skipped)."""
+        assert self._ws is not None
+        self._id += 1
+        my_id = self._id
+        self._ws.send(json.dumps({"id": my_id, "method": method, "params": params}))
+        end = time.monotonic() + self.timeout_s
+        while True:
+            left = end - time.monotonic()
+            if left <= 0:
+                raise InputError(f"chromium did not answer {method} within {self.timeout_s:g} s")
+            try:
+                msg = json.loads(self._ws.recv(timeout=left))
+            except TimeoutError:
+                raise InputError(f"chromium did not answer {method} within {self.timeout_s:g} s") from None
+            self._handle(msg)
+            if msg.get("id") == my_id:
+                if "error" in msg:
+                    raise InputError(f"chromium: {method}: {msg['error'].get('message')}")
+                return msg.get("result", {})
+
+    def navigate(self, url: str, *, load_timeout_s: float = 20.0) -> None:
+        """Open url and wait (at most load_timeout_s) for its load event."""
+        self._events.clear()
+        self.call("Page.navigate", url=url)
+        end = time.monotonic() + load_timeout_s
+        while "Page.loadEventFired" not in self._events and time.monotonic() < end:
+            with contextlib.suppress(TimeoutError):
+                self._handle(json.loads(self._ws.recv(timeout=max(0.01, end - time.monotonic()))))
+
+    def _handle(self, msg: dict) -> None:
+        if "method" in msg:
+            self._events.add(msg["method"])
+
+    def screenshot_png(self) -> bytes:
+        """PNG of the current viewport (bytes)."""
+        res = self.call("Page.captureScreenshot", format="png", fromSurface=True)
+        return base64.b64decode(res["data"])
+
+    def evaluate(self, expression: str):
+        res = self.call("Runtime.evaluate", expression=expression, returnByValue=True)
+        return res.get("result", {}).get("value")
+
+    def close(self) -> None:
+        if self._ws is not None:
+            with contextlib.suppress(Exception):
+                self._stack.close()
+            self._ws = None
+        stop_process(self.proc)
+        shutil.rmtree(self._profile, ignore_errors=True)
+
+    def __enter__(self) -> Chromium:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@dataclass
+class PixelStats:
+    """How much a screenshot shows: distinct colours (6-bit quantised), fraction of pixels that
+    differ from the dominant (background) colour, and the grey-level standard deviation."""
+
+    colors: int
+    non_background: float
+    std: float
+
+    def looks_rendered(self, blank: PixelStats | None = None) -> bool:
+        """Heuristic: many colours (a loading screen has ~300, a drawn recording 1000 or more) and a share
+        of non-background pixels, both well above a blank page's when one is given."""
+        ok = self.colors >= 600 and self.non_background >= 0.05
+        if blank is not None:
+            ok = ok and self.colors >= 20 * max(blank.colors, 1)
+            ok = ok and self.non_background > blank.non_background + 0.03
+        return ok
+
+
+def pixel_stats(png: bytes) -> PixelStats:
+    """PixelStats of a PNG image."""
+    _require("PIL", "pillow")
+    from PIL import Image
+
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.uint8)
+    q = (img >> 2).astype(np.int32)
+    code = (q[..., 0] << 12) | (q[..., 1] << 6) | q[..., 2]
+    vals, counts = np.unique(code.ravel(), return_counts=True)
+    bg = counts.max() / code.size
+    grey = img.astype(np.float64).mean(axis=2)
+    return PixelStats(int(vals.size), float(1.0 - bg), float(grey.std()))
+
+
+def screenshot_url(
+    url: str,
+    png_path: str | Path,
+    *,
+    size: tuple[int, int] = (1400, 900),
+    wait_s: float = 60.0,
+    min_wait_s: float = 6.0,
+    settle_s: float = 2.0,
+) -> PixelStats:
+    """Open url in headless Chromium, wait (real time) until the page looks rendered and stable
+    for settle_s (at least min_wait_s, at most wait_s), save the PNG; returns its PixelStats."""
+    out = Path(png_path)
+    if not out.parent.is_dir():
+        raise InputError("folder does not exist", where=str(out.parent))
+    _require("PIL", "pillow")
+    with Chromium(size=size) as ch:
+        ch.navigate(url)
+        start = time.monotonic()
+        png, stats, stable_since = b"", None, None
+        while True:
+            time.sleep(1.0)
+            png = ch.screenshot_png()
+            new = pixel_stats(png)
+            now = time.monotonic() - start
+            if (
+                stats is not None
+                and new.looks_rendered()
+                and abs(new.colors - stats.colors) <= 0.1 * stats.colors
+            ):
+                stable_since = stable_since if stable_since is not None else now
+            else:
+                stable_since = None
+            stats = new
+            if now >= min_wait_s and stable_since is not None and now - stable_since >= settle_s:
+                break
+            if now >= wait_s:
+                break
+    tmp = out.with_name(f".{out.name}.tmp")
+    tmp.write_bytes(png)
+    os.replace(tmp, out)
+    assert stats is not None
+    return stats
+
+
+def screenshot_rrd(
+    rrd_path: str | Path,
+    png_path: str | Path,
+    *,
+    size: tuple[int, int] = (1400, 900),
+    wait_s: float = 60.0,
+    min_wait_s: float = 8.0,
+) -> PixelStats:
+    """Serve rrd_path on 127.0.0.1, open it in the web viewer in headless Chromium, wait until it has
+    rendered, save a PNG screenshot of size (width, height) pixels to png_path."""
+    with serve_rrd(rrd_path) as viewer:
+        return screenshot_url(viewer.url, png_path, size=size, wait_s=wait_s, min_wait_s=min_wait_s)
