@@ -53,7 +53,7 @@ from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.flows.pipeline import run_fit
 from accellog.flows.simulate import Scenario, simulate
 from accellog.navigate.evaluate import evaluate
-from accellog.store.mcap_io import read_session
+from accellog.store.reader import read_session
 
 G0 = STANDARD_GRAVITY_MPS2
 GROUPS = ("b (bias)", "S diagonal (scale)", "S off-diagonal (cross-axis)")

@@ -27,7 +27,8 @@ from accellog.calibrate.segment import observations
 from accellog.core.protocol import six_position
 from accellog.core.session import PoseLabel, Session, SessionMeta
 from accellog.navigate.evaluate import evaluate
-from accellog.store.mcap_io import read_session, write_session
+from accellog.store.reader import read_session
+from accellog.store.writer import write_session
 
 RATE_HZ = 1000.0
 LSB = 16384.0

@@ -16,7 +16,7 @@ accel/gyro counts i4 (n,3), temp counts i4, host time ns i8 per sample):
 - raw .npy: one np.load per array (for reference).
 Floors: mapping the MCAP file and decompressing its chunks (no parsing, no decoding): the part of
 read_session no decoder can avoid. 'generic' rows are the reader before the vectorised path (mcap's
-reader + per-message BatchDecoder; accellog.store.mcap_io.FAST_READ = False), timed once.
+reader + per-message BatchDecoder; accellog.store.reader.FAST_READ = False), timed once.
 Every file is read once before timing (page cache warm); each figure is the best of --repeat runs,
 interleaved round-robin so that load from other processes hits all variants alike.
 """
@@ -34,8 +34,9 @@ import numpy as np
 
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import temp_counts_to_degC
-from accellog.store import mcap_io
-from accellog.store.mcap_io import DEFAULT_COMPRESSION, SessionWriter, read_session, write_session
+from accellog.store import reader
+from accellog.store.reader import read_session
+from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, write_session
 
 NS = 1_000_000_000
 
@@ -156,11 +157,11 @@ def decompress_floor(path: Path) -> Callable[[], None]:
 
 
 def generic_read(path: Path) -> Session:
-    mcap_io.FAST_READ = False
+    reader.FAST_READ = False
     try:
         return read_session(path)
     finally:
-        mcap_io.FAST_READ = True
+        reader.FAST_READ = True
 
 
 def main() -> None:

@@ -36,7 +36,8 @@ from accellog.acquire.recorder import Recorder
 from accellog.acquire.stillness import StillnessDetector
 from accellog.core.session import SessionMeta
 from accellog.flows.simulate import Scenario, build_sensor_model, simulate
-from accellog.store.mcap_io import SessionWriter, read_session
+from accellog.store.reader import read_session
+from accellog.store.writer import SessionWriter
 
 BUS_METHODS = ("read_byte_data", "write_byte_data", "read_i2c_block_data", "write_i2c_block_data", "i2c_rdwr")
 

@@ -6,7 +6,7 @@ Goal (issue #4): logging adds under 50 % to read + correct + integrate.
     replay:   accellog.flows.replay.replay(..., speed=max) without a recording (online, batch by batch)
     replay + .rrd: the same, logging raw + calibrated accel, temperature and tracks to a file
 
-The session (3.6 M samples, int16 counts, seeded) is synthesised once with mcap_io.write_session.
+The session (3.6 M samples, int16 counts, seeded) is synthesised once with accellog.store.writer.write_session.
 Run: python benchmarks/bench_replay.py [--minutes 60]
 """
 
@@ -28,7 +28,8 @@ from accellog.flows.pipeline import run_fit
 from accellog.flows.replay import replay
 from accellog.navigate.evaluate import evaluate
 from accellog.present.rrd import RunRecording
-from accellog.store.mcap_io import read_session, write_session
+from accellog.store.reader import read_session
+from accellog.store.writer import write_session
 
 LSB = 16384.0
 

@@ -13,7 +13,7 @@ from test_segment import synth_session
 
 from accellog.cli import main
 from accellog.core.session import PoseLabel
-from accellog.store.mcap_io import write_session
+from accellog.store.writer import write_session
 
 
 def _fails(capsys, argv: list[str], *needles: str, out: Path | None = None) -> str:

@@ -143,7 +143,7 @@ def test_non_identifiable_advice():
 
 
 def test_cli_diagnose_on_mcap(tmp_path, capsys):
-    from accellog.store.mcap_io import write_session
+    from accellog.store.writer import write_session
 
     truth = build_model("model3+temp_bias")
     th = true_theta(truth, seed=2)

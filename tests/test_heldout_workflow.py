@@ -26,7 +26,7 @@ import pytest
 
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
-from accellog.store.mcap_io import read_session
+from accellog.store.reader import read_session
 
 RATE_HZ = 200.0
 CHIP = {

@@ -12,7 +12,7 @@ from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.importers import import_capstone, import_csv, import_imucal, load_capstone_pose_table
-from accellog.store.mcap_io import read_session
+from accellog.store.reader import read_session
 
 
 def _run(argv: list[str], capsys) -> tuple[int, str, str]:

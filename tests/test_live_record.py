@@ -6,7 +6,7 @@ from __future__ import annotations
 from rerun.chunk import RrdReader
 
 from accellog.cli import main
-from accellog.store.mcap_io import read_session
+from accellog.store.reader import read_session
 
 
 def _texts(rrd, entity: str) -> list[str]:

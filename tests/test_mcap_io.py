@@ -20,16 +20,12 @@ from mcap.writer import Writer
 
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
-from accellog.store import mcap_io
-from accellog.store import messages as pb
-from accellog.store.mcap_io import (
-    SessionWriter,
-    read_attachments,
-    read_session,
-    read_vector3,
-    session_summary,
-    write_session,
-)
+from accellog.store import batch_decode, fastread, reader
+from accellog.store.codec import encode
+from accellog.store.layout import meta_to_metadata
+from accellog.store.reader import read_attachments, read_session, read_vector3, session_summary
+from accellog.store.schema import file_descriptor_set_bytes, full_name, stock_message_class
+from accellog.store.writer import SessionWriter, write_session
 
 NS = 1_000_000_000
 
@@ -185,7 +181,7 @@ def test_files_pass_independent_readers(tmp_path):
             1 for _ in NonSeekingReader(f, validate_crcs=True).iter_messages(log_time_order=False)
         ) == len(msgs)
     # the stock protobuf runtime decodes the /imu payloads to the same arrays
-    cls = pb.stock_message_class("ImuBatch")
+    cls = stock_message_class("ImuBatch")
     imu = [cls.FromString(m.data) for s, c, m in msgs if c.topic == "/imu"]
     r = read_session(p)
     assert np.array_equal(
@@ -332,7 +328,7 @@ _KILL_SCRIPT = textwrap.dedent(
     """
     import sys, time
     import numpy as np
-    from accellog.store.mcap_io import SessionWriter
+    from accellog.store.writer import SessionWriter
     from accellog.core.session import SessionMeta
 
     meta = SessionMeta(source="emulator", accel_lsb_per_g=16384.0, gyro_lsb_per_dps=131.0, sample_rate_hz=1000.0)
@@ -411,9 +407,9 @@ def test_bad_files_give_one_line_errors(tmp_path):
 
 def _read_both(path, monkeypatch) -> tuple[Session, Session]:
     fast = read_session(path)
-    monkeypatch.setattr(mcap_io, "FAST_READ", False)
+    monkeypatch.setattr(reader, "FAST_READ", False)
     generic = read_session(path)
-    monkeypatch.setattr(mcap_io, "FAST_READ", True)
+    monkeypatch.setattr(reader, "FAST_READ", True)
     return fast, generic
 
 
@@ -481,7 +477,7 @@ def _recorder_file(path, seed: int, compression: str = "zstd", shuffle: bool = F
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
 def test_fast_reader_equals_generic_recorder_files(tmp_path, monkeypatch, compression):
     p = _recorder_file(tmp_path / "r.mcap", seed=1, compression=compression)
-    assert mcap_io._fast_collect(p) is not None  # the fast path is taken
+    assert fastread._fast_collect(p) is not None  # the fast path is taken
     fast, generic = _read_both(p, monkeypatch)
     _assert_identical(fast, generic)
     assert (
@@ -492,7 +488,7 @@ def test_fast_reader_equals_generic_recorder_files(tmp_path, monkeypatch, compre
 
 def test_fast_reader_equals_generic_out_of_order_batches(tmp_path, monkeypatch):
     p = _recorder_file(tmp_path / "s.mcap", seed=2, shuffle=True)
-    assert mcap_io._fast_collect(p) is not None
+    assert fastread._fast_collect(p) is not None
     fast, generic = _read_both(p, monkeypatch)
     _assert_identical(fast, generic)
     assert np.all(np.diff(fast.sample_index) >= 0)
@@ -507,7 +503,7 @@ def test_fast_reader_equals_generic_write_session(tmp_path, monkeypatch, batch_s
     p = write_session(
         tmp_path / "w.mcap", s, batch_size=batch_size, chunk_size=chunk_size, compression=compression
     )
-    assert mcap_io._fast_collect(p) is not None
+    assert fastread._fast_collect(p) is not None
     fast, generic = _read_both(p, monkeypatch)
     _assert_identical(fast, generic)
     _assert_same(s, fast)
@@ -528,7 +524,7 @@ def test_fast_reader_equals_generic_value_fields(tmp_path, monkeypatch):
     both.accel_g = both.accel_g + 1e-3  # counts and values stored
     for i, s in enumerate((imported, both)):
         p = write_session(tmp_path / f"v{i}.mcap", s, batch_size=333)
-        assert mcap_io._fast_collect(p) is not None
+        assert fastread._fast_collect(p) is not None
         fast, generic = _read_both(p, monkeypatch)
         _assert_identical(fast, generic)
 
@@ -538,7 +534,7 @@ def test_fast_reader_declines_truncated_files(tmp_path, monkeypatch):
     for frac in (0.3, 0.7, 0.9999):
         cut = tmp_path / f"cut{frac}.mcap"
         cut.write_bytes(full[: int(len(full) * frac)])
-        assert mcap_io._fast_collect(cut) is None  # unfinished: the generic reader salvages it
+        assert fastread._fast_collect(cut) is None  # unfinished: the generic reader salvages it
         fast, generic = _read_both(cut, monkeypatch)
         _assert_identical(fast, generic)
         assert fast.events[-1].kind == "recovered"
@@ -549,8 +545,8 @@ def _foreign_imu_file(path, payloads: list[bytes]) -> None:
     with open(path, "wb") as f:
         w = Writer(f)
         w.start()
-        w.add_metadata("session", mcap_io.meta_to_metadata(_meta()))
-        sid = w.register_schema(pb.full_name("ImuBatch"), "protobuf", pb.file_descriptor_set_bytes())
+        w.add_metadata("session", meta_to_metadata(_meta()))
+        sid = w.register_schema(full_name("ImuBatch"), "protobuf", file_descriptor_set_bytes())
         cid = w.register_channel("/imu", "protobuf", sid)
         for k, data in enumerate(payloads):
             w.add_message(cid, log_time=k, publish_time=k, data=data, sequence=k)
@@ -559,28 +555,24 @@ def _foreign_imu_file(path, payloads: list[bytes]) -> None:
 
 def test_fast_reader_falls_back_on_foreign_encodings(tmp_path, monkeypatch):
     good = [
-        pb.encode(
-            "ImuBatch", first_sample_index=10 * k, t_ns=np.arange(10) + 10 * k, accel_counts=np.ones(30)
-        )
+        encode("ImuBatch", first_sample_index=10 * k, t_ns=np.arange(10) + 10 * k, accel_counts=np.ones(30))
         for k in range(20)
     ]
     # field 1 after field 2 and an unknown field 12: valid protobuf, not our canonical layout
-    reordered = pb.encode("ImuBatch", t_ns=np.arange(10) + 200, accel_counts=np.ones(30)) + pb.encode(
+    reordered = encode("ImuBatch", t_ns=np.arange(10) + 200, accel_counts=np.ones(30)) + encode(
         "ImuBatch", first_sample_index=200
     )
-    unknown = pb.encode(
-        "ImuBatch", first_sample_index=210, t_ns=np.arange(10) + 210, accel_counts=np.ones(30)
-    )
+    unknown = encode("ImuBatch", first_sample_index=210, t_ns=np.arange(10) + 210, accel_counts=np.ones(30))
     unknown += bytes([12 << 3]) + b"\x05"
     p = tmp_path / "foreign.mcap"
     _foreign_imu_file(p, [*good, reordered, unknown])
-    assert mcap_io._fast_collect(p) is None
+    assert fastread._fast_collect(p) is None
     fast, generic = _read_both(p, monkeypatch)
     _assert_identical(fast, generic)
     assert fast.n == 220 and np.array_equal(fast.sample_index, np.arange(220))
     ok = tmp_path / "canonical.mcap"
     _foreign_imu_file(ok, good)  # the same writer with canonical payloads: fast path
-    assert mcap_io._fast_collect(ok) is not None
+    assert fastread._fast_collect(ok) is not None
     _assert_identical(*_read_both(ok, monkeypatch))
 
 
@@ -599,10 +591,10 @@ def test_fast_reader_equals_generic_steady_recorder_stream(tmp_path, monkeypatch
             idx = np.arange(i, j)
             w.write_imu(i, idx * 1_000_000, ac[i:j], ac[i:j, ::-1], idx % 3000, host_time_ns=(1 << 40) + j)
     uniform = []
-    real = mcap_io.pb._uniform_layout
-    monkeypatch.setattr(mcap_io.pb, "_uniform_layout", lambda *a: uniform.append(real(*a)) or uniform[-1])
-    monkeypatch.setattr(mcap_io, "_GROUP_BYTES", 16 << 10)
-    monkeypatch.setattr(mcap_io, "_SPLIT_MIN", 1000)
+    real = batch_decode._uniform_layout
+    monkeypatch.setattr(batch_decode, "_uniform_layout", lambda *a: uniform.append(real(*a)) or uniform[-1])
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 16 << 10)
+    monkeypatch.setattr(reader, "_SPLIT_MIN", 1000)
     fast, generic = _read_both(p, monkeypatch)
     _assert_identical(fast, generic)
     assert (

@@ -10,7 +10,15 @@ import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2
 
-from accellog.store import messages as pb
+from accellog.store.batch_decode import BatchAccumulator, decode_batch, gather_bytes
+from accellog.store.codec import BatchDecoder, decode, encode
+from accellog.store.schema import (
+    MESSAGE_DEFS,
+    MESSAGES,
+    file_descriptor_set_bytes,
+    render_proto,
+    stock_message_class,
+)
 
 PROTO = Path(__file__).resolve().parents[1] / "schemas" / "accellog_v1.proto"
 
@@ -32,16 +40,16 @@ def _parse_proto_file(text: str) -> dict[str, list[tuple[str, str, int, bool]]]:
 
 
 def test_proto_file_is_rendered_from_descriptions():
-    assert PROTO.read_text() == pb.render_proto(), (
-        "regenerate: python -m accellog.store.messages > schemas/accellog_v1.proto"
+    assert PROTO.read_text() == render_proto(), (
+        "regenerate: python -m accellog.store.schema > schemas/accellog_v1.proto"
     )
 
 
 def test_proto_file_agrees_with_runtime_descriptor_pool():
     parsed = _parse_proto_file(PROTO.read_text())
-    assert set(parsed) == {m.name for m in pb.MESSAGES}
+    assert set(parsed) == {m.name for m in MESSAGES}
     for name, fields in parsed.items():
-        desc = pb.stock_message_class(name).DESCRIPTOR
+        desc = stock_message_class(name).DESCRIPTOR
         assert desc.full_name == f"accellog.v1.{name}"
         got = [(f.name, _TYPE_NAMES[f.type], f.number, f.is_repeated) for f in desc.fields]
         assert sorted(got, key=lambda x: x[2]) == sorted(fields, key=lambda x: x[2])
@@ -51,14 +59,14 @@ def test_proto_file_agrees_with_runtime_descriptor_pool():
 
 
 def test_file_descriptor_set_parses():
-    fds = descriptor_pb2.FileDescriptorSet.FromString(pb.file_descriptor_set_bytes())
+    fds = descriptor_pb2.FileDescriptorSet.FromString(file_descriptor_set_bytes())
     assert [f.package for f in fds.file] == ["accellog.v1"]
-    assert {m.name for m in fds.file[0].message_type} == set(pb.MESSAGE_DEFS)
+    assert {m.name for m in fds.file[0].message_type} == set(MESSAGE_DEFS)
 
 
 def _random_values(message: str, rng: np.random.Generator, n: int) -> dict:
     vals: dict = {}
-    for f in pb.MESSAGE_DEFS[message].fields:
+    for f in MESSAGE_DEFS[message].fields:
         if f.repeated:
             k = int(rng.integers(0, 3)) * n  # some fields empty
             if f.type == "sfixed64":
@@ -82,13 +90,13 @@ def _random_values(message: str, rng: np.random.Generator, n: int) -> dict:
     return vals
 
 
-@pytest.mark.parametrize("message", [m.name for m in pb.MESSAGES])
+@pytest.mark.parametrize("message", [m.name for m in MESSAGES])
 def test_stock_runtime_parses_what_we_write_identically(message):
     rng = np.random.default_rng(7)
-    cls = pb.stock_message_class(message)
+    cls = stock_message_class(message)
     for trial in range(20):
         vals = _random_values(message, rng, n=int(rng.integers(1, 40)))
-        data = pb.encode(message, **vals)
+        data = encode(message, **vals)
         msg = cls.FromString(data)
         for name, v in vals.items():
             got = getattr(msg, name)
@@ -99,7 +107,7 @@ def test_stock_runtime_parses_what_we_write_identically(message):
         # byte-identical to the runtime's own serialization (proto3 defaults omitted, packed arrays)
         assert msg.SerializeToString() == data
         # and our decoder reads the runtime's bytes back
-        back = pb.decode(message, msg.SerializeToString())
+        back = decode(message, msg.SerializeToString())
         for name, v in vals.items():
             if isinstance(v, np.ndarray):
                 assert np.array_equal(back[name], v)
@@ -108,10 +116,10 @@ def test_stock_runtime_parses_what_we_write_identically(message):
 
 
 def test_negative_and_default_scalars():
-    data = pb.encode("Event", t_ns=-5, kind="", detail="d", sample_index=-1, lost_samples=0)
-    msg = pb.stock_message_class("Event").FromString(data)
+    data = encode("Event", t_ns=-5, kind="", detail="d", sample_index=-1, lost_samples=0)
+    msg = stock_message_class("Event").FromString(data)
     assert (msg.t_ns, msg.sample_index, msg.lost_samples, msg.kind) == (-5, -1, 0, "")
-    assert pb.decode("Event", data) == {
+    assert decode("Event", data) == {
         "t_ns": -5,
         "kind": "",
         "detail": "d",
@@ -122,7 +130,7 @@ def test_negative_and_default_scalars():
 
 def test_unknown_field_is_rejected_on_encode():
     with pytest.raises(TypeError, match="no field"):
-        pb.encode("ImuBatch", accel=np.zeros(3))
+        encode("ImuBatch", accel=np.zeros(3))
 
 
 def test_batch_decoder_concatenates_and_counts():
@@ -132,10 +140,10 @@ def test_batch_decoder_concatenates_and_counts():
         k = int(rng.integers(1, 37))
         t = rng.integers(0, 10**12, k)
         a = rng.integers(-32768, 32768, (k, 3)).astype(np.int32)
-        msgs.append(pb.encode("ImuBatch", first_sample_index=i * 100, t_ns=t, accel_counts=a, host_time_ns=i))
+        msgs.append(encode("ImuBatch", first_sample_index=i * 100, t_ns=t, accel_counts=a, host_time_ns=i))
         ref_t.append(t)
         ref_a.append(a)
-    dec = pb.BatchDecoder("ImuBatch")
+    dec = BatchDecoder("ImuBatch")
     for m in msgs:
         dec.add(m)
     arrays, scalars, counts = dec.result()
@@ -152,7 +160,7 @@ def test_batch_decoder_concatenates_and_counts():
 
 
 def _reference(message: str, msgs: list[bytes]):
-    dec = pb.BatchDecoder(message)
+    dec = BatchDecoder(message)
     for m in msgs:
         dec.add(m)
     return dec.result()
@@ -182,7 +190,7 @@ def _pack(msgs: list[bytes], gap: bytes = b"\xaa" * 5) -> tuple[np.ndarray, np.n
     return np.frombuffer(buf, np.uint8), starts, starts + lens
 
 
-@pytest.mark.parametrize("message", [m.name for m in pb.MESSAGES])
+@pytest.mark.parametrize("message", [m.name for m in MESSAGES])
 @pytest.mark.parametrize("sizes", ["equal", "few", "many"])
 def test_decode_batch_equals_batch_decoder(message, sizes):
     rng = np.random.default_rng(sum(map(ord, message + sizes)))
@@ -197,29 +205,29 @@ def test_decode_batch_equals_batch_decoder(message, sizes):
             }
         if i % 7 == 0:  # scalars at their defaults are not written
             vals.update({k: type(v)() for k, v in vals.items() if not isinstance(v, np.ndarray)})
-        msgs.append(pb.encode(message, **vals))
+        msgs.append(encode(message, **vals))
     buf, starts, ends = _pack(msgs)
-    got = pb.decode_batch(message, buf, starts, ends)
+    got = decode_batch(message, buf, starts, ends)
     assert got is not None and got.n_messages == len(msgs)
     _assert_results_equal(got.result(), _reference(message, msgs))
 
 
 def test_decode_batch_scalars_extremes():
     msgs = [
-        pb.encode("Event", t_ns=-(2**63), kind="é" * 200, sample_index=-1, lost_samples=2**63 - 1),
-        pb.encode("Event"),
-        pb.encode("Event", t_ns=127, detail="x" * 128, sample_index=128, lost_samples=16384),
+        encode("Event", t_ns=-(2**63), kind="é" * 200, sample_index=-1, lost_samples=2**63 - 1),
+        encode("Event"),
+        encode("Event", t_ns=127, detail="x" * 128, sample_index=128, lost_samples=16384),
     ]
-    msgs.append(pb.encode("ImuBatch", first_sample_index=2**64 - 1, host_time_ns=-5, t_ns=[1]))
+    msgs.append(encode("ImuBatch", first_sample_index=2**64 - 1, host_time_ns=-5, t_ns=[1]))
     buf, starts, ends = _pack(msgs[:3])
-    _assert_results_equal(pb.decode_batch("Event", buf, starts, ends).result(), _reference("Event", msgs[:3]))
+    _assert_results_equal(decode_batch("Event", buf, starts, ends).result(), _reference("Event", msgs[:3]))
     buf, starts, ends = _pack(msgs[3:])
     _assert_results_equal(
-        pb.decode_batch("ImuBatch", buf, starts, ends).result(), _reference("ImuBatch", msgs[3:])
+        decode_batch("ImuBatch", buf, starts, ends).result(), _reference("ImuBatch", msgs[3:])
     )
-    got = pb.decode_batch("ImuBatch", buf, starts, ends).result()[1]
+    got = decode_batch("ImuBatch", buf, starts, ends).result()[1]
     assert got["first_sample_index"] == [2**64 - 1] and got["host_time_ns"] == [-5]
-    empty = pb.decode_batch("ImuBatch", buf, starts[:0], ends[:0])
+    empty = decode_batch("ImuBatch", buf, starts[:0], ends[:0])
     _assert_results_equal(empty.result(), _reference("ImuBatch", []))
 
 
@@ -230,9 +238,9 @@ def _key(number: int, wire: int) -> bytes:
 @pytest.mark.parametrize(
     "bad",
     [
-        pb.encode("ImuBatch", t_ns=[5]) + pb.encode("ImuBatch", first_sample_index=3),  # field order 2, 1
-        pb.encode("ImuBatch", t_ns=[5]) + pb.encode("ImuBatch", t_ns=[6]),  # repeated field
-        pb.encode("ImuBatch", t_ns=[5]) + _key(15, 0) + b"\x01",  # unknown field
+        encode("ImuBatch", t_ns=[5]) + encode("ImuBatch", first_sample_index=3),  # field order 2, 1
+        encode("ImuBatch", t_ns=[5]) + encode("ImuBatch", t_ns=[6]),  # repeated field
+        encode("ImuBatch", t_ns=[5]) + _key(15, 0) + b"\x01",  # unknown field
         _key(1, 2) + b"\x00",  # wrong wire type for a varint field
         _key(2, 2) + b"\x04" + b"\0" * 4,  # packed sfixed64 of 4 bytes
         _key(2, 2) + b"\x10" + b"\0" * 8,  # length past the end of the message
@@ -243,17 +251,17 @@ def _key(number: int, wire: int) -> bytes:
     ],
 )
 def test_decode_batch_refuses_non_canonical(bad):
-    good = pb.encode("ImuBatch", first_sample_index=7, t_ns=[1, 2], accel_counts=np.ones(6, np.int32))
+    good = encode("ImuBatch", first_sample_index=7, t_ns=[1, 2], accel_counts=np.ones(6, np.int32))
     buf, starts, ends = _pack([good, bad, good])
-    assert pb.decode_batch("ImuBatch", buf, starts, ends) is None
+    assert decode_batch("ImuBatch", buf, starts, ends) is None
     buf, starts, ends = _pack([good, good])
-    assert pb.decode_batch("ImuBatch", buf, starts, ends) is not None
+    assert decode_batch("ImuBatch", buf, starts, ends) is not None
 
 
 def test_decode_batch_refuses_bad_utf8():
     bad = _key(2, 2) + b"\x02\xc3\x28"
-    buf, starts, ends = _pack([pb.encode("Event", kind="ok"), bad])
-    assert pb.decode_batch("Event", buf, starts, ends) is None
+    buf, starts, ends = _pack([encode("Event", kind="ok"), bad])
+    assert decode_batch("Event", buf, starts, ends) is None
 
 
 def test_gather_bytes_paths():
@@ -265,21 +273,21 @@ def test_gather_bytes_paths():
         rng.integers(0, 400, 500) * 4,  # more lengths than groups: 4-byte items
     ):
         offsets = rng.integers(0, 100_000 - 2000, lengths.shape[0])
-        got = pb.gather_bytes(buf, offsets, lengths, 4)
+        got = gather_bytes(buf, offsets, lengths, 4)
         ref = np.concatenate([buf[o : o + n] for o, n in zip(offsets, lengths, strict=True)])
         assert np.array_equal(got, ref)
-    assert pb.gather_bytes(buf, offsets[:0], lengths[:0]).shape == (0,)
+    assert gather_bytes(buf, offsets[:0], lengths[:0]).shape == (0,)
 
 
 @pytest.mark.parametrize("done_scale", [1.0, 0.25, 4.0])  # exact, too small (grows), too large (trims)
 def test_batch_accumulator_joins_parts(done_scale):
     rng = np.random.default_rng(5)
     msgs = [
-        pb.encode("ImuBatch", **_random_values("ImuBatch", rng, int(rng.integers(1, 40)))) for _ in range(200)
+        encode("ImuBatch", **_random_values("ImuBatch", rng, int(rng.integers(1, 40)))) for _ in range(200)
     ]
-    acc = pb.BatchAccumulator("ImuBatch")
+    acc = BatchAccumulator("ImuBatch")
     cuts = [0, 1, 50, 51, 120, 200]
     for a, b in itertools.pairwise(cuts):
         buf, starts, ends = _pack(msgs[a:b])
-        acc.add(pb.decode_batch("ImuBatch", buf, starts, ends), min(1.0, b / 200 * done_scale))
+        acc.add(decode_batch("ImuBatch", buf, starts, ends), min(1.0, b / 200 * done_scale))
     _assert_results_equal(acc.finish().result(), _reference("ImuBatch", msgs))

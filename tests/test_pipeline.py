@@ -13,7 +13,8 @@ from accellog.calibrate.calibration import load_calibration
 from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.flows.pipeline import load_pipeline, run_fit, run_pipeline
-from accellog.store.mcap_io import read_attachments, read_session, read_vector3, write_session
+from accellog.store.reader import read_attachments, read_session, read_vector3
+from accellog.store.writer import write_session
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -13,7 +13,7 @@ from accellog.acquire.emulator.poses import PoseSequenceMotion
 from accellog.acquire.emulator.sensor_model import AccelErrors, SensorModel
 from accellog.cli import main
 from accellog.core.protocol import parse_protocol
-from accellog.store.mcap_io import read_session
+from accellog.store.reader import read_session
 
 
 def test_record_from_bus_through_real_smbus2(tmp_path, capsys):

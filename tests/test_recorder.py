@@ -30,7 +30,8 @@ from accellog.core.protocol import parse_protocol
 from accellog.core.rotations import quat_from_axis_angle, rotate_inverse
 from accellog.core.session import Session, SessionMeta
 from accellog.flows.simulate import Scenario, build_sensor_model
-from accellog.store.mcap_io import SessionWriter, read_session
+from accellog.store.reader import read_session
+from accellog.store.writer import SessionWriter
 
 RATE_HZ = 200.0
 PACKET_BYTES = 14

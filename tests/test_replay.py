@@ -17,7 +17,8 @@ from accellog.flows.pipeline import run_drift, run_fit
 from accellog.flows.replay import compare, replay
 from accellog.navigate.evaluate import evaluate
 from accellog.present.rrd import RunRecording
-from accellog.store.mcap_io import read_session, write_session
+from accellog.store.reader import read_session
+from accellog.store.writer import write_session
 
 sys.path.insert(0, str(Path(__file__).parent))
 from rrd_readback import load_rrd

@@ -13,7 +13,7 @@ from accellog.calibrate.calibration import load_calibration
 from accellog.cli import main
 from accellog.flows.pipeline import run_fit
 from accellog.flows.simulate import Scenario, simulate
-from accellog.store.mcap_io import read_session
+from accellog.store.reader import read_session
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ from accellog.cli import main
 from accellog.core.session import Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.flows.simulate import Scenario, simulate
-from accellog.store.mcap_io import read_session
+from accellog.store.reader import read_session
 
 RATE_HZ = 200.0
 BASE = dict(protocol="six", hold_s=4.0, move_s=1.5, sample_rate_hz=RATE_HZ, chip_seed=7, seed=1)

@@ -188,7 +188,7 @@ def _calibration_file(path, model: str, temps_degC: list[float]):
 
 @pytest.fixture(scope="module")
 def emulated_files(tmp_path_factory):
-    from accellog.store.mcap_io import write_session
+    from accellog.store.writer import write_session
 
     d = tmp_path_factory.mktemp("track")
     sess = write_session(d / "loop.mcap", _emulated_session(demo_loop()))
@@ -226,7 +226,7 @@ def test_emulated_run_through_cli(emulated_files, capsys):
 
 
 def test_loop_closure_without_truth(emulated_files):
-    from accellog.store.mcap_io import read_session
+    from accellog.store.reader import read_session
 
     _, sess, _ = emulated_files
     s = read_session(sess)
@@ -238,7 +238,7 @@ def test_loop_closure_without_truth(emulated_files):
 
 def test_cli_bad_input(tmp_path, capsys):
     from accellog.cli import main
-    from accellog.store.mcap_io import write_session
+    from accellog.store.writer import write_session
 
     no_gyro = write_session(tmp_path / "nogyro.mcap", _emulated_session(demo_loop(), gyro=False))
     assert main(["track", str(no_gyro)]) != 0

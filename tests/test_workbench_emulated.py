@@ -37,7 +37,8 @@ from accellog.calibrate.segment import observations
 from accellog.cli import main
 from accellog.core.session import Session
 from accellog.flows.simulate import Scenario, simulate
-from accellog.store.mcap_io import read_session, write_session
+from accellog.store.reader import read_session
+from accellog.store.writer import write_session
 
 REPO = Path(__file__).resolve().parents[1]
 CREEP_FILE = REPO / "examples" / "effects_creep.py"

@@ -47,7 +47,7 @@ def _facts(session: Session, src: Path, out: Path) -> dict:
 
 
 def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: int) -> None:
-    from accellog.store.mcap_io import write_session
+    from accellog.store.writer import write_session
 
     if out.exists() and out.is_dir():
         raise InputError("output is a directory", where=str(out))

@@ -39,7 +39,7 @@ def track_cmd(
     position error against the truth (simulations) or the loop-closure error (real runs)."""
     from accellog.calibrate.calibration import dumps, load_calibration
     from accellog.navigate.track_eval import run_session_tracks
-    from accellog.store.mcap_io import read_session
+    from accellog.store.reader import read_session
 
     if not session_path.is_file():
         raise InputError("no such session file", where=str(session_path))

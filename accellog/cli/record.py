@@ -136,7 +136,7 @@ def record(
     """Record a guided calibration session: the operator is told each pose, the hold is labelled."""
     from accellog.acquire.driver import Mpu9250
     from accellog.acquire.recorder import Recorder, RecorderUI, StopRequested, session_meta
-    from accellog.store.mcap_io import SessionWriter
+    from accellog.store.writer import SessionWriter
 
     if accel_range not in (2, 4, 8, 16):
         raise InputError(f"--accel-range {accel_range}: use 2, 4, 8 or 16 (g)")

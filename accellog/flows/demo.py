@@ -121,7 +121,7 @@ def run_demo(
         print_tables,
         static_means_table,
     )
-    from accellog.store.mcap_io import read_session
+    from accellog.store.reader import read_session
 
     con = console or Console(width=None if sys.stdout.isatty() else 120)
     out = Path(out_dir)

@@ -61,7 +61,7 @@ def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Ses
         raise InputError("no such file", where=str(p))
     suffix = p.suffix.lower()
     if suffix == ".mcap":
-        from accellog.store.mcap_io import read_session
+        from accellog.store.reader import read_session
 
         return read_session(p)
     if suffix == ".json":
@@ -321,7 +321,9 @@ def run_apply(
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
     /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename)."""
     from accellog.calibrate.calibration import dumps
-    from accellog.store.mcap_io import NS_PER_S, SessionWriter, read_session
+    from accellog.store.layout import NS_PER_S
+    from accellog.store.reader import read_session
+    from accellog.store.writer import SessionWriter
 
     src = Path(session_path)
     if src.suffix.lower() != ".mcap":

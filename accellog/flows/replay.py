@@ -1,6 +1,6 @@
 """Replay a recorded session through online correction + integration, paced in sensor time.
 
-The MCAP file is only read (``accellog.store.mcap_io.read_session`` opens it read-only); the samples
+The MCAP file is only read (``accellog.store.reader.read_session`` opens it read-only); the samples
 are fed batch by batch through ``accellog.navigate.online.OnlineIntegrator`` (one per track: the raw
 reading and each calibration) and logged to a ``RunRecording`` as they go, sleeping so that
 sensor time advances ``speed`` times faster than wall time (``speed=None``: as fast as possible).
@@ -188,7 +188,7 @@ def _open_session(session: Session | str | os.PathLike) -> Session:
     p = Path(session)
     if not p.is_file():
         raise InputError("no such session file", where=str(p))
-    from accellog.store.mcap_io import read_session
+    from accellog.store.reader import read_session
 
     return read_session(p)
 

@@ -228,7 +228,7 @@ def simulate(
     from accellog.acquire.emulator.chip import EmulatedMpu9250
     from accellog.acquire.emulator.clock import SimClock
     from accellog.acquire.recorder import Recorder, session_meta
-    from accellog.store.mcap_io import SessionWriter
+    from accellog.store.writer import SessionWriter
 
     model, motion = build_sensor_model(sc)
     clock = SimClock()

@@ -1,4 +1,4 @@
-"""Importers: other tools' recordings -> Session (-> MCAP with ``mcap_io.write_session``).
+"""Importers: other tools' recordings -> Session (-> MCAP with ``accellog.store.writer.write_session``).
 
 - capstone (willward20/UCA-Honors-Capstone): the static test files (``t`` in s, uneven; x,y,z in g with
   quantum 1/16384 g -> stored as counts with accel_lsb_per_g = 16384 when exact) and the

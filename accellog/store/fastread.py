@@ -1,0 +1,369 @@
+"""Fast path of the MCAP reader: walk a finished file with struct/numpy, decode every batch channel at once.
+
+The file is mapped, footer and summary parsed with struct, chunks decompressed ~4 MiB at a time into two
+reused buffers (the next group on a worker thread while this one is decoded), records walked by checked
+guesses (runs of equal-length messages), and every channel's payloads decoded at once by
+``batch_decode.decode_batch`` straight into arrays sized once. Anything unexpected raises ``_NotFast``
+and the generic reader decides.
+"""
+
+from __future__ import annotations
+
+import itertools
+import mmap
+import struct
+from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from mcap.records import Channel, Schema
+
+from accellog.store.batch_decode import BatchAccumulator, decode_batch, read_le
+from accellog.store.collect import _Collected, _Sink
+from accellog.store.layout import MCAP_MAGIC
+
+# ---------------------------------------------------------------------------------------------
+# fast path: walk the MCAP file with struct/numpy, decode every batch channel at once
+
+
+class _NotFast(Exception):
+    """The fast reader met something outside the canonical layout: the generic reader decides."""
+
+
+_REC = struct.Struct("<BQ")  # record prefix: opcode u8, content length u64
+_U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
+_OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
+_OP_CHUNK_INDEX, _OP_METADATA, _OP_METADATA_INDEX = 0x08, 0x0C, 0x0D
+_SUMMARY_OPS = {
+    0x03,
+    0x04,
+    0x08,
+    0x0A,
+    0x0B,
+    0x0D,
+    0x0E,
+}  # schema, channel, chunk/attachment/metadata index, ...
+_FOOTER_SIZE = 9 + 20
+_MESSAGE_HEADER = 2 + 4 + 8 + 8  # channel_id u16, sequence u32, log_time u64, publish_time u64
+_Bytes = bytes | mmap.mmap  # the file: mapped read-only (no copy) by _fast_collect
+_GROUP_BYTES = 4 << 20  # decompressed bytes decoded at a time (fits in L2/L3 cache)
+_PAD = 16  # zero bytes after the decompressed records (vectorised reads may look a few bytes ahead)
+
+
+def _fast_collect(path: Path, topics: Iterable[str] | None = None) -> _Collected | None:
+    """``_collect`` of a finished file without per-message Python; None if the generic path must decide.
+
+    Reads the footer and summary section (schemas, channels, chunk and metadata indexes) with struct,
+    decompresses every chunk in summary order (zstd, lz4 or none) into one buffer, walks its records,
+    and decodes each accellog channel with ``messages.decode_batch``: the same chunks, messages, order
+    and bytes as mcap's SeekingReader with ``iter_messages(log_time_order=False)``. Unfinished files
+    (no footer magic or no summary) and anything unexpected return None.
+    """
+    try:
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            return _fast_parse(data, topics)
+    except Exception:  # an optimisation only: on any surprise the generic reader decides
+        return None
+
+
+def _str_at(data: _Bytes, pos: int) -> tuple[str, int]:
+    n = _U32.unpack_from(data, pos)[0]
+    end = pos + 4 + n
+    if end > len(data):
+        raise _NotFast("string past the end")
+    return str(data[pos + 4 : end], "utf-8"), end
+
+
+def _map_end(data: _Bytes, pos: int) -> int:
+    return pos + 4 + _U32.unpack_from(data, pos)[0]
+
+
+def _schema_at(data: _Bytes, c: int) -> tuple[Schema, int]:
+    sid = _U16.unpack_from(data, c)[0]
+    name, q = _str_at(data, c + 2)
+    encoding, q = _str_at(data, q)
+    end = _map_end(data, q)
+    return Schema(id=sid, name=name, encoding=encoding, data=data[q + 4 : end]), end
+
+
+def _channel_at(data: _Bytes, c: int) -> tuple[Channel, int]:
+    cid, sid = struct.unpack_from("<HH", data, c)
+    topic, q = _str_at(data, c + 4)
+    encoding, q = _str_at(data, q)
+    return Channel(id=cid, topic=topic, message_encoding=encoding, schema_id=sid, metadata={}), _map_end(
+        data, q
+    )
+
+
+def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> _Collected:
+    size = len(data)
+    if size < 2 * len(MCAP_MAGIC) + _FOOTER_SIZE or data[-len(MCAP_MAGIC) :] != MCAP_MAGIC:
+        raise _NotFast("no footer magic: unfinished file")
+    footer = size - len(MCAP_MAGIC) - _FOOTER_SIZE
+    if _REC.unpack_from(data, footer) != (_OP_FOOTER, 20):
+        raise _NotFast("no footer")
+    summary_start = _U64.unpack_from(data, footer + 9)[0]
+    if summary_start == 0 or summary_start >= footer:
+        raise _NotFast("no summary section")
+
+    # summary section: every record parsed must fill its declared length exactly
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    chunk_index_at: list[int] = []
+    chunk_index_len: list[int] = []
+    metadata_at: list[int] = []
+    pos = summary_start
+    while pos < footer:
+        op, ln = _REC.unpack_from(data, pos)
+        c, e = pos + 9, pos + 9 + ln
+        if op not in _SUMMARY_OPS or e > footer:
+            raise _NotFast(f"summary record {op:#x}")
+        if op == _OP_SCHEMA:
+            sch, q = _schema_at(data, c)
+            schemas[sch.id] = sch
+        elif op == _OP_CHANNEL:
+            ch, q = _channel_at(data, c)
+            channels[ch.id] = ch
+        elif op == _OP_CHUNK_INDEX:
+            chunk_index_at.append(c)
+            chunk_index_len.append(ln)
+            q = e
+        elif op == _OP_METADATA_INDEX:
+            metadata_at.append(_U64.unpack_from(data, c)[0])
+            q = _str_at(data, c + 16)[1]
+        else:
+            q = e
+        if q != e:
+            raise _NotFast(f"summary record {op:#x} length")
+        pos = e
+    if pos != footer or not chunk_index_at:
+        raise _NotFast("summary without chunk indexes")
+    if len({ch.topic for ch in channels.values()}) != len(channels):
+        raise _NotFast("topic on several channels")
+
+    # chunk indexes (vectorised): start offset of each chunk, in summary order
+    buf = np.frombuffer(data, np.uint8)
+    ci = np.asarray(chunk_index_at, dtype=np.int64)
+    map_len = read_le(buf, ci + 32, "<u4").astype(np.int64)
+    comp_len = read_le(buf, ci + 44 + map_len, "<u4").astype(np.int64)
+    if np.any(32 + 4 + map_len + 8 + 4 + comp_len + 16 != np.asarray(chunk_index_len)):
+        raise _NotFast("chunk index length")
+    chunk_at = read_le(buf, ci + 16, "<u8").astype(np.int64)
+    if np.any(chunk_at > footer - 49) or np.any(buf[chunk_at] != _OP_CHUNK):
+        raise _NotFast("chunk index does not point at a chunk")
+    # chunk: start, end u64, uncompressed_size u64, crc u32, compression string, records (u64 length)
+    c = chunk_at + 9
+    usize = read_le(buf, c + 16, "<u8").astype(np.int64)
+    name_len = read_le(buf, c + 28, "<u4").astype(np.int64)
+    if np.any(name_len > 4):
+        raise _NotFast("compression")
+    rec_len = read_le(buf, c + 32 + name_len, "<u8")
+    if np.any(rec_len > np.uint64(size)):
+        raise _NotFast("chunk past the end")
+    rec_at = c + 40 + name_len
+    rec_end = rec_at + rec_len.astype(np.int64)
+    if np.any(rec_end > footer):
+        raise _NotFast("chunk past the end")
+    # chunks in groups of about _GROUP_BYTES decompressed: each group is decoded while in the CPU cache
+    sink = _Sink(topics)
+    message_of: dict[int, str | None] = {}  # channel id -> accellog message type (None: not decoded)
+    parts: dict[int, BatchAccumulator] = {}
+    name_at, name_len, rec_at, rec_end = (
+        (c + 32).tolist(),
+        name_len.tolist(),
+        rec_at.tolist(),
+        rec_end.tolist(),
+    )
+    chunks = _Decompressor(data)
+    usize_list = usize.tolist()
+    done = (np.cumsum(usize) / max(1, int(usize.sum()))).tolist()  # fraction read after each chunk
+    groups = _groups(usize)
+
+    def decompress(i: int) -> tuple[bytearray, int]:
+        g0, g1 = groups[i]
+        return chunks.records(
+            name_at[g0:g1], name_len[g0:g1], rec_at[g0:g1], rec_end[g0:g1], usize_list[g0:g1], i % 2
+        )
+
+    # group i + 1 is decompressed in a thread (lz4/zstd release the GIL) while group i is decoded;
+    # leaving the with-block (also on an exception) waits for it, before the file is unmapped
+    with ThreadPoolExecutor(1) as pool:
+        pending = pool.submit(decompress, 0)
+        for i, (g0, g1) in enumerate(groups):
+            records, used = pending.result()
+            if i + 1 < len(groups):
+                pending = pool.submit(decompress, i + 1)
+            _decode_group(
+                records, used, usize_list[g0:g1], done[g1 - 1], channels, schemas, sink, message_of, parts
+            )
+    for cid, msg in message_of.items():
+        if msg is not None:
+            sink.decoders[channels[cid].topic] = parts[cid].finish()
+    for ch in channels.values():
+        sink.channel(schemas.get(ch.schema_id), ch)
+
+    for at in metadata_at:
+        op, ln = _REC.unpack_from(data, at)
+        if op != _OP_METADATA:
+            raise _NotFast("metadata index does not point at metadata")
+        name, q = _str_at(data, at + 9)
+        end = _map_end(data, q)
+        kv: dict[str, str] = {}
+        q += 4
+        while q < end:
+            k, q = _str_at(data, q)
+            kv[k], q = _str_at(data, q)
+        if q != end or end != at + 9 + ln:
+            raise _NotFast("metadata record length")
+        if name == "session":
+            sink.metadata = kv
+    return _Collected(sink.metadata, sink.topics, sink.decoders, None)
+
+
+def _decode_group(
+    records: bytearray,
+    used: int,
+    usize: list[int],
+    done: float,
+    channels: dict[int, Channel],
+    schemas: dict[int, Schema],
+    sink: _Sink,
+    message_of: dict[int, str | None],
+    parts: dict[int, BatchAccumulator],
+) -> None:
+    """Decode the messages of one group of decompressed chunks into the channels' accumulators."""
+    messages = _message_starts(records, usize)
+    if not messages.shape[0]:
+        return
+    rb = np.frombuffer(records, np.uint8, used + _PAD)
+    msg_len = read_le(rb, messages + 1, "<u8")
+    if np.any(msg_len < _MESSAGE_HEADER):
+        raise _NotFast("short message record")
+    channel_id = read_le(rb, messages + 9, "<u2")
+    payload_at = messages + 9 + _MESSAGE_HEADER
+    payload_end = messages + 9 + msg_len.astype(np.int64)
+    ids, first = np.unique(channel_id, return_index=True)
+    for cid in ids[np.argsort(first)].tolist():
+        if cid not in message_of:  # first message of the channel, as the generic sink sees it
+            ch = channels[cid]
+            wanted = sink.want is None or ch.topic in sink.want
+            schema = None if ch.schema_id == 0 else schemas[ch.schema_id]
+            message_of[cid] = sink.channel(schema, ch) if wanted else None
+            parts[cid] = BatchAccumulator(message_of[cid] or "")
+        msg = message_of[cid]
+        if msg is None:
+            continue
+        sel = slice(None) if ids.shape[0] == 1 else np.flatnonzero(channel_id == cid)
+        acc, frac = parts[cid], done
+        dec = decode_batch(
+            msg,
+            rb,
+            payload_at[sel],
+            payload_end[sel],
+            lambda nm, dt, k, a=acc, f=frac: a.reserve(nm, dt, k, f),
+        )
+        if dec is None:
+            raise _NotFast(f"{channels[cid].topic}: not canonical protobuf")
+        acc.add(dec, frac)
+
+
+def _groups(usize: np.ndarray) -> list[tuple[int, int]]:
+    """Consecutive runs of chunks holding about _GROUP_BYTES of records each (at least one chunk)."""
+    bounds = [0]
+    total = 0
+    for i, u in enumerate(usize.tolist()):
+        if total and total + u > _GROUP_BYTES:
+            bounds.append(i)
+            total = 0
+        total += u
+    bounds.append(usize.shape[0])
+    return list(itertools.pairwise(bounds))
+
+
+class _Decompressor:
+    """Decompresses runs of chunks into one reused buffer (fresh memory per group would cost page faults)."""
+
+    def __init__(self, data: _Bytes) -> None:
+        import lz4.frame
+        import zstandard
+
+        self.data = data
+        self.zstd = zstandard.ZstdDecompressor().decompress
+        self.lz4 = lz4.frame.decompress
+        self.bufs = [bytearray(), bytearray()]
+
+    def records(
+        self,
+        name_at: list[int],
+        name_len: list[int],
+        at: list[int],
+        end: list[int],
+        usize: list[int],
+        slot: int = 0,
+    ) -> tuple[bytearray, int]:
+        """(buffer, n): the chunks' records back to back in buffer[:n], then _PAD zero bytes.
+
+        Two buffers (slot 0 or 1): one is filled while the other is decoded."""
+        total = sum(usize)
+        if len(self.bufs[slot]) < total + _PAD:
+            self.bufs[slot] = bytearray(total + _PAD)
+        buf, data, mv = self.bufs[slot], self.data, memoryview(self.data)  # released on return
+        pos = 0
+        for na, nl, a, b, u in zip(name_at, name_len, at, end, usize, strict=True):
+            comp = data[na : na + nl]
+            if comp == b"zstd":
+                out = self.zstd(mv[a:b], max_output_size=u)
+            elif comp == b"lz4":
+                out = self.lz4(mv[a:b])
+            elif comp == b"":
+                out = mv[a:b]
+            else:
+                raise _NotFast(f"compression {comp!r}")
+            if len(out) != u:
+                raise _NotFast("chunk size")
+            buf[pos : pos + u] = out
+            pos += u
+        buf[pos : pos + _PAD] = bytes(_PAD)
+        return buf, pos
+
+
+def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
+    """Offsets of the Message records in the concatenated chunk records (each chunk must be whole).
+
+    Walks the record chain; at a Message record of length L it guesses that the records that follow
+    are Messages of the same length (the usual case: same fields, same varint sizes) and checks all
+    those guesses at once with numpy (opcode, length, no record across a chunk end), keeping the run
+    up to the first miss, so the Python walk only steps where the record layout changes.
+    """
+    unpack = _REC.unpack_from
+    ends = list(itertools.accumulate(usize))
+    total = ends[-1] if ends else 0
+    ends_arr = np.asarray(ends, dtype=np.int64)
+    rb = np.frombuffer(records, np.uint8)
+    runs: list[np.ndarray] = []
+    pos, k = 0, 0
+    while pos < total:
+        while pos >= ends[k]:  # next chunk (a record never crosses a chunk end)
+            k += 1
+        op, ln = unpack(records, pos)
+        nxt = pos + 9 + ln
+        if nxt > ends[k]:
+            raise _NotFast("record across a chunk boundary")
+        if op == _OP_MESSAGE:
+            stride = 9 + ln
+            guess = np.arange(pos, total - stride + 1, stride, dtype=np.int64)  # guess[0] == pos: checked
+            ok = (rb[guess] == _OP_MESSAGE) & (read_le(rb, guess + 1, "<u8") == ln)
+            ok &= np.searchsorted(ends_arr, guess, "right") == np.searchsorted(
+                ends_arr, guess + (stride - 1), "right"
+            )
+            m = guess.shape[0] if ok.all() else int(np.argmin(ok))
+            runs.append(guess[:m])
+            pos = int(guess[m - 1]) + stride
+            continue
+        if op in (_OP_SCHEMA, _OP_CHANNEL):  # read by content in mcap: length must agree
+            q = (_schema_at if op == _OP_SCHEMA else _channel_at)(records, pos + 9)[1]
+            if q != nxt:
+                raise _NotFast("schema/channel record length in a chunk")
+        pos = nxt
+    return np.concatenate(runs) if runs else np.zeros(0, np.int64)

@@ -1,0 +1,343 @@
+"""``read_session``: an accellog MCAP file into a ``Session`` (fast; recovers unfinished/truncated files).
+
+A finished file in the canonical layout is read by ``fastread``; anything else, or any surprise on the
+way, by the generic reader with salvage (``collect``). Unit conversions go into preallocated arrays, in
+two halves on two threads. Also ``read_vector3`` (derived channels), ``read_attachments`` and
+``session_summary``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+from accellog.core.errors import InputError
+from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
+from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
+from accellog.store.collect import _check_file, _Collected, _Decoder, _generic_collect, _recover
+from accellog.store.fastread import _fast_collect
+from accellog.store.layout import (
+    DERIVED_PREFIX,
+    NS_PER_S,
+    TOPIC_EVENTS,
+    TOPIC_IMU,
+    TOPIC_MAG,
+    TOPIC_POSES,
+    TOPIC_TRUTH,
+    metadata_to_meta,
+)
+from accellog.store.schema import full_name
+
+# read_session / read_vector3 try the vectorised reader first; False forces the generic reader (tests and
+# benchmarks compare the two).
+FAST_READ = True
+
+
+def _collect(path: Path, topics: Iterable[str] | None = None) -> _Collected:
+    """Read every message of ``topics`` (all if None); salvage unfinished files chunk by chunk.
+
+    Finished files in the canonical layout take the vectorised ``_fast_collect``; anything else (and
+    any surprise on the way) takes the generic path (mcap's reader + ``BatchDecoder``), which gives
+    the same result wherever both apply.
+    """
+    _check_file(path)
+    fast = _fast_collect(path, topics) if FAST_READ else None
+    if fast is not None:
+        return fast
+    return _generic_collect(path, topics)
+
+
+def _reshape(arr: np.ndarray, n: int, width: int, what: str, where: str) -> np.ndarray | None:
+    if arr.size == 0:
+        return None
+    if arr.size != n * width:
+        raise InputError(f"{what} has {arr.size} values for {n} samples (mixed batches)", where=where)
+    return arr.reshape(n, width) if width > 1 else arr
+
+
+_SPLIT_MIN = 200_000  # _split_run: samples below which one thread does it all
+
+
+def _split_run(fn, n: int) -> None:
+    """fn(0, n/2) on a worker thread and fn(n/2, n) here, concurrently (numpy releases the GIL)."""
+    if n < _SPLIT_MIN:
+        fn(0, n)
+        return
+    mid = n // 2
+    with ThreadPoolExecutor(1) as pool:
+        first = pool.submit(fn, 0, mid)
+        fn(mid, n)
+        first.result()
+
+
+def read_session(path: str | Path) -> Session:
+    """Read an accellog MCAP file into a Session (fast; recovers unfinished/truncated files).
+
+    A recovered file gets an extra Event('recovered') saying how much was salvaged. Raises
+    InputError (one line) for a missing/empty/non-MCAP file, a file without an accellog.v1 /imu
+    channel, or a session without samples.
+    """
+    path = Path(path)
+    where = str(path)
+    col = _collect(path)
+    if col.topics.get(TOPIC_IMU) != full_name("ImuBatch"):
+        found = ", ".join(f"{t} ({s})" for t, s in sorted(col.topics.items())) or "none"
+        if col.recovered is not None and not col.topics:
+            raise InputError("truncated MCAP file: no complete chunk with IMU data to recover", where=where)
+        raise InputError(
+            f"not an accellog session: no {TOPIC_IMU} channel of {full_name('ImuBatch')} (channels: {found})",
+            where=where,
+        )
+    meta = metadata_to_meta(col.metadata, where) if col.metadata else SessionMeta(source="unknown")
+    dec = col.decoders.get(TOPIC_IMU)
+    if dec is None or dec.n_messages == 0:
+        raise InputError(
+            "session has no IMU samples" + (" (truncated file)" if col.recovered else ""), where=where
+        )
+    arrays, scalars, counts = dec.result()
+    n_per = counts["t_ns"]
+    n = int(n_per.sum())
+    if n == 0:
+        raise InputError("session has no IMU samples", where=where)
+    t_ns = arrays["t_ns"]
+    starts = np.cumsum(n_per) - n_per
+    first = np.asarray(scalars["first_sample_index"], dtype=np.int64)
+    offset = first - starts  # sample_index[i] = offset[k] + i for the samples i of message k
+    if np.all(offset == offset[0]):  # no gap anywhere: one arange
+        sample_index = np.arange(offset[0], offset[0] + n, dtype=np.int64)
+    else:
+        sample_index = np.repeat(offset, n_per) + np.arange(n, dtype=np.int64)
+    full = n_per > 0  # samples out of order <=> a message starts below the previous one's last index
+    in_order = not np.any(first[full][1:] < (first + n_per - 1)[full][:-1])
+    host = np.asarray(scalars["host_time_ns"], dtype=np.int64)
+    host_time_s = np.repeat(host / NS_PER_S, n_per) if np.any(host != 0) else None
+
+    lsb_a = lsb_g = temp_c = None  # conversions to do from counts (filled in halves on 2 threads)
+    accel_counts = _reshape(arrays["accel_counts"], n, 3, "accel_counts", where)
+    accel_g = _reshape(arrays["accel_g"], n, 3, "accel_g", where)
+    if accel_g is None:
+        if accel_counts is None:
+            raise InputError("IMU batches carry neither accel_counts nor accel_g", where=where)
+        if not meta.accel_lsb_per_g:
+            raise InputError("accel_counts without accel_lsb_per_g in the session metadata", where=where)
+        accel_g = np.empty(accel_counts.shape)  # = accel_counts / accel_lsb_per_g, filled below
+        lsb_a = meta.accel_lsb_per_g
+    gyro_counts = _reshape(arrays["gyro_counts"], n, 3, "gyro_counts", where)
+    gyro_dps = _reshape(arrays["gyro_dps"], n, 3, "gyro_dps", where)
+    if gyro_dps is None and gyro_counts is not None and meta.gyro_lsb_per_dps:
+        gyro_dps = np.empty(gyro_counts.shape)  # = gyro_counts / gyro_lsb_per_dps
+        lsb_g = meta.gyro_lsb_per_dps
+    temp_counts = _reshape(arrays["temp_counts"], n, 1, "temp_counts", where)
+    temp_degC = _reshape(arrays["temp_degC"], n, 1, "temp_degC", where)
+    if temp_degC is None and temp_counts is not None:
+        temp_degC = np.empty(n)  # = temp_counts_to_degC(temp_counts)
+        temp_c = temp_counts
+    t_s = np.empty(n)
+
+    def convert(lo: int, hi: int) -> None:
+        """Unit conversions of samples lo..hi into the preallocated float64 arrays (no temporaries)."""
+        np.divide(t_ns[lo:hi], NS_PER_S, out=t_s[lo:hi])
+        if lsb_a is not None:
+            np.divide(accel_counts[lo:hi], lsb_a, out=accel_g[lo:hi])
+        if lsb_g is not None:
+            np.divide(gyro_counts[lo:hi], lsb_g, out=gyro_dps[lo:hi])
+        if temp_c is not None:
+            out = temp_degC[lo:hi]  # temp_counts_to_degC: counts / 333.87 + 21, the same two operations
+            np.divide(temp_c[lo:hi], TEMP_LSB_PER_DEGC, out=out)
+            np.add(out, TEMP_OFFSET_DEGC, out=out)
+
+    _split_run(convert, n)
+
+    if not in_order:  # batches out of order: sort samples once
+        order = np.argsort(sample_index, kind="stable")
+        sample_index, t_s = sample_index[order], t_s[order]
+        fix = [accel_g, accel_counts, gyro_dps, gyro_counts, temp_degC, temp_counts, host_time_s]
+        accel_g, accel_counts, gyro_dps, gyro_counts, temp_degC, temp_counts, host_time_s = (
+            None if a is None else a[order] for a in fix
+        )
+
+    session = Session(
+        meta=meta,
+        t_s=t_s,
+        sample_index=sample_index,
+        accel_g=accel_g,
+        accel_counts=accel_counts,
+        gyro_dps=gyro_dps,
+        gyro_counts=gyro_counts,
+        temp_degC=temp_degC,
+        temp_counts=temp_counts,
+        host_time_s=host_time_s,
+        path=str(path),
+    )
+    _read_mag(session, col.decoders.get(TOPIC_MAG), where)
+    session.poses = _read_poses(col.decoders.get(TOPIC_POSES))
+    session.events = _read_events(col.decoders.get(TOPIC_EVENTS))
+    session.truth = _read_truth(col.decoders.get(TOPIC_TRUTH), where)
+    if col.recovered is not None:
+        session.events.append(Event(float(session.t_s[-1]), "recovered", col.recovered))
+    return session
+
+
+def _read_mag(session: Session, dec: _Decoder | None, where: str) -> None:
+    if dec is None or dec.n_messages == 0:
+        return
+    arrays, scalars, counts = dec.result()
+    m = int(counts["t_ns"].sum())
+    if m == 0:
+        return
+    session.mag_t_s = arrays["t_ns"] / NS_PER_S
+    session.mag_counts = _reshape(arrays["mag_counts"], m, 3, "mag_counts", where)
+    st2 = b"".join(scalars["st2"])
+    session.mag_st2 = np.frombuffer(st2, np.uint8).copy() if len(st2) == m else None
+    mag_uT = _reshape(arrays["mag_uT"], m, 3, "mag_uT", where)
+    if mag_uT is None and session.mag_counts is not None:
+        asa = arrays["asa_factor"]
+        if asa.size == 3 * dec.n_messages:
+            factor = np.repeat(asa.reshape(-1, 3), counts["t_ns"], axis=0)
+        else:
+            factor = np.ones((m, 3))
+        scale = np.repeat(np.asarray(scalars["ut_per_lsb"], dtype=np.float64), counts["t_ns"])
+        mag_uT = session.mag_counts * factor * scale[:, None]
+    session.mag_uT = mag_uT
+
+
+def _messages(dec: _Decoder | None):
+    """Per-message dicts of a small-message channel (poses, events)."""
+    if dec is None:
+        return []
+    arrays, scalars, counts = dec.result()
+    out = []
+    offs = {k: np.concatenate([[0], np.cumsum(v)]) for k, v in counts.items()}
+    for i in range(dec.n_messages):
+        d = {k: v[i] for k, v in scalars.items()}
+        for k, a in arrays.items():
+            d[k] = a[offs[k][i] : offs[k][i + 1]]
+        out.append(d)
+    return out
+
+
+def _read_poses(dec: _Decoder | None) -> list[PoseLabel]:
+    return [
+        PoseLabel(
+            name=d["name"],
+            start_s=d["start_ns"] / NS_PER_S,
+            end_s=d["end_ns"] / NS_PER_S,
+            up_sensor=tuple(float(v) for v in d["up_sensor"]),
+            q_sensor_to_world=tuple(float(v) for v in d["q_sensor_to_world"])
+            if d["q_sensor_to_world"].size
+            else None,
+            hold_index=int(d["hold_index"]),
+        )
+        for d in _messages(dec)
+    ]
+
+
+def _read_events(dec: _Decoder | None) -> list[Event]:
+    return [
+        Event(d["t_ns"] / NS_PER_S, d["kind"], d["detail"], int(d["sample_index"]), int(d["lost_samples"]))
+        for d in _messages(dec)
+    ]
+
+
+def _read_truth(dec: _Decoder | None, where: str) -> Truth | None:
+    if dec is None or dec.n_messages == 0:
+        return None
+    a, _, counts = dec.result()
+    k = int(counts["t_ns"].sum())
+
+    def r(name: str, width: int) -> np.ndarray:
+        out = _reshape(a[name], k, width, name, where)
+        return np.full((k, width) if width > 1 else (k,), np.nan) if out is None else out
+
+    return Truth(
+        t_s=a["t_ns"] / NS_PER_S,
+        specific_force_g=r("specific_force_g", 3),
+        omega_dps=r("omega_dps", 3),
+        position_m=r("position_m", 3),
+        velocity_mps=r("velocity_mps", 3),
+        q_sensor_to_world=r("q_sensor_to_world", 4),
+        temp_degC=r("temp_degC", 1),
+    )
+
+
+def read_vector3(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray, str, str]:
+    """A derived channel: (t_s (n,), values (n,3), unit, frame). InputError if the topic is absent."""
+    path = Path(path)
+    if not topic.startswith(DERIVED_PREFIX):
+        topic = DERIVED_PREFIX + topic.lstrip("/")
+    col = _collect(path, [topic])
+    dec = col.decoders.get(topic)
+    if dec is None or dec.n_messages == 0:
+        raise InputError(f"no derived channel {topic}", where=str(path))
+    a, s, c = dec.result()
+    n = int(c["t_ns"].sum())
+    return a["t_ns"] / NS_PER_S, a["values"].reshape(n, 3), s["unit"][0], s["frame"][0]
+
+
+def read_attachments(path: str | Path) -> list[tuple[str, str, bytes]]:
+    """(name, media_type, data) of every attachment of a finished file."""
+    _check_file(Path(path))
+    try:
+        with open(path, "rb") as f:
+            return [(a.name, a.media_type, bytes(a.data)) for a in make_reader(f).iter_attachments()]
+    except McapError as exc:
+        raise InputError(f"cannot read attachments ({exc}): file not finished?", where=str(path)) from None
+
+
+def session_summary(path: str | Path) -> dict:
+    """Fast facts from the MCAP summary section (no message is decoded).
+
+    Keys: path, bytes, finished, messages, chunks, topics {topic: {schema, messages}}, start_ns,
+    end_ns, duration_s (log-time span), metadata (the 'session' record), attachments [(name,
+    media_type, bytes)]. An unfinished file is scanned instead (finished=False).
+    """
+    path = Path(path)
+    _check_file(path)
+    out: dict = {"path": str(path), "bytes": path.stat().st_size}
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            summ = reader.get_summary()
+            if summ is None or summ.statistics is None:
+                raise McapError("no summary")
+            st = summ.statistics
+            out.update(
+                finished=True,
+                messages=st.message_count,
+                chunks=st.chunk_count,
+                start_ns=st.message_start_time,
+                end_ns=st.message_end_time,
+                duration_s=(st.message_end_time - st.message_start_time) / NS_PER_S,
+                topics={
+                    ch.topic: {
+                        "schema": summ.schemas[ch.schema_id].name if ch.schema_id in summ.schemas else "",
+                        "messages": st.channel_message_counts.get(cid, 0),
+                    }
+                    for cid, ch in summ.channels.items()
+                },
+                metadata={},
+                attachments=[(a.name, a.media_type, a.data_size) for a in summ.attachment_indexes],
+            )
+            for md in reader.iter_metadata():
+                if md.name == "session":
+                    out["metadata"] = dict(md.metadata)
+        return out
+    except (McapError, EOFError, ValueError, OSError) as exc:
+        col = _recover(path, None, exc)
+    out.update(
+        finished=False,
+        recovered=col.recovered,
+        topics={
+            t: {"schema": s, "messages": col.decoders[t].n_messages if t in col.decoders else 0}
+            for t, s in col.topics.items()
+        },
+        messages=sum(d.n_messages for d in col.decoders.values()),
+        metadata=col.metadata,
+        attachments=[],
+    )
+    return out
