@@ -1,0 +1,36 @@
+"""Importers: other tools' recordings -> Session (-> MCAP with ``accellog.store.writer.write_session``).
+
+One module per format: capstone, imucal, csv. m/s^2 inputs are converted with g0 = 9.80665
+(accel_g = a_mps2 / 9.80665); the source unit and the conversion are recorded in meta.extra, so nothing
+is silently altered. Every bad input raises a one-line InputError naming the file and line.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from accellog.core.errors import InputError
+from accellog.core.session import Session
+from accellog.store.importers.capstone import PoseTable, import_capstone, load_capstone_pose_table
+from accellog.store.importers.csv import import_csv
+from accellog.store.importers.imucal import import_imucal
+
+__all__ = [
+    "PoseTable",
+    "import_capstone",
+    "import_csv",
+    "import_file",
+    "import_imucal",
+    "load_capstone_pose_table",
+]
+
+
+def import_file(kind: str, path: str | Path, **options) -> Session:
+    """Dispatch: kind 'capstone' | 'imucal' | 'csv' (options passed on)."""
+    if kind == "capstone":
+        return import_capstone(path)
+    if kind == "imucal":
+        return import_imucal(path, **options)
+    if kind == "csv":
+        return import_csv(path, **options)
+    raise InputError(f"unknown import kind {kind!r}: use capstone, imucal or csv")
