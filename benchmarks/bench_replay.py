@@ -27,7 +27,7 @@ from accellog.core.session import PoseLabel, Session, SessionMeta
 from accellog.flows.pipeline import run_fit
 from accellog.flows.replay import replay
 from accellog.navigate.evaluate import evaluate
-from accellog.present.rrd import RunRecording
+from accellog.present.rrd.recording import RunRecording
 from accellog.store.reader import read_session
 from accellog.store.writer import write_session
 

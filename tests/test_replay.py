@@ -16,7 +16,7 @@ from accellog.core.session import PoseLabel, Session, SessionMeta
 from accellog.flows.pipeline import run_drift, run_fit
 from accellog.flows.replay import compare, replay
 from accellog.navigate.evaluate import evaluate
-from accellog.present.rrd import RunRecording
+from accellog.present.rrd.recording import RunRecording
 from accellog.store.reader import read_session
 from accellog.store.writer import write_session
 

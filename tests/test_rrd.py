@@ -17,7 +17,10 @@ import pytest
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel
 from accellog.navigate.online import OnlineIntegrator, integrate_batch
-from accellog.present.rrd import LadderRow, LiveView, RunRecording, wait_for_port
+from accellog.present.rrd.entities import LadderRow
+from accellog.present.rrd.live import LiveView
+from accellog.present.rrd.recording import RunRecording
+from accellog.present.rrd.sinks import wait_for_port
 from accellog.present.viewer import rerun_binary, stop_process
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.present.rrd import RunRecording
+from accellog.present.rrd.recording import RunRecording
 from accellog.present.viewer import Chromium, find_chromium, pixel_stats, screenshot_rrd, serve_rrd
 
 pytestmark = pytest.mark.browser

@@ -27,7 +27,7 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 from accellog.flows.pipeline import run_drift, run_fit  # noqa: E402
 from accellog.flows.replay import compare  # noqa: E402
-from accellog.present.rrd import RunRecording  # noqa: E402
+from accellog.present.rrd.recording import RunRecording  # noqa: E402
 from accellog.store.importers import import_capstone  # noqa: E402
 
 

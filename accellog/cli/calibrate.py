@@ -36,7 +36,7 @@ def _echo_json(data) -> None:
 
 def _recording(path: Path):
     """A RunRecording saving to path (written to a temporary name, renamed when complete)."""
-    from accellog.present.rrd import RunRecording
+    from accellog.present.rrd.recording import RunRecording
 
     return RunRecording(f"save:{path}")
 

@@ -95,7 +95,7 @@ def _run(
 ):
     from accellog.flows.replay import compare as compare_fn
     from accellog.flows.replay import replay as replay_fn
-    from accellog.present.rrd import RunRecording
+    from accellog.present.rrd.recording import RunRecording
 
     s = _load_session(session)
     cals = list(cal or [])

@@ -53,7 +53,7 @@ def track_cmd(
         cals[name] = c
     runs = run_session_tracks(session, cals, use_zupt=zupt)
     if rrd is not None:
-        from accellog.present.rrd import RunRecording
+        from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_session, log_track_runs
 
         with RunRecording(f"save:{rrd}") as rec:

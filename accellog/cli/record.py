@@ -104,7 +104,7 @@ def _open_live(rerun: str | None):
     """A live Rerun view for the recorder, or None. Failures of the viewer never stop recording."""
     if not rerun:
         return None
-    from accellog.present.rrd import LiveView
+    from accellog.present.rrd.live import LiveView
 
     return LiveView.from_option(rerun)
 

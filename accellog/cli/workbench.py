@@ -103,7 +103,7 @@ def diagnose(
             host = (data.t_s, data.host_time_s)
     d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host)
     if rrd is not None:
-        from accellog.present.rrd import RunRecording
+        from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_diagnosis, log_session
 
         with RunRecording(f"save:{rrd}") as rec:
@@ -246,7 +246,7 @@ def workbench_cmd(
     if output is not None:
         rows[-1]["fit"].cal.save(output)
     if rrd is not None:
-        from accellog.present.rrd import RunRecording
+        from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_diagnosis, log_session
 
         with RunRecording(f"save:{rrd}") as rec:

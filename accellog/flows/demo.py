@@ -232,7 +232,7 @@ def _robot_table(runs, robot, note: str) -> Table:
 def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
     """The demo's recording of res at path, opening on tab first_tab (see demo_blueprint)."""
     from accellog.flows.workbench import log_ladder
-    from accellog.present.rrd import RunRecording
+    from accellog.present.rrd.recording import RunRecording
     from accellog.present.tables import drift_table
     from accellog.present.views import (
         log_diagnosis,
@@ -268,7 +268,7 @@ def _whole_range_plot(**kw):
     length and share the sensor_time timeline, so a cursor-relative window would hide data)."""
     import rerun.blueprint as rrb
 
-    from accellog.present.rrd import MAIN_TIMELINE
+    from accellog.present.rrd.entities import MAIN_TIMELINE
 
     whole = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
     return rrb.TimeSeriesView(
@@ -284,7 +284,7 @@ def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3)
     workbench steps logged at /docs/workbench/step_{i}, i = 1..n_diagnoses."""
     import rerun.blueprint as rrb
 
-    from accellog.present.rrd import (
+    from accellog.present.rrd.entities import (
         DOCS,
         LADDER,
         POSES_ACTIVE,
@@ -293,8 +293,8 @@ def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3)
         TRACKS,
         WORLD_TRACKS,
         slug_path,
-        time_panel,
     )
+    from accellog.present.rrd.layout import time_panel
 
     calibration = rrb.Horizontal(
         rrb.Vertical(

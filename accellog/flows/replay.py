@@ -30,7 +30,8 @@ import numpy as np
 from accellog.core.errors import InputError
 from accellog.core.session import Session
 from accellog.navigate.online import OnlineIntegrator
-from accellog.present.rrd import AXES, AXIS_COLORS, TRACKS, RunRecording, slug
+from accellog.present.rrd.entities import AXES, AXIS_COLORS, TRACKS, slug
+from accellog.present.rrd.recording import RunRecording
 
 MAX_BATCH_S = 60.0
 """Sensor seconds per batch when replaying as fast as possible (columnar logging)."""

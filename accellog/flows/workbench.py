@@ -147,7 +147,7 @@ def ladder_json(rows: Sequence[dict]) -> list[dict]:
 def log_ladder(rec, rows: Sequence[dict], obs: ObsTable, at_s: float = 60.0) -> None:
     """The ladder in a RunRecording: bars per metric, and the residuals of the start model and of
     the final model next to the temperature (the usual driver of what was missing)."""
-    from accellog.present.rrd import LadderRow
+    from accellog.present.rrd.entities import LadderRow
 
     show = {rows[-1]["model"]} | {r["model"] for r in rows if not r["added"] and r["model"] not in BASE_STEPS}
     rec.log_ladder(

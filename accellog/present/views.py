@@ -123,7 +123,7 @@ def log_diagnosis(rec, diag, obs, label: str = "diagnose") -> None:
 def log_track_runs(rec, runs: Sequence, truth=None, group: str = "robot") -> None:
     """Moving-robot tracks per calibration next to the true path (time series and 3D), the
     position error over time (m) per calibration, the stops ZUPT used, and the error table."""
-    from accellog.present.rrd import slug_path
+    from accellog.present.rrd.entities import slug_path
 
     if truth is not None:
         rec.log_track(f"{group}/truth", truth.t_s, truth.position_m)

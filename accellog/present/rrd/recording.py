@@ -1,44 +1,19 @@
-"""Rerun (.rrd) recordings of pipeline runs: arrays in, a recording laid out for the user's question.
+"""``RunRecording``: pipeline arrays in, a Rerun recording laid out for the user's question.
 
-``RunRecording`` knows nothing about files of accellog: the pipeline stages hand it numpy arrays
-(samples, poses, residuals, tracks, documents) and it writes them columnar (``send_columns``, one
-call per stream and batch, never per sample) on the main timeline ``sensor_time`` (duration, s
-since session start) plus ``sample`` (sequence, device sample index) for raw streams.
-
-Entity layout (module constants below; tests and other stages rely on it):
-
-- ``/{kind}/{name}``            (N,3) sample stream, e.g. ``/accel/raw``, ``/accel/calibrated`` (g)
-- ``/poses/active/{k:02d}``     1 during hold k, 0 outside (step series, series name = pose label)
-- ``/poses/log``                TextLog at each hold start: "hold k: <label> up (x, y, z)"
-- ``/temperature``              die temperature (degC)
-- ``/events``                   TextLog per Event; ``/events/lost_samples`` points (samples)
-- ``/residuals/{model}/{axis}`` BarChart of measured - predicted per pose (mg), static;
-  ``/residuals/{model}/measured|predicted|residual_mg`` on the ``pose`` sequence timeline
-- ``/tracks/{label}``           displacement (N,3) in m on sensor_time
-- ``/world/tracks/{label}``     LineStrips3D of the track (m), static; ``.../final`` Points3D
-- ``/docs/{path}``              TextDocument (markdown), static
-- ``/ladder/...``               model-building steps: tables, bar charts, residuals vs drivers
-- ``/live/...``                 live recording panels (prompt, stillness, running calibration)
-
-Sinks: ``save:PATH`` (file, written to a temporary name and renamed on ``close``), ``spawn``
-(native viewer), ``connect`` / ``connect:URL`` (gRPC proxy, e.g.
-``rerun+http://127.0.0.1:9876/proxy``). Live sinks are *guarded*: a failure is counted and
-reported once, never raised into the caller (the MCAP recorder must keep recording).
+It knows nothing about files of accellog: the stages hand it numpy arrays (samples, poses, residuals,
+tracks, documents) and it writes them columnar (``send_columns``, one call per stream and batch, never
+per sample) on the main timeline ``sensor_time`` (duration, s since session start) plus ``sample``
+(sequence, device sample index) for raw streams. Entity paths in ``entities``.
 """
 
 from __future__ import annotations
 
 import contextlib
-import math
 import os
-import re
-import socket
 import sys
 import threading
-import time
 import urllib.parse
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -46,154 +21,33 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel
-
-MAIN_TIMELINE = "sensor_time"
-"""Duration timeline, s since session start (the sensor's sample clock)."""
-SAMPLE_TIMELINE = "sample"
-POSE_TIMELINE = "pose"
-STEP_TIMELINE = "step"
-
-POSES_ACTIVE = "poses/active"
-POSES_LOG = "poses/log"
-TEMPERATURE = "temperature"
-EVENTS = "events"
-EVENTS_LOST = "events/lost_samples"
-RESIDUALS = "residuals"
-TRACKS = "tracks"
-WORLD_TRACKS = "world/tracks"
-DOCS = "docs"
-LADDER = "ladder"
-LIVE = "live"
-
-AXES = ("x", "y", "z")
-TRACK_3D_MAX_POINTS = 20_000
-"""The 3D line strip of a track is decimated to at most this many points (last point kept)."""
-
-DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
-SPAWN_PORT = 9876
-"""Port of the native viewer started by the 'spawn' sink (bound to 127.0.0.1 only)."""
-
-_EVENT_LEVEL = {
-    "gap": "WARN",
-    "fifo_overflow": "WARN",
-    "misaligned": "WARN",
-    "i2c_error": "ERROR",
-    "retry": "DEBUG",
-    "recovered": "WARN",
-    "note": "INFO",
-    "pose_prompt": "INFO",
-}
-
-AXIS_COLORS = [(230, 80, 80), (80, 190, 80), (80, 130, 240)]
-"""Series colours of the x, y, z axes in every plot (RGB)."""
-_TRACK_COLORS = [
-    (240, 160, 40),
-    (60, 170, 230),
-    (200, 90, 200),
-    (120, 200, 90),
-    (230, 90, 90),
-    (160, 160, 160),
-]
-
-
-def slug(text: str) -> str:
-    """Entity-path-safe form of a label: runs of other characters than letters, digits, '_', '-'
-    and '.' become '_' ('cal A.json' -> 'cal_A.json')."""
-    s = re.sub(r"[^A-Za-z0-9_.\-]+", "_", str(text).strip()).strip("_")
-    return s or "unnamed"
-
-
-def slug_path(label: str) -> str:
-    """Entity sub-path of a label; '/' groups it ('test/Model 3' -> 'test/Model_3')."""
-    return "/".join(slug(p) for p in str(label).split("/") if p.strip()) or "unnamed"
-
-
-def _as_2d(values: np.ndarray, n: int, what: str) -> np.ndarray:
-    v = np.asarray(values, dtype=np.float64)
-    if v.ndim == 1:
-        v = v[:, None]
-    if v.shape[0] != n:
-        raise InputError(f"{what}: {v.shape[0]} rows for {n} time stamps")
-    return v
-
-
-@dataclass
-class LadderRow:
-    """One model-building step of the workbench ladder.
-
-    chi2_dof: chi^2 / degrees of freedom of the fit; heldout_rms_mg: RMS of held-out residuals (mg);
-    drift_60s_m: |displacement| after 60 s of the static test integrated with this model (m).
-    t_s / residual_g: residuals of the static windows (s, (n,3) g) left by this step; driver: the
-    signal (e.g. temperature in degC) that the *next* effect explains, sampled at t_s.
-    """
-
-    step: str
-    added: str = ""
-    chi2_dof: float = math.nan
-    heldout_rms_mg: float = math.nan
-    drift_60s_m: float = math.nan
-    t_s: np.ndarray | None = None
-    residual_g: np.ndarray | None = None
-    driver_name: str = ""
-    driver: np.ndarray | None = None
-    extra: dict[str, float] = field(default_factory=dict)
-
-
-class _SinkWatch:
-    """Background TCP probe of a live sink (host, port): marks it down once unreachable."""
-
-    def __init__(self, host: str, port: int, on_down: Callable[[str], None], period_s: float = 0.25):
-        self.host, self.port, self.on_down, self.period_s = host, port, on_down, period_s
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="accellog-rerun-watch", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        misses = 0
-        while not self._stop.wait(self.period_s):
-            try:
-                with socket.create_connection((self.host, self.port), timeout=0.5):
-                    misses = 0
-            except OSError as exc:
-                misses += 1
-                if misses >= 2:
-                    self.on_down(f"viewer at {self.host}:{self.port} unreachable ({exc.strerror or exc})")
-                    return
-
-    def stop(self) -> None:
-        self._stop.set()
-
-
-def _spawn_viewer(port: int, timeout_s: float = 20.0) -> None:
-    """Start the native viewer listening on 127.0.0.1:port (``rr.spawn`` would bind 0.0.0.0), unless
-    a viewer already listens there; wait until it accepts connections."""
-    import subprocess
-
-    from accellog.present.viewer import rerun_binary, rerun_env
-
-    if wait_for_port("127.0.0.1", port, 0.0):
-        return
-    cmd = [rerun_binary(), "--bind", "127.0.0.1", "--port", str(port), "--expect-data-soon"]
-    subprocess.Popen(
-        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=rerun_env(), start_new_session=True
-    )
-    if not wait_for_port("127.0.0.1", port, timeout_s):
-        raise InputError(f"the spawned viewer does not listen on 127.0.0.1:{port} after {timeout_s:g} s")
-
-
-def _parse_sink(sink: str) -> tuple[str, str]:
-    if sink.startswith("save:"):
-        path = sink[5:]
-        if not path:
-            raise InputError("rerun sink 'save:' needs a file name, e.g. save:run.rrd")
-        return "save", path
-    if sink == "spawn":
-        return "spawn", ""
-    if sink == "connect":
-        return "connect", DEFAULT_GRPC_URL
-    if sink.startswith("connect:"):
-        return "connect", sink[8:]
-    raise InputError(f"unknown rerun sink {sink!r}: use save:FILE.rrd, spawn, connect or connect:URL")
+from accellog.present.rrd.entities import (
+    _EVENT_LEVEL,
+    _TRACK_COLORS,
+    AXES,
+    AXIS_COLORS,
+    DOCS,
+    EVENTS,
+    EVENTS_LOST,
+    LADDER,
+    MAIN_TIMELINE,
+    POSE_TIMELINE,
+    POSES_ACTIVE,
+    POSES_LOG,
+    RESIDUALS,
+    SAMPLE_TIMELINE,
+    SPAWN_PORT,
+    TEMPERATURE,
+    TRACK_3D_MAX_POINTS,
+    TRACKS,
+    WORLD_TRACKS,
+    LadderRow,
+    _as_2d,
+    slug,
+    slug_path,
+)
+from accellog.present.rrd.layout import build_blueprint, live_blueprint
+from accellog.present.rrd.sinks import _parse_sink, _SinkWatch, _spawn_viewer
 
 
 class RunRecording:
@@ -687,282 +541,3 @@ class RunRecording:
 
 
 # -- blueprints --------------------------------------------------------------------------------------
-def time_panel():
-    """Time panel on sensor_time, following new data, collapsed (shared by every blueprint)."""
-    import rerun.blueprint as rrb
-
-    return rrb.TimePanel(timeline=MAIN_TIMELINE, play_state="following", state="collapsed")
-
-
-def build_blueprint(entities: Mapping[str, str]):
-    """Layout for what was logged: sample streams with pose windows, temperature + events, tracks
-    (time series + 3D side by side), residual and ladder charts, documents and logs. With two or
-    more tracks (replay, compare) the tracks take the main area, one auto-scaled plot each."""
-    import rerun.blueprint as rrb
-
-    roles: dict[str, list[str]] = {}
-    for ent, role in entities.items():
-        roles.setdefault(role, []).append(ent)
-    has_poses = "poses" in roles
-    samples = []
-    for ent in [e for r, es in roles.items() if r.startswith("samples:") for e in es]:  # logged order
-        contents = ["$origin/**"] + ([f"/{POSES_ACTIVE}/**"] if has_poses else [])
-        samples.append(rrb.TimeSeriesView(origin=f"/{ent}", contents=contents, name=ent.replace("/", " ")))
-    if "temperature" in roles or "lost" in roles:
-        samples.append(
-            rrb.TimeSeriesView(
-                origin="/",
-                contents=[f"/{TEMPERATURE}", f"/{EVENTS_LOST}"],
-                name="temperature (degC) + lost samples",
-            )
-        )
-    tracks = roles.get("track", [])  # logged order (raw first in replays)
-    track_views = [rrb.TimeSeriesView(origin=f"/{e}", name=f"{e.split('/', 1)[1]} (m)") for e in tracks]
-    world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)") if "track3d" in roles else None
-    charts = []
-    for model in sorted({e.split("/")[1] for e in roles.get("residual_bar", [])}):
-        charts.append(rrb.BarChartView(origin=f"/{RESIDUALS}/{model}", name=f"residuals {model} (mg)"))
-    if "ladder_bar" in roles:
-        charts.append(
-            rrb.Horizontal(
-                *[
-                    rrb.BarChartView(origin=f"/{LADDER}/{m}", name=m)
-                    for m in ("chi2_dof", "heldout_rms_mg", "drift_60s_m")
-                ],
-                name="model ladder",
-            )
-        )
-    if "ladder_step" in roles:
-        charts.append(rrb.TimeSeriesView(origin=f"/{LADDER}/steps", name="ladder residuals (mg) vs driver"))
-    texts = [
-        rrb.TextDocumentView(origin=f"/{e}", name=e[len(DOCS) + 1 :]) for e in sorted(roles.get("doc", []))
-    ]
-    if "textlog" in roles:
-        texts.append(rrb.TextLogView(origin="/", name="events and poses"))
-
-    def group(views, kind=rrb.Vertical):
-        views = [v for v in views if v is not None]
-        if not views:
-            return None
-        return views[0] if len(views) == 1 else kind(*views)
-
-    if len(track_views) >= 2:  # replay / compare: the tracks are the question
-        top = [rrb.Grid(*track_views, name="displacement per track"), group([world, group(texts, rrb.Tabs)])]
-        rows = [rrb.Horizontal(*[c for c in top if c is not None], column_shares=[3, 2])]
-        bottom = group([*samples, *charts], rrb.Tabs)
-        if bottom is not None:
-            rows.append(bottom)
-        root = rows[0] if len(rows) == 1 else rrb.Vertical(*rows, row_shares=[3, 1])
-    else:
-        left = group(samples if len(samples) <= 3 else [rrb.Tabs(*samples[:-1]), samples[-1]])
-        right = group(
-            [
-                group([*track_views, world], rrb.Horizontal),
-                group(charts, rrb.Tabs),
-                group(texts, rrb.Tabs),
-            ]
-        )
-        cols = [c for c in (left, right) if c is not None]
-        root = (
-            rrb.Horizontal(*cols, column_shares=[3, 2])
-            if len(cols) == 2
-            else (cols[0] if cols else rrb.Vertical())
-        )
-    return rrb.Blueprint(root, time_panel(), collapse_panels=True)
-
-
-def live_blueprint():
-    """Standard layout for a live recording (views appear as their data arrives)."""
-    import rerun.blueprint as rrb
-
-    poses = f"/{POSES_ACTIVE}/**"
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin="/accel/raw", contents=["$origin/**", poses], name="accel raw (g)"),
-                rrb.TimeSeriesView(
-                    origin="/accel/calibrated", contents=["$origin/**", poses], name="accel calibrated (g)"
-                ),
-                rrb.TimeSeriesView(origin=f"/{LIVE}/stillness", name="stillness"),
-                rrb.TimeSeriesView(
-                    origin="/", contents=[f"/{TEMPERATURE}", f"/{EVENTS_LOST}"], name="temperature"
-                ),
-            ),
-            rrb.Vertical(
-                rrb.TextDocumentView(origin=f"/{LIVE}/prompt", name="next pose"),
-                rrb.Horizontal(
-                    rrb.TimeSeriesView(origin=f"/{TRACKS}", name="displacement (m)"),
-                    rrb.Spatial3DView(origin="/world", name="tracks 3D (m)"),
-                ),
-                rrb.Tabs(
-                    rrb.TextDocumentView(origin=f"/{LIVE}/calibration", name="running calibration"),
-                    rrb.TextLogView(origin="/", name="events and poses"),
-                ),
-            ),
-            column_shares=[3, 2],
-        ),
-        time_panel(),
-        collapse_panels=True,
-    )
-
-
-class LiveView:
-    """Live panels for a guided recording, on top of a guarded RunRecording.
-
-    Implements the recorder's ``RecorderUI`` (prompt/waiting/holding/finished_pose) and its
-    ``on_batch(batch, accel_g)`` callback. Every call is guarded: a closed or unreachable viewer
-    is counted (``failures``) and reported once, never raised into the recording loop.
-    """
-
-    def __init__(self, recording: RunRecording | str, *, integrate: bool = False) -> None:
-        self.run = recording if isinstance(recording, RunRecording) else RunRecording(recording, guard=True)
-        self.run.guard = True
-        self._t_s = 0.0
-        self._integrator = None
-        if integrate:
-            from accellog.navigate.online import OnlineIntegrator
-
-            self._integrator = OnlineIntegrator()
-
-    @classmethod
-    def from_option(cls, option: str, *, integrate: bool = False) -> LiveView:
-        """From a CLI option: 'spawn', 'connect', 'connect URL', 'connect:URL', 'save FILE.rrd',
-        'save:FILE.rrd' or a path ending in .rrd."""
-        opt = option.strip()
-        head, _, rest = opt.partition(" ")
-        if head in ("connect", "save") and rest.strip():
-            opt = f"{head}:{rest.strip()}"
-        elif opt.endswith(".rrd") and not opt.startswith(("save:", "connect:")):
-            opt = f"save:{opt}"
-        return cls(RunRecording(opt, guard=True), integrate=integrate)
-
-    def wrap_ui(self, ui):
-        """A RecorderUI that forwards every call to ``ui`` (the terminal) and then to this view."""
-        return _TeeUI(ui, self)
-
-    @property
-    def failures(self) -> int:
-        return self.run.failures
-
-    def pose_prompt(
-        self, name: str, up: Sequence[float], *, index: int | None = None, total: int | None = None
-    ) -> None:
-        """Show the next pose to set (markdown panel + a log line)."""
-        head = f"pose {index + 1}/{total}: " if index is not None and total else "next pose: "
-        md = f"## {head}**{name}**\n\nturn the sensor so that ({up[0]:+.0f}, {up[1]:+.0f}, {up[2]:+.0f}) points up"
-        self.run._guarded(self.run._log_document_at, f"{LIVE}/prompt", md)
-        self.run.log_text(f"{LIVE}/log", self._t_s, head + name)
-
-    def stillness(self, t_s: float, still: bool, stat: float) -> None:
-        """Stillness detector state at sensor time t_s: still (0/1) and its statistic."""
-        self._t_s = max(self._t_s, float(t_s))
-        self.run.log_series(
-            f"{LIVE}/stillness",
-            np.array([t_s], dtype=np.float64),
-            np.array([[1.0 if still else 0.0, float(stat)]]),
-            ["still (0/1)", "motion statistic"],
-            role="live",
-        )
-
-    def running_calibration(self, text: str) -> None:
-        """Markdown of the calibration fitted so far."""
-        self.run._guarded(self.run._log_document_at, f"{LIVE}/calibration", text)
-
-    def log_batch(
-        self,
-        t_s: np.ndarray,
-        sample_index: np.ndarray | None,
-        accel_g: np.ndarray,
-        *,
-        temp_degC: np.ndarray | None = None,
-        calibrated_g: np.ndarray | None = None,
-    ) -> None:
-        """One batch of samples as they arrive (columnar, sensor time)."""
-        t = np.asarray(t_s, dtype=np.float64)
-        if t.size:
-            self._t_s = max(self._t_s, float(t[-1]))
-        self.run.log_samples("raw", t, sample_index, accel_g, "g")
-        if calibrated_g is not None:
-            self.run.log_samples("calibrated", t, sample_index, calibrated_g, "g")
-        if temp_degC is not None:
-            self.run.log_temperature(t, temp_degC)
-        if self._integrator is not None and t.size:
-            step = self._integrator.push(t, calibrated_g if calibrated_g is not None else accel_g)
-            self.run.log_series(
-                f"{TRACKS}/live", t, step.disp_m, [f"live {a} (m)" for a in AXES], role="track"
-            )
-
-    # RecorderUI + on_batch --------------------------------------------------------------------------
-    def prompt(self, index: int, total: int, pose) -> None:
-        self.pose_prompt(pose.name, pose.up_sensor, index=index, total=total)
-
-    def waiting(self, moving: bool, still_for_s: float) -> None:
-        self.stillness(self._t_s, not moving, still_for_s)
-
-    def holding(self, pose, done_s: float) -> None:
-        pass
-
-    def finished_pose(self, label: PoseLabel) -> None:
-        self.run.log_poses([label])
-
-    def on_batch(self, batch, accel_g: np.ndarray) -> None:
-        """Recorder callback: batch has t_ns (int64 ns), first_index, optional temp_counts."""
-        try:
-            t = np.asarray(batch.t_ns, dtype=np.int64) / 1e9
-            idx = int(batch.first_index) + np.arange(t.shape[0])
-            temp = getattr(batch, "temp_counts", None)
-            if temp is not None:
-                from accellog.core.units import temp_counts_to_degC
-
-                temp = temp_counts_to_degC(np.asarray(temp, dtype=np.float64))
-        except Exception as exc:
-            self.run._fail(f"live view: bad batch: {exc}")
-            return
-        self.log_batch(t, idx, accel_g, temp_degC=temp)
-
-    def close(self) -> None:
-        self.run.close()
-        msg = self.run.report()
-        if msg:
-            with contextlib.suppress(Exception):
-                self.run._on_failure(msg)
-
-
-class _TeeUI:
-    """RecorderUI calling the operator's UI first, then the (guarded) live view."""
-
-    def __init__(self, ui, live: LiveView) -> None:
-        self.ui, self.live = ui, live
-
-    def _both(self, name: str, *args) -> None:
-        if self.ui is not None:
-            getattr(self.ui, name)(*args)
-        try:
-            getattr(self.live, name)(*args)
-        except Exception as exc:  # the live view never stops the recorder
-            self.live.run._fail(f"live view: {name}: {exc}")
-
-    def prompt(self, index: int, total: int, pose) -> None:
-        self._both("prompt", index, total, pose)
-
-    def waiting(self, moving: bool, still_for_s: float) -> None:
-        self._both("waiting", moving, still_for_s)
-
-    def holding(self, pose, done_s: float) -> None:
-        self._both("holding", pose, done_s)
-
-    def finished_pose(self, label: PoseLabel) -> None:
-        self._both("finished_pose", label)
-
-
-def wait_for_port(host: str, port: int, timeout_s: float = 20.0) -> bool:
-    """True once a TCP connection to host:port succeeds within timeout_s (s; 0: one attempt)."""
-    end = time.monotonic() + timeout_s
-    while True:
-        try:
-            with socket.create_connection((host, port), timeout=0.5):
-                return True
-        except OSError:
-            if time.monotonic() >= end:
-                return False
-            time.sleep(0.1)

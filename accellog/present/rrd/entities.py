@@ -1,0 +1,116 @@
+"""Entity paths, timelines and colours of accellog recordings (tests and other stages rely on them).
+
+- ``/{kind}/{name}``            (N,3) sample stream, e.g. ``/accel/raw``, ``/accel/calibrated`` (g)
+- ``/poses/active/{k:02d}``     1 during hold k, 0 outside (step series, series name = pose label)
+- ``/poses/log``                TextLog at each hold start: "hold k: <label> up (x, y, z)"
+- ``/temperature``              die temperature (degC)
+- ``/events``                   TextLog per Event; ``/events/lost_samples`` points (samples)
+- ``/residuals/{model}/{axis}`` BarChart of measured - predicted per pose (mg), static;
+  ``/residuals/{model}/measured|predicted|residual_mg`` on the ``pose`` sequence timeline
+- ``/tracks/{label}``           displacement (N,3) in m on sensor_time
+- ``/world/tracks/{label}``     LineStrips3D of the track (m), static; ``.../final`` Points3D
+- ``/docs/{path}``              TextDocument (markdown), static
+- ``/ladder/...``               model-building steps: tables, bar charts, residuals vs drivers
+- ``/live/...``                 live recording panels (prompt, stillness, running calibration)
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from accellog.core.errors import InputError
+
+MAIN_TIMELINE = "sensor_time"
+"""Duration timeline, s since session start (the sensor's sample clock)."""
+SAMPLE_TIMELINE = "sample"
+POSE_TIMELINE = "pose"
+STEP_TIMELINE = "step"
+
+POSES_ACTIVE = "poses/active"
+POSES_LOG = "poses/log"
+TEMPERATURE = "temperature"
+EVENTS = "events"
+EVENTS_LOST = "events/lost_samples"
+RESIDUALS = "residuals"
+TRACKS = "tracks"
+WORLD_TRACKS = "world/tracks"
+DOCS = "docs"
+LADDER = "ladder"
+LIVE = "live"
+
+AXES = ("x", "y", "z")
+TRACK_3D_MAX_POINTS = 20_000
+"""The 3D line strip of a track is decimated to at most this many points (last point kept)."""
+
+DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
+SPAWN_PORT = 9876
+"""Port of the native viewer started by the 'spawn' sink (bound to 127.0.0.1 only)."""
+
+_EVENT_LEVEL = {
+    "gap": "WARN",
+    "fifo_overflow": "WARN",
+    "misaligned": "WARN",
+    "i2c_error": "ERROR",
+    "retry": "DEBUG",
+    "recovered": "WARN",
+    "note": "INFO",
+    "pose_prompt": "INFO",
+}
+
+AXIS_COLORS = [(230, 80, 80), (80, 190, 80), (80, 130, 240)]
+"""Series colours of the x, y, z axes in every plot (RGB)."""
+_TRACK_COLORS = [
+    (240, 160, 40),
+    (60, 170, 230),
+    (200, 90, 200),
+    (120, 200, 90),
+    (230, 90, 90),
+    (160, 160, 160),
+]
+
+
+def slug(text: str) -> str:
+    """Entity-path-safe form of a label: runs of other characters than letters, digits, '_', '-'
+    and '.' become '_' ('cal A.json' -> 'cal_A.json')."""
+    s = re.sub(r"[^A-Za-z0-9_.\-]+", "_", str(text).strip()).strip("_")
+    return s or "unnamed"
+
+
+def slug_path(label: str) -> str:
+    """Entity sub-path of a label; '/' groups it ('test/Model 3' -> 'test/Model_3')."""
+    return "/".join(slug(p) for p in str(label).split("/") if p.strip()) or "unnamed"
+
+
+def _as_2d(values: np.ndarray, n: int, what: str) -> np.ndarray:
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim == 1:
+        v = v[:, None]
+    if v.shape[0] != n:
+        raise InputError(f"{what}: {v.shape[0]} rows for {n} time stamps")
+    return v
+
+
+@dataclass
+class LadderRow:
+    """One model-building step of the workbench ladder.
+
+    chi2_dof: chi^2 / degrees of freedom of the fit; heldout_rms_mg: RMS of held-out residuals (mg);
+    drift_60s_m: |displacement| after 60 s of the static test integrated with this model (m).
+    t_s / residual_g: residuals of the static windows (s, (n,3) g) left by this step; driver: the
+    signal (e.g. temperature in degC) that the *next* effect explains, sampled at t_s.
+    """
+
+    step: str
+    added: str = ""
+    chi2_dof: float = math.nan
+    heldout_rms_mg: float = math.nan
+    drift_60s_m: float = math.nan
+    t_s: np.ndarray | None = None
+    residual_g: np.ndarray | None = None
+    driver_name: str = ""
+    driver: np.ndarray | None = None
+    extra: dict[str, float] = field(default_factory=dict)

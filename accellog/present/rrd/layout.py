@@ -1,0 +1,136 @@
+"""Blueprints: the saved layout of a recording (one tab per question) and of the live view."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from accellog.present.rrd.entities import (
+    DOCS,
+    EVENTS_LOST,
+    LADDER,
+    LIVE,
+    MAIN_TIMELINE,
+    POSES_ACTIVE,
+    RESIDUALS,
+    TEMPERATURE,
+    TRACKS,
+)
+
+
+def time_panel():
+    """Time panel on sensor_time, following new data, collapsed (shared by every blueprint)."""
+    import rerun.blueprint as rrb
+
+    return rrb.TimePanel(timeline=MAIN_TIMELINE, play_state="following", state="collapsed")
+
+
+def build_blueprint(entities: Mapping[str, str]):
+    """Layout for what was logged: sample streams with pose windows, temperature + events, tracks
+    (time series + 3D side by side), residual and ladder charts, documents and logs. With two or
+    more tracks (replay, compare) the tracks take the main area, one auto-scaled plot each."""
+    import rerun.blueprint as rrb
+
+    roles: dict[str, list[str]] = {}
+    for ent, role in entities.items():
+        roles.setdefault(role, []).append(ent)
+    has_poses = "poses" in roles
+    samples = []
+    for ent in [e for r, es in roles.items() if r.startswith("samples:") for e in es]:  # logged order
+        contents = ["$origin/**"] + ([f"/{POSES_ACTIVE}/**"] if has_poses else [])
+        samples.append(rrb.TimeSeriesView(origin=f"/{ent}", contents=contents, name=ent.replace("/", " ")))
+    if "temperature" in roles or "lost" in roles:
+        samples.append(
+            rrb.TimeSeriesView(
+                origin="/",
+                contents=[f"/{TEMPERATURE}", f"/{EVENTS_LOST}"],
+                name="temperature (degC) + lost samples",
+            )
+        )
+    tracks = roles.get("track", [])  # logged order (raw first in replays)
+    track_views = [rrb.TimeSeriesView(origin=f"/{e}", name=f"{e.split('/', 1)[1]} (m)") for e in tracks]
+    world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)") if "track3d" in roles else None
+    charts = []
+    for model in sorted({e.split("/")[1] for e in roles.get("residual_bar", [])}):
+        charts.append(rrb.BarChartView(origin=f"/{RESIDUALS}/{model}", name=f"residuals {model} (mg)"))
+    if "ladder_bar" in roles:
+        charts.append(
+            rrb.Horizontal(
+                *[
+                    rrb.BarChartView(origin=f"/{LADDER}/{m}", name=m)
+                    for m in ("chi2_dof", "heldout_rms_mg", "drift_60s_m")
+                ],
+                name="model ladder",
+            )
+        )
+    if "ladder_step" in roles:
+        charts.append(rrb.TimeSeriesView(origin=f"/{LADDER}/steps", name="ladder residuals (mg) vs driver"))
+    texts = [
+        rrb.TextDocumentView(origin=f"/{e}", name=e[len(DOCS) + 1 :]) for e in sorted(roles.get("doc", []))
+    ]
+    if "textlog" in roles:
+        texts.append(rrb.TextLogView(origin="/", name="events and poses"))
+
+    def group(views, kind=rrb.Vertical):
+        views = [v for v in views if v is not None]
+        if not views:
+            return None
+        return views[0] if len(views) == 1 else kind(*views)
+
+    if len(track_views) >= 2:  # replay / compare: the tracks are the question
+        top = [rrb.Grid(*track_views, name="displacement per track"), group([world, group(texts, rrb.Tabs)])]
+        rows = [rrb.Horizontal(*[c for c in top if c is not None], column_shares=[3, 2])]
+        bottom = group([*samples, *charts], rrb.Tabs)
+        if bottom is not None:
+            rows.append(bottom)
+        root = rows[0] if len(rows) == 1 else rrb.Vertical(*rows, row_shares=[3, 1])
+    else:
+        left = group(samples if len(samples) <= 3 else [rrb.Tabs(*samples[:-1]), samples[-1]])
+        right = group(
+            [
+                group([*track_views, world], rrb.Horizontal),
+                group(charts, rrb.Tabs),
+                group(texts, rrb.Tabs),
+            ]
+        )
+        cols = [c for c in (left, right) if c is not None]
+        root = (
+            rrb.Horizontal(*cols, column_shares=[3, 2])
+            if len(cols) == 2
+            else (cols[0] if cols else rrb.Vertical())
+        )
+    return rrb.Blueprint(root, time_panel(), collapse_panels=True)
+
+
+def live_blueprint():
+    """Standard layout for a live recording (views appear as their data arrives)."""
+    import rerun.blueprint as rrb
+
+    poses = f"/{POSES_ACTIVE}/**"
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin="/accel/raw", contents=["$origin/**", poses], name="accel raw (g)"),
+                rrb.TimeSeriesView(
+                    origin="/accel/calibrated", contents=["$origin/**", poses], name="accel calibrated (g)"
+                ),
+                rrb.TimeSeriesView(origin=f"/{LIVE}/stillness", name="stillness"),
+                rrb.TimeSeriesView(
+                    origin="/", contents=[f"/{TEMPERATURE}", f"/{EVENTS_LOST}"], name="temperature"
+                ),
+            ),
+            rrb.Vertical(
+                rrb.TextDocumentView(origin=f"/{LIVE}/prompt", name="next pose"),
+                rrb.Horizontal(
+                    rrb.TimeSeriesView(origin=f"/{TRACKS}", name="displacement (m)"),
+                    rrb.Spatial3DView(origin="/world", name="tracks 3D (m)"),
+                ),
+                rrb.Tabs(
+                    rrb.TextDocumentView(origin=f"/{LIVE}/calibration", name="running calibration"),
+                    rrb.TextLogView(origin="/", name="events and poses"),
+                ),
+            ),
+            column_shares=[3, 2],
+        ),
+        time_panel(),
+        collapse_panels=True,
+    )
