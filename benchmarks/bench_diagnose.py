@@ -12,14 +12,19 @@ Run: python benchmarks/bench_diagnose.py
 
 from __future__ import annotations
 
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.diagnose import diagnose, synthetic_obs, synthetic_session, true_theta
+from accellog.calibrate.diagnose import diagnose
 from accellog.calibrate.fit import fit_model
 from accellog.calibrate.model import build_model
 from accellog.calibrate.segment import observations
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from support.synthetic import synthetic_obs, synthetic_session, true_theta
 
 
 def temp(t):

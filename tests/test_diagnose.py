@@ -7,16 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.synthetic import cube_poses, synthetic_obs, synthetic_session, true_theta
 
-from accellog.calibrate.diagnose import (
-    cube_poses,
-    diagnose,
-    heldout_residual,
-    ladder,
-    synthetic_obs,
-    synthetic_session,
-    true_theta,
-)
+from accellog.calibrate.diagnose import diagnose, heldout_residual, ladder
 from accellog.calibrate.fit import fit_model
 from accellog.calibrate.model import build_model
 from accellog.cli import main

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.synthetic import cube_poses, true_theta
 
-from accellog.calibrate.diagnose import cube_poses, true_theta
 from accellog.calibrate.effects import LIBRARY, load_effects_file
 from accellog.calibrate.model import build_model, model_from_spec
 from accellog.cli import main

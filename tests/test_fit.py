@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.synthetic import cube_poses, synthetic_obs, true_theta
 
-from accellog.calibrate.diagnose import cube_poses, synthetic_obs, true_theta
 from accellog.calibrate.fit import fit_model, fit_orientation_free
 from accellog.calibrate.model import build_model
 from accellog.core.errors import InputError, ModelError
