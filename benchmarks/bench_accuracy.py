@@ -50,8 +50,8 @@ from accellog.acquire.emulator.sensor_model import AccelErrors
 from accellog.calibrate.noise import integrated_autocorr_time
 from accellog.calibrate.segment import observations
 from accellog.core.units import STANDARD_GRAVITY_MPS2
-from accellog.flows.pipeline import run_fit
 from accellog.flows.simulate import Scenario, simulate
+from accellog.flows.stages import run_fit
 from accellog.navigate.evaluate import evaluate
 from accellog.store.reader import read_session
 

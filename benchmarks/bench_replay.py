@@ -24,8 +24,8 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 from accellog.calibrate.calibration import load_calibration
 from accellog.core.session import PoseLabel, Session, SessionMeta
-from accellog.flows.pipeline import run_fit
 from accellog.flows.replay import replay
+from accellog.flows.stages import run_fit
 from accellog.navigate.evaluate import evaluate
 from accellog.present.rrd.recording import RunRecording
 from accellog.store.reader import read_session

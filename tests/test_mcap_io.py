@@ -402,7 +402,7 @@ def test_bad_files_give_one_line_errors(tmp_path):
         read_session(no_samples)
 
 
-# --- the vectorised reader (_fast_collect) against the generic one (mcap reader + BatchDecoder) -----------
+# --- the vectorised reader (fast_collect) against the generic one (mcap reader + BatchDecoder) -----------
 
 
 def _read_both(path, monkeypatch) -> tuple[Session, Session]:
@@ -477,7 +477,7 @@ def _recorder_file(path, seed: int, compression: str = "zstd", shuffle: bool = F
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
 def test_fast_reader_equals_generic_recorder_files(tmp_path, monkeypatch, compression):
     p = _recorder_file(tmp_path / "r.mcap", seed=1, compression=compression)
-    assert fastread._fast_collect(p) is not None  # the fast path is taken
+    assert fastread.fast_collect(p) is not None  # the fast path is taken
     fast, generic = _read_both(p, monkeypatch)
     _assert_identical(fast, generic)
     assert (
@@ -488,7 +488,7 @@ def test_fast_reader_equals_generic_recorder_files(tmp_path, monkeypatch, compre
 
 def test_fast_reader_equals_generic_out_of_order_batches(tmp_path, monkeypatch):
     p = _recorder_file(tmp_path / "s.mcap", seed=2, shuffle=True)
-    assert fastread._fast_collect(p) is not None
+    assert fastread.fast_collect(p) is not None
     fast, generic = _read_both(p, monkeypatch)
     _assert_identical(fast, generic)
     assert np.all(np.diff(fast.sample_index) >= 0)
@@ -503,7 +503,7 @@ def test_fast_reader_equals_generic_write_session(tmp_path, monkeypatch, batch_s
     p = write_session(
         tmp_path / "w.mcap", s, batch_size=batch_size, chunk_size=chunk_size, compression=compression
     )
-    assert fastread._fast_collect(p) is not None
+    assert fastread.fast_collect(p) is not None
     fast, generic = _read_both(p, monkeypatch)
     _assert_identical(fast, generic)
     _assert_same(s, fast)
@@ -524,7 +524,7 @@ def test_fast_reader_equals_generic_value_fields(tmp_path, monkeypatch):
     both.accel_g = both.accel_g + 1e-3  # counts and values stored
     for i, s in enumerate((imported, both)):
         p = write_session(tmp_path / f"v{i}.mcap", s, batch_size=333)
-        assert fastread._fast_collect(p) is not None
+        assert fastread.fast_collect(p) is not None
         fast, generic = _read_both(p, monkeypatch)
         _assert_identical(fast, generic)
 
@@ -534,7 +534,7 @@ def test_fast_reader_declines_truncated_files(tmp_path, monkeypatch):
     for frac in (0.3, 0.7, 0.9999):
         cut = tmp_path / f"cut{frac}.mcap"
         cut.write_bytes(full[: int(len(full) * frac)])
-        assert fastread._fast_collect(cut) is None  # unfinished: the generic reader salvages it
+        assert fastread.fast_collect(cut) is None  # unfinished: the generic reader salvages it
         fast, generic = _read_both(cut, monkeypatch)
         _assert_identical(fast, generic)
         assert fast.events[-1].kind == "recovered"
@@ -566,13 +566,13 @@ def test_fast_reader_falls_back_on_foreign_encodings(tmp_path, monkeypatch):
     unknown += bytes([12 << 3]) + b"\x05"
     p = tmp_path / "foreign.mcap"
     _foreign_imu_file(p, [*good, reordered, unknown])
-    assert fastread._fast_collect(p) is None
+    assert fastread.fast_collect(p) is None
     fast, generic = _read_both(p, monkeypatch)
     _assert_identical(fast, generic)
     assert fast.n == 220 and np.array_equal(fast.sample_index, np.arange(220))
     ok = tmp_path / "canonical.mcap"
     _foreign_imu_file(ok, good)  # the same writer with canonical payloads: fast path
-    assert fastread._fast_collect(ok) is not None
+    assert fastread.fast_collect(ok) is not None
     _assert_identical(*_read_both(ok, monkeypatch))
 
 

@@ -12,7 +12,8 @@ from test_segment import synth_session
 from accellog.calibrate.calibration import load_calibration
 from accellog.cli import main
 from accellog.core.errors import InputError
-from accellog.flows.pipeline import load_pipeline, run_fit, run_pipeline
+from accellog.flows.pipeline import load_pipeline, run_pipeline
+from accellog.flows.stages import run_fit
 from accellog.store.reader import read_attachments, read_session, read_vector3
 from accellog.store.writer import write_session
 

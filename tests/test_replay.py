@@ -13,8 +13,8 @@ import pytest
 from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel, Session, SessionMeta
-from accellog.flows.pipeline import run_drift, run_fit
 from accellog.flows.replay import compare, replay
+from accellog.flows.stages import run_drift, run_fit
 from accellog.navigate.evaluate import evaluate
 from accellog.present.rrd.recording import RunRecording
 from accellog.store.reader import read_session

@@ -11,8 +11,8 @@ from rrd_readback import load_rrd
 
 from accellog.calibrate.calibration import load_calibration
 from accellog.cli import main
-from accellog.flows.pipeline import run_fit
 from accellog.flows.simulate import Scenario, simulate
+from accellog.flows.stages import run_fit
 from accellog.store.reader import read_session
 
 

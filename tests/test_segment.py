@@ -10,14 +10,8 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from accellog.calibrate.segment import (
-    check_coverage,
-    detect_static,
-    obs_from_pose_means,
-    observations,
-    pose_stats,
-    with_labels,
-)
+from accellog.calibrate.detect import detect_static, with_labels
+from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations, pose_stats
 from accellog.core.errors import InputError, ModelError
 from accellog.core.protocol import PoseSpec, six_position
 from accellog.core.session import PoseLabel, Session, SessionMeta

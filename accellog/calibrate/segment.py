@@ -12,16 +12,12 @@ Checks (each raises InputError naming the pose and time): no labels, overlapping
 labels, too few samples, NaN readings, a reading far from 1 g at rest (wrong units, e.g. counts
 declared as g), and a hold labelled static that moves (window variance far above the noise, or a
 window mean that wanders from the hold's median by more than a few degrees).
-
-`detect_static` finds static intervals in unlabelled data (imu_tk's variance detector with a
-threshold sweep) for the orientation-free fit.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,7 +25,6 @@ import numpy as np
 from accellog.calibrate.noise import integrated_autocorr_time, sem_autocorr
 from accellog.core.errors import InputError, ModelError
 from accellog.core.session import POSE_UP_VECTORS, ObsTable, PoseLabel, Session
-from accellog.core.timeseries import runs
 
 UNIT_NORM_RANGE_G = (0.5, 2.0)
 """A reading at rest must have |a| in this range (g); outside it the units are wrong."""
@@ -79,11 +74,11 @@ class PoseStats:
         }
 
 
-def _where(session: Session) -> str:
+def session_where(session: Session) -> str:
     return session.path or f"session ({session.meta.source})"
 
 
-def _quantum_g(session: Session) -> float:
+def quantum_g(session: Session) -> float:
     lsb = session.meta.accel_lsb_per_g
     return 1.0 / lsb if lsb else 0.0
 
@@ -98,7 +93,7 @@ def pose_name_for_up(up: np.ndarray) -> str:
 
 def _hold_slices(session: Session, trim_s: float, min_samples: int) -> list[tuple[PoseLabel, slice]]:
     """Validated (label, sample slice) for every hold, in time order."""
-    where = _where(session)
+    where = session_where(session)
     if not session.poses:
         raise InputError(
             "session has no pose labels: record it with a pose protocol, or use the orientation-free "
@@ -163,7 +158,7 @@ def _check_units(session: Session, holds: list[tuple[PoseLabel, slice]]) -> None
             hint = " (are raw counts declared as g? check accel_lsb_per_g)" if norm > hi else ""
             raise InputError(
                 f"pose {p.name!r}: |accel| at rest is {norm:.4g} g, expected about 1 g{hint}",
-                where=_where(session),
+                where=session_where(session),
             )
 
 
@@ -206,7 +201,7 @@ def check_static(
     if all_std.shape[0] == 0:
         return
     ref = float(np.linalg.norm(np.median(all_std, axis=0)))
-    limit = max(std_factor * ref, 4.0 * _quantum_g(session))
+    limit = max(std_factor * ref, 4.0 * quantum_g(session))
     for p, t, starts, mean, std, n in per_hold:
         snorm = np.linalg.norm(std, axis=1)
         shift = np.linalg.norm(mean - np.median(mean, axis=0), axis=1)
@@ -225,7 +220,7 @@ def check_static(
             raise InputError(
                 f"pose {p.name!r} is labelled static but moves at t = {t0:.2f}-{t1:.2f} s: {why}; "
                 "relabel or trim the hold",
-                where=_where(session),
+                where=session_where(session),
             )
 
 
@@ -258,7 +253,7 @@ def pose_stats(
 ) -> list[PoseStats]:
     """Per-hold statistics (mean, std, autocorrelation-aware sem, tau, temperature, times)."""
     holds = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
-    q = _quantum_g(session)
+    q = quantum_g(session)
     out = []
     for p, sl in holds:
         acc = session.accel_g[sl]
@@ -307,7 +302,7 @@ def observations(
     if not window_s > 0:
         raise InputError(f"window_s must be > 0 s, got {window_s}")
     holds = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
-    quantum = _quantum_g(session)
+    quantum = quantum_g(session)
     names: list[str] = []
     name_id: dict[str, int] = {}
     cols: dict[str, list[np.ndarray]] = {
@@ -432,175 +427,3 @@ def check_coverage(obs: ObsTable, needs_scale: bool = True, where: str | None = 
             f"poses {sorted(have)} cannot separate bias from scale: missing {', '.join(missing) or 'distinct poses'}",
             where=where or obs.session or None,
         )
-
-
-# ---------------------------------------------------------------- automatic static detection
-
-
-def _moving_var_norm(x: np.ndarray, w: int) -> np.ndarray:
-    """||var over a centred window of w samples||_2 (per-axis variances), inf at the edges."""
-    n = x.shape[0]
-    out = np.full(n, np.inf)
-    if n < w:
-        return out
-    xc = x - x.mean(axis=0)
-    c1 = np.concatenate([np.zeros((1, 3)), np.cumsum(xc, axis=0)])
-    c2 = np.concatenate([np.zeros((1, 3)), np.cumsum(xc * xc, axis=0)])
-    s1 = c1[w:] - c1[:-w]
-    s2 = c2[w:] - c2[:-w]
-    var = np.maximum(s2 / w - (s1 / w) ** 2, 0.0)
-    h = w // 2
-    out[h : h + var.shape[0]] = np.linalg.norm(var, axis=1)
-    return out
-
-
-def _distinct(dirs: np.ndarray, angle_deg: float) -> int:
-    """Number of distinct directions (greedy clustering by angle)."""
-    reps: list[np.ndarray] = []
-    cos_lim = np.cos(np.deg2rad(angle_deg))
-    for d in dirs:  # a few dozen intervals at most
-        if not reps or np.max(np.asarray(reps) @ d) < cos_lim:
-            reps.append(d)
-    return len(reps)
-
-
-def detect_static(
-    session: Session,
-    *,
-    window_samples: int = 101,
-    init_static_s: float | None = None,
-    k_values: Sequence[float] = tuple(range(2, 11)),
-    min_interval_s: float = 1.0,
-    min_poses: int = 9,
-    distinct_angle_deg: float = 10.0,
-    cost: Callable[[list[PoseLabel]], float] | None = None,
-) -> list[PoseLabel]:
-    """Static intervals of unlabelled data as PoseLabels (imu_tk's detector with a threshold sweep).
-
-    Statistic: s = ||per-axis variance over a centred window of window_samples||. Reference
-    r = ||per-axis variance of the first init_static_s seconds|| (the recording starts still), or,
-    when None, the 5th percentile of s. For each k in k_values the intervals with s < k r lasting
-    >= min_interval_s are candidates; with `cost` (e.g. an orientation-free fit's residual) the k
-    with the lowest cost is kept (as imu_tk), otherwise the k giving the most distinct poses (ties:
-    the smallest k). up_sensor of each label = its mean reading normalised (an estimate, not truth).
-    Raises InputError when fewer than min_poses distinct orientations (> distinct_angle_deg apart)
-    are found.
-    """
-    where = _where(session)
-    acc = session.accel_g
-    t = session.t_s
-    if session.n < window_samples:
-        raise InputError(
-            f"{session.n} samples are too few for static detection (window {window_samples})", where=where
-        )
-    if not np.isfinite(acc).all():
-        i = int(np.argmax(~np.isfinite(acc).all(axis=1)))
-        raise InputError(f"accel is NaN/inf at t = {t[i]:.3f} s", where=where)
-    stat = _moving_var_norm(acc, window_samples)
-    if init_static_s is not None:
-        sl = session.slice_time(t[0], t[0] + init_static_s)
-        ref = float(np.linalg.norm(acc[sl].var(axis=0)))
-    else:
-        ref = float(np.percentile(stat[np.isfinite(stat)], 5))
-    ref = max(ref, (_quantum_g(session) ** 2) / 12.0, 1e-15)
-    rate = (session.n - 1) / max(t[-1] - t[0], 1e-12)
-    min_len = max(int(np.ceil(min_interval_s * rate)), 2)
-    best: tuple[float, list[PoseLabel], int] | None = None
-    max_found = 0
-    csum = np.concatenate([np.zeros((1, 3)), np.cumsum(acc, axis=0)])
-    # label [start_s, end_s) covers samples a..b-1: end at the next sample's time (one period past the end)
-    t_end = np.append(t[1:], t[-1] + 1.0 / rate)
-    for k in k_values:
-        starts, stops = runs(stat < k * ref).T
-        keep = (stops - starts) >= min_len
-        starts, stops = starts[keep], stops[keep]
-        if starts.size == 0:
-            continue
-        means = (csum[stops] - csum[starts]) / (stops - starts)[:, None]
-        norms = np.linalg.norm(means, axis=1)
-        dirs = means / np.maximum(norms, 1e-12)[:, None]
-        nd = _distinct(dirs, distinct_angle_deg)
-        max_found = max(max_found, nd)
-        if nd < min_poses:
-            continue
-        labels = [
-            PoseLabel(
-                name=f"static{j:02d}",
-                start_s=float(t[a]),
-                end_s=float(t_end[b - 1]),
-                up_sensor=tuple(float(v) for v in dirs[j]),
-                hold_index=j,
-            )
-            for j, (a, b) in enumerate(zip(starts, stops, strict=True))
-        ]
-        score = float(cost(labels)) if cost is not None else -float(nd)
-        if best is None or score < best[0]:
-            best = (score, labels, nd)
-    if best is None:
-        raise InputError(
-            f"found at most {max_found} distinct static orientations (need >= {min_poses} for an "
-            f"orientation-free fit): hold the sensor still for >= {min_interval_s:g} s in more orientations",
-            where=where,
-        )
-    return best[1]
-
-
-def with_labels(session: Session, labels: list[PoseLabel]) -> Session:
-    """A shallow copy of session with its pose labels replaced."""
-    return dataclasses.replace(session, poses=list(labels))
-
-
-# ---------------------------------------------------------------- observation files (stage artifact)
-
-OBS_FORMAT = "accellog.observations"
-_OBS_ARRAYS = (
-    "meas_g",
-    "sigma_g",
-    "up_sensor",
-    "pose_id",
-    "t_s",
-    "t_in_pose_s",
-    "n_samples",
-    "std_g",
-    "temp_degC",
-    "dtemp_degC_per_s",
-    "q_sensor_to_world",
-)
-
-
-def obs_to_dict(obs: ObsTable) -> dict:
-    """JSON-able ObsTable (format 'accellog.observations' v1; arrays as lists; g, s, degC)."""
-    d: dict = {
-        "format": OBS_FORMAT,
-        "format_version": 1,
-        "pose_names": list(obs.pose_names),
-        "session": obs.session,
-    }
-    for k in _OBS_ARRAYS:
-        v = getattr(obs, k)
-        d[k] = None if v is None else np.asarray(v).tolist()
-    return d
-
-
-def obs_from_dict(d: dict, where: str | None = None) -> ObsTable:
-    """Inverse of obs_to_dict; InputError naming the field on malformed input."""
-    if not isinstance(d, dict) or d.get("format") != OBS_FORMAT:
-        raise InputError(f"not an accellog observations file (format '{OBS_FORMAT}')", where=where)
-    try:
-        kw = {}
-        for k in _OBS_ARRAYS:
-            v = d.get(k)
-            kw[k] = (
-                None if v is None else np.asarray(v, dtype=int if k in ("pose_id", "n_samples") else float)
-            )
-        obs = ObsTable(pose_names=list(d["pose_names"]), session=str(d.get("session", "")), **kw)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"malformed observations file: {exc}", where=where) from None
-    n = obs.meas_g.shape[0] if obs.meas_g is not None else -1
-    for k in _OBS_ARRAYS:
-        v = getattr(obs, k)
-        if k in ("temp_degC", "dtemp_degC_per_s", "q_sensor_to_world") and v is None:
-            continue
-        if v is None or v.shape[0] != n:
-            raise InputError(f"observations field {k!r} missing or not {n} rows", where=where)
-    return obs

@@ -13,11 +13,13 @@ import typer
 from rich.console import Console
 
 from accellog.calibrate.calibration import write_json_atomic
-from accellog.calibrate.segment import obs_to_dict, pose_stats
+from accellog.calibrate.obs_file import obs_to_dict
+from accellog.calibrate.segment import pose_stats
 from accellog.cli.app import app
 from accellog.core.errors import InputError
 from accellog.core.session import Session
-from accellog.flows.pipeline import load_input, run_apply, run_drift, run_evaluate, run_fit, run_pipeline
+from accellog.flows.pipeline import run_pipeline
+from accellog.flows.stages import load_input, run_apply, run_drift, run_evaluate, run_fit
 from accellog.present import tables as report
 from accellog.present import views
 

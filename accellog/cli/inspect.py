@@ -39,7 +39,7 @@ def _load_session(path: Path):
     if not path.is_file():
         raise InputError("no such file", where=str(path))
     from accellog.core.session import Session
-    from accellog.flows.pipeline import load_input
+    from accellog.flows.stages import load_input
 
     data = load_input(path)
     if not isinstance(data, Session):

@@ -90,7 +90,7 @@ def diagnose(
         raise InputError("session file not found", where=str(session))
     from accellog.calibrate.segment import observations
     from accellog.core.session import ObsTable
-    from accellog.flows.pipeline import load_input
+    from accellog.flows.stages import load_input
 
     data = load_input(session)  # pose tables (per-pose means) and observation files: ObsTable
     m = build_model(model, add=add or [], effects_file=effects_file)
@@ -210,7 +210,7 @@ def workbench_cmd(
     model1 -> model2 -> model3 -> + each found effect, judged on held-out data and a static test."""
     from accellog.calibrate.segment import observations
     from accellog.core.session import Session
-    from accellog.flows.pipeline import _session, load_input
+    from accellog.flows.stages import as_session, load_input
     from accellog.flows.workbench import (
         discover,
         ladder_json,
@@ -226,8 +226,8 @@ def workbench_cmd(
             "the workbench needs a recorded session (samples), not a pose table", where=str(session)
         )
     obs = observations(data)
-    held = observations(_session(heldout, "--heldout")) if heldout is not None else None
-    test = _session(static, "--static") if static is not None else None
+    held = observations(as_session(heldout, "--heldout")) if heldout is not None else None
+    test = as_session(static, "--static") if static is not None else None
     host = None
     if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
         host = (data.t_s, data.host_time_s)

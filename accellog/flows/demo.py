@@ -111,7 +111,7 @@ def run_demo(
     first_tab: the blueprint tab shown when the recording opens (0 static test, 1 calibration,
     2 workbench, 3 robot)."""
     from accellog.calibrate.segment import observations
-    from accellog.flows.pipeline import run_drift, run_evaluate, run_fit
+    from accellog.flows.stages import run_drift, run_evaluate, run_fit
     from accellog.flows.workbench import discover, ladder_rows, ladder_table, steps_for
     from accellog.navigate.track_eval import run_session_tracks
     from accellog.present.tables import (

@@ -1,14 +1,4 @@
-"""Batch stages as plain functions, and pipelines declared in TOML files.
-
-Stage functions (each returns result objects; the CLI prints them, the lead's --rrd can log them):
-
-- `load_input(path)`        .mcap / capstone or imucal CSV / generic CSV -> Session; pose tables
-                            (capstone six_position_data) and observation JSON -> ObsTable
-- `run_fit(...)`            -> FitOutcome (ObsTable, FitResult, Calibration)
-- `run_evaluate(...)`       -> list[Evaluation] (raw reading first when include_raw)
-- `run_drift(...)`          -> DriftOutcome (calibration + drift model, before/after on the fit session)
-- `run_apply(...)`          -> Path of an MCAP copy with /derived/accel_calibrated (g)
-- `run_pipeline(toml, inputs)` -> PipelineResult (tables(), to_dict())
+"""Pipelines declared in TOML files: `run_pipeline(toml, inputs)` -> PipelineResult (tables(), to_dict()).
 
 Pipeline file (copy one of pipelines/*.toml and edit it): tables [pipeline] (name, description,
 inputs = roles of the SESSION arguments in order), [segment], [fit], [evaluate], [evaluate_poses],
@@ -17,7 +7,6 @@ inputs = roles of the SESSION arguments in order), [segment], [fit], [evaluate],
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import re
@@ -29,355 +18,20 @@ from typing import Any
 import numpy as np
 import tomllib
 
-from accellog.calibrate.calibration import Calibration, load_calibration, read_json, read_text, source_entry
-from accellog.calibrate.drift_model import DriftModel
-from accellog.calibrate.segment import (
-    OBS_FORMAT,
-    check_coverage,
-    detect_static,
-    obs_from_dict,
-    obs_from_pose_means,
-    observations,
-    with_labels,
-)
+from accellog.calibrate.calibration import read_text, source_entry
 from accellog.core.errors import InputError, ModelError
 from accellog.core.session import ObsTable, Session
-from accellog.core.units import STANDARD_GRAVITY_MPS2
-from accellog.navigate.drift import drift_from_session
-from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate, evaluate_poses
-
-GRAVITY_CONVENTIONS = ("seed", "local")
-"""'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
-g_local / g0 in standard g (the physical convention)."""
-
-
-# ------------------------------------------------------------------------------------------ inputs
-
-
-def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
-    """Read any supported input: a Session, or an ObsTable for pose tables / observation files."""
-    p = Path(path)
-    if not p.exists():
-        raise InputError("no such file", where=str(p))
-    suffix = p.suffix.lower()
-    if suffix == ".mcap":
-        from accellog.store.reader import read_session
-
-        return read_session(p)
-    if suffix == ".json":
-        d = read_json(p)
-        if isinstance(d, dict) and d.get("format") == OBS_FORMAT:
-            return obs_from_dict(d, where=str(p))
-        raise InputError(
-            f"JSON input must be an observations file ('{OBS_FORMAT}', written by `accellog segment -o`)",
-            where=str(p),
-        )
-    if suffix in (".csv", ".txt"):
-        from accellog.store import importers
-
-        try:
-            with open(p, encoding="utf-8", errors="replace") as f:
-                first = f.readline().replace(" ", "").lower()
-        except OSError as exc:
-            raise InputError(f"cannot read: {exc.strerror}", where=str(p)) from None
-        if first.startswith("x_true"):
-            pt = importers.load_capstone_pose_table(p)
-            if n_per_pose is None:
-                n_per_pose = 5400  # 30 s at ~180 Hz: the capstone protocol (the table has no count)
-            return obs_from_pose_means(
-                pt.truth_g, pt.mean_g, pt.std_g, n_per_pose, names=pt.names, session=str(p)
-            )
-        if first.startswith("part,samples") or first.startswith("n_samples"):
-            return importers.import_imucal(p)
-        if "," not in first or first.startswith("acceleration") or not first[:1].isalpha():
-            return importers.import_capstone(p)
-        return importers.import_csv(p)
-    raise InputError(
-        f"unknown input type {suffix or '(no suffix)'!r}: give .mcap, .csv or observations .json",
-        where=str(p),
-    )
-
-
-def _name(x: Session | ObsTable) -> str:
-    return (x.path or x.meta.source) if isinstance(x, Session) else x.session
-
-
-def _path_of(x: Session | ObsTable) -> str | None:
-    """The file a loaded input came from (a pose table keeps its path in ObsTable.session)."""
-    p = x.path if isinstance(x, Session) else x.session
-    return p if p and Path(p).is_file() else None
-
-
-def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
-    if gravity not in GRAVITY_CONVENTIONS:
-        raise InputError(f"unknown gravity convention {gravity!r}: use 'seed' or 'local'")
-    return 1.0 if gravity == "seed" else local_gravity_mps2 / STANDARD_GRAVITY_MPS2
-
-
-# ------------------------------------------------------------------------------------------ fit
-
-
-@dataclass
-class FitOutcome:
-    """A fitted model: the observations, the FitResult and the Calibration built from it."""
-
-    obs: ObsTable
-    fit: Any  # accellog.calibrate.fit.FitResult
-    cal: Calibration
-
-    def to_dict(self) -> dict:
-        d = self.fit.to_dict()
-        d["terms"] = list(self.fit.model.terms)
-        d["gravity_convention"] = self.cal.gravity_convention
-        d["local_gravity_mps2"] = self.cal.local_gravity_mps2
-        d["n_poses"] = len(self.obs.pose_names)
-        return d
-
-
-def make_obs(
-    data: Session | ObsTable, *, window_s: float = 2.0, trim_s: float = 0.5, min_samples: int = 20
-) -> ObsTable:
-    """ObsTable of a Session (segment.observations) or the table itself."""
-    if isinstance(data, ObsTable):
-        return data
-    return observations(data, window_s=window_s, trim_s=trim_s, min_samples=min_samples)
-
-
-def run_fit(
-    data: Session | ObsTable | str | os.PathLike,
-    model: str = "model3",
-    *,
-    add: Sequence[str] = (),
-    effects_file: str | os.PathLike | None = None,
-    weighted: bool = True,
-    orientation_free: bool = False,
-    gravity: str = "local",
-    local_gravity_mps2: float | None = None,
-    window_s: float = 2.0,
-    trim_s: float = 0.5,
-    n_per_pose: int | None = None,
-    obs: ObsTable | None = None,
-    gyro: bool = True,
-) -> FitOutcome:
-    """Segment (if needed) and fit one model; returns the calibration with its uncertainties.
-
-    gravity: 'seed' (truth 1 per pose) or 'local' (g_local/g0 standard g). local_gravity_mps2:
-    default the session's (meta.local_gravity_mps2), g0 for pose tables. orientation_free: fit
-    |correct(reading)| = truth_g without pose labels; unlabelled sessions are segmented by
-    detect_static (threshold sweep scored by the orientation-free residual). gyro: also
-    calibrate the gyro from the session's holds and the moves between them (stored in cal.gyro).
-    """
-    from accellog.calibrate.fit import fit_model, fit_orientation_free
-    from accellog.calibrate.model import build_model
-
-    src = str(data) if isinstance(data, (str, os.PathLike)) else None
-    if src is not None:
-        data = load_input(src, n_per_pose=n_per_pose)
-    m = build_model(model, add=list(add), effects_file=effects_file)
-    if local_gravity_mps2 is None:
-        local_gravity_mps2 = (
-            data.meta.local_gravity_mps2 if isinstance(data, Session) else STANDARD_GRAVITY_MPS2
-        )
-    truth = _truth_g(gravity, float(local_gravity_mps2))
-    if obs is None:
-        if orientation_free and isinstance(data, Session) and not data.poses:
-            session = data
-
-            def cost(labels) -> float:
-                o = observations(
-                    with_labels(session, labels), window_s=window_s, trim_s=0.0, check_units=False
-                )
-                return fit_orientation_free(o, m, weighted=False, gravity_g=truth).rms_g
-
-            labels = detect_static(session, cost=cost)
-            obs = observations(with_labels(session, labels), window_s=window_s, trim_s=0.0)
-        else:
-            obs = make_obs(data, window_s=window_s, trim_s=trim_s)
-    if orientation_free:
-        fit = fit_orientation_free(obs, m, weighted=weighted, gravity_g=truth)
-    else:
-        check_coverage(
-            obs, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=_name(data)
-        )
-        fit = fit_model(obs, m, weighted=weighted, gravity_g=truth)
-    sensor: dict[str, Any] = {}
-    kind = ""
-    if isinstance(data, Session):
-        meta = data.meta
-        sensor = {
-            "chip": meta.chip,
-            "accel_range_g": meta.accel_range_g,
-            "accel_lsb_per_g": meta.accel_lsb_per_g,
-        }
-        kind = meta.source
-    cal = Calibration.from_fit(
-        fit,
-        obs=obs,
-        gravity_convention=gravity,
-        local_gravity_mps2=float(local_gravity_mps2),
-        sources=[source_entry(src or _path_of(data), kind)],
-        sensor=sensor,
-    )
-    if gyro and isinstance(data, Session):
-        cal.gyro = _gyro_calibration(data)
-    return FitOutcome(obs=obs, fit=fit, cal=cal)
-
-
-def _gyro_calibration(session: Session) -> dict | None:
-    """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
-    session, stored next to the accelerometer's; None when the session has no gyro or holds."""
-    from accellog.calibrate.gyro import calibrate_gyro
-    from accellog.core.errors import AccellogError
-
-    if session.gyro_dps is None or len(session.poses) < 2:
-        return None
-    try:
-        return calibrate_gyro(session.t_s, session.gyro_dps, session.poses, session.temp_degC).to_dict()
-    except AccellogError:
-        return None
-
-
-# ------------------------------------------------------------------------------------------ evaluate / drift
-
-
-def _session(x: Session | str | os.PathLike, what: str) -> Session:
-    if isinstance(x, Session):
-        return x
-    s = load_input(x)
-    if not isinstance(s, Session):
-        raise InputError(
-            f"{what} needs a recorded session (samples), not a pose table / observations", where=str(x)
-        )
-    return s
-
-
-def _cal(x: Calibration | str | os.PathLike) -> Calibration:
-    return x if isinstance(x, Calibration) else load_calibration(x)
-
-
-def run_evaluate(
-    test: Session | str | os.PathLike,
-    cal: Calibration | str | os.PathLike | Sequence[Calibration],
-    *,
-    include_raw: bool = True,
-    times_s: Sequence[float] = (10.0, 30.0, 60.0),
-    until_s: float | None = None,
-    max_samples: int | None = None,
-    labels: Sequence[str] | None = None,
-) -> list[Evaluation]:
-    """Evaluate calibration(s) on a static test session; the raw reading first when include_raw."""
-    s = _session(test, "evaluate")
-    cals = [_cal(c) for c in cal] if isinstance(cal, (list, tuple)) else [_cal(cal)]
-    out = []
-    if include_raw:
-        g = cals[0].local_gravity_mps2 if cals else None
-        out.append(
-            evaluate(s, None, local_gravity_mps2=g, times_s=times_s, until_s=until_s, max_samples=max_samples)
-        )
-    for i, c in enumerate(cals):
-        lab = labels[i] if labels else None
-        out.append(evaluate(s, c, label=lab, times_s=times_s, until_s=until_s, max_samples=max_samples))
-    return out
-
-
-@dataclass
-class DriftOutcome:
-    """Drift model fitted on one static session (cal = input calibration + drift)."""
-
-    cal: Calibration
-    drift: DriftModel
-    fit_eval: Evaluation  # the fit session after the calibration and the drift model
-
-    def to_dict(self) -> dict:
-        return {
-            "drift": self.drift.to_dict(),
-            "fit_session": self.fit_eval.session,
-            "disp_end_m": self.fit_eval.disp_end_m.tolist(),
-            "disp_end_after_drift_m": None
-            if self.fit_eval.disp_end_drift_m is None
-            else self.fit_eval.disp_end_drift_m.tolist(),
-            "t_end_s": self.fit_eval.t_end_s,
-        }
-
-
-def run_drift(
-    static: Session | str | os.PathLike,
-    cal: Calibration | str | os.PathLike,
-    *,
-    until_s: float | None = None,
-    max_samples: int | None = None,
-) -> DriftOutcome:
-    """Fit the displacement-drift model on a calibrated static session."""
-    s = _session(static, "drift")
-    c = _cal(cal)
-    cal_d, dm = drift_from_session(s, c, until_s=until_s, max_samples=max_samples)
-    ev = evaluate(s, cal_d, until_s=until_s, max_samples=max_samples)
-    return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
-
-
-def run_apply(
-    session_path: str | os.PathLike, cal: Calibration | str | os.PathLike, out: str | os.PathLike
-) -> Path:
-    """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
-    /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename)."""
-    from accellog.calibrate.calibration import dumps
-    from accellog.store.layout import NS_PER_S
-    from accellog.store.reader import read_session
-    from accellog.store.writer import SessionWriter
-
-    src = Path(session_path)
-    if src.suffix.lower() != ".mcap":
-        raise InputError(
-            "apply copies an MCAP session: convert other files with `accellog import` first", where=str(src)
-        )
-    s = read_session(src)
-    c = _cal(cal)
-    f = c.correct(s)
-    out = Path(out)
-    if out.resolve() == src.resolve():
-        raise InputError("output would overwrite the input session", where=str(out))
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    t_ns = np.round(s.t_s * NS_PER_S).astype(np.int64)
-    si = np.asarray(s.sample_index, np.int64)
-    cuts = np.flatnonzero(np.diff(si) != 1) + 1
-    bounds = np.unique(np.concatenate([[0], cuts, np.arange(0, s.n, 500), [s.n]]))
-    try:
-        with SessionWriter(tmp, s.meta) as w:
-            for a, b in itertools.pairwise(bounds):  # batches of <= 500 samples
-                w.write_imu(
-                    int(si[a]),
-                    t_ns[a:b],
-                    accel_counts=None if s.accel_counts is None else s.accel_counts[a:b],
-                    gyro_counts=None if s.gyro_counts is None else s.gyro_counts[a:b],
-                    temp_counts=None if s.temp_counts is None else s.temp_counts[a:b],
-                    host_time_ns=0 if s.host_time_s is None else round(s.host_time_s[b - 1] * NS_PER_S),
-                    accel_g=s.accel_g[a:b] if s.accel_counts is None or not s.meta.accel_lsb_per_g else None,
-                    gyro_dps=None if s.gyro_dps is None or s.gyro_counts is not None else s.gyro_dps[a:b],
-                    temp_degC=None if s.temp_degC is None or s.temp_counts is not None else s.temp_degC[a:b],
-                )
-                w.write_vector3("accel_calibrated", t_ns[a:b], f[a:b], "g")
-                w.write_vector3("accel_calibrated_mps2", t_ns[a:b], f[a:b] * c.mps2_per_unit, "m/s^2")
-            if s.mag_t_s is not None and s.mag_t_s.shape[0]:
-                w.write_mag(
-                    np.round(s.mag_t_s * NS_PER_S).astype(np.int64),
-                    mag_counts=s.mag_counts,
-                    st2=s.mag_st2,
-                    mag_uT=s.mag_uT,
-                    first_index=0,
-                )
-            for p in s.poses:
-                w.write_pose(p)
-            for e in s.events:
-                w.write_event(e)
-            if s.truth is not None:
-                w.write_truth(s.truth)
-            w.attach("calibration/accel.json", "application/json", dumps(c.to_dict()).encode())
-        os.replace(tmp, out)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return out
-
+from accellog.flows.stages import (
+    GRAVITY_CONVENTIONS,
+    DriftOutcome,
+    FitOutcome,
+    as_session,
+    load_input,
+    run_drift,
+    run_evaluate,
+    run_fit,
+)
+from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_poses
 
 # ------------------------------------------------------------------------------------------ pipelines
 
@@ -642,7 +296,7 @@ def run_pipeline(
         es = spec["evaluate"]
         names = es.get("models", list(res.fits))
         res.evaluations = run_evaluate(
-            _session(get(es.get("input", roles[0])), "evaluate"),
+            as_session(get(es.get("input", roles[0])), "evaluate"),
             [res.fits[n].cal for n in names],
             include_raw=es.get("include_raw", True),
             times_s=es.get("times_s", (10.0, 30.0, 60.0)),
@@ -652,19 +306,19 @@ def run_pipeline(
         )
     if "evaluate_poses" in spec:
         ep = spec["evaluate_poses"]
-        s = _session(get(ep["input"]), "evaluate_poses")
+        s = as_session(get(ep["input"]), "evaluate_poses")
         res.pose_evaluations = [evaluate_poses(s, res.fits[n].cal) for n in ep.get("models", list(res.fits))]
     if "drift" in spec:
         ds = spec["drift"]
         mname = ds.get("model", list(res.fits)[-1])
         cal = res.fits[mname].cal
         res.drift = run_drift(
-            _session(get(ds["fit_input"]), "drift"),
+            as_session(get(ds["fit_input"]), "drift"),
             cal,
             until_s=ds.get("fit_until_s"),
             max_samples=ds.get("fit_max_samples"),
         )
-        apply = _session(get(ds.get("apply_input", ds["fit_input"])), "drift")
+        apply = as_session(get(ds.get("apply_input", ds["fit_input"])), "drift")
         res.drift_evaluations = run_evaluate(
             apply,
             [res.drift.cal],

@@ -76,7 +76,7 @@ def ladder_rows(
     windows, held-out residual RMS and noise floor (g), |displacement| of the static test at at_s (m).
     Each row keeps its FitOutcome under 'fit' (not JSON)."""
     from accellog.calibrate.diagnose import heldout_stats
-    from accellog.flows.pipeline import run_evaluate, run_fit
+    from accellog.flows.stages import run_evaluate, run_fit
 
     rows = []
     for i, (preset, add) in enumerate(steps):

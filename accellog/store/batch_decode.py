@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from accellog.store.codec import _DOUBLE, _codecs, _FieldCodec
+from accellog.store.codec import DOUBLE, FieldCodec, codecs_of
 
 # ---------------------------------------------------------------------------------------------
 # vectorised decoding of many messages at once (fast MCAP read-back)
@@ -196,7 +196,7 @@ def _uniform_layout(
     end: np.ndarray,
     key_to_field: np.ndarray,
     numbers: np.ndarray,
-    field_codecs: list[_FieldCodec],
+    field_codecs: list[FieldCodec],
     offs: dict[str, np.ndarray],
     lens: dict[str, np.ndarray],
     vals: dict[str, np.ndarray],
@@ -293,7 +293,7 @@ def decode_batch(
     Anything else returns None: use ``BatchDecoder`` then. When it returns, the result equals that of
     ``BatchDecoder`` fed the same messages in order, exactly.
     """
-    codecs, by_number = _codecs(message)
+    codecs, by_number = codecs_of(message)
     n = int(starts.shape[0])
     pos = np.asarray(starts, dtype=np.int64).copy()
     end = np.asarray(ends, dtype=np.int64)
@@ -380,7 +380,7 @@ def decode_batch(
         elif c.kind == "varint_s":
             scalars[c.name] = vals[c.name].view(np.int64).tolist()
         elif c.kind == "double":
-            scalars[c.name] = vals[c.name].view(_DOUBLE).tolist()
+            scalars[c.name] = vals[c.name].view(DOUBLE).tolist()
         else:
             scalars[c.name] = vals[c.name].tolist()
     return DecodedBatch(message, n, arrays, scalars, counts, frozenset(placed))

@@ -48,7 +48,7 @@ def _read_varint(buf: bytes, pos: int) -> tuple[int, int]:
 
 
 @dataclass(frozen=True)
-class _FieldCodec:
+class FieldCodec:
     name: str
     tag: bytes
     kind: str  # 'packed', 'varint_u', 'varint_s', 'double', 'string', 'bytes'
@@ -56,7 +56,7 @@ class _FieldCodec:
 
 
 @cache
-def _codecs(message: str) -> tuple[tuple[_FieldCodec, ...], dict[int, _FieldCodec]]:
+def codecs_of(message: str) -> tuple[tuple[FieldCodec, ...], dict[int, FieldCodec]]:
     m = MESSAGE_DEFS[message]
     codecs = []
     for f in m.fields:
@@ -74,12 +74,12 @@ def _codecs(message: str) -> tuple[tuple[_FieldCodec, ...], dict[int, _FieldCode
                 "bytes": "bytes",
             }[f.type]
             dtype = None
-        codecs.append(_FieldCodec(f.name, _varint((f.number << 3) | wire), kind, dtype))
+        codecs.append(FieldCodec(f.name, _varint((f.number << 3) | wire), kind, dtype))
     by_number = {f.number: c for f, c in zip(m.fields, codecs, strict=True)}
     return tuple(codecs), by_number
 
 
-_DOUBLE = np.dtype("<f8")
+DOUBLE = np.dtype("<f8")
 
 
 def encode(message: str, **values) -> bytes:
@@ -88,7 +88,7 @@ def encode(message: str, **values) -> bytes:
     Repeated fields accept any array-like (flattened, cast to the field's little-endian dtype);
     omitted fields and proto3 defaults are not written.
     """
-    codecs, _ = _codecs(message)
+    codecs, _ = codecs_of(message)
     parts: list[bytes] = []
     for c in codecs:
         v = values.pop(c.name, None)
@@ -103,7 +103,7 @@ def encode(message: str, **values) -> bytes:
             if iv:
                 parts += (c.tag, _varint(iv))
         elif c.kind == "double":
-            b = _DOUBLE.type(v).tobytes()
+            b = DOUBLE.type(v).tobytes()
             if b != b"\0" * 8:
                 parts += (c.tag, b)
         else:
@@ -117,7 +117,7 @@ def encode(message: str, **values) -> bytes:
 
 def _scan(message: str, data: bytes):
     """Yield (codec, value) for each field of the wire bytes; packed values are (offset, length)."""
-    _, by_number = _codecs(message)
+    _, by_number = codecs_of(message)
     pos, end = 0, len(data)
     while pos < end:
         key, pos = _read_varint(data, pos)
@@ -146,14 +146,14 @@ def _scan(message: str, data: bytes):
         raise ValueError(f"{message}: truncated message")
 
 
-def _scalar(c: _FieldCodec, data: bytes, v):
+def _scalar(c: FieldCodec, data: bytes, v):
     if c.kind == "varint_u":
         return v
     if c.kind == "varint_s":
         return v - (1 << 64) if v >= 1 << 63 else v
     off, ln = v
     if c.kind == "double":
-        return float(np.frombuffer(data, _DOUBLE, 1, off)[0])
+        return float(np.frombuffer(data, DOUBLE, 1, off)[0])
     raw = data[off : off + ln]
     return raw.decode("utf-8") if c.kind == "string" else bytes(raw)
 
@@ -163,7 +163,7 @@ def decode(message: str, data: bytes) -> dict:
 
     Absent fields get their proto3 default (0, 0.0, '', b'', empty array).
     """
-    codecs, _ = _codecs(message)
+    codecs, _ = codecs_of(message)
     out: dict = {}
     packed: dict[str, list[bytes]] = {}
     for c, v in _scan(message, data):
@@ -193,7 +193,7 @@ class BatchDecoder:
 
     def __init__(self, message: str) -> None:
         self.message = message
-        self.codecs, by_number = _codecs(message)
+        self.codecs, by_number = codecs_of(message)
         # field number -> (is_packed, name, codec)
         self._fields = {num: (c.kind == "packed", c.name, c) for num, c in by_number.items()}
         self._packed: dict[str, list] = {c.name: [] for c in self.codecs if c.kind == "packed"}

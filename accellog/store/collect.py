@@ -1,6 +1,6 @@
 """The generic MCAP reader: mcap's SeekingReader + ``BatchDecoder`` per topic, and salvage of unfinished files.
 
-``_recover`` scans an unfinished file front to back and keeps every complete chunk (all or nothing per
+``recover`` scans an unfinished file front to back and keeps every complete chunk (all or nothing per
 chunk). The fast reader (accellog.store.fastread) falls back here on anything outside the canonical
 layout; both give identical results where both apply.
 """
@@ -26,18 +26,18 @@ from accellog.store.schema import MESSAGE_DEFS, PACKAGE
 # reader
 
 
-_Decoder = BatchDecoder | DecodedBatch  # n_messages and result() (arrays, scalars, counts)
+Decoder = BatchDecoder | DecodedBatch  # n_messages and result() (arrays, scalars, counts)
 
 
 @dataclasses.dataclass
-class _Collected:
+class Collected:
     metadata: dict[str, str]
     topics: dict[str, str]  # topic -> schema name
-    decoders: dict[str, _Decoder]
+    decoders: dict[str, Decoder]
     recovered: str | None  # None: finished file; else what was salvaged
 
 
-def _check_file(path: Path) -> None:
+def check_file(path: Path) -> None:
     if not path.is_file():
         raise InputError("no such file", where=str(path))
     try:
@@ -57,7 +57,7 @@ class _Sink:
     def __init__(self, topics: Iterable[str] | None) -> None:
         self.want = None if topics is None else set(topics)
         self.topics: dict[str, str] = {}
-        self.decoders: dict[str, _Decoder] = {}
+        self.decoders: dict[str, Decoder] = {}
         self.metadata: dict[str, str] = {}
         self.n_messages = 0
 
@@ -84,7 +84,7 @@ class _Sink:
         dec.add(data)
 
 
-def _generic_collect(path: Path, topics: Iterable[str] | None = None) -> _Collected:
+def generic_collect(path: Path, topics: Iterable[str] | None = None) -> Collected:
     """``_collect`` with mcap's SeekingReader and one ``BatchDecoder.add`` per message."""
     sink = _Sink(topics)
     try:
@@ -100,13 +100,13 @@ def _generic_collect(path: Path, topics: Iterable[str] | None = None) -> _Collec
                     sink.metadata = dict(md.metadata)
             for ch in summary.channels.values():
                 sink.channel(summary.schemas.get(ch.schema_id), ch)
-        return _Collected(sink.metadata, sink.topics, sink.decoders, None)
+        return Collected(sink.metadata, sink.topics, sink.decoders, None)
     except (McapError, EOFError, ValueError, OSError, IndexError, KeyError) as exc:
         fast_error = exc
-    return _recover(path, topics, fast_error)
+    return recover(path, topics, fast_error)
 
 
-def _recover(path: Path, topics: Iterable[str] | None, why: Exception) -> _Collected:
+def recover(path: Path, topics: Iterable[str] | None, why: Exception) -> Collected:
     """Scan the file front to back and keep every complete chunk (all-or-nothing per chunk)."""
     sink = _Sink(topics)
     schemas: dict[int, Schema] = {}
@@ -144,4 +144,4 @@ def _recover(path: Path, topics: Iterable[str] | None, why: Exception) -> _Colle
         f"file was not finished ({type(why).__name__}: {why}); salvaged {sink.n_messages} messages "
         f"in {n_chunks} chunks of {size} bytes; reading stopped: {stop or 'end of data'}"
     )
-    return _Collected(sink.metadata, sink.topics, sink.decoders, detail)
+    return Collected(sink.metadata, sink.topics, sink.decoders, detail)

@@ -20,7 +20,7 @@ import numpy as np
 from mcap.records import Channel, Schema
 
 from accellog.store.batch_decode import BatchAccumulator, decode_batch, read_le
-from accellog.store.collect import _Collected, _Sink
+from accellog.store.collect import Collected, _Sink
 from accellog.store.layout import MCAP_MAGIC
 
 # ---------------------------------------------------------------------------------------------
@@ -46,12 +46,12 @@ _SUMMARY_OPS = {
 }  # schema, channel, chunk/attachment/metadata index, ...
 _FOOTER_SIZE = 9 + 20
 _MESSAGE_HEADER = 2 + 4 + 8 + 8  # channel_id u16, sequence u32, log_time u64, publish_time u64
-_Bytes = bytes | mmap.mmap  # the file: mapped read-only (no copy) by _fast_collect
+_Bytes = bytes | mmap.mmap  # the file: mapped read-only (no copy) by fast_collect
 _GROUP_BYTES = 4 << 20  # decompressed bytes decoded at a time (fits in L2/L3 cache)
 _PAD = 16  # zero bytes after the decompressed records (vectorised reads may look a few bytes ahead)
 
 
-def _fast_collect(path: Path, topics: Iterable[str] | None = None) -> _Collected | None:
+def fast_collect(path: Path, topics: Iterable[str] | None = None) -> Collected | None:
     """``_collect`` of a finished file without per-message Python; None if the generic path must decide.
 
     Reads the footer and summary section (schemas, channels, chunk and metadata indexes) with struct,
@@ -96,7 +96,7 @@ def _channel_at(data: _Bytes, c: int) -> tuple[Channel, int]:
     )
 
 
-def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> _Collected:
+def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> Collected:
     size = len(data)
     if size < 2 * len(MCAP_MAGIC) + _FOOTER_SIZE or data[-len(MCAP_MAGIC) :] != MCAP_MAGIC:
         raise _NotFast("no footer magic: unfinished file")
@@ -218,7 +218,7 @@ def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> _Collected:
             raise _NotFast("metadata record length")
         if name == "session":
             sink.metadata = kv
-    return _Collected(sink.metadata, sink.topics, sink.decoders, None)
+    return Collected(sink.metadata, sink.topics, sink.decoders, None)
 
 
 def _decode_group(

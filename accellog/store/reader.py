@@ -19,8 +19,8 @@ from mcap.reader import make_reader
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
 from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
-from accellog.store.collect import _check_file, _Collected, _Decoder, _generic_collect, _recover
-from accellog.store.fastread import _fast_collect
+from accellog.store.collect import Collected, Decoder, check_file, generic_collect, recover
+from accellog.store.fastread import fast_collect
 from accellog.store.layout import (
     DERIVED_PREFIX,
     NS_PER_S,
@@ -38,18 +38,18 @@ from accellog.store.schema import full_name
 FAST_READ = True
 
 
-def _collect(path: Path, topics: Iterable[str] | None = None) -> _Collected:
+def _collect(path: Path, topics: Iterable[str] | None = None) -> Collected:
     """Read every message of ``topics`` (all if None); salvage unfinished files chunk by chunk.
 
-    Finished files in the canonical layout take the vectorised ``_fast_collect``; anything else (and
+    Finished files in the canonical layout take the vectorised ``fast_collect``; anything else (and
     any surprise on the way) takes the generic path (mcap's reader + ``BatchDecoder``), which gives
     the same result wherever both apply.
     """
-    _check_file(path)
-    fast = _fast_collect(path, topics) if FAST_READ else None
+    check_file(path)
+    fast = fast_collect(path, topics) if FAST_READ else None
     if fast is not None:
         return fast
-    return _generic_collect(path, topics)
+    return generic_collect(path, topics)
 
 
 def _reshape(arr: np.ndarray, n: int, width: int, what: str, where: str) -> np.ndarray | None:
@@ -183,7 +183,7 @@ def read_session(path: str | Path) -> Session:
     return session
 
 
-def _read_mag(session: Session, dec: _Decoder | None, where: str) -> None:
+def _read_mag(session: Session, dec: Decoder | None, where: str) -> None:
     if dec is None or dec.n_messages == 0:
         return
     arrays, scalars, counts = dec.result()
@@ -206,7 +206,7 @@ def _read_mag(session: Session, dec: _Decoder | None, where: str) -> None:
     session.mag_uT = mag_uT
 
 
-def _messages(dec: _Decoder | None):
+def _messages(dec: Decoder | None):
     """Per-message dicts of a small-message channel (poses, events)."""
     if dec is None:
         return []
@@ -221,7 +221,7 @@ def _messages(dec: _Decoder | None):
     return out
 
 
-def _read_poses(dec: _Decoder | None) -> list[PoseLabel]:
+def _read_poses(dec: Decoder | None) -> list[PoseLabel]:
     return [
         PoseLabel(
             name=d["name"],
@@ -237,14 +237,14 @@ def _read_poses(dec: _Decoder | None) -> list[PoseLabel]:
     ]
 
 
-def _read_events(dec: _Decoder | None) -> list[Event]:
+def _read_events(dec: Decoder | None) -> list[Event]:
     return [
         Event(d["t_ns"] / NS_PER_S, d["kind"], d["detail"], int(d["sample_index"]), int(d["lost_samples"]))
         for d in _messages(dec)
     ]
 
 
-def _read_truth(dec: _Decoder | None, where: str) -> Truth | None:
+def _read_truth(dec: Decoder | None, where: str) -> Truth | None:
     if dec is None or dec.n_messages == 0:
         return None
     a, _, counts = dec.result()
@@ -281,7 +281,7 @@ def read_vector3(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray, 
 
 def read_attachments(path: str | Path) -> list[tuple[str, str, bytes]]:
     """(name, media_type, data) of every attachment of a finished file."""
-    _check_file(Path(path))
+    check_file(Path(path))
     try:
         with open(path, "rb") as f:
             return [(a.name, a.media_type, bytes(a.data)) for a in make_reader(f).iter_attachments()]
@@ -297,7 +297,7 @@ def session_summary(path: str | Path) -> dict:
     media_type, bytes)]. An unfinished file is scanned instead (finished=False).
     """
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     out: dict = {"path": str(path), "bytes": path.stat().st_size}
     try:
         with open(path, "rb") as f:
@@ -328,7 +328,7 @@ def session_summary(path: str | Path) -> dict:
                     out["metadata"] = dict(md.metadata)
         return out
     except (McapError, EOFError, ValueError, OSError) as exc:
-        col = _recover(path, None, exc)
+        col = recover(path, None, exc)
     out.update(
         finished=False,
         recovered=col.recovered,

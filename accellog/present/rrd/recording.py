@@ -47,7 +47,7 @@ from accellog.present.rrd.entities import (
     slug_path,
 )
 from accellog.present.rrd.layout import build_blueprint, live_blueprint
-from accellog.present.rrd.sinks import _parse_sink, _SinkWatch, _spawn_viewer
+from accellog.present.rrd.sinks import SinkWatch, parse_sink, spawn_viewer
 
 
 class RunRecording:
@@ -72,7 +72,7 @@ class RunRecording:
     ) -> None:
         import rerun as rr
 
-        self.kind, self.target = _parse_sink(sink)
+        self.kind, self.target = parse_sink(sink)
         self.guard = (self.kind != "save") if guard is None else guard
         self.failures = 0
         self.first_failure: str | None = None
@@ -81,7 +81,7 @@ class RunRecording:
         self._blueprint = blueprint
         self._entities: dict[str, str] = {}  # entity path -> role, drives the auto blueprint
         self._closed = False
-        self._watch: _SinkWatch | None = None
+        self._watch: SinkWatch | None = None
         self._tmp: Path | None = None
         self._final: Path | None = None
         self._lock = threading.Lock()
@@ -111,13 +111,13 @@ class RunRecording:
     def _connect(self, bp) -> None:
         if self.kind == "spawn":
             host, port = "127.0.0.1", SPAWN_PORT
-            _spawn_viewer(port)
+            spawn_viewer(port)
             self.rec.connect_grpc(f"rerun+http://{host}:{port}/proxy", default_blueprint=bp)
         else:
             self.rec.connect_grpc(self.target, default_blueprint=bp)
             u = urllib.parse.urlparse(self.target.replace("rerun+", "", 1))
             host, port = u.hostname or "127.0.0.1", u.port or 9876
-        self._watch = _SinkWatch(host, port, self._sink_down)
+        self._watch = SinkWatch(host, port, self._sink_down)
 
     def _sink_down(self, msg: str) -> None:
         self.down = True

@@ -15,7 +15,7 @@ from accellog.core.errors import InputError
 from accellog.present.rrd.entities import DEFAULT_GRPC_URL
 
 
-class _SinkWatch:
+class SinkWatch:
     """Background TCP probe of a live sink (host, port): marks it down once unreachable."""
 
     def __init__(self, host: str, port: int, on_down: Callable[[str], None], period_s: float = 0.25):
@@ -40,7 +40,7 @@ class _SinkWatch:
         self._stop.set()
 
 
-def _spawn_viewer(port: int, timeout_s: float = 20.0) -> None:
+def spawn_viewer(port: int, timeout_s: float = 20.0) -> None:
     """Start the native viewer listening on 127.0.0.1:port (``rr.spawn`` would bind 0.0.0.0), unless
     a viewer already listens there; wait until it accepts connections."""
     import subprocess
@@ -57,7 +57,7 @@ def _spawn_viewer(port: int, timeout_s: float = 20.0) -> None:
         raise InputError(f"the spawned viewer does not listen on 127.0.0.1:{port} after {timeout_s:g} s")
 
 
-def _parse_sink(sink: str) -> tuple[str, str]:
+def parse_sink(sink: str) -> tuple[str, str]:
     if sink.startswith("save:"):
         path = sink[5:]
         if not path:
