@@ -224,7 +224,7 @@ def simulate(
 
     truth_step_s: spacing of the stored ground truth (s); it is for evaluation only.
     """
-    from accellog.acquire.driver import Mpu9250
+    from accellog.acquire.device import configure_device
     from accellog.acquire.emulator.chip import EmulatedMpu9250
     from accellog.acquire.emulator.clock import SimClock
     from accellog.acquire.recorder import Recorder, session_meta
@@ -233,16 +233,18 @@ def simulate(
     model, motion = build_sensor_model(sc)
     clock = SimClock()
     chip = EmulatedMpu9250(model, clock, seed=sc.seed)
-    driver = Mpu9250(chip, clock_ns=clock.now_ns)
-    info = driver.probe()
-    cfg = driver.configure(
+    dev = configure_device(
+        chip,
+        clock_ns=clock.now_ns,
         accel_range_g=sc.accel_range_g,
         gyro_range_dps=sc.gyro_range_dps,
         sample_rate_div=sc.sample_rate_div,
+        mag=False,
     )
+    driver = dev.driver
     meta = session_meta(
-        info,
-        cfg,
+        dev.info,
+        dev.config,
         source="emulator",
         protocol=sc.protocol if sc.motion == "poses" else f"robot:{sc.robot_path}",
         local_gravity_mps2=sc.local_gravity_mps2,
