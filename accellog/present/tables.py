@@ -164,3 +164,24 @@ def print_tables(tables: Sequence[Table | None], console: Console | None = None)
 def json_text(data: Any) -> str:
     """Strict JSON text of results (numpy arrays as lists, NaN as null)."""
     return dumps(data)
+
+
+def _fmt_m(x: float, unit: str = "m") -> str:
+    return "-" if x != x else f"{x:.3g} {unit}"
+
+
+def track_table(title: str, runs, zupt: bool) -> Table:
+    """Final and RMS position error per track (and without ZUPT, with the number of stops)."""
+    table = Table(title=title)
+    for c in ("calibration", "final error", "RMS error", "% of path"):
+        table.add_column(c, justify="left" if c == "calibration" else "right")
+    if zupt:
+        table.add_column("final w/o ZUPT", justify="right")
+        table.add_column("stops", justify="right")
+    for r in runs:
+        e = r.error
+        row = [r.name, _fmt_m(e.final_error_m), _fmt_m(e.rms_error_m), f"{e.final_error_pct_of_path:.2g}"]
+        if zupt:
+            row += [_fmt_m(r.error_without_zupt.final_error_m), str(e.zupt_stops)]
+        table.add_row(*row)
+    return table
