@@ -237,6 +237,21 @@ class PipelineResult:
             d["drift_evaluations"] = [e.to_dict() for e in self.drift_evaluations]
         return d
 
+    def write_rrd(self, path: str | os.PathLike) -> None:
+        """Recording of every fit, the evaluations (and after the drift model) and the result tables."""
+        from accellog.present import views
+        from accellog.present.rrd.recording import RunRecording
+
+        with RunRecording(f"save:{path}") as rec:
+            for name, fo in self.fits.items():
+                views.log_fit(rec, fo, name)
+            views.log_evaluations(rec, self.evaluations)
+            if self.drift_evaluations:
+                views.log_evaluations(rec, self.drift_evaluations, truth_label=None)
+            rec.log_document(
+                "results/tables", "\n".join(views.table_markdown(t) for t in self.tables() if t is not None)
+            )
+
 
 def run_pipeline(
     pipeline: str | os.PathLike | dict,

@@ -117,6 +117,16 @@ class FitOutcome:
         d["n_poses"] = len(self.obs.pose_names)
         return d
 
+    def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
+        """Recording of the fit (residuals per pose) and, for a session, its samples raw and calibrated."""
+        from accellog.present import views
+        from accellog.present.rrd.recording import RunRecording
+
+        with RunRecording(f"save:{path}") as rec:
+            if isinstance(data, Session):
+                views.log_session(rec, data, calibrations={self.fit.model.name: self.cal})
+            views.log_fit(rec, self)
+
 
 def make_obs(
     data: Session | ObsTable, *, window_s: float = 2.0, trim_s: float = 0.5, min_samples: int = 20
@@ -282,6 +292,16 @@ class DriftOutcome:
             else self.fit_eval.disp_end_drift_m.tolist(),
             "t_end_s": self.fit_eval.t_end_s,
         }
+
+    def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
+        """Recording of the static session calibrated, with and without the drift model."""
+        from accellog.present import views
+        from accellog.present.rrd.recording import RunRecording
+
+        with RunRecording(f"save:{path}") as rec:
+            if isinstance(data, Session):
+                views.log_session(rec, data, calibrations={"calibrated + drift model": self.cal})
+            views.log_evaluations(rec, [self.fit_eval])
 
 
 def run_drift(

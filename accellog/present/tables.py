@@ -185,3 +185,38 @@ def track_table(title: str, runs, zupt: bool) -> Table:
             row += [_fmt_m(r.error_without_zupt.final_error_m), str(e.zupt_stops)]
         table.add_row(*row)
     return table
+
+
+def segment_table(title: str, stats) -> Table:
+    """Per-pose statistics: time span, samples, mean +- sem per axis (g), autocorrelation time, temperature."""
+    t = Table(title=title)
+    t.add_column("pose")
+    t.add_column("t (s)")
+    t.add_column("n", justify="right")
+    for ax in "xyz":
+        t.add_column(f"{ax} mean ± sem (g)", justify="right")
+    t.add_column("tau (samples)", justify="right")
+    t.add_column("T (degC)", justify="right")
+    for p in stats:
+        t.add_row(
+            p.name,
+            f"{p.start_s:.1f}-{p.end_s:.1f}",
+            str(p.n),
+            *(fmt_pm(float(m), float(s)) for m, s in zip(p.mean_g, p.sem_g, strict=True)),
+            "/".join(f"{x:.1f}" for x in p.tau_samples),
+            "-" if p.temp_degC is None else f"{p.temp_degC:.2f}",
+        )
+    return t
+
+
+def pose_eval_summary(pes, at_s: float) -> list[str]:
+    """One line per evaluation: RMS, chi2/dof and the worst hold's displacement at at_s (m)."""
+    lines = []
+    for p in pes:
+        d = p.to_dict()[f"displacement_{at_s:g}s_m"]
+        lines.append(
+            f"{p.label}: RMS {p.rms_g * p.mps2_per_unit:.4g} m/s^2, chi2/dof {p.chi2 / max(p.dof, 1):.3g}; "
+            f"worst hold displacement at {at_s:g} s (from rest, extrapolated) "
+            + ", ".join(f"{a} {v:+.3g} m" for a, v in zip("xyz", d, strict=True))
+        )
+    return lines
