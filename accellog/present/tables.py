@@ -220,3 +220,21 @@ def pose_eval_summary(pes, at_s: float) -> list[str]:
             + ", ".join(f"{a} {v:+.3g} m" for a, v in zip("xyz", d, strict=True))
         )
     return lines
+
+
+def replay_table(res, title: str) -> Table:
+    """Final displacement (m) of each replayed track and whether a drift model was applied."""
+    t = Table(title=title)
+    for c in ("track", "x (m)", "y (m)", "z (m)", "|d| (m)", "drift model"):
+        t.add_column(c, justify="left" if c in ("track", "drift model") else "right")
+    for tr in res.tracks:
+        d = tr.final_m
+        t.add_row(
+            tr.label,
+            f"{d[0]:+.3f}",
+            f"{d[1]:+.3f}",
+            f"{d[2]:+.3f}",
+            f"{np.linalg.norm(d):.3f}",
+            "applied" if tr.disp_end_drift_m is not None else "-",
+        )
+    return t
