@@ -12,13 +12,8 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.calibrate.calibration import write_json_atomic
 from accellog.cli.app import app
 from accellog.core.errors import InputError
-from accellog.flows.pipeline import run_pipeline
-from accellog.flows.stages import load_input, run_apply, run_drift, run_fit
-from accellog.flows.static_stages import run_evaluate_report, run_integrate, run_segment
-from accellog.present import tables as report
 
 _console = Console()
 
@@ -30,6 +25,8 @@ RrdOpt = Annotated[
 
 
 def _echo_json(data) -> None:
+    from accellog.present import tables as report
+
     typer.echo(report.json_text(data))
 
 
@@ -44,6 +41,10 @@ def segment(
     json_out: JsonOpt = False,
 ) -> None:
     """Per-pose statistics (mean, std, autocorrelation-aware sem) and windowed observations."""
+    from accellog.calibrate.calibration import write_json_atomic
+    from accellog.flows.static_stages import run_segment
+    from accellog.present import tables as report
+
     res = run_segment(session, window_s=window_s, trim_s=trim_s)
     if output is not None:
         write_json_atomic(output, res.obs_dict())
@@ -87,6 +88,9 @@ def fit(
     rrd: RrdOpt = None,
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma)."""
+    from accellog.flows.stages import load_input, run_fit
+    from accellog.present import tables as report
+
     data = load_input(session)
     out = run_fit(
         data,
@@ -128,6 +132,9 @@ def evaluate_cmd(
 
     A session with several labelled holds is evaluated window by window (per-hold mean residual,
     RMS, chi2 vs the noise estimate, displacement at --at-s extrapolated per hold from rest)."""
+    from accellog.flows.static_stages import run_evaluate_report
+    from accellog.present import tables as report
+
     rep = run_evaluate_report(test, cal, until_s=until_s, max_samples=max_samples, at_s=at_s)
     if rrd is not None:
         rep.write_rrd(rrd)
@@ -165,6 +172,9 @@ def drift(
     rrd: RrdOpt = None,
 ) -> None:
     """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
+    from accellog.flows.stages import load_input, run_drift
+    from accellog.present import tables as report
+
     data = load_input(static)
     out = run_drift(data, cal, until_s=until_s, max_samples=max_samples)
     out.cal.save(output)
@@ -191,6 +201,8 @@ def apply(
     ],
 ) -> None:
     """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
+    from accellog.flows.stages import run_apply
+
     p = run_apply(session, cal, output)
     _console.print(f"wrote {p}")
 
@@ -206,6 +218,9 @@ def run(
     rrd: RrdOpt = None,
 ) -> None:
     """Run a pipeline file (segment -> fit -> evaluate -> drift -> report)."""
+    from accellog.flows.pipeline import run_pipeline
+    from accellog.present import tables as report
+
     res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir)
     if rrd is not None:
         res.write_rrd(rrd)
@@ -231,6 +246,9 @@ def integrate(
 ) -> None:
     """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
     local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
+    from accellog.flows.static_stages import run_integrate
+    from accellog.present import tables as report
+
     res = run_integrate(session, cal, until_s=until_s)
     tmp = output.with_name(f".{output.name}.tmp")
     try:

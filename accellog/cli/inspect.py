@@ -18,8 +18,6 @@ from rich.console import Console
 
 from accellog.cli.app import app
 from accellog.core.errors import InputError
-from accellog.flows.inspect import run_replay, sink_option
-from accellog.present.tables import replay_table
 
 _console = Console()
 
@@ -37,6 +35,8 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON on 
 
 def _print_result(res, title: str, json_out: bool) -> None:
     """Strict JSON (NaN -> null) on stdout, or the final-displacement table, notes and .rrd path."""
+    from accellog.present.tables import replay_table
+
     if res.sink_report:
         _console.print(f"[yellow]{res.sink_report}[/]")
     if json_out:
@@ -66,6 +66,7 @@ def replay(
 ) -> None:
     """Feed a session through online correction + integration in sensor time, logging raw and
     calibrated accel and displacement tracks to a live viewer or an .rrd."""
+    from accellog.flows.inspect import run_replay, sink_option
     from accellog.flows.replay import parse_speed
 
     parse_speed(speed)  # fail early on a bad value
@@ -87,6 +88,8 @@ def compare(
 ) -> None:
     """Displacement tracks of several calibrations of one test session side by side, with their
     final drift (terminal table, --json, and a document in the .rrd)."""
+    from accellog.flows.inspect import run_replay, sink_option
+
     if not cal:
         raise InputError("compare needs at least one --cal calibration.json")
     res = run_replay(

@@ -5,15 +5,17 @@ from __future__ import annotations
 import signal
 import threading
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
 
 from accellog.cli.app import app
 from accellog.core.errors import InputError
-from accellog.core.protocol import PoseSpec
-from accellog.core.session import PoseLabel
+
+if TYPE_CHECKING:
+    from accellog.core.protocol import PoseSpec
+    from accellog.core.session import PoseLabel
 
 console = Console(stderr=True)
 

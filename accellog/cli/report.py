@@ -13,9 +13,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.calibrate.calibration import read_json
 from accellog.cli.app import app
-from accellog.present.artifacts import tables_for
 
 
 @app.command(rich_help_panel="2. Calibrate")
@@ -26,6 +24,8 @@ def report(
     markdown: Annotated[bool, typer.Option("--markdown", help="Markdown tables on stdout.")] = False,
 ) -> None:
     """Print the tables of stage artifacts (parameters ± 1σ, the seed's tables, the model ladder)."""
+    from accellog.calibrate.calibration import read_json
+    from accellog.present.artifacts import tables_for
     from accellog.present.views import table_markdown
 
     tables = []
