@@ -8,6 +8,7 @@ import sys
 import numpy as np
 
 import accellog as al
+from accellog.core.jsonio import JsonResult
 
 
 def test_every_public_name_resolves():
@@ -38,3 +39,27 @@ def test_notebook_example(tmp_path):
     z = (fit.b - model.accel.bias_g) / fit.sigma[[fit.param_names.index(f"b_{a}") for a in "xyz"]]
     assert np.all(np.abs(z) < 5), z  # the chip's bias (g) within its 1-sigma, up to 5 sigma
     assert isinstance(al.diagnose(obs, al.build_model("model3")).verdict, str)
+
+
+def test_typed_results_serialise_to_strict_json(tmp_path):
+    """to_json() of a result is the strict JSON of its to_dict() (NaN -> null), keys unchanged."""
+    import json
+    import math
+
+    from accellog.flows.stages import run_fit
+    from accellog.flows.static_stages import run_segment
+
+    sc = al.Scenario(protocol="six", hold_s=4.0, sample_rate_hz=200.0, seed=4)
+    al.simulate(sc, tmp_path / "s.mcap")
+    seg = run_segment(tmp_path / "s.mcap")
+    fo = run_fit(al.read_session(tmp_path / "s.mcap"), "model2")
+    for res in (seg, fo, fo.cal):
+        d = json.loads(res.to_json())
+        assert set(d) == set(res.to_dict())
+    assert not math.isnan(json.loads(fo.to_json())["chi2_dof"])
+
+    class Nan(JsonResult):
+        def to_dict(self) -> dict:
+            return {"chi2_dof": float("nan"), "b_g": np.array([1.0, np.inf, 2.0])}
+
+    assert json.loads(Nan().to_json()) == {"chi2_dof": None, "b_g": [1.0, None, 2.0]}

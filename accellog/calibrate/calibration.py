@@ -33,6 +33,7 @@ import numpy as np
 
 from accellog.calibrate.drift_model import DriftModel
 from accellog.core.errors import InputError, ModelError
+from accellog.core.jsonio import JsonResult, dumps
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.core.version import __version__
@@ -109,7 +110,7 @@ def session_drivers(session: Session, needed: list[str] | None = None) -> dict[s
 
 
 @dataclass
-class Calibration:
+class Calibration(JsonResult):
     """A fitted accelerometer calibration (see module docstring for the conventions)."""
 
     model_spec: dict
@@ -263,33 +264,6 @@ class Calibration:
         """Write the JSON file atomically (temp file + rename)."""
         write_json_atomic(path, self.to_dict())
         self.path = str(path)
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def dumps(data: Any, indent: int | None = 2) -> str:
-    """JSON text; NaN/inf become null (strict JSON)."""
-
-    def clean(x: Any) -> Any:
-        if isinstance(x, float):
-            return x if np.isfinite(x) else None
-        if isinstance(x, dict):
-            return {k: clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        if isinstance(x, np.ndarray):
-            return clean(x.tolist())
-        if isinstance(x, np.generic):
-            return clean(x.item())
-        return x
-
-    return json.dumps(clean(data), indent=indent, default=_json_default, allow_nan=False)
 
 
 def write_json_atomic(path: str | os.PathLike, data: Any) -> None:

@@ -40,7 +40,7 @@ def _print_result(res, title: str, json_out: bool) -> None:
     if res.sink_report:
         _console.print(f"[yellow]{res.sink_report}[/]")
     if json_out:
-        from accellog.calibrate.calibration import dumps
+        from accellog.core.jsonio import dumps
 
         typer.echo(dumps(res.to_dict(), indent=2))
         return

@@ -20,6 +20,7 @@ import tomllib
 
 from accellog.calibrate.calibration import read_text, source_entry, write_json_atomic
 from accellog.core.errors import InputError, ModelError
+from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 from accellog.flows.stages import (
     GRAVITY_CONVENTIONS,
@@ -189,7 +190,7 @@ def _check_references(spec: dict, text: str, p: Path) -> None:
 
 
 @dataclass
-class PipelineResult:
+class PipelineResult(JsonResult):
     """Everything a pipeline run produced."""
 
     name: str

@@ -25,6 +25,7 @@ from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.obs_file import OBS_FORMAT, obs_from_dict
 from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations
 from accellog.core.errors import InputError
+from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.navigate.drift import drift_from_session
@@ -102,7 +103,7 @@ def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
 
 
 @dataclass
-class FitOutcome:
+class FitOutcome(JsonResult):
     """A fitted model: the observations, the FitResult and the Calibration built from it."""
 
     obs: ObsTable
@@ -275,7 +276,7 @@ def run_evaluate(
 
 
 @dataclass
-class DriftOutcome:
+class DriftOutcome(JsonResult):
     """Drift model fitted on one static session (cal = input calibration + drift)."""
 
     cal: Calibration
@@ -324,7 +325,7 @@ def run_apply(
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
     /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename)."""
-    from accellog.calibrate.calibration import dumps
+    from accellog.core.jsonio import dumps
     from accellog.store.layout import NS_PER_S
     from accellog.store.reader import read_session
     from accellog.store.writer import SessionWriter

@@ -18,6 +18,7 @@ from accellog.calibrate.calibration import Calibration, load_calibration
 from accellog.calibrate.obs_file import obs_to_dict
 from accellog.calibrate.segment import PoseStats, observations, pose_stats
 from accellog.core.errors import InputError
+from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 from accellog.core.timeseries import cumtrapz
 from accellog.flows.stages import load_input, run_evaluate
@@ -32,7 +33,7 @@ def _session_input(path: str | os.PathLike, what: str) -> Session:
 
 
 @dataclass
-class SegmentResult:
+class SegmentResult(JsonResult):
     """Per-pose statistics and the windowed observation table of one session."""
 
     session: Session
@@ -55,7 +56,7 @@ def run_segment(path: str | os.PathLike, *, window_s: float = 2.0, trim_s: float
 
 
 @dataclass
-class EvaluationReport:
+class EvaluationReport(JsonResult):
     """`evaluate` of one or more calibrations: ``single`` (one static hold: raw first, then each
     calibration) or ``poses`` (a session with several labelled holds, evaluated hold by hold)."""
 
@@ -134,7 +135,7 @@ def run_evaluate_report(
 
 
 @dataclass
-class Integration:
+class Integration(JsonResult):
     """v(t) (m/s) and d(t) (m) of a static session after a calibration (or of the raw reading)."""
 
     session_path: str

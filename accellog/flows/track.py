@@ -7,13 +7,14 @@ from pathlib import Path
 
 from accellog.calibrate.calibration import load_calibration
 from accellog.core.errors import InputError
+from accellog.core.jsonio import JsonResult
 from accellog.core.session import Session
 from accellog.navigate.track_eval import TrackRun, run_session_tracks
 from accellog.store.reader import read_session
 
 
 @dataclass
-class TrackReport:
+class TrackReport(JsonResult):
     """Tracks of one session: ``runs[0]`` is 'raw'; reference 'truth' or 'loop closure'."""
 
     session_path: str

@@ -29,6 +29,7 @@ from accellog.calibrate.calibration import Calibration, session_drivers
 from accellog.calibrate.noise import sem_autocorr
 from accellog.calibrate.segment import check_static, observations
 from accellog.core.errors import InputError
+from accellog.core.jsonio import JsonResult
 from accellog.core.session import PoseLabel, Session
 from accellog.navigate.integrate import DEFAULT_TIMES_S, displacement, values_at
 
@@ -36,7 +37,7 @@ AXES = ("x", "y", "z")
 
 
 @dataclass
-class Evaluation:
+class Evaluation(JsonResult):
     """Result of evaluating one calibration (or none) on one static session. m/s^2, m, s."""
 
     label: str
@@ -341,7 +342,7 @@ def evaluate(
 
 
 @dataclass
-class PoseEvaluation:
+class PoseEvaluation(JsonResult):
     """Window-by-window residuals of a calibration on a multi-pose session (g)."""
 
     label: str

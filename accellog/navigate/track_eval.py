@@ -16,13 +16,14 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from accellog.core.errors import InputError
+from accellog.core.jsonio import JsonResult
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.navigate.strapdown import Track, initial_orientation, strapdown, yaw_of
 from accellog.navigate.zupt import ZuptResult, apply_zupt, detect_stationary
 
 
 @dataclass
-class TrackError:
+class TrackError(JsonResult):
     """How far one track is off. reference: 'truth' or 'loop_closure' (then rms/max are NaN)."""
 
     name: str

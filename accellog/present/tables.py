@@ -17,8 +17,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from accellog.calibrate.calibration import Calibration, dumps
+from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.drift_model import DriftModel
+from accellog.core.jsonio import dumps
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation
 
 AXES = ("x", "y", "z")
