@@ -24,6 +24,16 @@ RrdOpt = Annotated[
 ]
 
 
+def _save_outcome(out, data, output: Path, rrd: Path | None, json_out: bool) -> bool:
+    """Write the .rrd (if asked) and the calibration; with --json print the result; True when printed."""
+    if rrd is not None:
+        out.write_rrd(rrd, data)
+    out.cal.save(output)
+    if json_out:
+        _echo_json({**out.to_dict(), "output": str(output)})
+    return json_out
+
+
 def _echo_json(data) -> None:
     from accellog.present import tables as report
 
@@ -104,13 +114,7 @@ def fit(
         window_s=window_s,
         trim_s=trim_s,
     )
-    out.cal.save(output)
-    if rrd is not None:
-        out.write_rrd(rrd, data)
-    if json_out:
-        d = out.to_dict()
-        d["output"] = str(output)
-        _echo_json(d)
+    if _save_outcome(out, data, output, rrd, json_out):
         return
     _console.print(report.params_table(out.cal))
     for w in out.fit.warnings:
@@ -177,13 +181,7 @@ def drift(
 
     data = load_input(static)
     out = run_drift(data, cal, until_s=until_s, max_samples=max_samples)
-    out.cal.save(output)
-    if rrd is not None:
-        out.write_rrd(rrd, data)
-    if json_out:
-        d = out.to_dict()
-        d["output"] = str(output)
-        _echo_json(d)
+    if _save_outcome(out, data, output, rrd, json_out):
         return
     rows = [("calibrated", out.fit_eval.disp_end_m)]
     if out.fit_eval.disp_end_drift_m is not None:
