@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.model import model_from_spec
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult, dumps
 from accellog.core.session import ObsTable, Session
@@ -147,7 +148,6 @@ class Calibration(JsonResult):
     def model(self):
         """The accellog.calibrate.model.Model of this calibration, built from the spec once (a user effects
         file is imported and its SHA-256 checked on first use, not on every correct())."""
-        from accellog.calibrate.model import model_from_spec
 
         return model_from_spec(self.model_spec)
 

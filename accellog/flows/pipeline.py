@@ -33,6 +33,9 @@ from accellog.flows.stages import (
     run_fit,
 )
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_poses
+from accellog.present import tables as report
+from accellog.present import views
+from accellog.present.rrd.recording import RunRecording
 
 # ------------------------------------------------------------------------------------------ pipelines
 
@@ -216,7 +219,6 @@ class PipelineResult(JsonResult):
         ]
 
     def tables(self) -> list:
-        from accellog.present import tables as report
 
         out: list = [report.ladder_table(self.ladder())]
         for fo in self.fits.values():
@@ -250,8 +252,6 @@ class PipelineResult(JsonResult):
 
     def write_rrd(self, path: str | os.PathLike) -> None:
         """Recording of every fit, the evaluations (and after the drift model) and the result tables."""
-        from accellog.present import views
-        from accellog.present.rrd.recording import RunRecording
 
         with RunRecording(f"save:{path}") as rec:
             for name, fo in self.fits.items():

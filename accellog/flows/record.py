@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from accellog.acquire.device import configure_device, open_hardware_bus, parse_address, sample_rate_div
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import RealClock, SimClock
 from accellog.acquire.recorder import Recorder, RecorderUI, RecordSummary, StopRequested, session_meta
 from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.fit import fit_model
@@ -24,6 +26,8 @@ from accellog.calibrate.segment import obs_from_pose_means
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import Event, PoseLabel
+from accellog.flows.simulate import Scenario, build_sensor_model
+from accellog.present.rrd.live import LiveView
 from accellog.present.tables import params_table
 from accellog.present.views import table_markdown
 from accellog.store.writer import SessionWriter
@@ -116,9 +120,6 @@ def _open_bus(opts: RecordOptions):
     """(bus, sleep, clock_ns, source) of the emulated chip or of /dev/i2c-<bus>."""
     if not opts.use_sim:
         return open_hardware_bus(opts.bus), time.sleep, None, "hardware"
-    from accellog.acquire.emulator.chip import EmulatedMpu9250
-    from accellog.acquire.emulator.clock import RealClock, SimClock
-    from accellog.flows.simulate import Scenario, build_sensor_model
 
     sc = Scenario(
         protocol=opts.protocol,
@@ -166,8 +167,6 @@ def record_session(
             warn(note)
         meta = session_meta(dev.info, dev.config, source=source, protocol=opts.protocol)
         if opts.rerun:
-            from accellog.present.rrd.live import LiveView
-
             live = LiveView.from_option(opts.rerun)
             ui = live.wrap_ui(ui)
         with SessionWriter(opts.out, meta) as writer:

@@ -39,10 +39,19 @@ from typing import Any
 import numpy as np
 import tomllib
 
+from accellog.acquire.device import configure_device
+from accellog.acquire.emulator import robot
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import SimClock
+from accellog.acquire.emulator.poses import PoseSequenceMotion
+from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
+from accellog.acquire.emulator.temperature import TemperaturePath
+from accellog.acquire.recorder import Recorder, session_meta
 from accellog.core.errors import InputError
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
 from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.store.writer import SessionWriter
 
 _SMPLRT_DIV_BASE_HZ = 1000.0
 
@@ -145,12 +154,8 @@ def _check_type(key: str, value: Any, where: str) -> None:
 
 def build_sensor_model(sc: Scenario):
     """The emulator's physical model for a scenario: motion, error parameters, temperature path."""
-    from accellog.acquire.emulator.poses import PoseSequenceMotion
-    from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
 
     if sc.motion == "robot":
-        from accellog.acquire.emulator import robot
-
         paths = {"demo": robot.demo_loop, "long": robot.long_run}
         if sc.robot_path not in paths:
             raise InputError(f"robot_path={sc.robot_path!r}: use one of {sorted(paths)}")
@@ -195,7 +200,6 @@ def build_sensor_model(sc: Scenario):
 
 def temperature_path(spec: dict[str, Any]):
     """TemperaturePath from {'kind': 'constant'|'warmup'|'ramp'|'points', ...} (degC, s)."""
-    from accellog.acquire.emulator.temperature import TemperaturePath
 
     kind = spec.get("kind", "constant")
     try:
@@ -224,11 +228,6 @@ def simulate(
 
     truth_step_s: spacing of the stored ground truth (s); it is for evaluation only.
     """
-    from accellog.acquire.device import configure_device
-    from accellog.acquire.emulator.chip import EmulatedMpu9250
-    from accellog.acquire.emulator.clock import SimClock
-    from accellog.acquire.recorder import Recorder, session_meta
-    from accellog.store.writer import SessionWriter
 
     model, motion = build_sensor_model(sc)
     clock = SimClock()

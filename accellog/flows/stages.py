@@ -22,14 +22,23 @@ import numpy as np
 from accellog.calibrate.calibration import Calibration, load_calibration, read_json, source_entry
 from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.fit import fit_model, fit_orientation_free
+from accellog.calibrate.gyro import calibrate_gyro
+from accellog.calibrate.model import build_model
 from accellog.calibrate.obs_file import OBS_FORMAT, obs_from_dict
 from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations
-from accellog.core.errors import InputError
-from accellog.core.jsonio import JsonResult
+from accellog.core.errors import AccellogError, InputError
+from accellog.core.jsonio import JsonResult, dumps
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.navigate.drift import drift_from_session
 from accellog.navigate.evaluate import Evaluation, evaluate
+from accellog.present import views
+from accellog.present.rrd.recording import RunRecording
+from accellog.store import importers
+from accellog.store.layout import NS_PER_S
+from accellog.store.reader import read_session
+from accellog.store.writer import SessionWriter
 
 GRAVITY_CONVENTIONS = ("seed", "local")
 """'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
@@ -46,8 +55,6 @@ def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Ses
         raise InputError("no such file", where=str(p))
     suffix = p.suffix.lower()
     if suffix == ".mcap":
-        from accellog.store.reader import read_session
-
         return read_session(p)
     if suffix == ".json":
         d = read_json(p)
@@ -58,8 +65,6 @@ def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Ses
             where=str(p),
         )
     if suffix in (".csv", ".txt"):
-        from accellog.store import importers
-
         try:
             with open(p, encoding="utf-8", errors="replace") as f:
                 first = f.readline().replace(" ", "").lower()
@@ -120,8 +125,6 @@ class FitOutcome(JsonResult):
 
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
         """Recording of the fit (residuals per pose) and, for a session, its samples raw and calibrated."""
-        from accellog.present import views
-        from accellog.present.rrd.recording import RunRecording
 
         with RunRecording(f"save:{path}") as rec:
             if isinstance(data, Session):
@@ -162,8 +165,6 @@ def run_fit(
     detect_static (threshold sweep scored by the orientation-free residual). gyro: also
     calibrate the gyro from the session's holds and the moves between them (stored in cal.gyro).
     """
-    from accellog.calibrate.fit import fit_model, fit_orientation_free
-    from accellog.calibrate.model import build_model
 
     src = str(data) if isinstance(data, (str, os.PathLike)) else None
     if src is not None:
@@ -221,8 +222,6 @@ def run_fit(
 def _gyro_calibration(session: Session) -> dict | None:
     """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
     session, stored next to the accelerometer's; None when the session has no gyro or holds."""
-    from accellog.calibrate.gyro import calibrate_gyro
-    from accellog.core.errors import AccellogError
 
     if session.gyro_dps is None or len(session.poses) < 2:
         return None
@@ -296,8 +295,6 @@ class DriftOutcome(JsonResult):
 
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
         """Recording of the static session calibrated, with and without the drift model."""
-        from accellog.present import views
-        from accellog.present.rrd.recording import RunRecording
 
         with RunRecording(f"save:{path}") as rec:
             if isinstance(data, Session):
@@ -325,10 +322,6 @@ def run_apply(
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
     /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename)."""
-    from accellog.core.jsonio import dumps
-    from accellog.store.layout import NS_PER_S
-    from accellog.store.reader import read_session
-    from accellog.store.writer import SessionWriter
 
     src = Path(session_path)
     if src.suffix.lower() != ".mcap":

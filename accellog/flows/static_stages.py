@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,8 @@ from accellog.core.session import ObsTable, Session
 from accellog.core.timeseries import cumtrapz
 from accellog.flows.stages import load_input, run_evaluate
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_poses
+from accellog.present import tables, views
+from accellog.present.rrd.recording import RunRecording
 
 
 def _session_input(path: str | os.PathLike, what: str) -> Session:
@@ -86,8 +89,6 @@ class EvaluationReport(JsonResult):
 
     def write_rrd(self, path: str | Path) -> None:
         """The session (raw and calibrated) and the evaluation (tracks, or per-pose residual tables)."""
-        from accellog.present import tables, views
-        from accellog.present.rrd.recording import RunRecording
 
         with RunRecording(f"save:{path}") as rec:
             if isinstance(self.data, Session):
@@ -145,7 +146,6 @@ class Integration(JsonResult):
 
     def csv_text(self) -> str:
         """t_s, vx_mps, vy_mps, vz_mps, x_m, y_m, z_m (one row per sample)."""
-        import io
 
         buf = io.StringIO()
         buf.write("t_s,vx_mps,vy_mps,vz_mps,x_m,y_m,z_m\n")

@@ -10,6 +10,8 @@ from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import Session
 from accellog.navigate.track_eval import TrackRun, run_session_tracks
+from accellog.present.rrd.recording import RunRecording
+from accellog.present.views import log_session, log_track_runs
 from accellog.store.reader import read_session
 
 
@@ -42,8 +44,6 @@ class TrackReport(JsonResult):
 
     def write_rrd(self, path: str | Path) -> None:
         """Recording of the session and its tracks vs truth, errors over time, ZUPT stops."""
-        from accellog.present.rrd.recording import RunRecording
-        from accellog.present.views import log_session, log_track_runs
 
         with RunRecording(f"save:{path}") as rec:
             log_session(rec, self.session)

@@ -29,6 +29,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from accellog.acquire.emulator.temperature import TemperaturePath
 from accellog.core.errors import InputError
 from accellog.core.kinematics import Kinematics, Motion
 from accellog.core.rotations import rotate_inverse
@@ -299,7 +300,6 @@ class SensorModel:
         mag_noise_uT: float = 0.3,
         temp_noise_degC: float = 0.01,
     ) -> None:
-        from accellog.acquire.emulator.temperature import TemperaturePath
 
         self.motion = motion
         self.accel = accel if accel is not None else AccelErrors.perfect()
