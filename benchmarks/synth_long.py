@@ -3,7 +3,7 @@
 Twelve labelled holds (the six faces twice, 24-position style if asked) with smooth rotations
 between them about a fixed body axis (smootherstep angle profile, 3 s per move), as a user
 records them. Accel = S f + b + noise, f = the world up vector seen in the sensor frame; gyro =
-M w + b_g + b_T (T - 25) + noise; temperature ramps 30 -> 32 degC. Written with
+M w + b_g + b_T (T - 25) + noise; temperature ramps 30 -> 35 degC. Written with
 accellog.store.writer.write_session in counts (int16 ranges), so read-back goes through the real
 decoder. Used by bench_fit_speed / bench_diagnose / bench_scale.
 """
@@ -35,12 +35,14 @@ def _rotvec(q: np.ndarray) -> np.ndarray:
     return q[1:] * (2 * np.arctan2(s, q[0]) / s if s > 1e-12 else 2.0)
 
 
-def synth_session(duration_s: float, seed: int = 0, protocol: str = "six", rate_hz: float = RATE_HZ) -> Session:
+def synth_session(
+    duration_s: float, seed: int = 0, protocol: str = "six", rate_hz: float = RATE_HZ
+) -> Session:
     """A labelled calibration session of duration_s at rate_hz (see module doc)."""
     specs = six_position() * 2 if protocol == "six" else twenty_four_position()
     k = len(specs)
     hold_s = duration_s / k - MOVE_S
-    n = int(round(duration_s * rate_hz))
+    n = round(duration_s * rate_hz)
     t = np.arange(n) / rate_hz
     qs = np.array([p.q_sensor_to_world for p in specs], float)
     seg = np.minimum((t // (hold_s + MOVE_S)).astype(int), k - 1)
@@ -55,7 +57,7 @@ def synth_session(duration_s: float, seed: int = 0, protocol: str = "six", rate_
     f = rotate_inverse(q, np.array([0.0, 0.0, 1.0]))
     w_true = np.rad2deg(ds[:, None] * rv[seg])
     rng = np.random.default_rng(seed)
-    temp = 30.0 + 2.0 * t / max(t[-1], 1.0)
+    temp = 30.0 + 5.0 * t / max(t[-1], 1.0)
     acc = f @ S_TRUE.T + B_TRUE + rng.normal(0, 0.003, (n, 3))
     gyr = w_true @ M_TRUE.T + BG_TRUE + np.multiply.outer(temp - 25.0, BT_TRUE) + rng.normal(0, 0.05, (n, 3))
     acc_c = np.clip(np.round(acc * ACC_LSB), -32768, 32767).astype(np.int32)

@@ -139,8 +139,6 @@ def test_bad_input(seq):
         GyroCalibration.from_dict({"bias_dps": [1, 2]})
 
 
-
-
 @pytest.mark.parametrize("case", ["gravity-full", "orientation-full", "gravity-scale", "robot"])
 def test_moves_only_fit_equals_the_dense_fit(seq, case):
     """The moves-only fit (holds as one block each, complex-step Jacobian) gives the dense fit's
