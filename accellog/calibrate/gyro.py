@@ -145,6 +145,18 @@ def _holds(holds: Sequence[PoseLabel] | np.ndarray) -> np.ndarray:
     return np.asarray(holds, float).reshape(-1, 2)
 
 
+def _window_means(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Means of x[a_k:b_k] (rows) for windows that do not overlap and are in order."""
+    if not a.size:
+        return np.zeros((0, *x.shape[1:]))
+    edges = np.stack([a, b], axis=1).ravel()  # slots [a0,b0), [b0,a1), [a1,b1), ...: keep the even ones
+    if edges[-1] >= x.shape[0]:
+        edges = edges[:-1]  # the last slot [a_last:] then runs to the end, which is b_last
+    sums = np.add.reduceat(x, edges, axis=0)[::2]
+    n = (b - a).astype(float)
+    return sums / (n[:, None] if x.ndim == 2 else n)
+
+
 def fit_gyro_bias(
     t_s: np.ndarray,
     gyro_dps: np.ndarray,
@@ -166,24 +178,26 @@ def fit_gyro_bias(
     iv = _holds(holds)
     if iv.shape[0] == 0:
         raise InputError("no static holds: the gyro bias cannot be estimated")
-    means, temps = [], []
+    starts, ends = [], []  # sample index range [a, b) of every whole window_s window of every hold
     for lo, hi in iv:
         lo, hi = lo + trim_s, hi - trim_s
         n_win = int((hi - lo) // window_s)
         if n_win < 1:
             continue
-        edges = lo + window_s * np.arange(n_win + 1)
-        idx = np.searchsorted(t, edges)
-        for a, b in itertools.pairwise(idx):
-            if b - a >= 2:
-                means.append(w[a:b].mean(axis=0))
-                temps.append(np.nan if temp is None else float(np.mean(temp[a:b])))
+        idx = np.searchsorted(t, lo + window_s * np.arange(n_win + 1))
+        starts.append(idx[:-1])
+        ends.append(idx[1:])
+    a = np.concatenate(starts) if starts else np.zeros(0, np.int64)
+    b = np.concatenate(ends) if ends else np.zeros(0, np.int64)
+    keep = b - a >= 2
+    a, b = a[keep], b[keep]
+    means = _window_means(w, a, b)
+    temps = np.full(a.size, np.nan) if temp is None else _window_means(temp, a, b)
     if len(means) < 2:
         raise InputError(
             f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
         )
-    y = np.array(means)
-    tt = np.array(temps)
+    y, tt = means, temps
     use_temp = temp is not None and np.isfinite(tt).all() and np.ptp(tt) >= min_temp_span_degC
     cols = [np.ones(len(y))] + ([tt - t_ref_degC] if use_temp else [])
     A = np.stack(cols, axis=1)
@@ -217,29 +231,54 @@ def _block_edges(t: np.ndarray, mids: np.ndarray, ends: np.ndarray, starts: np.n
         fine.append(e[1:])
         coarse.append(e[1:][(e[1:] >= lo) & (e[1:] <= hi)])
         coarse.append(np.array([b]))
-    return np.unique(np.concatenate(fine)), np.unique(np.concatenate(coarse))
+    return _sorted_unique(np.concatenate(fine)), _sorted_unique(np.concatenate(coarse))
+
+
+def _sorted_unique(e: np.ndarray) -> np.ndarray:
+    """np.unique of an already non-decreasing array, in one pass."""
+    return e[np.concatenate([[True], e[1:] != e[:-1]])] if e.size else e
+
+
+def _trapezoid_blocks(t: np.ndarray, x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Trapezoid integrals of x ((N,) or (N,k)) over [t[e_j], t[e_j+1]] for consecutive edges."""
+    dt = np.diff(t)
+    inc = x[:-1] + x[1:]
+    inc *= (0.5 * dt)[:, None] if inc.ndim == 2 else 0.5 * dt
+    return np.add.reduceat(inc, edges[:-1], axis=0)
 
 
 def _block_increments(
-    t: np.ndarray, w_dps: np.ndarray, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block_s: float
+    t: np.ndarray,
+    w_dps: np.ndarray,
+    temp_degC: np.ndarray | None,
+    base: GyroCalibration,
+    holds: tuple[np.ndarray, np.ndarray, np.ndarray],
+    block_s: float,
 ) -> tuple:
     """Rotation increments over the coarse blocks of _block_edges: (phi (B,3) rad, c (B,3) rad^2,
-    block-edge index of each mid (K,)).
+    block-edge index of each mid (K,)); holds = (mid, end, start) sample index of each hold.
 
-    phi is the sum of the trapezoid increments of the samples in a block (body frame): exact for
-    rotation about a fixed axis (the protocol's moves) and second order in (rate x block_s)
-    otherwise; it is linear in the rate, so a gyro matrix correction applies to the blocks instead
-    of every sample. A coarse block that merges the fine blocks b_1..b_n of a static hold also
-    carries their second-order term c = 1/2 sum_{i<j} b_i x b_j, so that
-    exp(b_1) ... exp(b_n) = exp(phi + c) + O(|b|^3) (Baker-Campbell-Hausdorff; the product the
-    dense integration forms). Cost: one pass over the samples from the first to the last mid."""
+    phi is the trapezoid integral of the bias-corrected rate over a block (body frame):
+    int (w - b0 - b_T (T - T_ref)) dt = W - b0 dt - b_T (int T dt - T_ref dt), so only the raw
+    rate and the temperature are integrated per sample. It is exact for rotation about a fixed
+    axis (the protocol's moves) and second order in (rate x block_s) otherwise; it is linear in
+    the rate, so a gyro matrix correction applies to the blocks instead of every sample. A coarse
+    block that merges the fine blocks b_1..b_n of a static hold also carries their second-order
+    term c = 1/2 sum_{i<j} b_i x b_j, so that exp(b_1) ... exp(b_n) = exp(phi + c) + O(|b|^3)
+    (Baker-Campbell-Hausdorff; the product the dense integration forms). Cost: one pass over the
+    samples from the first to the last mid, then O(fine blocks)."""
+    mids, ends, starts = holds
     fine, coarse = _block_edges(t, mids, ends, starts, block_s)
     lo, hi = int(fine[0]), int(fine[-1])
-    w = np.deg2rad(w_dps[lo : hi + 1])
-    inc = 0.5 * (w[:-1] + w[1:]) * np.diff(t[lo : hi + 1])[:, None]  # step i: sample i -> i+1
-    if not inc.shape[0]:
+    if hi == lo:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.searchsorted(coarse, mids)
-    b = np.add.reduceat(inc, fine[:-1] - lo, axis=0)
+    tt, fe = t[lo : hi + 1], fine - lo
+    span = np.diff(tt[fe])
+    b = _trapezoid_blocks(tt, np.asarray(w_dps[lo : hi + 1], float), fe) - np.outer(span, base.bias_dps)
+    if temp_degC is not None:
+        temp_int = _trapezoid_blocks(tt, np.asarray(temp_degC[lo : hi + 1], float), fe)
+        b -= np.outer(temp_int - base.t_ref_degC * span, base.temp_bias_dps_per_degC)
+    b = np.deg2rad(b)
     p_excl = np.concatenate([np.zeros((1, 3)), np.cumsum(b, axis=0)[:-1]])  # sum of earlier blocks
     at = np.searchsorted(fine, coarse[:-1])  # first fine block of each coarse block
     phi = np.add.reduceat(b, at, axis=0)
@@ -370,10 +409,8 @@ def fit_gyro_matrix(
     idx = lambda times: np.clip(np.searchsorted(t, times), 0, t.size - 1)  # noqa: E731
     mids = idx([0.5 * (p.start_s + p.end_s) for p in known])
     ends, starts = idx([p.end_s for p in known]), idx([p.start_s for p in known])
-    lo, hi = int(mids[0]), int(mids[-1]) + 1
     temp = temp_degC if np.any(base.temp_bias_dps_per_degC != 0) else None
-    w_unb = np.asarray(gyro_dps[lo:hi], float) - base.bias_at(None if temp is None else temp[lo:hi])
-    phi, c, at = _block_increments(t[lo:hi], w_unb, mids - lo, ends - lo, starts - lo, block_s=0.01)
+    phi, c, at = _block_increments(t, gyro_dps, temp, base, (mids, ends, starts), block_s=0.01)
     if reference == "orientation":
         qn = np.array([p.q_sensor_to_world for p in known], float)
         dq_nom_c = _qconj(quat_multiply(quat_conjugate(qn[:-1]), qn[1:]))
