@@ -62,8 +62,6 @@ def cv_scores(res: FitResult, obs: ObsTable) -> np.ndarray:
     (C = S S^T; the other eigenvalues of I - U C U^T are 1). Cost O(m p^2) per hold: linear in the
     windows. BLAS runs on one thread (these matrices are too small to gain from more).
     """
-    from threadpoolctl import threadpool_limits
-
     J = res.jacobian
     sig = np.asarray(obs.sigma_g, float)
     r = (res.residual_g / sig).ravel()
@@ -71,8 +69,21 @@ def cv_scores(res: FitResult, obs: ObsTable) -> np.ndarray:
         return np.full(len(_groups(obs)), np.inf)
     if not res.weighted:  # jacobian of unweighted residuals: whiten it
         J = J / sig.ravel()[:, None]
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _blas_controller().limit(limits=1, user_api="blas"):
         return _cv_small(J, r, _groups(obs))
+
+
+def _blas_controller():
+    """threadpoolctl's controller, made once (finding the BLAS libraries takes ~3 ms per call)."""
+    global _BLAS
+    if _BLAS is None:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS = ThreadpoolController()
+    return _BLAS
+
+
+_BLAS = None
 
 
 def _cv_small(J: np.ndarray, r: np.ndarray, groups: list[np.ndarray]) -> np.ndarray:
