@@ -125,6 +125,21 @@ def _channel_at(data: _Bytes, c: int) -> tuple[Channel, int]:
 
 
 def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> Collected:
+    """The whole file at once: _fast_walk drained."""
+    walk = _fast_walk(data, topics)
+    while True:
+        try:
+            next(walk)
+        except StopIteration as end:
+            return end.value
+
+
+def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = None):
+    """Generator over the chunk groups of a finished file; returns the Collected at the end.
+
+    stream: a topic whose messages are handed out group by group instead of accumulated: after
+    each group it yields (metadata, DecodedBatch of that topic's messages in the group, or None),
+    so memory stays bounded by one group. Without stream it yields nothing until the end."""
     size = len(data)
     if size < 2 * len(MCAP_MAGIC) + _FOOTER_SIZE or data[-len(MCAP_MAGIC) :] != MCAP_MAGIC:
         raise _NotFast("no footer magic: unfinished file")
@@ -216,6 +231,19 @@ def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> Collected:
     ]
     usize = np.where(sound, usize, 0)
     crc = np.where(sound, crc, 0)
+    # the session metadata (LSB scales) first: a stream needs it before the first group
+    meta_kv: dict[str, str] = {}
+    meta_error: tuple[int, str] | None = None
+    for at in metadata_at:
+        try:
+            name, kv = _metadata_at(data, at)
+        except Exception as exc:
+            meta_error = (at, str(exc))
+            if stream is not None:
+                raise _NotFast(str(exc)) from None
+            continue
+        if name == "session":
+            meta_kv = kv
     # chunks in groups of about _GROUP_BYTES decompressed: each group is decoded while in the CPU cache
     sink = _Sink(topics)
     message_of: dict[int, str | None] = {}  # channel id -> accellog message type (None: not decoded)
@@ -247,29 +275,29 @@ def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> Collected:
             records, used, sizes = pending.result()
             if i + 1 < len(groups):
                 pending = pool.submit(decompress, i + 1)
-            _decode_group(
-                records, used, sizes, done[groups[i][1] - 1], channels, schemas, sink, message_of, parts
-            )
+            frac = 1.0 if stream else done[groups[i][1] - 1]
+            _decode_group(records, used, sizes, frac, channels, schemas, sink, message_of, parts)
+            if stream is not None:
+                part = next(
+                    (parts.pop(c) for c, ch in channels.items() if ch.topic == stream and c in parts), None
+                )
+                yield meta_kv, None if part is None else part.finish()
         outside = data_crc.result()
     if outside is not None and not damaged:
         damaged.append(outside)
     for cid, msg in message_of.items():
-        if msg is not None:
+        if msg is not None and cid in parts:
             sink.decoders[channels[cid].topic] = parts[cid].finish()
     for ch in channels.values():
         sink.channel(schemas.get(ch.schema_id), ch)
 
-    for at in metadata_at:
-        try:
-            name, kv = _metadata_at(data, at)
-        except Exception as exc:
-            if outside is not None:  # the bytes outside the chunks are damaged, and here is where
-                raise _Refuse(
-                    f"the session metadata record at byte {at} is damaged (data section CRC mismatch)"
-                ) from None
-            raise _NotFast(str(exc)) from None
-        if name == "session":
-            sink.metadata = kv
+    if meta_error is not None:
+        if outside is not None:  # the bytes outside the chunks are damaged, and here is where
+            raise _Refuse(
+                f"the session metadata record at byte {meta_error[0]} is damaged (data section CRC mismatch)"
+            )
+        raise _NotFast(meta_error[1])
+    sink.metadata = meta_kv
     return Collected(sink.metadata, sink.topics, sink.decoders, None, sorted(damaged, key=lambda d: d.offset))
 
 
@@ -319,10 +347,11 @@ def _decode_group(
             wanted = sink.want is None or ch.topic in sink.want
             schema = None if ch.schema_id == 0 else schemas[ch.schema_id]
             message_of[cid] = sink.channel(schema, ch) if wanted else None
-            parts[cid] = BatchAccumulator(message_of[cid] or "")
         msg = message_of[cid]
         if msg is None:
             continue
+        if cid not in parts:  # first message, or a streamed topic handed out after the last group
+            parts[cid] = BatchAccumulator(msg)
         sel = slice(None) if ids.shape[0] == 1 else np.flatnonzero(channel_id == cid)
         acc, frac = parts[cid], done
         dec = decode_batch(
