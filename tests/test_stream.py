@@ -65,3 +65,26 @@ def test_unfinished_file_falls_back_to_read_session(recorded, tmp_path):
     cut.write_bytes(recorded.read_bytes()[: recorded.stat().st_size * 2 // 3])
     blocks = list(iter_imu(cut))
     _same_samples(blocks, read_session(cut))
+
+
+def test_stream_observations_equal_observations(recorded, monkeypatch):
+    """Per-hold reduction while streaming gives exactly the whole-session observation table."""
+    import dataclasses
+
+    from accellog.calibrate.segment import observations
+    from accellog.calibrate.stream_segment import stream_observations
+
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 32 << 10)  # holds span several blocks
+    a = stream_observations(recorded, window_s=0.5, trim_s=0.3)
+    b = observations(read_session(recorded), window_s=0.5, trim_s=0.3)
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        assert np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y, f.name
+
+
+def test_stream_observations_refuse_as_observations(recorded):
+    from accellog.calibrate.stream_segment import stream_observations
+    from accellog.core.errors import InputError
+
+    with pytest.raises(InputError, match=r"has \d+ samples after trimming 1.5 s"):
+        stream_observations(recorded, trim_s=1.5)

@@ -54,24 +54,14 @@ def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
     path = Path(path)
     where = str(path)
     check_file(path)
-    n_done = 0
+    n_done = [0]
     try:
         with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
             walk = fastread._fast_walk(data, [TOPIC_IMU], stream=TOPIC_IMU)
-            meta = None
-            while True:
-                try:
-                    kv, dec = next(walk)
-                except StopIteration as end:
-                    for d in end.value.damaged:
-                        warnings.warn(f"{where}: {d.describe()}", DataIntegrityWarning, stacklevel=2)
-                    break
-                if meta is None:
-                    meta = metadata_to_meta(kv, where) if kv else SessionMeta(source="unknown")
-                if dec is not None and dec.n_messages:
-                    block = _block(dec, meta, where)
-                    n_done += block.n
-                    yield block
+            try:
+                yield from _walked(walk, where, n_done)
+            finally:
+                walk.close()  # release its views of the mapped file before the map closes
         return
     except fastread._Refuse as exc:
         raise InputError(str(exc), where=where) from None
@@ -82,7 +72,7 @@ def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
     from accellog.store.reader import read_session
 
     s = read_session(path)
-    rest = slice(n_done, None)
+    rest = slice(n_done[0], None)
     yield ImuBlock(
         s.meta,
         s.t_s[rest],
@@ -91,6 +81,24 @@ def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
         None if s.gyro_dps is None else s.gyro_dps[rest],
         None if s.temp_degC is None else s.temp_degC[rest],
     )
+
+
+def _walked(walk, where: str, n_done: list[int]) -> Iterator[ImuBlock]:
+    """The blocks of a _fast_walk stream (n_done[0] counts the samples handed out)."""
+    meta = None
+    while True:
+        try:
+            kv, dec = next(walk)
+        except StopIteration as end:
+            for d in end.value.damaged:
+                warnings.warn(f"{where}: {d.describe()}", DataIntegrityWarning, stacklevel=3)
+            return
+        if meta is None:
+            meta = metadata_to_meta(kv, where) if kv else SessionMeta(source="unknown")
+        if dec is not None and dec.n_messages:
+            block = _block(dec, meta, where)
+            n_done[0] += block.n
+            yield block
 
 
 def _block(dec: DecodedBatch, meta: SessionMeta, where: str) -> ImuBlock:
