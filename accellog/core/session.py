@@ -78,7 +78,8 @@ class Event:
     """Something that happened while recording: every lost sample is accounted for here.
 
     kind: 'gap' (samples missing between sample indices), 'fifo_overflow', 'misaligned',
-    'i2c_error', 'retry', 'note', 'recovered' (reader salvaged a truncated file), 'pose_prompt'.
+    'i2c_error', 'retry', 'note', 'recovered' (reader salvaged a truncated file), 'pose_prompt',
+    'damaged' (reader skipped a chunk that failed its CRC; lost_samples counts its IMU samples).
     """
 
     t_s: float
