@@ -224,6 +224,8 @@ class Diagnosis:
     clock: dict | None = None
     cv_base: float = np.nan
     extra: dict = field(default_factory=dict)
+    fits: dict[str, FitResult] = field(default_factory=dict, repr=False)
+    """Fit of model + candidate, by candidate name (identifiable candidates; not in to_dict)."""
 
     def to_dict(self, max_signals: int = 30) -> dict:
         return {
@@ -300,6 +302,7 @@ def diagnose(
         raise ModelError(f"unknown candidate effect(s) {unknown}; valid: {', '.join(lib)}")
     n_tests = max(1, sum(1 for c in cands if lib[c].static))
     rows: list[dict] = []
+    fits: dict[str, FitResult] = {}
     clock = None
     for name in cands:
         row: dict = {"effect": name, "n_params": len(lib[name].params), "identifiable": False}
@@ -327,6 +330,7 @@ def diagnose(
             row["reason"] = str(exc)
             rows.append(row)
             continue
+        fits[name] = cr
         dk = cm.n_params - model.n_params
         dchi2 = base.chi2 - cr.chi2
         F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
@@ -413,6 +417,7 @@ def diagnose(
         best=best,
         clock=clock,
         cv_base=float(np.sum(cv_b_all[np.isfinite(cv_b_all)]) / max(m_eq, 1)),
+        fits=fits,
     )
 
 

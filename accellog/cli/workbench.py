@@ -185,7 +185,11 @@ def workbench_cmd(
         Path, typer.Argument(help="Calibration session with labelled static holds (.mcap or CSV).")
     ],
     heldout: Annotated[
-        Path | None, typer.Option(help="Another session of the same sensor: judges each step out of sample.")
+        list[Path] | None,
+        typer.Option(
+            help="Another session of the same sensor (repeatable): each candidate effect is judged by how "
+            "well it predicts it, so effects that do not transfer are not chosen."
+        ),
     ] = None,
     static: Annotated[
         Path | None, typer.Option(help="A static test session: |displacement| after --at-s per step.")
@@ -226,7 +230,8 @@ def workbench_cmd(
             "the workbench needs a recorded session (samples), not a pose table", where=str(session)
         )
     obs = observations(data)
-    held = observations(as_session(heldout, "--heldout")) if heldout is not None else None
+    helds = [observations(as_session(h, "--heldout")) for h in heldout or []]
+    held = helds[0] if helds else None
     test = as_session(static, "--static") if static is not None else None
     host = None
     if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
@@ -235,10 +240,11 @@ def workbench_cmd(
     found = discover(
         obs,
         model,
+        heldout=helds,
         max_steps=max_steps,
         effects_file=effects_file,
         host_time=host,
-        on_step=lambda d: con.print(d.verdict),
+        on_step=lambda ch: con.print(f"step {ch.model}: {escape(ch.reason)}"),
     )
     rows = ladder_rows(
         data, obs, steps_for(found), heldout=held, static_test=test, effects_file=effects_file, at_s=at_s
@@ -255,22 +261,12 @@ def workbench_cmd(
                 log_diagnosis(rec, d, obs, label=f"step {i}")
             log_ladder(rec, rows, obs, at_s=at_s)
     if as_json:
-        print(
-            json_text(
-                {
-                    "session": str(session),
-                    "start": found.start,
-                    "added": found.added,
-                    "final_model": found.final_model,
-                    "verdicts": [d.verdict for d in found.diagnoses],
-                    "advice": found.diagnoses[-1].advice,
-                    "ladder": ladder_json(rows),
-                }
-            )
-        )
+        print(json_text({"session": str(session), **found.to_json(), "ladder": ladder_json(rows)}))
         return
-    for a in found.diagnoses[-1].advice:
-        con.print(f"advice: {a}")
+    ok = found.decided and found.transfers is not False and not found.diagnoses[-1].missing
+    con.print(("[bold green]OK[/] " if ok else "[bold red]CHECK[/] ") + escape(found.verdict))
+    for a in found.advice:
+        con.print(f"advice: {escape(a)}")
     con.print(ladder_table(rows, at_s=at_s))
     if output is not None:
         con.print(f"wrote {output} ({found.final_model})")
