@@ -81,6 +81,13 @@ def diagnose(
         Path | None,
         typer.Option("--rrd", help="Also write a Rerun recording: residuals per pose, verdict, candidates."),
     ] = None,
+    heldout: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Another session of the same sensor (repeatable): candidates are judged by how well they "
+            "predict it (else by blocked validation over temperature and time within the session)."
+        ),
+    ] = None,
 ) -> None:
     """Fit a model, compare it with the noise floor and rank the effects that could be missing."""
     from accellog.calibrate import diagnose as dg
@@ -90,7 +97,7 @@ def diagnose(
         raise InputError("session file not found", where=str(session))
     from accellog.calibrate.segment import observations
     from accellog.core.session import ObsTable
-    from accellog.flows.stages import load_input
+    from accellog.flows.stages import as_session, load_input
 
     data = load_input(session)  # pose tables (per-pose means) and observation files: ObsTable
     m = build_model(model, add=add or [], effects_file=effects_file)
@@ -101,7 +108,9 @@ def diagnose(
         obs = observations(data, window_s=window_s)
         if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
             host = (data.t_s, data.host_time_s)
-    d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host)
+
+    helds = [observations(as_session(h, "--heldout"), window_s=window_s) for h in heldout or []]
+    d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host, heldout=helds)
     if rrd is not None:
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_diagnosis, log_session
@@ -135,7 +144,12 @@ def _print(d, source: str) -> None:
     for n, v, s, u in zip(f.param_names, f.theta, f.sigma, f.param_units, strict=True):
         t.add_row(n, f"{v:.6g}", f"{s:.2g}", u)
     con.print(t)
-    t = Table(title="candidate effects (model + effect)")
+    if d.choice is not None:
+        con.print(
+            f"out-of-sample evidence ({d.choice.evidence}): base chi2/eq {d.choice.base_score.chi2_per_eq:.3g}; "
+            + escape(d.choice.reason)
+        )
+    t = Table(title="candidate effects (model + effect; OOS = held-out or blocked validation)")
     for c in (
         "#",
         "effect",
@@ -144,6 +158,7 @@ def _print(d, source: str) -> None:
         "chi2/dof",
         "dBIC",
         "CV chi2/eq",
+        "OOS chi2/eq",
         "p",
         "reason / what to record",
     ):
@@ -157,6 +172,7 @@ def _print(d, source: str) -> None:
             _fmt(c.get("chi2_dof")),
             _fmt(c.get("delta_bic"), ".1f"),
             _fmt(c.get("cv_chi2_per_eq")),
+            _fmt(c.get("oos_chi2_per_eq")),
             _fmt(c.get("p_value"), ".2g"),
             escape(c.get("reason", "")),
         )
@@ -244,7 +260,9 @@ def workbench_cmd(
         max_steps=max_steps,
         effects_file=effects_file,
         host_time=host,
-        on_step=lambda ch: con.print(f"step {ch.model}: {escape(ch.reason)}"),
+        on_step=lambda d: con.print(
+            f"step {d.model.name}: {escape(d.choice.reason if d.choice else d.verdict)}"
+        ),
     )
     rows = ladder_rows(
         data, obs, steps_for(found), heldout=held, static_test=test, effects_file=effects_file, at_s=at_s

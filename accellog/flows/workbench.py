@@ -87,8 +87,8 @@ def discover(
 ) -> Discovery:
     """Diagnose `start`, add the significant candidate that predicts unseen data best (held-out
     sessions if given, else blocked validation over temperature and time), repeat while one
-    improves out of sample. on_step(StepChoice) is called after each step."""
-    from accellog.calibrate.choose import choose_effect
+    improves out of sample. on_step(Diagnosis) is called after each step (its .choice: the
+    out-of-sample judgement)."""
     from accellog.calibrate.diagnose import diagnose, heldout_stats
     from accellog.calibrate.fit import fit_model
     from accellog.calibrate.model import build_model
@@ -97,19 +97,23 @@ def discover(
     model = build_model(start, effects_file=effects_file)
     out = Discovery(start=start)
     for _ in range(max_steps + 1):
-        d = diagnose(obs, model, host_time=host_time)
+        d = diagnose(obs, model, host_time=host_time, heldout=held)
         out.diagnoses.append(d)
-        ch = choose_effect(d, obs, held) if len(out.added) < max_steps else None
+        if on_step is not None:
+            on_step(d)
+        ch = d.choice if len(out.added) < max_steps else None
         if ch is not None:
             out.choices.append(ch)
-            if on_step is not None:
-                on_step(ch)
         if ch is None or ch.chosen is None or ch.chosen in out.added:
             break
         if ch.undecided:
             out.undecided.append([ch.chosen, *ch.undecided])
         out.added.append(ch.chosen)
         model = model.with_terms([ch.chosen])
+    # a tie is resolved when every alternative ended up in the model too
+    out.undecided = [
+        g for g in ([g[0], *[e for e in g[1:] if e not in out.added]] for g in out.undecided) if len(g) > 1
+    ]
     if held:
         final = fit_model(obs, model)
         stats = [heldout_stats(final, h) for h in held]
