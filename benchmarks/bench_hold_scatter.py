@@ -30,31 +30,11 @@ import numpy as np
 from accellog.calibrate.fit import fit_model
 from accellog.calibrate.model import build_model
 from accellog.calibrate.variance import with_uncertainty
-from accellog.core.rotations import quat_from_rotvec, rotate
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from support.synthetic import synthetic_obs, true_theta
+from support.synthetic import hold_disturbance, synthetic_obs, true_theta
 
 GROUPS = {"b": slice(0, 3), "S_ii": slice(3, 6), "S_ij": slice(6, 12)}
-
-
-def hold_disturbance(tilt_rad: float, wander_g: float, seed: int):
-    """extra(obs) -> (n,3) g: a per-hold placement tilt error of the truth plus a per-hold bias offset."""
-
-    def extra(obs):
-        rng = np.random.default_rng(10_000 + seed)
-        pid = np.asarray(obs.pose_id)
-        holds = np.unique(pid)
-        out = np.zeros((obs.n, 3))
-        wander = rng.standard_normal((holds.size, 3)) * wander_g
-        for k, h in enumerate(holds):
-            m = pid == h
-            q = quat_from_rotvec(rng.standard_normal(3) * tilt_rad)
-            up = np.asarray(obs.up_sensor, float)[m]
-            out[m] = rotate(q, up) - up + wander[k]
-        return out
-
-    return extra
 
 
 def run(n: int, tilt_deg: float, wander_mg: float, windows: int) -> dict:

@@ -8,12 +8,9 @@ data: the component vanishes and changes nothing. Real: imucal's Ferraris sessio
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-from support.synthetic import synthetic_obs, true_theta
+from support.synthetic import hold_disturbance, synthetic_obs, true_theta
 
 from accellog.calibrate.fit import fit_model
 from accellog.calibrate.model import build_model
@@ -21,9 +18,6 @@ from accellog.calibrate.segment import observations
 from accellog.calibrate.variance import estimate_scatter, with_uncertainty
 from accellog.core.errors import ModelError
 from accellog.store.importers import import_imucal
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from bench_hold_scatter import hold_disturbance  # noqa: E402
 
 
 def _z(n_seeds: int, tilt_deg: float, wander_mg: float) -> dict[str, np.ndarray]:
