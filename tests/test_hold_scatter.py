@@ -8,6 +8,8 @@ data: the component vanishes and changes nothing. Real: imucal's Ferraris sessio
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from support.synthetic import hold_disturbance, synthetic_obs, true_theta
@@ -77,3 +79,25 @@ def test_real_ferraris_session_holds_scatter_far_beyond_the_noise(shared_data):
     assert np.all((ratio > 1 / 3) & (ratio < 3)), ratio
     assert 1e-3 < comp.between_hold_g[1] < 5e-3  # across gravity: ~2.5 mg placement/hand scatter
     assert comp.chi2_dof < res.chi2_dof / 10
+
+
+def test_fit_command_reports_and_stores_the_method(shared_data, tmp_path, capsys):
+    from accellog.cli import main
+
+    src = shared_data / "imucal" / "example_ferraris_session.csv"
+    mcap = tmp_path / "fer.mcap"
+    assert main(["import", "imucal", str(src), "-o", str(mcap)]) == 0
+    capsys.readouterr()
+    sig = {}
+    for m in ("noise", "between_hold", "jackknife"):
+        out = tmp_path / f"{m}.json"
+        args = ["fit", str(mcap), "-o", str(out), "--window-s", "1", "--uncertainty", m, "--json"]
+        assert main(args) == 0
+        d = json.loads(capsys.readouterr().out)
+        stored = json.loads(out.read_text())
+        assert d["uncertainty"] == m and m in json.dumps(stored)
+        sig[m] = np.array([p["sigma"] for p in d["params"]][:3])  # bias sigmas (g)
+    assert np.all(sig["between_hold"] > 10 * sig["noise"]) and np.all(sig["jackknife"] > 10 * sig["noise"])
+    assert main(["fit", str(mcap), "-o", str(tmp_path / "x.json"), "--uncertainty", "boot"]) != 0
+    err = capsys.readouterr().err
+    assert err.startswith("accellog: error:") and "between_hold" in err and "\n" not in err.strip()
