@@ -194,3 +194,20 @@ def test_emulated_warmup_through_the_cli(tmp_path, capsys):
     assert out["transfers"] is True and out["heldout"]["heldout_chi2_dof"] < 2.0
     assert out["ladder"][-1]["model"] == out["final_model"]
     assert "nothing is missing" in out["verdict"] or "transfers" in out["verdict"]
+
+
+def test_unknown_driver_name_lists_the_valid_ones(tmp_path, capsys):
+    """A user effect that reads a driver nobody computes: one line naming the valid signals."""
+    ef = tmp_path / "typo.py"
+    ef.write_text(
+        "import numpy as np\n"
+        "from accellog.calibrate.effects import Effect, per_axis\n"
+        "E = Effect(name='tb_typo', params=per_axis('tb', 'g/degC', 0.0, 1e-3), drivers=('temperature',),\n"
+        "           contribution=lambda p, f, d: np.stack([p['tb_x'] * d['temperature']] * 3, axis=1))\n"
+    )
+    model, th = _truth("model3", 10)
+    obs = _obs(model, th, warm(24, 40, 200), 10)
+    from accellog.core.errors import ModelError
+
+    with pytest.raises(ModelError, match=r"unknown driver 'temperature'; valid driver signals: .*temp_degC"):
+        fit_model(obs, build_model("model3", add=["tb_typo"], effects_file=ef))
