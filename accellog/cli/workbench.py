@@ -265,7 +265,14 @@ def workbench_cmd(
         ),
     )
     rows = ladder_rows(
-        data, obs, steps_for(found), heldout=held, static_test=test, effects_file=effects_file, at_s=at_s
+        data,
+        obs,
+        steps_for(found),
+        heldout=held,
+        static_test=test,
+        effects_file=effects_file,
+        at_s=at_s,
+        gyro=output is not None or rrd is not None,  # the gyro goes into the calibration file / .rrd
     )
     if output is not None:
         rows[-1]["fit"].cal.save(output)

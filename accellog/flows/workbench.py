@@ -89,6 +89,19 @@ def discover(
     sessions if given, else blocked validation over temperature and time), repeat while one
     improves out of sample. on_step(Diagnosis) is called after each step (its .choice: the
     out-of-sample judgement)."""
+    with small_problem_threads():
+        return _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step)
+
+
+def small_problem_threads():
+    """Single-threaded BLAS for the workbench's many small (~1000 x 20) least-squares problems:
+    threads only add overhead there, and oversubscribe a loaded machine (10x slower at load 12)."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step) -> Discovery:
     from accellog.calibrate.diagnose import diagnose, heldout_stats
     from accellog.calibrate.fit import fit_model
     from accellog.calibrate.model import build_model
@@ -174,17 +187,29 @@ def ladder_rows(
     static_test: Session | None = None,
     effects_file: str | Path | None = None,
     at_s: float = 60.0,
+    gyro: bool = True,
 ) -> list[dict]:
     """Fit each step (preset, added effects) and judge it: chi2/dof and RMS on the calibration
     windows, held-out residual RMS and noise floor (g), |displacement| of the static test at at_s (m).
-    Each row keeps its FitOutcome under 'fit' (not JSON)."""
+    Each row keeps its FitOutcome under 'fit' (not JSON); gyro: calibrate the gyro with the last step
+    (for the calibration file)."""
+    with small_problem_threads():
+        return _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro)
+
+
+def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro) -> list[dict]:
     from accellog.calibrate.diagnose import heldout_stats
     from accellog.flows.stages import run_evaluate, run_fit
 
     rows = []
     for i, (preset, add) in enumerate(steps):
         fo = run_fit(
-            calibration, preset, add=list(add), effects_file=effects_file, obs=obs, gyro=i == len(steps) - 1
+            calibration,
+            preset,
+            add=list(add),
+            effects_file=effects_file,
+            obs=obs,
+            gyro=gyro and i == len(steps) - 1,
         )
         row = {
             "model": fo.fit.model.name,
