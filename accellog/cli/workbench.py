@@ -112,6 +112,7 @@ def diagnose(
     helds = [observations(as_session(h, "--heldout"), window_s=window_s) for h in heldout or []]
     d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host, heldout=helds)
     if rrd is not None:
+        from accellog.present.residual_views import log_diagnosis_residuals
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_diagnosis, log_session
 
@@ -119,6 +120,7 @@ def diagnose(
             if not isinstance(data, ObsTable):
                 log_session(rec, data)
             log_diagnosis(rec, d, obs)
+            log_diagnosis_residuals(rec, d, obs)
             rec.log_series(
                 "residuals/windows",
                 np.asarray(obs.t_s, float),
@@ -277,6 +279,7 @@ def workbench_cmd(
     if output is not None:
         rows[-1]["fit"].cal.save(output)
     if rrd is not None:
+        from accellog.present.residual_views import log_workbench_residuals
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_diagnosis, log_session
 
@@ -285,6 +288,7 @@ def workbench_cmd(
             for i, d in enumerate(found.diagnoses, 1):
                 log_diagnosis(rec, d, obs, label=f"step {i}")
             log_ladder(rec, rows, obs, at_s=at_s)
+            log_workbench_residuals(rec, obs, found.diagnoses[0].fit, rows[-1]["fit"].fit)
     if as_json:
         print(json_text({"session": str(session), **found.to_json(), "ladder": ladder_json(rows)}))
         return
