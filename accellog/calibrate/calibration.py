@@ -207,7 +207,18 @@ class Calibration(JsonResult):
         fd = fit.to_dict()
         fit_info = {
             k: fd.get(k)
-            for k in ("method", "weighted", "chi2", "dof", "chi2_dof", "p_value", "rms_g", "n_obs")
+            for k in (
+                "method",
+                "weighted",
+                "chi2",
+                "dof",
+                "chi2_dof",
+                "p_value",
+                "rms_g",
+                "n_obs",
+                "uncertainty",
+                "between_hold_g",
+            )
         }
         fit_info["warnings"] = list(fit.warnings)
         fit_info["sigma_scaled"] = [float(x) for x in fit.sigma_scaled] if len(fit.sigma_scaled) else None

@@ -96,6 +96,13 @@ def fit(
     trim_s: Annotated[float, typer.Option(help="Trim at both ends of every hold (s).")] = 0.5,
     json_out: JsonOpt = False,
     rrd: RrdOpt = None,
+    uncertainty: Annotated[
+        str,
+        typer.Option(
+            help="1-sigma from: 'noise' (window noise only), 'between_hold' (plus the scatter between "
+            "holds, as a variance component) or 'jackknife' (leave one hold out)."
+        ),
+    ] = "noise",
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma)."""
     from accellog.flows.stages import load_input, run_fit
@@ -113,6 +120,7 @@ def fit(
         local_gravity_mps2=local_gravity,
         window_s=window_s,
         trim_s=trim_s,
+        uncertainty=uncertainty,
     )
     if _save_outcome(out, data, output, rrd, json_out):
         return

@@ -156,6 +156,7 @@ def run_fit(
     n_per_pose: int | None = None,
     obs: ObsTable | None = None,
     gyro: bool = True,
+    uncertainty: str = "noise",
 ) -> FitOutcome:
     """Segment (if needed) and fit one model; returns the calibration with its uncertainties.
 
@@ -164,6 +165,8 @@ def run_fit(
     |correct(reading)| = truth_g without pose labels; unlabelled sessions are segmented by
     detect_static (threshold sweep scored by the orientation-free residual). gyro: also
     calibrate the gyro from the session's holds and the moves between them (stored in cal.gyro).
+    uncertainty: 'noise' (window noise only), 'between_hold' (plus the between-hold variance
+    component) or 'jackknife' (leave one hold out); accellog.calibrate.variance.
     """
 
     src = str(data) if isinstance(data, (str, os.PathLike)) else None
@@ -196,6 +199,10 @@ def run_fit(
             obs, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=_name(data)
         )
         fit = fit_model(obs, m, weighted=weighted, gravity_g=truth)
+    if uncertainty != "noise":
+        from accellog.calibrate.variance import with_uncertainty
+
+        fit = with_uncertainty(fit, obs, uncertainty)
     sensor: dict[str, Any] = {}
     kind = ""
     if isinstance(data, Session):

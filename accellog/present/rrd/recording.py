@@ -188,6 +188,14 @@ class RunRecording:
         cols = v[:, 0] if v.shape[1] == 1 else v
         self.rec.send_columns(entity, indexes=idx, columns=rr.Scalars.columns(scalars=cols))
 
+    def log_static(self, entity: str, archetype: Any, role: str = "static") -> None:
+        """Any Rerun archetype logged once (static) at entity; role picks its view in the blueprint."""
+        self._guarded(self._log_static, entity, archetype, role)
+
+    def _log_static(self, entity: str, archetype: Any, role: str) -> None:
+        self._entities.setdefault(entity, role)
+        self.rec.log(entity, archetype, static=True)
+
     # -- pipeline data -------------------------------------------------------------------------------
     def log_samples(
         self,
