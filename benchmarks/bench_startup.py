@@ -34,8 +34,8 @@ def _heavy_imported(args: list[str]) -> list[str]:
     code = (
         "import sys, io, contextlib\n"
         "from accellog.cli import main\n"
-        "with contextlib.redirect_stdout(io.StringIO()): main(%r)\n"
-        "print(' '.join(m for m in %r if m in sys.modules))" % (args, HEAVY)
+        f"with contextlib.redirect_stdout(io.StringIO()): main({args!r})\n"
+        f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     return out.split()
