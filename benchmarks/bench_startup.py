@@ -48,8 +48,10 @@ def main() -> None:
     script = shutil.which("accellog")
     base = [script] if script else [sys.executable, "-m", "accellog"]
     load = os.getloadavg()
-    print(f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores"
-          + ("  (LOADED: figures inflated)" if load[0] > 0.5 * (os.cpu_count() or 1) else ""))
+    print(
+        f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores"
+        + ("  (LOADED: figures inflated)" if load[0] > 0.5 * (os.cpu_count() or 1) else "")
+    )
     floor = _wall_s([sys.executable, "-c", "pass"], a.repeat)
     print(f"{'command':<22} {'median s':>9} {'x python -c pass':>17} {'goal s':>7}  heavy modules loaded")
     print(f"{'python -c pass':<22} {floor:9.3f} {1.0:17.1f} {'':>7}")
