@@ -15,7 +15,7 @@ from accellog.core.errors import InputError
 from accellog.core.session import Session
 
 import_app = typer.Typer(
-    help="Import recordings (capstone CSV, imucal, generic CSV) into accellog MCAP files.",
+    help="Import recordings (capstone CSV, imucal, any logger's CSV, ROS 2 bags) into accellog MCAP files.",
     no_args_is_help=True,
 )
 app.add_typer(import_app, name="import", rich_help_panel="1. Record")
@@ -43,6 +43,11 @@ def _facts(session: Session, src: Path, out: Path) -> dict:
         "gyro": session.gyro_dps is not None,
         "poses": [p.name for p in session.poses],
         "events": len(session.events),
+        "notes": {
+            k: v
+            for k, v in session.meta.extra.items()
+            if k.startswith(("ros2_topic", "stamp_", "out_of", "dup"))
+        },
     }
 
 
@@ -173,3 +178,47 @@ def import_csv_cmd(
     _check_out(out)
     result = import_csv_to_mcap(file, out, opts, batch_size=batch_size)
     _present(result.to_dict(), file, out, as_json)
+
+
+@import_app.command("ros2")
+def import_ros2_cmd(
+    bag: Annotated[Path, typer.Argument(help="rosbag2 directory, or a single .mcap / .db3 file.")],
+    out: Annotated[
+        Path | None, typer.Option("-o", "--out", help="Output MCAP file (without it: list the bag's topics).")
+    ] = None,
+    topic: Annotated[str | None, typer.Option("--topic", help="sensor_msgs/msg/Imu topic.")] = None,
+    temperature_topic: Annotated[
+        str | None, typer.Option("--temperature-topic", help="sensor_msgs/msg/Temperature topic.")
+    ] = None,
+    mag_topic: Annotated[
+        str | None, typer.Option("--mag-topic", help="sensor_msgs/msg/MagneticField topic.")
+    ] = None,
+    detect_holds: Annotated[
+        bool, typer.Option("--detect-holds", help="Label the still intervals (detect_static) as poses.")
+    ] = False,
+    as_json: JsonOpt = False,
+    batch_size: BatchOpt = 500,
+) -> None:
+    """ROS 2 bag -> MCAP session: header stamps, m/s^2 -> g, rad/s -> deg/s, T -> uT; provenance kept.
+
+    Without -o, lists the bag's topics (IMU topics first) and exits.
+    """
+    from accellog.calibrate.detected_holds import label_detected_holds
+    from accellog.store.importers.ros2 import IMU_TYPE, import_ros2, list_topics
+
+    if out is None:
+        topics = sorted(list_topics(bag), key=lambda t: (t.msgtype != IMU_TYPE, t.topic))
+        if as_json:
+            typer.echo(json.dumps([t.__dict__ for t in topics]))
+            return
+        table = Table(title=f"topics of {bag.name} (import one IMU topic with --topic NAME -o OUT.mcap)")
+        for col in ("topic", "type", "messages"):
+            table.add_column(col)
+        for t in topics:
+            table.add_row(t.topic, t.msgtype, str(t.count))
+        Console().print(table)
+        return
+    session = import_ros2(bag, topic=topic, temperature_topic=temperature_topic, mag_topic=mag_topic)
+    if detect_holds:
+        session = label_detected_holds(session)
+    _write(session, bag, out, as_json, batch_size)

@@ -27,6 +27,8 @@ from accellog.store.importers.csv_poses import PoseRuns
 
 CSV_UNITS = ("g", "m/s^2", "counts")
 _T_DIV = {"s": 1.0, "ms": 1e3, "us": 1e6, "ns": 1e9}
+_HEAD_ROWS = 20_000
+"""Rows used to judge units and the nominal rate (the first block's head)."""
 _ABSOLUTE_CLOCK_S = 1e6
 """A first stamp beyond this many seconds is a wall clock: times are then counted from it."""
 
@@ -126,7 +128,8 @@ class CsvImport:
             if self.meta is None:
                 self._check_units(block)
                 t_first_s = float(t_s[0])
-                dt_s = float(np.median(np.diff(t_s))) if t_s.shape[0] > 1 else 0.0
+                head = t_s[:_HEAD_ROWS]
+                dt_s = float(np.median(np.diff(head))) if head.shape[0] > 1 else 0.0
                 self.meta = self._meta(t0, dt_s)
             if runs is not None:
                 true = _stack(block, ("true_x", "true_y", "true_z"))
@@ -173,10 +176,11 @@ class CsvImport:
         raise InputError(f"time goes backwards ({before:.9g} s -> {t_s[i]:.9g} s)", where=where)
 
     def _check_units(self, block: Block) -> None:
-        raw = _stack(block, ("ax", "ay", "az"))
+        """Units judged on the first rows (up to _HEAD_ROWS) of the file."""
+        raw = _stack(block, ("ax", "ay", "az"))[:_HEAD_ROWS]
         _unit_check(self.path, raw, self.opts)
         if "gx" in self.cols and self.opts.gyro_unit != "counts":
-            w = _stack(block, ("gx", "gy", "gz"))
+            w = _stack(block, ("gx", "gy", "gz"))[:_HEAD_ROWS]
             med = float(np.median(np.abs(w)))
             if med > (35.0 if self.opts.gyro_unit == "rad/s" else 2000.0):
                 off = "" if self.opts.count_offset else _offset_hint(w)

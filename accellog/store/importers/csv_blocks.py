@@ -159,7 +159,7 @@ class BlockReader:
                         carry = data
                         continue
                     data, carry = data[:cut], data[cut:]
-                if data.strip():
+                if data and not data.isspace():
                     yield self._parse(data, line)
                 line += data.count(b"\n")
                 if not buf:
