@@ -84,38 +84,61 @@ def _pick(conns, topic: str | None, msgtype: str, path: Path, flag: str, require
     raise InputError(f"several IMU topics: choose one with --topic: {listing}", where=str(path))
 
 
+_BLOCK = 65536
+
+
+def _messages(reader, conns):
+    """(connection, log time, raw) of conns in log-time order; a single bag is read directly (no merge)."""
+    if len(reader.readers) == 1:
+        return reader.readers[0].messages(connections=conns)
+    return reader.messages(connections=conns)
+
+
 def _read_imu(reader, conns):
-    """Arrays of the IMU messages: stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, covariances."""
-    n = sum(int(c.msgcount) for c in conns)
-    stamp = np.empty(n, np.int64)
-    log = np.empty(n, np.int64)
-    acc = np.empty((n, 3))
-    gyr = np.empty((n, 3))
+    """Arrays of the IMU messages: stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, covariances.
+
+    Rows are gathered in Python tuples and turned into arrays every _BLOCK messages (memory stays
+    one block of tuples plus the arrays)."""
+    des = reader.typestore.deserialize_cdr
+    blocks: list[np.ndarray] = []
+    rows: list[tuple] = []
     frames: set[str] = set()
-    cov_a = cov_g = None
-    k = 0
-    for conn, t_log, raw in reader.messages(connections=conns):
-        m = reader.deserialize(raw, conn.msgtype)
-        if k == n:  # the index undercounted: grow
-            stamp, log = np.resize(stamp, 2 * n + 1), np.resize(log, 2 * n + 1)
-            acc, gyr = np.resize(acc, (2 * n + 1, 3)), np.resize(gyr, (2 * n + 1, 3))
-            n = 2 * n + 1
-        stamp[k] = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-        log[k] = t_log
-        la, av = m.linear_acceleration, m.angular_velocity
-        acc[k] = (la.x, la.y, la.z)
-        gyr[k] = (av.x, av.y, av.z)
-        if k == 0:
-            cov_a, cov_g = np.array(m.linear_acceleration_covariance), np.array(m.angular_velocity_covariance)
+    first = None
+    for conn, t_log, raw in _messages(reader, conns):
+        m = des(raw, conn.msgtype)
+        st, la, av = m.header.stamp, m.linear_acceleration, m.angular_velocity
+        rows.append((st.sec, st.nanosec, t_log, la.x, la.y, la.z, av.x, av.y, av.z))
         frames.add(m.header.frame_id)
-        k += 1
-    return stamp[:k], log[:k], acc[:k], gyr[:k], frames, cov_a, cov_g
+        if first is None:
+            first = m
+        if len(rows) == _BLOCK:
+            blocks.append(_block(rows))
+            rows = []
+    if rows or not blocks:
+        blocks.append(_block(rows))
+    ints = np.concatenate([b[0] for b in blocks])
+    vals = np.concatenate([b[1] for b in blocks])
+    stamp = ints[:, 0] * 1_000_000_000 + ints[:, 1]
+    cov_a = cov_g = None
+    if first is not None:
+        cov_a = np.array(first.linear_acceleration_covariance)
+        cov_g = np.array(first.angular_velocity_covariance)
+    return stamp, ints[:, 2], vals[:, :3], vals[:, 3:], frames, cov_a, cov_g
+
+
+def _block(rows: list[tuple]) -> tuple[np.ndarray, np.ndarray]:
+    if not rows:
+        return np.empty((0, 3), np.int64), np.empty((0, 6))
+    ints = np.array([r[:3] for r in rows], dtype=np.int64)
+    vals = np.array([r[3:] for r in rows], dtype=np.float64)
+    return ints, vals
 
 
 def _read_scalar(reader, conns, kind: str):
     t, v = [], []
-    for conn, t_log, raw in reader.messages(connections=conns):
-        m = reader.deserialize(raw, conn.msgtype)
+    des = reader.typestore.deserialize_cdr
+    for conn, t_log, raw in _messages(reader, conns):
+        m = des(raw, conn.msgtype)
         st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
         t.append(st or t_log)
         if kind == "temp":
