@@ -81,7 +81,8 @@ elif variant == "pyarrow_open_csv":
         cols = [c.to_numpy() for c in b.columns]
         n += b.num_rows
 wall = time.perf_counter() - t0
-print(json.dumps({"wall_s": wall, "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "n": n}))
+ru = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({"wall_s": wall, "cpu_s": ru.ru_utime + ru.ru_stime, "peak_mb": ru.ru_maxrss / 1024, "n": n}))
 """
 
 
@@ -120,7 +121,7 @@ def main() -> None:
     for v in ("pyarrow_open_csv", "pyarrow_read_csv", "accellog_parse", "accellog"):
         res[v] = run(v, src, out)
         r = res[v]
-        print(f"{v:18s} wall {r['wall_s']:7.2f} s  peak RSS {r['peak_mb']:7.0f} MB  "
+        print(f"{v:18s} wall {r['wall_s']:7.2f} s  CPU {r['cpu_s']:7.2f} s  peak RSS {r['peak_mb']:7.0f} MB  "
               f"rows {r['n']:,}  load avg {os.getloadavg()[0]:.2f}", flush=True)  # fmt: skip
     acc = res["accellog"]["wall_s"]
     print(

@@ -10,8 +10,9 @@ Python process (peak RSS = its own ru_maxrss); the page cache is warmed first. V
   using the maintained decoder must pay);
 - accellog: import_ros2 (decode, SI -> accellog units, stamps vs log time, temperature interpolation)
   + write_session to an accellog MCAP, i.e. `accellog import ros2 BAG -o OUT.mcap`.
-Speed is reported as x real time (bag duration / wall) and as a ratio to the decode floor; the load
-average is printed with every figure (the machine is shared).
+Speed is reported as x real time (bag duration / wall, and / process CPU time, which a loaded shared
+machine distorts less) and as a ratio to the decode floor; the load average is printed with every
+figure (the machine is shared).
 """
 
 from __future__ import annotations
@@ -68,7 +69,8 @@ else:
     write_session(out, s)
     n = s.n
 wall = time.perf_counter() - t0
-print(json.dumps({"wall_s": wall, "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "n": n}))
+ru = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({"wall_s": wall, "cpu_s": ru.ru_utime + ru.ru_stime, "peak_mb": ru.ru_maxrss / 1024, "n": n}))
 """
 
 
@@ -100,6 +102,7 @@ def main() -> None:
     for v in ("read_floor", "decode_floor", "accellog"):
         res[v] = r = run(v, bag, out)
         print(f"{v:13s} wall {r['wall_s']:7.1f} s  {a.minutes * 60 / r['wall_s']:6.1f}x real time  "
+              f"(process CPU {r['cpu_s']:6.1f} s: {a.minutes * 60 / r['cpu_s']:6.1f}x)  "
               f"peak RSS {r['peak_mb']:6.0f} MB  load avg {os.getloadavg()[0]:.2f}", flush=True)  # fmt: skip
     acc = res["accellog"]["wall_s"]
     print(f"\naccellog import / decode floor: {acc / res['decode_floor']['wall_s']:.2f}x; "

@@ -86,10 +86,9 @@ class CsvImport:
                 f"--columns {','.join(bad)}: no such column in the header {','.join(names)}", where=where
             )
         cols = {k: o.column(k) for k in FIELDS if o.column(k) in names}
-        need = ["ax", "ay", "az"] + ([] if o.rate_hz else ["t"]) if "t" not in cols else ["ax", "ay", "az"]
-        missing = [c for c in need if c not in cols]
-        if missing == ["t"] and self.header.rate_hz:
-            missing = []
+        missing = [c for c in ("ax", "ay", "az") if c not in cols]
+        if "t" not in cols and not (o.rate_hz or self.header.rate_hz):
+            missing.append("t")
         if missing:
             hint = ", ".join(f"{c}=NAME" for c in missing)
             also = " or give the sample rate with --rate HZ" if "t" in missing else ""
