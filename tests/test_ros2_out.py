@@ -6,27 +6,13 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import pytest
-from mcap.reader import make_reader
-from mcap_ros2.decoder import DecoderFactory
 
 from accellog.calibrate.calibration import load_calibration
 from accellog.cli import main
 from accellog.flows.ros2_out import white_noise_var, write_ros2
 from accellog.flows.simulate import Scenario, simulate
-from accellog.store.importers import import_imucal
 from accellog.store.reader import read_session
-from tests.support.ros2_bags import session_to_bag
-
-
-def _decode(path):
-    """{topic: [ros message]} with mcap_ros2's own CDR decoder (not rosbags)."""
-    out: dict[str, list] = {}
-    with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _schema, channel, _message, msg in reader.iter_decoded_messages():
-            out.setdefault(channel.topic, []).append(msg)
-    return out
+from tests.support.ros2_bags import decode
 
 
 def _ok(argv, capsys):
@@ -43,7 +29,7 @@ def test_apply_ros2_round_trip_emulated(tmp_path, capsys):
     _ok(["fit", sim, "-o", cal], capsys)
     _ok(["apply", sim, "--cal", cal, "-o", cop, "--ros2", bag], capsys)
     s, c = read_session(sim), load_calibration(cal)
-    msgs = _decode(bag)
+    msgs = decode(bag)
     imu = msgs["/imu/data"]
     assert len(imu) == s.n
     acc = np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in imu])
@@ -73,25 +59,6 @@ def test_apply_ros2_round_trip_emulated(tmp_path, capsys):
         s, mag_t_s=mag_t, mag_uT=np.array([20.0, -5.0, 40.0]) + rng.normal(0, 0.3, (mag_t.size, 3))
     )
     write_ros2(s2, c, tmp_path / "mag.mcap")
-    got = _decode(tmp_path / "mag.mcap")["/imu/mag"]
+    got = decode(tmp_path / "mag.mcap")["/imu/mag"]
     mag = np.array([[m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z] for m in got])
     assert np.allclose(mag, s2.mag_uT * 1e-6, rtol=1e-15, atol=0)
-
-
-def test_imucal_bag_import_calibrate_export_read_back(shared_data, tmp_path, capsys):
-    """Real data: a rosbag2 bag of the imucal recording -> import -> fit -> apply --ros2 -> mcap_ros2."""
-    ref = import_imucal(shared_data / "imucal" / "example_ferraris_session.csv")
-    bag = session_to_bag(ref, tmp_path / "in.mcap")
-    ses, cal, cop, out = (tmp_path / n for n in ("s.mcap", "cal.json", "copy.mcap", "out.mcap"))
-    _ok(["import", "ros2", bag, "--detect-holds", "-o", ses], capsys)
-    _ok(["fit", ses, "-o", cal], capsys)
-    _ok(["apply", ses, "--cal", cal, "-o", cop, "--ros2", out], capsys)
-    imu = _decode(out)["/imu/data"]
-    acc = np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in imu])
-    assert acc.shape == (ref.n, 3)
-    # calibrated |a| over the still faces is local gravity within 0.5 % (imucal's own result: 9.8096-9.8106)
-    s = read_session(ses)
-    still = np.concatenate(
-        [np.arange(*s.slice_time(p.start_s + 0.5, p.end_s - 0.5).indices(s.n)) for p in s.poses]
-    )
-    assert np.median(np.linalg.norm(acc[still], axis=1)) == pytest.approx(9.81, rel=5e-3)

@@ -1,4 +1,5 @@
-"""Build rosbag2 MCAP bags for tests with rosbags' writer (the ROS 2 message definitions it ships)."""
+"""Build rosbag2 MCAP bags for tests with rosbags' writer (the ROS 2 message definitions it ships),
+and read bags back with an independent decoder (mcap-ros2-support)."""
 
 from __future__ import annotations
 
@@ -47,4 +48,17 @@ def session_to_bag(
             w.write_mag(
                 START_NS + np.round(s.mag_t_s * 1e9).astype(np.int64), s.mag_uT * 1e-6, topic=mag_topic
             )
+    return out
+
+
+def decode(path: Path) -> dict[str, list]:
+    """{topic: [message]} decoded with mcap + mcap-ros2-support (a CDR decoder independent of rosbags)."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    out: dict[str, list] = {}
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _schema, channel, _message, msg in reader.iter_decoded_messages():
+            out.setdefault(channel.topic, []).append(msg)
     return out
