@@ -123,6 +123,9 @@ def test_topics_listed_and_chosen(tmp_path, capsys):
     rc, _, err = _run(["import", "ros2", str(bag), "--topic", "/nope", "-o", str(out)], capsys)
     assert rc != 0 and "no such topic" in err
     sess = import_ros2(bag, topic="/imu/data", temperature_topic="/imu/temperature")
+    par = import_ros2(bag, topic="/imu/data", temperature_topic="/imu/temperature", jobs=3)  # time ranges
+    assert np.array_equal(par.t_s, sess.t_s) and np.array_equal(par.accel_g, sess.accel_g)
+    assert np.array_equal(par.gyro_dps, sess.gyro_dps) and par.meta.extra == sess.meta.extra
     assert np.array_equal(sess.temp_degC[::10], s.temp_degC[::10])  # 1-in-10 messages, interpolated between
     assert np.all(np.abs(sess.temp_degC - s.temp_degC) < 0.1)
     assert np.allclose(sess.accel_g, s.accel_g, rtol=1e-14, atol=1e-15)

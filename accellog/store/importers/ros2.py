@@ -14,6 +14,8 @@ of order are sorted (stable) and counted; duplicated stamps are kept (``accellog
 
 from __future__ import annotations
 
+import itertools
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,14 +89,46 @@ def _pick(conns, topic: str | None, msgtype: str, path: Path, flag: str, require
 _BLOCK = 65536
 
 
-def _messages(reader, conns):
-    """(connection, log time, raw) of conns in log-time order; a single bag is read directly (no merge)."""
+PARALLEL_MIN_MESSAGES = 400_000
+"""Bags with more IMU messages than this are decoded by several processes, one log-time range each."""
+
+
+def _messages(reader, conns, start=None, stop=None):
+    """(connection, log time, raw) of conns in log-time order, start <= log time < stop; a single bag
+    is read directly (no merge)."""
     if len(reader.readers) == 1:
-        return reader.readers[0].messages(connections=conns)
-    return reader.messages(connections=conns)
+        return reader.readers[0].messages(connections=conns, start=start, stop=stop)
+    return reader.messages(connections=conns, start=start, stop=stop)
 
 
-def _read_imu(reader, conns):
+def _read_range(path: str, topic: str, start: int, stop: int):
+    """Worker: the IMU messages of ``topic`` with start <= log time < stop (own reader, own process)."""
+    reader = _open(Path(path))
+    try:
+        conns = [c for c in reader.connections if c.topic == topic and c.msgtype == IMU_TYPE]
+        return _read_imu(reader, conns, start, stop)
+    finally:
+        reader.close()
+
+
+def _read_imu_parallel(reader, conns, path: Path, jobs: int):
+    """_read_imu split into ``jobs`` equal log-time ranges decoded in parallel (forked processes: each
+    opens the bag itself; results come back as arrays, concatenated in time order)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    t0, t1 = int(reader.start_time), int(reader.end_time) + 1
+    edges = [t0 + (t1 - t0) * k // jobs for k in range(jobs + 1)]
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as ex:
+        futs = [ex.submit(_read_range, str(path), conns[0].topic, a, b) for a, b in itertools.pairwise(edges)]
+        parts = [f.result() for f in futs]
+    frames = set().union(*(p[4] for p in parts))
+    first = next((p for p in parts if p[0].size), parts[0])
+    cat = [np.concatenate([p[i] for p in parts]) for i in range(4)]
+    return (*cat, frames, first[5], first[6])
+
+
+def _read_imu(reader, conns, start=None, stop=None):
     """Arrays of the IMU messages: stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, covariances.
 
     Rows are gathered in Python tuples and turned into arrays every _BLOCK messages (memory stays
@@ -104,7 +138,7 @@ def _read_imu(reader, conns):
     rows: list[tuple] = []
     frames: set[str] = set()
     first = None
-    for conn, t_log, raw in _messages(reader, conns):
+    for conn, t_log, raw in _messages(reader, conns, start, stop):
         m = des(raw, conn.msgtype)
         st, la, av = m.header.stamp, m.linear_acceleration, m.angular_velocity
         rows.append((st.sec, st.nanosec, t_log, la.x, la.y, la.z, av.x, av.y, av.z))
@@ -169,12 +203,14 @@ def import_ros2(
     topic: str | None = None,
     temperature_topic: str | None = None,
     mag_topic: str | None = None,
+    jobs: int | None = None,
 ) -> Session:
     """A rosbag2 IMU topic (plus optional Temperature and MagneticField topics) -> Session.
 
     Without ``topic`` the bag's only sensor_msgs/msg/Imu topic is used; with several, the error
     lists them. Provenance (bag, topic, frame_id, stamp/log-time agreement, the bag's covariances)
-    goes to meta.extra.
+    goes to meta.extra. jobs: decoding processes (default: the CPU count, up to 4, for bags with more
+    than PARALLEL_MIN_MESSAGES IMU messages; 1 otherwise).
     """
     path = Path(path)
     reader = _open(path)
@@ -183,7 +219,15 @@ def import_ros2(
         imu = _pick(conns, topic, IMU_TYPE, path, "--topic", True)
         tc = _pick(conns, temperature_topic, TEMP_TYPE, path, "--temperature-topic", False)
         mc = _pick(conns, mag_topic, MAG_TYPE, path, "--mag-topic", False)
-        stamp, log, acc, gyr, frames, cov_a, cov_g = _read_imu(reader, imu)
+        n_msg = sum(int(c.msgcount) for c in imu)
+        if jobs is None:
+            jobs = min(os.cpu_count() or 1, 4) if n_msg > PARALLEL_MIN_MESSAGES else 1
+        import multiprocessing
+
+        if jobs > 1 and len(imu) == 1 and "fork" in multiprocessing.get_all_start_methods():
+            stamp, log, acc, gyr, frames, cov_a, cov_g = _read_imu_parallel(reader, imu, path, jobs)
+        else:
+            stamp, log, acc, gyr, frames, cov_a, cov_g = _read_imu(reader, imu)
         temp = _read_scalar(reader, tc, "temp") if tc else None
         mag = _read_scalar(reader, mc, "mag") if mc else None
     except InputError:
