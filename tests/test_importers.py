@@ -225,7 +225,7 @@ def _sim_csv(
                 rows.append(
                     ",".join(
                         [
-                            fmt.format(t),
+                            f"{t:.17g}",
                             *(fmt.format(x) for x in v),
                             f"{25 + t / 10:.4f}",
                             "0.1,-0.2,0.3",
@@ -284,7 +284,12 @@ def test_generic_csv_quaternion_column(tmp_path):
         ("t,ax,ay,az\n0,0,0,1\n0.1,0,,1\n", [], ":3", "empty value"),
         ("t,ax,ay,az\n0,0,0,1\n0.2,0,0,1\n\n0.1,0,0,1\n", [], ":5", "backwards"),
         ("t,ax,ay,az,pose\n0,0,0,1,\n0.1,0,0,1,flat\n0.2,0,0,1,flat\n", [], ":3", "unknown pose 'flat'"),
-        ("t,ax,ay,az,pose,true_x,true_y,true_z\n0,0,0,1,a,0,0,2\n", [], ":2", "not a unit vector"),
+        (
+            "t,ax,ay,az,pose,true_x,true_y,true_z\n0,0,0,1,a,0,0,2\n0.1,0,0,1,a,0,0,2\n",
+            [],
+            ":2",
+            "not a unit vector",
+        ),
         ("t,ax,ay\n0,0,0\n", [], ":1", "missing column(s) az"),
         ("t,ax,ay,az\n0,0,0,9.81\n0.1,0,0,9.8\n", [], "", "--unit m/s^2"),
         ("t,ax,ay,az\n0,0,0,16384\n0.1,0,0,16390\n", [], "", "--unit counts --lsb-per-g 16384"),

@@ -205,11 +205,19 @@ def apply(
     output: Annotated[
         Path, typer.Option("-o", "--output", help="Output .mcap (copy + calibrated channels).")
     ],
+    ros2: Annotated[
+        Path | None,
+        typer.Option(
+            "--ros2", help="Also write a ROS 2 bag (sensor_msgs/Imu with covariances): OUT.mcap or a dir."
+        ),
+    ] = None,
 ) -> None:
     """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
     from accellog.flows.stages import run_apply
 
-    p = run_apply(session, cal, output)
+    p = run_apply(session, cal, output, ros2=ros2)
+    if ros2 is not None:
+        _console.print(f"wrote {ros2}")
     _console.print(f"wrote {p}")
 
 

@@ -15,7 +15,7 @@ from accellog.core.errors import InputError
 from accellog.core.session import Session
 
 import_app = typer.Typer(
-    help="Import recordings (capstone CSV, imucal, generic CSV) into accellog MCAP files.",
+    help="Import recordings (capstone CSV, imucal, any logger's CSV, ROS 2 bags) into accellog MCAP files.",
     no_args_is_help=True,
 )
 app.add_typer(import_app, name="import", rich_help_panel="1. Record")
@@ -43,18 +43,30 @@ def _facts(session: Session, src: Path, out: Path) -> dict:
         "gyro": session.gyro_dps is not None,
         "poses": [p.name for p in session.poses],
         "events": len(session.events),
+        "notes": {
+            k: v
+            for k, v in session.meta.extra.items()
+            if k.startswith(("ros2_topic", "stamp_", "out_of", "dup"))
+        },
     }
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and out.is_dir():
+        raise InputError("output is a directory", where=str(out))
+    if not out.parent.exists():
+        raise InputError("output folder does not exist", where=str(out))
 
 
 def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: int) -> None:
     from accellog.store.writer import write_session
 
-    if out.exists() and out.is_dir():
-        raise InputError("output is a directory", where=str(out))
-    if not out.parent.exists():
-        raise InputError("output folder does not exist", where=str(out))
+    _check_out(out)
     write_session(out, session, batch_size=batch_size)
-    facts = _facts(session, src, out)
+    _present(_facts(session, src, out), src, out, as_json)
+
+
+def _present(facts: dict, src: Path, out: Path, as_json: bool) -> None:
     if as_json:
         typer.echo(json.dumps(facts))
         return
@@ -62,6 +74,8 @@ def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: in
     table.add_column("field", style="bold")
     table.add_column("value")
     for k, v in facts.items():
+        if isinstance(v, dict):
+            v = "; ".join(f"{a}: {b}" for a, b in v.items())
         table.add_row(
             k, ", ".join(v) if isinstance(v, list) else (f"{v:.6g}" if isinstance(v, float) else str(v))
         )
@@ -105,16 +119,106 @@ def import_imucal_cmd(
 
 @import_app.command("csv")
 def import_csv_cmd(
-    file: Annotated[Path, typer.Argument(help="CSV with header t,ax,ay,az[,temp,gx,gy,gz,pose,true_*,q*].")],
+    file: Annotated[
+        Path, typer.Argument(help="Any logger's CSV with a header row (t,ax,ay,az[,temp,gx,gy,gz,pose,...]).")
+    ],
     out: OutOpt,
-    unit: Annotated[str, typer.Option("--unit", help="Unit of ax,ay,az: g, m/s^2 or counts.")] = "g",
+    unit: Annotated[str, typer.Option("--unit", help="Accelerometer unit: g, m/s^2 or counts.")] = "g",
     lsb_per_g: Annotated[
         float | None, typer.Option("--lsb-per-g", help="Counts per g (needed with --unit counts).")
     ] = None,
+    count_offset: Annotated[
+        float,
+        typer.Option("--count-offset", help="Subtracted from counts (32768 for offset-binary/unsigned)."),
+    ] = 0.0,
+    gyro_unit: Annotated[
+        str, typer.Option("--gyro-unit", help="Gyro unit: deg/s, rad/s or counts.")
+    ] = "deg/s",
+    gyro_lsb_per_dps: Annotated[
+        float | None,
+        typer.Option("--gyro-lsb-per-dps", help="Gyro counts per deg/s (with --gyro-unit counts)."),
+    ] = None,
+    columns: Annotated[
+        str | None,
+        typer.Option("--columns", help="Column map NAME=COLUMN,... e.g. t=time,ax=acc_x,gx=gyr_x."),
+    ] = None,
+    rate: Annotated[
+        float | None, typer.Option("--rate", help="Sample rate (Hz) when there is no time column.")
+    ] = None,
+    time_unit: Annotated[
+        str, typer.Option("--time-unit", help="Unit of the time column: s, ms, us, ns.")
+    ] = "s",
+    delimiter: Annotated[
+        str, typer.Option("--delimiter", help="Field separator (one character, or tab).")
+    ] = ",",
+    comment: Annotated[str, typer.Option("--comment", help="Lines starting with this are skipped.")] = "#",
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
 ) -> None:
-    """Generic CSV -> MCAP. t in s, temp in degC, gyro in deg/s; 'pose' names label static holds."""
-    from accellog.store.importers import import_csv
+    """Any logger's CSV -> MCAP, streamed in blocks (memory independent of the file's length).
 
-    _write(import_csv(file, unit=unit, lsb_per_g=lsb_per_g), file, out, as_json, batch_size)
+    temp in degC; 'pose' names label static holds. Examples: offset-binary counts
+    `--unit counts --lsb-per-g 16384 --count-offset 32768 --gyro-unit counts --gyro-lsb-per-dps 131`;
+    no time column `--rate 100` (or a '# rate: 100 Hz' line above the header).
+    """
+    from accellog.store.importers.csv import CsvOptions, import_csv_to_mcap
+
+    opts = CsvOptions.make(
+        unit=unit,
+        lsb_per_g=lsb_per_g,
+        count_offset=count_offset,
+        gyro_unit=gyro_unit,
+        gyro_lsb_per_dps=gyro_lsb_per_dps,
+        columns=columns,
+        rate_hz=rate,
+        time_unit=time_unit,
+        delimiter=delimiter,
+        comment=comment,
+    )
+    _check_out(out)
+    result = import_csv_to_mcap(file, out, opts, batch_size=batch_size)
+    _present(result.to_dict(), file, out, as_json)
+
+
+@import_app.command("ros2")
+def import_ros2_cmd(
+    bag: Annotated[Path, typer.Argument(help="rosbag2 directory, or a single .mcap / .db3 file.")],
+    out: Annotated[
+        Path | None, typer.Option("-o", "--out", help="Output MCAP file (without it: list the bag's topics).")
+    ] = None,
+    topic: Annotated[str | None, typer.Option("--topic", help="sensor_msgs/msg/Imu topic.")] = None,
+    temperature_topic: Annotated[
+        str | None, typer.Option("--temperature-topic", help="sensor_msgs/msg/Temperature topic.")
+    ] = None,
+    mag_topic: Annotated[
+        str | None, typer.Option("--mag-topic", help="sensor_msgs/msg/MagneticField topic.")
+    ] = None,
+    detect_holds: Annotated[
+        bool, typer.Option("--detect-holds", help="Label the still intervals (detect_static) as poses.")
+    ] = False,
+    as_json: JsonOpt = False,
+    batch_size: BatchOpt = 500,
+) -> None:
+    """ROS 2 bag -> MCAP session: header stamps, m/s^2 -> g, rad/s -> deg/s, T -> uT; provenance kept.
+
+    Without -o, lists the bag's topics (IMU topics first) and exits.
+    """
+    from accellog.calibrate.detected_holds import label_detected_holds
+    from accellog.store.importers.ros2 import IMU_TYPE, import_ros2, list_topics
+
+    if out is None:
+        topics = sorted(list_topics(bag), key=lambda t: (t.msgtype != IMU_TYPE, t.topic))
+        if as_json:
+            typer.echo(json.dumps([t.__dict__ for t in topics]))
+            return
+        table = Table(title=f"topics of {bag.name} (import one IMU topic with --topic NAME -o OUT.mcap)")
+        for col in ("topic", "type", "messages"):
+            table.add_column(col)
+        for t in topics:
+            table.add_row(t.topic, t.msgtype, str(t.count))
+        Console().print(table)
+        return
+    session = import_ros2(bag, topic=topic, temperature_topic=temperature_topic, mag_topic=mag_topic)
+    if detect_holds:
+        session = label_detected_holds(session)
+    _write(session, bag, out, as_json, batch_size)

@@ -325,10 +325,15 @@ def run_drift(
 
 
 def run_apply(
-    session_path: str | os.PathLike, cal: Calibration | str | os.PathLike, out: str | os.PathLike
+    session_path: str | os.PathLike,
+    cal: Calibration | str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    ros2: str | os.PathLike | None = None,
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
-    /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename)."""
+    /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename).
+    ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2)."""
 
     src = Path(session_path)
     if src.suffix.lower() != ".mcap":
@@ -381,4 +386,8 @@ def run_apply(
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    if ros2 is not None:
+        from accellog.flows.ros2_out import write_ros2
+
+        write_ros2(s, c, ros2)
     return out

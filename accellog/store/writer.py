@@ -307,6 +307,12 @@ class SessionWriter:
         self._add(topic, "Vector3Batch", int(t[0]), data)
         self._maybe_flush(int(t[-1]))
 
+    def update_meta(self, meta: SessionMeta) -> None:
+        """Record facts known only at the end (e.g. an importer's pose list) as a later 'session'
+        metadata record; readers take the last one."""
+        self.meta = meta
+        self._w.add_metadata("session", meta_to_metadata(meta))
+
     def attach(self, name: str, media_type: str, data: bytes) -> None:
         """Attach a file (e.g. 'calibration/accel.json', 'application/json')."""
         self._w.add_attachment(

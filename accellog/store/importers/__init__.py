@@ -12,13 +12,15 @@ from pathlib import Path
 from accellog.core.errors import InputError
 from accellog.core.session import Session
 from accellog.store.importers.capstone import PoseTable, import_capstone, load_capstone_pose_table
-from accellog.store.importers.csv import import_csv
+from accellog.store.importers.csv import CsvOptions, import_csv, import_csv_to_mcap
 from accellog.store.importers.imucal import import_imucal
 
 __all__ = [
+    "CsvOptions",
     "PoseTable",
     "import_capstone",
     "import_csv",
+    "import_csv_to_mcap",
     "import_file",
     "import_imucal",
     "load_capstone_pose_table",

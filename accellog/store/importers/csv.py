@@ -1,210 +1,457 @@
-"""Generic CSV: header row with t (s), ax, ay, az (unit given by the caller), optional temp (degC), gx, gy,
-gz (deg/s), pose, true_x, true_y, true_z, qw, qx, qy, qz.
+"""Any logger's CSV -> Session (``import_csv``) or straight to MCAP in bounded memory (``import_csv_to_mcap``).
+
+A header row names the columns; accellog's names (t, ax, ay, az, temp, gx, gy, gz, pose, true_x..z,
+qw..qz) are mapped onto the file's with ``CsvOptions.columns``. Units and conversions are in
+``accellog.store.importers.csv_options``; the source units, offsets and conversions are recorded in
+meta.extra. The file is parsed in byte blocks (``csv_blocks``), converted and checked block by block:
+time must strictly increase (duplicates and backward steps are refused with their line), a file needs
+two rows spanning a non-zero duration.
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from accellog.core.errors import InputError
-from accellog.core.protocol import pose_spec
-from accellog.core.session import PoseLabel, Session, SessionMeta
+from accellog.core.session import Session, SessionMeta
 from accellog.core.units import ACCEL_LSB_PER_G, STANDARD_GRAVITY_MPS2
-from accellog.store.importers.text import (
-    check_time,
-    hold_end,
-    line_of_row,
-    rate_hz,
-    read_lines,
-    read_table,
-)
+from accellog.store.importers.csv_blocks import BLOCK_BYTES, Block, BlockReader, read_header
+from accellog.store.importers.csv_options import FIELDS, GROUPS, TIME_UNITS, CsvOptions
+from accellog.store.importers.csv_poses import PoseRuns
 
 CSV_UNITS = ("g", "m/s^2", "counts")
+_T_DIV = {"s": 1.0, "ms": 1e3, "us": 1e6, "ns": 1e9}
+_HEAD_ROWS = 20_000
+"""Rows used to judge units and the nominal rate (the first block's head)."""
+_ABSOLUTE_CLOCK_S = 1e6
+"""A first stamp beyond this many seconds is a wall clock: times are then counted from it."""
 
 
-# ---------------------------------------------------------------------------------------------
-# generic CSV
+@dataclass
+class Chunk:
+    """Converted rows of one block (accellog units)."""
 
-_CSV_NUMERIC = [
-    "t",
-    "ax",
-    "ay",
-    "az",
-    "temp",
-    "gx",
-    "gy",
-    "gz",
-    "true_x",
-    "true_y",
-    "true_z",
-    "qw",
-    "qx",
-    "qy",
-    "qz",
-]
-_CSV_OPTIONAL = ("true_x", "true_y", "true_z", "qw", "qx", "qy", "qz")
+    first_index: int
+    t_s: np.ndarray
+    accel_g: np.ndarray
+    accel_counts: np.ndarray | None = None
+    gyro_dps: np.ndarray | None = None
+    gyro_counts: np.ndarray | None = None
+    temp_degC: np.ndarray | None = None
 
 
-def _unit_check(path: Path, raw: np.ndarray, unit: str, lsb_per_g: float | None) -> None:
-    """Reject values whose median |a| is not ~1 g in the declared unit, suggesting the right --unit."""
-    m = float(np.median(np.linalg.norm(raw, axis=1)))
-    to_g = {"g": 1.0, "m/s^2": 1.0 / STANDARD_GRAVITY_MPS2, "counts": 1.0 / (lsb_per_g or 1.0)}[unit]
+@dataclass
+class CsvImport:
+    """One CSV being imported: iterate ``chunks()``; afterwards ``meta`` and ``poses`` are final."""
+
+    path: Path
+    opts: CsvOptions
+    block_bytes: int = BLOCK_BYTES
+    meta: SessionMeta | None = None
+    poses: list = field(default_factory=list)
+    n: int = 0
+
+    def __post_init__(self) -> None:
+        self.path = Path(self.path)
+        self.header = read_header(self.path, self.opts)
+        self.cols = self._resolve()
+        self.rate_hz = self._rate()
+        strings = ("pose",) if "pose" in self.cols else ()
+        ints = ("t",) if "t" in self.cols and self.opts.time_unit == "ns" else ()
+        self.reader = BlockReader(
+            self.path,
+            self.header,
+            self.opts,
+            self.cols,
+            int_cols=ints,
+            string_cols=strings,
+            block_bytes=self.block_bytes,
+        )
+
+    # -- header ------------------------------------------------------------------------------------
+    def _resolve(self) -> dict[str, str]:
+        names, o, where = self.header.names, self.opts, f"{self.path}:{self.header.line}"
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise InputError(f"duplicate column(s) {', '.join(dup)}", where=where)
+        bad = [f"{k}={v}" for k, v in o.columns.items() if v not in names]
+        if bad:
+            raise InputError(
+                f"--columns {','.join(bad)}: no such column in the header {','.join(names)}", where=where
+            )
+        cols = {k: o.column(k) for k in FIELDS if o.column(k) in names}
+        missing = [c for c in ("ax", "ay", "az") if c not in cols]
+        if "t" not in cols and not (o.rate_hz or self.header.rate_hz):
+            missing.append("t")
+        if missing:
+            hint = ", ".join(f"{c}=NAME" for c in missing)
+            also = " or give the sample rate with --rate HZ" if "t" in missing else ""
+            raise InputError(
+                f"missing column(s) {', '.join(missing)} in the header {','.join(names)!r}: "
+                f"map them with --columns {hint}{also}",
+                where=where,
+            )
+        for group in GROUPS:
+            present = [c for c in group if c in cols]
+            if present and len(present) != len(group):
+                raise InputError(f"columns {', '.join(group)} must be given together", where=where)
+        if "t" in cols and o.rate_hz:
+            raise InputError(
+                f"--rate is for files without a time column, and column {cols['t']!r} holds the time: "
+                "drop --rate (or map the time column away with --columns)",
+                where=where,
+            )
+        return cols
+
+    def _rate(self) -> float | None:
+        if "t" in self.cols:
+            return None
+        return float(self.opts.rate_hz or self.header.rate_hz)
+
+    # -- blocks ------------------------------------------------------------------------------------
+    def chunks(self) -> Iterator[Chunk]:
+        """Converted blocks; raises InputError (file:line) on the first bad row."""
+        runs = PoseRuns(self.path) if "pose" in self.cols else None
+        t_prev = t0 = None
+        t_first_s = dt_s = 0.0
+        for block in self.reader:
+            t_s, t0 = self._time(block, t0)
+            if t_prev is not None or block.n > 1:
+                self._check_time(block, t_s, t_prev)
+            if self.meta is None:
+                self._check_units(block)
+                t_first_s = float(t_s[0])
+                head = t_s[:_HEAD_ROWS]
+                dt_s = float(np.median(np.diff(head))) if head.shape[0] > 1 else 0.0
+                self.meta = self._meta(t0, dt_s)
+            if runs is not None:
+                true = _stack(block, ("true_x", "true_y", "true_z"))
+                quat = _stack(block, ("qw", "qx", "qy", "qz"))
+                runs.feed(block.cols["pose"], t_s, true, quat, block.line_of)
+            yield self._convert(block, t_s)
+            self.n += block.n
+            t_prev = (float(t_s[-1]), block.line_of(block.n - 1))
+        if self.n == 0:
+            raise InputError("no data rows", where=str(self.path))
+        if self.n < 2 or t_prev[0] <= t_first_s:
+            raise InputError(
+                f"only {self.n} row(s) spanning {t_prev[0] - t_first_s:g} s: a recording needs at least two "
+                "samples at distinct times",
+                where=str(self.path),
+            )
+        if runs is not None:
+            dt = dt_s if dt_s > 0 else 0.0
+            self.poses = runs.finish(t_prev[0] + dt)
+            self.meta = self.meta.replace(protocol=",".join(p.name for p in self.poses))
+
+    def _time(self, block: Block, t0):
+        """Block times in s since the session origin (row / rate without a time column)."""
+        if self.rate_hz is not None:
+            return (self.n + np.arange(block.n, dtype=np.float64)) / self.rate_hz, 0
+        t = block.cols["t"]
+        if t0 is None:
+            first = t[0] / _T_DIV[self.opts.time_unit]
+            t0 = t[0] if first > _ABSOLUTE_CLOCK_S else 0
+        if t.dtype == np.int64:
+            return (t - t0) / 1e9, t0
+        return (t - t0) / _T_DIV[self.opts.time_unit] if t0 or self.opts.time_unit != "s" else t, t0
+
+    def _check_time(self, block: Block, t_s: np.ndarray, prev) -> None:
+        d = np.diff(t_s) if prev is None else np.diff(t_s, prepend=prev[0])
+        bad = np.flatnonzero(d <= 0)
+        if not bad.size:
+            return
+        i = int(bad[0]) + (1 if prev is None else 0)
+        before = float(t_s[i - 1]) if i > 0 else prev[0]
+        where = f"{self.path}:{block.line_of(i)}"
+        if t_s[i] == before:
+            raise InputError(f"duplicated timestamp ({before:.9g} s, as on the line before)", where=where)
+        raise InputError(f"time goes backwards ({before:.9g} s -> {t_s[i]:.9g} s)", where=where)
+
+    def _check_units(self, block: Block) -> None:
+        """Units judged on the first rows (up to _HEAD_ROWS) of the file."""
+        raw = _stack(block, ("ax", "ay", "az"))[:_HEAD_ROWS]
+        _unit_check(self.path, raw, self.opts)
+        if "gx" in self.cols and self.opts.gyro_unit != "counts":
+            w = _stack(block, ("gx", "gy", "gz"))[:_HEAD_ROWS]
+            med = float(np.median(np.abs(w)))
+            if med > (35.0 if self.opts.gyro_unit == "rad/s" else 2000.0):
+                off = "" if self.opts.count_offset else _offset_hint(w)
+                raise InputError(
+                    f"gyro values declared as {self.opts.gyro_unit} have a median magnitude of {med:.4g}, "
+                    f"beyond any MEMS range: they look like raw counts: use --gyro-unit counts "
+                    f"--gyro-lsb-per-dps LSB{off}",
+                    where=str(self.path),
+                )
+
+    def _meta(self, t0, dt_s: float) -> SessionMeta:
+        o = self.opts
+        extra = {"source_file": self.path.name, "source_unit": o.unit}
+        if o.columns:
+            extra["column_map"] = ",".join(f"{k}={v}" for k, v in o.columns.items())
+        used = set(self.cols.values())
+        ignored = [n for n in self.header.names if n not in used]
+        if ignored:
+            extra["ignored_columns"] = ",".join(ignored)
+        if o.unit == "counts":
+            off = f" - {o.count_offset:g})" if o.count_offset else ")"
+            extra["conversion"] = f"accel_counts = (raw{off}; accel_g = accel_counts / {o.lsb_per_g:g}"
+        elif o.unit == "m/s^2":
+            extra["conversion"] = "accel_g = a_mps2 / 9.80665 (original: a_mps2 = accel_g * 9.80665)"
+        if "gx" in self.cols:
+            extra["source_gyro_unit"] = o.gyro_unit
+            if o.gyro_unit == "rad/s":
+                extra["gyro_conversion"] = "gyro_dps = w_radps * 180 / pi"
+            elif o.gyro_unit == "counts":
+                off = f" - {o.count_offset:g})" if o.count_offset else ")"
+                extra["gyro_conversion"] = (
+                    f"gyro_counts = (raw{off}; gyro_dps = gyro_counts / {o.gyro_lsb_per_dps:g}"
+                )
+        if o.count_offset:
+            extra["count_offset"] = f"{o.count_offset:g}"
+        start_ns = 0
+        if self.rate_hz is not None:
+            src = "--rate" if o.rate_hz else f"header line: {self.header.rate_hz:g} Hz"
+            extra["time_source"] = f"row / {self.rate_hz:g} Hz ({src}); no time column"
+        else:
+            extra["time_source"] = f"column {self.cols['t']!r} in {o.time_unit}"
+            if t0:
+                extra["time_origin"] = f"{t0} {o.time_unit} (first stamp; t_s counts from it)"
+                t0_s = float(t0) / _T_DIV[o.time_unit]
+                if 1e9 < t0_s < 5e9:  # a Unix time stamp
+                    per = {"s": 10**9, "ms": 10**6, "us": 10**3, "ns": 1}[o.time_unit]
+                    exact = float(t0).is_integer()
+                    start_ns = int(t0) * per if exact else round(float(t0) * per)
+        rate = self.rate_hz if self.rate_hz is not None else (1.0 / dt_s if dt_s > 0 else 0.0)
+        return SessionMeta(
+            source="import:csv",
+            chip="unknown",
+            accel_lsb_per_g=float(o.lsb_per_g) if o.unit == "counts" else None,
+            gyro_lsb_per_dps=float(o.gyro_lsb_per_dps)
+            if o.gyro_unit == "counts" and "gx" in self.cols
+            else None,
+            sample_rate_hz=rate,
+            start_time_unix_ns=start_ns,
+            extra=extra,
+        )
+
+    def _convert(self, block: Block, t_s: np.ndarray) -> Chunk:
+        o = self.opts
+        raw = _stack(block, ("ax", "ay", "az"))
+        ch = Chunk(self.n, t_s, raw)
+        if o.unit == "counts":
+            ch.accel_counts = _counts(self.path, block, raw, o.count_offset, "ax,ay,az")
+            ch.accel_g = ch.accel_counts / o.lsb_per_g
+        elif o.unit == "m/s^2":
+            ch.accel_g = raw / STANDARD_GRAVITY_MPS2
+        if "gx" in self.cols:
+            w = _stack(block, ("gx", "gy", "gz"))
+            if o.gyro_unit == "counts":
+                ch.gyro_counts = _counts(self.path, block, w, o.count_offset, "gx,gy,gz")
+                ch.gyro_dps = ch.gyro_counts / o.gyro_lsb_per_dps
+            else:
+                ch.gyro_dps = np.rad2deg(w) if o.gyro_unit == "rad/s" else w
+        if "temp" in self.cols:
+            ch.temp_degC = block.cols["temp"]
+        return ch
+
+
+def _stack(block: Block, names) -> np.ndarray | None:
+    if names[0] not in block.cols:
+        return None
+    return np.stack([block.cols[n] for n in names], 1)
+
+
+def _counts(path: Path, block: Block, raw: np.ndarray, offset: float, what: str) -> np.ndarray:
+    c = raw - offset
+    frac = np.flatnonzero(np.any(c != np.round(c), axis=1) | np.any(np.abs(c) > 2**31 - 1, axis=1))
+    if frac.size:
+        raise InputError(
+            f"counts expected but {what} are not integers", where=f"{path}:{block.line_of(int(frac[0]))}"
+        )
+    return c.astype(np.int32)
+
+
+def _offset_hint(raw: np.ndarray) -> str:
+    """' --count-offset 32768' when the values sit around 32768 (offset-binary 16-bit counts)."""
+    return " --count-offset 32768" if abs(float(np.median(raw)) - 32768) < 8192 else ""
+
+
+def _unit_check(path: Path, raw: np.ndarray, o: CsvOptions) -> None:
+    """Reject accelerations whose median |a| is not ~1 g in the declared unit; the hint names flags
+    the user has not given yet (it never loops back to the options already in use)."""
+    m = float(np.median(np.linalg.norm(raw - (o.count_offset if o.unit == "counts" else 0.0), axis=1)))
+    to_g = {"g": 1.0, "m/s^2": 1.0 / STANDARD_GRAVITY_MPS2, "counts": 1.0 / (o.lsb_per_g or 1.0)}[o.unit]
     if 0.5 <= m * to_g <= 2.0:
         return
-    if 0.5 <= m <= 2.0:
-        hint = "they look like g: use --unit g"
+    offset = "" if o.count_offset else _offset_hint(raw)
+    if offset:
+        centred = float(np.median(np.linalg.norm(raw - 32768, axis=1)))
+        lsb = min(ACCEL_LSB_PER_G.values(), key=lambda v: abs(math.log(max(centred, 1e-9) / v)))
+        why = "they look like offset-binary counts centred on 32768"
+        flags = ["--unit counts", "--count-offset 32768", f"--lsb-per-g {o.lsb_per_g or lsb:g}"]
+    elif 0.5 <= m <= 2.0:
+        why, flags = "they look like g", ["--unit g"]
     elif 4.9 <= m <= 19.6:
-        hint = "they look like m/s^2: use --unit m/s^2"
+        why, flags = "they look like m/s^2", ["--unit m/s^2"]
     elif m >= 500:
         lsb = min(ACCEL_LSB_PER_G.values(), key=lambda v: abs(math.log(m / v)))
-        hint = f"they look like raw counts: use --unit counts --lsb-per-g {lsb:g}"
+        why = "they look like raw counts"
+        if o.unit == "counts":
+            why = f"with --lsb-per-g {o.lsb_per_g:g} that is {m * to_g:.3g} g"
+        flags = ["--unit counts", f"--lsb-per-g {lsb:g}"]
     else:
-        hint = "check --unit (g, m/s^2 or counts with --lsb-per-g)"
-    if unit == "counts" and m >= 500:
-        hint = f"with --lsb-per-g {lsb_per_g:g} that is {m * to_g:.3g} g: {hint}"
+        why, flags = "", []
+    new = [f for f in flags if f not in o.given_flags()]
+    if new:
+        hint = f"{why}: use {' '.join(flags)}"
+    else:  # every flag the evidence points to is already given: never loop back to them
+        hint = "no unit or scale makes this ~1 g at rest: check --columns and the file's units"
     raise InputError(
-        f"accelerometer values declared as {unit} have a median magnitude of {m:.4g} {unit} "
+        f"accelerometer values declared as {o.unit} have a median magnitude of {m:.4g} "
+        f"{o.unit}{' (after the offset)' if o.unit == 'counts' and o.count_offset else ''} "
         f"(a recording should read ~1 g at rest): {hint}",
         where=str(path),
     )
 
 
-def import_csv(path: str | Path, *, unit: str = "g", lsb_per_g: float | None = None) -> Session:
-    """Generic CSV -> Session.
+def _options(opts: CsvOptions | None, kw: dict) -> CsvOptions:
+    if opts is not None and kw:
+        raise TypeError("give either options or keyword options")
+    return opts if opts is not None else CsvOptions.make(**kw)
 
-    Header row; t (s, non-decreasing), ax, ay, az in ``unit`` ('g', 'm/s^2', or 'counts' with
-    lsb_per_g counts per g); optional temp (degC), gx, gy, gz (deg/s); pose (name during a static hold,
-    empty otherwise: consecutive rows with one name form a hold); true_x, true_y, true_z (unit up vector
-    in the sensor frame, optional for +x..-z and '+z@90'-style names); qw, qx, qy, qz (orientation).
+
+def import_csv(path: str | Path, options: CsvOptions | None = None, **kw) -> Session:
+    """Generic CSV -> in-memory Session (keywords as ``CsvOptions.make``: unit, lsb_per_g, columns, ...).
+
+    For long files prefer ``import_csv_to_mcap``, whose memory does not grow with the file.
     """
-    path = Path(path)
-    if unit not in CSV_UNITS:
-        raise InputError(f"unknown unit {unit!r}: use one of {', '.join(CSV_UNITS)}")
-    if unit == "counts" and not lsb_per_g:
-        raise InputError("--unit counts needs --lsb-per-g (e.g. 16384 for +-2 g)")
-    if lsb_per_g is not None and lsb_per_g <= 0:
-        raise InputError(f"--lsb-per-g must be positive, got {lsb_per_g:g}")
-    lines = read_lines(path)
-    if not lines:
-        raise InputError("empty file", where=str(path))
-    names = [h.strip() for h in lines[0].split(",")]
-    missing = [c for c in ("t", "ax", "ay", "az") if c not in names]
-    if missing:
-        raise InputError(
-            f"missing column(s) {', '.join(missing)} in the header {lines[0]!r}", where=f"{path}:1"
-        )
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise InputError(f"duplicate column(s) {', '.join(dup)}", where=f"{path}:1")
-    for group in (("gx", "gy", "gz"), ("true_x", "true_y", "true_z"), ("qw", "qx", "qy", "qz")):
-        present = [c for c in group if c in names]
-        if present and len(present) != len(group):
-            raise InputError(f"columns {', '.join(group)} must be given together", where=f"{path}:1")
-    strings = tuple(n for n in names if n not in _CSV_NUMERIC)  # 'pose' and any unknown column
-    cols = read_table(path, lines, 2, names, strings=strings, optional=_CSV_OPTIONAL)
-    t = cols["t"]
-    n = t.shape[0]
-    check_time(path, lines, 2, t)
-    raw = np.stack([cols["ax"], cols["ay"], cols["az"]], 1)
-    _unit_check(path, raw, unit, lsb_per_g)
-    extra = {"source_file": path.name, "source_unit": unit}
-    ignored = [c for c in strings if c != "pose"]
-    if ignored:
-        extra["ignored_columns"] = ",".join(ignored)
-    counts = None
-    if unit == "counts":
-        frac = np.flatnonzero(np.any(raw != np.round(raw), axis=1) | np.any(np.abs(raw) > 2**31 - 1, axis=1))
-        if frac.size:
-            no = line_of_row(lines, 2, int(frac[0]))
-            raise InputError("--unit counts but ax,ay,az are not integers", where=f"{path}:{no}")
-        counts = raw.astype(np.int32)
-        accel_g = counts / lsb_per_g
-        extra["conversion"] = f"accel_g = counts / {lsb_per_g:g}"
-    elif unit == "m/s^2":
-        accel_g = raw / STANDARD_GRAVITY_MPS2
-        extra["conversion"] = "accel_g = a_mps2 / 9.80665 (original: a_mps2 = accel_g * 9.80665)"
-    else:
-        accel_g = raw
-    poses = _csv_poses(path, lines, t, cols) if "pose" in cols else []
-    meta = SessionMeta(
-        source="import:csv",
-        chip="unknown",
-        accel_lsb_per_g=float(lsb_per_g) if unit == "counts" else None,
-        sample_rate_hz=rate_hz(t),
-        protocol=",".join(p.name for p in poses),
-        extra=extra,
-    )
-    gyro = np.stack([cols["gx"], cols["gy"], cols["gz"]], 1) if "gx" in cols else None
+    block_bytes = kw.pop("block_bytes", BLOCK_BYTES)
+    imp = CsvImport(Path(path), _options(options, kw), block_bytes)
+    parts = list(imp.chunks())
+
+    def cat(name):
+        arrs = [getattr(c, name) for c in parts]
+        return None if arrs[0] is None else np.concatenate(arrs)
+
     return Session(
-        meta=meta,
-        t_s=t,
-        sample_index=np.arange(n, dtype=np.int64),
-        accel_g=accel_g,
-        accel_counts=counts,
-        gyro_dps=gyro,
-        temp_degC=cols.get("temp"),
-        poses=poses,
+        meta=imp.meta,
+        t_s=cat("t_s"),
+        sample_index=np.arange(imp.n, dtype=np.int64),
+        accel_g=cat("accel_g"),
+        accel_counts=cat("accel_counts"),
+        gyro_dps=cat("gyro_dps"),
+        gyro_counts=cat("gyro_counts"),
+        temp_degC=cat("temp_degC"),
+        poses=imp.poses,
         path=str(path),
     )
 
 
-def _csv_poses(path: Path, lines: list[str], t: np.ndarray, cols: dict) -> list[PoseLabel]:
-    names = np.array(["" if v is None else str(v).strip() for v in cols["pose"]], dtype=object)
-    n = names.shape[0]
-    starts = np.concatenate([[0], np.flatnonzero(names[1:] != names[:-1]) + 1])
-    ends = np.concatenate([starts[1:], [n]])
-    true = np.stack([cols["true_x"], cols["true_y"], cols["true_z"]], 1) if "true_x" in cols else None
-    quat = np.stack([cols["qw"], cols["qx"], cols["qy"], cols["qz"]], 1) if "qw" in cols else None
-    poses: list[PoseLabel] = []
-    for s, e in zip(starts.tolist(), ends.tolist(), strict=True):
-        name = names[s]
-        if not name:
-            continue
-        where = f"{path}:{line_of_row(lines, 2, s)}"
-        spec = None
-        with contextlib.suppress(InputError):  # unknown names need true_x,true_y,true_z
-            spec = pose_spec(name, 0.0)
-        up = q = None
-        if true is not None:
-            seg = true[s:e]
-            ok = np.all(np.isfinite(seg), axis=1)
-            if ok.any():
-                up_v = seg[ok][0]
-                diff = np.flatnonzero(ok & np.any(np.abs(seg - up_v) > 1e-9, axis=1))
-                if diff.size:
-                    no = line_of_row(lines, 2, s + int(diff[0]))
-                    raise InputError(
-                        f"pose {name!r}: true_x,true_y,true_z change within the hold", where=f"{path}:{no}"
-                    )
-                if abs(float(np.linalg.norm(up_v)) - 1.0) > 1e-3:
-                    raise InputError(
-                        f"pose {name!r}: true_x,true_y,true_z = {up_v.tolist()} is not a unit vector",
-                        where=where,
-                    )
-                up = tuple(float(v) for v in up_v)
-        if up is None:
-            if spec is None:
-                raise InputError(
-                    f"unknown pose {name!r} without true_x,true_y,true_z: use +x,-x,+y,-y,+z,-z "
-                    "(optionally '@<deg>') or give the up vector",
-                    where=where,
+@dataclass
+class CsvImportResult:
+    """What ``import_csv_to_mcap`` wrote."""
+
+    input: str
+    output: str
+    source: str
+    samples: int
+    duration_s: float
+    sample_rate_hz: float
+    source_unit: str
+    accel_storage: str
+    gyro: bool
+    poses: list[str]
+    extra: dict[str, str]
+
+    def to_dict(self) -> dict:
+        from dataclasses import asdict
+
+        return asdict(self)
+
+
+def import_csv_to_mcap(
+    path: str | Path,
+    out: str | Path,
+    options: CsvOptions | None = None,
+    *,
+    batch_size: int = 500,
+    block_bytes: int = BLOCK_BYTES,
+    compression: str | None = None,
+) -> CsvImportResult:
+    """Stream a CSV into an accellog MCAP (temp file + rename: nothing half-written on error).
+
+    Memory: one block of text (``block_bytes``) and its columns, plus the MCAP chunk being built.
+    """
+    from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter
+
+    path, out = Path(path), Path(out)
+    imp = CsvImport(path, options or CsvOptions(), block_bytes)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    w = None
+    t_first = t_last = 0.0
+    try:
+        for ch in imp.chunks():
+            if w is None:
+                w = SessionWriter(
+                    tmp,
+                    imp.meta,
+                    flush_interval_s=math.inf,
+                    chunk_size=1024 * 1024,
+                    compression=compression or DEFAULT_COMPRESSION,
                 )
-            up = spec.up_sensor
-        if quat is not None:
-            qs = quat[s:e]
-            okq = np.all(np.isfinite(qs), axis=1)
-            if okq.any():
-                qv = qs[okq][0]
-                if abs(float(np.linalg.norm(qv)) - 1.0) > 1e-3:
-                    raise InputError(
-                        f"pose {name!r}: qw,qx,qy,qz = {qv.tolist()} is not a unit quaternion", where=where
-                    )
-                q = tuple(float(v) for v in qv)
-        if q is None and spec is not None and np.allclose(spec.up_sensor, up, atol=1e-9):
-            q = spec.q_sensor_to_world
-        poses.append(PoseLabel(name, float(t[s]), hold_end(t, e), up, q, len(poses)))
-    return poses
+                t_first = float(ch.t_s[0])
+            t_ns = np.round(ch.t_s * 1e9).astype(np.int64)
+            for s in range(0, t_ns.shape[0], batch_size):
+                e = s + batch_size
+                w.write_imu(
+                    ch.first_index + s,
+                    t_ns[s:e],
+                    accel_counts=None if ch.accel_counts is None else ch.accel_counts[s:e],
+                    gyro_counts=None if ch.gyro_counts is None else ch.gyro_counts[s:e],
+                    accel_g=ch.accel_g[s:e] if ch.accel_counts is None else None,
+                    gyro_dps=ch.gyro_dps[s:e] if ch.gyro_dps is not None and ch.gyro_counts is None else None,
+                    temp_degC=None if ch.temp_degC is None else ch.temp_degC[s:e],
+                )
+            t_last = float(ch.t_s[-1])
+        for p in imp.poses:
+            w.write_pose(p)
+        w.update_meta(imp.meta)
+        w.close()
+        os.replace(tmp, out)
+    except BaseException:
+        if w is not None:
+            w.close()
+        tmp.unlink(missing_ok=True)
+        raise
+    m = imp.meta
+    return CsvImportResult(
+        input=str(path),
+        output=str(out),
+        source=m.source,
+        samples=imp.n,
+        duration_s=t_last - t_first,
+        sample_rate_hz=m.sample_rate_hz,
+        source_unit=imp.opts.unit,
+        accel_storage=f"counts ({m.accel_lsb_per_g:g} LSB/g)" if m.accel_lsb_per_g else "g (float64)",
+        gyro=m.extra.get("source_gyro_unit") is not None,
+        poses=[p.name for p in imp.poses],
+        extra=dict(m.extra),
+    )
+
+
+__all__ = [
+    "CSV_UNITS",
+    "TIME_UNITS",
+    "CsvImport",
+    "CsvImportResult",
+    "CsvOptions",
+    "import_csv",
+    "import_csv_to_mcap",
+]

@@ -1,0 +1,60 @@
+"""`accellog export CAL.json --to kalibr|ros|px4|ardupilot|yaml`: calibrations for other tools."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from accellog.cli.app import app
+from accellog.core.errors import InputError
+
+
+@app.command("export", rich_help_panel="2. Calibrate")
+def export_cmd(
+    cal: Annotated[Path, typer.Argument(help="Calibration JSON (accellog fit -o).")],
+    to: Annotated[str, typer.Option("--to", help="kalibr | ros | px4 | ardupilot | yaml")],
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Write here (default: stdout).")
+    ] = None,
+    noise_from: Annotated[
+        Path | None,
+        typer.Option(
+            "--noise-from", help="Still recording (.mcap/.csv) for noise densities and random walks."
+        ),
+    ] = None,
+    topic: Annotated[str, typer.Option("--topic", help="IMU topic (Kalibr rostopic).")] = "/imu/data",
+    frame_id: Annotated[str, typer.Option("--frame-id", help="frame_id (ros).")] = "imu_link",
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Values, units and what the target cannot hold.")
+    ] = False,
+) -> None:
+    """Write a calibration in another tool's format and say which terms that format cannot hold."""
+    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.imu_noise import characterise_noise
+    from accellog.flows.stages import as_session
+    from accellog.present.exports import export_calibration
+
+    c = load_calibration(cal)
+    noise = characterise_noise(as_session(noise_from, "--noise-from")) if noise_from else None
+    ex = export_calibration(c, to, noise=noise, topic=topic, frame_id=frame_id)
+    if output is not None:
+        if not output.parent.exists():
+            raise InputError("output folder does not exist", where=str(output))
+        tmp = output.with_name(f".{output.name}.{os.getpid()}.tmp")
+        tmp.write_text(ex.text)
+        os.replace(tmp, output)
+    if as_json:
+        typer.echo(json.dumps({k: v for k, v in ex.to_dict().items() if k != "text"}, default=float))
+        return
+    if output is None:
+        typer.echo(ex.text, nl=False)
+        return
+    console = Console(stderr=True)
+    console.print(f"wrote {output} ({to})")
+    for x in ex.cannot_hold:
+        console.print(f"[yellow]cannot hold:[/] {x}")

@@ -1,0 +1,261 @@
+"""Streaming CSV reading: header/preamble detection, then byte blocks parsed by pyarrow (vectorised).
+
+Memory is one block (``block_bytes`` of text, default 16 MB) plus its parsed columns, whatever the
+file's length. Line numbers stay exact: a block knows its first line, and rows map to lines in O(1)
+unless the block holds blank or comment lines (then a Python scan of that block, only when asked).
+A block pyarrow refuses, or one with empty/non-finite cells, is re-read line by line in Python to name
+the first bad line (``file:line``), so errors cost time only when there is an error.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from accellog.core.errors import InputError
+from accellog.store.importers.csv_options import OPTIONAL_VALUES, CsvOptions
+
+BLOCK_BYTES = 16 * 1024 * 1024
+_HEAD_BYTES = 1 << 20
+_RATE_RES = (
+    re.compile(r"(\d+(?:\.\d+)?)\s*hz\b", re.IGNORECASE),
+    re.compile(r"\b(?:rate|frequency|freq|fs|odr)\b\D{0,24}?(\d+(?:\.\d+)?)", re.IGNORECASE),
+)
+
+
+@dataclass
+class Header:
+    """The column header row and what precedes it (comments, a rate line)."""
+
+    names: list[str]
+    line: int
+    """1-based line number of the header row."""
+    data_offset: int
+    """Byte offset of the line after the header."""
+    preamble: list[str] = field(default_factory=list)
+    rate_hz: float | None = None
+    """Sample rate stated in the preamble ('# rate: 100 Hz', 'Sample rate,100'), if any."""
+
+
+def _rate_in(lines: list[str]) -> float | None:
+    for line in lines:
+        for rx in _RATE_RES:
+            m = rx.search(line)
+            if m and float(m.group(1)) > 0:
+                return float(m.group(1))
+    return None
+
+
+def read_header(path: Path, opts: CsvOptions) -> Header:
+    """Find the header row: the first line that is not blank, not a comment and has >= 3 fields."""
+    if not path.is_file():
+        raise InputError("no such file", where=str(path))
+    with open(path, "rb") as f:
+        head = f.read(_HEAD_BYTES)
+    bom = 3 if head.startswith(b"\xef\xbb\xbf") else 0
+    if not head[bom:].strip():
+        raise InputError("empty file", where=str(path))
+    offset, preamble = bom, []
+    for no, raw in enumerate(head[bom:].splitlines(keepends=True), start=1):
+        end = offset + len(raw)
+        if not raw.endswith((b"\n", b"\r")) and len(head) == _HEAD_BYTES:
+            break
+        try:
+            line = raw.decode("utf-8").strip()
+        except UnicodeDecodeError:
+            raise InputError("not a text (UTF-8) CSV file", where=f"{path}:{no}") from None
+        offset = end
+        if not line or (opts.comment and line.startswith(opts.comment)):
+            preamble.append(line)
+            continue
+        fields = [c.strip().strip('"').strip() for c in line.split(opts.delimiter)]
+        if len(fields) < 3:
+            preamble.append(line)
+            continue
+        if all(_is_number(c) for c in fields if c):
+            raise InputError(
+                "no header row: the first data line holds only numbers; add a line naming the columns "
+                "(e.g. t,ax,ay,az,gx,gy,gz) and map them with --columns",
+                where=f"{path}:{no}",
+            )
+        return Header(fields, no, offset, preamble, _rate_in(preamble))
+    raise InputError(
+        f"no header row with 3 or more {opts.delimiter!r}-separated columns (check --delimiter)",
+        where=str(path),
+    )
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+@dataclass
+class Block:
+    """Parsed rows of one byte block: columns by accellog name, and the map from rows to file lines."""
+
+    cols: dict[str, np.ndarray]
+    n: int
+    first_line: int
+    text: bytes
+    clean: bool
+    comment: bytes
+    _lines: np.ndarray | None = None
+
+    def line_of(self, row: int) -> int:
+        """1-based file line of data row ``row`` of this block."""
+        if self.clean:
+            return self.first_line + row
+        if self._lines is None:
+            nos = [
+                self.first_line + i
+                for i, ln in enumerate(self.text.split(b"\n"))
+                if ln.strip() and not (self.comment and ln.lstrip().startswith(self.comment))
+            ]
+            self._lines = np.asarray(nos, dtype=np.int64)
+        return int(self._lines[row]) if row < self._lines.shape[0] else self.first_line
+
+
+class BlockReader:
+    """Iterate over ``Block``s of a CSV whose header is ``header``; ``wanted`` maps accellog name ->
+    file column; ``int_cols`` are parsed as int64 (e.g. nanosecond stamps), ``string_cols`` as str."""
+
+    def __init__(
+        self,
+        path: Path,
+        header: Header,
+        opts: CsvOptions,
+        wanted: dict[str, str],
+        *,
+        int_cols=(),
+        string_cols=(),
+        block_bytes: int = BLOCK_BYTES,
+    ) -> None:
+        self.path, self.header, self.opts, self.wanted = path, header, opts, wanted
+        self.int_cols, self.string_cols = set(int_cols), set(string_cols)
+        self.block_bytes = int(block_bytes)
+        self._comment = opts.comment.encode() if opts.comment else b""
+
+    def __iter__(self) -> Iterator[Block]:
+        line = self.header.line + 1
+        carry = b""
+        with open(self.path, "rb") as f:
+            f.seek(self.header.data_offset)
+            while True:
+                buf = f.read(self.block_bytes)
+                data = carry + buf
+                if buf:
+                    cut = data.rfind(b"\n") + 1
+                    if cut == 0:
+                        carry = data
+                        continue
+                    data, carry = data[:cut], data[cut:]
+                if data and not data.isspace():
+                    yield self._parse(data, line)
+                line += data.count(b"\n")
+                if not buf:
+                    return
+
+    # -- one block ---------------------------------------------------------------------------------
+    def _parse(self, data: bytes, first_line: int) -> Block:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+
+        c = self._comment
+        has_comment = bool(c) and (data.lstrip().startswith(c) or b"\n" + c in data)
+        clean = not has_comment and b"\n\n" not in data and b"\n\r\n" not in data and data[:1] not in b"\r\n"
+        body = data
+        if has_comment:
+            body = b"\n".join(ln for ln in data.split(b"\n") if not ln.lstrip().startswith(c))
+        types = {}
+        for key, col in self.wanted.items():
+            types[col] = (
+                pa.string()
+                if key in self.string_cols
+                else pa.int64()
+                if key in self.int_cols
+                else pa.float64()
+            )
+        try:
+            table = pacsv.read_csv(
+                io.BytesIO(body),
+                read_options=pacsv.ReadOptions(column_names=self.header.names, encoding="utf8"),
+                parse_options=pacsv.ParseOptions(delimiter=self.opts.delimiter),
+                convert_options=pacsv.ConvertOptions(
+                    column_types=types,
+                    include_columns=list(types),
+                    null_values=[""],
+                    strings_can_be_null=False,
+                    quoted_strings_can_be_null=False,
+                ),
+            )
+        except (pa.ArrowInvalid, UnicodeDecodeError) as exc:
+            self._diagnose(data, first_line)
+            where = f"{self.path}:{first_line}"
+            raise InputError(f"cannot parse CSV: {str(exc).splitlines()[0]}", where=where) from None
+        cols: dict[str, np.ndarray] = {}
+        bad = False
+        for key, col in self.wanted.items():
+            arr = table.column(col)
+            if key in self.string_cols:
+                cols[key] = arr.to_numpy(zero_copy_only=False).astype(object)
+                continue
+            null = arr.null_count > 0
+            if null and key not in OPTIONAL_VALUES:
+                bad = True
+            values = arr.to_numpy(zero_copy_only=False)
+            if key in self.int_cols:
+                cols[key] = values.astype(np.int64, copy=False)
+                continue
+            values = np.asarray(values, dtype=np.float64)
+            finite = values if not null else values[~np.isnan(values)]
+            bad = bad or not np.isfinite(finite).all()
+            cols[key] = values
+        if bad:
+            self._diagnose(data, first_line)
+        return Block(cols, table.num_rows, first_line, data, clean, c)
+
+    def _diagnose(self, data: bytes, first_line: int) -> None:
+        """Raise InputError at the first bad line of the block (column count, empty or non-number cells)."""
+        names = self.header.names
+        index = {key: names.index(col) for key, col in self.wanted.items()}
+        where = str(self.path)
+        for k, raw in enumerate(data.split(b"\n")):
+            no = first_line + k
+            try:
+                line = raw.decode("utf-8").strip()
+            except UnicodeDecodeError:
+                raise InputError("not UTF-8 text", where=f"{where}:{no}") from None
+            if not line or (self.opts.comment and line.startswith(self.opts.comment)):
+                continue
+            parts = line.split(self.opts.delimiter)
+            if len(parts) != len(names):
+                raise InputError(
+                    f"expected {len(names)} columns ({','.join(names)}), found {len(parts)}",
+                    where=f"{where}:{no}",
+                )
+            for key, i in index.items():
+                if key in self.string_cols:
+                    continue
+                v = parts[i].strip().strip('"')
+                name = names[i]
+                if v == "":
+                    if key in OPTIONAL_VALUES:
+                        continue
+                    raise InputError(f"empty value in column {name!r}", where=f"{where}:{no}")
+                try:
+                    x = int(v) if key in self.int_cols else float(v)
+                except ValueError:
+                    what = "an integer" if key in self.int_cols else "a number"
+                    raise InputError(f"column {name!r}: {v!r} is not {what}", where=f"{where}:{no}") from None
+                if not math.isfinite(x):
+                    raise InputError(f"column {name!r}: {v!r} is not a finite number", where=f"{where}:{no}")

@@ -1,0 +1,142 @@
+"""Options of the generic CSV importer: column map, units, counts, time and rate, delimiter, comments.
+
+Conversions (applied by ``accellog.store.importers.csv``, recorded in the session's meta.extra):
+
+    accel_g   = a_g                 | a_mps2 / 9.80665         | (raw - count_offset) / lsb_per_g
+    gyro_dps  = w_dps               | w_radps * 180 / pi       | (raw - count_offset) / gyro_lsb_per_dps
+    t_s       = t * {s: 1, ms: 1e-3, us: 1e-6, ns: 1e-9}       | row / rate_hz (no time column)
+
+Offset-binary ("unsigned") counts are centred on 32768: ``count_offset = 32768`` gives signed counts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from accellog.core.errors import InputError
+
+ACCEL_UNITS = ("g", "m/s^2", "counts")
+GYRO_UNITS = ("deg/s", "rad/s", "counts")
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+_ALIASES = {
+    "mps2": "m/s^2",
+    "m/s2": "m/s^2",
+    "m/s/s": "m/s^2",
+    "dps": "deg/s",
+    "deg": "deg/s",
+    "radps": "rad/s",
+    "rad": "rad/s",
+    "raw": "counts",
+    "sec": "s",
+    "µs": "us",
+}
+FIELDS = (
+    "t",
+    "ax",
+    "ay",
+    "az",
+    "temp",
+    "gx",
+    "gy",
+    "gz",
+    "pose",
+    "true_x",
+    "true_y",
+    "true_z",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+)
+"""accellog's column names: time, accel, temperature (degC), gyro, pose label, up vector, quaternion."""
+GROUPS = (("ax", "ay", "az"), ("gx", "gy", "gz"), ("true_x", "true_y", "true_z"), ("qw", "qx", "qy", "qz"))
+OPTIONAL_VALUES = ("true_x", "true_y", "true_z", "qw", "qx", "qy", "qz")
+"""Columns whose cells may be empty (NaN): they only matter during a labelled hold."""
+
+
+def _unit(kind: str, value: str, allowed) -> str:
+    v = _ALIASES.get(value.strip().lower(), value.strip())
+    if v not in allowed:
+        raise InputError(f"unknown {kind} {value!r}: use one of {', '.join(allowed)}")
+    return v
+
+
+def parse_columns(text: str | None) -> dict[str, str]:
+    """'t=time,ax=acc_x,...' -> {'t': 'time', 'ax': 'acc_x', ...} (accellog name = file column name)."""
+    out: dict[str, str] = {}
+    for part in (text or "").split(","):
+        if not part.strip():
+            continue
+        key, sep, val = part.partition("=")
+        key, val = key.strip(), val.strip()
+        if not sep or not val:
+            raise InputError(f"--columns: {part.strip()!r} is not NAME=COLUMN (e.g. t=time,ax=acc_x)")
+        if key not in FIELDS:
+            raise InputError(f"--columns: unknown name {key!r}: use {', '.join(FIELDS)}")
+        if key in out:
+            raise InputError(f"--columns: {key!r} given twice")
+        out[key] = val
+    return out
+
+
+@dataclass(frozen=True)
+class CsvOptions:
+    """How to read one logger's CSV (see the module docstring for the conversions)."""
+
+    unit: str = "g"
+    lsb_per_g: float | None = None
+    count_offset: float = 0.0
+    gyro_unit: str = "deg/s"
+    gyro_lsb_per_dps: float | None = None
+    time_unit: str = "s"
+    rate_hz: float | None = None
+    columns: dict[str, str] = field(default_factory=dict)
+    delimiter: str = ","
+    comment: str = "#"
+
+    @classmethod
+    def make(cls, *, columns: str | dict | None = None, **kw) -> CsvOptions:
+        """Validated options (unit aliases such as 'dps', 'mps2', 'raw' accepted); raises InputError."""
+        cols = parse_columns(columns) if isinstance(columns, str) or columns is None else dict(columns)
+        unit = _unit("unit", kw.pop("unit", "g") or "g", ACCEL_UNITS)
+        gyro = _unit("gyro unit", kw.pop("gyro_unit", "deg/s") or "deg/s", GYRO_UNITS)
+        tu = _unit("time unit", kw.pop("time_unit", "s") or "s", tuple(TIME_UNITS))
+        delim = kw.pop("delimiter", ",") or ","
+        delim = {"tab": "\t", "\\t": "\t", "space": " ", "semicolon": ";"}.get(delim, delim)
+        if len(delim) != 1:
+            raise InputError(f"--delimiter must be one character (or tab/space), got {delim!r}")
+        comment = kw.pop("comment", "#") or ""
+        if len(comment) > 1:
+            raise InputError(f"--comment must be one character, got {comment!r}")
+        opts = cls(
+            unit=unit, gyro_unit=gyro, time_unit=tu, columns=cols, delimiter=delim, comment=comment, **kw
+        )
+        opts.check()
+        return opts
+
+    def check(self) -> None:
+        if self.unit == "counts" and not self.lsb_per_g:
+            raise InputError("--unit counts needs --lsb-per-g (e.g. 16384 for +-2 g)")
+        if self.lsb_per_g is not None and self.lsb_per_g <= 0:
+            raise InputError(f"--lsb-per-g must be positive, got {self.lsb_per_g:g}")
+        if self.gyro_unit == "counts" and not self.gyro_lsb_per_dps:
+            raise InputError("--gyro-unit counts needs --gyro-lsb-per-dps (e.g. 131 for +-250 deg/s)")
+        if self.gyro_lsb_per_dps is not None and self.gyro_lsb_per_dps <= 0:
+            raise InputError(f"--gyro-lsb-per-dps must be positive, got {self.gyro_lsb_per_dps:g}")
+        if self.count_offset and "counts" not in (self.unit, self.gyro_unit):
+            raise InputError("--count-offset applies to counts: give --unit counts and/or --gyro-unit counts")
+        if self.rate_hz is not None and not self.rate_hz > 0:
+            raise InputError(f"--rate must be positive, got {self.rate_hz:g}")
+
+    def column(self, name: str) -> str:
+        """The file's column holding accellog's ``name``."""
+        return self.columns.get(name, name)
+
+    def given_flags(self) -> set[str]:
+        """Flags (with values) in use, so that hints never suggest them again."""
+        flags = {f"--unit {self.unit}", f"--gyro-unit {self.gyro_unit}"}
+        if self.count_offset:
+            flags.add(f"--count-offset {self.count_offset:g}")
+        if self.lsb_per_g:
+            flags.add(f"--lsb-per-g {self.lsb_per_g:g}")
+        return flags

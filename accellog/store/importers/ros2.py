@@ -1,0 +1,296 @@
+"""ROS 2 bags (rosbag2: a directory with metadata.yaml, or a single .mcap / .db3 file) -> Session.
+
+Decoded with ``rosbags`` (maintained; it ships the ROS 2 message definitions and uses the bag's own
+when present). Units (REP 103): sensor_msgs/msg/Imu linear_acceleration in m/s^2 and
+angular_velocity in rad/s; Temperature in degC; MagneticField in tesla. Conversions:
+
+    accel_g = a_mps2 / 9.80665      gyro_dps = w_radps * 180 / pi      mag_uT = B_T * 1e6
+
+Time: header.stamp of each message (the sensor's time); the bag's log time (when the recorder got the
+message) is compared with it and the difference is reported (median offset and spread), never mixed
+in. Temperature messages are interpolated linearly onto the IMU stamps. Messages whose stamps are out
+of order are sorted (stable) and counted; duplicated stamps are kept (``accellog doctor`` flags them).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from accellog.core.errors import InputError
+from accellog.core.session import Session, SessionMeta
+from accellog.core.units import STANDARD_GRAVITY_MPS2
+
+IMU_TYPE = "sensor_msgs/msg/Imu"
+TEMP_TYPE = "sensor_msgs/msg/Temperature"
+MAG_TYPE = "sensor_msgs/msg/MagneticField"
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    topic: str
+    msgtype: str
+    count: int
+
+
+def _open(path: Path):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    if not path.exists():
+        raise InputError("no such file or bag directory", where=str(path))
+    if path.is_file() and path.suffix not in (".mcap", ".db3"):
+        raise InputError("not a rosbag2 file: give a bag directory, a .mcap or a .db3 file", where=str(path))
+    try:
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # rosbags raises several error types for unreadable bags
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"cannot open the ROS 2 bag: {msg}", where=str(path)) from None
+    return reader
+
+
+def list_topics(path: str | Path) -> list[TopicInfo]:
+    """Every topic of the bag with its message type and count."""
+    reader = _open(Path(path))
+    try:
+        return [TopicInfo(c.topic, c.msgtype, int(c.msgcount)) for c in reader.connections]
+    finally:
+        reader.close()
+
+
+def _pick(conns, topic: str | None, msgtype: str, path: Path, flag: str, required: bool):
+    of_type = [c for c in conns if c.msgtype == msgtype]
+    if topic is not None:
+        hit = [c for c in conns if c.topic == topic]
+        if not hit:
+            have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in conns})) or "none"
+            raise InputError(f"{flag} {topic}: no such topic (topics: {have})", where=str(path))
+        if hit[0].msgtype != msgtype:
+            raise InputError(f"{flag} {topic} is {hit[0].msgtype}, not {msgtype}", where=str(path))
+        return hit
+    if not required:
+        return []
+    names = sorted({c.topic for c in of_type})
+    if len(names) == 1:
+        return of_type
+    if not names:
+        have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in conns})) or "none"
+        raise InputError(f"no {msgtype} messages in the bag (topics: {have})", where=str(path))
+    counts = {n: sum(c.msgcount for c in of_type if c.topic == n) for n in names}
+    listing = ", ".join(f"{n} ({counts[n]} messages)" for n in names)
+    raise InputError(f"several IMU topics: choose one with --topic: {listing}", where=str(path))
+
+
+_BLOCK = 65536
+
+
+PARALLEL_MIN_MESSAGES = 400_000
+"""Bags with more IMU messages than this are decoded by several processes, one log-time range each."""
+
+
+def _messages(reader, conns, start=None, stop=None):
+    """(connection, log time, raw) of conns in log-time order, start <= log time < stop; a single bag
+    is read directly (no merge)."""
+    if len(reader.readers) == 1:
+        return reader.readers[0].messages(connections=conns, start=start, stop=stop)
+    return reader.messages(connections=conns, start=start, stop=stop)
+
+
+def _read_range(path: str, topic: str, start: int, stop: int):
+    """Worker: the IMU messages of ``topic`` with start <= log time < stop (own reader, own process)."""
+    reader = _open(Path(path))
+    try:
+        conns = [c for c in reader.connections if c.topic == topic and c.msgtype == IMU_TYPE]
+        return _read_imu(reader, conns, start, stop)
+    finally:
+        reader.close()
+
+
+def _read_imu_parallel(reader, conns, path: Path, jobs: int):
+    """_read_imu split into ``jobs`` equal log-time ranges decoded in parallel (forked processes: each
+    opens the bag itself; results come back as arrays, concatenated in time order)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    t0, t1 = int(reader.start_time), int(reader.end_time) + 1
+    edges = [t0 + (t1 - t0) * k // jobs for k in range(jobs + 1)]
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as ex:
+        futs = [ex.submit(_read_range, str(path), conns[0].topic, a, b) for a, b in itertools.pairwise(edges)]
+        parts = [f.result() for f in futs]
+    frames = set().union(*(p[4] for p in parts))
+    first = next((p for p in parts if p[0].size), parts[0])
+    cat = [np.concatenate([p[i] for p in parts]) for i in range(4)]
+    return (*cat, frames, first[5], first[6])
+
+
+def _read_imu(reader, conns, start=None, stop=None):
+    """Arrays of the IMU messages: stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, covariances.
+
+    Rows are gathered in Python tuples and turned into arrays every _BLOCK messages (memory stays
+    one block of tuples plus the arrays)."""
+    des = reader.typestore.deserialize_cdr
+    blocks: list[np.ndarray] = []
+    rows: list[tuple] = []
+    frames: set[str] = set()
+    first = None
+    for conn, t_log, raw in _messages(reader, conns, start, stop):
+        m = des(raw, conn.msgtype)
+        st, la, av = m.header.stamp, m.linear_acceleration, m.angular_velocity
+        rows.append((st.sec, st.nanosec, t_log, la.x, la.y, la.z, av.x, av.y, av.z))
+        frames.add(m.header.frame_id)
+        if first is None:
+            first = m
+        if len(rows) == _BLOCK:
+            blocks.append(_block(rows))
+            rows = []
+    if rows or not blocks:
+        blocks.append(_block(rows))
+    ints = np.concatenate([b[0] for b in blocks])
+    vals = np.concatenate([b[1] for b in blocks])
+    stamp = ints[:, 0] * 1_000_000_000 + ints[:, 1]
+    cov_a = cov_g = None
+    if first is not None:
+        cov_a = np.array(first.linear_acceleration_covariance)
+        cov_g = np.array(first.angular_velocity_covariance)
+    return stamp, ints[:, 2], vals[:, :3], vals[:, 3:], frames, cov_a, cov_g
+
+
+def _block(rows: list[tuple]) -> tuple[np.ndarray, np.ndarray]:
+    if not rows:
+        return np.empty((0, 3), np.int64), np.empty((0, 6))
+    ints = np.array([r[:3] for r in rows], dtype=np.int64)
+    vals = np.array([r[3:] for r in rows], dtype=np.float64)
+    return ints, vals
+
+
+def _read_scalar(reader, conns, kind: str):
+    t, v = [], []
+    des = reader.typestore.deserialize_cdr
+    for conn, t_log, raw in _messages(reader, conns):
+        m = des(raw, conn.msgtype)
+        st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        t.append(st or t_log)
+        if kind == "temp":
+            v.append(m.temperature)
+        else:
+            f = m.magnetic_field
+            v.append((f.x, f.y, f.z))
+    return np.asarray(t, np.int64), np.asarray(v, float)
+
+
+def _stamp_report(stamp: np.ndarray, log: np.ndarray) -> dict[str, str]:
+    """How header stamps relate to the bag's log time (the recorder's receive time)."""
+    d = (log - stamp).astype(np.float64) / 1e6
+    med = float(np.median(d))
+    spread = float(np.percentile(np.abs(d - med), 99)) if d.size else 0.0
+    out = {"log_minus_stamp_ms": f"median {med:.3f}, 99th pct |deviation| {spread:.3f}"}
+    if abs(med) > 1.0 or spread > 5.0:
+        out["stamp_warning"] = (
+            f"header stamps disagree with the bag's log time (median offset {med:.3f} ms, 99% within "
+            f"{spread:.3f} ms of it): header stamps are used"
+        )
+    return out
+
+
+def import_ros2(
+    path: str | Path,
+    *,
+    topic: str | None = None,
+    temperature_topic: str | None = None,
+    mag_topic: str | None = None,
+    jobs: int | None = None,
+) -> Session:
+    """A rosbag2 IMU topic (plus optional Temperature and MagneticField topics) -> Session.
+
+    Without ``topic`` the bag's only sensor_msgs/msg/Imu topic is used; with several, the error
+    lists them. Provenance (bag, topic, frame_id, stamp/log-time agreement, the bag's covariances)
+    goes to meta.extra. jobs: decoding processes (default: the CPU count, up to 4, for bags with more
+    than PARALLEL_MIN_MESSAGES IMU messages; 1 otherwise).
+    """
+    path = Path(path)
+    reader = _open(path)
+    try:
+        conns = reader.connections
+        imu = _pick(conns, topic, IMU_TYPE, path, "--topic", True)
+        tc = _pick(conns, temperature_topic, TEMP_TYPE, path, "--temperature-topic", False)
+        mc = _pick(conns, mag_topic, MAG_TYPE, path, "--mag-topic", False)
+        n_msg = sum(int(c.msgcount) for c in imu)
+        if jobs is None:
+            jobs = min(os.cpu_count() or 1, 4) if n_msg > PARALLEL_MIN_MESSAGES else 1
+        import multiprocessing
+
+        if jobs > 1 and len(imu) == 1 and "fork" in multiprocessing.get_all_start_methods():
+            stamp, log, acc, gyr, frames, cov_a, cov_g = _read_imu_parallel(reader, imu, path, jobs)
+        else:
+            stamp, log, acc, gyr, frames, cov_a, cov_g = _read_imu(reader, imu)
+        temp = _read_scalar(reader, tc, "temp") if tc else None
+        mag = _read_scalar(reader, mc, "mag") if mc else None
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(f"cannot decode the ROS 2 bag: {exc}", where=str(path)) from None
+    finally:
+        reader.close()
+    if stamp.shape[0] < 2:
+        raise InputError(
+            f"{imu[0].topic}: {stamp.shape[0]} IMU message(s); need at least two", where=str(path)
+        )
+    extra = {
+        "source_file": path.name,
+        "ros2_topic": imu[0].topic,
+        "ros2_frame_id": ",".join(sorted(frames)),
+        "source_unit": "m/s^2",
+        "conversion": "accel_g = a_mps2 / 9.80665; gyro_dps = w_radps * 180 / pi",
+        "time_source": "header.stamp",
+    }
+    if not stamp.any():
+        stamp = log.copy()
+        extra["time_source"] = "bag log time (every header stamp is zero)"
+    else:
+        extra.update(_stamp_report(stamp, log))
+    order = np.argsort(stamp, kind="stable")
+    back = int(np.count_nonzero(np.diff(stamp) < 0))
+    if back:
+        extra["out_of_order_stamps"] = f"{back} (sorted by stamp)"
+        stamp, acc, gyr = stamp[order], acc[order], gyr[order]
+    dup = int(np.count_nonzero(np.diff(stamp) == 0))
+    if dup:
+        extra["duplicated_stamps"] = str(dup)
+    if cov_a is not None:
+        extra["ros2_linear_acceleration_covariance"] = ",".join(f"{v:.6g}" for v in cov_a)
+        extra["ros2_angular_velocity_covariance"] = ",".join(f"{v:.6g}" for v in cov_g)
+    t0 = int(stamp[0])
+    t_s = (stamp - t0) / 1e9
+    temp_degC = None
+    if temp is not None and temp[0].size:
+        temp_degC = np.interp(stamp.astype(np.float64), temp[0].astype(np.float64), temp[1])
+        extra["temperature"] = f"{temperature_topic or tc[0].topic}: {temp[0].size} messages, interpolated"
+    mag_t = mag_uT = None
+    if mag is not None and mag[0].size:
+        mag_t, mag_uT = (mag[0] - t0) / 1e9, mag[1] * 1e6
+        extra["magnetometer"] = f"{mc[0].topic}: tesla -> uT (x 1e6)"
+    dt = np.diff(t_s)
+    rate = 1.0 / float(np.median(dt)) if np.median(dt) > 0 else 0.0
+    meta = SessionMeta(
+        source="import:ros2",
+        chip="unknown",
+        sample_rate_hz=rate,
+        start_time_unix_ns=t0,
+        extra=extra,
+    )
+    return Session(
+        meta=meta,
+        t_s=t_s,
+        sample_index=np.arange(t_s.shape[0], dtype=np.int64),
+        accel_g=acc / STANDARD_GRAVITY_MPS2,
+        gyro_dps=np.rad2deg(gyr),
+        temp_degC=temp_degC,
+        mag_t_s=mag_t,
+        mag_uT=mag_uT,
+        path=str(path),
+    )

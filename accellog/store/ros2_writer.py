@@ -1,0 +1,166 @@
+"""Write IMU data as a ROS 2 bag (rosbag2, MCAP storage, CDR) with ``rosbags``' writer and the ROS 2
+message definitions it ships: sensor_msgs/msg/Imu, Temperature and MagneticField, readable by
+``ros2 bag``, Foxglove and PlotJuggler.
+
+Units (REP 103): linear_acceleration m/s^2, angular_velocity rad/s, temperature degC, magnetic field
+tesla. Covariances are row-major 3x3 (x, y, z). Orientation is not estimated:
+``orientation_covariance[0] = -1`` as sensor_msgs/Imu requires for "no orientation".
+
+Output: a path ending in ``.mcap`` gets the single MCAP file (the bag directory is built beside it
+and its metadata.yaml dropped; ``ros2 bag`` and Foxglove open a bare .mcap); any other path gets a
+rosbag2 directory (metadata.yaml + <name>_0.mcap). Written under a temporary name, renamed at the end.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from accellog.core.errors import InputError
+
+IMU_TOPIC = "/imu/data"
+TEMP_TOPIC = "/imu/temperature"
+MAG_TOPIC = "/imu/mag"
+_NO_ORIENTATION = np.array([-1.0, 0, 0, 0, 0, 0, 0, 0, 0])
+
+
+def _cov9(c, n: int) -> np.ndarray:
+    """(9,) or (3,3) -> broadcast (n,9); (n,9)/(n,3,3) kept."""
+    a = np.asarray(c, dtype=np.float64)
+    if a.size == 9:
+        return np.broadcast_to(a.reshape(9), (n, 9))
+    return a.reshape(n, 9)
+
+
+class Ros2BagWriter:
+    """Context manager: ``write_imu``, ``write_temperature``, ``write_mag`` (arrays), then close."""
+
+    def __init__(
+        self, out: str | Path, *, frame_id: str = "imu_link", metadata: dict[str, str] | None = None
+    ):
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.typesys import Stores, get_typestore
+
+        self.out = Path(out)
+        if self.out.is_dir():
+            raise InputError("output exists and is a directory", where=str(self.out))
+        if not self.out.parent.exists():
+            raise InputError("output folder does not exist", where=str(self.out))
+        self.single = self.out.suffix == ".mcap"
+        self._tmp = self.out.with_name(f".{self.out.stem}.{os.getpid()}.bagtmp")
+        shutil.rmtree(self._tmp, ignore_errors=True)
+        self.ts = get_typestore(Stores.ROS2_HUMBLE)
+        self.frame_id = frame_id
+        self._w = Writer(self._tmp, version=9, storage_plugin=StoragePlugin.MCAP)
+        for k, v in (metadata or {}).items():
+            self._w.set_custom_data(k, str(v))
+        self._w.open()
+        self._conns: dict[str, object] = {}
+        self.counts: dict[str, int] = {}
+        T = self.ts.types
+        self._Header, self._Time = T["std_msgs/msg/Header"], T["builtin_interfaces/msg/Time"]
+        self._V3, self._Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+
+    def _conn(self, topic: str, msgtype: str):
+        c = self._conns.get(topic)
+        if c is None:
+            c = self._w.add_connection(topic, msgtype, typestore=self.ts)
+            self._conns[topic] = c
+            self.counts[topic] = 0
+        return c
+
+    def _header(self, ns: int):
+        return self._Header(stamp=self._Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000)),
+                            frame_id=self.frame_id)  # fmt: skip
+
+    def _put(self, topic: str, msgtype: str, msgs, log_ns) -> None:
+        """Serialize and write; log_ns: the bag's log (receive) time of each message."""
+        conn = self._conn(topic, msgtype)
+        ser = self.ts.serialize_cdr
+        for ns, m in zip(log_ns, msgs, strict=True):
+            self._w.write(conn, int(ns), ser(m, msgtype))
+        self.counts[topic] += len(log_ns)
+
+    def write_imu(
+        self, stamp_ns, accel_mps2, gyro_radps, accel_cov, gyro_cov, *, topic: str = IMU_TOPIC, log_ns=None
+    ) -> None:
+        """n samples: stamps (ns, Unix), accel (n,3) m/s^2, gyro (n,3) rad/s, covariances (9,) or (n,9);
+        log_ns: the bag's log times (default the stamps)."""
+        stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+        n = stamp_ns.shape[0]
+        Imu = self.ts.types["sensor_msgs/msg/Imu"]
+        ca, cg = _cov9(accel_cov, n), _cov9(gyro_cov, n)
+        q0 = self._Q(x=0.0, y=0.0, z=0.0, w=1.0)
+        a = np.asarray(accel_mps2, dtype=np.float64).tolist()
+        g = np.asarray(gyro_radps, dtype=np.float64).tolist()
+        msgs = (
+            Imu(
+                header=self._header(int(stamp_ns[i])),
+                orientation=q0,
+                orientation_covariance=_NO_ORIENTATION,
+                angular_velocity=self._V3(x=g[i][0], y=g[i][1], z=g[i][2]),
+                angular_velocity_covariance=np.ascontiguousarray(cg[i]),
+                linear_acceleration=self._V3(x=a[i][0], y=a[i][1], z=a[i][2]),
+                linear_acceleration_covariance=np.ascontiguousarray(ca[i]),
+            )
+            for i in range(n)
+        )
+        self._put(topic, "sensor_msgs/msg/Imu", list(msgs), stamp_ns if log_ns is None else log_ns)
+
+    def write_temperature(
+        self, stamp_ns, temp_degC, variance: float = 0.0, *, topic: str = TEMP_TOPIC
+    ) -> None:
+        """Temperature messages (degC; variance degC^2, 0 = unknown)."""
+        T = self.ts.types["sensor_msgs/msg/Temperature"]
+        stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+        msgs = [
+            T(header=self._header(int(s)), temperature=float(v), variance=float(variance))
+            for s, v in zip(stamp_ns, np.asarray(temp_degC, float).tolist(), strict=True)
+        ]
+        self._put(topic, "sensor_msgs/msg/Temperature", msgs, stamp_ns)
+
+    def write_mag(self, stamp_ns, mag_T, cov=None, *, topic: str = MAG_TOPIC) -> None:
+        """MagneticField messages: (m,3) tesla; covariance (9,) T^2 (zeros = unknown)."""
+        M = self.ts.types["sensor_msgs/msg/MagneticField"]
+        stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+        c = np.zeros(9) if cov is None else np.asarray(cov, float).reshape(9)
+        msgs = [
+            M(
+                header=self._header(int(s)),
+                magnetic_field=self._V3(x=v[0], y=v[1], z=v[2]),
+                magnetic_field_covariance=c,
+            )
+            for s, v in zip(stamp_ns, np.asarray(mag_T, float).tolist(), strict=True)
+        ]
+        self._put(topic, "sensor_msgs/msg/MagneticField", msgs, stamp_ns)
+
+    def close(self) -> Path:
+        """Finish the bag and move it into place; returns the output path."""
+        self._w.close()
+        if self.single:
+            (mcap,) = self._tmp.glob("*.mcap")
+            os.replace(mcap, self.out)
+            shutil.rmtree(self._tmp)
+        else:
+            if self.out.exists():
+                shutil.rmtree(self.out)
+            os.replace(self._tmp, self.out)
+        return self.out
+
+    def abort(self) -> None:
+        try:
+            self._w.close()
+        finally:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def __enter__(self) -> Ros2BagWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
