@@ -14,6 +14,8 @@ Temperature: TEMP_OUT = round((T - 21) 333.87 + n_T).
 Magnetometer (AK8963 axes: x_m = y_s, y_m = x_s, z_m = -z_s): H = R^T B_world (mapped) + hard iron +
 n (uT); raw counts = H / (0.15 uT/LSB * ASA factor), ASA factor = (ASA - 128) 0.5 / 128 + 1.
 
+Slow bias noise (bias instability B, random walk K; emulator.slow_noise) adds to b for accel and gyro.
+
 Noise n: white Gaussian with the given density, keyed by the sample index (reproducible per seed,
 independent of how the stream is cut into reads) and low-pass filtered like the DLPF: a first-order
 filter with the DLPF's -3 dB bandwidth f_c at the output period T_o, h[k] ∝ a^k, a = exp(-2 pi f_c
@@ -93,6 +95,10 @@ class AccelErrors:
     """w (g): bias change after power-on, b += w (1 - exp(-t / warmup_tau_s))."""
     warmup_tau_s: float = 60.0
     noise_density_g_per_rtHz: np.ndarray = field(default_factory=_zeros3)
+    bias_instability_g: np.ndarray = field(default_factory=_zeros3)
+    """B (g): flicker bias noise, Allan deviation floor 0.664 B (emulator.slow_noise)."""
+    random_walk_g_per_s_rtHz: np.ndarray = field(default_factory=_zeros3)
+    """K (g/s/sqrt(Hz)): bias random walk, AVAR = K^2 tau / 3."""
     clock_error: float = 0.0
     """eps: the chip's real sample period is (1 + eps) / ODR (fraction; 0.01 = 1 % slow)."""
     t_ref_degC: float = 25.0
@@ -168,9 +174,15 @@ class GyroErrors:
     cross_axis: np.ndarray = field(default_factory=_zeros33)
     temp_bias_dps_per_degC: np.ndarray = field(default_factory=_zeros3)
     noise_density_dps_per_rtHz: np.ndarray = field(default_factory=_zeros3)
+    bias_instability_dps: np.ndarray = field(default_factory=_zeros3)
+    """B (deg/s): flicker bias noise, Allan deviation floor 0.664 B."""
+    random_walk_dps_per_s_rtHz: np.ndarray = field(default_factory=_zeros3)
+    """K (deg/s/s/sqrt(Hz)): rate random walk, AVAR = K^2 tau / 3."""
     t_ref_degC: float = 25.0
 
     def __post_init__(self) -> None:
+        self.bias_instability_dps = _as3("bias_instability_dps", self.bias_instability_dps)
+        self.random_walk_dps_per_s_rtHz = _as3("random_walk_dps_per_s_rtHz", self.random_walk_dps_per_s_rtHz)
         self.bias_dps = _as3("bias_dps", self.bias_dps)
         self.scale = _as3("scale", self.scale)
         self.cross_axis = _as33("cross_axis", self.cross_axis, zero_diagonal=True)
@@ -322,6 +334,23 @@ class SensorModel:
             s: _WhiteNoise(self.seed, s, 1 if s == _STREAM_TEMP else 3)
             for s in (_STREAM_ACCEL, _STREAM_GYRO, _STREAM_TEMP, _STREAM_MAG)
         }
+        self._slow: dict[tuple[int, float], object] = {}
+
+    def _slow_bias(self, stream: int, odr_hz: float, index: np.ndarray) -> np.ndarray | None:
+        """Bias instability + random walk of the accel or gyro at sample indices (None if both off)."""
+        from accellog.acquire.emulator.slow_noise import slow_bias
+
+        key = (stream, float(odr_hz))
+        if key not in self._slow:
+            e = self.accel if stream == _STREAM_ACCEL else self.gyro
+            B, K = (
+                (e.bias_instability_g, e.random_walk_g_per_s_rtHz)
+                if stream == _STREAM_ACCEL
+                else (e.bias_instability_dps, e.random_walk_dps_per_s_rtHz)
+            )
+            self._slow[key] = slow_bias(self.seed, stream, odr_hz, B, K)
+        bank = self._slow[key]
+        return None if bank is None else bank.at(np.maximum(index, 0))
 
     @property
     def clock_error(self) -> float:
@@ -385,11 +414,17 @@ class SensorModel:
         if np.any(dens_a):
             sigma = dens_a * np.sqrt(0.5 * np.pi * accel_bandwidth_hz)
             a = a + sigma * self._noise[_STREAM_ACCEL].filtered(idx, _dlpf_taps(accel_bandwidth_hz, odr_hz))
+        slow = self._slow_bias(_STREAM_ACCEL, odr_hz, idx)
+        if slow is not None:
+            a = a + slow
         w = self.gyro.apply(k.omega_dps, T)
         dens_g = self.gyro.noise_density_dps_per_rtHz
         if np.any(dens_g):
             sigma = dens_g * np.sqrt(0.5 * np.pi * gyro_bandwidth_hz)
             w = w + sigma * self._noise[_STREAM_GYRO].filtered(idx, _dlpf_taps(gyro_bandwidth_hz, odr_hz))
+        slow = self._slow_bias(_STREAM_GYRO, odr_hz, idx)
+        if slow is not None:
+            w = w + slow
         temp = (T - TEMP_OFFSET_DEGC) * TEMP_LSB_PER_DEGC
         if self.temp_noise_degC > 0:
             temp = (
