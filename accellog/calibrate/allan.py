@@ -23,6 +23,7 @@ AVAR is AVAR edf / chi2_{edf}(1 - p/2) .. AVAR edf / chi2_{edf}(p/2).
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,8 @@ M_EXACT = 1 << 18
 """Largest averaging factor accumulated exactly (every start point j)."""
 DECIMATE = 1 << 10
 """Stride of the phase grid kept for the averaging factors above M_EXACT."""
+_SPLIT_MIN = 50_000
+"""Chunk length from which the columns are split over two threads."""
 
 ALPHA_WHITE_PM, ALPHA_WHITE_FM, ALPHA_FLICKER_FM, ALPHA_RW_FM = 2, 0, -1, -2
 """Power-law exponents of the rate PSD S_y(f) ~ f^alpha: quantisation (white phase), white noise (VRW/ARW),
@@ -104,9 +107,10 @@ class AllanAccumulator:
         self.m_exact, self.decimate = int(m_exact), int(decimate)
         self.offset: np.ndarray | None = None
         self.n_phase = 1  # x_0 = 0
-        self._tail = np.zeros((1, self.k))  # last <= 2 m_exact phase points; first global index below
+        # phase kept column-major (k, n): every tau works on contiguous rows
+        self._tail = np.zeros((self.k, 1))  # last <= 2 m_exact phase points, from global index _tail_start
         self._tail_start = 0
-        self._grid = [np.zeros((1, self.k))]  # phase at global indices 0, D, 2D, ...
+        self._grid = [np.zeros((self.k, 1))]  # phase at global indices 0, D, 2D, ...
         self._exact_m = [1 << i for i in range(self.m_exact.bit_length())]
         self._sums = np.zeros((len(self._exact_m), self.k))
         self._terms = np.zeros(len(self._exact_m), np.int64)
@@ -118,34 +122,52 @@ class AllanAccumulator:
             y = y[:, None]
         if y.shape[1] != self.k:
             raise ValueError(f"chunk has {y.shape[1]} columns, expected {self.k}")
-        if y.shape[0] == 0:
+        n_new = y.shape[0]
+        if n_new == 0:
             return
         if self.offset is None:
             self.offset = y.mean(axis=0)
-        x_new = np.cumsum(y - self.offset, axis=0)
-        x_new *= self.tau0
-        x_new += self._tail[-1]
-        g_new = self.n_phase  # global index of x_new[0]
-        xx = np.concatenate([self._tail, x_new])
-        g0 = self._tail_start
-        g_end = g_new + x_new.shape[0]
+        g_new = self.n_phase  # global index of the chunk's first phase point
+        g0, t = self._tail_start, self._tail.shape[1]
+        xx = np.empty((self.k, t + n_new))
+        xx[:, :t] = self._tail
+        new = xx[:, t:]
+        np.subtract(y.T, self.offset[:, None], out=new)
+        np.cumsum(new, axis=1, out=new)
+        new *= self.tau0
+        new += self._tail[:, -1:]
+        g_end = g_new + n_new
+        if (
+            self.k > 1 and n_new >= _SPLIT_MIN
+        ):  # two halves of the columns on two threads (numpy frees the GIL)
+            h = self.k // 2
+            with ThreadPoolExecutor(1) as pool:
+                other = pool.submit(self._second_differences, xx[:h], slice(0, h), g0, g_new, g_end)
+                self._second_differences(xx[h:], slice(h, self.k), g0, g_new, g_end)
+                other.result()
+        else:
+            self._second_differences(xx, slice(0, self.k), g0, g_new, g_end)
         for i, m in enumerate(self._exact_m):
-            # second differences whose last point j + 2m lies in the new chunk
+            self._terms[i] += max(0, (g_end - 2 * m) - max(0, g_new - 2 * m))
+        first = (-g_new) % self.decimate  # grid points inside the new chunk
+        if first < n_new:
+            self._grid.append(new[:, first :: self.decimate].copy())
+        keep = min(2 * self.m_exact, xx.shape[1])
+        self._tail = xx[:, -keep:].copy()
+        self._tail_start = g_end - keep
+        self.n_phase = g_end
+
+    def _second_differences(self, xx: np.ndarray, cols: slice, g0: int, g_new: int, g_end: int) -> None:
+        """Add the squared second differences whose last point j + 2m is new, for columns ``cols``."""
+        for i, m in enumerate(self._exact_m):
             j0, j1 = max(0, g_new - 2 * m), g_end - 2 * m
             if j1 <= j0:
                 continue
-            a = j0 - g0
-            d = xx[a + 2 * m : a + 2 * m + (j1 - j0)] - 2.0 * xx[a + m : a + m + (j1 - j0)]
-            d += xx[a : a + (j1 - j0)]
-            self._sums[i] += np.einsum("ij,ij->j", d, d)
-            self._terms[i] += j1 - j0
-        first = (-g_new) % self.decimate  # grid points inside the new chunk
-        if first < x_new.shape[0]:
-            self._grid.append(x_new[first :: self.decimate].copy())
-        keep = min(2 * self.m_exact, xx.shape[0])
-        self._tail = xx[-keep:].copy()
-        self._tail_start = g_end - keep
-        self.n_phase = g_end
+            a, n = j0 - g0, j1 - j0
+            d = np.subtract(xx[:, a + 2 * m : a + 2 * m + n], xx[:, a + m : a + m + n])
+            d -= xx[:, a + m : a + m + n]
+            d += xx[:, a : a + n]
+            self._sums[i, cols] += np.einsum("ij,ij->i", d, d)
 
     def curve(self) -> AllanCurve:
         """The ADEV at every octave factor m with at least 2 second differences."""
@@ -156,17 +178,17 @@ class AllanAccumulator:
                 devs.append(np.sqrt(self._sums[i] / (2.0 * self._terms[i])) / m * self.rate_hz)
                 nts.append(int(self._terms[i]))
                 strides.append(1)
-        grid = np.concatenate(self._grid)
+        grid = np.concatenate(self._grid, axis=1)
         D = self.decimate
         m = 2 * self.m_exact
         while 2 * m < self.n_phase:
             q = m // D
-            n = grid.shape[0] - 2 * q
+            n = grid.shape[1] - 2 * q
             if n < 2:
                 break
-            d = grid[2 * q :] - 2.0 * grid[q : q + n] + grid[:n]
+            d = grid[:, 2 * q :] - 2.0 * grid[:, q : q + n] + grid[:, :n]
             ms.append(m)
-            devs.append(np.sqrt(np.einsum("ij,ij->j", d, d) / (2.0 * n)) / m * self.rate_hz)
+            devs.append(np.sqrt(np.einsum("ij,ij->i", d, d) / (2.0 * n)) / m * self.rate_hz)
             nts.append(n)
             strides.append(D)
             m *= 2
