@@ -299,11 +299,22 @@ def run_drift(
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
 
 
+def _write_mag_calibrated(w, s: Session, section: dict) -> None:
+    """/derived/mag_calibrated: A (m - h) in uT, AK8963 axes (accellog.calibrate.magnetometer)."""
+    from accellog.calibrate.magnetometer import MagCalibration
+    from accellog.store.layout import NS_PER_S
+
+    mc = MagCalibration.from_dict(section)
+    t_ns = np.round(s.mag_t_s * NS_PER_S).astype(np.int64)
+    w.write_vector3("mag_calibrated", t_ns, mc.correct(s.mag_uT), "uT", frame="AK8963")
+
+
 def run_apply(
     session_path: str | os.PathLike, cal: Calibration | str | os.PathLike, out: str | os.PathLike
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
-    /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename)."""
+    /derived/accel_calibrated_mps2 (and /derived/mag_calibrated, uT, when the calibration has a magnetometer
+    section and the session magnetometer samples), and attaching the calibration JSON. Atomic (temp + rename)."""
     from accellog.calibrate.calibration import dumps
     from accellog.store.layout import NS_PER_S
     from accellog.store.reader import read_session
@@ -349,6 +360,8 @@ def run_apply(
                     mag_uT=s.mag_uT,
                     first_index=0,
                 )
+                if c.magnetometer is not None and s.mag_uT is not None:
+                    _write_mag_calibrated(w, s, c.magnetometer)
             for p in s.poses:
                 w.write_pose(p)
             for e in s.events:

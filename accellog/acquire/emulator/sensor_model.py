@@ -11,8 +11,8 @@ frame), die temperature T (degC, dT = T - t_ref_degC), time since session start 
 
 Gyro: w' = (I diag(1 + s) + C) omega + b0 + b_T dT + n (deg/s), counts = clip(round(w' LSB_per_dps)).
 Temperature: TEMP_OUT = round((T - 21) 333.87 + n_T).
-Magnetometer (AK8963 axes: x_m = y_s, y_m = x_s, z_m = -z_s): H = R^T B_world (mapped) + hard iron +
-n (uT); raw counts = H / (0.15 uT/LSB * ASA factor), ASA factor = (ASA - 128) 0.5 / 128 + 1.
+Magnetometer (AK8963 axes: x_m = y_s, y_m = x_s, z_m = -z_s): H = W R^T B_world (mapped) + hard iron +
+n (uT), W the soft-iron matrix (identity: none; B_world the local field); raw counts = H / (0.15 uT/LSB * ASA factor), ASA factor = (ASA - 128) 0.5 / 128 + 1.
 
 Slow bias noise (bias instability B, random walk K; emulator.slow_noise) adds to b for accel and gyro.
 
@@ -307,6 +307,7 @@ class SensorModel:
         local_gravity_mps2: float = STANDARD_GRAVITY_MPS2,
         mag_field_uT: tuple[float, float, float] = (20.0, 0.0, -45.0),
         mag_hard_iron_uT: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        mag_soft_iron=None,
         mag_asa: tuple[int, int, int] = (176, 178, 167),
         mag_noise_uT: float = 0.3,
         temp_noise_degC: float = 0.01,
@@ -324,6 +325,7 @@ class SensorModel:
         ) / STANDARD_GRAVITY_MPS2
         self.mag_field_uT = _as3("mag_field_uT", mag_field_uT)
         self.mag_hard_iron_uT = _as3("mag_hard_iron_uT", mag_hard_iron_uT)
+        self.mag_soft_iron = np.eye(3) if mag_soft_iron is None else _as33("mag_soft_iron", mag_soft_iron)
         asa = np.asarray(mag_asa, int)
         if asa.shape != (3,) or np.any((asa < 0) | (asa > 255)):
             raise InputError("mag_asa must be 3 bytes (0..255)")
@@ -439,10 +441,10 @@ class SensorModel:
         )
 
     def mag_field_sensor_uT(self, t_s: np.ndarray) -> np.ndarray:
-        """Noise-free field (n,3, uT) in AK8963 axes (x_m = y_s, y_m = x_s, z_m = -z_s) incl. hard iron."""
+        """Noise-free field (n,3, uT) in AK8963 axes (x_m = y_s, y_m = x_s, z_m = -z_s), soft and hard iron."""
         k = self._kin(t_s)
         b = rotate_inverse(k.q_sensor_to_world, np.broadcast_to(self.mag_field_uT, (k.t_s.size, 3)))
-        return np.stack([b[:, 1], b[:, 0], -b[:, 2]], axis=1) + self.mag_hard_iron_uT
+        return np.stack([b[:, 1], b[:, 0], -b[:, 2]], axis=1) @ self.mag_soft_iron.T + self.mag_hard_iron_uT
 
     def mag_sample(
         self, t_s: np.ndarray, index: np.ndarray, *, bits16: bool = True
