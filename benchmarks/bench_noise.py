@@ -5,6 +5,8 @@
 1. Simulates (or reuses ``--session``) a static '+z' session through the real recording path
    (``accellog.flows.simulate``: emulated chip -> FIFO driver -> Recorder -> MCAP), datasheet white noise
    plus accelerometer bias instability 40 ug and random walk 2 ug/s/rtHz.
+   The simulation runs in its own subprocess so the measuring children start from a small parent (Linux
+   ru_maxrss of a child counts the parent's memory at fork).
 2. In a fresh subprocess: ``characterise_noise`` (streamed read + overlapping ADEV of 6 columns + fits);
    wall time and peak RSS (ru_maxrss, includes the interpreter and numpy/scipy, ~100 MB).
 3. In another subprocess, the baseline: ``read_session`` (whole file) then ``allantools.oadev`` (octave
@@ -31,6 +33,15 @@ from accellog.flows.characterise import characterise_noise
 t = time.perf_counter(); m = characterise_noise(sys.argv[1]); dt = time.perf_counter() - t
 print(json.dumps({"wall_s": dt, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "n": m.n_samples, "accel_N": [a.white.value for a in m.accel.axes]}))
+"""
+
+_SIM = r"""
+import json, sys
+from accellog.flows.simulate import Scenario, simulate
+sc = Scenario(protocol="+z", hold_s=float(sys.argv[2]), sample_rate_hz=float(sys.argv[3]), seed=5,
+              set={"bias_instability_g": [40e-6] * 3, "random_walk_g_per_s_rtHz": [2e-6] * 3})
+simulate(sc, sys.argv[1])
+print(json.dumps({}))
 """
 
 _BASE = r"""
@@ -66,18 +77,9 @@ def main() -> None:
     ap.add_argument("--no-baseline", action="store_true")
     a = ap.parse_args()
     path = a.session or Path(f"/tmp/accellog_noise_{a.hours:g}h_{a.rate:g}Hz.mcap")
-    if not path.exists():
-        from accellog.flows.simulate import Scenario, simulate
-
-        sc = Scenario(
-            protocol="+z",
-            hold_s=a.hours * 3600.0,
-            sample_rate_hz=a.rate,
-            seed=5,
-            set={"bias_instability_g": [40e-6] * 3, "random_walk_g_per_s_rtHz": [2e-6] * 3},
-        )
+    if not path.exists():  # in a subprocess: ru_maxrss of later children must not inherit a big parent
         t = time.perf_counter()
-        simulate(sc, path)
+        _run(_SIM, path, f"{a.hours * 3600.0!r}", f"{a.rate!r}")
         print(
             f"simulated {path} ({path.stat().st_size / 1e6:.0f} MB) in {time.perf_counter() - t:.0f} s, "
             f"load {os.getloadavg()}"

@@ -213,3 +213,42 @@ def test_noise_refuses_bad_input_in_one_line(tmp_path, capsys, shared_data):
     assert main(["noise", str(shared_data / "capstone" / "final_trial" / "six_position_data.csv")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("accellog: error:") and "pose means" in err
+
+
+def test_temperature_driven_stretch_is_flagged(tmp_path):
+    """A die warming at 0.6 degC/min is flagged as a temperature-driven stretch (not random walk)."""
+    sc = Scenario(
+        protocol="+z",
+        hold_s=150.0,
+        sample_rate_hz=50.0,
+        seed=4,
+        temperature={"kind": "ramp", "T0": 25.0, "rate_degC_per_s": 0.01},
+    )
+    simulate(sc, tmp_path / "warm.mcap")
+    m = characterise_noise(tmp_path / "warm.mcap")
+    assert m.temp_segments and all(abs(s.rate_degC_per_min - 0.6) < 0.1 for s in m.temp_segments)
+    assert m.temp_range_degC[1] - m.temp_range_degC[0] > 1.0
+    assert any("temperature-driven" in n for n in m.notes)
+
+
+def test_evaluate_uses_the_calibration_noise_floor(static_mcap, tmp_path):
+    """With a noise section, evaluate's standard error of the mean is at least N / sqrt(T)."""
+    from accellog.navigate.evaluate import evaluate
+    from accellog.store.reader import read_session
+
+    simulate(
+        Scenario(protocol="six", hold_s=4.0, move_s=2.0, sample_rate_hz=100.0, seed=1), tmp_path / "c.mcap"
+    )
+    assert main(["fit", str(tmp_path / "c.mcap"), "-o", str(tmp_path / "cal.json")]) == 0
+    assert (
+        main(["noise", str(static_mcap), "--cal", str(tmp_path / "cal.json"), "-o", str(tmp_path / "n.json")])
+        == 0
+    )
+    s = read_session(static_mcap)
+    plain = evaluate(s, load_calibration(tmp_path / "cal.json"))
+    c = load_calibration(tmp_path / "n.json")
+    for ax in "xyz":  # a floor far above the data's own sem
+        c.noise["accel"]["axes"][ax]["white"]["value"] *= 1e3
+    floored = evaluate(s, c)
+    assert floored.chi2_noise < 1e-3 * plain.chi2_noise
+    assert any("noise floor" in n for n in floored.notes)

@@ -431,3 +431,12 @@ def white_floor_from_section(d: dict, sensor: str = "accel") -> np.ndarray | Non
     if not s:
         return None
     return np.array([float(s["axes"][ax]["white"]["value"]) for ax in ("x", "y", "z")])
+
+
+def sem_with_noise_floor(section: dict, sem_mps2: np.ndarray, duration_s: float) -> np.ndarray:
+    """The standard error of a T-second mean of the accelerometer (m/s^2, per axis), floored at the white
+    noise of a calibration's 'noise' section: N / sqrt(T) (AVAR(T) = N^2 / T is the variance of that mean)."""
+    n = white_floor_from_section(section, "accel")
+    if n is None or not duration_s > 0:
+        return sem_mps2
+    return np.maximum(sem_mps2, n / math.sqrt(duration_s))
