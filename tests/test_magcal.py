@@ -28,7 +28,7 @@ def rotation(tmp_path_factory):
     d = tmp_path_factory.mktemp("mag")
     mag = {"field_uT": FIELD.tolist(), "hard_iron_uT": HARD.tolist(), "soft_iron": W.tolist()}
     simulate(
-        Scenario(protocol="24", hold_s=1.0, move_s=1.5, sample_rate_hz=100.0, seed=3, magnetometer=mag),
+        Scenario(protocol="24", hold_s=1.0, move_s=1.5, sample_rate_hz=50.0, seed=3, magnetometer=mag),
         d / "rot.mcap",
     )
     simulate(Scenario(protocol="six", hold_s=4.0, move_s=2.0, sample_rate_hz=100.0, seed=1), d / "cal.mcap")
