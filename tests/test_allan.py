@@ -252,3 +252,25 @@ def test_evaluate_uses_the_calibration_noise_floor(static_mcap, tmp_path):
     floored = evaluate(s, c)
     assert floored.chi2_noise < 1e-3 * plain.chi2_noise
     assert any("noise floor" in n for n in floored.notes)
+
+
+def test_obs_sigma_floored_by_the_noise_section():
+    from accellog.calibrate.noise_model import floor_obs_sigma
+    from accellog.core.session import ObsTable
+
+    n = 4
+    obs = ObsTable(
+        meas_g=np.zeros((n, 3)),
+        sigma_g=np.full((n, 3), 1e-6),
+        up_sensor=np.tile([0.0, 0.0, 1.0], (n, 1)),
+        pose_id=np.zeros(n, int),
+        pose_names=["+z"],
+        t_s=np.arange(n, dtype=float),
+        t_in_pose_s=np.arange(n, dtype=float),
+        n_samples=np.array([100, 400, 1600, 6400]),
+        std_g=np.zeros((n, 3)),
+    )
+    section = {"rate_hz": 100.0, "accel": {"axes": {a: {"white": {"value": G0 * 2e-4}} for a in "xyz"}}}
+    out = floor_obs_sigma(obs, section)
+    np.testing.assert_allclose(out.sigma_g[:, 0], 2e-4 / np.sqrt([1.0, 4.0, 16.0, 64.0]))
+    assert obs.sigma_g[0, 0] == 1e-6  # the input is not altered
