@@ -13,7 +13,8 @@ truth_g = g_local / g0 for standard g). Integration then uses
 File format ('accellog.calibration', format_version 1): units, model spec (terms), parameters with
 values, 1-sigma and units, covariance, S and b at reference conditions, gravity convention,
 temperature at calibration, fit statistics, source files with SHA-256, software version and an
-optional displacement-drift model (accellog.navigate.drift).
+optional displacement-drift model (accellog.navigate.drift), and optional versioned sections `noise`
+(accellog.calibrate.noise_model) and `magnetometer` (accellog.calibrate.magnetometer).
 """
 
 from __future__ import annotations
@@ -131,6 +132,10 @@ class Calibration(JsonResult):
     drift: DriftModel | None = None
     gyro: dict | None = None
     """Gyro calibration (accellog.calibrate.gyro.GyroCalibration.to_dict()), when the session allowed it."""
+    noise: dict | None = None
+    """Noise terms (accellog.calibrate.noise_model.calibration_section), when `accellog noise` added them."""
+    magnetometer: dict | None = None
+    """Magnetometer hard/soft iron (accellog.calibrate.magnetometer.MagCalibration.to_dict())."""
     path: str | None = None
 
     # ------------------------------------------------------------------ derived
@@ -269,6 +274,8 @@ class Calibration(JsonResult):
             "sources": list(self.sources),
             "drift": self.drift.to_dict() if self.drift is not None else None,
             "gyro": self.gyro,
+            **({"noise": self.noise} if self.noise is not None else {}),
+            **({"magnetometer": self.magnetometer} if self.magnetometer is not None else {}),
         }
 
     def save(self, path: str | os.PathLike) -> None:
@@ -375,6 +382,8 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         created_utc=str(d.get("created_utc", "")),
         drift=DriftModel.from_dict(d["drift"], where=where) if d.get("drift") else None,
         gyro=d.get("gyro") or None,
+        noise=_optional_section(d, "noise", where),
+        magnetometer=_optional_section(d, "magnetometer", where),
     )
     try:
         model = cal.model
@@ -385,6 +394,18 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
             f"parameter names {names} do not match model {model.name!r} ({model.param_names})", where=where
         )
     return cal
+
+
+def _optional_section(d: dict, name: str, where: str | None) -> dict | None:
+    """The optional 'noise' / 'magnetometer' section, validated by its own module (None when absent)."""
+    sec = d.get(name)
+    if sec is None:
+        return None
+    if name == "noise":
+        from accellog.calibrate.noise_model import check_section
+    else:
+        from accellog.calibrate.magnetometer import check_section
+    return check_section(sec, where)
 
 
 def load_calibration(path: str | os.PathLike) -> Calibration:

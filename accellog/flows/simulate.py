@@ -20,6 +20,10 @@ local_gravity_mps2 = 9.80665
 fixture_tilt_deg = [0.0, 0.0]
 [set]                       # overrides of AccelErrors fields, e.g.
 temp_bias_g_per_degC = [0.001, -0.0005, 0.0008]
+[magnetometer]              # optional: record the AK8963 (100 Hz mode) with this local field and iron
+field_uT = [20.0, 0.0, -45.0]          # world frame (x, y horizontal, z up)
+hard_iron_uT = [30.0, -12.0, 8.0]      # AK8963 axes
+soft_iron = [[1.05, 0.02, 0.0], [0.02, 0.97, 0.01], [0.0, 0.01, 0.98]]
 [temperature]               # 'constant' (T), 'warmup' (T_start, T_end, tau_s) or 'ramp' (T0, rate)
 kind = "warmup"
 T_start = 25.0
@@ -79,6 +83,8 @@ class Scenario:
     """'poses' (guided static holds) or 'robot' (the default robot path; see emulator.robot)."""
     robot_path: str = "demo"
     """'demo' (a 64 s closed loop with ramps, a banked turn and 9 stops) or 'long' (10 min)."""
+    magnetometer: dict[str, Any] = field(default_factory=dict)
+    """Empty: no magnetometer readout. Else keys field_uT, hard_iron_uT, soft_iron, noise_uT (emulator)."""
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Scenario:
@@ -126,7 +132,7 @@ class Scenario:
 _FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s"}
 _INT_KEYS = {"accel_range_g", "gyro_range_dps", "chip_seed", "seed"}
 _STR_KEYS = {"protocol", "errors", "gyro_errors", "motion", "robot_path"}
-_TABLE_KEYS = {"set", "temperature"}
+_TABLE_KEYS = {"set", "temperature", "magnetometer"}
 
 
 def _check_type(key: str, value: Any, where: str) -> None:
@@ -187,6 +193,12 @@ def build_sensor_model(sc: Scenario):
         accel = dataclasses.replace(accel, **values)
     gyro = GyroErrors.datasheet(sc.chip_seed) if sc.gyro_errors == "datasheet" else GyroErrors.perfect()
     temperature = temperature_path(sc.temperature)
+    known_mag = {"field_uT", "hard_iron_uT", "soft_iron", "noise_uT"}
+    if set(sc.magnetometer) - known_mag:
+        raise InputError(
+            f"unknown magnetometer key(s) {sorted(set(sc.magnetometer) - known_mag)}; known: {sorted(known_mag)}"
+        )
+    mag = {f"mag_{k}": v for k, v in sc.magnetometer.items()}
     model = SensorModel(
         motion,
         accel=accel,
@@ -194,6 +206,7 @@ def build_sensor_model(sc: Scenario):
         temperature=temperature,
         seed=sc.seed,
         local_gravity_mps2=sc.local_gravity_mps2,
+        **mag,
     )
     return model, motion
 
@@ -238,7 +251,7 @@ def simulate(
         accel_range_g=sc.accel_range_g,
         gyro_range_dps=sc.gyro_range_dps,
         sample_rate_div=sc.sample_rate_div,
-        mag=False,
+        mag=bool(sc.magnetometer),  # the AK8963 in its 100 Hz mode
     )
     driver = dev.driver
     meta = session_meta(
@@ -255,7 +268,7 @@ def simulate(
     try:
         with SessionWriter(tmp, meta) as writer:
             driver.start()
-            rec = Recorder(driver, writer, sleep=clock.sleep, poll_s=poll_s)
+            rec = Recorder(driver, writer, sleep=clock.sleep, poll_s=poll_s, read_mag=dev.read_mag)
             rec.run_for(total_s)
             # Motion time starts when the chip is created, session time at the first FIFO sample:
             # map the scenario's holds and truth onto the session's time axis.

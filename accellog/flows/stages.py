@@ -324,6 +324,16 @@ def run_drift(
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
 
 
+def _write_mag_calibrated(w, s: Session, section: dict) -> None:
+    """/derived/mag_calibrated: A (m - h) in uT, AK8963 axes (accellog.calibrate.magnetometer)."""
+    from accellog.calibrate.magnetometer import MagCalibration
+    from accellog.store.layout import NS_PER_S
+
+    mc = MagCalibration.from_dict(section)
+    t_ns = np.round(s.mag_t_s * NS_PER_S).astype(np.int64)
+    w.write_vector3("mag_calibrated", t_ns, mc.correct(s.mag_uT), "uT", frame="AK8963")
+
+
 def run_apply(
     session_path: str | os.PathLike,
     cal: Calibration | str | os.PathLike,
@@ -332,7 +342,8 @@ def run_apply(
     ros2: str | os.PathLike | None = None,
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
-    /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename).
+    /derived/accel_calibrated_mps2 (and /derived/mag_calibrated, uT, when the calibration has a magnetometer
+    section and the session magnetometer samples), and attaching the calibration JSON. Atomic (temp + rename).
     ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2)."""
 
     src = Path(session_path)
@@ -375,6 +386,8 @@ def run_apply(
                     mag_uT=s.mag_uT,
                     first_index=0,
                 )
+                if c.magnetometer is not None and s.mag_uT is not None:
+                    _write_mag_calibrated(w, s, c.magnetometer)
             for p in s.poses:
                 w.write_pose(p)
             for e in s.events:

@@ -27,6 +27,7 @@ import numpy as np
 
 from accellog.calibrate.calibration import Calibration, session_drivers
 from accellog.calibrate.noise import sem_autocorr
+from accellog.calibrate.noise_model import sem_with_noise_floor
 from accellog.calibrate.segment import check_static, observations
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
@@ -267,6 +268,9 @@ def evaluate(
     sem, _ = sem_autocorr(
         r, quantum=(unit / session.meta.accel_lsb_per_g) if session.meta.accel_lsb_per_g else 0.0
     )
+    if cal is not None and cal.noise is not None:  # the calibration's measured white noise is the floor
+        sem = sem_with_noise_floor(cal.noise, sem, float(t[-1] - t[0]))
+        notes.append("noise floor: at least the white noise of the calibration's noise section")
     if cal is not None:
         drv_all = session_drivers(
             Session(
