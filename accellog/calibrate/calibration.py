@@ -12,8 +12,9 @@ truth_g = g_local / g0 for standard g). Integration then uses
 
 File format ('accellog.calibration', format_version 1): units, model spec (terms), parameters with
 values, 1-sigma and units, covariance, S and b at reference conditions, gravity convention,
-temperature at calibration, fit statistics, source files with SHA-256, software version and an
-optional displacement-drift model (accellog.navigate.drift).
+temperature at calibration, fit statistics, source files with SHA-256, the device key of the sensor
+(accellog.core.device; absent in older files = unknown), software version and an optional
+displacement-drift model (accellog.navigate.drift).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from accellog.calibrate.drift_model import DriftModel
+from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError, ModelError
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
@@ -127,6 +129,8 @@ class Calibration:
     software: str = f"accellog {__version__}"
     created_utc: str = ""
     drift: DriftModel | None = None
+    device: dict = field(default_factory=dict)
+    """Device key of the calibrated sensor (accellog.core.device.DeviceKey.to_dict()); {} = unknown."""
     gyro: dict | None = None
     """Gyro calibration (accellog.calibrate.gyro.GyroCalibration.to_dict()), when the session allowed it."""
     path: str | None = None
@@ -153,6 +157,11 @@ class Calibration:
     @property
     def terms(self) -> list[str]:
         return list(self.model_spec.get("terms", []))
+
+    def device_conflicts(self, key: DeviceKey) -> list[str]:
+        """How `key` (a session's device) differs from the calibrated device; [] when they match
+        or either is unknown (see DeviceKey.conflicts)."""
+        return DeviceKey.from_dict(self.device).conflicts(key)
 
     def S_b(self) -> tuple[np.ndarray, np.ndarray]:
         """Linear part at reference conditions: S (3,3), b (3,) g."""
@@ -254,6 +263,7 @@ class Calibration:
             "temperature": dict(self.temperature),
             "fit": dict(self.fit),
             "sensor": dict(self.sensor),
+            "device": dict(self.device),
             "sources": list(self.sources),
             "drift": self.drift.to_dict() if self.drift is not None else None,
             "gyro": self.gyro,
@@ -386,6 +396,7 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         fit=dict(d.get("fit") or {}),
         sources=list(d.get("sources") or []),
         sensor=dict(d.get("sensor") or {}),
+        device=dict(d.get("device") or {}),
         software=str(d.get("software", "")),
         created_utc=str(d.get("created_utc", "")),
         drift=DriftModel.from_dict(d["drift"], where=where) if d.get("drift") else None,

@@ -290,9 +290,22 @@ def apply(
     output: Annotated[
         Path, typer.Option("-o", "--output", help="Output .mcap (copy + calibrated channels).")
     ],
+    other_device: Annotated[
+        str,
+        typer.Option(help="A calibration of another device (device keys differ): 'refuse' or 'warn'."),
+    ] = "refuse",
 ) -> None:
     """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
-    p = run_apply(session, cal, output)
+    import warnings
+
+    from accellog.flows.stages import OtherDeviceWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", OtherDeviceWarning)
+        p = run_apply(session, cal, output, other_device=other_device)
+    for w in caught:
+        if issubclass(w.category, OtherDeviceWarning):
+            _console.print(f"[yellow]warning: {w.message}[/]")
     _console.print(f"wrote {p}")
 
 

@@ -12,6 +12,7 @@ import typer
 from rich.console import Console
 
 from accellog.cli.app import app
+from accellog.core.device import check_serial
 from accellog.core.errors import DeviceError, InputError
 from accellog.core.protocol import PoseSpec, parse_protocol
 from accellog.core.session import Event, PoseLabel
@@ -127,6 +128,9 @@ def record(
     gyro_range: Annotated[int, typer.Option(help="Gyro full scale (+-deg/s): 250, 500, 1000, 2000.")] = 250,
     dlpf: Annotated[int, typer.Option(help="Gyro/temp DLPF_CFG 1..6 and accel A_DLPFCFG.")] = 3,
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Also record the AK8963 magnetometer.")] = True,
+    serial: Annotated[
+        str, typer.Option(help="Your serial/name of this sensor (device identity, e.g. IMU-0007).")
+    ] = "",
     fast: Annotated[bool, typer.Option(help="With --sim: run on a simulated clock (no waiting).")] = False,
     seed: Annotated[int, typer.Option(help="With --sim: noise seed.")] = 1,
     rerun: Annotated[
@@ -198,7 +202,16 @@ def record(
             )
         if read_mag:
             driver.enable_magnetometer()
-        meta = session_meta(info, cfg, source=source, protocol=protocol)
+        meta = session_meta(
+            info,
+            cfg,
+            source=source,
+            protocol=protocol,
+            serial=check_serial(serial),
+            i2c_bus="emulator" if use_sim else f"/dev/i2c-{bus}",
+            i2c_address=addr,
+            ak8963_wia=driver.ak8963_wia,
+        )
         live = _open_live(rerun)
         ui: RecorderUI = TerminalUI()
         if live is not None:

@@ -243,8 +243,11 @@ def run_pipeline(
     inputs: Sequence[str | os.PathLike],
     *,
     output_dir: str | os.PathLike | None = None,
+    preloaded: dict[str, Session | ObsTable] | None = None,
 ) -> PipelineResult:
-    """Run a pipeline file on input files given in the order of pipeline.inputs."""
+    """Run a pipeline file on input files given in the order of pipeline.inputs.
+
+    preloaded: inputs already read, by file name (str), so that they are not read again."""
     spec = pipeline if isinstance(pipeline, dict) else load_pipeline(pipeline)
     where = spec.get("_path")
     roles = spec["pipeline"]["inputs"]
@@ -255,7 +258,9 @@ def run_pipeline(
         )
     files = {r: str(x) for r, x in zip(roles, inputs, strict=True)}
     seg = spec.get("segment", {})
-    cache: dict[str, Session | ObsTable] = {}
+    cache: dict[str, Session | ObsTable] = {
+        r: preloaded[f] for r, f in files.items() if f in (preloaded or {})
+    }
 
     def get(role: str) -> Session | ObsTable:
         if role not in cache:

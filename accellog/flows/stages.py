@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -202,6 +203,8 @@ def run_fit(
         sources=[source_entry(src or _path_of(data), kind)],
         sensor=sensor,
     )
+    if isinstance(data, Session):
+        cal.device = data.meta.device.to_dict()
     if gyro and isinstance(data, Session):
         cal.gyro = _gyro_calibration(data)
     return FitOutcome(obs=obs, fit=fit, cal=cal)
@@ -299,11 +302,40 @@ def run_drift(
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
 
 
+class OtherDeviceWarning(UserWarning):
+    """A calibration of another device was applied (run_apply(other_device='warn'))."""
+
+
+OTHER_DEVICE_MODES = ("refuse", "warn")
+
+
+def check_device(session: Session, cal: Calibration, other_device: str = "refuse", where: str = "") -> str:
+    """'' when the calibration's device key matches the session's (or either is unknown); else the
+    one-line mismatch, raised as InputError ('refuse') or issued as OtherDeviceWarning ('warn')."""
+    if other_device not in OTHER_DEVICE_MODES:
+        raise InputError(f"other_device={other_device!r}: use 'refuse' or 'warn'")
+    diff = cal.device_conflicts(session.meta.device)
+    if not diff:
+        return ""
+    cal_id = cal.device.get("id") or "?"
+    msg = f"calibration is for device {cal_id}, session is from {session.meta.device.id} ({'; '.join(diff)})"
+    if other_device == "refuse":
+        raise InputError(msg + ": use --other-device warn to apply it anyway", where=where)
+    warnings.warn(msg, OtherDeviceWarning, stacklevel=2)
+    return msg
+
+
 def run_apply(
-    session_path: str | os.PathLike, cal: Calibration | str | os.PathLike, out: str | os.PathLike
+    session_path: str | os.PathLike,
+    cal: Calibration | str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    other_device: str = "refuse",
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
-    /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename)."""
+    /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename).
+    A calibration of another device (device keys differ) is refused, or warned about with
+    other_device='warn' (see check_device)."""
     from accellog.calibrate.calibration import dumps
     from accellog.store.layout import NS_PER_S
     from accellog.store.reader import read_session
@@ -316,6 +348,7 @@ def run_apply(
         )
     s = read_session(src)
     c = _cal(cal)
+    check_device(s, c, other_device, where=str(src))
     f = c.correct(s)
     out = Path(out)
     if out.resolve() == src.resolve():
