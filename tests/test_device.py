@@ -5,7 +5,6 @@ device unless told to warn."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 
