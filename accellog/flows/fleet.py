@@ -110,7 +110,7 @@ def session_task(path: str, content_sha256: str, spec: dict, pipe_sha256: str) -
     from accellog.flows.pipeline import run_pipeline
     from accellog.flows.stages import load_input
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     base = {
         "session": str(path),
         "session_name": Path(path).stem,
@@ -138,7 +138,7 @@ def session_task(path: str, content_sha256: str, spec: dict, pipe_sha256: str) -
     except Exception as exc:  # one bad file = one error row, never a stopped fleet
         msg = str(exc) if isinstance(exc, AccellogError) else f"{type(exc).__name__}: {exc}"
         row = {**base, "model": "", "error": msg.splitlines()[0] if msg else type(exc).__name__}
-        row["task_s"] = time.perf_counter() - t0
+        row["task_s"], row["task_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
         return {"rows": [row], "cals": {}}
     rows, cals = [], {}
     for mname, fo in res.fits.items():
@@ -165,9 +165,9 @@ def session_task(path: str, content_sha256: str, spec: dict, pipe_sha256: str) -
             }
         )
         cals[mname] = fo.cal.to_dict()
-    dt = time.perf_counter() - t0
+    dt, dc = time.perf_counter() - t0, time.process_time() - c0
     for r in rows:
-        r["task_s"] = dt
+        r["task_s"], r["task_cpu_s"] = dt, dc
     return {"rows": rows, "cals": cals}
 
 
@@ -214,6 +214,7 @@ def table_schema():
             ("error", s),
             ("calibration", s),
             ("task_s", f),
+            ("task_cpu_s", f),
             ("worker_pid", i),
         ]
     )
@@ -276,6 +277,8 @@ class FleetRunResult:
     """Client wall time of the task phase (submit to last result), s."""
     sum_task_s: float = 0.0
     """Sum of the tasks' own run times on the workers, s."""
+    sum_task_cpu_s: float = 0.0
+    """Sum of the tasks' CPU times (process_time) on the workers, s (insensitive to other load)."""
 
     @property
     def tasks_per_s(self) -> float:
@@ -305,6 +308,7 @@ class FleetRunResult:
             "n_workers": self.n_workers,
             "wall_s": self.wall_s,
             "sum_task_s": self.sum_task_s,
+            "sum_task_cpu_s": self.sum_task_cpu_s,
             "tasks_per_s": self.tasks_per_s,
             "overhead_fraction": self.overhead_fraction,
         }
@@ -446,6 +450,7 @@ def run_fleet(
     res.wall_s = time.perf_counter() - t0 if todo else 0.0
     new_rows = _store_results(out, results)
     res.sum_task_s = float(sum(r["rows"][0].get("task_s") or 0.0 for r in results))
+    res.sum_task_cpu_s = float(sum(r["rows"][0].get("task_cpu_s") or 0.0 for r in results))
     res.cal_files = sum(1 for r in new_rows if r.get("calibration"))
     redone = set(todo)
     rows = [r for r in prev if r["session"] not in redone] + new_rows
