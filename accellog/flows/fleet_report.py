@@ -31,7 +31,7 @@ import numpy as np
 
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
-from accellog.flows.fleet import TABLE_NAME, read_table
+from accellog.flows.fleet_table import TABLE_NAME, read_table
 
 DATASHEET_LIMITS: dict[str, tuple[float, str]] = {
     "b_x": (0.060, "zero-g offset X +-60 mg (PS T2)"),
