@@ -186,3 +186,28 @@ def test_simulate_fleet_cli(tmp_path):
     months = (s1.meta.start_time_unix_ns - s0.meta.start_time_unix_ns) / 1e9 / 86400 / 30.4375
     assert abs(months - 3.0) < 0.01
     assert main(["simulate", "--fleet", "2", "-o", str(tmp_path / "x.mcap")]) != 0
+
+
+def test_cli_run_on_a_running_scheduler(tmp_path, capsys):
+    """--scheduler tcp://HOST:PORT: the client connects to an existing cluster (here a 1-worker
+    LocalCluster on 127.0.0.1 standing in for a real one) and leaves it running."""
+    from dask.distributed import LocalCluster
+
+    simulate_fleet(FleetSpec(n_devices=3, sessions_per_device=1, damaged=None), tmp_path / "s")
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
+    ) as lc:
+        addr = lc.scheduler_address
+        argv = [
+            "fleet",
+            "run",
+            str(PIPELINE),
+            str(tmp_path / "s" / "**" / "*.mcap"),
+            "-o",
+            str(tmp_path / "o"),
+        ]
+        assert main([*argv, "--scheduler", addr, "--json"]) == 0
+        d = json.loads(capsys.readouterr().out)
+        assert d["scheduler"] == addr and d["n_run"] == 3 and d["n_errors"] == 0 and d["n_workers"] == 1
+        assert lc.status.name == "running"
+    assert len(read_table(tmp_path / "o" / "fleet.parquet")) == 3
