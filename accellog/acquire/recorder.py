@@ -26,7 +26,8 @@ NS = 1_000_000_000
 
 
 def session_meta(info, cfg, *, source: str, protocol: str, **fields) -> SessionMeta:
-    """SessionMeta of a recording from the driver's ChipInfo and DriverConfig (+ extra fields)."""
+    """SessionMeta of a recording from the driver's ChipInfo and DriverConfig (+ extra fields, e.g.
+    the device identity: serial, i2c_bus, i2c_address, ak8963_wia; see accellog.core.device)."""
     import platform
 
     from accellog.core.version import __version__
@@ -43,9 +44,8 @@ def session_meta(info, cfg, *, source: str, protocol: str, **fields) -> SessionM
         a_dlpf_cfg=cfg.a_dlpf_cfg,
         sample_rate_hz=cfg.sample_rate_hz,
         software=f"accellog {__version__}",
-        host=platform.node(),
         protocol=protocol,
-        **fields,
+        **{"host": platform.node(), **fields},
     )
 
 

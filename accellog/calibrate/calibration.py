@@ -12,8 +12,9 @@ truth_g = g_local / g0 for standard g). Integration then uses
 
 File format ('accellog.calibration', format_version 1): units, model spec (terms), parameters with
 values, 1-sigma and units, covariance, S and b at reference conditions, gravity convention,
-temperature at calibration, fit statistics, source files with SHA-256, software version and an
-optional displacement-drift model (accellog.navigate.drift), and optional versioned sections `noise`
+temperature at calibration, fit statistics, source files with SHA-256, the device key of the sensor
+(accellog.core.device; absent in older files = unknown), software version, an optional
+displacement-drift model (accellog.navigate.drift), and optional versioned sections `noise`
 (accellog.calibrate.noise_model) and `magnetometer` (accellog.calibrate.magnetometer).
 """
 
@@ -34,6 +35,7 @@ import numpy as np
 
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.model import model_from_spec
+from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult, dumps
 from accellog.core.session import ObsTable, Session
@@ -130,6 +132,8 @@ class Calibration(JsonResult):
     software: str = f"accellog {__version__}"
     created_utc: str = ""
     drift: DriftModel | None = None
+    device: dict = field(default_factory=dict)
+    """Device key of the calibrated sensor (accellog.core.device.DeviceKey.to_dict()); {} = unknown."""
     gyro: dict | None = None
     """Gyro calibration (accellog.calibrate.gyro.GyroCalibration.to_dict()), when the session allowed it."""
     noise: dict | None = None
@@ -159,6 +163,11 @@ class Calibration(JsonResult):
     @property
     def terms(self) -> list[str]:
         return list(self.model_spec.get("terms", []))
+
+    def device_conflicts(self, key: DeviceKey) -> list[str]:
+        """How `key` (a session's device) differs from the calibrated device; [] when they match
+        or either is unknown (see DeviceKey.conflicts)."""
+        return DeviceKey.from_dict(self.device).conflicts(key)
 
     def S_b(self) -> tuple[np.ndarray, np.ndarray]:
         """Linear part at reference conditions: S (3,3), b (3,) g."""
@@ -271,6 +280,7 @@ class Calibration(JsonResult):
             "temperature": dict(self.temperature),
             "fit": dict(self.fit),
             "sensor": dict(self.sensor),
+            "device": dict(self.device),
             "sources": list(self.sources),
             "drift": self.drift.to_dict() if self.drift is not None else None,
             "gyro": self.gyro,
@@ -378,6 +388,7 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         fit=dict(d.get("fit") or {}),
         sources=list(d.get("sources") or []),
         sensor=dict(d.get("sensor") or {}),
+        device=dict(d.get("device") or {}),
         software=str(d.get("software", "")),
         created_utc=str(d.get("created_utc", "")),
         drift=DriftModel.from_dict(d["drift"], where=where) if d.get("drift") else None,

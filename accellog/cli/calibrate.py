@@ -211,11 +211,22 @@ def apply(
             "--ros2", help="Also write a ROS 2 bag (sensor_msgs/Imu with covariances): OUT.mcap or a dir."
         ),
     ] = None,
+    other_device: Annotated[
+        str,
+        typer.Option(help="A calibration of another device (device keys differ): 'refuse' or 'warn'."),
+    ] = "refuse",
 ) -> None:
     """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
-    from accellog.flows.stages import run_apply
+    import warnings
 
-    p = run_apply(session, cal, output, ros2=ros2)
+    from accellog.flows.stages import OtherDeviceWarning, run_apply
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", OtherDeviceWarning)
+        p = run_apply(session, cal, output, ros2=ros2, other_device=other_device)
+    for w in caught:
+        if issubclass(w.category, OtherDeviceWarning):
+            _console.print(f"[yellow]warning: {w.message}[/]")
     if ros2 is not None:
         _console.print(f"wrote {ros2}")
     _console.print(f"wrote {p}")

@@ -73,6 +73,9 @@ def record(
     gyro_range: Annotated[int, typer.Option(help="Gyro full scale (+-deg/s): 250, 500, 1000, 2000.")] = 250,
     dlpf: Annotated[int, typer.Option(help="Gyro/temp DLPF_CFG 1..6 and accel A_DLPFCFG.")] = 3,
     mag: Annotated[bool, typer.Option("--mag/--no-mag", help="Also record the AK8963 magnetometer.")] = True,
+    serial: Annotated[
+        str, typer.Option(help="Your serial/name of this sensor (device identity, e.g. IMU-0007).")
+    ] = "",
     fast: Annotated[bool, typer.Option(help="With --sim: run on a simulated clock (no waiting).")] = False,
     seed: Annotated[int, typer.Option(help="With --sim: noise seed.")] = 1,
     rerun: Annotated[
@@ -98,6 +101,7 @@ def record(
         fast=fast,
         seed=seed,
         rerun=rerun,
+        serial=serial,
     )
     # Ctrl-C / SIGTERM only set a flag; the recorder stops at its next FIFO read and the writer's
     # context finishes the file (an exception raised inside the MCAP writer could corrupt it).
@@ -147,10 +151,22 @@ def simulate(
         str | None,
         typer.Option(help="'constant:T', 'warmup:T_start:T_end:tau_s' or 'ramp:T0:rate_degC_per_s'."),
     ] = None,
+    fleet: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help="Simulate a fleet of N devices (ageing, one damaged) into the directory -o."
+        ),
+    ] = None,
+    fleet_sessions: Annotated[int, typer.Option(min=1, help="With --fleet: sessions per device.")] = 3,
+    jobs: Annotated[int, typer.Option(min=1, help="With --fleet: processes.")] = 1,
 ) -> None:
     """Write a whole simulated session (emulated chip, simulated clock) without waiting."""
     from accellog.flows.simulate import Scenario
     from accellog.flows.simulate import simulate as run_simulation
+
+    if fleet is not None:
+        _simulate_fleet(out, fleet, fleet_sessions, seed, jobs)
+        return
 
     sc = Scenario.from_toml(scenario) if scenario else Scenario()
     for name, value in (
@@ -180,6 +196,18 @@ def simulate(
     console.print(
         f"wrote {out}: {summary.samples} samples, {summary.duration_s:.1f} s simulated, "
         f"{len(summary.poses)} poses, {summary.lost_samples} lost samples"
+    )
+
+
+def _simulate_fleet(out: Path, n: int, sessions: int, seed: int | None, jobs: int) -> None:
+    from accellog.flows.fleet_sim import FleetSpec, simulate_fleet
+
+    if out.suffix.lower() == ".mcap":
+        raise InputError("--fleet writes a directory of sessions: give -o DIR", where=str(out))
+    res = simulate_fleet(FleetSpec(n_devices=n, sessions_per_device=sessions, seed=seed or 0), out, jobs=jobs)
+    console.print(
+        f"wrote {len(res.sessions)} sessions of {n} devices to {out} (damaged: {res.damaged_serial}; "
+        f"truth in {res.truth_file})"
     )
 
 

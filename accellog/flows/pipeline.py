@@ -267,7 +267,12 @@ class PipelineResult(JsonResult):
 class _Inputs:
     """The pipeline's input files by role, each loaded once."""
 
-    def __init__(self, spec: dict, inputs: Sequence[str | os.PathLike]) -> None:
+    def __init__(
+        self,
+        spec: dict,
+        inputs: Sequence[str | os.PathLike],
+        preloaded: dict[str, Session | ObsTable] | None = None,
+    ) -> None:
         self.where = spec.get("_path")
         self.roles = spec["pipeline"]["inputs"]
         if len(inputs) != len(self.roles):
@@ -279,7 +284,9 @@ class _Inputs:
         self.files = {r: str(x) for r, x in zip(self.roles, inputs, strict=True)}
         self.n_per_pose = spec.get("segment", {}).get("n_per_pose")
         self.base = Path(self.where).parent if self.where else Path.cwd()
-        self._cache: dict[str, Session | ObsTable] = {}
+        self._cache: dict[str, Session | ObsTable] = {
+            r: preloaded[f] for r, f in self.files.items() if f in (preloaded or {})
+        }
 
     def get(self, role: str) -> Session | ObsTable:
         if role not in self._cache:
@@ -377,10 +384,13 @@ def run_pipeline(
     inputs: Sequence[str | os.PathLike],
     *,
     output_dir: str | os.PathLike | None = None,
+    preloaded: dict[str, Session | ObsTable] | None = None,
 ) -> PipelineResult:
-    """Run a pipeline file on input files given in the order of pipeline.inputs."""
+    """Run a pipeline file on input files given in the order of pipeline.inputs.
+
+    preloaded: inputs already read, by file name (str), so that they are not read again."""
     spec = pipeline if isinstance(pipeline, dict) else load_pipeline(pipeline)
-    inp = _Inputs(spec, inputs)
+    inp = _Inputs(spec, inputs, preloaded)
     report = spec.get("report", {})
     res = PipelineResult(
         name=spec["pipeline"]["name"], inputs=inp.files, at_s=float(report.get("at_s", 60.0))

@@ -23,6 +23,7 @@ from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.fit import fit_model
 from accellog.calibrate.model import build_model
 from accellog.calibrate.segment import obs_from_pose_means
+from accellog.core.device import check_serial
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import Event, PoseLabel
@@ -54,6 +55,8 @@ class RecordOptions:
     fast: bool = False
     seed: int = 1
     rerun: str | None = None
+    serial: str = ""
+    """The user's serial/name of this sensor (part of the device key)."""
 
     @property
     def use_sim(self) -> bool:
@@ -68,6 +71,7 @@ class RecordOptions:
         parse_protocol(self.protocol, self.hold_s)
         sample_rate_div(self.rate_hz)
         parse_address(self.address)
+        check_serial(self.serial)
 
 
 @dataclass
@@ -165,7 +169,16 @@ def record_session(
         )
         for note in dev.notes:
             warn(note)
-        meta = session_meta(dev.info, dev.config, source=source, protocol=opts.protocol)
+        meta = session_meta(
+            dev.info,
+            dev.config,
+            source=source,
+            protocol=opts.protocol,
+            serial=check_serial(opts.serial),
+            i2c_bus="emulator" if opts.use_sim else f"/dev/i2c-{opts.bus}",
+            i2c_address=parse_address(opts.address),
+            ak8963_wia=dev.driver.ak8963_wia,
+        )
         if opts.rerun:
             live = LiveView.from_option(opts.rerun)
             ui = live.wrap_ui(ui)

@@ -236,10 +236,14 @@ def simulate(
     duration_s: float | None = None,
     poll_s: float = 0.025,
     truth_step_s: float = 0.01,
+    serial: str = "",
+    start_time_unix_ns: int | None = None,
 ):
     """Write the scenario's session to ``out`` (MCAP) on a simulated clock; return RecordSummary.
 
-    truth_step_s: spacing of the stored ground truth (s); it is for evaluation only.
+    truth_step_s: spacing of the stored ground truth (s); it is for evaluation only. serial: the
+    device's user serial (identity); start_time_unix_ns: the session's wall-clock start (a
+    simulated date; default: the writer's clock).
     """
 
     model, motion = build_sensor_model(sc)
@@ -261,7 +265,12 @@ def simulate(
         protocol=sc.protocol if sc.motion == "poses" else f"robot:{sc.robot_path}",
         local_gravity_mps2=sc.local_gravity_mps2,
         extra={"scenario": sc.to_json()},
+        serial=serial,
+        i2c_bus="emulator",
+        i2c_address=chip.address,
     )
+    if start_time_unix_ns is not None:
+        meta = meta.replace(start_time_unix_ns=int(start_time_unix_ns))
     total_s = motion.duration_s if duration_s is None else duration_s
     out = Path(out)
     tmp = out.with_name(out.name + ".part")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -221,6 +222,8 @@ def run_fit(
         sources=[source_entry(src or _path_of(data), kind)],
         sensor=sensor,
     )
+    if isinstance(data, Session):
+        cal.device = data.meta.device.to_dict()
     if gyro and isinstance(data, Session):
         cal.gyro = _gyro_calibration(data)
     return FitOutcome(obs=obs, fit=fit, cal=cal)
@@ -334,17 +337,43 @@ def _write_mag_calibrated(w, s: Session, section: dict) -> None:
     w.write_vector3("mag_calibrated", t_ns, mc.correct(s.mag_uT), "uT", frame="AK8963")
 
 
+class OtherDeviceWarning(UserWarning):
+    """A calibration of another device was applied (run_apply(other_device='warn'))."""
+
+
+OTHER_DEVICE_MODES = ("refuse", "warn")
+
+
+def check_device(session: Session, cal: Calibration, other_device: str = "refuse", where: str = "") -> str:
+    """'' when the calibration's device key matches the session's (or either is unknown); else the
+    one-line mismatch, raised as InputError ('refuse') or issued as OtherDeviceWarning ('warn')."""
+    if other_device not in OTHER_DEVICE_MODES:
+        raise InputError(f"other_device={other_device!r}: use 'refuse' or 'warn'")
+    diff = cal.device_conflicts(session.meta.device)
+    if not diff:
+        return ""
+    cal_id = cal.device.get("id") or "?"
+    msg = f"calibration is for device {cal_id}, session is from {session.meta.device.id} ({'; '.join(diff)})"
+    if other_device == "refuse":
+        raise InputError(msg + ": use --other-device warn to apply it anyway", where=where)
+    warnings.warn(msg, OtherDeviceWarning, stacklevel=2)
+    return msg
+
+
 def run_apply(
     session_path: str | os.PathLike,
     cal: Calibration | str | os.PathLike,
     out: str | os.PathLike,
     *,
     ros2: str | os.PathLike | None = None,
+    other_device: str = "refuse",
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
     /derived/accel_calibrated_mps2 (and /derived/mag_calibrated, uT, when the calibration has a magnetometer
     section and the session magnetometer samples), and attaching the calibration JSON. Atomic (temp + rename).
-    ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2)."""
+    ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2).
+    A calibration of another device (device keys differ) is refused, or warned about with
+    other_device='warn' (see check_device)."""
 
     src = Path(session_path)
     if src.suffix.lower() != ".mcap":
@@ -353,6 +382,7 @@ def run_apply(
         )
     s = read_session(src)
     c = _cal(cal)
+    check_device(s, c, other_device, where=str(src))
     f = c.correct(s)
     out = Path(out)
     if out.resolve() == src.resolve():

@@ -10,6 +10,7 @@ from typing import Any
 
 from rich.table import Table
 
+from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
 from accellog.present.tables import fmt_pm
 
@@ -28,6 +29,9 @@ def _params(d: dict, name: str) -> Table:
         t.caption = (
             f"chi2/dof {fit['chi2_dof']:.4g}, residual RMS {1000 * fit.get('rms_g', float('nan')):.4g} mg"
         )
+    if d.get("device"):
+        dev = DeviceKey.from_dict(d["device"]).describe()
+        t.caption = f"{t.caption}\ndevice {dev}" if t.caption else f"device {dev}"
     return t
 
 
