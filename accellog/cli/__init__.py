@@ -33,6 +33,10 @@ def main(argv: list[str] | None = None) -> int:
         return int(exc.exit_code)
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except OSError as exc:  # a file system problem the command did not foresee: still one line
+        where = exc.filename if exc.filename is not None else "file system"
+        print(f"accellog: error: {where}: {exc.strerror or exc.__class__.__name__}", file=sys.stderr)
+        return 2
     except Exception as exc:
         # typer bundles its own click: usage errors carry show() and exit_code.
         if hasattr(exc, "show") and isinstance(getattr(exc, "exit_code", None), int):

@@ -22,6 +22,7 @@ from accellog.flows.pipeline import run_pipeline
 from accellog.flows.stages import load_input, run_apply, run_drift, run_evaluate, run_fit
 from accellog.present import tables as report
 from accellog.present import views
+from accellog.store.atomic import check_outputs, write_text_atomic
 
 _console = Console()
 
@@ -54,6 +55,7 @@ def segment(
     json_out: JsonOpt = False,
 ) -> None:
     """Per-pose statistics (mean, std, autocorrelation-aware sem) and windowed observations."""
+    check_outputs([output], [session], mkdir=True)
     data = load_input(session)
     if not isinstance(data, Session):
         raise InputError("segment needs a recorded session (samples), not a pose table", where=str(session))
@@ -62,7 +64,7 @@ def segment(
 
     obs = observations(data, window_s=window_s, trim_s=trim_s)
     if output is not None:
-        write_json_atomic(output, obs_to_dict(obs))
+        write_json_atomic(output, obs_to_dict(obs), inputs=(session,))
     if json_out:
         _echo_json(
             {"poses": [p.to_dict() for p in stats], "n_observations": obs.n, "output": str(output or "")}
@@ -120,6 +122,7 @@ def fit(
     rrd: RrdOpt = None,
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma)."""
+    check_outputs([output, rrd], [session, effects_file], mkdir=True)
     data = load_input(session)
     out = run_fit(
         data,
@@ -133,12 +136,12 @@ def fit(
         window_s=window_s,
         trim_s=trim_s,
     )
-    out.cal.save(output)
-    if rrd is not None:
+    if rrd is not None:  # the recording first: an error there leaves no calibration behind
         with _recording(rrd) as rec:
             if isinstance(data, Session):
                 views.log_session(rec, data, calibrations={out.fit.model.name: out.cal})
             views.log_fit(rec, out)
+    out.cal.save(output, inputs=(session, effects_file))
     if json_out:
         d = out.to_dict()
         d["output"] = str(output)
@@ -263,14 +266,15 @@ def drift(
     rrd: RrdOpt = None,
 ) -> None:
     """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
+    check_outputs([output, rrd], [static, cal], mkdir=True)
     data = load_input(static)
     out = run_drift(data, cal, until_s=until_s, max_samples=max_samples)
-    out.cal.save(output)
-    if rrd is not None:
+    if rrd is not None:  # the recording first: an error there leaves no calibration behind
         with _recording(rrd) as rec:
             if isinstance(data, Session):
                 views.log_session(rec, data, calibrations={"calibrated + drift model": out.cal})
             views.log_evaluations(rec, [out.fit_eval])
+    out.cal.save(output, inputs=(static, cal))
     if json_out:
         d = out.to_dict()
         d["output"] = str(output)
@@ -292,6 +296,7 @@ def apply(
     ],
 ) -> None:
     """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
+    check_outputs([output], [session, cal])
     p = run_apply(session, cal, output)
     _console.print(f"wrote {p}")
 
@@ -307,6 +312,9 @@ def run(
     rrd: RrdOpt = None,
 ) -> None:
     """Run a pipeline file (segment -> fit -> evaluate -> drift -> report)."""
+    check_outputs([rrd], [pipeline, *sessions], mkdir=True)
+    if output_dir is not None and output_dir.exists() and not output_dir.is_dir():
+        raise InputError("--output-dir is an existing file, not a folder", where=str(output_dir))
     res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir)
     if rrd is not None:
         with _recording(rrd) as rec:
@@ -342,6 +350,7 @@ def integrate(
     local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
     import io
 
+    check_outputs([output], [session, cal])
     import numpy as np
 
     from accellog.calibrate.calibration import load_calibration
@@ -357,13 +366,7 @@ def integrate(
     buf = io.StringIO()
     buf.write("t_s,vx_mps,vy_mps,vz_mps,x_m,y_m,z_m\n")
     np.savetxt(buf, np.column_stack([t, v, d]), delimiter=",", fmt="%.9g")
-    tmp = output.with_name(f".{output.name}.tmp")
-    try:
-        tmp.write_text(buf.getvalue())
-        tmp.replace(output)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise InputError(f"cannot write the CSV: {exc.strerror or exc}", where=str(output)) from None
+    write_text_atomic(output, buf.getvalue(), inputs=(session, cal))
     summary = {
         "session": str(session),
         "calibration": str(cal) if cal else None,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import signal
 import threading
 from pathlib import Path
@@ -15,8 +16,10 @@ from accellog.cli.app import app
 from accellog.core.errors import DeviceError, InputError
 from accellog.core.protocol import PoseSpec, parse_protocol
 from accellog.core.session import Event, PoseLabel
+from accellog.store.atomic import check_output
 
 console = Console(stderr=True)
+ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
 
 
 class TerminalUI:
@@ -132,6 +135,7 @@ def record(
     rerun: Annotated[
         str | None, typer.Option(help="Live view: 'spawn', 'connect URL' or 'save FILE.rrd'.")
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Record a guided calibration session: the operator is told each pose, the hold is labelled."""
     from accellog.acquire.driver import Mpu9250
@@ -143,7 +147,7 @@ def record(
     if wait not in ("auto", "enter"):
         raise InputError(f"--wait {wait!r}: use 'auto' or 'enter'")
     poses = parse_protocol(protocol, hold)
-    div = 1000.0 / rate - 1
+    div = 1000.0 / rate - 1 if rate > 0 and math.isfinite(rate) else -1.0
     if rate <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
         raise InputError(f"--rate {rate:g}: the chip supports 1000/(1+N) Hz, N = 0..255")
     use_sim = sim or bus is None
@@ -151,6 +155,7 @@ def record(
         addr = int(address, 0)
     except ValueError:
         raise InputError(f"--address {address!r} is not a number (use 0x68 or 0x69)") from None
+    check_output(out, overwrite=force)
 
     if use_sim:
         from accellog.acquire.emulator.chip import EmulatedMpu9250
@@ -204,7 +209,7 @@ def record(
         if live is not None:
             ui = live.wrap_ui(ui)
         interrupted = False
-        with SessionWriter(out, meta) as writer:
+        with SessionWriter(out, meta, exclusive=True, overwrite=force) as writer:
             driver.start()
             rec = Recorder(
                 driver,
@@ -267,6 +272,7 @@ def simulate(
         str | None,
         typer.Option(help="'constant:T', 'warmup:T_start:T_end:tau_s' or 'ramp:T0:rate_degC_per_s'."),
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Write a whole simulated session (emulated chip, simulated clock) without waiting."""
     from accellog.flows.simulate import Scenario
@@ -296,7 +302,7 @@ def simulate(
     if temperature:
         sc.temperature = parse_temperature_option(temperature)
     sc.validate()
-    summary = run_simulation(sc, out)
+    summary = run_simulation(sc, out, force=force)
     console.print(
         f"wrote {out}: {summary.samples} samples, {summary.duration_s:.1f} s simulated, "
         f"{len(summary.poses)} poses, {summary.lost_samples} lost samples"

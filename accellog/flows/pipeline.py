@@ -330,7 +330,7 @@ def run_pipeline(
     out_dir = output_dir or spec.get("report", {}).get("output_dir")
     if out_dir:
         od = Path(out_dir) if Path(out_dir).is_absolute() or output_dir else base / out_dir
-        od.mkdir(parents=True, exist_ok=True)
+        _prepare_output_dir(od, res, [where, *inputs])
         for mname, fo in res.fits.items():
             fo.cal.save(od / f"cal_{_safe(mname)}.json")
             res.written.append(str(od / f"cal_{_safe(mname)}.json"))
@@ -342,6 +342,20 @@ def run_pipeline(
         write_json_atomic(od / "results.json", res.to_dict())
         res.written.append(str(od / "results.json"))
     return res
+
+
+def _prepare_output_dir(od: Path, res, inputs: list) -> None:
+    """Create the output folder and check every file to be written there before writing any."""
+    from accellog.store.atomic import check_outputs
+
+    if od.exists() and not od.is_dir():
+        raise InputError("output folder is an existing file", where=str(od))
+    try:
+        od.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder: {exc.strerror or exc}", where=str(od)) from None
+    names = [f"cal_{_safe(m)}.json" for m in res.fits] + (["cal_drift.json"] if res.drift else [])
+    check_outputs([od / n for n in [*names, "results.json"]], inputs)
 
 
 def _safe(name: str) -> str:

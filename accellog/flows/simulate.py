@@ -43,6 +43,7 @@ from accellog.core.errors import InputError
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
 from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.store.atomic import check_output
 
 _SMPLRT_DIV_BASE_HZ = 1000.0
 
@@ -219,17 +220,21 @@ def simulate(
     duration_s: float | None = None,
     poll_s: float = 0.025,
     truth_step_s: float = 0.01,
+    force: bool = False,
 ):
     """Write the scenario's session to ``out`` (MCAP) on a simulated clock; return RecordSummary.
 
-    truth_step_s: spacing of the stored ground truth (s); it is for evaluation only.
+    truth_step_s: spacing of the stored ground truth (s); it is for evaluation only. An existing
+    ``out`` is refused unless force=True; the file appears (atomically) only when complete.
     """
     from accellog.acquire.driver import Mpu9250
     from accellog.acquire.emulator.chip import EmulatedMpu9250
     from accellog.acquire.emulator.clock import SimClock
     from accellog.acquire.recorder import Recorder, session_meta
+    from accellog.store.atomic import AtomicOutput
     from accellog.store.writer import SessionWriter
 
+    check_output(out, overwrite=force)
     model, motion = build_sensor_model(sc)
     clock = SimClock()
     chip = EmulatedMpu9250(model, clock, seed=sc.seed)
@@ -249,8 +254,8 @@ def simulate(
         extra={"scenario": sc.to_json()},
     )
     total_s = motion.duration_s if duration_s is None else duration_s
-    out = Path(out)
-    tmp = out.with_name(out.name + ".part")
+    ao = AtomicOutput(out, overwrite=force)
+    tmp = ao.begin()
     try:
         with SessionWriter(tmp, meta) as writer:
             driver.start()
@@ -269,9 +274,9 @@ def simulate(
                 writer.write_pose(label)
                 rec.summary.poses.append(label)
             writer.write_truth(chip.truth_for_session(np.arange(0.0, rec.t_s, truth_step_s)))
-        tmp.replace(out)
     except BaseException:  # never leave a half-written session behind (Ctrl-C, errors)
-        tmp.unlink(missing_ok=True)
+        ao.abort()
         raise
+    ao.commit()
     rec.summary.duration_s = rec.t_s
     return rec.summary

@@ -305,6 +305,7 @@ def run_apply(
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
     /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename)."""
     from accellog.calibrate.calibration import dumps
+    from accellog.store.atomic import AtomicOutput
     from accellog.store.layout import NS_PER_S
     from accellog.store.reader import read_session
     from accellog.store.writer import SessionWriter
@@ -318,9 +319,8 @@ def run_apply(
     c = _cal(cal)
     f = c.correct(s)
     out = Path(out)
-    if out.resolve() == src.resolve():
-        raise InputError("output would overwrite the input session", where=str(out))
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    ao = AtomicOutput(out, inputs=(src, getattr(c, "path", None)))
+    tmp = ao.begin()
     t_ns = np.round(s.t_s * NS_PER_S).astype(np.int64)
     si = np.asarray(s.sample_index, np.int64)
     cuts = np.flatnonzero(np.diff(si) != 1) + 1
@@ -356,8 +356,8 @@ def run_apply(
             if s.truth is not None:
                 w.write_truth(s.truth)
             w.attach("calibration/accel.json", "application/json", dumps(c.to_dict()).encode())
-        os.replace(tmp, out)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        ao.abort()
         raise
+    ao.commit()
     return out
