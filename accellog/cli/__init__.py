@@ -9,6 +9,7 @@ import sys
 import typer
 
 from accellog.cli.app import app
+from accellog.core import notices
 from accellog.core.errors import AccellogError
 
 # Every module in this package registers its commands on `app` when imported; the help lists the
@@ -21,8 +22,11 @@ for _name in sorted(_names, key=lambda n: (_ORDER.index(n) if n in _ORDER else l
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: runs the app; input errors become one line on stderr and a non-zero exit."""
+    notices.take()  # notes of an earlier in-process call are not this command's
     try:
         rc = app(args=argv, prog_name="accellog", standalone_mode=False)
+        for text in notices.take():
+            print(f"accellog: note: {text}", file=sys.stderr)
     except AccellogError as exc:
         print(f"accellog: error: {exc}", file=sys.stderr)
         return exc.exit_code

@@ -120,10 +120,21 @@ def fit(
     trim_s: Annotated[float, typer.Option(help="Trim at both ends of every hold (s).")] = 0.5,
     json_out: JsonOpt = False,
     rrd: RrdOpt = None,
+    relabel: Annotated[
+        bool,
+        typer.Option("--relabel", help="Replace hold labels that contradict the measured gravity direction."),
+    ] = False,
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma)."""
     check_outputs([output, rrd], [session, effects_file], mkdir=True)
     data = load_input(session)
+    if relabel and isinstance(data, Session):
+        from accellog.calibrate.label_check import relabel_holds
+        from accellog.core.notices import note
+
+        data, changes = relabel_holds(data, trim_s=trim_s)
+        for c in changes:
+            note(f"{session}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
     out = run_fit(
         data,
         model,

@@ -22,6 +22,7 @@ import numpy as np
 from accellog.calibrate.calibration import Calibration, load_calibration, read_json, source_entry
 from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.label_check import check_timestamps
 from accellog.calibrate.obs_file import OBS_FORMAT, obs_from_dict
 from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations
 from accellog.core.errors import InputError
@@ -39,15 +40,26 @@ g_local / g0 in standard g (the physical convention)."""
 
 
 def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
-    """Read any supported input: a Session, or an ObsTable for pose tables / observation files."""
+    """Read any supported input: a Session, or an ObsTable for pose tables / observation files.
+    A degenerate session (< 2 samples, zero duration, duplicated/decreasing times) is refused."""
+    data = _read_input(path, n_per_pose=n_per_pose)
+    if isinstance(data, Session):
+        check_timestamps(data, where=str(path))
+    return data
+
+
+def _read_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
     p = Path(path)
     if not p.exists():
         raise InputError("no such file", where=str(p))
     suffix = p.suffix.lower()
     if suffix == ".mcap":
         from accellog.store.reader import read_session
+        from accellog.store.recovery import announce
 
-        return read_session(p)
+        session = read_session(p)
+        announce(session)  # a truncated file: say what was recovered (stderr)
+        return session
     if suffix == ".json":
         d = read_json(p)
         if isinstance(d, dict) and d.get("format") == OBS_FORMAT:
@@ -92,6 +104,17 @@ def _path_of(x: Session | ObsTable) -> str | None:
     return p if p and Path(p).is_file() else None
 
 
+def _source(data: Session | ObsTable, src: str | None, kind: str) -> dict:
+    """Provenance entry of the input; a recovered (truncated) session says what was kept."""
+    from accellog.store.recovery import recovery_info
+
+    entry = source_entry(src or _path_of(data), kind)
+    info = recovery_info(data) if isinstance(data, Session) else None
+    if info is not None:
+        entry["recovered"] = info.to_dict()
+    return entry
+
+
 def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
     if gravity not in GRAVITY_CONVENTIONS:
         raise InputError(f"unknown gravity convention {gravity!r}: use 'seed' or 'local'")
@@ -115,6 +138,9 @@ class FitOutcome:
         d["gravity_convention"] = self.cal.gravity_convention
         d["local_gravity_mps2"] = self.cal.local_gravity_mps2
         d["n_poses"] = len(self.obs.pose_names)
+        rec = [s["recovered"] for s in self.cal.sources if isinstance(s, dict) and s.get("recovered")]
+        if rec:
+            d["recovered"] = rec
         return d
 
 
@@ -199,7 +225,7 @@ def run_fit(
         obs=obs,
         gravity_convention=gravity,
         local_gravity_mps2=float(local_gravity_mps2),
-        sources=[source_entry(src or _path_of(data), kind)],
+        sources=[_source(data, src, kind)],
         sensor=sensor,
     )
     if gyro and isinstance(data, Session):
