@@ -42,9 +42,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"accellog: error: {where}: {exc.strerror or exc.__class__.__name__}", file=sys.stderr)
         return 2
     except Exception as exc:
-        # typer bundles its own click: usage errors carry show() and exit_code.
-        if hasattr(exc, "show") and isinstance(getattr(exc, "exit_code", None), int):
-            exc.show()
+        # typer bundles its own click: usage errors carry format_message() and exit_code; they are
+        # one line too (the command and the message; `--help` shows the usage).
+        if hasattr(exc, "format_message") and isinstance(getattr(exc, "exit_code", None), int):
+            ctx = getattr(exc, "ctx", None)
+            cmd = f"{ctx.command_path}: " if ctx is not None else ""
+            msg = " ".join(str(exc.format_message()).split())
+            print(f"accellog: error: {cmd}{msg} (see --help)", file=sys.stderr)
             return exc.exit_code
         raise
     return rc if isinstance(rc, int) else 0

@@ -272,9 +272,22 @@ def simulate(
         str | None,
         typer.Option(help="'constant:T', 'warmup:T_start:T_end:tau_s' or 'ramp:T0:rate_degC_per_s'."),
     ] = None,
+    fault: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--fault",
+            help="Inject a fault (repeatable), KEY=VALUE: i2c_error_rate (0..1 per transaction), "
+            "fifo_glitch_rate (0..1 per FIFO read), host_stall_s + host_stall_every_s (s), "
+            "disconnect_at_s + disconnect_s (s). The same keys work in a scenario TOML.",
+        ),
+    ] = None,
     force: ForceOpt = False,
 ) -> None:
-    """Write a whole simulated session (emulated chip, simulated clock) without waiting."""
+    """Write a whole simulated session (emulated chip, simulated clock) without waiting.
+
+    Faults to rehearse a flaky setup (--fault KEY=VALUE or scenario keys): i2c_error_rate,
+    fifo_glitch_rate, host_stall_s, host_stall_every_s, disconnect_at_s, disconnect_s; every lost
+    sample is counted in the session's events."""
     from accellog.flows.simulate import Scenario
     from accellog.flows.simulate import simulate as run_simulation
 
@@ -301,6 +314,18 @@ def simulate(
         sc.set[key.strip()] = nums if len(nums) > 1 else nums[0]
     if temperature:
         sc.temperature = parse_temperature_option(temperature)
+    for item in fault or []:
+        key, sep, val = item.partition("=")
+        try:
+            value = float(val)
+        except ValueError:
+            value = None
+        if not sep or value is None:
+            raise InputError(f"--fault {item!r}: use KEY=NUMBER, e.g. --fault i2c_error_rate=0.01")
+        from accellog.acquire.emulator.faults import FaultPlan
+
+        FaultPlan.from_mapping({key.strip(): value}, where="--fault")
+        setattr(sc, key.strip(), value)
     sc.validate()
     summary = run_simulation(sc, out, force=force)
     console.print(

@@ -20,6 +20,12 @@ local_gravity_mps2 = 9.80665
 fixture_tilt_deg = [0.0, 0.0]
 [set]                       # overrides of AccelErrors fields, e.g.
 temp_bias_g_per_degC = [0.001, -0.0005, 0.0008]
+i2c_error_rate = 0.0        # faults (all off by default; accellog.acquire.emulator.faults):
+fifo_glitch_rate = 0.0      #   probability per transaction / per FIFO read (0..1)
+host_stall_s = 0.0          #   host pauses this long (s) ...
+host_stall_every_s = 0.0    #   ... every this many seconds
+disconnect_at_s = 0.0       #   bus cut at this time (s) ...
+disconnect_s = 0.0          #   ... for this long (s)
 [temperature]               # 'constant' (T), 'warmup' (T_start, T_end, tau_s) or 'ramp' (T0, rate)
 kind = "warmup"
 T_start = 25.0
@@ -71,6 +77,13 @@ class Scenario:
     """'poses' (guided static holds) or 'robot' (the default robot path; see emulator.robot)."""
     robot_path: str = "demo"
     """'demo' (a 64 s closed loop with ramps, a banked turn and 9 stops) or 'long' (10 min)."""
+    # fault injection (accellog.acquire.emulator.faults): all off by default
+    i2c_error_rate: float = 0.0
+    fifo_glitch_rate: float = 0.0
+    host_stall_s: float = 0.0
+    host_stall_every_s: float = 0.0
+    disconnect_at_s: float = 0.0
+    disconnect_s: float = 0.0
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Scenario:
@@ -96,8 +109,9 @@ class Scenario:
         return sc
 
     def validate(self, where: str = "scenario") -> None:
-        div = _SMPLRT_DIV_BASE_HZ / self.sample_rate_hz - 1.0
-        if self.sample_rate_hz <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
+        rate = self.sample_rate_hz
+        div = _SMPLRT_DIV_BASE_HZ / rate - 1.0 if rate > 0 and np.isfinite(rate) else -1.0
+        if rate <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
             raise InputError(
                 f"sample_rate_hz={self.sample_rate_hz:g} is not 1000/(1+N) for N in 0..255", where=where
             )
@@ -105,7 +119,20 @@ class Scenario:
             raise InputError(f"errors={self.errors!r}: use 'datasheet' or 'perfect'", where=where)
         if self.motion not in ("poses", "robot"):
             raise InputError(f"motion={self.motion!r}: use 'poses' or 'robot'", where=where)
+        if not self.hold_s > 0 or not self.move_s >= 0:
+            raise InputError(
+                f"hold_s={self.hold_s:g} must be > 0 and move_s={self.move_s:g} >= 0 (s)", where=where
+            )
+        if self.accel_range_g not in (2, 4, 8, 16):
+            raise InputError(f"accel_range_g={self.accel_range_g}: use 2, 4, 8 or 16", where=where)
+        self.fault_plan(where)
         parse_protocol(self.protocol, self.hold_s)
+
+    def fault_plan(self, where: str = "scenario"):
+        """The scenario's FaultPlan (validated: rates 0..1, times >= 0)."""
+        from accellog.acquire.emulator.faults import FaultPlan
+
+        return FaultPlan.from_mapping({k: getattr(self, k) for k in FaultPlan.names()}, where=where)
 
     @property
     def sample_rate_div(self) -> int:
@@ -115,7 +142,15 @@ class Scenario:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
 
-_FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s"}
+_FAULT_KEYS = {
+    "i2c_error_rate",
+    "fifo_glitch_rate",
+    "host_stall_s",
+    "host_stall_every_s",
+    "disconnect_at_s",
+    "disconnect_s",
+}
+_FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s", *_FAULT_KEYS}
 _INT_KEYS = {"accel_range_g", "gyro_range_dps", "chip_seed", "seed"}
 _STR_KEYS = {"protocol", "errors", "gyro_errors", "motion", "robot_path"}
 _TABLE_KEYS = {"set", "temperature"}
@@ -230,15 +265,19 @@ def simulate(
     from accellog.acquire.driver import Mpu9250
     from accellog.acquire.emulator.chip import EmulatedMpu9250
     from accellog.acquire.emulator.clock import SimClock
+    from accellog.acquire.emulator.faults import FaultyBus, stalling_sleep
     from accellog.acquire.recorder import Recorder, session_meta
     from accellog.store.atomic import AtomicOutput
     from accellog.store.writer import SessionWriter
 
     check_output(out, overwrite=force)
     model, motion = build_sensor_model(sc)
+    plan = sc.fault_plan()
     clock = SimClock()
-    chip = EmulatedMpu9250(model, clock, seed=sc.seed)
-    driver = Mpu9250(chip, clock_ns=clock.now_ns)
+    chip = EmulatedMpu9250(model, clock, seed=sc.seed, i2c_error_rate=plan.i2c_error_rate)
+    bus = FaultyBus(chip, plan, clock.now_ns, seed=sc.seed) if plan.bus_faults else chip
+    sleep = stalling_sleep(clock.sleep, clock.now_ns, plan)
+    driver = Mpu9250(bus, clock_ns=clock.now_ns, sleep=clock.sleep)
     info = driver.probe()
     cfg = driver.configure(
         accel_range_g=sc.accel_range_g,
@@ -259,7 +298,7 @@ def simulate(
     try:
         with SessionWriter(tmp, meta) as writer:
             driver.start()
-            rec = Recorder(driver, writer, sleep=clock.sleep, poll_s=poll_s)
+            rec = Recorder(driver, writer, sleep=sleep, poll_s=poll_s)
             rec.run_for(total_s)
             # Motion time starts when the chip is created, session time at the first FIFO sample:
             # map the scenario's holds and truth onto the session's time axis.
