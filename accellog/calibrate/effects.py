@@ -334,6 +334,11 @@ def _sandboxed(fn: Contribution, path: Path, name: str) -> Contribution:
                     where=where,
                 ) from None
             raise InputError(f"effect {name!r} failed: {_exc_text(exc)}", where=where) from None
+        if not np.isfinite(arr).all():
+            raise InputError(
+                f"effect {name!r}: contribution returned NaN/inf (or None) for {int((~np.isfinite(arr)).sum())} values",
+                where=str(path),
+            )
         return arr
 
     call.__wrapped__ = fn  # type: ignore[attr-defined]

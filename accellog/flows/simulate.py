@@ -126,7 +126,13 @@ class Scenario:
         if self.accel_range_g not in (2, 4, 8, 16):
             raise InputError(f"accel_range_g={self.accel_range_g}: use 2, 4, 8 or 16", where=where)
         self.fault_plan(where)
-        parse_protocol(self.protocol, self.hold_s)
+        try:
+            parse_protocol(self.protocol, self.hold_s)
+            temperature_path(self.temperature)
+        except InputError as exc:
+            if exc.where is None:
+                raise InputError(str(exc), where=where) from None
+            raise
 
     def fault_plan(self, where: str = "scenario"):
         """The scenario's FaultPlan (validated: rates 0..1, times >= 0)."""
