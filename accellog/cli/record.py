@@ -223,6 +223,10 @@ def record(
             )
             for sig in old_handlers:
                 signal.signal(sig, lambda *_: stop.set())
+            if not (use_sim and fast):  # real time: the FIFO must be drained within 36 ms
+                from accellog.acquire.recorder import raise_priority
+
+                writer.write_event(Event(0.0, "note", raise_priority()))
             console.print(f"recording to {out} (Ctrl-C finishes the file)")
             try:
                 rec.run(poses, wait=wait)
