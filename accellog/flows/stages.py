@@ -299,7 +299,7 @@ class DriftOutcome:
     fit_eval: Evaluation  # the fit session after the calibration and the drift model
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "drift": self.drift.to_dict(),
             "fit_session": self.fit_eval.session,
             "disp_end_m": self.fit_eval.disp_end_m.tolist(),
@@ -308,6 +308,10 @@ class DriftOutcome:
             else self.fit_eval.disp_end_drift_m.tolist(),
             "t_end_s": self.fit_eval.t_end_s,
         }
+        rec = [x["recovered"] for x in self.cal.sources if isinstance(x, dict) and x.get("recovered")]
+        if rec:
+            d["recovered"] = rec
+        return d
 
 
 def run_drift(
@@ -322,6 +326,9 @@ def run_drift(
     c = _cal(cal)
     cal_d, dm = drift_from_session(s, c, until_s=until_s, max_samples=max_samples)
     ev = evaluate(s, cal_d, until_s=until_s, max_samples=max_samples)
+    entry = _source(s, None, "drift")
+    if "recovered" in entry:  # provenance: the drift was fitted on a recovered (truncated) file
+        cal_d.sources = [*cal_d.sources, entry]
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
 
 

@@ -12,10 +12,11 @@ path gets a one-line error instead of a corrupt or lost file. Before anything is
   step then uses ``os.link`` so that even a foreign process creating the file meanwhile is not
   clobbered.
 
-``check_output`` runs the checks alone (to validate every output of a command before computing);
-``AtomicOutput`` (begin/commit/abort) and ``atomic_output`` (a context manager yielding the temporary
-path) write; ``write_bytes_atomic``/``write_text_atomic`` are the one-call forms; ``exclusive_file``
-opens a new file in place for live recording (crash safety needs the real name while writing).
+``check_output``/``check_outputs`` run the checks alone (to validate every output of a command
+before computing); ``AtomicOutput`` (begin/commit/abort) and ``atomic_output`` (a context manager
+yielding the temporary path) write; ``write_bytes_atomic``/``write_text_atomic`` are the one-call
+forms; ``OutputLock`` is the lock alone (``SessionWriter(exclusive=True)`` uses it for live
+recording, which writes under the real name with O_EXCL: a crash must leave the data there).
 """
 
 from __future__ import annotations
@@ -251,30 +252,6 @@ def write_bytes_atomic(out: PathLike, data: bytes, **kw) -> Path:
 def write_text_atomic(out: PathLike, text: str, **kw) -> Path:
     """Write `text` (UTF-8) to `out` atomically (see atomic_output for the keyword options)."""
     return write_bytes_atomic(out, text.encode(), **kw)
-
-
-@contextlib.contextmanager
-def exclusive_file(out: PathLike, *, overwrite: bool = False, inputs: Iterable[PathLike | None] = ()):
-    """Open a NEW file at `out` for live writing (binary), under the output lock.
-
-    Live recordings are written in place so that a crash leaves the data under its real name; the
-    file is created with O_EXCL, so an existing session is never truncated. overwrite=True
-    (``--force``) removes an existing file first. Yields the open file object."""
-    p = check_output(out, inputs, overwrite=overwrite)
-    with OutputLock(p):
-        if overwrite and p.exists():
-            p.unlink()
-        try:
-            f = open(p, "xb")  # noqa: SIM115 (closed below)
-        except FileExistsError:
-            raise InputError("file exists; use --force to replace it", where=str(p)) from None
-        except OSError as exc:
-            raise InputError(f"cannot create the file: {exc.strerror or exc}", where=str(p)) from None
-        try:
-            yield f
-        finally:
-            if not f.closed:
-                f.close()
 
 
 def check_outputs(
