@@ -59,14 +59,18 @@ def configure_device(
     *,
     address: int = 0x68,
     clock_ns: Callable[[], int] | None = None,
+    sleep: Callable[[float], None] | None = None,
     accel_range_g: int = 2,
     gyro_range_dps: int = 250,
     dlpf_cfg: int = 3,
     sample_rate_div: int = 0,
     mag: bool = True,
 ) -> ConfiguredDevice:
-    """Probe the chip on ``bus`` (smbus2-like), configure it and enable the AK8963 when asked and present."""
-    driver = Mpu9250(bus, address=address, clock_ns=clock_ns)
+    """Probe the chip on ``bus`` (smbus2-like), configure it and enable the AK8963 when asked and present.
+
+    clock_ns / sleep: the clock the driver stamps reads with and waits on (a simulated clock's, or
+    the host's by default)."""
+    driver = Mpu9250(bus, address=address, clock_ns=clock_ns, sleep=sleep)
     info = driver.probe()
     cfg = driver.configure(
         accel_range_g=accel_range_g,

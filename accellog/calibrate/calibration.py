@@ -25,7 +25,6 @@ import functools
 import hashlib
 import json
 import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +40,7 @@ from accellog.core.jsonio import JsonResult, dumps
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.core.version import __version__
+from accellog.store.atomic import write_text_atomic
 
 FORMAT = "accellog.calibration"
 FORMAT_VERSION = 1
@@ -288,26 +288,18 @@ class Calibration(JsonResult):
             **({"magnetometer": self.magnetometer} if self.magnetometer is not None else {}),
         }
 
-    def save(self, path: str | os.PathLike) -> None:
-        """Write the JSON file atomically (temp file + rename)."""
-        write_json_atomic(path, self.to_dict())
+    def save(self, path: str | os.PathLike, *, inputs: tuple = ()) -> None:
+        """Write the JSON file atomically (accellog.store.atomic); refused when `path` is one of the
+        source files, this calibration's own file or `inputs`."""
+        srcs = [s.get("path") for s in self.sources if isinstance(s, dict)]
+        write_json_atomic(path, self.to_dict(), inputs=(*srcs, self.path, *inputs))
         self.path = str(path)
 
 
-def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
-    """Write JSON to a temporary file beside `path`, then rename it into place."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    text = dumps(data)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text + "\n")
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+def write_json_atomic(path: str | os.PathLike, data: Any, *, inputs: tuple = ()) -> None:
+    """Write JSON atomically (accellog.store.atomic: lock, temp file, fsync, rename); the folder
+    is created when missing; an output that is one of `inputs` is refused."""
+    write_text_atomic(path, dumps(data) + "\n", inputs=inputs, mkdir=True)
 
 
 def read_text(path: str | os.PathLike, what: str = "file") -> str:
@@ -375,6 +367,7 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         raise InputError("calibration parameters contain NaN/null values", where=where)
     if not (truth_g > 0 and lg > 0):
         raise InputError(f"gravity truth_g {truth_g} and local_gravity_mps2 {lg} must be > 0", where=where)
+    check_values(names, theta, cov, truth_g=truth_g, local_gravity_mps2=lg, where=where)
     cal = Calibration(
         model_spec=dict(spec),
         param_names=names,
@@ -417,6 +410,59 @@ def _optional_section(d: dict, name: str, where: str | None) -> dict | None:
     else:
         from accellog.calibrate.magnetometer import check_section
     return check_section(sec, where)
+
+
+# Physical plausibility of a stored calibration of a MEMS accelerometer (datasheet: bias within
+# +-80 mg, scale within +-3 %, cross-axis within +-2 %): limits ~10x wider, so only absurd files fail.
+SANITY_LIMITS = {
+    "bias_g": 1.0,
+    "scale_dev": 0.5,
+    "cross": 0.3,
+    "gravity_mps2": (9.7, 9.9),
+    "truth_g": (0.98, 1.02),
+}
+
+
+def check_values(
+    names: list[str],
+    theta: np.ndarray,
+    cov: np.ndarray,
+    *,
+    truth_g: float,
+    local_gravity_mps2: float,
+    where: str | None = None,
+) -> None:
+    """InputError naming the first absurd value: |b_i| > 1 g, |S_ii - 1| > 0.5, |S_ij| > 0.3,
+    a non-finite or negative variance, gravity outside 9.7-9.9 m/s^2 or truth_g outside 0.98-1.02."""
+    lim = SANITY_LIMITS
+    for n, v in zip(names, theta, strict=True):
+        bad = None
+        if n in ("b_x", "b_y", "b_z") and abs(v) > lim["bias_g"]:
+            bad = f"|{n}| > {lim['bias_g']:g} g"
+        elif n in ("S_xx", "S_yy", "S_zz") and abs(v - 1.0) > lim["scale_dev"]:
+            bad = f"{n} outside 1 +- {lim['scale_dev']:g}"
+        elif n.startswith("S_") and len(n) == 4 and n[2] != n[3] and abs(v) > lim["cross"]:
+            bad = f"|{n}| > {lim['cross']:g}"
+        elif abs(v) > 1e6:
+            bad = f"|{n}| > 1e6"
+        if bad:
+            raise InputError(
+                f"absurd calibration value {n} = {v:.6g} ({bad}); refit this calibration", where=where
+            )
+    d = np.diag(cov) if cov.ndim == 2 else np.array([])
+    if not np.isfinite(cov).all() or (d < 0).any():
+        k = int(np.argmax(~np.isfinite(d) | (d < 0))) if d.size else 0
+        name = names[k] if k < len(names) else "?"
+        raise InputError(f"covariance is not finite or has a negative variance (at {name})", where=where)
+    lo, hi = lim["gravity_mps2"]
+    if not lo <= local_gravity_mps2 <= hi:
+        raise InputError(
+            f"local_gravity_mps2 = {local_gravity_mps2:g} is not a gravity on Earth ({lo}-{hi} m/s^2)",
+            where=where,
+        )
+    lo, hi = lim["truth_g"]
+    if not lo <= truth_g <= hi:
+        raise InputError(f"gravity truth_g = {truth_g:g} outside {lo}-{hi}", where=where)
 
 
 def load_calibration(path: str | os.PathLike) -> Calibration:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from accellog.calibrate.label_check import check_labels, check_timestamps
 from accellog.calibrate.noise import integrated_autocorr_time, sem_autocorr
 from accellog.core.errors import InputError, ModelError
 from accellog.core.session import POSE_UP_VECTORS, ObsTable, PoseLabel, Session
@@ -96,6 +97,7 @@ def _hold_slices(session: Session, trim_s: float, min_samples: int) -> list[tupl
     where = session_where(session)
     if session.n == 0 and session.poses:
         raise InputError("session has no samples", where=where)
+    check_timestamps(session, where=where)
     labels = checked_labels(session.poses, where)
     out = []
     for p in labels:
@@ -250,6 +252,7 @@ def _checked_holds(
     holds = _hold_slices(session, trim_s, min_samples)
     if check_units:
         _check_units(session, holds)
+        check_labels(session, holds, where=session_where(session))
     if check_moving:
         check_static(session, holds)
     return holds

@@ -24,11 +24,12 @@ RrdOpt = Annotated[
 ]
 
 
-def _save_outcome(out, data, output: Path, rrd: Path | None, json_out: bool) -> bool:
-    """Write the .rrd (if asked) and the calibration; with --json print the result; True when printed."""
+def _save_outcome(out, data, output: Path, rrd: Path | None, json_out: bool, inputs: tuple) -> bool:
+    """Write the .rrd (if asked) first, so that an error there leaves no calibration behind, then the
+    calibration (never over one of ``inputs``); with --json print the result; True when printed."""
     if rrd is not None:
         out.write_rrd(rrd, data)
-    out.cal.save(output)
+    out.cal.save(output, inputs=inputs)
     if json_out:
         _echo_json({**out.to_dict(), "output": str(output)})
     return json_out
@@ -54,10 +55,12 @@ def segment(
     from accellog.calibrate.calibration import write_json_atomic
     from accellog.flows.static_stages import run_segment
     from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs
 
+    check_outputs([output], [session], mkdir=True)
     res = run_segment(session, window_s=window_s, trim_s=trim_s)
     if output is not None:
-        write_json_atomic(output, res.obs_dict())
+        write_json_atomic(output, res.obs_dict(), inputs=(session,))
     if json_out:
         _echo_json(res.to_dict(str(output or "")))
         return
@@ -103,11 +106,17 @@ def fit(
             "holds, as a variance component) or 'jackknife' (leave one hold out)."
         ),
     ] = "noise",
+    relabel: Annotated[
+        bool,
+        typer.Option("--relabel", help="Replace hold labels that contradict the measured gravity direction."),
+    ] = False,
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma)."""
     from accellog.flows.stages import load_input, run_fit
     from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs
 
+    check_outputs([output, rrd], [session, effects_file], mkdir=True)
     data = load_input(session)
     out = run_fit(
         data,
@@ -121,8 +130,9 @@ def fit(
         window_s=window_s,
         trim_s=trim_s,
         uncertainty=uncertainty,
+        relabel=relabel,
     )
-    if _save_outcome(out, data, output, rrd, json_out):
+    if _save_outcome(out, data, output, rrd, json_out, inputs=(session, effects_file)):
         return
     _console.print(report.params_table(out.cal))
     for w in out.fit.warnings:
@@ -186,10 +196,12 @@ def drift(
     """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
     from accellog.flows.stages import load_input, run_drift
     from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs
 
+    check_outputs([output, rrd], [static, cal], mkdir=True)
     data = load_input(static)
     out = run_drift(data, cal, until_s=until_s, max_samples=max_samples)
-    if _save_outcome(out, data, output, rrd, json_out):
+    if _save_outcome(out, data, output, rrd, json_out, inputs=(static, cal)):
         return
     rows = [("calibrated", out.fit_eval.disp_end_m)]
     if out.fit_eval.disp_end_drift_m is not None:
@@ -220,7 +232,9 @@ def apply(
     import warnings
 
     from accellog.flows.stages import OtherDeviceWarning, run_apply
+    from accellog.store.atomic import check_outputs
 
+    check_outputs([output, ros2], [session, cal])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OtherDeviceWarning)
         p = run_apply(session, cal, output, ros2=ros2, other_device=other_device)
@@ -245,7 +259,11 @@ def run(
     """Run a pipeline file (segment -> fit -> evaluate -> drift -> report)."""
     from accellog.flows.pipeline import run_pipeline
     from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs
 
+    check_outputs([rrd], [pipeline, *sessions], mkdir=True)
+    if output_dir is not None and output_dir.exists() and not output_dir.is_dir():
+        raise InputError("--output-dir is an existing file, not a folder", where=str(output_dir))
     res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir)
     if rrd is not None:
         res.write_rrd(rrd)
@@ -273,15 +291,11 @@ def integrate(
     local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
     from accellog.flows.static_stages import run_integrate
     from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs, write_text_atomic
 
+    check_outputs([output], [session, cal])
     res = run_integrate(session, cal, until_s=until_s)
-    tmp = output.with_name(f".{output.name}.tmp")
-    try:
-        tmp.write_text(res.csv_text())
-        tmp.replace(output)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise InputError(f"cannot write the CSV: {exc.strerror or exc}", where=str(output)) from None
+    write_text_atomic(output, res.csv_text(), inputs=(session, cal))
     if json_out:
         _echo_json(res.to_dict(str(output)))
         return

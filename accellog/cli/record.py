@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     from accellog.core.session import PoseLabel
 
 console = Console(stderr=True)
+ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
 
 
 class TerminalUI:
@@ -81,6 +82,7 @@ def record(
     rerun: Annotated[
         str | None, typer.Option(help="Live view: 'spawn', 'connect URL' or 'save FILE.rrd'.")
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Record a guided calibration session: the operator is told each pose, the hold is labelled."""
     from accellog.flows.record import RecordOptions, record_session
@@ -102,6 +104,7 @@ def record(
         seed=seed,
         rerun=rerun,
         serial=serial,
+        force=force,
     )
     # Ctrl-C / SIGTERM only set a flag; the recorder stops at its next FIFO read and the writer's
     # context finishes the file (an exception raised inside the MCAP writer could corrupt it).
@@ -159,8 +162,22 @@ def simulate(
     ] = None,
     fleet_sessions: Annotated[int, typer.Option(min=1, help="With --fleet: sessions per device.")] = 3,
     jobs: Annotated[int, typer.Option(min=1, help="With --fleet: processes.")] = 1,
+    fault: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--fault",
+            help="Inject a fault (repeatable), KEY=VALUE: i2c_error_rate (0..1 per transaction), "
+            "fifo_glitch_rate (0..1 per FIFO read), host_stall_s + host_stall_every_s (s), "
+            "disconnect_at_s + disconnect_s (s). The same keys work in a scenario TOML.",
+        ),
+    ] = None,
+    force: ForceOpt = False,
 ) -> None:
-    """Write a whole simulated session (emulated chip, simulated clock) without waiting."""
+    """Write a whole simulated session (emulated chip, simulated clock) without waiting.
+
+    Faults to rehearse a flaky setup (--fault KEY=VALUE or scenario keys): i2c_error_rate,
+    fifo_glitch_rate, host_stall_s, host_stall_every_s, disconnect_at_s, disconnect_s; every lost
+    sample is counted in the session's events."""
     from accellog.flows.simulate import Scenario
     from accellog.flows.simulate import simulate as run_simulation
 
@@ -191,8 +208,20 @@ def simulate(
         sc.set[key.strip()] = nums if len(nums) > 1 else nums[0]
     if temperature:
         sc.temperature = parse_temperature_option(temperature)
+    for item in fault or []:
+        key, sep, val = item.partition("=")
+        try:
+            value = float(val)
+        except ValueError:
+            value = None
+        if not sep or value is None:
+            raise InputError(f"--fault {item!r}: use KEY=NUMBER, e.g. --fault i2c_error_rate=0.01")
+        from accellog.acquire.emulator.faults import FaultPlan
+
+        FaultPlan.from_mapping({key.strip(): value}, where="--fault")
+        setattr(sc, key.strip(), value)
     sc.validate()
-    summary = run_simulation(sc, out)
+    summary = run_simulation(sc, out, force=force)
     console.print(
         f"wrote {out}: {summary.samples} samples, {summary.duration_s:.1f} s simulated, "
         f"{len(summary.poses)} poses, {summary.lost_samples} lost samples"

@@ -126,7 +126,7 @@ def _sessions(out: Path, quick: bool) -> dict[str, Path]:
     paths = {}
     for name, sc in specs.items():
         p = out / f"{name}.mcap"
-        simulate(sc, p)
+        simulate(sc, p, force=True)  # the demo regenerates its own folder
         paths[name] = p
     return paths
 

@@ -366,9 +366,9 @@ def _drift(spec: dict, inp: _Inputs, res: PipelineResult) -> None:
     )
 
 
-def _write_outputs(res: PipelineResult, od: Path) -> None:
-    """cal_<model>.json per fit, cal_drift.json, results.json (each written atomically)."""
-    od.mkdir(parents=True, exist_ok=True)
+def _write_outputs(res: PipelineResult, od: Path, inputs: list) -> None:
+    """cal_<model>.json per fit, cal_drift.json, results.json (each checked first, then written atomically)."""
+    _prepare_output_dir(od, res, inputs)
     for mname, fo in res.fits.items():
         fo.cal.save(od / f"cal_{_safe(mname)}.json")
         res.written.append(str(od / f"cal_{_safe(mname)}.json"))
@@ -402,9 +402,25 @@ def run_pipeline(
     out_dir = output_dir or report.get("output_dir")
     if out_dir:
         _write_outputs(
-            res, Path(out_dir) if Path(out_dir).is_absolute() or output_dir else inp.base / out_dir
+            res,
+            Path(out_dir) if Path(out_dir).is_absolute() or output_dir else inp.base / out_dir,
+            [inp.where, *inputs],
         )
     return res
+
+
+def _prepare_output_dir(od: Path, res, inputs: list) -> None:
+    """Create the output folder and check every file to be written there before writing any."""
+    from accellog.store.atomic import check_outputs
+
+    if od.exists() and not od.is_dir():
+        raise InputError("output folder is an existing file", where=str(od))
+    try:
+        od.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder: {exc.strerror or exc}", where=str(od)) from None
+    names = [f"cal_{_safe(m)}.json" for m in res.fits] + (["cal_drift.json"] if res.drift else [])
+    check_outputs([od / n for n in [*names, "results.json"]], inputs)
 
 
 def _safe(name: str) -> str:

@@ -18,7 +18,14 @@ import numpy as np
 from accellog.acquire.device import configure_device, open_hardware_bus, parse_address, sample_rate_div
 from accellog.acquire.emulator.chip import EmulatedMpu9250
 from accellog.acquire.emulator.clock import RealClock, SimClock
-from accellog.acquire.recorder import Recorder, RecorderUI, RecordSummary, StopRequested, session_meta
+from accellog.acquire.recorder import (
+    Recorder,
+    RecorderUI,
+    RecordSummary,
+    StopRequested,
+    raise_priority,
+    session_meta,
+)
 from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.fit import fit_model
 from accellog.calibrate.model import build_model
@@ -31,6 +38,7 @@ from accellog.flows.simulate import Scenario, build_sensor_model
 from accellog.present.rrd.live import LiveView
 from accellog.present.tables import params_table
 from accellog.present.views import table_markdown
+from accellog.store.atomic import check_output
 from accellog.store.writer import SessionWriter
 
 WAIT_MODES = ("auto", "enter")
@@ -57,6 +65,8 @@ class RecordOptions:
     rerun: str | None = None
     serial: str = ""
     """The user's serial/name of this sensor (part of the device key)."""
+    force: bool = False
+    """Replace an existing output file (else an existing session is never overwritten)."""
 
     @property
     def use_sim(self) -> bool:
@@ -72,6 +82,7 @@ class RecordOptions:
         sample_rate_div(self.rate_hz)
         parse_address(self.address)
         check_serial(self.serial)
+        check_output(self.out, overwrite=self.force)
 
 
 @dataclass
@@ -182,7 +193,7 @@ def record_session(
         if opts.rerun:
             live = LiveView.from_option(opts.rerun)
             ui = live.wrap_ui(ui)
-        with SessionWriter(opts.out, meta) as writer:
+        with SessionWriter(opts.out, meta, exclusive=True, overwrite=opts.force) as writer:
             dev.driver.start()
             rec = Recorder(
                 dev.driver,
@@ -194,6 +205,8 @@ def record_session(
                 on_pose=RunningCalibration(live, warn) if live else None,
                 stop=stop,
             )
+            if not (opts.use_sim and opts.fast):  # real time: the FIFO must be drained within 36 ms
+                writer.write_event(Event(0.0, "note", raise_priority()))
             started(f"recording to {opts.out} (Ctrl-C finishes the file)")
             try:
                 rec.run(poses, wait=opts.wait)

@@ -25,11 +25,13 @@ from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.fit import fit_model, fit_orientation_free
 from accellog.calibrate.gyro import calibrate_gyro
+from accellog.calibrate.label_check import check_timestamps, relabel_holds
 from accellog.calibrate.model import build_model
 from accellog.calibrate.obs_file import OBS_FORMAT, obs_from_dict
 from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.jsonio import JsonResult, dumps
+from accellog.core.notices import note
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.navigate.drift import drift_from_session
@@ -37,8 +39,10 @@ from accellog.navigate.evaluate import Evaluation, evaluate
 from accellog.present import views
 from accellog.present.rrd.recording import RunRecording
 from accellog.store import importers
+from accellog.store.atomic import AtomicOutput
 from accellog.store.layout import NS_PER_S
 from accellog.store.reader import read_session
+from accellog.store.recovery import announce
 from accellog.store.writer import SessionWriter
 
 GRAVITY_CONVENTIONS = ("seed", "local")
@@ -50,13 +54,23 @@ g_local / g0 in standard g (the physical convention)."""
 
 
 def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
-    """Read any supported input: a Session, or an ObsTable for pose tables / observation files."""
+    """Read any supported input: a Session, or an ObsTable for pose tables / observation files.
+    A degenerate session (< 2 samples, zero duration, duplicated/decreasing times) is refused."""
+    data = _read_input(path, n_per_pose=n_per_pose)
+    if isinstance(data, Session):
+        check_timestamps(data, where=str(path))
+    return data
+
+
+def _read_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
     p = Path(path)
     if not p.exists():
         raise InputError("no such file", where=str(p))
     suffix = p.suffix.lower()
     if suffix == ".mcap":
-        return read_session(p)
+        session = read_session(p)
+        announce(session)  # a truncated file: say what was recovered (stderr)
+        return session
     if suffix == ".json":
         d = read_json(p)
         if isinstance(d, dict) and d.get("format") == OBS_FORMAT:
@@ -99,6 +113,17 @@ def _path_of(x: Session | ObsTable) -> str | None:
     return p if p and Path(p).is_file() else None
 
 
+def _source(data: Session | ObsTable, src: str | None, kind: str) -> dict:
+    """Provenance entry of the input; a recovered (truncated) session says what was kept."""
+    from accellog.store.recovery import recovery_info
+
+    entry = source_entry(src or _path_of(data), kind)
+    info = recovery_info(data) if isinstance(data, Session) else None
+    if info is not None:
+        entry["recovered"] = info.to_dict()
+    return entry
+
+
 def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
     if gravity not in GRAVITY_CONVENTIONS:
         raise InputError(f"unknown gravity convention {gravity!r}: use 'seed' or 'local'")
@@ -122,6 +147,9 @@ class FitOutcome(JsonResult):
         d["gravity_convention"] = self.cal.gravity_convention
         d["local_gravity_mps2"] = self.cal.local_gravity_mps2
         d["n_poses"] = len(self.obs.pose_names)
+        rec = [s["recovered"] for s in self.cal.sources if isinstance(s, dict) and s.get("recovered")]
+        if rec:
+            d["recovered"] = rec
         return d
 
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
@@ -158,6 +186,7 @@ def run_fit(
     obs: ObsTable | None = None,
     gyro: bool = True,
     uncertainty: str = "noise",
+    relabel: bool = False,
 ) -> FitOutcome:
     """Segment (if needed) and fit one model; returns the calibration with its uncertainties.
 
@@ -167,12 +196,17 @@ def run_fit(
     detect_static (threshold sweep scored by the orientation-free residual). gyro: also
     calibrate the gyro from the session's holds and the moves between them (stored in cal.gyro).
     uncertainty: 'noise' (window noise only), 'between_hold' (plus the between-hold variance
-    component) or 'jackknife' (leave one hold out); accellog.calibrate.variance.
+    component) or 'jackknife' (leave one hold out); accellog.calibrate.variance. relabel: replace
+    hold labels that contradict the measured gravity direction (each change is a note on stderr).
     """
 
     src = str(data) if isinstance(data, (str, os.PathLike)) else None
     if src is not None:
         data = load_input(src, n_per_pose=n_per_pose)
+    if relabel and isinstance(data, Session):
+        data, changes = relabel_holds(data, trim_s=trim_s)
+        for c in changes:
+            note(f"{data.path or 'session'}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
     m = build_model(model, add=list(add), effects_file=effects_file)
     if local_gravity_mps2 is None:
         local_gravity_mps2 = (
@@ -219,7 +253,7 @@ def run_fit(
         obs=obs,
         gravity_convention=gravity,
         local_gravity_mps2=float(local_gravity_mps2),
-        sources=[source_entry(src or _path_of(data), kind)],
+        sources=[_source(data, src, kind)],
         sensor=sensor,
     )
     if isinstance(data, Session):
@@ -293,7 +327,7 @@ class DriftOutcome(JsonResult):
     fit_eval: Evaluation  # the fit session after the calibration and the drift model
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "drift": self.drift.to_dict(),
             "fit_session": self.fit_eval.session,
             "disp_end_m": self.fit_eval.disp_end_m.tolist(),
@@ -302,6 +336,10 @@ class DriftOutcome(JsonResult):
             else self.fit_eval.disp_end_drift_m.tolist(),
             "t_end_s": self.fit_eval.t_end_s,
         }
+        rec = [x["recovered"] for x in self.cal.sources if isinstance(x, dict) and x.get("recovered")]
+        if rec:
+            d["recovered"] = rec
+        return d
 
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
         """Recording of the static session calibrated, with and without the drift model."""
@@ -324,6 +362,9 @@ def run_drift(
     c = _cal(cal)
     cal_d, dm = drift_from_session(s, c, until_s=until_s, max_samples=max_samples)
     ev = evaluate(s, cal_d, until_s=until_s, max_samples=max_samples)
+    entry = _source(s, None, "drift")
+    if "recovered" in entry:  # provenance: the drift was fitted on a recovered (truncated) file
+        cal_d.sources = [*cal_d.sources, entry]
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
 
 
@@ -385,9 +426,8 @@ def run_apply(
     check_device(s, c, other_device, where=str(src))
     f = c.correct(s)
     out = Path(out)
-    if out.resolve() == src.resolve():
-        raise InputError("output would overwrite the input session", where=str(out))
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    ao = AtomicOutput(out, inputs=(src, getattr(c, "path", None)))
+    tmp = ao.begin()
     t_ns = np.round(s.t_s * NS_PER_S).astype(np.int64)
     si = np.asarray(s.sample_index, np.int64)
     cuts = np.flatnonzero(np.diff(si) != 1) + 1
@@ -425,10 +465,10 @@ def run_apply(
             if s.truth is not None:
                 w.write_truth(s.truth)
             w.attach("calibration/accel.json", "application/json", dumps(c.to_dict()).encode())
-        os.replace(tmp, out)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        ao.abort()
         raise
+    ao.commit()
     if ros2 is not None:
         from accellog.flows.ros2_out import write_ros2
 
