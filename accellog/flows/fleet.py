@@ -232,7 +232,7 @@ class FleetRunResult:
         }
 
     def to_json(self) -> str:
-        from accellog.calibrate.calibration import dumps
+        from accellog.core.jsonio import dumps
 
         return dumps(self.to_dict())
 

@@ -177,7 +177,7 @@ class FleetReport:
         }
 
     def to_json(self) -> str:
-        from accellog.calibrate.calibration import dumps
+        from accellog.core.jsonio import dumps
 
         return dumps(self.to_dict())
 
