@@ -107,9 +107,10 @@ class MagCalibration:
         }
 
     def to_json(self, indent: int | None = 1) -> str:
-        import json
+        """Strict JSON (NaN -> null)."""
+        from accellog.calibrate.calibration import dumps
 
-        return json.dumps(self.to_dict(), indent=indent)
+        return dumps(self.to_dict(), indent=indent)
 
     @classmethod
     def from_dict(cls, d: dict, where: str | None = None) -> MagCalibration:

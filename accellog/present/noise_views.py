@@ -29,61 +29,60 @@ def _pm(v: float, s: float, detected: bool) -> str:
     return f"{v:.3g} ± {s:.2g}" if detected else f"< {v + 2 * s:.2g}"
 
 
+_TERMS = (
+    ("white", "N white", "white"),
+    ("bias_instability", "B bias inst.", "bias_instability"),
+    ("random_walk", "K rand. walk", "random_walk"),
+)
+
+
+def _datasheet_keys(acc: bool) -> dict[str, tuple[str, str, str]]:
+    """term -> (value key, sigma key, unit) of SensorNoise.datasheet()."""
+    if acc:
+        return {
+            "white": ("white_ug_per_rtHz", "white_sigma_ug_per_rtHz", "ug/√Hz"),
+            "bias_instability": ("bias_instability_ug", "bias_instability_sigma_ug", "ug"),
+            "random_walk": ("random_walk_ug_per_s_rtHz", "random_walk_sigma_ug_per_s_rtHz", "ug/s/√Hz"),
+        }
+    return {
+        "white": ("arw_deg_per_rth", "arw_sigma_deg_per_rth", "deg/√h"),
+        "bias_instability": ("bias_instability_deg_per_h", "bias_instability_sigma_deg_per_h", "deg/h"),
+        "random_walk": ("rrw_deg_per_h_rth", "rrw_sigma_deg_per_h_rth", "deg/h/√h"),
+    }
+
+
 def sensor_table(s: SensorNoise):
-    """A rich Table: one row per axis, SI and datasheet units side by side."""
+    """A rich Table: one row per axis and term, SI and datasheet units side by side."""
+    from rich import box
     from rich.table import Table
 
-    acc = s.sensor == "accel"
     unit = s.si_unit
-    t = Table(title=f"{s.sensor} noise (1 sigma; '<' = not resolved, 2-sigma bound)")
-    t.add_column("axis")
-    t.add_column(f"white N\n{unit}/√Hz")
-    t.add_column("ug/√Hz" if acc else "deg/√h")
-    t.add_column(f"bias inst. B\n{unit}")
-    t.add_column("ug" if acc else "deg/h")
-    t.add_column(f"random walk K\n{unit}/s/√Hz")
-    t.add_column("ug/s/√Hz" if acc else "deg/h/√h")
-    t.add_column("min. session\nN / B / K")
+    si_units = {"white": f"{unit}/√Hz", "bias_instability": unit, "random_walk": f"{unit}/s/√Hz"}
+    keys = _datasheet_keys(s.sensor == "accel")
+    t = Table(title=f"{s.sensor} noise (1 sigma; '<' = not resolved: 2-sigma bound)", box=box.SIMPLE_HEAD)
+    for col in ("axis", "term", "SI", "", "datasheet", "", "min. T"):
+        t.add_column(col, justify="right" if col in ("SI", "datasheet") else "left")
     for a in s.axes:
         d = s.datasheet(a)
-        if acc:
-            ds = (
-                _pm(d["white_ug_per_rtHz"], d["white_sigma_ug_per_rtHz"], a.white.detected),
-                _pm(d["bias_instability_ug"], d["bias_instability_sigma_ug"], a.bias_instability.detected),
-                _pm(
-                    d["random_walk_ug_per_s_rtHz"],
-                    d["random_walk_sigma_ug_per_s_rtHz"],
-                    a.random_walk.detected,
-                ),
+        for i, (name, label, _) in enumerate(_TERMS):
+            p = getattr(a, name)
+            vk, sk, du = keys[name]
+            t.add_row(
+                a.axis if i == 0 else "",
+                label,
+                _pm(p.value, p.sigma, p.detected),
+                si_units[name],
+                _pm(d[vk], d[sk], p.detected),
+                du,
+                "-" if p.min_duration_s is None else _dur(p.min_duration_s),
+                end_section=i == len(_TERMS) - 1,
             )
-        else:
-            ds = (
-                _pm(d["arw_deg_per_rth"], d["arw_sigma_deg_per_rth"], a.white.detected),
-                _pm(
-                    d["bias_instability_deg_per_h"],
-                    d["bias_instability_sigma_deg_per_h"],
-                    a.bias_instability.detected,
-                ),
-                _pm(d["rrw_deg_per_h_rth"], d["rrw_sigma_deg_per_h_rth"], a.random_walk.detected),
-            )
-        mins = " / ".join(
-            "-" if p.min_duration_s is None else _dur(p.min_duration_s)
-            for p in (a.white, a.bias_instability, a.random_walk)
-        )
-        t.add_row(
-            a.axis,
-            _pm(a.white.value, a.white.sigma, a.white.detected),
-            ds[0],
-            _pm(a.bias_instability.value, a.bias_instability.sigma, a.bias_instability.detected),
-            ds[1],
-            _pm(a.random_walk.value, a.random_walk.sigma, a.random_walk.detected),
-            ds[2],
-            mins,
-        )
     return t
 
 
 def _dur(s: float) -> str:
+    if s < 1:
+        return "< 1 s"
     if s < 120:
         return f"{s:.0f} s"
     if s < 7200:
