@@ -1,6 +1,6 @@
 """`accellog noise`: stream a long static session through the Allan accumulator and fit its noise terms.
 
-MCAP sessions are read chunk by chunk (``store.chunks``), so memory stays bounded whatever the length;
+MCAP sessions are read chunk by chunk (``store.stream``), so memory stays bounded whatever the length;
 CSV / capstone / imucal files go through the importers (they are small). Accelerometer columns are
 analysed in m/s^2 (g0 = 9.80665), gyro columns in rad/s. Besides the fit (``calibrate.noise_model``):
 
@@ -29,7 +29,7 @@ from accellog.calibrate.noise_model import NoiseModel, SensorNoise, TempSegment,
 from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import STANDARD_GRAVITY_MPS2
-from accellog.store.chunks import ImuChunk, iter_imu_chunks, read_meta
+from accellog.store.stream import ImuBlock, iter_imu, read_labels
 
 TAU_MIN_FACTOR = 100.0
 TEMP_WINDOW_S = 60.0
@@ -38,23 +38,22 @@ QUANT_FLAG_LSB = 2.0
 _AXES = ("x", "y", "z")
 
 
-def _session_chunks(s: Session, size: int = 1 << 18) -> Iterator[ImuChunk]:
+def _session_chunks(s: Session, size: int = 1 << 18) -> Iterator[ImuBlock]:
     for i in range(0, s.n, size):
         sl = slice(i, i + size)
-        yield ImuChunk(
+        yield ImuBlock(
+            s.meta,
             s.t_s[sl],
             s.sample_index[sl],
             s.accel_g[sl],
-            None if s.accel_counts is None else s.accel_counts[sl],
             None if s.gyro_dps is None else s.gyro_dps[sl],
-            None if s.gyro_counts is None else s.gyro_counts[sl],
             None if s.temp_degC is None else s.temp_degC[sl],
         )
 
 
-def _open(path: Path) -> tuple[SessionMeta, Iterator[ImuChunk]]:
+def _open(path: Path) -> tuple[SessionMeta, Iterator[ImuBlock]]:
     if path.suffix.lower() == ".mcap":
-        return read_meta(path), iter_imu_chunks(path)
+        return read_labels(path)[0], iter_imu(path)
     from accellog.flows.stages import load_input
 
     x = load_input(path)
@@ -76,7 +75,7 @@ class _Stream:
         self.temp_sum: dict[int, float] = {}
         self.temp_n: dict[int, int] = {}
 
-    def add(self, c: ImuChunk) -> None:
+    def add(self, c: ImuBlock) -> None:
         if self.n == 0:
             self.t_first = float(c.t_s[0])
         self.t_last = float(c.t_s[-1])
@@ -116,7 +115,7 @@ class _Stream:
         return (float(T.min()), float(T.max())), segs
 
 
-def _rate_hz(meta: SessionMeta, c: ImuChunk, notes: list[str]) -> float:
+def _rate_hz(meta: SessionMeta, c: ImuBlock, notes: list[str]) -> float:
     dt = np.diff(c.t_s)
     if dt.size == 0:
         raise InputError("too few samples for an Allan deviation")
@@ -143,7 +142,7 @@ def characterise_noise(path: str | os.PathLike) -> NoiseModel:
     notes: list[str] = []
     stream = _Stream()
     acc: AllanAccumulator | None = None
-    first: ImuChunk | None = None
+    first: ImuBlock | None = None
     has_gyro = False
     for c in chunks:
         if c.t_s.shape[0] == 0:
@@ -200,7 +199,7 @@ def characterise_noise(path: str | os.PathLike) -> NoiseModel:
     )
 
 
-def _tau_min_s(first: ImuChunk, tau0: float) -> float:
+def _tau_min_s(first: ImuBlock, tau0: float) -> float:
     """1 + TAU_MIN_FACTOR (tau_int - 1) samples, tau_int of the linearly detrended first 8192 samples."""
     cols = [first.accel_g[:8192]] + ([first.gyro_dps[:8192]] if first.gyro_dps is not None else [])
     x = np.concatenate(cols, axis=1)
