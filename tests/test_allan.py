@@ -10,6 +10,14 @@ import allantools
 import numpy as np
 import pytest
 from rrd_readback import load_rrd
+from support.static_noise import (
+    ACCEL_LSB,
+    BW_HZ,
+    GYRO_LSB,
+    static_model,
+    static_samples,
+    write_static_mcap,
+)
 
 from accellog.calibrate.allan import AllanAccumulator, edf_simple, oadev
 from accellog.calibrate.calibration import load_calibration
@@ -18,14 +26,6 @@ from accellog.calibrate.noise_model import fit_axis
 from accellog.cli import main
 from accellog.flows.characterise import characterise_noise, tau_min_samples
 from accellog.flows.simulate import Scenario, simulate
-from tests.support.static_noise import (
-    ACCEL_LSB,
-    BW_HZ,
-    GYRO_LSB,
-    static_model,
-    static_samples,
-    write_static_mcap,
-)
 
 G0 = 9.80665
 

@@ -146,7 +146,7 @@ def test_moves_only_fit_equals_the_dense_fit(seq, case):
     both converged to the optimum: M within 1e-9 of its scale (the rest is the dense path's
     rounding in its running sum over the session), sigma within 1e-6 (the dense fit's
     forward-difference Jacobian is itself good to ~1e-7)."""
-    from tests.support.gyro_dense import fit_gyro_matrix as dense_fit
+    from support.gyro_dense import fit_gyro_matrix as dense_fit
 
     if case == "robot":
         m = demo_loop()

@@ -29,6 +29,7 @@ from accellog.calibrate.noise_model import NoiseModel, SensorNoise, TempSegment,
 from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.store.importers.ros2 import is_ros2_bag
 from accellog.store.stream import ImuBlock, iter_imu, read_labels
 
 TAU_MIN_FACTOR = 100.0
@@ -52,7 +53,7 @@ def _session_chunks(s: Session, size: int = 1 << 18) -> Iterator[ImuBlock]:
 
 
 def _open(path: Path) -> tuple[SessionMeta, Iterator[ImuBlock]]:
-    if path.suffix.lower() == ".mcap":
+    if path.suffix.lower() == ".mcap" and not is_ros2_bag(path):
         return read_labels(path)[0], iter_imu(path)
     from accellog.flows.stages import load_input
 

@@ -40,6 +40,7 @@ from accellog.present import views
 from accellog.present.rrd.recording import RunRecording
 from accellog.store import importers
 from accellog.store.atomic import AtomicOutput
+from accellog.store.importers.ros2 import import_ros2, is_ros2_bag
 from accellog.store.layout import NS_PER_S
 from accellog.store.reader import read_session
 from accellog.store.recovery import announce
@@ -54,7 +55,8 @@ g_local / g0 in standard g (the physical convention)."""
 
 
 def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
-    """Read any supported input: a Session, or an ObsTable for pose tables / observation files.
+    """Read any supported input: a Session (accellog MCAP, a ROS 2 bag, CSV), or an ObsTable for pose
+    tables / observation files.
     A degenerate session (< 2 samples, zero duration, duplicated/decreasing times) is refused."""
     data = _read_input(path, n_per_pose=n_per_pose)
     if isinstance(data, Session):
@@ -67,6 +69,8 @@ def _read_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Se
     if not p.exists():
         raise InputError("no such file", where=str(p))
     suffix = p.suffix.lower()
+    if is_ros2_bag(p):  # a ROS 2 bag's only sensor_msgs/Imu topic (import ros2 for the options)
+        return import_ros2(p)
     if suffix == ".mcap":
         session = read_session(p)
         announce(session)  # a truncated file: say what was recovered (stderr)
