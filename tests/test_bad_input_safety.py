@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_segment import synth_session
 
@@ -347,13 +347,7 @@ def test_fuzz_mcap_reader_cuts(mcap_bytes, tmp_path, data):
     _fuzz_one(p)
 
 
-@pytest.mark.xfail(
-    reason="damaged chunks (bit flips) still raise LZ4 RuntimeError: chunk-CRC validation on read is the "
-    "reader owner's part of issue 12 (item 2), not on this branch",
-    raises=RuntimeError,
-    strict=False,
-)
-@settings(FUZZ, max_examples=60, report_multiple_bugs=False, phases=[Phase.generate])
+@FUZZ
 @given(data=st.data())
 def test_fuzz_mcap_reader_damage(mcap_bytes, tmp_path, data):
     """Bit flips, byte overwrites, insertions and cuts of a real MCAP: any outcome but a traceback."""
