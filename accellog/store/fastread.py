@@ -28,7 +28,7 @@ from mcap.records import Channel, Schema
 
 from accellog.core.errors import InputError
 from accellog.store.batch_decode import BatchAccumulator, decode_batch, read_le
-from accellog.store.collect import Collected, Damage, _Sink, data_section_damage, recover
+from accellog.store.collect import Collected, Damage, _Sink, data_section_damage, recover, release_pages
 from accellog.store.layout import MCAP_MAGIC
 
 # ---------------------------------------------------------------------------------------------
@@ -262,9 +262,11 @@ def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = 
 
     def decompress(i: int) -> tuple[bytearray, int, list[int]]:
         g0, g1 = groups[i]
-        return chunks.records(
+        out = chunks.records(
             g0, name_at[g0:g1], name_len[g0:g1], rec_at[g0:g1], rec_end[g0:g1], usize_list[g0:g1], i % 2
         )
+        release_pages(data, min(rec_at[g0:g1]), max(rec_end[g0:g1]))  # read once: drop them
+        return out
 
     # group i + 1 is decompressed in a thread (lz4/zstd release the GIL) while group i is decoded;
     # leaving the with-block (also on an exception) waits for it, before the file is unmapped
