@@ -207,7 +207,9 @@ def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = 
     c = chunk_at + 9
     usize = read_le(buf, c + 16, "<u8").astype(np.int64)
     crc = read_le(buf, c + 24, "<u4").astype(np.int64)
-    name_len = np.minimum(read_le(buf, c + 28, "<u4").astype(np.int64), 4)
+    if np.any(comp_len > 4):  # a compression other than zstd / lz4 / none: the generic reader decides
+        raise _NotFast("compression")
+    name_len = np.minimum(read_le(buf, c + 28, "<u4").astype(np.int64), 4)  # > 4 only if damaged
     rec_len = read_le(buf, c + 32 + name_len, "<u8").astype(np.int64)
     rec_at = c + 40 + name_len
     rec_end = rec_at + np.clip(rec_len, 0, footer)
