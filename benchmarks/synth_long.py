@@ -74,7 +74,26 @@ def synth_session(
 
 
 def write_long(path: str | Path, duration_s: float, seed: int = 0, protocol: str = "six") -> Path:
-    """synth_session written to path (MCAP)."""
-    from accellog.store.writer import write_session
+    """synth_session written to path (MCAP); sessions over 1 h are written hour by hour (each hour
+    its own 12 holds, seed + k), so generating a 4 h or 24 h file needs the memory of one hour."""
+    from accellog.store.writer import SessionWriter, write_session
 
-    return write_session(Path(path), synth_session(duration_s, seed, protocol))
+    path = Path(path)
+    if duration_s <= 3600.0:
+        return write_session(path, synth_session(duration_s, seed, protocol))
+    pieces = int(np.ceil(duration_s / 3600.0))
+    first = synth_session(1.0, seed, protocol)
+    with SessionWriter(path, first.meta, flush_interval_s=np.inf, chunk_size=1 << 20) as w:
+        for k in range(pieces):
+            s = synth_session(min(3600.0, duration_s - 3600.0 * k), seed + k, protocol)
+            t0, i0 = 3600.0 * k, round(3600.0 * k * s.meta.sample_rate_hz)
+            t_ns = np.round((s.t_s + t0) * 1e9).astype(np.int64)
+            for a in range(0, s.n, 1000):
+                b = min(a + 1000, s.n)
+                w.write_imu(i0 + a, t_ns[a:b], accel_counts=s.accel_counts[a:b],
+                            gyro_counts=s.gyro_counts[a:b], temp_counts=s.temp_counts[a:b])  # fmt: skip
+            for p in s.poses:
+                w.write_pose(PoseLabel(p.name, p.start_s + t0, p.end_s + t0, p.up_sensor,
+                                       p.q_sensor_to_world, p.hold_index + 12 * k))  # fmt: skip
+            del s
+    return path

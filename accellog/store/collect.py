@@ -87,8 +87,23 @@ def data_section_damage(data, summary_start: int) -> Damage | None:
     want = int.from_bytes(data[at + 9 : at + 13], "little")
     if want == 0:
         return None
-    got = zlib.crc32(memoryview(data)[:at])
+    got, mv, step = 0, memoryview(data), 16 << 20
+    for lo in range(0, at, step):  # in pieces, dropping each piece's mapped pages behind us
+        got = zlib.crc32(mv[lo : min(lo + step, at)], got)
+        release_pages(data, lo, min(lo + step, at))
+    mv.release()
     return None if got == want else Damage(at, -1, -1, "data section CRC mismatch", chunk=False)
+
+
+def release_pages(data, lo: int, hi: int) -> None:
+    """Tell the kernel the mapped file bytes [lo, hi) are not needed any more (MADV_DONTNEED), so a
+    pass over a long file keeps its resident memory bounded; a no-op for bytes objects."""
+    import mmap
+
+    if isinstance(data, mmap.mmap) and hasattr(mmap, "MADV_DONTNEED"):
+        lo -= lo % mmap.PAGESIZE
+        if hi > lo:
+            data.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
 
 
 def check_file(path: Path) -> None:

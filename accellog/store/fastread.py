@@ -28,7 +28,7 @@ from mcap.records import Channel, Schema
 
 from accellog.core.errors import InputError
 from accellog.store.batch_decode import BatchAccumulator, decode_batch, read_le
-from accellog.store.collect import Collected, Damage, _Sink, data_section_damage, recover
+from accellog.store.collect import Collected, Damage, _Sink, data_section_damage, recover, release_pages
 from accellog.store.layout import MCAP_MAGIC
 
 # ---------------------------------------------------------------------------------------------
@@ -207,7 +207,9 @@ def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = 
     c = chunk_at + 9
     usize = read_le(buf, c + 16, "<u8").astype(np.int64)
     crc = read_le(buf, c + 24, "<u4").astype(np.int64)
-    name_len = np.minimum(read_le(buf, c + 28, "<u4").astype(np.int64), 4)
+    if np.any(comp_len > 4):  # a compression other than zstd / lz4 / none: the generic reader decides
+        raise _NotFast("compression")
+    name_len = np.minimum(read_le(buf, c + 28, "<u4").astype(np.int64), 4)  # > 4 only if damaged
     rec_len = read_le(buf, c + 32 + name_len, "<u8").astype(np.int64)
     rec_at = c + 40 + name_len
     rec_end = rec_at + np.clip(rec_len, 0, footer)
@@ -262,9 +264,11 @@ def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = 
 
     def decompress(i: int) -> tuple[bytearray, int, list[int]]:
         g0, g1 = groups[i]
-        return chunks.records(
+        out = chunks.records(
             g0, name_at[g0:g1], name_len[g0:g1], rec_at[g0:g1], rec_end[g0:g1], usize_list[g0:g1], i % 2
         )
+        release_pages(data, min(rec_at[g0:g1]), max(rec_end[g0:g1]))  # read once: drop them
+        return out
 
     # group i + 1 is decompressed in a thread (lz4/zstd release the GIL) while group i is decoded;
     # leaving the with-block (also on an exception) waits for it, before the file is unmapped
