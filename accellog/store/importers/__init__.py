@@ -1,6 +1,7 @@
 """Importers: other tools' recordings -> Session (-> MCAP with ``accellog.store.writer.write_session``).
 
-One module per format: capstone, imucal, csv. m/s^2 inputs are converted with g0 = 9.80665
+One module per format: capstone, imucal, csv (any logger's CSV: csv_options, csv_blocks, csv_poses),
+ros2 (rosbag2 bags via rosbags). m/s^2 inputs are converted with g0 = 9.80665
 (accel_g = a_mps2 / 9.80665); the source unit and the conversion are recorded in meta.extra, so nothing
 is silently altered. Every bad input raises a one-line InputError naming the file and line.
 """
@@ -28,11 +29,15 @@ __all__ = [
 
 
 def import_file(kind: str, path: str | Path, **options) -> Session:
-    """Dispatch: kind 'capstone' | 'imucal' | 'csv' (options passed on)."""
+    """Dispatch: kind 'capstone' | 'imucal' | 'csv' | 'ros2' (options passed on)."""
     if kind == "capstone":
         return import_capstone(path)
     if kind == "imucal":
         return import_imucal(path, **options)
     if kind == "csv":
         return import_csv(path, **options)
-    raise InputError(f"unknown import kind {kind!r}: use capstone, imucal or csv")
+    if kind == "ros2":
+        from accellog.store.importers.ros2 import import_ros2
+
+        return import_ros2(path, **options)
+    raise InputError(f"unknown import kind {kind!r}: use capstone, imucal, csv or ros2")

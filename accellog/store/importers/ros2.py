@@ -217,6 +217,64 @@ def _stamp_report(stamp: np.ndarray, log: np.ndarray) -> dict[str, str]:
     return out
 
 
+def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs):
+    """IMU arrays (+ temperature and magnetometer messages) of the chosen topics."""
+    import multiprocessing
+
+    reader = _open(path)
+    try:
+        conns = reader.connections
+        imu = _pick(conns, topic, IMU_TYPE, path, "--topic", True)
+        tc = _pick(conns, temperature_topic, TEMP_TYPE, path, "--temperature-topic", False)
+        mc = _pick(conns, mag_topic, MAG_TYPE, path, "--mag-topic", False)
+        n_msg = sum(int(c.msgcount) for c in imu)
+        if jobs is None:
+            jobs = min(os.cpu_count() or 1, 4) if n_msg > PARALLEL_MIN_MESSAGES else 1
+        if jobs > 1 and len(imu) == 1 and "fork" in multiprocessing.get_all_start_methods():
+            arrays = _read_imu_parallel(reader, imu, path, jobs)
+        else:
+            arrays = _read_imu(reader, imu)
+        temp = (tc[0].topic, *_read_scalar(reader, tc, "temp")) if tc else None
+        mag = (mc[0].topic, *_read_scalar(reader, mc, "mag")) if mc else None
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(f"cannot decode the ROS 2 bag: {exc}", where=str(path)) from None
+    finally:
+        reader.close()
+    return imu[0].topic, arrays, temp, mag
+
+
+def _provenance(path: Path, topic: str, arrays) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Stamps (sorted, stable), accel, gyro and meta.extra: time source, stamp/log agreement, order."""
+    stamp, log, acc, gyr, frames, cov_a, cov_g = arrays
+    extra = {
+        "source_file": path.name,
+        "ros2_topic": topic,
+        "ros2_frame_id": ",".join(sorted(frames)),
+        "source_unit": "m/s^2",
+        "conversion": "accel_g = a_mps2 / 9.80665; gyro_dps = w_radps * 180 / pi",
+        "time_source": "header.stamp",
+    }
+    if not stamp.any():
+        stamp = log.copy()
+        extra["time_source"] = "bag log time (every header stamp is zero)"
+    else:
+        extra.update(_stamp_report(stamp, log))
+    back = int(np.count_nonzero(np.diff(stamp) < 0))
+    if back:
+        order = np.argsort(stamp, kind="stable")
+        extra["out_of_order_stamps"] = f"{back} (sorted by stamp)"
+        stamp, acc, gyr = stamp[order], acc[order], gyr[order]
+    dup = int(np.count_nonzero(np.diff(stamp) == 0))
+    if dup:
+        extra["duplicated_stamps"] = str(dup)
+    if cov_a is not None:
+        extra["ros2_linear_acceleration_covariance"] = ",".join(f"{v:.6g}" for v in cov_a)
+        extra["ros2_angular_velocity_covariance"] = ",".join(f"{v:.6g}" for v in cov_g)
+    return stamp, acc, gyr, extra
+
+
 def import_ros2(
     path: str | Path,
     *,
@@ -233,73 +291,27 @@ def import_ros2(
     than PARALLEL_MIN_MESSAGES IMU messages; 1 otherwise).
     """
     path = Path(path)
-    reader = _open(path)
-    try:
-        conns = reader.connections
-        imu = _pick(conns, topic, IMU_TYPE, path, "--topic", True)
-        tc = _pick(conns, temperature_topic, TEMP_TYPE, path, "--temperature-topic", False)
-        mc = _pick(conns, mag_topic, MAG_TYPE, path, "--mag-topic", False)
-        n_msg = sum(int(c.msgcount) for c in imu)
-        if jobs is None:
-            jobs = min(os.cpu_count() or 1, 4) if n_msg > PARALLEL_MIN_MESSAGES else 1
-        import multiprocessing
-
-        if jobs > 1 and len(imu) == 1 and "fork" in multiprocessing.get_all_start_methods():
-            stamp, log, acc, gyr, frames, cov_a, cov_g = _read_imu_parallel(reader, imu, path, jobs)
-        else:
-            stamp, log, acc, gyr, frames, cov_a, cov_g = _read_imu(reader, imu)
-        temp = _read_scalar(reader, tc, "temp") if tc else None
-        mag = _read_scalar(reader, mc, "mag") if mc else None
-    except InputError:
-        raise
-    except Exception as exc:
-        raise InputError(f"cannot decode the ROS 2 bag: {exc}", where=str(path)) from None
-    finally:
-        reader.close()
-    if stamp.shape[0] < 2:
+    imu_topic, arrays, temp, mag = _read_bag(path, topic, temperature_topic, mag_topic, jobs)
+    if arrays[0].shape[0] < 2:
         raise InputError(
-            f"{imu[0].topic}: {stamp.shape[0]} IMU message(s); need at least two", where=str(path)
+            f"{imu_topic}: {arrays[0].shape[0]} IMU message(s); need at least two", where=str(path)
         )
-    extra = {
-        "source_file": path.name,
-        "ros2_topic": imu[0].topic,
-        "ros2_frame_id": ",".join(sorted(frames)),
-        "source_unit": "m/s^2",
-        "conversion": "accel_g = a_mps2 / 9.80665; gyro_dps = w_radps * 180 / pi",
-        "time_source": "header.stamp",
-    }
-    if not stamp.any():
-        stamp = log.copy()
-        extra["time_source"] = "bag log time (every header stamp is zero)"
-    else:
-        extra.update(_stamp_report(stamp, log))
-    order = np.argsort(stamp, kind="stable")
-    back = int(np.count_nonzero(np.diff(stamp) < 0))
-    if back:
-        extra["out_of_order_stamps"] = f"{back} (sorted by stamp)"
-        stamp, acc, gyr = stamp[order], acc[order], gyr[order]
-    dup = int(np.count_nonzero(np.diff(stamp) == 0))
-    if dup:
-        extra["duplicated_stamps"] = str(dup)
-    if cov_a is not None:
-        extra["ros2_linear_acceleration_covariance"] = ",".join(f"{v:.6g}" for v in cov_a)
-        extra["ros2_angular_velocity_covariance"] = ",".join(f"{v:.6g}" for v in cov_g)
+    stamp, acc, gyr, extra = _provenance(path, imu_topic, arrays)
     t0 = int(stamp[0])
     t_s = (stamp - t0) / 1e9
     temp_degC = None
-    if temp is not None and temp[0].size:
-        temp_degC = np.interp(stamp.astype(np.float64), temp[0].astype(np.float64), temp[1])
-        extra["temperature"] = f"{temperature_topic or tc[0].topic}: {temp[0].size} messages, interpolated"
+    if temp is not None and temp[1].size:
+        temp_degC = np.interp(stamp.astype(np.float64), temp[1].astype(np.float64), temp[2])
+        extra["temperature"] = f"{temp[0]}: {temp[1].size} messages, interpolated onto the IMU stamps"
     mag_t = mag_uT = None
-    if mag is not None and mag[0].size:
-        mag_t, mag_uT = (mag[0] - t0) / 1e9, mag[1] * 1e6
-        extra["magnetometer"] = f"{mc[0].topic}: tesla -> uT (x 1e6)"
-    dt = np.diff(t_s)
-    rate = 1.0 / float(np.median(dt)) if np.median(dt) > 0 else 0.0
+    if mag is not None and mag[1].size:
+        mag_t, mag_uT = (mag[1] - t0) / 1e9, mag[2] * 1e6
+        extra["magnetometer"] = f"{mag[0]}: tesla -> uT (x 1e6)"
+    med = float(np.median(np.diff(t_s)))
     meta = SessionMeta(
         source="import:ros2",
         chip="unknown",
-        sample_rate_hz=rate,
+        sample_rate_hz=1.0 / med if med > 0 else 0.0,
         start_time_unix_ns=t0,
         extra=extra,
     )
