@@ -70,6 +70,8 @@ def _heldout(fo) -> tuple[float, float]:
     from accellog.core.session import ObsTable
 
     obs = fo.obs
+    if fo.fit.method != "labelled":  # orientation-free fits have no labelled truth to score against
+        return float("nan"), float("nan")
     rank = np.zeros(obs.n, int)
     for p in np.unique(obs.pose_id):
         idx = np.flatnonzero(obs.pose_id == p)
@@ -241,22 +243,34 @@ Progress = Callable[[int, int, dict[str, Any]], None]
 """on_progress(done, total, task_result) after each finished task."""
 
 
+WORKER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.admin.system-monitor.gil.enabled": False,
+}
+"""Dask settings of local workers: no statistical profiler (a thread that takes the GIL every
+10 ms, which stalls the task thread when the cores are busy) and a slower system monitor. On a
+real cluster put the same keys in the workers' dask config (docs/fleet.md)."""
+
+
 def local_cluster(n_workers: int | None = None):
     """A dask LocalCluster on 127.0.0.1: n_workers single-threaded processes (default: cores),
-    no dashboard."""
+    no dashboard, WORKER_CONFIG."""
     import logging
 
+    import dask
     from dask.distributed import LocalCluster
 
     n = n_workers or os.cpu_count() or 1
-    return LocalCluster(
-        n_workers=n,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        silence_logs=logging.ERROR,
-    )
+    with dask.config.set(WORKER_CONFIG):
+        return LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )
 
 
 def warm_worker() -> int:
