@@ -65,3 +65,41 @@ def test_handheld_fixed_threshold_and_clean_session(tmp_path, capsys):
     assert main(["diagnose", str(path)]) == 0
     out = capsys.readouterr().out
     assert "static intervals detected" in out and "nothing is missing that the norm can show" in out
+
+
+EDGES = "+z,-z,+y,-y,+x,-x,+x+y,-x-y,+x-y,-x+y,+x+z,-x-z,+x-z,-x+z,+y+z,-y-z,+y-z,-y+z"
+
+
+def test_handheld_gyro_from_rotations_between_detected_holds(tmp_path, capsys):
+    """An emulated session (gyro and accel) with its labels removed: `fit --orientation-free`
+    calibrates the gyro from the detected intervals and the rotations between them (imu_tk style),
+    reports it in --json, and agrees with the calibration from the labelled holds."""
+    from accellog.flows.simulate import Scenario, simulate
+    from accellog.store.reader import read_session
+
+    src = tmp_path / "edges.mcap"
+    simulate(Scenario(protocol=EDGES, hold_s=5.0, move_s=2.0, sample_rate_hz=200.0, seed=5), src)
+    labelled = read_session(src)
+    hand = write_session(tmp_path / "hand.mcap", dataclasses.replace(labelled, poses=[]))
+    out = {}
+    for name, path, extra in (("labelled", src, []), ("hand", hand, ["--orientation-free"])):
+        args = [
+            "fit",
+            str(path),
+            "--model",
+            HANDHELD_START,
+            *extra,
+            "-o",
+            str(tmp_path / f"{name}.json"),
+            "--json",
+        ]
+        assert main(args) == 0
+        capsys.readouterr()
+        out[name] = json.loads((tmp_path / f"{name}.json").read_text())["gyro"]
+    g_l, g_h = out["labelled"], out["hand"]
+    assert g_h is not None and g_h["matrix"] is not None, g_h
+    M_l, M_h = np.array(g_l["matrix"]), np.array(g_h["matrix"])
+    s = np.hypot(np.array(g_l["matrix_sigma"]), np.array(g_h["matrix_sigma"]))
+    assert np.all(np.abs(M_h - M_l) < 5 * s + 2e-3), (M_h - M_l, s)
+    b_l, b_h = np.array(g_l["bias_dps"]), np.array(g_h["bias_dps"])
+    assert np.all(np.abs(b_h - b_l) < 0.02), (b_h, b_l)
