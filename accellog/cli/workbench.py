@@ -88,18 +88,38 @@ def diagnose(
             "predict it (else by blocked validation over temperature and time within the session)."
         ),
     ] = None,
+    detect_window_s: Annotated[
+        float,
+        typer.Option(
+            help="Hand-held sessions (no pose labels): static-detector variance window (s).", min=0.01
+        ),
+    ] = 1.0,
+    threshold: Annotated[
+        float | None,
+        typer.Option(
+            help="Hand-held sessions: detector threshold factor k (still when variance < k x reference); "
+            "default: swept 2..10, best by the orientation-free residual.",
+            min=1.0,
+        ),
+    ] = None,
 ) -> None:
-    """Fit a model, compare it with the noise floor and rank the effects that could be missing."""
+    """Fit a model, compare it with the noise floor and rank the effects that could be missing.
+    A session without pose labels (hand-held) is diagnosed on its detected static intervals with
+    the orientation-free gravity-norm residual."""
     from accellog.calibrate import diagnose as dg
     from accellog.calibrate.model import build_model
 
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
     from accellog.calibrate.segment import observations
-    from accellog.core.session import ObsTable
+    from accellog.core.session import ObsTable, Session
     from accellog.flows.stages import as_session, load_input
 
     data = load_input(session)  # pose tables (per-pose means) and observation files: ObsTable
+    if isinstance(data, Session) and not data.poses:
+        return _diagnose_handheld(
+            data, session, model, add, effects_file, window_s, detect_window_s, threshold, as_json
+        )
     m = build_model(model, add=add or [], effects_file=effects_file)
     host = None
     if isinstance(data, ObsTable):
@@ -133,6 +153,30 @@ def diagnose(
         out["session"] = str(session)
         print(json_text(out))
         return
+    _print(d, str(session))
+
+
+def _diagnose_handheld(
+    data, session, model, add, effects_file, window_s, detect_window_s, threshold, as_json
+):
+    """diagnose on an unlabelled session: detected static intervals, gravity-norm residual."""
+    from accellog.calibrate.handheld import HANDHELD_START, detect_holds, diagnose_handheld
+    from accellog.calibrate.model import build_model
+
+    name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
+    m = build_model(name, add=add or [], effects_file=effects_file)
+    obs, det = detect_holds(data, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)
+    d = diagnose_handheld(obs, m)
+    if as_json:
+        out = d.to_dict()
+        out.update(session=str(session), handheld=True, detected=det.to_dict())
+        print(json_text(out))
+        return
+    con = Console(width=160)
+    con.print(
+        f"[bold]{session}[/]: no pose labels: {len(det.intervals)} static intervals detected "
+        f"(window {det.window_s:g} s, threshold {det.threshold if det.threshold is not None else 'swept 2..10'})"
+    )
     _print(d, str(session))
 
 

@@ -217,6 +217,7 @@ def run_fit(
             data.meta.local_gravity_mps2 if isinstance(data, Session) else STANDARD_GRAVITY_MPS2
         )
     truth = _truth_g(gravity, float(local_gravity_mps2))
+    detected = None  # static intervals found in an unlabelled session
     if obs is None:
         if orientation_free and isinstance(data, Session) and not data.poses:
             session = data
@@ -227,8 +228,8 @@ def run_fit(
                 )
                 return fit_orientation_free(o, m, weighted=False, gravity_g=truth).rms_g
 
-            labels = detect_static(session, cost=cost)
-            obs = observations(with_labels(session, labels), window_s=window_s, trim_s=0.0)
+            detected = detect_static(session, cost=cost)
+            obs = observations(with_labels(session, detected), window_s=window_s, trim_s=0.0)
         else:
             obs = make_obs(data, window_s=window_s, trim_s=trim_s)
     if orientation_free:
@@ -263,7 +264,9 @@ def run_fit(
     if isinstance(data, Session):
         cal.device = data.meta.device.to_dict()
     if gyro and isinstance(data, Session):
-        cal.gyro = _gyro_calibration(data)
+        # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
+        # and the rotations between them (imu_tk style), not skipped
+        cal.gyro = _gyro_calibration(with_labels(data, detected) if detected else data)
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
 
