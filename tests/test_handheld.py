@@ -96,6 +96,8 @@ def test_handheld_gyro_from_rotations_between_detected_holds(tmp_path, capsys):
         assert main(args) == 0
         capsys.readouterr()
         out[name] = json.loads((tmp_path / f"{name}.json").read_text())["gyro"]
+    stored = json.loads((tmp_path / "hand.json").read_text())["fit"]["detected_intervals"]
+    assert len(stored) == 18 and all(iv["n"] > 500 and iv["end_s"] > iv["start_s"] for iv in stored)
     g_l, g_h = out["labelled"], out["hand"]
     assert g_h is not None and g_h["matrix"] is not None, g_h
     M_l, M_h = np.array(g_l["matrix"]), np.array(g_h["matrix"])

@@ -263,6 +263,17 @@ def run_fit(
     )
     if isinstance(data, Session):
         cal.device = data.meta.device.to_dict()
+    if detected:  # hand-held: the static intervals the fit used go into the calibration file
+        t = data.t_s
+        cal.fit["detected_intervals"] = [
+            {
+                "start_s": p.start_s,
+                "end_s": p.end_s,
+                "n": int(np.sum((t >= p.start_s) & (t < p.end_s))),
+                "up_sensor": [float(x) for x in p.up_sensor],
+            }
+            for p in detected
+        ]
     if gyro and isinstance(data, Session):
         # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
         # and the rotations between them (imu_tk style), not skipped
