@@ -54,12 +54,14 @@ g_local / g0 in standard g (the physical convention)."""
 # ------------------------------------------------------------------------------------------ inputs
 
 
-def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
+def load_input(
+    path: str | os.PathLike, *, n_per_pose: int | None = None, check_times: bool = True
+) -> Session | ObsTable:
     """Read any supported input: a Session (accellog MCAP, a ROS 2 bag, CSV), or an ObsTable for pose
-    tables / observation files.
-    A degenerate session (< 2 samples, zero duration, duplicated/decreasing times) is refused."""
+    tables / observation files. A degenerate session (< 2 samples, zero duration, duplicated or
+    decreasing times) is refused unless check_times=False (tools that report such defects, e.g. doctor)."""
     data = _read_input(path, n_per_pose=n_per_pose)
-    if isinstance(data, Session):
+    if check_times and isinstance(data, Session):
         check_timestamps(data, where=str(path))
     return data
 
