@@ -109,4 +109,11 @@ def test_ros2_bag_and_csv_inputs(clean, tmp_path, capsys):
     csv = tmp_path / "c.csv"
     csv.write_text("t,ax,ay,az\n" + "\n".join(f"{i * 0.01:.2f},0,0,1" for i in range(50)) + "\n")
     r = _doctor(csv, capsys)
-    assert r["samples"] == 50 and r["rate_hz"] == pytest.approx(100.0)
+    assert r["samples"] == 50 and r["rate_hz"] == pytest.approx(100.0) and r["healthy"]
+    # stamps `import csv` refuses are reported, not refused, by the doctor
+    rows = [f"{i * 0.01:.2f},0,0,1" for i in range(50)]
+    rows[20] = rows[19]  # duplicate
+    rows[30], rows[31] = rows[31], rows[30]  # out of order
+    csv.write_text("t,ax,ay,az\n" + "\n".join(rows) + "\n")
+    kinds = {f["kind"] for f in _doctor(csv, capsys)["findings"]}
+    assert {"duplicate", "out_of_order"} <= kinds

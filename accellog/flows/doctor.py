@@ -5,7 +5,8 @@ gaps dt > 1.5 dt_m (missing samples ~ round(dt / dt_m) - 1), duplicated stamps d
 stamps dt < 0, bursts 0 < dt < 0.25 dt_m (samples delivered together, e.g. host-stamped FIFO reads),
 jitter = 1.4826 MAD(dt) / dt_m over the regular intervals (flagged above 2 %, or when the 99th
 percentile of |dt - dt_m| exceeds 25 % of dt_m). Clipping: raw counts at the 16-bit limits, or runs
-of >= 3 consecutive samples at an axis's exact extreme value (a flat top). Events (gaps, FIFO
+of >= 3 consecutive samples at an axis's exact extreme value (a flat top) when that extreme lies more
+than 8 robust standard deviations (1.4826 MAD) from the axis median. Events (gaps, FIFO
 overflows, I2C errors) are counted by kind. Still intervals come from
 ``accellog.calibrate.detect.detect_static``; what they allow decides the supported calibrations.
 """
@@ -131,7 +132,11 @@ def clipping(s: Session) -> list[Finding]:
             flat = np.zeros(values.shape[0], bool)
             for k in range(3):
                 v = values[:, k]
+                med = float(np.median(v))
+                spread = 1.4826 * float(np.median(np.abs(v - med)))
                 for ext in (v.max(), v.min()):
+                    if abs(ext - med) <= 8.0 * spread:  # a constant axis or quantised noise, not a clip
+                        continue
                     at = (v == ext).astype(np.int8)
                     run3 = np.convolve(at, np.ones(3, np.int8), mode="valid") == 3
                     if run3.any():
@@ -239,13 +244,21 @@ def load_any(path: str | Path) -> Session:
         return import_ros2(p)
     try:
         s = load_input(p, check_times=False)  # duplicated / out-of-order times are findings here
-    except InputError:
+    except InputError as exc:
         if p.suffix == ".mcap" and _is_ros2(p):
             return import_ros2(p)
+        if p.suffix.lower() == ".csv" and ("duplicated timestamp" in str(exc) or "backwards" in str(exc)):
+            return _lenient_csv(p)  # the doctor's job is to report these, not to refuse them
         raise
     if not isinstance(s, Session):
         raise InputError("doctor needs samples, not a pose table or observations", where=str(p))
     return s
+
+
+def _lenient_csv(p: Path) -> Session:
+    from accellog.store.importers.csv import CsvOptions, import_csv
+
+    return import_csv(p, CsvOptions(strict_time=False))
 
 
 def _is_ros2(p: Path) -> bool:

@@ -122,7 +122,7 @@ class CsvImport:
         t_first_s = dt_s = 0.0
         for block in self.reader:
             t_s, t0 = self._time(block, t0)
-            if t_prev is not None or block.n > 1:
+            if self.opts.strict_time and (t_prev is not None or block.n > 1):
                 self._check_time(block, t_s, t_prev)
             if self.meta is None:
                 self._check_units(block)
@@ -139,7 +139,7 @@ class CsvImport:
             t_prev = (float(t_s[-1]), block.line_of(block.n - 1))
         if self.n == 0:
             raise InputError("no data rows", where=str(self.path))
-        if self.n < 2 or t_prev[0] <= t_first_s:
+        if self.n < 2 or (self.opts.strict_time and t_prev[0] <= t_first_s):
             raise InputError(
                 f"only {self.n} row(s) spanning {t_prev[0] - t_first_s:g} s: a recording needs at least two "
                 "samples at distinct times",

@@ -93,6 +93,8 @@ class CsvOptions:
     columns: dict[str, str] = field(default_factory=dict)
     delimiter: str = ","
     comment: str = "#"
+    strict_time: bool = True
+    """Refuse duplicated / backward stamps (False: keep them as they are, for ``accellog doctor``)."""
 
     @classmethod
     def make(cls, *, columns: str | dict | None = None, **kw) -> CsvOptions:
