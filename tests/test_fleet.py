@@ -195,7 +195,7 @@ def test_cli_run_on_a_running_scheduler(tmp_path, capsys):
 
     simulate_fleet(FleetSpec(n_devices=3, sessions_per_device=1, damaged=None), tmp_path / "s")
     with LocalCluster(
-        n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
+        n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0"
     ) as lc:
         addr = lc.scheduler_address
         argv = [
