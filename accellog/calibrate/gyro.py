@@ -290,21 +290,6 @@ def _block_increments(
 # a complex step (x + i h) propagates through them (the Jacobian below is exact to rounding)
 
 
-def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product p*q for (...,4) arrays (real or complex)."""
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
-
-
 def _qexp(phi: np.ndarray) -> np.ndarray:
     """Quaternions (...,4) from rotation vectors (...,3) (rad): (cos a/2, sin(a/2)/a phi)."""
     a = np.sqrt((phi * phi).sum(axis=-1, keepdims=True))
@@ -328,7 +313,7 @@ def _prefix_product(dq: np.ndarray) -> np.ndarray:
     n = out.shape[-2]
     d = 1
     while d < n:
-        out[..., d:, :] = _qmul(out[..., :-d, :], out[..., d:, :])
+        out[..., d:, :] = quat_multiply(out[..., :-d, :], out[..., d:, :])
         d *= 2
     return out
 
@@ -342,7 +327,7 @@ def _relative_rotations(phi: np.ndarray, c: np.ndarray, at: np.ndarray, m: np.nd
     ident = np.zeros((*phi.shape[:-2], 1, 4), phi.dtype)
     ident[..., 0] = 1.0
     q = _qnormalize(_prefix_product(np.concatenate([ident, _qexp(phi)], axis=-2)))
-    return _qnormalize(_qmul(_qconj(q[..., at[:-1], :]), q[..., at[1:], :]))
+    return _qnormalize(quat_multiply(_qconj(q[..., at[:-1], :]), q[..., at[1:], :]))
 
 
 def _rotate_inverse(q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -424,7 +409,7 @@ def fit_gyro_matrix(
         """Residuals (..., R) for gyro matrices m ((3,3) or (P,3,3))."""
         dq_int = _relative_rotations(phi, c, at, m)
         if reference == "orientation":
-            return _rotvec_deg(_qmul(dq_nom_c, dq_int)).reshape((*dq_int.shape[:-2], -1))
+            return _rotvec_deg(quat_multiply(dq_nom_c, dq_int)).reshape((*dq_int.shape[:-2], -1))
         # up_a (world-fixed) seen from the sensor at hold b: v_b = dq_int^-1 v_a; the difference of
         # unit vectors is the tilt error in rad for small errors (and, unlike a cross product,
         # it does not vanish for a vector pointing the opposite way)

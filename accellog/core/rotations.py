@@ -6,10 +6,16 @@ from __future__ import annotations
 import numpy as np
 
 
+def _real_or_complex(x) -> np.ndarray:
+    """float64 array, or complex when x is complex (complex-step derivatives pass through)."""
+    x = np.asarray(x)
+    return x if np.iscomplexobj(x) else x.astype(float, copy=False)
+
+
 def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product p*q for (...,4) arrays."""
-    pw, px, py, pz = np.moveaxis(np.asarray(p, float), -1, 0)
-    qw, qx, qy, qz = np.moveaxis(np.asarray(q, float), -1, 0)
+    """Hamilton product p*q for (...,4) arrays (float, or complex for complex-step Jacobians)."""
+    pw, px, py, pz = np.moveaxis(_real_or_complex(p), -1, 0)
+    qw, qx, qy, qz = np.moveaxis(_real_or_complex(q), -1, 0)
     return np.stack(
         [
             pw * qw - px * qx - py * qy - pz * qz,

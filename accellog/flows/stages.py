@@ -139,6 +139,12 @@ def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
 # ------------------------------------------------------------------------------------------ fit
 
 
+def _with_recovered(d: dict, cal: Calibration) -> dict:
+    """d plus 'recovered': what was salvaged from truncated inputs (the calibration's provenance)."""
+    rec = [x["recovered"] for x in cal.sources if isinstance(x, dict) and x.get("recovered")]
+    return {**d, "recovered": rec} if rec else d
+
+
 @dataclass
 class FitOutcome(JsonResult):
     """A fitted model: the observations, the FitResult and the Calibration built from it."""
@@ -153,10 +159,7 @@ class FitOutcome(JsonResult):
         d["gravity_convention"] = self.cal.gravity_convention
         d["local_gravity_mps2"] = self.cal.local_gravity_mps2
         d["n_poses"] = len(self.obs.pose_names)
-        rec = [s["recovered"] for s in self.cal.sources if isinstance(s, dict) and s.get("recovered")]
-        if rec:
-            d["recovered"] = rec
-        return d
+        return _with_recovered(d, self.cal)
 
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
         """Recording of the fit (residuals per pose) and, for a session, its samples raw and calibrated."""
@@ -356,10 +359,7 @@ class DriftOutcome(JsonResult):
             else self.fit_eval.disp_end_drift_m.tolist(),
             "t_end_s": self.fit_eval.t_end_s,
         }
-        rec = [x["recovered"] for x in self.cal.sources if isinstance(x, dict) and x.get("recovered")]
-        if rec:
-            d["recovered"] = rec
-        return d
+        return _with_recovered(d, self.cal)
 
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
         """Recording of the static session calibrated, with and without the drift model."""
