@@ -156,3 +156,50 @@ def test_cli_diagnose_on_mcap(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("accellog: error:") and "valid names" in err
     assert main(["diagnose", str(tmp_path / "nope.mcap")]) == 2
+
+
+def _cv_scores_dense(res, obs):
+    """cv_scores as it was: the dense 3n_g x 3n_g matrix per hold, eigvalsh and solve on it."""
+    J = res.jacobian
+    sig = np.asarray(obs.sigma_g, float)
+    r = (res.residual_g / sig).ravel()
+    if not res.weighted:
+        J = J / sig.ravel()[:, None]
+    A = np.linalg.pinv(J.T @ J)
+    out = []
+    for g in [np.flatnonzero(np.asarray(obs.pose_id) == k) for k in np.unique(obs.pose_id)]:
+        rows = (g[:, None] * 3 + np.arange(3)).ravel()
+        Jg = J[rows]
+        M = np.eye(rows.size) - Jg @ A @ Jg.T
+        if np.linalg.eigvalsh(0.5 * (M + M.T)).min() < 1e-8:
+            out.append(np.inf)
+            continue
+        rc = np.linalg.solve(M, r[rows])
+        out.append(float(rc @ rc))
+    return np.asarray(out)
+
+
+@pytest.mark.parametrize(
+    ("model", "protocol", "weighted", "windows"),
+    [
+        ("model3", "24", True, 6),
+        ("model3+temp_bias+temp_scale", "24", True, 20),
+        ("model2", "six", False, 6),
+        ("model3+g_cross", "cube", True, 3),
+        ("model2", "+z,-z,+x,-x,+y", True, 4),  # only +y fixes S_yy: that hold cannot be predicted
+    ],
+)
+def test_cv_scores_small_matrix_form_equals_the_dense_form(model, protocol, weighted, windows):
+    """The p x p (push-through) cross-validation equals the dense per-hold inverse to 1e-9,
+    infinities (holds the others cannot predict) included."""
+    from accellog.calibrate.diagnose import cv_scores
+
+    name, *add = model.split("+")
+    m = build_model(name, add=add)
+    truth = build_model("model3").with_terms(["temp_bias"])
+    obs = _obs(truth, true_theta(truth, seed=3), protocol, seed=5, windows_per_hold=windows)
+    res = fit_model(obs, m, weighted=weighted)
+    dense, fast = _cv_scores_dense(res, obs), cv_scores(res, obs)
+    np.testing.assert_array_equal(np.isinf(fast), np.isinf(dense))
+    assert np.isinf(dense).sum() == (1 if protocol.endswith("+y") else 0)
+    np.testing.assert_allclose(fast[np.isfinite(dense)], dense[np.isfinite(dense)], rtol=1e-9)

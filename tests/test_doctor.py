@@ -8,13 +8,13 @@ import json
 
 import numpy as np
 import pytest
+from support.ros2_bags import session_to_bag
 
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session
 from accellog.store.writer import write_session
 from tests.rrd_readback import load_rrd
-from tests.support.ros2_bags import session_to_bag
 
 
 @pytest.fixture(scope="module")

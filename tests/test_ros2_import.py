@@ -7,13 +7,13 @@ import json
 
 import numpy as np
 import pytest
+from support.ros2_bags import START_NS, decode, session_to_bag
 
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.importers import import_imucal
 from accellog.store.importers.ros2 import import_ros2
 from accellog.store.reader import read_session
-from tests.support.ros2_bags import START_NS, decode, session_to_bag
 
 
 def _run(argv, capsys):
@@ -143,3 +143,19 @@ def test_bag_without_imu_messages_says_so(tmp_path, capsys):
         ["import", "ros2", str(tmp_path / "missing.mcap"), "-o", str(tmp_path / "o.mcap")], capsys
     )
     assert rc != 0 and "no such file" in err
+
+
+def test_every_stage_reads_a_bag_directly(imucal_bag, tmp_path, capsys):
+    """Stages take the bag itself (load_input: its only Imu topic): `noise` on the bag equals `noise`
+    on the same bag imported with `import ros2`."""
+    _, bag = imucal_bag
+    rc, out, err = _run(["noise", str(bag), "--json"], capsys)
+    assert rc == 0, err
+    direct = json.loads(out)
+    imported = tmp_path / "s.mcap"
+    assert _run(["import", "ros2", str(bag), "-o", str(imported)], capsys)[0] == 0
+    rc, out, err = _run(["noise", str(imported), "--json"], capsys)
+    assert rc == 0, err
+    via_import = json.loads(out)
+    assert direct["n_samples"] == via_import["n_samples"] > 1000
+    assert direct["accel"] == via_import["accel"]

@@ -6,13 +6,13 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from support.ros2_bags import decode
 
 from accellog.calibrate.calibration import load_calibration
 from accellog.cli import main
 from accellog.flows.ros2_out import white_noise_var, write_ros2
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session
-from tests.support.ros2_bags import decode
 
 
 def _ok(argv, capsys):

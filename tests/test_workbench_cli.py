@@ -93,3 +93,29 @@ def test_pose_table_is_refused_with_one_line(tmp_path, capsys):
     rc = main(["workbench", str(csv)])
     err = capsys.readouterr().err.strip()
     assert rc != 0 and err.startswith("accellog: error:") and "\n" not in err
+
+
+def test_workbench_rrd_shows_residuals_against_temperature(sessions, capsys):
+    """The .rrd read back: residual-vs-temperature plots of the start model (sloped: the residual
+    follows temperature) and of the final model (flat), one 2D view each, with the added effect's
+    prediction drawn over the start model's residual."""
+    d = sessions
+    rrd = d / "wb_residuals.rrd"
+    args = ["workbench", str(d / "hidden.mcap"), "--heldout", str(d / "heldout.mcap"), "--rrd", str(rrd)]
+    assert main([*args, "--json"]) == 0
+    capsys.readouterr()
+    r = load_rrd(rrd)
+    root = "/residual_vs/temp_degC"
+    plots = sorted({e.split("/")[3] for e in r.entities if e.startswith(root + "/")})
+    assert plots == ["final_model3_temp_bias", "start_model3"], plots
+    views = {v["origin"]: v for v in r.views() if v["class"] == "2D"}
+    assert {f"{root}/{p}" for p in plots} <= set(views), views.keys()
+    assert "residual (mg) vs temp_degC" in views[f"{root}/start_model3"]["name"]
+
+    def slope(plot: str) -> float:
+        """|least-squares slope| of the plotted residual (view units) against plotted x, axis x."""
+        pts = np.asarray(r.static(f"{root}/{plot}/x", "Points2D:positions"), float)
+        return abs(np.polyfit(pts[:, 0], pts[:, 1], 1)[0])
+
+    assert slope("start_model3") > 20 * slope("final_model3_temp_bias")
+    assert f"{root}/start_model3/contribution_x" in r.entities

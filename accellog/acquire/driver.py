@@ -175,6 +175,8 @@ class Mpu9250:
         self._pending: list[Event] = []
         self._started = False
         self._mag_asa: np.ndarray | None = None
+        self.ak8963_wia: int | None = None
+        """AK8963 WIA read by enable_magnetometer (device identity)."""
         funcs = getattr(bus, "funcs", None)
         self._use_rdwr = hasattr(bus, "i2c_rdwr") and (not isinstance(funcs, int) or bool(funcs & 0x1))
         self.start_host_ns = 0
@@ -545,6 +547,7 @@ class Mpu9250:
                 ) from None
             if wia != R.AK_WIA_VALUE:
                 raise DeviceError(f"AK8963 WIA=0x{wia:02X} (expected 0x48): not an AK8963 magnetometer")
+            self.ak8963_wia = wia
             self._wr(R.AK_CNTL1, R.AK_MODE_POWER_DOWN, ak)
             self.sleep(0.01)
             self._wr(R.AK_CNTL1, R.AK_MODE_FUSE_ROM, ak)

@@ -12,8 +12,10 @@ truth_g = g_local / g0 for standard g). Integration then uses
 
 File format ('accellog.calibration', format_version 1): units, model spec (terms), parameters with
 values, 1-sigma and units, covariance, S and b at reference conditions, gravity convention,
-temperature at calibration, fit statistics, source files with SHA-256, software version and an
-optional displacement-drift model (accellog.navigate.drift).
+temperature at calibration, fit statistics, source files with SHA-256, the device key of the sensor
+(accellog.core.device; absent in older files = unknown), software version, an optional
+displacement-drift model (accellog.navigate.drift), and optional versioned sections `noise`
+(accellog.calibrate.noise_model) and `magnetometer` (accellog.calibrate.magnetometer).
 """
 
 from __future__ import annotations
@@ -23,7 +25,6 @@ import functools
 import hashlib
 import json
 import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,10 +33,14 @@ from typing import Any
 import numpy as np
 
 from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.model import model_from_spec
+from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError, ModelError
+from accellog.core.jsonio import JsonResult, dumps
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.core.version import __version__
+from accellog.store.atomic import write_text_atomic
 
 FORMAT = "accellog.calibration"
 FORMAT_VERSION = 1
@@ -109,7 +114,7 @@ def session_drivers(session: Session, needed: list[str] | None = None) -> dict[s
 
 
 @dataclass
-class Calibration:
+class Calibration(JsonResult):
     """A fitted accelerometer calibration (see module docstring for the conventions)."""
 
     model_spec: dict
@@ -127,8 +132,14 @@ class Calibration:
     software: str = f"accellog {__version__}"
     created_utc: str = ""
     drift: DriftModel | None = None
+    device: dict = field(default_factory=dict)
+    """Device key of the calibrated sensor (accellog.core.device.DeviceKey.to_dict()); {} = unknown."""
     gyro: dict | None = None
     """Gyro calibration (accellog.calibrate.gyro.GyroCalibration.to_dict()), when the session allowed it."""
+    noise: dict | None = None
+    """Noise terms (accellog.calibrate.noise_model.calibration_section), when `accellog noise` added them."""
+    magnetometer: dict | None = None
+    """Magnetometer hard/soft iron (accellog.calibrate.magnetometer.MagCalibration.to_dict())."""
     path: str | None = None
 
     # ------------------------------------------------------------------ derived
@@ -146,13 +157,17 @@ class Calibration:
     def model(self):
         """The accellog.calibrate.model.Model of this calibration, built from the spec once (a user effects
         file is imported and its SHA-256 checked on first use, not on every correct())."""
-        from accellog.calibrate.model import model_from_spec
 
         return model_from_spec(self.model_spec)
 
     @property
     def terms(self) -> list[str]:
         return list(self.model_spec.get("terms", []))
+
+    def device_conflicts(self, key: DeviceKey) -> list[str]:
+        """How `key` (a session's device) differs from the calibrated device; [] when they match
+        or either is unknown (see DeviceKey.conflicts)."""
+        return DeviceKey.from_dict(self.device).conflicts(key)
 
     def S_b(self) -> tuple[np.ndarray, np.ndarray]:
         """Linear part at reference conditions: S (3,3), b (3,) g."""
@@ -206,7 +221,18 @@ class Calibration:
         fd = fit.to_dict()
         fit_info = {
             k: fd.get(k)
-            for k in ("method", "weighted", "chi2", "dof", "chi2_dof", "p_value", "rms_g", "n_obs")
+            for k in (
+                "method",
+                "weighted",
+                "chi2",
+                "dof",
+                "chi2_dof",
+                "p_value",
+                "rms_g",
+                "n_obs",
+                "uncertainty",
+                "between_hold_g",
+            )
         }
         fit_info["warnings"] = list(fit.warnings)
         fit_info["sigma_scaled"] = [float(x) for x in fit.sigma_scaled] if len(fit.sigma_scaled) else None
@@ -254,58 +280,26 @@ class Calibration:
             "temperature": dict(self.temperature),
             "fit": dict(self.fit),
             "sensor": dict(self.sensor),
+            "device": dict(self.device),
             "sources": list(self.sources),
             "drift": self.drift.to_dict() if self.drift is not None else None,
             "gyro": self.gyro,
+            **({"noise": self.noise} if self.noise is not None else {}),
+            **({"magnetometer": self.magnetometer} if self.magnetometer is not None else {}),
         }
 
-    def save(self, path: str | os.PathLike) -> None:
-        """Write the JSON file atomically (temp file + rename)."""
-        write_json_atomic(path, self.to_dict())
+    def save(self, path: str | os.PathLike, *, inputs: tuple = ()) -> None:
+        """Write the JSON file atomically (accellog.store.atomic); refused when `path` is one of the
+        source files, this calibration's own file or `inputs`."""
+        srcs = [s.get("path") for s in self.sources if isinstance(s, dict)]
+        write_json_atomic(path, self.to_dict(), inputs=(*srcs, self.path, *inputs))
         self.path = str(path)
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def dumps(data: Any, indent: int | None = 2) -> str:
-    """JSON text; NaN/inf become null (strict JSON)."""
-
-    def clean(x: Any) -> Any:
-        if isinstance(x, float):
-            return x if np.isfinite(x) else None
-        if isinstance(x, dict):
-            return {k: clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        if isinstance(x, np.ndarray):
-            return clean(x.tolist())
-        if isinstance(x, np.generic):
-            return clean(x.item())
-        return x
-
-    return json.dumps(clean(data), indent=indent, default=_json_default, allow_nan=False)
-
-
-def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
-    """Write JSON to a temporary file beside `path`, then rename it into place."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    text = dumps(data)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text + "\n")
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+def write_json_atomic(path: str | os.PathLike, data: Any, *, inputs: tuple = ()) -> None:
+    """Write JSON atomically (accellog.store.atomic: lock, temp file, fsync, rename); the folder
+    is created when missing; an output that is one of `inputs` is refused."""
+    write_text_atomic(path, dumps(data) + "\n", inputs=inputs, mkdir=True)
 
 
 def read_text(path: str | os.PathLike, what: str = "file") -> str:
@@ -373,6 +367,7 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         raise InputError("calibration parameters contain NaN/null values", where=where)
     if not (truth_g > 0 and lg > 0):
         raise InputError(f"gravity truth_g {truth_g} and local_gravity_mps2 {lg} must be > 0", where=where)
+    check_values(names, theta, cov, truth_g=truth_g, local_gravity_mps2=lg, where=where)
     cal = Calibration(
         model_spec=dict(spec),
         param_names=names,
@@ -386,10 +381,13 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         fit=dict(d.get("fit") or {}),
         sources=list(d.get("sources") or []),
         sensor=dict(d.get("sensor") or {}),
+        device=dict(d.get("device") or {}),
         software=str(d.get("software", "")),
         created_utc=str(d.get("created_utc", "")),
         drift=DriftModel.from_dict(d["drift"], where=where) if d.get("drift") else None,
         gyro=d.get("gyro") or None,
+        noise=_optional_section(d, "noise", where),
+        magnetometer=_optional_section(d, "magnetometer", where),
     )
     try:
         model = cal.model
@@ -400,6 +398,71 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
             f"parameter names {names} do not match model {model.name!r} ({model.param_names})", where=where
         )
     return cal
+
+
+def _optional_section(d: dict, name: str, where: str | None) -> dict | None:
+    """The optional 'noise' / 'magnetometer' section, validated by its own module (None when absent)."""
+    sec = d.get(name)
+    if sec is None:
+        return None
+    if name == "noise":
+        from accellog.calibrate.noise_model import check_section
+    else:
+        from accellog.calibrate.magnetometer import check_section
+    return check_section(sec, where)
+
+
+# Physical plausibility of a stored calibration of a MEMS accelerometer (datasheet: bias within
+# +-80 mg, scale within +-3 %, cross-axis within +-2 %): limits ~10x wider, so only absurd files fail.
+SANITY_LIMITS = {
+    "bias_g": 1.0,
+    "scale_dev": 0.5,
+    "cross": 0.3,
+    "gravity_mps2": (9.7, 9.9),
+    "truth_g": (0.98, 1.02),
+}
+
+
+def check_values(
+    names: list[str],
+    theta: np.ndarray,
+    cov: np.ndarray,
+    *,
+    truth_g: float,
+    local_gravity_mps2: float,
+    where: str | None = None,
+) -> None:
+    """InputError naming the first absurd value: |b_i| > 1 g, |S_ii - 1| > 0.5, |S_ij| > 0.3,
+    a non-finite or negative variance, gravity outside 9.7-9.9 m/s^2 or truth_g outside 0.98-1.02."""
+    lim = SANITY_LIMITS
+    for n, v in zip(names, theta, strict=True):
+        bad = None
+        if n in ("b_x", "b_y", "b_z") and abs(v) > lim["bias_g"]:
+            bad = f"|{n}| > {lim['bias_g']:g} g"
+        elif n in ("S_xx", "S_yy", "S_zz") and abs(v - 1.0) > lim["scale_dev"]:
+            bad = f"{n} outside 1 +- {lim['scale_dev']:g}"
+        elif n.startswith("S_") and len(n) == 4 and n[2] != n[3] and abs(v) > lim["cross"]:
+            bad = f"|{n}| > {lim['cross']:g}"
+        elif abs(v) > 1e6:
+            bad = f"|{n}| > 1e6"
+        if bad:
+            raise InputError(
+                f"absurd calibration value {n} = {v:.6g} ({bad}); refit this calibration", where=where
+            )
+    d = np.diag(cov) if cov.ndim == 2 else np.array([])
+    if not np.isfinite(cov).all() or (d < 0).any():
+        k = int(np.argmax(~np.isfinite(d) | (d < 0))) if d.size else 0
+        name = names[k] if k < len(names) else "?"
+        raise InputError(f"covariance is not finite or has a negative variance (at {name})", where=where)
+    lo, hi = lim["gravity_mps2"]
+    if not lo <= local_gravity_mps2 <= hi:
+        raise InputError(
+            f"local_gravity_mps2 = {local_gravity_mps2:g} is not a gravity on Earth ({lo}-{hi} m/s^2)",
+            where=where,
+        )
+    lo, hi = lim["truth_g"]
+    if not lo <= truth_g <= hi:
+        raise InputError(f"gravity truth_g = {truth_g:g} outside {lo}-{hi}", where=where)
 
 
 def load_calibration(path: str | os.PathLike) -> Calibration:

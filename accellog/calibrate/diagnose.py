@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from accellog.calibrate.choose import StepChoice, choose_effect
 from accellog.calibrate.effects import AXES, all_effects
 from accellog.calibrate.fit import FitResult, effect_requirement, fit_model, obs_drivers
 from accellog.calibrate.model import Model
@@ -51,7 +52,16 @@ def cv_scores(res: FitResult, obs: ObsTable) -> np.ndarray:
     """Leave-one-hold-out chi2 of each hold (inf where the rest cannot predict it).
 
     Whitened residual r and Jacobian J (rows obs-major, axis-minor); for hold g with rows G:
-    r_cv = (I - H_GG)^-1 r_G, H = J (J^T J)^+ J^T.
+    r_cv = (I - H_GG)^-1 r_G, H = J C J^T, C = (J^T J)^+. With U = J_G (m x p, m = 3 windows in
+    the hold, p parameters) and G = U^T U (p x p), the m x m inverse is never formed
+    (push-through identity, valid for singular C too):
+
+        (I - U C U^T)^-1 = I + U C (I_p - G C)^-1 U^T,
+        r_cv = r_G + U C (I_p - G C)^-1 U^T r_G,
+
+    and the hold is predictable when min eig(I - U C U^T) = 1 - max eig(S^T G S) >= 1e-8
+    (C = S S^T; the other eigenvalues of I - U C U^T are 1). Cost O(m p^2) per hold: linear in the
+    windows. BLAS runs on one thread (these matrices are too small to gain from more).
     """
     J = res.jacobian
     sig = np.asarray(obs.sigma_g, float)
@@ -60,19 +70,40 @@ def cv_scores(res: FitResult, obs: ObsTable) -> np.ndarray:
         return np.full(len(_groups(obs)), np.inf)
     if not res.weighted:  # jacobian of unweighted residuals: whiten it
         J = J / sig.ravel()[:, None]
-    A = np.linalg.pinv(J.T @ J)
-    out = []
-    for g in _groups(obs):
+    with _blas_controller().limit(limits=1, user_api="blas"):
+        return _cv_small(J, r, _groups(obs))
+
+
+def _blas_controller():
+    """threadpoolctl's controller, made once (finding the BLAS libraries takes ~3 ms per call)."""
+    global _BLAS
+    if _BLAS is None:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS = ThreadpoolController()
+    return _BLAS
+
+
+_BLAS = None
+
+
+def _cv_small(J: np.ndarray, r: np.ndarray, groups: list[np.ndarray]) -> np.ndarray:
+    """cv_scores' per-hold loop in the p x p form (see there)."""
+    C = np.linalg.pinv(J.T @ J)
+    ev_c, vec_c = np.linalg.eigh(0.5 * (C + C.T))
+    S = vec_c * np.sqrt(np.clip(ev_c, 0.0, None))  # C = S S^T
+    eye = np.eye(J.shape[1])
+    out = np.empty(len(groups))
+    for k, g in enumerate(groups):
         rows = (g[:, None] * 3 + np.arange(3)).ravel()
-        Jg = J[rows]
-        M = np.eye(rows.size) - Jg @ A @ Jg.T
-        ev = np.linalg.eigvalsh(0.5 * (M + M.T))
-        if ev.min() < 1e-8:
-            out.append(np.inf)
+        U, rg = J[rows], r[rows]
+        G = U.T @ U
+        if 1.0 - np.linalg.eigvalsh(S.T @ G @ S).max() < 1e-8:
+            out[k] = np.inf
             continue
-        rc = np.linalg.solve(M, r[rows])
-        out.append(float(rc @ rc))
-    return np.asarray(out)
+        rc = rg + U @ (C @ np.linalg.solve(eye - G @ C, U.T @ rg))
+        out[k] = float(rc @ rc)
+    return out
 
 
 def _cv_compare(cv_a: np.ndarray, cv_b: np.ndarray, obs: ObsTable) -> tuple[float, float, int]:
@@ -224,6 +255,10 @@ class Diagnosis:
     clock: dict | None = None
     cv_base: float = np.nan
     extra: dict = field(default_factory=dict)
+    choice: StepChoice | None = None
+    """Out-of-sample judgement of the significant candidates (accellog.calibrate.choose)."""
+    fits: dict[str, FitResult] = field(default_factory=dict, repr=False)
+    """Fit of model + candidate, by candidate name (identifiable candidates; not in to_dict)."""
 
     def to_dict(self, max_signals: int = 30) -> dict:
         return {
@@ -243,6 +278,7 @@ class Diagnosis:
             "driver_signals": [{k: _j(v) for k, v in s.items()} for s in self.driver_signals[:max_signals]],
             "advice": list(self.advice),
             "clock": self.clock,
+            "choice": None if self.choice is None else self.choice.to_dict(),
             "fit": self.fit.to_dict(),
         }
 
@@ -278,10 +314,14 @@ def diagnose(
     gravity_g: float = 1.0,
     drivers: Mapping[str, np.ndarray] | None = None,
     host_time: tuple[np.ndarray, np.ndarray] | None = None,
+    heldout: Sequence[ObsTable] | None = None,
+    validate: bool = True,
 ) -> Diagnosis:
     """Fit `model`, test it against the noise floor, rank candidate effects, show driver signals.
 
     host_time: optional (t_sensor_s, t_host_s) sample times to estimate the sample-clock error.
+    validate: judge the significant candidates out of sample (accellog.calibrate.choose: held-out
+    sessions `heldout` when given, else blocked validation) and make the best of them `best`.
     The test statistics always use sigma_g (the noise estimate); weighted=False only changes the
     parameter estimates (the seed's unweighted fit).
     """
@@ -300,6 +340,7 @@ def diagnose(
         raise ModelError(f"unknown candidate effect(s) {unknown}; valid: {', '.join(lib)}")
     n_tests = max(1, sum(1 for c in cands if lib[c].static))
     rows: list[dict] = []
+    fits: dict[str, FitResult] = {}
     clock = None
     for name in cands:
         row: dict = {"effect": name, "n_params": len(lib[name].params), "identifiable": False}
@@ -327,6 +368,7 @@ def diagnose(
             row["reason"] = str(exc)
             rows.append(row)
             continue
+        fits[name] = cr
         dk = cm.n_params - model.n_params
         dchi2 = base.chi2 - cr.chi2
         F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
@@ -365,14 +407,27 @@ def diagnose(
             ),
         )
         rows.append(row)
-    # rank: significant first, then by dBIC (identifiable), then the rest
-    rows.sort(
-        key=lambda r: (
+    choice = choose_effect(base, rows, fits, obs, heldout) if validate else None
+    if choice is not None:
+        for r in rows:
+            if r["effect"] in choice.scores:
+                r["oos_chi2_per_eq"] = choice.scores[r["effect"]].chi2_per_eq
+                r["oos_evidence"] = choice.evidence
+
+    # rank: significant first, the chosen one (out-of-sample evidence) first among them, then by the
+    # out-of-sample score, then by dBIC (identifiable), then the rest
+    def _key(r):
+        oos = r.get("oos_chi2_per_eq", np.inf)
+        dbic = r.get("delta_bic", np.inf)
+        return (
             not r.get("significant", False),
             not r["identifiable"],
-            r.get("delta_bic", np.inf) if np.isfinite(r.get("delta_bic", np.inf)) else np.inf,
+            choice is None or r["effect"] != choice.chosen,
+            oos if np.isfinite(oos) else np.inf,
+            dbic if np.isfinite(dbic) else np.inf,
         )
-    )
+
+    rows.sort(key=_key)
     for k, r in enumerate(rows, 1):
         r["rank"] = k
     signals = driver_signals(base, obs, drv)
@@ -400,7 +455,11 @@ def diagnose(
     base_bad = bool(np.isfinite(base.p_value) and base.p_value < ALPHA and base.dof > 0)
     missing = base_bad or bool(sig_cands)
     best = sig_cands[0]["effect"] if sig_cands else None
+    if choice is not None:
+        best = choice.chosen
     verdict, advice = _verdict(model, base, floor, missing, sig_cands, signals, rows, clock)
+    if choice is not None:
+        verdict, advice = _with_choice(verdict, advice, choice, sig_cands)
     return Diagnosis(
         model=model,
         fit=base,
@@ -413,7 +472,35 @@ def diagnose(
         best=best,
         clock=clock,
         cv_base=float(np.sum(cv_b_all[np.isfinite(cv_b_all)]) / max(m_eq, 1)),
+        fits=fits,
+        choice=choice,
     )
+
+
+def _with_choice(verdict: str, advice: list[str], choice: StepChoice, sig_cands: list[dict]):
+    """Verdict and advice once the out-of-sample evidence has spoken."""
+    if sig_cands and choice.chosen is None:
+        head = verdict.split(": residuals are")[0]
+        verdict = (
+            f"{head}: something is missing, but no significant candidate predicts unseen data better "
+            f"({choice.reason}); it may be a proxy: record a session whose drivers vary independently"
+        )
+        advice = [a for a in advice if not a.startswith("refit with --add")]
+    if choice.undecided and choice.chosen is not None:
+        alts = " or ".join(f"--add {e}" for e in [choice.chosen, *choice.undecided])
+        advice = [
+            f"{alts}: this data cannot tell which is physical; record what separates them (below)"
+            if a == f"refit with --add {choice.chosen}"
+            else a
+            for a in advice
+        ]
+        verdict += (
+            f" Cannot decide between {choice.chosen} and {', '.join(choice.undecided)}: they explain the "
+            "same residual on this data."
+        )
+    tied = set(choice.undecided)
+    advice = advice + [c.text() for c in choice.collinear if c.b in tied]
+    return verdict, advice
 
 
 def _verdict(model, base, floor, missing, sig_cands, signals, rows, clock) -> tuple[str, list[str]]:

@@ -15,6 +15,7 @@ file with `load_effects_file` (see docs/effects.md for the ~10-line interface).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.util
 from collections.abc import Callable, Mapping
@@ -265,10 +266,12 @@ def load_effects_file(path: str | Path) -> EffectsFile:
     mod = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(mod)
-    except Exception as exc:  # user code: report one line, with the line if it is a syntax error
-        line = getattr(exc, "lineno", None)
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # user code (SystemExit too): one line, with the line in the file
+        line = getattr(exc, "lineno", None) if isinstance(exc, SyntaxError) else _user_line(exc, p)
         where = f"{p}:{line}" if line else str(p)
-        raise InputError(f"effects file failed to load: {type(exc).__name__}: {exc}", where=where) from exc
+        raise InputError(f"effects file failed to load: {_exc_text(exc)}", where=where) from None
     found = getattr(mod, "EFFECTS", None)
     if found is None:
         found = [v for v in vars(mod).values() if isinstance(v, Effect)]
@@ -278,14 +281,68 @@ def load_effects_file(path: str | Path) -> EffectsFile:
             raise InputError(
                 f"EFFECTS contains {e!r}, not an accellog.calibrate.effects.Effect", where=str(p)
             )
-        if e.contribution is None:
-            raise InputError(f"effect {e.name!r} has no contribution(p, f_g, drivers)", where=str(p))
+        if e.contribution is None or not callable(e.contribution):
+            raise InputError(f"effect {e.name!r} has no callable contribution(p, f_g, drivers)", where=str(p))
         if e.name in LIBRARY or e.name in PRESETS:
             raise InputError(f"effect name {e.name!r} clashes with a built-in effect", where=str(p))
-        out[e.name] = Effect(**{**e.__dict__, "source": str(p), "builtin": False})
+        sandboxed = _sandboxed(e.contribution, p, e.name)
+        out[e.name] = Effect(**{**e.__dict__, "contribution": sandboxed, "source": str(p), "builtin": False})
     if not out:
         raise InputError("no effects found: define Effect objects (or a list EFFECTS)", where=str(p))
     return EffectsFile(str(p), hashlib.sha256(data).hexdigest(), out)
+
+
+def _exc_text(exc: BaseException) -> str:
+    if isinstance(exc, SystemExit):
+        return f"it called sys.exit({exc.code!r})"
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _user_line(exc: BaseException, path: Path) -> int | None:
+    """Line number of the innermost traceback frame in the user's file (None if none is)."""
+    target = str(path.resolve())
+    line = None
+    tb = exc.__traceback__
+    while tb is not None:
+        with contextlib.suppress(OSError):
+            if str(Path(tb.tb_frame.f_code.co_filename).resolve()) == target:
+                line = tb.tb_lineno
+        tb = tb.tb_next
+    return line
+
+
+def _sandboxed(fn: Contribution, path: Path, name: str) -> Contribution:
+    """The user's contribution h(p, f_g, drivers), with any exception (SystemExit included) or a
+    result that is not a finite (n, 3) array in g turned into one InputError naming file, effect
+    and line."""
+
+    def call(p: Mapping[str, float], f_g: np.ndarray, drivers: Mapping[str, np.ndarray]) -> np.ndarray:
+        out = None
+        try:
+            out = fn(p, f_g, drivers)
+            arr = np.broadcast_to(np.asarray(out, dtype=float), np.shape(f_g))
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:
+            line = _user_line(exc, path)
+            where = f"{path}:{line}" if line else str(path)
+            if line is None and isinstance(exc, (ValueError, TypeError)):
+                raise InputError(
+                    f"effect {name!r}: contribution must return an (n, 3) array in g, got {type(out).__name__}"
+                    f" of shape {np.shape(out)}",
+                    where=where,
+                ) from None
+            raise InputError(f"effect {name!r} failed: {_exc_text(exc)}", where=where) from None
+        if not np.isfinite(arr).all():
+            raise InputError(
+                f"effect {name!r}: contribution returned NaN/inf (or None) for {int((~np.isfinite(arr)).sum())} values",
+                where=str(path),
+            )
+        return arr
+
+    call.__wrapped__ = fn  # type: ignore[attr-defined]
+    return call
 
 
 def all_effects(effects_file: EffectsFile | None = None) -> dict[str, Effect]:

@@ -230,6 +230,12 @@ class FitResult:
     jacobian: np.ndarray | None = None
     """Jacobian d(w residual)/d(theta) at the solution, w = 1/sigma_g when weighted (whitened), else 1
     (rows: obs-major, axis-minor)."""
+    uncertainty: str = "noise"
+    """How cov/sigma were obtained: 'noise' (window noise only), 'between_hold' (plus a between-hold
+    variance component) or 'jackknife' (leave one hold out); see accellog.calibrate.variance."""
+    between_hold_g: list[float] | None = None
+    """Estimated between-hold standard deviation (g) along gravity and across it, when a hold-scatter
+    method was used."""
 
     def params(self) -> dict[str, float]:
         return self.model.params_dict(self.theta)
@@ -255,6 +261,8 @@ class FitResult:
             "rms_g": self.rms_g,
             "n_obs": self.n_obs,
             "warnings": list(self.warnings),
+            "uncertainty": self.uncertainty,
+            "between_hold_g": self.between_hold_g,
         }
 
 

@@ -32,15 +32,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from accellog.core.errors import InputError, ModelError
-from accellog.core.rotations import (
-    prefix_quat_product,
-    quat_conjugate,
-    quat_from_rotvec,
-    quat_multiply,
-    quat_normalize,
-    rotate_inverse,
-)
+from accellog.core.rotations import quat_conjugate, quat_multiply
 from accellog.core.session import PoseLabel
+
+_DEG = 180.0 / np.pi
+
+_LSQ_TOL = {"ftol": 1e-12, "xtol": 1e-12, "gtol": 1e-12}
+"""least_squares tolerances: converge to the optimum itself (the Jacobian is exact), so the result
+does not depend on the path the iterations took."""
 
 PARAM_NAMES = [f"M{'xyz'[i]}{'xyz'[j]}" for i in range(3) for j in range(3)]
 """Names of the entries of M (row-major): M_ij maps true rate j into measured axis i."""
@@ -146,6 +145,18 @@ def _holds(holds: Sequence[PoseLabel] | np.ndarray) -> np.ndarray:
     return np.asarray(holds, float).reshape(-1, 2)
 
 
+def _window_means(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Means of x[a_k:b_k] (rows) for windows that do not overlap and are in order."""
+    if not a.size:
+        return np.zeros((0, *x.shape[1:]))
+    edges = np.stack([a, b], axis=1).ravel()  # slots [a0,b0), [b0,a1), [a1,b1), ...: keep the even ones
+    if edges[-1] >= x.shape[0]:
+        edges = edges[:-1]  # the last slot [a_last:] then runs to the end, which is b_last
+    sums = np.add.reduceat(x, edges, axis=0)[::2]
+    n = (b - a).astype(float)
+    return sums / (n[:, None] if x.ndim == 2 else n)
+
+
 def fit_gyro_bias(
     t_s: np.ndarray,
     gyro_dps: np.ndarray,
@@ -167,24 +178,26 @@ def fit_gyro_bias(
     iv = _holds(holds)
     if iv.shape[0] == 0:
         raise InputError("no static holds: the gyro bias cannot be estimated")
-    means, temps = [], []
+    starts, ends = [], []  # sample index range [a, b) of every whole window_s window of every hold
     for lo, hi in iv:
         lo, hi = lo + trim_s, hi - trim_s
         n_win = int((hi - lo) // window_s)
         if n_win < 1:
             continue
-        edges = lo + window_s * np.arange(n_win + 1)
-        idx = np.searchsorted(t, edges)
-        for a, b in itertools.pairwise(idx):
-            if b - a >= 2:
-                means.append(w[a:b].mean(axis=0))
-                temps.append(np.nan if temp is None else float(np.mean(temp[a:b])))
+        idx = np.searchsorted(t, lo + window_s * np.arange(n_win + 1))
+        starts.append(idx[:-1])
+        ends.append(idx[1:])
+    a = np.concatenate(starts) if starts else np.zeros(0, np.int64)
+    b = np.concatenate(ends) if ends else np.zeros(0, np.int64)
+    keep = b - a >= 2
+    a, b = a[keep], b[keep]
+    means = _window_means(w, a, b)
+    temps = np.full(a.size, np.nan) if temp is None else _window_means(temp, a, b)
     if len(means) < 2:
         raise InputError(
             f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
         )
-    y = np.array(means)
-    tt = np.array(temps)
+    y, tt = means, temps
     use_temp = temp is not None and np.isfinite(tt).all() and np.ptp(tt) >= min_temp_span_degC
     cols = [np.ones(len(y))] + ([tt - t_ref_degC] if use_temp else [])
     A = np.stack(cols, axis=1)
@@ -203,40 +216,162 @@ def fit_gyro_bias(
     return cal
 
 
-def _block_increments(t: np.ndarray, w_dps: np.ndarray, mids: np.ndarray, block_s: float) -> tuple:
-    """Trapezoid rotation increments (rad, body frame) summed over blocks of ~block_s, with block
-    edges on every mid index; returns (increments (B,3), block index of each mid (K,)).
+def _block_edges(t: np.ndarray, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block_s: float):
+    """Fine and coarse block edges (sample indices) from mids[0] to mids[-1].
 
-    Summing increments inside a block is exact for rotation about a fixed axis (the protocol's
-    moves) and second order in (rate x block_s) otherwise; the increments are linear in the
-    rate, so a gyro matrix correction can be applied to the blocks instead of every sample."""
-    w = np.deg2rad(w_dps)
-    inc = 0.5 * (w[:-1] + w[1:]) * np.diff(t)[:, None]  # step i: from sample i to i+1
-    edges = [int(mids[0])]
-    for a, b in itertools.pairwise(mids):
+    Fine: between the mids a, b of consecutive holds, ~block_s blocks evenly spaced from a to b
+    (np.linspace, rounded). Coarse: the fine edges of the move between the holds, but the fine
+    blocks inside a hold (a .. end of hold a, start of hold b .. b) merged into one each."""
+    fine, coarse = [np.array([mids[0]])], [np.array([mids[0]])]
+    for k, (a, b) in enumerate(itertools.pairwise(mids)):
         n = max(1, int(np.ceil((t[b] - t[a]) / block_s)))
-        edges.extend(np.linspace(a, b, n + 1).round().astype(int)[1:].tolist())
-    edges = np.unique(np.asarray(edges))
-    csum = np.concatenate([np.zeros((1, 3)), np.cumsum(inc, axis=0)])
-    blocks = np.diff(csum[edges], axis=0)
-    return blocks, np.searchsorted(edges, mids)
+        e = np.linspace(a, b, n + 1).round().astype(np.int64)
+        lo = e[e <= max(ends[k], a)].max()
+        hi = e[e >= min(max(starts[k + 1], lo), b)].min()
+        fine.append(e[1:])
+        coarse.append(e[1:][(e[1:] >= lo) & (e[1:] <= hi)])
+        coarse.append(np.array([b]))
+    return _sorted_unique(np.concatenate(fine)), _sorted_unique(np.concatenate(coarse))
 
 
-def _relative_rotations(blocks: np.ndarray, at: np.ndarray, m_inv: np.ndarray) -> np.ndarray:
-    """Body-frame rotation (K-1,4) from each mid to the next, with rates corrected by m_inv."""
-    phi = blocks @ m_inv.T
-    dq = np.concatenate([[[1.0, 0.0, 0.0, 0.0]], quat_from_rotvec(phi)])
-    q = quat_normalize(prefix_quat_product(dq))
-    return quat_normalize(quat_multiply(quat_conjugate(q[at[:-1]]), q[at[1:]]))
+def _sorted_unique(e: np.ndarray) -> np.ndarray:
+    """np.unique of an already non-decreasing array, in one pass."""
+    return e[np.concatenate([[True], e[1:] != e[:-1]])] if e.size else e
+
+
+def _trapezoid_blocks(t: np.ndarray, x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Trapezoid integrals of x ((N,) or (N,k)) over [t[e_j], t[e_j+1]] for consecutive edges."""
+    dt = np.diff(t)
+    inc = x[:-1] + x[1:]
+    inc *= (0.5 * dt)[:, None] if inc.ndim == 2 else 0.5 * dt
+    return np.add.reduceat(inc, edges[:-1], axis=0)
+
+
+def _block_increments(
+    t: np.ndarray,
+    w_dps: np.ndarray,
+    temp_degC: np.ndarray | None,
+    base: GyroCalibration,
+    holds: tuple[np.ndarray, np.ndarray, np.ndarray],
+    block_s: float,
+) -> tuple:
+    """Rotation increments over the coarse blocks of _block_edges: (phi (B,3) rad, c (B,3) rad^2,
+    block-edge index of each mid (K,)); holds = (mid, end, start) sample index of each hold.
+
+    phi is the trapezoid integral of the bias-corrected rate over a block (body frame):
+    int (w - b0 - b_T (T - T_ref)) dt = W - b0 dt - b_T (int T dt - T_ref dt), so only the raw
+    rate and the temperature are integrated per sample. It is exact for rotation about a fixed
+    axis (the protocol's moves) and second order in (rate x block_s) otherwise; it is linear in
+    the rate, so a gyro matrix correction applies to the blocks instead of every sample. A coarse
+    block that merges the fine blocks b_1..b_n of a static hold also carries their second-order
+    term c = 1/2 sum_{i<j} b_i x b_j, so that exp(b_1) ... exp(b_n) = exp(phi + c) + O(|b|^3)
+    (Baker-Campbell-Hausdorff; the product the dense integration forms). Cost: one pass over the
+    samples from the first to the last mid, then O(fine blocks)."""
+    mids, ends, starts = holds
+    fine, coarse = _block_edges(t, mids, ends, starts, block_s)
+    lo, hi = int(fine[0]), int(fine[-1])
+    if hi == lo:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.searchsorted(coarse, mids)
+    tt, fe = t[lo : hi + 1], fine - lo
+    span = np.diff(tt[fe])
+    b = _trapezoid_blocks(tt, np.asarray(w_dps[lo : hi + 1], float), fe) - np.outer(span, base.bias_dps)
+    if temp_degC is not None:
+        temp_int = _trapezoid_blocks(tt, np.asarray(temp_degC[lo : hi + 1], float), fe)
+        b -= np.outer(temp_int - base.t_ref_degC * span, base.temp_bias_dps_per_degC)
+    b = np.deg2rad(b)
+    p_excl = np.concatenate([np.zeros((1, 3)), np.cumsum(b, axis=0)[:-1]])  # sum of earlier blocks
+    at = np.searchsorted(fine, coarse[:-1])  # first fine block of each coarse block
+    phi = np.add.reduceat(b, at, axis=0)
+    c = 0.5 * (np.add.reduceat(np.cross(p_excl, b), at, axis=0) - np.cross(p_excl[at], phi))
+    return phi, c, np.searchsorted(coarse, mids)
+
+
+# complex-safe quaternion helpers: the same arithmetic as accellog.core.rotations, written so that
+# a complex step (x + i h) propagates through them (the Jacobian below is exact to rounding)
+
+
+def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p*q for (...,4) arrays (real or complex)."""
+    pw, px, py, pz = np.moveaxis(p, -1, 0)
+    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
+
+
+def _qexp(phi: np.ndarray) -> np.ndarray:
+    """Quaternions (...,4) from rotation vectors (...,3) (rad): (cos a/2, sin(a/2)/a phi)."""
+    a = np.sqrt((phi * phi).sum(axis=-1, keepdims=True))
+    big = a.real > 1e-12
+    safe = np.where(big, a, 1.0)
+    k = np.where(big, np.sin(0.5 * safe) / safe, 0.5 - a * a / 48.0)
+    return np.concatenate([np.cos(0.5 * a), k * phi], axis=-1)
+
+
+def _qnormalize(q: np.ndarray) -> np.ndarray:
+    return q / np.sqrt((q * q).sum(axis=-1, keepdims=True))
+
+
+def _qconj(q: np.ndarray) -> np.ndarray:
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def _prefix_product(dq: np.ndarray) -> np.ndarray:
+    """Inclusive prefix product along axis -2 (Hillis-Steele scan, as rotations.prefix_quat_product)."""
+    out = dq.copy()
+    n = out.shape[-2]
+    d = 1
+    while d < n:
+        out[..., d:, :] = _qmul(out[..., :-d, :], out[..., d:, :])
+        d *= 2
+    return out
+
+
+def _relative_rotations(phi: np.ndarray, c: np.ndarray, at: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Body-frame rotation (...,K-1,4) from each mid to the next, with rates corrected by M^-1
+    (m (3,3), or (P,3,3) for P matrices at once): block rotation vector M^-1 phi + det(M^-1) M^T c,
+    since (A u) x (A v) = det(A) A^-T (u x v) carries the second-order term c through A = M^-1."""
+    m_inv = np.linalg.inv(m)
+    phi = phi @ np.swapaxes(m_inv, -1, -2) + (c @ m) / np.linalg.det(m)[..., None, None]
+    ident = np.zeros((*phi.shape[:-2], 1, 4), phi.dtype)
+    ident[..., 0] = 1.0
+    q = _qnormalize(_prefix_product(np.concatenate([ident, _qexp(phi)], axis=-2)))
+    return _qnormalize(_qmul(_qconj(q[..., at[:-1], :]), q[..., at[1:], :]))
+
+
+def _rotate_inverse(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """World vectors v (K,3) into the sensor frame by q (...,K,4): R(q)^T v."""
+    q = _qnormalize(q)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
+    return np.stack(
+        [
+            (1 - 2 * (y * y + z * z)) * v0 + 2 * (x * y + w * z) * v1 + 2 * (x * z - w * y) * v2,
+            2 * (x * y - w * z) * v0 + (1 - 2 * (x * x + z * z)) * v1 + 2 * (y * z + w * x) * v2,
+            2 * (x * z + w * y) * v0 + 2 * (y * z - w * x) * v1 + (1 - 2 * (x * x + y * y)) * v2,
+        ],
+        axis=-1,
+    )
 
 
 def _rotvec_deg(q: np.ndarray) -> np.ndarray:
-    """Rotation vectors (deg) of unit quaternions (K,4), shortest arc."""
-    q = q * np.where(q[:, :1] < 0, -1.0, 1.0)
-    s = np.linalg.norm(q[:, 1:], axis=1)
-    ang = 2.0 * np.arctan2(s, q[:, 0])
-    k = np.where(s > 1e-12, ang / np.where(s > 1e-12, s, 1.0), 2.0)
-    return np.rad2deg(k[:, None] * q[:, 1:])
+    """Rotation vectors (deg) of unit quaternions (...,K,4), shortest arc."""
+    q = q * np.where(q[..., :1].real < 0, -1.0, 1.0)
+    s = np.sqrt((q[..., 1:] * q[..., 1:]).sum(axis=-1))
+    w = q[..., 0]
+    fwd = w.real > 0.5 * np.abs(s)
+    ang = np.where(
+        fwd, 2.0 * np.arctan(s / np.where(fwd, w, 1.0)), np.pi - 2.0 * np.arctan(w / np.where(fwd, 1.0, s))
+    )
+    tiny = np.abs(s) <= 1e-12
+    k = np.where(tiny, 2.0 / np.where(tiny, w, 1.0), ang / np.where(tiny, 1.0, s))
+    return _DEG * k[..., None] * q[..., 1:]
 
 
 def fit_gyro_matrix(
@@ -271,50 +406,58 @@ def fit_gyro_matrix(
     if len(known) < 2:
         raise InputError("fewer than 2 labelled poses with known orientation: gyro scale cannot be fitted")
     t = np.asarray(t_s, float)
-    w_unb = np.asarray(gyro_dps, float) - base.bias_at(
-        temp_degC if np.any(base.temp_bias_dps_per_degC != 0) else None
-    )
-    mids = np.searchsorted(t, [0.5 * (p.start_s + p.end_s) for p in known])
-    mids = np.clip(mids, 0, t.size - 1)
+    idx = lambda times: np.clip(np.searchsorted(t, times), 0, t.size - 1)  # noqa: E731
+    mids = idx([0.5 * (p.start_s + p.end_s) for p in known])
+    ends, starts = idx([p.end_s for p in known]), idx([p.start_s for p in known])
+    temp = temp_degC if np.any(base.temp_bias_dps_per_degC != 0) else None
+    phi, c, at = _block_increments(t, gyro_dps, temp, base, (mids, ends, starts), block_s=0.01)
     if reference == "orientation":
         qn = np.array([p.q_sensor_to_world for p in known], float)
-        dq_nom = quat_multiply(quat_conjugate(qn[:-1]), qn[1:])
+        dq_nom_c = _qconj(quat_multiply(quat_conjugate(qn[:-1]), qn[1:]))
     else:
         up = np.array([p.up_sensor for p in known], float)
         up /= np.linalg.norm(up, axis=1, keepdims=True)
     diag_idx = [0, 4, 8]
     free_all = diag_idx if model == "scale" else list(range(9))
 
-    blocks, at = _block_increments(t, w_unb, mids, block_s=0.01)
-
-    def residuals(p: np.ndarray, free: list[int]) -> np.ndarray:
-        m = np.eye(3).ravel()
-        m[free] = p
-        dq_int = _relative_rotations(blocks, at, np.linalg.inv(m.reshape(3, 3)))
+    def forward(m: np.ndarray) -> np.ndarray:
+        """Residuals (..., R) for gyro matrices m ((3,3) or (P,3,3))."""
+        dq_int = _relative_rotations(phi, c, at, m)
         if reference == "orientation":
-            return _rotvec_deg(quat_multiply(quat_conjugate(dq_nom), dq_int)).ravel()
+            return _rotvec_deg(_qmul(dq_nom_c, dq_int)).reshape((*dq_int.shape[:-2], -1))
         # up_a (world-fixed) seen from the sensor at hold b: v_b = dq_int^-1 v_a; the difference of
         # unit vectors is the tilt error in rad for small errors (and, unlike a cross product,
         # it does not vanish for a vector pointing the opposite way)
-        pred = rotate_inverse(dq_int, up[:-1])
-        return np.rad2deg(pred - up[1:]).ravel()
+        pred = _rotate_inverse(dq_int, up[:-1])
+        return ((pred - up[1:]) * _DEG).reshape((*dq_int.shape[:-2], -1))
 
-    # which entries of M do the rotations excite? (finite-difference sensitivity at M = I)
+    def matrix(p: np.ndarray, free: list[int]) -> np.ndarray:
+        m = np.eye(3).ravel()
+        m[free] = p
+        return m.reshape(3, 3)
+
+    def residuals(p: np.ndarray, free: list[int]) -> np.ndarray:
+        return forward(matrix(p, free))
+
+    def jacobian(p: np.ndarray, free: list[int]) -> np.ndarray:
+        """d residuals / d M_free, all columns in one vectorised complex-step pass (exact to
+        rounding: Im f(M + i h E_j) / h with h = 1e-30, no subtractive cancellation)."""
+        h = 1e-30
+        m = np.broadcast_to(matrix(p, free).astype(complex), (len(free), 3, 3)).reshape(len(free), 9).copy()
+        m[np.arange(len(free)), free] += 1j * h
+        return (forward(m.reshape(-1, 3, 3)).imag / h).T
+
+    # which entries of M do the rotations excite? (sensitivity at M = I)
     p_init = np.eye(3).ravel()[free_all]
-    r0 = residuals(p_init, free_all)
-    h = 1e-4
-    sens = np.array(
-        [
-            np.linalg.norm(residuals(p_init + h * np.eye(len(free_all))[i], free_all) - r0) / h
-            for i in range(len(free_all))
-        ]
-    )
+    sens = np.linalg.norm(jacobian(p_init, free_all), axis=0)
     # a 1 % error in M_ij must move some rotation by > 10 floor_deg-ish to be determinable
     free = [f for f, s in zip(free_all, sens, strict=True) if s * 0.01 > floor_deg]
     undetermined = [PARAM_NAMES[f] for f in free_all if f not in free]
     if not free:
         raise ModelError("the rotations between labelled poses are too small to determine any gyro scale")
-    sol = least_squares(residuals, np.eye(3).ravel()[free], args=(free,), x_scale=0.01)
+    sol = least_squares(
+        residuals, np.eye(3).ravel()[free], jac=jacobian, args=(free,), x_scale=0.01, **_LSQ_TOL
+    )
     r = sol.fun
     dof = r.size - len(free)
     s2 = max(float(r @ r) / dof, floor_deg**2) if dof > 0 else floor_deg**2

@@ -148,9 +148,14 @@ class Model:
         """ModelError naming the first missing driver and what to record; lengths must be n."""
         for e in self.effects:
             for d in e.drivers:
+                if (d not in drivers or drivers[d] is None) and d not in DRIVER_HELP:
+                    valid = ", ".join(sorted({*DRIVER_HELP, *drivers}))
+                    raise ModelError(
+                        f"effect {e.name!r} reads unknown driver {d!r}; valid driver signals: {valid} "
+                        "(docs/effects.md; user signals are passed as drivers={...} to fit_model/diagnose)"
+                    )
                 if d not in drivers or drivers[d] is None:
-                    how = DRIVER_HELP.get(d, f"supply driver signal {d!r}")
-                    raise ModelError(f"effect {e.name!r} needs driver {d!r}: {how}")
+                    raise ModelError(f"effect {e.name!r} needs driver {d!r}: {DRIVER_HELP[d]}")
                 arr = np.asarray(drivers[d])
                 if arr.shape[0] != n:
                     raise ModelError(f"driver {d!r} has {arr.shape[0]} rows, expected {n}")

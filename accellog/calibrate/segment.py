@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from accellog.calibrate.label_check import check_labels, check_timestamps
 from accellog.calibrate.noise import integrated_autocorr_time, sem_autocorr
 from accellog.core.errors import InputError, ModelError
 from accellog.core.session import POSE_UP_VECTORS, ObsTable, PoseLabel, Session
@@ -94,35 +95,10 @@ def pose_name_for_up(up: np.ndarray) -> str:
 def _hold_slices(session: Session, trim_s: float, min_samples: int) -> list[tuple[PoseLabel, slice]]:
     """Validated (label, sample slice) for every hold, in time order."""
     where = session_where(session)
-    if not session.poses:
-        raise InputError(
-            "session has no pose labels: record it with a pose protocol, or use the orientation-free "
-            "fit (static intervals are then detected automatically)",
-            where=where,
-        )
-    if session.n == 0:
+    if session.n == 0 and session.poses:
         raise InputError("session has no samples", where=where)
-    labels = sorted(session.poses, key=lambda p: p.start_s)
-    seen: dict[tuple[str, int], PoseLabel] = {}
-    for p in labels:
-        key = (p.name, p.hold_index)
-        if key in seen:
-            q = seen[key]
-            raise InputError(
-                f"pose {p.name!r} (hold {p.hold_index}) is labelled twice: {q.start_s:.2f}-{q.end_s:.2f} s "
-                f"and {p.start_s:.2f}-{p.end_s:.2f} s",
-                where=where,
-            )
-        seen[key] = p
-        if not p.end_s > p.start_s:
-            raise InputError(f"pose {p.name!r} has end {p.end_s} s <= start {p.start_s} s", where=where)
-    for a, b in itertools.pairwise(labels):
-        if b.start_s < a.end_s - 1e-9:
-            raise InputError(
-                f"poses {a.name!r} ({a.start_s:.2f}-{a.end_s:.2f} s) and {b.name!r} "
-                f"({b.start_s:.2f}-{b.end_s:.2f} s) overlap",
-                where=where,
-            )
+    check_timestamps(session, where=where)
+    labels = checked_labels(session.poses, where)
     out = []
     for p in labels:
         up = np.asarray(p.up_sensor, float)
@@ -148,6 +124,38 @@ def _hold_slices(session: Session, trim_s: float, min_samples: int) -> list[tupl
             )
         out.append((p, sl))
     return out
+
+
+def checked_labels(poses: Sequence[PoseLabel], where: str) -> list[PoseLabel]:
+    """The labels in time order after the label-level checks (none, twice, empty, overlapping)."""
+    if not poses:
+        raise InputError(
+            "session has no pose labels: record it with a pose protocol, or use the orientation-free "
+            "fit (static intervals are then detected automatically)",
+            where=where,
+        )
+    labels = sorted(poses, key=lambda p: p.start_s)
+    seen: dict[tuple[str, int], PoseLabel] = {}
+    for p in labels:
+        key = (p.name, p.hold_index)
+        if key in seen:
+            q = seen[key]
+            raise InputError(
+                f"pose {p.name!r} (hold {p.hold_index}) is labelled twice: {q.start_s:.2f}-{q.end_s:.2f} s "
+                f"and {p.start_s:.2f}-{p.end_s:.2f} s",
+                where=where,
+            )
+        seen[key] = p
+        if not p.end_s > p.start_s:
+            raise InputError(f"pose {p.name!r} has end {p.end_s} s <= start {p.start_s} s", where=where)
+    for a, b in itertools.pairwise(labels):
+        if b.start_s < a.end_s - 1e-9:
+            raise InputError(
+                f"poses {a.name!r} ({a.start_s:.2f}-{a.end_s:.2f} s) and {b.name!r} "
+                f"({b.start_s:.2f}-{b.end_s:.2f} s) overlap",
+                where=where,
+            )
+    return labels
 
 
 def _check_units(session: Session, holds: list[tuple[PoseLabel, slice]]) -> None:
@@ -190,19 +198,34 @@ def check_static(
     std_factor * reference (and 4 quanta), or its mean leaves the hold's median by > mean_shift_g.
     """
     holds = holds if holds is not None else _hold_slices(session, trim_s, 2)
-    per_hold = []
-    for p, sl in holds:
-        t = session.t_s[sl]
-        edges = np.arange(t[0], t[-1], window_s)
-        starts = np.unique(np.searchsorted(t, edges))
-        mean, std, n = _window_stats(session.accel_g[sl], starts)
-        per_hold.append((p, t, starts, mean, std, n))
+    per_hold = [(p, *static_windows(session.t_s[sl], session.accel_g[sl], window_s)) for p, sl in holds]
+    moving_check(per_hold, quantum_g(session), session_where(session), std_factor, mean_shift_g)
+
+
+def static_windows(t: np.ndarray, acc: np.ndarray, window_s: float = 0.5) -> tuple:
+    """check_static's windows of one hold: (window start times, end times, mean, std, n)."""
+    edges = np.arange(t[0], t[-1], window_s)
+    starts = np.unique(np.searchsorted(t, edges))
+    mean, std, n = _window_stats(acc, starts)
+    ends = np.append(starts[1:] - 1, t.shape[0] - 1)
+    return t[starts], t[ends], mean, std, n
+
+
+def moving_check(
+    per_hold: list[tuple],
+    quantum: float,
+    where: str,
+    std_factor: float = MOVING_STD_FACTOR,
+    mean_shift_g: float = MOVING_MEAN_SHIFT_G,
+) -> None:
+    """check_static's verdict from every hold's static_windows (label first): the noise reference
+    is the median window std over the whole session."""
     all_std = np.concatenate([h[4][h[5] > 2] for h in per_hold]) if per_hold else np.zeros((0, 3))
     if all_std.shape[0] == 0:
         return
     ref = float(np.linalg.norm(np.median(all_std, axis=0)))
-    limit = max(std_factor * ref, 4.0 * quantum_g(session))
-    for p, t, starts, mean, std, n in per_hold:
+    limit = max(std_factor * ref, 4.0 * quantum)
+    for p, t_start, t_end, mean, std, n in per_hold:
         snorm = np.linalg.norm(std, axis=1)
         shift = np.linalg.norm(mean - np.median(mean, axis=0), axis=1)
         bad_std = (snorm > limit) & (n > 2)
@@ -210,17 +233,15 @@ def check_static(
         bad = bad_std | bad_mean
         if bad.any():
             j = int(np.argmax(bad))
-            t0 = t[starts[j]]
-            t1 = t[starts[j + 1] - 1] if j + 1 < len(starts) else t[-1]
             why = (
                 f"accel std {snorm[j]:.4g} g is {snorm[j] / max(ref, 1e-12):.0f}x the session noise {ref:.3g} g"
                 if bad_std[j]
                 else f"mean moved {shift[j]:.3g} g from the hold's median"
             )
             raise InputError(
-                f"pose {p.name!r} is labelled static but moves at t = {t0:.2f}-{t1:.2f} s: {why}; "
-                "relabel or trim the hold",
-                where=session_where(session),
+                f"pose {p.name!r} is labelled static but moves at t = {t_start[j]:.2f}-{t_end[j]:.2f} s: "
+                f"{why}; relabel or trim the hold",
+                where=where,
             )
 
 
@@ -231,6 +252,7 @@ def _checked_holds(
     holds = _hold_slices(session, trim_s, min_samples)
     if check_units:
         _check_units(session, holds)
+        check_labels(session, holds, where=session_where(session))
     if check_moving:
         check_static(session, holds)
     return holds

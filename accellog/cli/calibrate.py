@@ -12,16 +12,8 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.calibrate.calibration import write_json_atomic
-from accellog.calibrate.obs_file import obs_to_dict
-from accellog.calibrate.segment import pose_stats
 from accellog.cli.app import app
 from accellog.core.errors import InputError
-from accellog.core.session import Session
-from accellog.flows.pipeline import run_pipeline
-from accellog.flows.stages import load_input, run_apply, run_drift, run_evaluate, run_fit
-from accellog.present import tables as report
-from accellog.present import views
 
 _console = Console()
 
@@ -32,15 +24,21 @@ RrdOpt = Annotated[
 ]
 
 
+def _save_outcome(out, data, output: Path, rrd: Path | None, json_out: bool, inputs: tuple) -> bool:
+    """Write the .rrd (if asked) first, so that an error there leaves no calibration behind, then the
+    calibration (never over one of ``inputs``); with --json print the result; True when printed."""
+    if rrd is not None:
+        out.write_rrd(rrd, data)
+    out.cal.save(output, inputs=inputs)
+    if json_out:
+        _echo_json({**out.to_dict(), "output": str(output)})
+    return json_out
+
+
 def _echo_json(data) -> None:
+    from accellog.present import tables as report
+
     typer.echo(report.json_text(data))
-
-
-def _recording(path: Path):
-    """A RunRecording saving to path (written to a temporary name, renamed when complete)."""
-    from accellog.present.rrd.recording import RunRecording
-
-    return RunRecording(f"save:{path}")
 
 
 @app.command(rich_help_panel="2. Calibrate")
@@ -54,40 +52,23 @@ def segment(
     json_out: JsonOpt = False,
 ) -> None:
     """Per-pose statistics (mean, std, autocorrelation-aware sem) and windowed observations."""
-    data = load_input(session)
-    if not isinstance(data, Session):
-        raise InputError("segment needs a recorded session (samples), not a pose table", where=str(session))
-    stats = pose_stats(data, trim_s=trim_s)
-    from accellog.calibrate.segment import observations
+    from accellog.calibrate.calibration import write_json_atomic
+    from accellog.flows.static_stages import run_segment
+    from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs
 
-    obs = observations(data, window_s=window_s, trim_s=trim_s)
+    check_outputs([output], [session], mkdir=True)
+    res = run_segment(session, window_s=window_s, trim_s=trim_s)
     if output is not None:
-        write_json_atomic(output, obs_to_dict(obs))
+        write_json_atomic(output, res.obs_dict(), inputs=(session,))
     if json_out:
-        _echo_json(
-            {"poses": [p.to_dict() for p in stats], "n_observations": obs.n, "output": str(output or "")}
-        )
+        _echo_json(res.to_dict(str(output or "")))
         return
-    from rich.table import Table
-
-    t = Table(title=f"{session}: {len(stats)} holds, {obs.n} observations of ~{window_s:g} s")
-    t.add_column("pose")
-    t.add_column("t (s)")
-    t.add_column("n", justify="right")
-    for ax in "xyz":
-        t.add_column(f"{ax} mean ± sem (g)", justify="right")
-    t.add_column("tau (samples)", justify="right")
-    t.add_column("T (degC)", justify="right")
-    for p in stats:
-        t.add_row(
-            p.name,
-            f"{p.start_s:.1f}-{p.end_s:.1f}",
-            str(p.n),
-            *(report.fmt_pm(float(m), float(s)) for m, s in zip(p.mean_g, p.sem_g, strict=True)),
-            "/".join(f"{x:.1f}" for x in p.tau_samples),
-            "-" if p.temp_degC is None else f"{p.temp_degC:.2f}",
+    _console.print(
+        report.segment_table(
+            f"{session}: {len(res.stats)} holds, {res.obs.n} observations of ~{window_s:g} s", res.stats
         )
-    _console.print(t)
+    )
 
 
 @app.command(rich_help_panel="2. Calibrate")
@@ -118,8 +99,24 @@ def fit(
     trim_s: Annotated[float, typer.Option(help="Trim at both ends of every hold (s).")] = 0.5,
     json_out: JsonOpt = False,
     rrd: RrdOpt = None,
+    uncertainty: Annotated[
+        str,
+        typer.Option(
+            help="1-sigma from: 'noise' (window noise only), 'between_hold' (plus the scatter between "
+            "holds, as a variance component) or 'jackknife' (leave one hold out)."
+        ),
+    ] = "noise",
+    relabel: Annotated[
+        bool,
+        typer.Option("--relabel", help="Replace hold labels that contradict the measured gravity direction."),
+    ] = False,
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma)."""
+    from accellog.flows.stages import load_input, run_fit
+    from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs
+
+    check_outputs([output, rrd], [session, effects_file], mkdir=True)
     data = load_input(session)
     out = run_fit(
         data,
@@ -132,17 +129,10 @@ def fit(
         local_gravity_mps2=local_gravity,
         window_s=window_s,
         trim_s=trim_s,
+        uncertainty=uncertainty,
+        relabel=relabel,
     )
-    out.cal.save(output)
-    if rrd is not None:
-        with _recording(rrd) as rec:
-            if isinstance(data, Session):
-                views.log_session(rec, data, calibrations={out.fit.model.name: out.cal})
-            views.log_fit(rec, out)
-    if json_out:
-        d = out.to_dict()
-        d["output"] = str(output)
-        _echo_json(d)
+    if _save_outcome(out, data, output, rrd, json_out, inputs=(session, effects_file)):
         return
     _console.print(report.params_table(out.cal))
     for w in out.fit.warnings:
@@ -164,90 +154,31 @@ def evaluate_cmd(
 
     A session with several labelled holds is evaluated window by window (per-hold mean residual,
     RMS, chi2 vs the noise estimate, displacement at --at-s extrapolated per hold from rest)."""
-    from accellog.calibrate.calibration import load_calibration
+    from accellog.flows.static_stages import run_evaluate_report
+    from accellog.present import tables as report
 
-    cals = [load_calibration(c) for c in cal]
-    names = [c.model_spec.get("name", "") for c in cals]
-    labels = [p.stem for p in cal] if len(set(names)) < len(names) else None  # tell same-model files apart
-    data = load_input(test)
-    if isinstance(data, Session) and len(data.poses) > 1:
-        _evaluate_holds(
-            data, cals, at_s, json_out, until_s is not None or max_samples is not None, rrd, labels
-        )
-        return
-    evs = run_evaluate(
-        data if isinstance(data, Session) else test,
-        cals,
-        until_s=until_s,
-        max_samples=max_samples,
-        labels=labels,
-    )
+    rep = run_evaluate_report(test, cal, until_s=until_s, max_samples=max_samples, at_s=at_s)
     if rrd is not None:
-        with _recording(rrd) as rec:
-            if isinstance(data, Session):
-                views.log_session(
-                    rec, data, calibrations={e.label: c for e, c in zip(evs[1:], cals, strict=True)}
-                )
-            views.log_evaluations(rec, evs)
+        rep.write_rrd(rrd)
     if json_out:
-        _echo_json({"raw": evs[0].to_dict(), "calibrated": [e.to_dict() for e in evs[1:]]})
+        _echo_json(rep.to_dict())
         return
+    if rep.poses:
+        report.print_tables([report.pose_eval_table(p) for p in rep.poses], _console)
+        for line in report.pose_eval_summary(rep.poses, at_s):
+            _console.print(line)
+        return
+    evs = rep.single
     report.print_tables([report.static_means_table(evs), report.displacement_table(evs, at_s=at_s)], _console)
     drifted = [e for e in evs if e.drift_applied]
     if drifted:
+        title = f"after the drift model at {at_s:g} s"
         report.print_tables(
-            [
-                report.displacement_table(
-                    drifted, at_s=at_s, drift=True, title=f"after the drift model at {at_s:g} s"
-                )
-            ],
-            _console,
+            [report.displacement_table(drifted, at_s=at_s, drift=True, title=title)], _console
         )
     for e in evs:
         for n in e.notes:
             _console.print(f"[dim]{e.label}: {n}[/]")
-
-
-def _evaluate_holds(
-    session: Session,
-    cals: list,
-    at_s: float,
-    json_out: bool,
-    cut: bool,
-    rrd: Path | None = None,
-    labels: list[str] | None = None,
-) -> None:
-    """`evaluate` on a multi-pose session: evaluate_poses for the raw reading and each calibration;
-    --rrd: the session (raw and calibrated) and the per-pose residual tables."""
-    from accellog.navigate.evaluate import evaluate_poses
-
-    if cut:
-        raise InputError(
-            "--until-s/--max-samples cut a single static hold; this session has "
-            f"{len(session.poses)} labelled holds",
-            where=session.path,
-        )
-    g = cals[0].local_gravity_mps2 if cals else None
-    pes = [evaluate_poses(session, None, at_s=at_s, local_gravity_mps2=g)]
-    pes += [evaluate_poses(session, c, at_s=at_s) for c in cals]
-    if rrd is not None:
-        with _recording(rrd) as rec:
-            views.log_session(
-                rec, session, calibrations=dict(zip(labels or [p.label for p in pes[1:]], cals, strict=True))
-            )
-            md = "\n".join(views.table_markdown(report.pose_eval_table(p)) for p in pes)
-            rec.log_document("results/poses", md)
-    if json_out:
-        _echo_json({"kind": "poses", "raw": pes[0].to_dict(), "calibrated": [p.to_dict() for p in pes[1:]]})
-        return
-    report.print_tables([report.pose_eval_table(p) for p in pes], _console)
-    for p in pes:
-        d = p.to_dict()[f"displacement_{at_s:g}s_m"]
-        _console.print(
-            f"{p.label}: RMS {p.rms_g * p.mps2_per_unit:.4g} m/s^2, chi2/dof {p.chi2 / max(p.dof, 1):.3g}; "
-            f"worst hold displacement at {at_s:g} s (from rest, extrapolated) "
-            + ", ".join(f"{a} {v:+.3g} m" for a, v in zip("xyz", d, strict=True))
-        )
 
 
 @app.command(rich_help_panel="2. Calibrate")
@@ -263,18 +194,14 @@ def drift(
     rrd: RrdOpt = None,
 ) -> None:
     """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
+    from accellog.flows.stages import load_input, run_drift
+    from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs
+
+    check_outputs([output, rrd], [static, cal], mkdir=True)
     data = load_input(static)
     out = run_drift(data, cal, until_s=until_s, max_samples=max_samples)
-    out.cal.save(output)
-    if rrd is not None:
-        with _recording(rrd) as rec:
-            if isinstance(data, Session):
-                views.log_session(rec, data, calibrations={"calibrated + drift model": out.cal})
-            views.log_evaluations(rec, [out.fit_eval])
-    if json_out:
-        d = out.to_dict()
-        d["output"] = str(output)
-        _echo_json(d)
+    if _save_outcome(out, data, output, rrd, json_out, inputs=(static, cal)):
         return
     rows = [("calibrated", out.fit_eval.disp_end_m)]
     if out.fit_eval.disp_end_drift_m is not None:
@@ -296,9 +223,24 @@ def apply(
             "--ros2", help="Also write a ROS 2 bag (sensor_msgs/Imu with covariances): OUT.mcap or a dir."
         ),
     ] = None,
+    other_device: Annotated[
+        str,
+        typer.Option(help="A calibration of another device (device keys differ): 'refuse' or 'warn'."),
+    ] = "refuse",
 ) -> None:
     """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
-    p = run_apply(session, cal, output, ros2=ros2)
+    import warnings
+
+    from accellog.flows.stages import OtherDeviceWarning, run_apply
+    from accellog.store.atomic import check_outputs
+
+    check_outputs([output, ros2], [session, cal])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", OtherDeviceWarning)
+        p = run_apply(session, cal, output, ros2=ros2, other_device=other_device)
+    for w in caught:
+        if issubclass(w.category, OtherDeviceWarning):
+            _console.print(f"[yellow]warning: {w.message}[/]")
     if ros2 is not None:
         _console.print(f"wrote {ros2}")
     _console.print(f"wrote {p}")
@@ -315,17 +257,16 @@ def run(
     rrd: RrdOpt = None,
 ) -> None:
     """Run a pipeline file (segment -> fit -> evaluate -> drift -> report)."""
+    from accellog.flows.pipeline import run_pipeline
+    from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs
+
+    check_outputs([rrd], [pipeline, *sessions], mkdir=True)
+    if output_dir is not None and output_dir.exists() and not output_dir.is_dir():
+        raise InputError("--output-dir is an existing file, not a folder", where=str(output_dir))
     res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir)
     if rrd is not None:
-        with _recording(rrd) as rec:
-            for name, fo in res.fits.items():
-                views.log_fit(rec, fo, name)
-            views.log_evaluations(rec, res.evaluations)
-            if res.drift_evaluations:
-                views.log_evaluations(rec, res.drift_evaluations, truth_label=None)
-            rec.log_document(
-                "results/tables", "\n".join(views.table_markdown(t) for t in res.tables() if t is not None)
-            )
+        res.write_rrd(rrd)
     if json_out:
         _echo_json(res.to_dict())
         return
@@ -348,41 +289,16 @@ def integrate(
 ) -> None:
     """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
     local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
-    import io
+    from accellog.flows.static_stages import run_integrate
+    from accellog.present import tables as report
+    from accellog.store.atomic import check_outputs, write_text_atomic
 
-    import numpy as np
-
-    from accellog.calibrate.calibration import load_calibration
-    from accellog.core.timeseries import cumtrapz
-
-    data = load_input(session)
-    if not isinstance(data, Session):
-        raise InputError("integrate needs a recorded session (samples), not a pose table", where=str(session))
-    c = load_calibration(cal) if cal is not None else None
-    ev = run_evaluate(data, [c] if c else [], include_raw=c is None, until_s=until_s)[-1]
-    t, d = ev.t_s, ev.disp_series_m
-    v = cumtrapz(t, ev.resid_series_mps2)  # the residual acceleration (m/s^2) is what integrates to d
-    buf = io.StringIO()
-    buf.write("t_s,vx_mps,vy_mps,vz_mps,x_m,y_m,z_m\n")
-    np.savetxt(buf, np.column_stack([t, v, d]), delimiter=",", fmt="%.9g")
-    tmp = output.with_name(f".{output.name}.tmp")
-    try:
-        tmp.write_text(buf.getvalue())
-        tmp.replace(output)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise InputError(f"cannot write the CSV: {exc.strerror or exc}", where=str(output)) from None
-    summary = {
-        "session": str(session),
-        "calibration": str(cal) if cal else None,
-        "label": ev.label,
-        "t_end_s": ev.t_end_s,
-        "disp_end_m": ev.disp_end_m.tolist(),
-        "displacement_at_s": {f"{ts:g}": ev.disp_at(ts).tolist() for ts in ev.times_s},
-        "output": str(output),
-    }
+    check_outputs([output], [session, cal])
+    res = run_integrate(session, cal, until_s=until_s)
+    write_text_atomic(output, res.csv_text(), inputs=(session, cal))
     if json_out:
-        _echo_json(summary)
+        _echo_json(res.to_dict(str(output)))
         return
+    ev = res.evaluation
     report.print_tables([report.displacement_table([ev], at_s=float(ev.times_s[-1]))], _console)
-    _console.print(f"wrote {output} ({len(t)} rows)")
+    _console.print(f"wrote {output} ({len(ev.t_s)} rows)")

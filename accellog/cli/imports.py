@@ -11,7 +11,6 @@ from rich.console import Console
 from rich.table import Table
 
 from accellog.cli.app import app
-from accellog.core.errors import InputError
 from accellog.core.session import Session
 
 import_app = typer.Typer(
@@ -51,17 +50,18 @@ def _facts(session: Session, src: Path, out: Path) -> dict:
     }
 
 
-def _check_out(out: Path) -> None:
-    if out.exists() and out.is_dir():
-        raise InputError("output is a directory", where=str(out))
-    if not out.parent.exists():
-        raise InputError("output folder does not exist", where=str(out))
+def _check_out(out: Path, src: Path) -> None:
+    """Refuse an output that is a directory, in a missing folder, or the input itself
+    (accellog.store.atomic.check_output: same file by samefile or resolved path)."""
+    from accellog.store.atomic import check_output
+
+    check_output(out, [src])
 
 
 def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: int) -> None:
     from accellog.store.writer import write_session
 
-    _check_out(out)
+    _check_out(out, src)
     write_session(out, session, batch_size=batch_size)
     _present(_facts(session, src, out), src, out, as_json)
 
@@ -175,7 +175,7 @@ def import_csv_cmd(
         delimiter=delimiter,
         comment=comment,
     )
-    _check_out(out)
+    _check_out(out, file)
     result = import_csv_to_mcap(file, out, opts, batch_size=batch_size)
     _present(result.to_dict(), file, out, as_json)
 

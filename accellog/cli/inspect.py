@@ -13,10 +13,8 @@ import time
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.console import Console
-from rich.table import Table
 
 from accellog.cli.app import app
 from accellog.core.errors import InputError
@@ -35,103 +33,18 @@ UpOpt = Annotated[
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON on stdout instead of tables.")]
 
 
-def _load_session(path: Path):
-    if not path.is_file():
-        raise InputError("no such file", where=str(path))
-    from accellog.core.session import Session
-    from accellog.flows.stages import load_input
-
-    data = load_input(path)
-    if not isinstance(data, Session):
-        raise InputError("replay needs a recorded session with samples, not a pose table", where=str(path))
-    return data
-
-
-def _sink(rrd: Path | None, rerun: str | None) -> str | None:
-    if rrd is not None and rerun is not None:
-        raise InputError("give either --rrd FILE or --rerun spawn|connect URL, not both")
-    if rrd is not None:
-        if rrd.suffix.lower() != ".rrd":
-            raise InputError("the recording file must end in .rrd", where=str(rrd))
-        return f"save:{rrd}"
-    if rerun is not None:
-        opt = rerun.strip()
-        head, _, rest = opt.partition(" ")
-        if head == "connect" and rest.strip():
-            return f"connect:{rest.strip()}"
-        if opt in ("spawn", "connect") or opt.startswith("connect:"):
-            return opt
-        raise InputError(f"--rerun {rerun!r}: use 'spawn', 'connect' or 'connect URL'")
-    return None
-
-
-def _table(res, title: str) -> Table:
-    t = Table(title=title)
-    for c in ("track", "x (m)", "y (m)", "z (m)", "|d| (m)", "drift model"):
-        t.add_column(c, justify="left" if c in ("track", "drift model") else "right")
-    for tr in res.tracks:
-        d = tr.final_m
-        t.add_row(
-            tr.label,
-            f"{d[0]:+.3f}",
-            f"{d[1]:+.3f}",
-            f"{d[2]:+.3f}",
-            f"{np.linalg.norm(d):.3f}",
-            "applied" if tr.disp_end_drift_m is not None else "-",
-        )
-    return t
-
-
-def _run(
-    session: Path,
-    cal: list[Path] | None,
-    sink: str | None,
-    *,
-    speed: str | None,
-    up: str | None,
-    raw: bool,
-    label: list[str] | None,
-    compare_mode: bool,
-):
-    from accellog.flows.replay import compare as compare_fn
-    from accellog.flows.replay import replay as replay_fn
-    from accellog.present.rrd.recording import RunRecording
-
-    s = _load_session(session)
-    cals = list(cal or [])
-    rec = (
-        RunRecording(sink, recording_id=f"accellog-{'compare' if compare_mode else 'replay'}")
-        if sink
-        else None
-    )
-    try:
-        if compare_mode:
-            res = compare_fn(s, cals, labels=label, recording=rec, up_sensor=up, include_raw=raw)
-        else:
-            res = replay_fn(
-                s, cals=cals, labels=label, speed=speed, recording=rec, up_sensor=up, include_raw=raw
-            )
-    except BaseException:
-        if rec is not None:
-            rec.abort()
-        raise
-    if rec is not None:
-        rec.close()
-        res.rrd = str(sink)[5:] if str(sink).startswith("save:") else sink
-        msg = rec.report()
-        if msg:
-            _console.print(f"[yellow]{msg}[/]")
-    return res
-
-
 def _print_result(res, title: str, json_out: bool) -> None:
     """Strict JSON (NaN -> null) on stdout, or the final-displacement table, notes and .rrd path."""
+    from accellog.present.tables import replay_table
+
+    if res.sink_report:
+        _console.print(f"[yellow]{res.sink_report}[/]")
     if json_out:
-        from accellog.calibrate.calibration import dumps
+        from accellog.core.jsonio import dumps
 
         typer.echo(dumps(res.to_dict(), indent=2))
         return
-    _console.print(_table(res, title))
+    _console.print(replay_table(res, title))
     for tr in res.tracks:
         for n in tr.notes:
             _console.print(f"[dim]{n}[/]")
@@ -153,11 +66,12 @@ def replay(
 ) -> None:
     """Feed a session through online correction + integration in sensor time, logging raw and
     calibrated accel and displacement tracks to a live viewer or an .rrd."""
+    from accellog.flows.inspect import run_replay, sink_option
     from accellog.flows.replay import parse_speed
 
     parse_speed(speed)  # fail early on a bad value
-    sink = _sink(rrd, rerun)
-    res = _run(session, cal, sink, speed=speed, up=up, raw=raw, label=label, compare_mode=False)
+    sink = sink_option(rrd, rerun)
+    res = run_replay(session, cal, sink, speed=speed, up=up, raw=raw, label=label, compare_mode=False)
     title = f"{session.name}: {res.n} samples, {res.duration_s:.1f} s replayed in {res.wall_s:.1f} s"
     _print_result(res, title, json_out)
 
@@ -174,9 +88,13 @@ def compare(
 ) -> None:
     """Displacement tracks of several calibrations of one test session side by side, with their
     final drift (terminal table, --json, and a document in the .rrd)."""
+    from accellog.flows.inspect import run_replay, sink_option
+
     if not cal:
         raise InputError("compare needs at least one --cal calibration.json")
-    res = _run(test, cal, _sink(rrd, None), speed="max", up=up, raw=raw, label=label, compare_mode=True)
+    res = run_replay(
+        test, cal, sink_option(rrd, None), speed="max", up=up, raw=raw, label=label, compare_mode=True
+    )
     _print_result(res, f"{test.name}: final displacement after {res.duration_s:.1f} s", json_out)
 
 

@@ -81,18 +81,45 @@ def diagnose(
         Path | None,
         typer.Option("--rrd", help="Also write a Rerun recording: residuals per pose, verdict, candidates."),
     ] = None,
+    heldout: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Another session of the same sensor (repeatable): candidates are judged by how well they "
+            "predict it (else by blocked validation over temperature and time within the session)."
+        ),
+    ] = None,
+    detect_window_s: Annotated[
+        float,
+        typer.Option(
+            help="Hand-held sessions (no pose labels): static-detector variance window (s).", min=0.01
+        ),
+    ] = 1.0,
+    threshold: Annotated[
+        float | None,
+        typer.Option(
+            help="Hand-held sessions: detector threshold factor k (still when variance < k x reference); "
+            "default: swept 2..10, best by the orientation-free residual.",
+            min=1.0,
+        ),
+    ] = None,
 ) -> None:
-    """Fit a model, compare it with the noise floor and rank the effects that could be missing."""
+    """Fit a model, compare it with the noise floor and rank the effects that could be missing.
+    A session without pose labels (hand-held) is diagnosed on its detected static intervals with
+    the orientation-free gravity-norm residual."""
     from accellog.calibrate import diagnose as dg
     from accellog.calibrate.model import build_model
 
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
     from accellog.calibrate.segment import observations
-    from accellog.core.session import ObsTable
-    from accellog.flows.stages import load_input
+    from accellog.core.session import ObsTable, Session
+    from accellog.flows.stages import as_session, load_input
 
     data = load_input(session)  # pose tables (per-pose means) and observation files: ObsTable
+    if isinstance(data, Session) and not data.poses:
+        return _diagnose_handheld(
+            data, session, model, add, effects_file, window_s, detect_window_s, threshold, as_json
+        )
     m = build_model(model, add=add or [], effects_file=effects_file)
     host = None
     if isinstance(data, ObsTable):
@@ -101,8 +128,11 @@ def diagnose(
         obs = observations(data, window_s=window_s)
         if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
             host = (data.t_s, data.host_time_s)
-    d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host)
+
+    helds = [observations(as_session(h, "--heldout"), window_s=window_s) for h in heldout or []]
+    d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host, heldout=helds)
     if rrd is not None:
+        from accellog.present.residual_views import log_diagnosis_residuals
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_diagnosis, log_session
 
@@ -110,6 +140,7 @@ def diagnose(
             if not isinstance(data, ObsTable):
                 log_session(rec, data)
             log_diagnosis(rec, d, obs)
+            log_diagnosis_residuals(rec, d, obs)
             rec.log_series(
                 "residuals/windows",
                 np.asarray(obs.t_s, float),
@@ -125,6 +156,30 @@ def diagnose(
     _print(d, str(session))
 
 
+def _diagnose_handheld(
+    data, session, model, add, effects_file, window_s, detect_window_s, threshold, as_json
+):
+    """diagnose on an unlabelled session: detected static intervals, gravity-norm residual."""
+    from accellog.calibrate.handheld import HANDHELD_START, detect_holds, diagnose_handheld
+    from accellog.calibrate.model import build_model
+
+    name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
+    m = build_model(name, add=add or [], effects_file=effects_file)
+    obs, det = detect_holds(data, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)
+    d = diagnose_handheld(obs, m)
+    if as_json:
+        out = d.to_dict()
+        out.update(session=str(session), handheld=True, detected=det.to_dict())
+        print(json_text(out))
+        return
+    con = Console(width=160)
+    con.print(
+        f"[bold]{session}[/]: no pose labels: {len(det.intervals)} static intervals detected "
+        f"(window {det.window_s:g} s, threshold {det.threshold if det.threshold is not None else 'swept 2..10'})"
+    )
+    _print(d, str(session))
+
+
 def _print(d, source: str) -> None:
     con = Console(width=160)
     f = d.fit
@@ -135,7 +190,12 @@ def _print(d, source: str) -> None:
     for n, v, s, u in zip(f.param_names, f.theta, f.sigma, f.param_units, strict=True):
         t.add_row(n, f"{v:.6g}", f"{s:.2g}", u)
     con.print(t)
-    t = Table(title="candidate effects (model + effect)")
+    if d.choice is not None:
+        con.print(
+            f"out-of-sample evidence ({d.choice.evidence}): base chi2/eq {d.choice.base_score.chi2_per_eq:.3g}; "
+            + escape(d.choice.reason)
+        )
+    t = Table(title="candidate effects (model + effect; OOS = held-out or blocked validation)")
     for c in (
         "#",
         "effect",
@@ -144,6 +204,7 @@ def _print(d, source: str) -> None:
         "chi2/dof",
         "dBIC",
         "CV chi2/eq",
+        "OOS chi2/eq",
         "p",
         "reason / what to record",
     ):
@@ -157,6 +218,7 @@ def _print(d, source: str) -> None:
             _fmt(c.get("chi2_dof")),
             _fmt(c.get("delta_bic"), ".1f"),
             _fmt(c.get("cv_chi2_per_eq")),
+            _fmt(c.get("oos_chi2_per_eq")),
             _fmt(c.get("p_value"), ".2g"),
             escape(c.get("reason", "")),
         )
@@ -185,7 +247,11 @@ def workbench_cmd(
         Path, typer.Argument(help="Calibration session with labelled static holds (.mcap or CSV).")
     ],
     heldout: Annotated[
-        Path | None, typer.Option(help="Another session of the same sensor: judges each step out of sample.")
+        list[Path] | None,
+        typer.Option(
+            help="Another session of the same sensor (repeatable): each candidate effect is judged by how "
+            "well it predicts it, so effects that do not transfer are not chosen."
+        ),
     ] = None,
     static: Annotated[
         Path | None, typer.Option(help="A static test session: |displacement| after --at-s per step.")
@@ -226,7 +292,8 @@ def workbench_cmd(
             "the workbench needs a recorded session (samples), not a pose table", where=str(session)
         )
     obs = observations(data)
-    held = observations(as_session(heldout, "--heldout")) if heldout is not None else None
+    helds = [observations(as_session(h, "--heldout")) for h in heldout or []]
+    held = helds[0] if helds else None
     test = as_session(static, "--static") if static is not None else None
     host = None
     if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
@@ -235,17 +302,28 @@ def workbench_cmd(
     found = discover(
         obs,
         model,
+        heldout=helds,
         max_steps=max_steps,
         effects_file=effects_file,
         host_time=host,
-        on_step=lambda d: con.print(d.verdict),
+        on_step=lambda d: con.print(
+            f"step {d.model.name}: {escape(d.choice.reason if d.choice else d.verdict)}"
+        ),
     )
     rows = ladder_rows(
-        data, obs, steps_for(found), heldout=held, static_test=test, effects_file=effects_file, at_s=at_s
+        data,
+        obs,
+        steps_for(found),
+        heldout=held,
+        static_test=test,
+        effects_file=effects_file,
+        at_s=at_s,
+        gyro=output is not None or rrd is not None,  # the gyro goes into the calibration file / .rrd
     )
     if output is not None:
         rows[-1]["fit"].cal.save(output)
     if rrd is not None:
+        from accellog.present.residual_views import log_workbench_residuals
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_diagnosis, log_session
 
@@ -254,23 +332,14 @@ def workbench_cmd(
             for i, d in enumerate(found.diagnoses, 1):
                 log_diagnosis(rec, d, obs, label=f"step {i}")
             log_ladder(rec, rows, obs, at_s=at_s)
+            log_workbench_residuals(rec, obs, found.diagnoses[0].fit, rows[-1]["fit"].fit)
     if as_json:
-        print(
-            json_text(
-                {
-                    "session": str(session),
-                    "start": found.start,
-                    "added": found.added,
-                    "final_model": found.final_model,
-                    "verdicts": [d.verdict for d in found.diagnoses],
-                    "advice": found.diagnoses[-1].advice,
-                    "ladder": ladder_json(rows),
-                }
-            )
-        )
+        print(json_text({"session": str(session), **found.to_json(), "ladder": ladder_json(rows)}))
         return
-    for a in found.diagnoses[-1].advice:
-        con.print(f"advice: {a}")
+    ok = found.decided and found.transfers is not False and not found.diagnoses[-1].missing
+    con.print(("[bold green]OK[/] " if ok else "[bold red]CHECK[/] ") + escape(found.verdict))
+    for a in found.advice:
+        con.print(f"advice: {escape(a)}")
     con.print(ladder_table(rows, at_s=at_s))
     if output is not None:
         con.print(f"wrote {output} ({found.final_model})")

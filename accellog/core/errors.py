@@ -29,3 +29,8 @@ class DeviceError(AccellogError):
     """The sensor or bus misbehaves (wrong WHO_AM_I, no magnetometer, persistent I2C errors)."""
 
     exit_code = 3
+
+
+class DataIntegrityWarning(UserWarning):
+    """Part of a file failed its integrity check (CRC) and was skipped or is unverified; the
+    message names where. The CLI prints it as one line on stderr."""

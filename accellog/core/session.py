@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from accellog.core.device import DeviceKey
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 POSE_UP_VECTORS: dict[str, tuple[float, float, float]] = {
@@ -49,11 +50,24 @@ class SessionMeta:
     host: str = ""
     protocol: str = ""
     start_time_unix_ns: int = 0
+    ak8963_wia: int | None = None
+    """AK8963 WIA register (0x48) when the magnetometer was read (device identity)."""
+    serial: str = ""
+    """User-given serial/name of the sensor (device identity; see accellog.core.device)."""
+    i2c_bus: str = ""
+    """Bus the chip was read on ('/dev/i2c-1', 'emulator'); '' for imports."""
+    i2c_address: int | None = None
+    """7-bit I2C address of the MPU (0x68/0x69)."""
     extra: dict[str, str] = field(default_factory=dict)
     """Free-form string facts (e.g. 'scenario' JSON of a simulation, importer notes)."""
 
     def replace(self, **changes) -> SessionMeta:
         return dataclasses.replace(self, **changes)
+
+    @property
+    def device(self) -> DeviceKey:
+        """The device key (WHO_AM_I, AK8963 WIA, serial, bus, address, host) of this session."""
+        return DeviceKey.from_meta(self)
 
 
 @dataclass(frozen=True)
@@ -78,7 +92,8 @@ class Event:
     """Something that happened while recording: every lost sample is accounted for here.
 
     kind: 'gap' (samples missing between sample indices), 'fifo_overflow', 'misaligned',
-    'i2c_error', 'retry', 'note', 'recovered' (reader salvaged a truncated file), 'pose_prompt'.
+    'i2c_error', 'retry', 'note', 'recovered' (reader salvaged a truncated file), 'pose_prompt',
+    'damaged' (reader skipped a chunk that failed its CRC; lost_samples counts its IMU samples).
     """
 
     t_s: float

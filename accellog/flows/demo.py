@@ -24,7 +24,40 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from accellog.calibrate.segment import observations
 from accellog.flows.simulate import Scenario, simulate
+from accellog.flows.stages import run_drift, run_evaluate, run_fit
+from accellog.flows.workbench import discover, ladder_rows, ladder_table, log_ladder, steps_for
+from accellog.navigate.track_eval import run_session_tracks
+from accellog.present.rrd.entities import (
+    DOCS,
+    LADDER,
+    MAIN_TIMELINE,
+    POSES_ACTIVE,
+    RESIDUALS,
+    TEMPERATURE,
+    TRACKS,
+    WORLD_TRACKS,
+    slug_path,
+)
+from accellog.present.rrd.layout import time_panel
+from accellog.present.rrd.recording import RunRecording
+from accellog.present.tables import (
+    displacement_table,
+    drift_table,
+    params_table,
+    print_tables,
+    static_means_table,
+)
+from accellog.present.views import (
+    log_diagnosis,
+    log_evaluations,
+    log_fit,
+    log_session,
+    log_track_runs,
+    table_markdown,
+)
+from accellog.store.reader import read_session
 
 CHIP_SEED = 7
 """One emulated chip for every session of the demo (its error parameters come from this seed)."""
@@ -93,7 +126,7 @@ def _sessions(out: Path, quick: bool) -> dict[str, Path]:
     paths = {}
     for name, sc in specs.items():
         p = out / f"{name}.mcap"
-        simulate(sc, p)
+        simulate(sc, p, force=True)  # the demo regenerates its own folder
         paths[name] = p
     return paths
 
@@ -110,18 +143,6 @@ def run_demo(
 
     first_tab: the blueprint tab shown when the recording opens (0 static test, 1 calibration,
     2 workbench, 3 robot)."""
-    from accellog.calibrate.segment import observations
-    from accellog.flows.stages import run_drift, run_evaluate, run_fit
-    from accellog.flows.workbench import discover, ladder_rows, ladder_table, steps_for
-    from accellog.navigate.track_eval import run_session_tracks
-    from accellog.present.tables import (
-        displacement_table,
-        drift_table,
-        params_table,
-        print_tables,
-        static_means_table,
-    )
-    from accellog.store.reader import read_session
 
     con = console or Console(width=None if sys.stdout.isatty() else 120)
     out = Path(out_dir)
@@ -231,17 +252,6 @@ def _robot_table(runs, robot, note: str) -> Table:
 
 def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
     """The demo's recording of res at path, opening on tab first_tab (see demo_blueprint)."""
-    from accellog.flows.workbench import log_ladder
-    from accellog.present.rrd.recording import RunRecording
-    from accellog.present.tables import drift_table
-    from accellog.present.views import (
-        log_diagnosis,
-        log_evaluations,
-        log_fit,
-        log_session,
-        log_track_runs,
-        table_markdown,
-    )
 
     S, diags, obs = res.sessions, res.diagnoses, res.workbench_obs
     labels = [e.label for e in res.evals] + ["Model 3 + drift model", "truth (at rest)"]
@@ -268,8 +278,6 @@ def _whole_range_plot(**kw):
     length and share the sensor_time timeline, so a cursor-relative window would hide data)."""
     import rerun.blueprint as rrb
 
-    from accellog.present.rrd.entities import MAIN_TIMELINE
-
     whole = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
     return rrb.TimeSeriesView(
         time_ranges=rrb.VisibleTimeRange(MAIN_TIMELINE, start=whole.start, end=whole.end),
@@ -283,18 +291,6 @@ def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3)
     robot); test_labels: the static test's tracks, one auto-scaled plot each (m); n_diagnoses: the
     workbench steps logged at /docs/workbench/step_{i}, i = 1..n_diagnoses."""
     import rerun.blueprint as rrb
-
-    from accellog.present.rrd.entities import (
-        DOCS,
-        LADDER,
-        POSES_ACTIVE,
-        RESIDUALS,
-        TEMPERATURE,
-        TRACKS,
-        WORLD_TRACKS,
-        slug_path,
-    )
-    from accellog.present.rrd.layout import time_panel
 
     calibration = rrb.Horizontal(
         rrb.Vertical(

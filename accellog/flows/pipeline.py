@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 import tomllib
 
-from accellog.calibrate.calibration import read_text, source_entry
+from accellog.calibrate.calibration import read_text, source_entry, write_json_atomic
 from accellog.core.errors import InputError, ModelError
+from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 from accellog.flows.stages import (
     GRAVITY_CONVENTIONS,
@@ -32,6 +33,9 @@ from accellog.flows.stages import (
     run_fit,
 )
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_poses
+from accellog.present import tables as report
+from accellog.present import views
+from accellog.present.rrd.recording import RunRecording
 
 # ------------------------------------------------------------------------------------------ pipelines
 
@@ -98,6 +102,14 @@ def load_pipeline(path: str | os.PathLike) -> dict:
         m = re.search(r"line (\d+)", str(exc))
         line = m.group(1) if m else str(max(len(text.splitlines()), 1))  # 'at end of document'
         raise InputError(f"not valid TOML: {exc}", where=f"{p}:{line}") from None
+    _check_schema(spec, text, p)
+    _check_references(spec, text, p)
+    spec["_path"] = str(p)
+    return spec
+
+
+def _check_schema(spec: dict, text: str, p: Path) -> None:
+    """Known tables and keys of the right types; required keys present."""
     for table, body in spec.items():
         if table not in _SCHEMA:
             raise InputError(
@@ -126,6 +138,10 @@ def load_pipeline(path: str | os.PathLike) -> dict:
         for k in keys:
             if k not in spec.get(table, {}):
                 raise InputError(f"missing '{table}.{k}'", where=str(p))
+
+
+def _check_references(spec: dict, text: str, p: Path) -> None:
+    """Roles, model names, times and the gravity convention refer to what the file declares."""
     roles = spec["pipeline"]["inputs"]
     if not roles or not all(isinstance(r, str) for r in roles) or len(set(roles)) != len(roles):
         raise InputError(
@@ -174,12 +190,10 @@ def load_pipeline(path: str | os.PathLike) -> dict:
             f"'fit.gravity' must be 'seed' or 'local', got {gv!r}",
             where=f"{p}:{_line_of(text, 'fit', 'gravity')}",
         )
-    spec["_path"] = str(p)
-    return spec
 
 
 @dataclass
-class PipelineResult:
+class PipelineResult(JsonResult):
     """Everything a pipeline run produced."""
 
     name: str
@@ -205,7 +219,6 @@ class PipelineResult:
         ]
 
     def tables(self) -> list:
-        from accellog.present import tables as report
 
         out: list = [report.ladder_table(self.ladder())]
         for fo in self.fits.values():
@@ -237,39 +250,59 @@ class PipelineResult:
             d["drift_evaluations"] = [e.to_dict() for e in self.drift_evaluations]
         return d
 
+    def write_rrd(self, path: str | os.PathLike) -> None:
+        """Recording of every fit, the evaluations (and after the drift model) and the result tables."""
 
-def run_pipeline(
-    pipeline: str | os.PathLike | dict,
-    inputs: Sequence[str | os.PathLike],
-    *,
-    output_dir: str | os.PathLike | None = None,
-) -> PipelineResult:
-    """Run a pipeline file on input files given in the order of pipeline.inputs."""
-    spec = pipeline if isinstance(pipeline, dict) else load_pipeline(pipeline)
-    where = spec.get("_path")
-    roles = spec["pipeline"]["inputs"]
-    if len(inputs) != len(roles):
-        raise InputError(
-            f"pipeline {spec['pipeline']['name']!r} takes {len(roles)} inputs ({', '.join(roles)}), got {len(inputs)}",
-            where=where,
-        )
-    files = {r: str(x) for r, x in zip(roles, inputs, strict=True)}
-    seg = spec.get("segment", {})
-    cache: dict[str, Session | ObsTable] = {}
+        with RunRecording(f"save:{path}") as rec:
+            for name, fo in self.fits.items():
+                views.log_fit(rec, fo, name)
+            views.log_evaluations(rec, self.evaluations)
+            if self.drift_evaluations:
+                views.log_evaluations(rec, self.drift_evaluations, truth_label=None)
+            rec.log_document(
+                "results/tables", "\n".join(views.table_markdown(t) for t in self.tables() if t is not None)
+            )
 
-    def get(role: str) -> Session | ObsTable:
-        if role not in cache:
-            cache[role] = load_input(files[role], n_per_pose=seg.get("n_per_pose"))
-        return cache[role]
 
-    fs = spec["fit"]
-    base = Path(where).parent if where else Path.cwd()
+class _Inputs:
+    """The pipeline's input files by role, each loaded once."""
+
+    def __init__(
+        self,
+        spec: dict,
+        inputs: Sequence[str | os.PathLike],
+        preloaded: dict[str, Session | ObsTable] | None = None,
+    ) -> None:
+        self.where = spec.get("_path")
+        self.roles = spec["pipeline"]["inputs"]
+        if len(inputs) != len(self.roles):
+            raise InputError(
+                f"pipeline {spec['pipeline']['name']!r} takes {len(self.roles)} inputs "
+                f"({', '.join(self.roles)}), got {len(inputs)}",
+                where=self.where,
+            )
+        self.files = {r: str(x) for r, x in zip(self.roles, inputs, strict=True)}
+        self.n_per_pose = spec.get("segment", {}).get("n_per_pose")
+        self.base = Path(self.where).parent if self.where else Path.cwd()
+        self._cache: dict[str, Session | ObsTable] = {
+            r: preloaded[f] for r, f in self.files.items() if f in (preloaded or {})
+        }
+
+    def get(self, role: str) -> Session | ObsTable:
+        if role not in self._cache:
+            self._cache[role] = load_input(self.files[role], n_per_pose=self.n_per_pose)
+        return self._cache[role]
+
+    def session(self, role: str, what: str) -> Session:
+        return as_session(self.get(role), what)
+
+
+def _fit_models(spec: dict, inp: _Inputs, res: PipelineResult) -> None:
+    """[fit]: every model on the same observations (segmented once)."""
+    fs, seg = spec["fit"], spec.get("segment", {})
     ef = fs.get("effects_file")
-    ef = str((base / ef).resolve()) if ef else None
-    res = PipelineResult(
-        name=spec["pipeline"]["name"], inputs=files, at_s=float(spec.get("report", {}).get("at_s", 60.0))
-    )
-    data = get(fs["input"])
+    ef = str((inp.base / ef).resolve()) if ef else None
+    data = inp.get(fs["input"])
     obs = None
     for mname in fs["models"]:
         try:
@@ -286,17 +319,20 @@ def run_pipeline(
                 obs=obs,
             )
         except ModelError as exc:
-            raise ModelError(f"model {mname!r}: {exc}", where=where) from None
-        fo.cal.sources = [
-            source_entry(files[fs["input"]], fo.cal.sources[0].get("kind", "") if fo.cal.sources else "")
-        ]
-        obs = fo.obs  # segment once, fit every model on the same observations
+            raise ModelError(f"model {mname!r}: {exc}", where=inp.where) from None
+        kind = fo.cal.sources[0].get("kind", "") if fo.cal.sources else ""
+        fo.cal.sources = [source_entry(inp.files[fs["input"]], kind)]
+        obs = fo.obs
         res.fits[mname] = fo
+
+
+def _evaluate(spec: dict, inp: _Inputs, res: PipelineResult) -> None:
+    """[evaluate] (one static hold) and [evaluate_poses] (hold by hold)."""
     if "evaluate" in spec:
         es = spec["evaluate"]
         names = es.get("models", list(res.fits))
         res.evaluations = run_evaluate(
-            as_session(get(es.get("input", roles[0])), "evaluate"),
+            inp.session(es.get("input", inp.roles[0]), "evaluate"),
             [res.fits[n].cal for n in names],
             include_raw=es.get("include_raw", True),
             times_s=es.get("times_s", (10.0, 30.0, 60.0)),
@@ -306,42 +342,85 @@ def run_pipeline(
         )
     if "evaluate_poses" in spec:
         ep = spec["evaluate_poses"]
-        s = as_session(get(ep["input"]), "evaluate_poses")
+        s = inp.session(ep["input"], "evaluate_poses")
         res.pose_evaluations = [evaluate_poses(s, res.fits[n].cal) for n in ep.get("models", list(res.fits))]
-    if "drift" in spec:
-        ds = spec["drift"]
-        mname = ds.get("model", list(res.fits)[-1])
-        cal = res.fits[mname].cal
-        res.drift = run_drift(
-            as_session(get(ds["fit_input"]), "drift"),
-            cal,
-            until_s=ds.get("fit_until_s"),
-            max_samples=ds.get("fit_max_samples"),
-        )
-        apply = as_session(get(ds.get("apply_input", ds["fit_input"])), "drift")
-        res.drift_evaluations = run_evaluate(
-            apply,
-            [res.drift.cal],
-            include_raw=True,
-            until_s=ds.get("apply_until_s"),
-            max_samples=ds.get("apply_max_samples"),
-            labels=[mname],
-        )
-    out_dir = output_dir or spec.get("report", {}).get("output_dir")
-    if out_dir:
-        od = Path(out_dir) if Path(out_dir).is_absolute() or output_dir else base / out_dir
-        od.mkdir(parents=True, exist_ok=True)
-        for mname, fo in res.fits.items():
-            fo.cal.save(od / f"cal_{_safe(mname)}.json")
-            res.written.append(str(od / f"cal_{_safe(mname)}.json"))
-        if res.drift is not None:
-            res.drift.cal.save(od / "cal_drift.json")
-            res.written.append(str(od / "cal_drift.json"))
-        from accellog.calibrate.calibration import write_json_atomic
 
-        write_json_atomic(od / "results.json", res.to_dict())
-        res.written.append(str(od / "results.json"))
+
+def _drift(spec: dict, inp: _Inputs, res: PipelineResult) -> None:
+    """[drift]: fit the drift polynomial on one static session, apply it to another."""
+    ds = spec["drift"]
+    mname = ds.get("model", list(res.fits)[-1])
+    res.drift = run_drift(
+        inp.session(ds["fit_input"], "drift"),
+        res.fits[mname].cal,
+        until_s=ds.get("fit_until_s"),
+        max_samples=ds.get("fit_max_samples"),
+    )
+    res.drift_evaluations = run_evaluate(
+        inp.session(ds.get("apply_input", ds["fit_input"]), "drift"),
+        [res.drift.cal],
+        include_raw=True,
+        until_s=ds.get("apply_until_s"),
+        max_samples=ds.get("apply_max_samples"),
+        labels=[mname],
+    )
+
+
+def _write_outputs(res: PipelineResult, od: Path, inputs: list) -> None:
+    """cal_<model>.json per fit, cal_drift.json, results.json (each checked first, then written atomically)."""
+    _prepare_output_dir(od, res, inputs)
+    for mname, fo in res.fits.items():
+        fo.cal.save(od / f"cal_{_safe(mname)}.json")
+        res.written.append(str(od / f"cal_{_safe(mname)}.json"))
+    if res.drift is not None:
+        res.drift.cal.save(od / "cal_drift.json")
+        res.written.append(str(od / "cal_drift.json"))
+    write_json_atomic(od / "results.json", res.to_dict())
+    res.written.append(str(od / "results.json"))
+
+
+def run_pipeline(
+    pipeline: str | os.PathLike | dict,
+    inputs: Sequence[str | os.PathLike],
+    *,
+    output_dir: str | os.PathLike | None = None,
+    preloaded: dict[str, Session | ObsTable] | None = None,
+) -> PipelineResult:
+    """Run a pipeline file on input files given in the order of pipeline.inputs.
+
+    preloaded: inputs already read, by file name (str), so that they are not read again."""
+    spec = pipeline if isinstance(pipeline, dict) else load_pipeline(pipeline)
+    inp = _Inputs(spec, inputs, preloaded)
+    report = spec.get("report", {})
+    res = PipelineResult(
+        name=spec["pipeline"]["name"], inputs=inp.files, at_s=float(report.get("at_s", 60.0))
+    )
+    _fit_models(spec, inp, res)
+    _evaluate(spec, inp, res)
+    if "drift" in spec:
+        _drift(spec, inp, res)
+    out_dir = output_dir or report.get("output_dir")
+    if out_dir:
+        _write_outputs(
+            res,
+            Path(out_dir) if Path(out_dir).is_absolute() or output_dir else inp.base / out_dir,
+            [inp.where, *inputs],
+        )
     return res
+
+
+def _prepare_output_dir(od: Path, res, inputs: list) -> None:
+    """Create the output folder and check every file to be written there before writing any."""
+    from accellog.store.atomic import check_outputs
+
+    if od.exists() and not od.is_dir():
+        raise InputError("output folder is an existing file", where=str(od))
+    try:
+        od.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder: {exc.strerror or exc}", where=str(od)) from None
+    names = [f"cal_{_safe(m)}.json" for m in res.fits] + (["cal_drift.json"] if res.drift else [])
+    check_outputs([od / n for n in [*names, "results.json"]], inputs)
 
 
 def _safe(name: str) -> str:

@@ -85,6 +85,7 @@ class ReplayResult:
     local_gravity_mps2: float
     tracks: list[TrackResult]
     rrd: str | None = None
+    sink_report: str = ""  # what the guarded sink reports (failures), empty when all went well
 
     def track(self, label: str) -> TrackResult:
         for t in self.tracks:

@@ -20,6 +20,16 @@ local_gravity_mps2 = 9.80665
 fixture_tilt_deg = [0.0, 0.0]
 [set]                       # overrides of AccelErrors fields, e.g.
 temp_bias_g_per_degC = [0.001, -0.0005, 0.0008]
+i2c_error_rate = 0.0        # faults (all off by default; accellog.acquire.emulator.faults):
+fifo_glitch_rate = 0.0      #   probability per transaction / per FIFO read (0..1)
+host_stall_s = 0.0          #   host pauses this long (s) ...
+host_stall_every_s = 0.0    #   ... every this many seconds
+disconnect_at_s = 0.0       #   bus cut at this time (s) ...
+disconnect_s = 0.0          #   ... for this long (s)
+[magnetometer]              # optional: record the AK8963 (100 Hz mode) with this local field and iron
+field_uT = [20.0, 0.0, -45.0]          # world frame (x, y horizontal, z up)
+hard_iron_uT = [30.0, -12.0, 8.0]      # AK8963 axes
+soft_iron = [[1.05, 0.02, 0.0], [0.02, 0.97, 0.01], [0.0, 0.01, 0.98]]
 [temperature]               # 'constant' (T), 'warmup' (T_start, T_end, tau_s) or 'ramp' (T0, rate)
 kind = "warmup"
 T_start = 25.0
@@ -39,10 +49,21 @@ from typing import Any
 import numpy as np
 import tomllib
 
+from accellog.acquire.device import configure_device
+from accellog.acquire.emulator import robot
+from accellog.acquire.emulator.chip import EmulatedMpu9250
+from accellog.acquire.emulator.clock import SimClock
+from accellog.acquire.emulator.faults import FaultyBus, stalling_sleep
+from accellog.acquire.emulator.poses import PoseSequenceMotion
+from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
+from accellog.acquire.emulator.temperature import TemperaturePath
+from accellog.acquire.recorder import Recorder, session_meta
 from accellog.core.errors import InputError
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
 from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.store.atomic import AtomicOutput, check_output
+from accellog.store.writer import SessionWriter
 
 _SMPLRT_DIV_BASE_HZ = 1000.0
 
@@ -70,6 +91,15 @@ class Scenario:
     """'poses' (guided static holds) or 'robot' (the default robot path; see emulator.robot)."""
     robot_path: str = "demo"
     """'demo' (a 64 s closed loop with ramps, a banked turn and 9 stops) or 'long' (10 min)."""
+    magnetometer: dict[str, Any] = field(default_factory=dict)
+    """Empty: no magnetometer readout. Else keys field_uT, hard_iron_uT, soft_iron, noise_uT (emulator)."""
+    # fault injection (accellog.acquire.emulator.faults): all off by default
+    i2c_error_rate: float = 0.0
+    fifo_glitch_rate: float = 0.0
+    host_stall_s: float = 0.0
+    host_stall_every_s: float = 0.0
+    disconnect_at_s: float = 0.0
+    disconnect_s: float = 0.0
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Scenario:
@@ -95,8 +125,9 @@ class Scenario:
         return sc
 
     def validate(self, where: str = "scenario") -> None:
-        div = _SMPLRT_DIV_BASE_HZ / self.sample_rate_hz - 1.0
-        if self.sample_rate_hz <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
+        rate = self.sample_rate_hz
+        div = _SMPLRT_DIV_BASE_HZ / rate - 1.0 if rate > 0 and np.isfinite(rate) else -1.0
+        if rate <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
             raise InputError(
                 f"sample_rate_hz={self.sample_rate_hz:g} is not 1000/(1+N) for N in 0..255", where=where
             )
@@ -104,7 +135,26 @@ class Scenario:
             raise InputError(f"errors={self.errors!r}: use 'datasheet' or 'perfect'", where=where)
         if self.motion not in ("poses", "robot"):
             raise InputError(f"motion={self.motion!r}: use 'poses' or 'robot'", where=where)
-        parse_protocol(self.protocol, self.hold_s)
+        if not self.hold_s > 0 or not self.move_s >= 0:
+            raise InputError(
+                f"hold_s={self.hold_s:g} must be > 0 and move_s={self.move_s:g} >= 0 (s)", where=where
+            )
+        if self.accel_range_g not in (2, 4, 8, 16):
+            raise InputError(f"accel_range_g={self.accel_range_g}: use 2, 4, 8 or 16", where=where)
+        self.fault_plan(where)
+        try:
+            parse_protocol(self.protocol, self.hold_s)
+            temperature_path(self.temperature)
+        except InputError as exc:
+            if exc.where is None:
+                raise InputError(str(exc), where=where) from None
+            raise
+
+    def fault_plan(self, where: str = "scenario"):
+        """The scenario's FaultPlan (validated: rates 0..1, times >= 0)."""
+        from accellog.acquire.emulator.faults import FaultPlan
+
+        return FaultPlan.from_mapping({k: getattr(self, k) for k in FaultPlan.names()}, where=where)
 
     @property
     def sample_rate_div(self) -> int:
@@ -114,10 +164,18 @@ class Scenario:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
 
-_FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s"}
+_FAULT_KEYS = {
+    "i2c_error_rate",
+    "fifo_glitch_rate",
+    "host_stall_s",
+    "host_stall_every_s",
+    "disconnect_at_s",
+    "disconnect_s",
+}
+_FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s", *_FAULT_KEYS}
 _INT_KEYS = {"accel_range_g", "gyro_range_dps", "chip_seed", "seed"}
 _STR_KEYS = {"protocol", "errors", "gyro_errors", "motion", "robot_path"}
-_TABLE_KEYS = {"set", "temperature"}
+_TABLE_KEYS = {"set", "temperature", "magnetometer"}
 
 
 def _check_type(key: str, value: Any, where: str) -> None:
@@ -145,12 +203,8 @@ def _check_type(key: str, value: Any, where: str) -> None:
 
 def build_sensor_model(sc: Scenario):
     """The emulator's physical model for a scenario: motion, error parameters, temperature path."""
-    from accellog.acquire.emulator.poses import PoseSequenceMotion
-    from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
 
     if sc.motion == "robot":
-        from accellog.acquire.emulator import robot
-
         paths = {"demo": robot.demo_loop, "long": robot.long_run}
         if sc.robot_path not in paths:
             raise InputError(f"robot_path={sc.robot_path!r}: use one of {sorted(paths)}")
@@ -182,6 +236,12 @@ def build_sensor_model(sc: Scenario):
         accel = dataclasses.replace(accel, **values)
     gyro = GyroErrors.datasheet(sc.chip_seed) if sc.gyro_errors == "datasheet" else GyroErrors.perfect()
     temperature = temperature_path(sc.temperature)
+    known_mag = {"field_uT", "hard_iron_uT", "soft_iron", "noise_uT"}
+    if set(sc.magnetometer) - known_mag:
+        raise InputError(
+            f"unknown magnetometer key(s) {sorted(set(sc.magnetometer) - known_mag)}; known: {sorted(known_mag)}"
+        )
+    mag = {f"mag_{k}": v for k, v in sc.magnetometer.items()}
     model = SensorModel(
         motion,
         accel=accel,
@@ -189,13 +249,13 @@ def build_sensor_model(sc: Scenario):
         temperature=temperature,
         seed=sc.seed,
         local_gravity_mps2=sc.local_gravity_mps2,
+        **mag,
     )
     return model, motion
 
 
 def temperature_path(spec: dict[str, Any]):
     """TemperaturePath from {'kind': 'constant'|'warmup'|'ramp'|'points', ...} (degC, s)."""
-    from accellog.acquire.emulator.temperature import TemperaturePath
 
     kind = spec.get("kind", "constant")
     try:
@@ -219,42 +279,56 @@ def simulate(
     duration_s: float | None = None,
     poll_s: float = 0.025,
     truth_step_s: float = 0.01,
+    serial: str = "",
+    start_time_unix_ns: int | None = None,
+    force: bool = False,
 ):
     """Write the scenario's session to ``out`` (MCAP) on a simulated clock; return RecordSummary.
 
-    truth_step_s: spacing of the stored ground truth (s); it is for evaluation only.
+    truth_step_s: spacing of the stored ground truth (s); it is for evaluation only. serial: the
+    device's user serial (identity); start_time_unix_ns: the session's wall-clock start (a
+    simulated date; default: the writer's clock). An existing ``out`` is refused unless
+    force=True; the file appears (atomically) only when complete. Faults of the scenario
+    (accellog.acquire.emulator.faults) act on the bus and the host's sleep.
     """
-    from accellog.acquire.driver import Mpu9250
-    from accellog.acquire.emulator.chip import EmulatedMpu9250
-    from accellog.acquire.emulator.clock import SimClock
-    from accellog.acquire.recorder import Recorder, session_meta
-    from accellog.store.writer import SessionWriter
 
+    check_output(out, overwrite=force)
     model, motion = build_sensor_model(sc)
+    plan = sc.fault_plan()
     clock = SimClock()
-    chip = EmulatedMpu9250(model, clock, seed=sc.seed)
-    driver = Mpu9250(chip, clock_ns=clock.now_ns)
-    info = driver.probe()
-    cfg = driver.configure(
+    chip = EmulatedMpu9250(model, clock, seed=sc.seed, i2c_error_rate=plan.i2c_error_rate)
+    bus = FaultyBus(chip, plan, clock.now_ns, seed=sc.seed) if plan.bus_faults else chip
+    sleep = stalling_sleep(clock.sleep, clock.now_ns, plan)
+    dev = configure_device(
+        bus,
+        clock_ns=clock.now_ns,
+        sleep=clock.sleep,
         accel_range_g=sc.accel_range_g,
         gyro_range_dps=sc.gyro_range_dps,
         sample_rate_div=sc.sample_rate_div,
+        mag=bool(sc.magnetometer),  # the AK8963 in its 100 Hz mode
     )
+    driver = dev.driver
     meta = session_meta(
-        info,
-        cfg,
+        dev.info,
+        dev.config,
         source="emulator",
         protocol=sc.protocol if sc.motion == "poses" else f"robot:{sc.robot_path}",
         local_gravity_mps2=sc.local_gravity_mps2,
         extra={"scenario": sc.to_json()},
+        serial=serial,
+        i2c_bus="emulator",
+        i2c_address=chip.address,
     )
+    if start_time_unix_ns is not None:
+        meta = meta.replace(start_time_unix_ns=int(start_time_unix_ns))
     total_s = motion.duration_s if duration_s is None else duration_s
-    out = Path(out)
-    tmp = out.with_name(out.name + ".part")
+    ao = AtomicOutput(out, overwrite=force)
+    tmp = ao.begin()
     try:
         with SessionWriter(tmp, meta) as writer:
             driver.start()
-            rec = Recorder(driver, writer, sleep=clock.sleep, poll_s=poll_s)
+            rec = Recorder(driver, writer, sleep=sleep, poll_s=poll_s, read_mag=dev.read_mag)
             rec.run_for(total_s)
             # Motion time starts when the chip is created, session time at the first FIFO sample:
             # map the scenario's holds and truth onto the session's time axis.
@@ -269,9 +343,9 @@ def simulate(
                 writer.write_pose(label)
                 rec.summary.poses.append(label)
             writer.write_truth(chip.truth_for_session(np.arange(0.0, rec.t_s, truth_step_s)))
-        tmp.replace(out)
     except BaseException:  # never leave a half-written session behind (Ctrl-C, errors)
-        tmp.unlink(missing_ok=True)
+        ao.abort()
         raise
+    ao.commit()
     rec.summary.duration_s = rec.t_s
     return rec.summary

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,13 +23,28 @@ import numpy as np
 from accellog.calibrate.calibration import Calibration, load_calibration, read_json, source_entry
 from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.fit import fit_model, fit_orientation_free
+from accellog.calibrate.gyro import calibrate_gyro
+from accellog.calibrate.label_check import check_timestamps, relabel_holds
+from accellog.calibrate.model import build_model
 from accellog.calibrate.obs_file import OBS_FORMAT, obs_from_dict
 from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations
-from accellog.core.errors import InputError
+from accellog.core.errors import AccellogError, InputError
+from accellog.core.jsonio import JsonResult, dumps
+from accellog.core.notices import note
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.navigate.drift import drift_from_session
 from accellog.navigate.evaluate import Evaluation, evaluate
+from accellog.present import views
+from accellog.present.rrd.recording import RunRecording
+from accellog.store import importers
+from accellog.store.atomic import AtomicOutput
+from accellog.store.importers.ros2 import import_ros2, is_ros2_bag
+from accellog.store.layout import NS_PER_S
+from accellog.store.reader import read_session
+from accellog.store.recovery import announce
+from accellog.store.writer import SessionWriter
 
 GRAVITY_CONVENTIONS = ("seed", "local")
 """'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
@@ -38,16 +54,29 @@ g_local / g0 in standard g (the physical convention)."""
 # ------------------------------------------------------------------------------------------ inputs
 
 
-def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
-    """Read any supported input: a Session, or an ObsTable for pose tables / observation files."""
+def load_input(
+    path: str | os.PathLike, *, n_per_pose: int | None = None, check_times: bool = True
+) -> Session | ObsTable:
+    """Read any supported input: a Session (accellog MCAP, a ROS 2 bag, CSV), or an ObsTable for pose
+    tables / observation files. A degenerate session (< 2 samples, zero duration, duplicated or
+    decreasing times) is refused unless check_times=False (tools that report such defects, e.g. doctor)."""
+    data = _read_input(path, n_per_pose=n_per_pose)
+    if check_times and isinstance(data, Session):
+        check_timestamps(data, where=str(path))
+    return data
+
+
+def _read_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
     p = Path(path)
     if not p.exists():
         raise InputError("no such file", where=str(p))
     suffix = p.suffix.lower()
+    if is_ros2_bag(p):  # a ROS 2 bag's only sensor_msgs/Imu topic (import ros2 for the options)
+        return import_ros2(p)
     if suffix == ".mcap":
-        from accellog.store.reader import read_session
-
-        return read_session(p)
+        session = read_session(p)
+        announce(session)  # a truncated file: say what was recovered (stderr)
+        return session
     if suffix == ".json":
         d = read_json(p)
         if isinstance(d, dict) and d.get("format") == OBS_FORMAT:
@@ -57,8 +86,6 @@ def load_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Ses
             where=str(p),
         )
     if suffix in (".csv", ".txt"):
-        from accellog.store import importers
-
         try:
             with open(p, encoding="utf-8", errors="replace") as f:
                 first = f.readline().replace(" ", "").lower()
@@ -92,6 +119,17 @@ def _path_of(x: Session | ObsTable) -> str | None:
     return p if p and Path(p).is_file() else None
 
 
+def _source(data: Session | ObsTable, src: str | None, kind: str) -> dict:
+    """Provenance entry of the input; a recovered (truncated) session says what was kept."""
+    from accellog.store.recovery import recovery_info
+
+    entry = source_entry(src or _path_of(data), kind)
+    info = recovery_info(data) if isinstance(data, Session) else None
+    if info is not None:
+        entry["recovered"] = info.to_dict()
+    return entry
+
+
 def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
     if gravity not in GRAVITY_CONVENTIONS:
         raise InputError(f"unknown gravity convention {gravity!r}: use 'seed' or 'local'")
@@ -102,7 +140,7 @@ def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
 
 
 @dataclass
-class FitOutcome:
+class FitOutcome(JsonResult):
     """A fitted model: the observations, the FitResult and the Calibration built from it."""
 
     obs: ObsTable
@@ -115,7 +153,18 @@ class FitOutcome:
         d["gravity_convention"] = self.cal.gravity_convention
         d["local_gravity_mps2"] = self.cal.local_gravity_mps2
         d["n_poses"] = len(self.obs.pose_names)
+        rec = [s["recovered"] for s in self.cal.sources if isinstance(s, dict) and s.get("recovered")]
+        if rec:
+            d["recovered"] = rec
         return d
+
+    def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
+        """Recording of the fit (residuals per pose) and, for a session, its samples raw and calibrated."""
+
+        with RunRecording(f"save:{path}") as rec:
+            if isinstance(data, Session):
+                views.log_session(rec, data, calibrations={self.fit.model.name: self.cal})
+            views.log_fit(rec, self)
 
 
 def make_obs(
@@ -142,6 +191,8 @@ def run_fit(
     n_per_pose: int | None = None,
     obs: ObsTable | None = None,
     gyro: bool = True,
+    uncertainty: str = "noise",
+    relabel: bool = False,
 ) -> FitOutcome:
     """Segment (if needed) and fit one model; returns the calibration with its uncertainties.
 
@@ -150,19 +201,25 @@ def run_fit(
     |correct(reading)| = truth_g without pose labels; unlabelled sessions are segmented by
     detect_static (threshold sweep scored by the orientation-free residual). gyro: also
     calibrate the gyro from the session's holds and the moves between them (stored in cal.gyro).
+    uncertainty: 'noise' (window noise only), 'between_hold' (plus the between-hold variance
+    component) or 'jackknife' (leave one hold out); accellog.calibrate.variance. relabel: replace
+    hold labels that contradict the measured gravity direction (each change is a note on stderr).
     """
-    from accellog.calibrate.fit import fit_model, fit_orientation_free
-    from accellog.calibrate.model import build_model
 
     src = str(data) if isinstance(data, (str, os.PathLike)) else None
     if src is not None:
         data = load_input(src, n_per_pose=n_per_pose)
+    if relabel and isinstance(data, Session):
+        data, changes = relabel_holds(data, trim_s=trim_s)
+        for c in changes:
+            note(f"{data.path or 'session'}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
     m = build_model(model, add=list(add), effects_file=effects_file)
     if local_gravity_mps2 is None:
         local_gravity_mps2 = (
             data.meta.local_gravity_mps2 if isinstance(data, Session) else STANDARD_GRAVITY_MPS2
         )
     truth = _truth_g(gravity, float(local_gravity_mps2))
+    detected = None  # static intervals found in an unlabelled session
     if obs is None:
         if orientation_free and isinstance(data, Session) and not data.poses:
             session = data
@@ -173,8 +230,8 @@ def run_fit(
                 )
                 return fit_orientation_free(o, m, weighted=False, gravity_g=truth).rms_g
 
-            labels = detect_static(session, cost=cost)
-            obs = observations(with_labels(session, labels), window_s=window_s, trim_s=0.0)
+            detected = detect_static(session, cost=cost)
+            obs = observations(with_labels(session, detected), window_s=window_s, trim_s=0.0)
         else:
             obs = make_obs(data, window_s=window_s, trim_s=trim_s)
     if orientation_free:
@@ -184,6 +241,10 @@ def run_fit(
             obs, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=_name(data)
         )
         fit = fit_model(obs, m, weighted=weighted, gravity_g=truth)
+    if uncertainty != "noise":
+        from accellog.calibrate.variance import with_uncertainty
+
+        fit = with_uncertainty(fit, obs, uncertainty)
     sensor: dict[str, Any] = {}
     kind = ""
     if isinstance(data, Session):
@@ -199,19 +260,32 @@ def run_fit(
         obs=obs,
         gravity_convention=gravity,
         local_gravity_mps2=float(local_gravity_mps2),
-        sources=[source_entry(src or _path_of(data), kind)],
+        sources=[_source(data, src, kind)],
         sensor=sensor,
     )
+    if isinstance(data, Session):
+        cal.device = data.meta.device.to_dict()
+    if detected:  # hand-held: the static intervals the fit used go into the calibration file
+        t = data.t_s
+        cal.fit["detected_intervals"] = [
+            {
+                "start_s": p.start_s,
+                "end_s": p.end_s,
+                "n": int(np.sum((t >= p.start_s) & (t < p.end_s))),
+                "up_sensor": [float(x) for x in p.up_sensor],
+            }
+            for p in detected
+        ]
     if gyro and isinstance(data, Session):
-        cal.gyro = _gyro_calibration(data)
+        # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
+        # and the rotations between them (imu_tk style), not skipped
+        cal.gyro = _gyro_calibration(with_labels(data, detected) if detected else data)
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
 
 def _gyro_calibration(session: Session) -> dict | None:
     """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
     session, stored next to the accelerometer's; None when the session has no gyro or holds."""
-    from accellog.calibrate.gyro import calibrate_gyro
-    from accellog.core.errors import AccellogError
 
     if session.gyro_dps is None or len(session.poses) < 2:
         return None
@@ -265,7 +339,7 @@ def run_evaluate(
 
 
 @dataclass
-class DriftOutcome:
+class DriftOutcome(JsonResult):
     """Drift model fitted on one static session (cal = input calibration + drift)."""
 
     cal: Calibration
@@ -273,7 +347,7 @@ class DriftOutcome:
     fit_eval: Evaluation  # the fit session after the calibration and the drift model
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "drift": self.drift.to_dict(),
             "fit_session": self.fit_eval.session,
             "disp_end_m": self.fit_eval.disp_end_m.tolist(),
@@ -282,6 +356,18 @@ class DriftOutcome:
             else self.fit_eval.disp_end_drift_m.tolist(),
             "t_end_s": self.fit_eval.t_end_s,
         }
+        rec = [x["recovered"] for x in self.cal.sources if isinstance(x, dict) and x.get("recovered")]
+        if rec:
+            d["recovered"] = rec
+        return d
+
+    def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
+        """Recording of the static session calibrated, with and without the drift model."""
+
+        with RunRecording(f"save:{path}") as rec:
+            if isinstance(data, Session):
+                views.log_session(rec, data, calibrations={"calibrated + drift model": self.cal})
+            views.log_evaluations(rec, [self.fit_eval])
 
 
 def run_drift(
@@ -296,7 +382,43 @@ def run_drift(
     c = _cal(cal)
     cal_d, dm = drift_from_session(s, c, until_s=until_s, max_samples=max_samples)
     ev = evaluate(s, cal_d, until_s=until_s, max_samples=max_samples)
+    entry = _source(s, None, "drift")
+    if "recovered" in entry:  # provenance: the drift was fitted on a recovered (truncated) file
+        cal_d.sources = [*cal_d.sources, entry]
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
+
+
+def _write_mag_calibrated(w, s: Session, section: dict) -> None:
+    """/derived/mag_calibrated: A (m - h) in uT, AK8963 axes (accellog.calibrate.magnetometer)."""
+    from accellog.calibrate.magnetometer import MagCalibration
+    from accellog.store.layout import NS_PER_S
+
+    mc = MagCalibration.from_dict(section)
+    t_ns = np.round(s.mag_t_s * NS_PER_S).astype(np.int64)
+    w.write_vector3("mag_calibrated", t_ns, mc.correct(s.mag_uT), "uT", frame="AK8963")
+
+
+class OtherDeviceWarning(UserWarning):
+    """A calibration of another device was applied (run_apply(other_device='warn'))."""
+
+
+OTHER_DEVICE_MODES = ("refuse", "warn")
+
+
+def check_device(session: Session, cal: Calibration, other_device: str = "refuse", where: str = "") -> str:
+    """'' when the calibration's device key matches the session's (or either is unknown); else the
+    one-line mismatch, raised as InputError ('refuse') or issued as OtherDeviceWarning ('warn')."""
+    if other_device not in OTHER_DEVICE_MODES:
+        raise InputError(f"other_device={other_device!r}: use 'refuse' or 'warn'")
+    diff = cal.device_conflicts(session.meta.device)
+    if not diff:
+        return ""
+    cal_id = cal.device.get("id") or "?"
+    msg = f"calibration is for device {cal_id}, session is from {session.meta.device.id} ({'; '.join(diff)})"
+    if other_device == "refuse":
+        raise InputError(msg + ": use --other-device warn to apply it anyway", where=where)
+    warnings.warn(msg, OtherDeviceWarning, stacklevel=2)
+    return msg
 
 
 def run_apply(
@@ -305,14 +427,14 @@ def run_apply(
     out: str | os.PathLike,
     *,
     ros2: str | os.PathLike | None = None,
+    other_device: str = "refuse",
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
-    /derived/accel_calibrated_mps2, and attaching the calibration JSON. Atomic (temp + rename).
-    ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2)."""
-    from accellog.calibrate.calibration import dumps
-    from accellog.store.layout import NS_PER_S
-    from accellog.store.reader import read_session
-    from accellog.store.writer import SessionWriter
+    /derived/accel_calibrated_mps2 (and /derived/mag_calibrated, uT, when the calibration has a magnetometer
+    section and the session magnetometer samples), and attaching the calibration JSON. Atomic (temp + rename).
+    ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2).
+    A calibration of another device (device keys differ) is refused, or warned about with
+    other_device='warn' (see check_device)."""
 
     src = Path(session_path)
     if src.suffix.lower() != ".mcap":
@@ -321,11 +443,11 @@ def run_apply(
         )
     s = read_session(src)
     c = _cal(cal)
+    check_device(s, c, other_device, where=str(src))
     f = c.correct(s)
     out = Path(out)
-    if out.resolve() == src.resolve():
-        raise InputError("output would overwrite the input session", where=str(out))
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    ao = AtomicOutput(out, inputs=(src, getattr(c, "path", None)))
+    tmp = ao.begin()
     t_ns = np.round(s.t_s * NS_PER_S).astype(np.int64)
     si = np.asarray(s.sample_index, np.int64)
     cuts = np.flatnonzero(np.diff(si) != 1) + 1
@@ -354,6 +476,8 @@ def run_apply(
                     mag_uT=s.mag_uT,
                     first_index=0,
                 )
+                if c.magnetometer is not None and s.mag_uT is not None:
+                    _write_mag_calibrated(w, s, c.magnetometer)
             for p in s.poses:
                 w.write_pose(p)
             for e in s.events:
@@ -361,10 +485,10 @@ def run_apply(
             if s.truth is not None:
                 w.write_truth(s.truth)
             w.attach("calibration/accel.json", "application/json", dumps(c.to_dict()).encode())
-        os.replace(tmp, out)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        ao.abort()
         raise
+    ao.commit()
     if ros2 is not None:
         from accellog.flows.ros2_out import write_ros2
 

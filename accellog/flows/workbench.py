@@ -1,12 +1,13 @@
-"""The model workbench loop: diagnose, add the most likely missing effect, refit, until the model
-fits to the noise floor; then the ladder of model-building steps, each judged on the calibration
+"""The model workbench loop: diagnose, add the significant effect that predicts unseen data best
+(accellog.calibrate.choose), refit, until no candidate improves out of sample; then the ladder of model-building steps, each judged on the calibration
 data (chi^2/dof), on a held-out session (residual RMS vs its noise floor) and on a static test
 (|displacement| after 60 s).
 
     steps: model1 -> model2 -> model3 -> model3 + e1 -> model3 + e1 + e2 ...
 
 ``discover`` never adds an effect diagnose does not find significant and identifiable, so a clean
-session stops at the start model.
+session stops at the start model; it never says "nothing is missing" when the held-out chi2/dof
+exceeds HELDOUT_OK, and it names effects the data cannot tell apart instead of choosing silently.
 """
 
 from __future__ import annotations
@@ -22,44 +23,159 @@ from accellog.core.session import ObsTable, Session
 BASE_STEPS = ("model1", "model2")
 
 
+HELDOUT_OK = 2.0
+"""Above this held-out chi2/dof the model does not transfer: the verdict never says 'nothing is missing'."""
+
+
 @dataclass
 class Discovery:
-    """What the loop found: the diagnoses in order and the effects added (names for --add)."""
+    """What the loop found: per step the diagnosis and the out-of-sample choice, the effects added
+    (names for --add), and the final verdict that uses all the evidence."""
 
     start: str
     diagnoses: list = field(default_factory=list)
+    choices: list = field(default_factory=list)
     added: list[str] = field(default_factory=list)
+    heldout: dict | None = None
+    """Held-out statistics of the final model (heldout_rms_g, heldout_noise_g, heldout_chi2_dof)."""
+    verdict: str = ""
+    advice: list[str] = field(default_factory=list)
+    undecided: list[list[str]] = field(default_factory=list)
+    """Groups of effects the data cannot tell apart (first: the one added)."""
 
     @property
     def final_model(self) -> str:
         return "+".join([self.start, *self.added])
+
+    @property
+    def decided(self) -> bool:
+        return not self.undecided
+
+    @property
+    def transfers(self) -> bool | None:
+        """Held-out chi2/dof of the final model <= HELDOUT_OK (None without a held-out session)."""
+        if self.heldout is None:
+            return None
+        return bool(self.heldout["heldout_chi2_dof"] <= HELDOUT_OK)
+
+    def to_json(self) -> dict:
+        """JSON-able summary (the workbench's --json keys besides session and ladder)."""
+        return {
+            "start": self.start,
+            "added": list(self.added),
+            "final_model": self.final_model,
+            "verdict": self.verdict,
+            "decided": self.decided,
+            "undecided": [list(u) for u in self.undecided],
+            "transfers": self.transfers,
+            "heldout": self.heldout,
+            "verdicts": [d.verdict for d in self.diagnoses],
+            "steps": [c.to_dict() for c in self.choices],
+            "advice": list(self.advice),
+        }
 
 
 def discover(
     obs: ObsTable,
     start: str = "model3",
     *,
+    heldout: Sequence[ObsTable] | ObsTable | None = None,
     max_steps: int = 4,
     effects_file: str | Path | None = None,
     host_time: tuple[np.ndarray, np.ndarray] | None = None,
     on_step: Callable[[object], None] | None = None,
 ) -> Discovery:
-    """Diagnose `start`, add diagnose's best candidate, repeat while something is missing."""
-    from accellog.calibrate.diagnose import diagnose
+    """Diagnose `start`, add the significant candidate that predicts unseen data best (held-out
+    sessions if given, else blocked validation over temperature and time), repeat while one
+    improves out of sample. on_step(Diagnosis) is called after each step (its .choice: the
+    out-of-sample judgement)."""
+    with small_problem_threads():
+        return _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step)
+
+
+def small_problem_threads():
+    """Single-threaded BLAS for the workbench's many small (~1000 x 20) least-squares problems:
+    threads only add overhead there, and oversubscribe a loaded machine (10x slower at load 12)."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step) -> Discovery:
+    from accellog.calibrate.diagnose import diagnose, heldout_stats
+    from accellog.calibrate.fit import fit_model
     from accellog.calibrate.model import build_model
 
+    held = [heldout] if isinstance(heldout, ObsTable) else list(heldout or [])
     model = build_model(start, effects_file=effects_file)
     out = Discovery(start=start)
     for _ in range(max_steps + 1):
-        d = diagnose(obs, model, host_time=host_time)
+        d = diagnose(obs, model, host_time=host_time, heldout=held)
         out.diagnoses.append(d)
         if on_step is not None:
             on_step(d)
-        if not d.missing or d.best is None or d.best in out.added or len(out.added) >= max_steps:
+        ch = d.choice if len(out.added) < max_steps else None
+        if ch is not None:
+            out.choices.append(ch)
+        if ch is None or ch.chosen is None or ch.chosen in out.added:
             break
-        out.added.append(d.best)
-        model = model.with_terms([d.best])
+        if ch.undecided:
+            out.undecided.append([ch.chosen, *ch.undecided])
+        out.added.append(ch.chosen)
+        model = model.with_terms([ch.chosen])
+    # a tie is resolved when every alternative ended up in the model too
+    out.undecided = [
+        g for g in ([g[0], *[e for e in g[1:] if e not in out.added]] for g in out.undecided) if len(g) > 1
+    ]
+    if held:
+        final = fit_model(obs, model)
+        stats = [heldout_stats(final, h) for h in held]
+        out.heldout = {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
+    out.verdict, out.advice = final_verdict(out)
     return out
+
+
+def final_verdict(found: Discovery) -> tuple[str, list[str]]:
+    """One verdict from all the evidence: the last diagnosis, the held-out session, the ties."""
+    d = found.diagnoses[-1]
+    advice = list(d.advice)
+    fit = f"{d.model.name}: chi2/dof {d.fit.chi2_dof:.3g} on the calibration session"
+    parts = []
+    tied = {e for group in found.undecided for e in group}
+    for c in found.choices:
+        for col in c.collinear:
+            if col.b in tied:
+                advice.append(col.text())
+    if found.undecided:
+        groups = "; ".join(" vs ".join(u) for u in found.undecided)
+        parts.append(
+            f"cannot decide between {groups}: they explain the same residual on this data, so the "
+            "added effect may be a proxy that will not transfer (see advice for what to record)"
+        )
+    last = found.choices[-1] if found.choices else None
+    if last is not None and last.chosen is None and "does not predict" in last.reason:
+        parts.append(last.reason)
+    if found.heldout is not None and not found.transfers:
+        h = found.heldout["heldout_chi2_dof"]
+        parts.append(
+            f"the model fits here but does not transfer: held-out chi2/dof {h:.3g} "
+            f"(residual {found.heldout['heldout_rms_g'] * 1e3:.3g} mg vs noise "
+            f"{found.heldout['heldout_noise_g'] * 1e3:.3g} mg)"
+        )
+        advice.append(
+            "what is missing shows only on the held-out session: run diagnose on it, or record a "
+            "session whose drivers (temperature, time, orientation) vary independently"
+        )
+    held_ok = (
+        f" (held-out chi2/dof {found.heldout['heldout_chi2_dof']:.3g}: it transfers)"
+        if found.transfers
+        else ""
+    )
+    if not parts and not d.missing:
+        return f"{fit}: the model fits to the noise floor; nothing is missing{held_ok}.", advice
+    if not parts:
+        return d.verdict + held_ok, advice
+    return f"{fit}; " + "; ".join(parts) + held_ok + ".", advice
 
 
 def ladder_rows(
@@ -71,17 +187,29 @@ def ladder_rows(
     static_test: Session | None = None,
     effects_file: str | Path | None = None,
     at_s: float = 60.0,
+    gyro: bool = True,
 ) -> list[dict]:
     """Fit each step (preset, added effects) and judge it: chi2/dof and RMS on the calibration
     windows, held-out residual RMS and noise floor (g), |displacement| of the static test at at_s (m).
-    Each row keeps its FitOutcome under 'fit' (not JSON)."""
+    Each row keeps its FitOutcome under 'fit' (not JSON); gyro: calibrate the gyro with the last step
+    (for the calibration file)."""
+    with small_problem_threads():
+        return _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro)
+
+
+def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro) -> list[dict]:
     from accellog.calibrate.diagnose import heldout_stats
     from accellog.flows.stages import run_evaluate, run_fit
 
     rows = []
     for i, (preset, add) in enumerate(steps):
         fo = run_fit(
-            calibration, preset, add=list(add), effects_file=effects_file, obs=obs, gyro=i == len(steps) - 1
+            calibration,
+            preset,
+            add=list(add),
+            effects_file=effects_file,
+            obs=obs,
+            gyro=gyro and i == len(steps) - 1,
         )
         row = {
             "model": fo.fit.model.name,

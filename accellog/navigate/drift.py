@@ -20,18 +20,17 @@ and it extrapolates poorly beyond the fitted duration.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import dataclasses
 
 import numpy as np
 
+from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.noise import integrated_autocorr_time
 from accellog.core.errors import InputError
+from accellog.core.session import Session
+from accellog.navigate.evaluate import calibrated_residual
 from accellog.navigate.integrate import displacement
-
-if TYPE_CHECKING:
-    from accellog.calibrate.calibration import Calibration
-    from accellog.core.session import Session
 
 
 def _design(t: np.ndarray) -> np.ndarray:
@@ -105,9 +104,6 @@ def drift_from_session(
     The session is calibrated, gravity is removed (up * g_local), the residual acceleration is
     integrated twice over its timestamps and q is fitted per axis (see fit_drift).
     """
-    import dataclasses
-
-    from accellog.navigate.evaluate import calibrated_residual
 
     t, r, up, _, _, _ = calibrated_residual(
         session, cal, up_sensor=up_sensor, until_s=until_s, max_samples=max_samples

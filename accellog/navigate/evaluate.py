@@ -27,8 +27,10 @@ import numpy as np
 
 from accellog.calibrate.calibration import Calibration, session_drivers
 from accellog.calibrate.noise import sem_autocorr
+from accellog.calibrate.noise_model import sem_with_noise_floor
 from accellog.calibrate.segment import check_static, observations
 from accellog.core.errors import InputError
+from accellog.core.jsonio import JsonResult
 from accellog.core.session import PoseLabel, Session
 from accellog.navigate.integrate import DEFAULT_TIMES_S, displacement, values_at
 
@@ -36,7 +38,7 @@ AXES = ("x", "y", "z")
 
 
 @dataclass
-class Evaluation:
+class Evaluation(JsonResult):
     """Result of evaluating one calibration (or none) on one static session. m/s^2, m, s."""
 
     label: str
@@ -266,6 +268,9 @@ def evaluate(
     sem, _ = sem_autocorr(
         r, quantum=(unit / session.meta.accel_lsb_per_g) if session.meta.accel_lsb_per_g else 0.0
     )
+    if cal is not None and cal.noise is not None:  # the calibration's measured white noise is the floor
+        sem = sem_with_noise_floor(cal.noise, sem, float(t[-1] - t[0]))
+        notes.append("noise floor: at least the white noise of the calibration's noise section")
     if cal is not None:
         drv_all = session_drivers(
             Session(
@@ -341,7 +346,7 @@ def evaluate(
 
 
 @dataclass
-class PoseEvaluation:
+class PoseEvaluation(JsonResult):
     """Window-by-window residuals of a calibration on a multi-pose session (g)."""
 
     label: str

@@ -26,6 +26,7 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.navigate.integrate import displacement
 
 CorrectFn = Callable[[np.ndarray, Mapping[str, np.ndarray]], np.ndarray]
 """correct(meas_g (n,3), drivers {'t_s': (n,), 'temp_degC': (n,), ...}) -> f_g (n,3)."""
@@ -155,7 +156,6 @@ def integrate_batch(
 ) -> OnlineStep:
     """Whole-session reference: the same equations with accellog.navigate.integrate.displacement
     (scipy cumulative_trapezoid, initial 0)."""
-    from accellog.navigate.integrate import displacement
 
     t = np.asarray(t_s, dtype=np.float64)
     m = np.asarray(meas_g, dtype=np.float64).reshape(-1, 3)

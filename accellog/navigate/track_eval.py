@@ -15,14 +15,17 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from accellog.calibrate.calibration import session_drivers
+from accellog.calibrate.gyro import GyroCalibration
 from accellog.core.errors import InputError
+from accellog.core.jsonio import JsonResult
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.navigate.strapdown import Track, initial_orientation, strapdown, yaw_of
 from accellog.navigate.zupt import ZuptResult, apply_zupt, detect_stationary
 
 
 @dataclass
-class TrackError:
+class TrackError(JsonResult):
     """How far one track is off. reference: 'truth' or 'loop_closure' (then rms/max are NaN)."""
 
     name: str
@@ -117,8 +120,6 @@ def accel_corrector(cal, session=None) -> Callable[[np.ndarray], np.ndarray]:
     if hasattr(cal, "correct_mps2"):
         drivers = None
         if session is not None:
-            from accellog.calibrate.calibration import session_drivers
-
             needed = list(getattr(cal.model, "required_drivers", []) or [])
             drivers = session_drivers(session, needed)
         return lambda a: np.asarray(cal.correct_mps2(a, drivers), float) / STANDARD_GRAVITY_MPS2
@@ -130,7 +131,6 @@ def accel_corrector(cal, session=None) -> Callable[[np.ndarray], np.ndarray]:
 
 def gyro_corrector(cal, session=None) -> Callable[[np.ndarray], np.ndarray] | None:
     """The gyro part of a calibration (attribute or key 'gyro': GyroCalibration or its dict), or None."""
-    from accellog.calibrate.gyro import GyroCalibration
 
     g = cal.get("gyro") if isinstance(cal, dict) else getattr(cal, "gyro", None)
     if g is None:

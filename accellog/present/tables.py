@@ -17,8 +17,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from accellog.calibrate.calibration import Calibration, dumps
+from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.drift_model import DriftModel
+from accellog.core.jsonio import dumps
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation
 
 AXES = ("x", "y", "z")
@@ -164,3 +165,77 @@ def print_tables(tables: Sequence[Table | None], console: Console | None = None)
 def json_text(data: Any) -> str:
     """Strict JSON text of results (numpy arrays as lists, NaN as null)."""
     return dumps(data)
+
+
+def _fmt_m(x: float, unit: str = "m") -> str:
+    return "-" if x != x else f"{x:.3g} {unit}"
+
+
+def track_table(title: str, runs, zupt: bool) -> Table:
+    """Final and RMS position error per track (and without ZUPT, with the number of stops)."""
+    table = Table(title=title)
+    for c in ("calibration", "final error", "RMS error", "% of path"):
+        table.add_column(c, justify="left" if c == "calibration" else "right")
+    if zupt:
+        table.add_column("final w/o ZUPT", justify="right")
+        table.add_column("stops", justify="right")
+    for r in runs:
+        e = r.error
+        row = [r.name, _fmt_m(e.final_error_m), _fmt_m(e.rms_error_m), f"{e.final_error_pct_of_path:.2g}"]
+        if zupt:
+            row += [_fmt_m(r.error_without_zupt.final_error_m), str(e.zupt_stops)]
+        table.add_row(*row)
+    return table
+
+
+def segment_table(title: str, stats) -> Table:
+    """Per-pose statistics: time span, samples, mean +- sem per axis (g), autocorrelation time, temperature."""
+    t = Table(title=title)
+    t.add_column("pose")
+    t.add_column("t (s)")
+    t.add_column("n", justify="right")
+    for ax in "xyz":
+        t.add_column(f"{ax} mean ± sem (g)", justify="right")
+    t.add_column("tau (samples)", justify="right")
+    t.add_column("T (degC)", justify="right")
+    for p in stats:
+        t.add_row(
+            p.name,
+            f"{p.start_s:.1f}-{p.end_s:.1f}",
+            str(p.n),
+            *(fmt_pm(float(m), float(s)) for m, s in zip(p.mean_g, p.sem_g, strict=True)),
+            "/".join(f"{x:.1f}" for x in p.tau_samples),
+            "-" if p.temp_degC is None else f"{p.temp_degC:.2f}",
+        )
+    return t
+
+
+def pose_eval_summary(pes, at_s: float) -> list[str]:
+    """One line per evaluation: RMS, chi2/dof and the worst hold's displacement at at_s (m)."""
+    lines = []
+    for p in pes:
+        d = p.to_dict()[f"displacement_{at_s:g}s_m"]
+        lines.append(
+            f"{p.label}: RMS {p.rms_g * p.mps2_per_unit:.4g} m/s^2, chi2/dof {p.chi2 / max(p.dof, 1):.3g}; "
+            f"worst hold displacement at {at_s:g} s (from rest, extrapolated) "
+            + ", ".join(f"{a} {v:+.3g} m" for a, v in zip("xyz", d, strict=True))
+        )
+    return lines
+
+
+def replay_table(res, title: str) -> Table:
+    """Final displacement (m) of each replayed track and whether a drift model was applied."""
+    t = Table(title=title)
+    for c in ("track", "x (m)", "y (m)", "z (m)", "|d| (m)", "drift model"):
+        t.add_column(c, justify="left" if c in ("track", "drift model") else "right")
+    for tr in res.tracks:
+        d = tr.final_m
+        t.add_row(
+            tr.label,
+            f"{d[0]:+.3f}",
+            f"{d[1]:+.3f}",
+            f"{d[2]:+.3f}",
+            f"{np.linalg.norm(d):.3f}",
+            "applied" if tr.disp_end_drift_m is not None else "-",
+        )
+    return t

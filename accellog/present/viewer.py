@@ -9,6 +9,7 @@ real time until the viewer has drawn the recording and saves a PNG. Nothing here
 
 from __future__ import annotations
 
+import atexit
 import base64
 import contextlib
 import io
@@ -19,6 +20,7 @@ import signal
 import socket
 import subprocess
 import tempfile
+import threading
 import time
 import urllib.parse
 import urllib.request
@@ -29,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from accellog.core.errors import InputError
+from accellog.store.atomic import write_bytes_atomic
 
 CHROMIUM_CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "chrome")
 
@@ -93,9 +96,56 @@ def rerun_env() -> dict[str, str]:
     return dict(os.environ, RERUN_ANALYTICS="0")
 
 
+# Children (rerun server, chromium) run in their own process group (start_new_session) so that one
+# killpg ends them with all their helpers. They are ended on every exit path of this process:
+# normal return and exceptions (context managers), SIGTERM/SIGHUP (handlers installed with the first
+# child turn the signal into SystemExit after ending the children) and interpreter exit (atexit).
+_CHILDREN: set[subprocess.Popen] = set()
+_HANDLED = (signal.SIGTERM, signal.SIGHUP)
+_installed = False
+
+
+def start_child(cmd: list[str], **kw) -> subprocess.Popen:
+    """Popen in a new process group (stdout/stderr discarded), ended on every exit path."""
+    _install_exit_guards()
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, **kw
+    )
+    _CHILDREN.add(proc)
+    return proc
+
+
+def end_children() -> None:
+    """Stop every child still running (process groups: SIGTERM, then SIGKILL after 5 s)."""
+    for proc in list(_CHILDREN):
+        with contextlib.suppress(Exception):
+            stop_process(proc)
+
+
+def _on_signal(signum, _frame) -> None:
+    end_children()
+    raise SystemExit(128 + signum)
+
+
+def _install_exit_guards() -> None:
+    global _installed
+    if _installed:
+        return
+    _installed = True
+    atexit.register(end_children)
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in _HANDLED:
+        if signal.getsignal(sig) in (signal.SIG_DFL, None):
+            signal.signal(sig, _on_signal)
+
+
 def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
     """Terminate a process we started (its own process group), then kill it if it lingers."""
+    _CHILDREN.discard(proc)
     if proc.poll() is not None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)  # helpers left in its group
         return
     with contextlib.suppress(ProcessLookupError):
         os.killpg(proc.pid, signal.SIGTERM)
@@ -141,9 +191,7 @@ def serve_rrd(rrd_path: str | Path, *, timeout_s: float = 30.0) -> Iterator[WebV
         str(web_port),
         str(p),
     ]
-    proc = subprocess.Popen(
-        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=rerun_env(), start_new_session=True
-    )
+    proc = start_child(cmd, env=rerun_env())
     try:
         wait_port(web_port, timeout_s, proc)
         wait_port(grpc_port, timeout_s, proc)
@@ -189,9 +237,7 @@ class Chromium:
         ]
         # Chromium's own temporary files go to the profile folder, removed on close.
         env = {**os.environ, "TMPDIR": self._profile}
-        self.proc = subprocess.Popen(
-            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, env=env
-        )
+        self.proc = start_child(cmd, env=env)
         self._ws = None
         self._id = 0
         self._events: set[str] = set()
@@ -351,9 +397,7 @@ def screenshot_url(
                 break
             if now >= wait_s:
                 break
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_bytes(png)
-    os.replace(tmp, out)
+    write_bytes_atomic(out, png)
     assert stats is not None
     return stats
 

@@ -20,6 +20,8 @@ import numpy as np
 from rich.table import Table
 
 from accellog.core.session import Session
+from accellog.present.rrd.entities import slug_path
+from accellog.present.tables import displacement_table, params_table, static_means_table
 
 
 def table_markdown(table: Table) -> str:
@@ -69,7 +71,6 @@ def pose_means(obs, values_g: np.ndarray) -> tuple[list[str], np.ndarray]:
 
 def log_fit(rec, outcome, label: str | None = None) -> None:
     """Measured vs predicted per pose (residual bars per axis) and the parameter table."""
-    from accellog.present.tables import params_table
 
     fit = outcome.fit
     label = label or fit.model.name
@@ -86,7 +87,6 @@ def log_evaluations(
 ) -> None:
     """Displacement tracks of a static test per calibration (+ after the drift model) and tables,
     at /tracks/{group}/{label} and /world/tracks/{group}/{label}."""
-    from accellog.present.tables import displacement_table, static_means_table
 
     t_ref = None
     for ev in evals:
@@ -123,7 +123,6 @@ def log_diagnosis(rec, diag, obs, label: str = "diagnose") -> None:
 def log_track_runs(rec, runs: Sequence, truth=None, group: str = "robot") -> None:
     """Moving-robot tracks per calibration next to the true path (time series and 3D), the
     position error over time (m) per calibration, the stops ZUPT used, and the error table."""
-    from accellog.present.rrd.entities import slug_path
 
     if truth is not None:
         rec.log_track(f"{group}/truth", truth.t_s, truth.position_m)

@@ -3,11 +3,19 @@
 ``recover`` scans an unfinished file front to back and keeps every complete chunk (all or nothing per
 chunk). The fast reader (accellog.store.fastread) falls back here on anything outside the canonical
 layout; both give identical results where both apply.
+
+Corruption: every chunk's uncompressed CRC is checked (when the writer stored one); a chunk that
+fails (CRC, decompression, size, or a header that disagrees with its chunk index) is skipped whole
+and named in ``Collected.damaged`` (byte offset, log-time range, reason), never decoded. The data
+section CRC (DataEnd) and the summary CRC (Footer) cover every other byte: a mismatch that no chunk
+explains is reported as damage outside the chunks, and a damaged summary is not trusted (the file
+is read by scanning its data section).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import zlib
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -29,12 +37,73 @@ from accellog.store.schema import MESSAGE_DEFS, PACKAGE
 Decoder = BatchDecoder | DecodedBatch  # n_messages and result() (arrays, scalars, counts)
 
 
+@dataclasses.dataclass(frozen=True)
+class Damage:
+    """A part of the file that failed its integrity check and was not decoded."""
+
+    offset: int
+    """Byte offset of the damaged record (a chunk) or region."""
+    start_ns: int
+    """Log time of the first message the damaged chunk held (ns; -1 if unknown)."""
+    end_ns: int
+    """Log time of its last message (ns; -1 if unknown)."""
+    reason: str
+    """What failed: 'CRC mismatch', 'does not decompress', ..."""
+    chunk: bool = True
+    """True: a whole chunk was skipped; False: damage outside the chunks (nothing skipped)."""
+
+    def describe(self) -> str:
+        if not self.chunk:
+            return f"damaged bytes outside the chunks ({self.reason}) before byte {self.offset}"
+        span = f"t {self.start_ns / 1e9:.3f}-{self.end_ns / 1e9:.3f} s" if self.start_ns >= 0 else "t unknown"
+        return f"damaged chunk at byte {self.offset} ({span}): {self.reason}; skipped"
+
+
 @dataclasses.dataclass
 class Collected:
     metadata: dict[str, str]
     topics: dict[str, str]  # topic -> schema name
     decoders: dict[str, Decoder]
     recovered: str | None  # None: finished file; else what was salvaged
+    damaged: list[Damage] = dataclasses.field(default_factory=list)
+
+
+def chunk_records(chunk: Chunk, offset: int) -> list | Damage:
+    """The records of one chunk after mcap's decompress-and-CRC check, or its Damage."""
+    try:
+        return breakup_chunk(chunk, validate_crc=True)
+    except Exception as exc:  # CRC mismatch, bad frame, truncated record inside: the chunk is damaged
+        reason = (
+            "CRC mismatch" if "crc" in type(exc).__name__.lower() else f"unreadable ({type(exc).__name__})"
+        )
+        return Damage(offset, int(chunk.message_start_time), int(chunk.message_end_time), reason)
+
+
+def data_section_damage(data, summary_start: int) -> Damage | None:
+    """Check the DataEnd CRC (every byte from the magic to the DataEnd record) when it was stored."""
+    at = summary_start - 13  # DataEnd: opcode 0x0F, length 4, crc u32
+    if at < 8 or data[at] != 0x0F or int.from_bytes(data[at + 1 : at + 9], "little") != 4:
+        return None
+    want = int.from_bytes(data[at + 9 : at + 13], "little")
+    if want == 0:
+        return None
+    got, mv, step = 0, memoryview(data), 16 << 20
+    for lo in range(0, at, step):  # in pieces, dropping each piece's mapped pages behind us
+        got = zlib.crc32(mv[lo : min(lo + step, at)], got)
+        release_pages(data, lo, min(lo + step, at))
+    mv.release()
+    return None if got == want else Damage(at, -1, -1, "data section CRC mismatch", chunk=False)
+
+
+def release_pages(data, lo: int, hi: int) -> None:
+    """Tell the kernel the mapped file bytes [lo, hi) are not needed any more (MADV_DONTNEED), so a
+    pass over a long file keeps its resident memory bounded; a no-op for bytes objects."""
+    import mmap
+
+    if isinstance(data, mmap.mmap) and hasattr(mmap, "MADV_DONTNEED"):
+        lo -= lo % mmap.PAGESIZE
+        if hi > lo:
+            data.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
 
 
 def check_file(path: Path) -> None:
@@ -84,12 +153,36 @@ class _Sink:
         dec.add(data)
 
 
+def file_damage(path: Path) -> tuple[Exception | None, Damage | None]:
+    """Summary and data-section CRC checks of a finished file: (an exception if the summary fails
+    the footer's CRC, the data section's Damage if it fails the DataEnd CRC); (None, None) for an
+    unfinished file (recover() decides) or CRCs the writer did not store."""
+    import mmap
+
+    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        footer = len(data) - len(MCAP_MAGIC) - 29
+        if footer < 8 or data[-len(MCAP_MAGIC) :] != MCAP_MAGIC or data[footer] != 0x02:
+            return None, None
+        start = int.from_bytes(data[footer + 9 : footer + 17], "little")
+        if not 0 < start <= footer:
+            return None, None
+        want = int.from_bytes(data[footer + 25 : footer + 29], "little")
+        if want and want != zlib.crc32(
+            data[footer : footer + 25], zlib.crc32(memoryview(data)[start:footer])
+        ):
+            return McapError("summary section CRC mismatch"), None
+        return None, data_section_damage(data, start)
+
+
 def generic_collect(path: Path, topics: Iterable[str] | None = None) -> Collected:
     """``_collect`` with mcap's SeekingReader and one ``BatchDecoder.add`` per message."""
     sink = _Sink(topics)
+    bad_summary, outside = file_damage(path)
+    if bad_summary is not None:
+        return recover(path, topics, bad_summary)
     try:
         with open(path, "rb") as f:
-            reader = make_reader(f)
+            reader = make_reader(f, validate_crcs=True)
             summary = reader.get_summary()
             if summary is None:
                 raise McapError("no summary section")
@@ -100,19 +193,30 @@ def generic_collect(path: Path, topics: Iterable[str] | None = None) -> Collecte
                     sink.metadata = dict(md.metadata)
             for ch in summary.channels.values():
                 sink.channel(summary.schemas.get(ch.schema_id), ch)
-        return Collected(sink.metadata, sink.topics, sink.decoders, None)
+        return Collected(sink.metadata, sink.topics, sink.decoders, None, [outside] if outside else [])
     except (McapError, EOFError, ValueError, OSError, IndexError, KeyError) as exc:
+        fast_error = exc
+    except Exception as exc:  # e.g. a damaged chunk that fails inside the decompressor
         fast_error = exc
     return recover(path, topics, fast_error)
 
 
 def recover(path: Path, topics: Iterable[str] | None, why: Exception) -> Collected:
-    """Scan the file front to back and keep every complete chunk (all-or-nothing per chunk)."""
+    """Scan the file front to back and keep every sound chunk (all-or-nothing per chunk).
+
+    A chunk that fails its CRC or does not decompress is skipped and named (Damage); the scan goes
+    on past it (its record length is what the stream reader steps by). The scan stops at the first
+    unreadable record (a truncated file): what came before is kept and the stop is described."""
+    from mcap.records import DataEnd, Footer
+
     sink = _Sink(topics)
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
+    damaged: list[Damage] = []
     n_chunks = 0
     stop = ""
+    finished = False
+    data_end_at = -1
 
     def handle(rec) -> None:
         if isinstance(rec, Schema):
@@ -131,17 +235,46 @@ def recover(path: Path, topics: Iterable[str] | None, why: Exception) -> Collect
         try:
             for rec in StreamReader(f, emit_chunks=True).records:
                 if isinstance(rec, Chunk):
-                    inner = breakup_chunk(rec, validate_crc=True)  # whole chunk or nothing
+                    at = f.tell() - 9 - (40 + len(rec.compression.encode()) + len(rec.data))
+                    inner = chunk_records(rec, at)
+                    if isinstance(inner, Damage):
+                        damaged.append(inner)
+                        continue
                     for r in inner:
                         handle(r)
                     n_chunks += 1
+                elif isinstance(rec, DataEnd):  # the data section is complete: the rest is indexes
+                    data_end_at = f.tell() - 13
+                    finished = True
+                    break
+                elif isinstance(rec, Footer):
+                    finished = True
                 else:
                     handle(rec)
         except Exception as exc:  # anything unreadable ends the salvage: keep what is complete
             stop = f"{type(exc).__name__} at byte {f.tell()}"
+    if data_end_at > 0 and not damaged:
+        import mmap
+
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            outside = data_section_damage(data, data_end_at + 13)
+        if outside is not None:
+            damaged.append(outside)
     size = path.stat().st_size
-    detail = (
-        f"file was not finished ({type(why).__name__}: {why}); salvaged {sink.n_messages} messages "
-        f"in {n_chunks} chunks of {size} bytes; reading stopped: {stop or 'end of data'}"
-    )
-    return Collected(sink.metadata, sink.topics, sink.decoders, detail)
+    with open(path, "rb") as f:
+        f.seek(max(size - len(MCAP_MAGIC), 0))
+        has_end = f.read() == MCAP_MAGIC
+    if not has_end:
+        detail = (
+            f"file was not finished ({type(why).__name__}: {why}); salvaged {sink.n_messages} messages "
+            f"in {n_chunks} chunks of {size} bytes; reading stopped: {stop or 'end of data'}"
+        )
+    elif finished and not stop:
+        summary = f"summary unreadable ({type(why).__name__}: {why}); read by scanning the file"
+        detail = None if damaged else summary
+    else:  # a whole file whose data section cannot be walked to the end: damaged, not truncated
+        detail = (
+            f"damaged file: unreadable record ({stop or why}); salvaged {sink.n_messages} messages in "
+            f"{n_chunks} chunks before it, of {size} bytes"
+        )
+    return Collected(sink.metadata, sink.topics, sink.decoders, detail, damaged)

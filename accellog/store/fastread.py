@@ -5,6 +5,12 @@ reused buffers (the next group on a worker thread while this one is decoded), re
 guesses (runs of equal-length messages), and every channel's payloads decoded at once by
 ``batch_decode.decode_batch`` straight into arrays sized once. Anything unexpected raises ``_NotFast``
 and the generic reader decides.
+
+Integrity (see accellog.store.collect): the summary CRC is checked first (a damaged summary is not
+trusted: the file is scanned instead); with a sound summary each chunk header must agree with its
+chunk index, decompress to the indexed size and match its uncompressed CRC, else the chunk is
+skipped and named (Damage); the data section CRC, computed on a worker thread, catches damage
+anywhere else.
 """
 
 from __future__ import annotations
@@ -12,6 +18,7 @@ from __future__ import annotations
 import itertools
 import mmap
 import struct
+import zlib
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -19,8 +26,9 @@ from pathlib import Path
 import numpy as np
 from mcap.records import Channel, Schema
 
+from accellog.core.errors import InputError
 from accellog.store.batch_decode import BatchAccumulator, decode_batch, read_le
-from accellog.store.collect import Collected, _Sink
+from accellog.store.collect import Collected, Damage, _Sink, data_section_damage, recover, release_pages
 from accellog.store.layout import MCAP_MAGIC
 
 # ---------------------------------------------------------------------------------------------
@@ -29,6 +37,14 @@ from accellog.store.layout import MCAP_MAGIC
 
 class _NotFast(Exception):
     """The fast reader met something outside the canonical layout: the generic reader decides."""
+
+
+class _Refuse(Exception):
+    """Damage the reader cannot work around (e.g. the session metadata record): an InputError."""
+
+
+class _SummaryDamaged(Exception):
+    """The summary section fails its CRC: its offsets cannot be trusted; scan the file instead."""
 
 
 _REC = struct.Struct("<BQ")  # record prefix: opcode u8, content length u64
@@ -63,8 +79,20 @@ def fast_collect(path: Path, topics: Iterable[str] | None = None) -> Collected |
     try:
         with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
             return _fast_parse(data, topics)
+    except _SummaryDamaged as exc:
+        return recover(path, topics, exc)
+    except _Refuse as exc:
+        raise InputError(str(exc), where=str(path)) from None
     except Exception:  # an optimisation only: on any surprise the generic reader decides
         return None
+
+
+def summary_sound(data: _Bytes, footer: int, summary_start: int) -> bool | None:
+    """Footer summary CRC check: True/False, None when the writer stored none (0)."""
+    want = _U32.unpack_from(data, footer + 25)[0]
+    if want == 0:
+        return None
+    return zlib.crc32(data[footer : footer + 25], zlib.crc32(memoryview(data)[summary_start:footer])) == want
 
 
 def _str_at(data: _Bytes, pos: int) -> tuple[str, int]:
@@ -97,6 +125,21 @@ def _channel_at(data: _Bytes, c: int) -> tuple[Channel, int]:
 
 
 def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> Collected:
+    """The whole file at once: _fast_walk drained."""
+    walk = _fast_walk(data, topics)
+    while True:
+        try:
+            next(walk)
+        except StopIteration as end:
+            return end.value
+
+
+def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = None):
+    """Generator over the chunk groups of a finished file; returns the Collected at the end.
+
+    stream: a topic whose messages are handed out group by group instead of accumulated: after
+    each group it yields (metadata, DecodedBatch of that topic's messages in the group, or None),
+    so memory stays bounded by one group. Without stream it yields nothing until the end."""
     size = len(data)
     if size < 2 * len(MCAP_MAGIC) + _FOOTER_SIZE or data[-len(MCAP_MAGIC) :] != MCAP_MAGIC:
         raise _NotFast("no footer magic: unfinished file")
@@ -106,6 +149,9 @@ def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> Collected:
     summary_start = _U64.unpack_from(data, footer + 9)[0]
     if summary_start == 0 or summary_start >= footer:
         raise _NotFast("no summary section")
+    verified = summary_sound(data, footer, summary_start)
+    if verified is False:
+        raise _SummaryDamaged("summary section CRC mismatch")
 
     # summary section: every record parsed must fill its declared length exactly
     schemas: dict[int, Schema] = {}
@@ -149,76 +195,131 @@ def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> Collected:
     comp_len = read_le(buf, ci + 44 + map_len, "<u4").astype(np.int64)
     if np.any(32 + 4 + map_len + 8 + 4 + comp_len + 16 != np.asarray(chunk_index_len)):
         raise _NotFast("chunk index length")
+    t_first = read_le(buf, ci, "<u8").astype(np.int64)
+    t_last = read_le(buf, ci + 8, "<u8").astype(np.int64)
     chunk_at = read_le(buf, ci + 16, "<u8").astype(np.int64)
-    if np.any(chunk_at > footer - 49) or np.any(buf[chunk_at] != _OP_CHUNK):
+    chunk_len = read_le(buf, ci + 24, "<u8").astype(np.int64)
+    idx_csize = read_le(buf, ci + 48 + map_len + comp_len, "<u8").astype(np.int64)
+    idx_usize = read_le(buf, ci + 56 + map_len + comp_len, "<u8").astype(np.int64)
+    if np.any(chunk_at > footer - 49) or np.any(chunk_at + chunk_len > footer):
         raise _NotFast("chunk index does not point at a chunk")
     # chunk: start, end u64, uncompressed_size u64, crc u32, compression string, records (u64 length)
     c = chunk_at + 9
     usize = read_le(buf, c + 16, "<u8").astype(np.int64)
-    name_len = read_le(buf, c + 28, "<u4").astype(np.int64)
-    if np.any(name_len > 4):
+    crc = read_le(buf, c + 24, "<u4").astype(np.int64)
+    if np.any(comp_len > 4):  # a compression other than zstd / lz4 / none: the generic reader decides
         raise _NotFast("compression")
-    rec_len = read_le(buf, c + 32 + name_len, "<u8")
-    if np.any(rec_len > np.uint64(size)):
-        raise _NotFast("chunk past the end")
+    name_len = np.minimum(read_le(buf, c + 28, "<u4").astype(np.int64), 4)  # > 4 only if damaged
+    rec_len = read_le(buf, c + 32 + name_len, "<u8").astype(np.int64)
     rec_at = c + 40 + name_len
-    rec_end = rec_at + rec_len.astype(np.int64)
-    if np.any(rec_end > footer):
-        raise _NotFast("chunk past the end")
+    rec_end = rec_at + np.clip(rec_len, 0, footer)
+    # the header of every chunk must agree with its index (opcode, lengths, sizes, compression)
+    sound = (buf[chunk_at] == _OP_CHUNK) & (
+        read_le(buf, chunk_at + 1, "<u8").astype(np.int64) == chunk_len - 9
+    )
+    sound &= (usize == idx_usize) & (rec_len == idx_csize) & (40 + name_len + rec_len == chunk_len - 9)
+    sound &= (name_len == comp_len) & (rec_end <= footer)
+    for k in np.flatnonzero(sound).tolist():
+        if (
+            data[ci[k] + 48 + map_len[k] : ci[k] + 48 + map_len[k] + comp_len[k]]
+            != data[c[k] + 32 : c[k] + 32 + name_len[k]]
+        ):
+            sound[k] = False
+    if not sound.all() and not verified:  # without a summary CRC the index itself may be the damage
+        raise _NotFast("chunk header disagrees with its index")
+    damaged = [
+        Damage(int(chunk_at[k]), int(t_first[k]), int(t_last[k]), "chunk header disagrees with its index")
+        for k in np.flatnonzero(~sound).tolist()
+    ]
+    usize = np.where(sound, usize, 0)
+    crc = np.where(sound, crc, 0)
+    # the session metadata (LSB scales) first: a stream needs it before the first group
+    meta_kv: dict[str, str] = {}
+    meta_error: tuple[int, str] | None = None
+    for at in metadata_at:
+        try:
+            name, kv = _metadata_at(data, at)
+        except Exception as exc:
+            meta_error = (at, str(exc))
+            if stream is not None:
+                raise _NotFast(str(exc)) from None
+            continue
+        if name == "session":
+            meta_kv = kv
     # chunks in groups of about _GROUP_BYTES decompressed: each group is decoded while in the CPU cache
     sink = _Sink(topics)
     message_of: dict[int, str | None] = {}  # channel id -> accellog message type (None: not decoded)
     parts: dict[int, BatchAccumulator] = {}
     name_at, name_len, rec_at, rec_end = (
         (c + 32).tolist(),
-        name_len.tolist(),
+        np.where(sound, name_len, -1).tolist(),  # -1: skip (damaged header)
         rec_at.tolist(),
         rec_end.tolist(),
     )
-    chunks = _Decompressor(data)
+    chunk_info = (chunk_at.tolist(), t_first.tolist(), t_last.tolist(), crc.tolist())
+    chunks = _Decompressor(data, chunk_info, damaged)
     usize_list = usize.tolist()
     done = (np.cumsum(usize) / max(1, int(usize.sum()))).tolist()  # fraction read after each chunk
     groups = _groups(usize)
 
-    def decompress(i: int) -> tuple[bytearray, int]:
+    def decompress(i: int) -> tuple[bytearray, int, list[int]]:
         g0, g1 = groups[i]
-        return chunks.records(
-            name_at[g0:g1], name_len[g0:g1], rec_at[g0:g1], rec_end[g0:g1], usize_list[g0:g1], i % 2
+        out = chunks.records(
+            g0, name_at[g0:g1], name_len[g0:g1], rec_at[g0:g1], rec_end[g0:g1], usize_list[g0:g1], i % 2
         )
+        release_pages(data, min(rec_at[g0:g1]), max(rec_end[g0:g1]))  # read once: drop them
+        return out
 
     # group i + 1 is decompressed in a thread (lz4/zstd release the GIL) while group i is decoded;
     # leaving the with-block (also on an exception) waits for it, before the file is unmapped
-    with ThreadPoolExecutor(1) as pool:
+    with ThreadPoolExecutor(1) as pool, ThreadPoolExecutor(1) as crc_pool:
         pending = pool.submit(decompress, 0)
-        for i, (g0, g1) in enumerate(groups):
-            records, used = pending.result()
+        data_crc = crc_pool.submit(data_section_damage, data, summary_start)  # zlib releases the GIL
+        for i in range(len(groups)):
+            records, used, sizes = pending.result()
             if i + 1 < len(groups):
                 pending = pool.submit(decompress, i + 1)
-            _decode_group(
-                records, used, usize_list[g0:g1], done[g1 - 1], channels, schemas, sink, message_of, parts
-            )
+            frac = 1.0 if stream else done[groups[i][1] - 1]
+            _decode_group(records, used, sizes, frac, channels, schemas, sink, message_of, parts)
+            if stream is not None:
+                part = next(
+                    (parts.pop(c) for c, ch in channels.items() if ch.topic == stream and c in parts), None
+                )
+                yield meta_kv, None if part is None else part.finish()
+        outside = data_crc.result()
+    if outside is not None and not damaged:
+        damaged.append(outside)
     for cid, msg in message_of.items():
-        if msg is not None:
+        if msg is not None and cid in parts:
             sink.decoders[channels[cid].topic] = parts[cid].finish()
     for ch in channels.values():
         sink.channel(schemas.get(ch.schema_id), ch)
 
-    for at in metadata_at:
-        op, ln = _REC.unpack_from(data, at)
-        if op != _OP_METADATA:
-            raise _NotFast("metadata index does not point at metadata")
-        name, q = _str_at(data, at + 9)
-        end = _map_end(data, q)
-        kv: dict[str, str] = {}
-        q += 4
-        while q < end:
-            k, q = _str_at(data, q)
-            kv[k], q = _str_at(data, q)
-        if q != end or end != at + 9 + ln:
-            raise _NotFast("metadata record length")
-        if name == "session":
-            sink.metadata = kv
-    return Collected(sink.metadata, sink.topics, sink.decoders, None)
+    if meta_error is not None:
+        if outside is not None:  # the bytes outside the chunks are damaged, and here is where
+            raise _Refuse(
+                f"the session metadata record at byte {meta_error[0]} is damaged (data section CRC mismatch)"
+            )
+        raise _NotFast(meta_error[1])
+    sink.metadata = meta_kv
+    return Collected(sink.metadata, sink.topics, sink.decoders, None, sorted(damaged, key=lambda d: d.offset))
+
+
+def _metadata_at(data: _Bytes, at: int) -> tuple[str, dict[str, str]]:
+    """Name and key-values of the Metadata record at byte at (its length must add up)."""
+    op, ln = _REC.unpack_from(data, at)
+    if op != _OP_METADATA:
+        raise _NotFast("metadata index does not point at metadata")
+    name, q = _str_at(data, at + 9)
+    end = _map_end(data, q)
+    kv: dict[str, str] = {}
+    q += 4
+    while q < end:
+        k, q = _str_at(data, q)
+        kv[k], q = _str_at(data, q)
+    if q != end or end != at + 9 + ln:
+        raise _NotFast("metadata record length")
+    return name, kv
 
 
 def _decode_group(
@@ -250,10 +351,11 @@ def _decode_group(
             wanted = sink.want is None or ch.topic in sink.want
             schema = None if ch.schema_id == 0 else schemas[ch.schema_id]
             message_of[cid] = sink.channel(schema, ch) if wanted else None
-            parts[cid] = BatchAccumulator(message_of[cid] or "")
         msg = message_of[cid]
         if msg is None:
             continue
+        if cid not in parts:  # first message, or a streamed topic handed out after the last group
+            parts[cid] = BatchAccumulator(msg)
         sel = slice(None) if ids.shape[0] == 1 else np.flatnonzero(channel_id == cid)
         acc, frac = parts[cid], done
         dec = decode_batch(
@@ -282,9 +384,12 @@ def _groups(usize: np.ndarray) -> list[tuple[int, int]]:
 
 
 class _Decompressor:
-    """Decompresses runs of chunks into one reused buffer (fresh memory per group would cost page faults)."""
+    """Decompresses runs of chunks into one reused buffer (fresh memory per group would cost page faults);
+    a chunk that does not decompress, has the wrong size or fails its CRC is left out and noted."""
 
-    def __init__(self, data: _Bytes) -> None:
+    def __init__(
+        self, data: _Bytes, chunk_info: tuple[list, list, list, list], damaged: list[Damage]
+    ) -> None:
         import lz4.frame
         import zstandard
 
@@ -292,17 +397,40 @@ class _Decompressor:
         self.zstd = zstandard.ZstdDecompressor().decompress
         self.lz4 = lz4.frame.decompress
         self.bufs = [bytearray(), bytearray()]
+        self.at, self.t0, self.t1, self.crc = chunk_info
+        self.damaged = damaged  # appended to (list.append is atomic)
+
+    def _one(self, comp: bytes, raw, u: int):
+        """Decompressed chunk records, or a reason why not."""
+        try:
+            if comp == b"zstd":
+                out = self.zstd(raw, max_output_size=u)
+            elif comp == b"lz4":
+                out = self.lz4(raw)
+            elif comp == b"":
+                out = raw
+            else:
+                raise _NotFast(f"compression {comp!r}")
+        except _NotFast:
+            raise
+        except Exception as exc:
+            return f"does not decompress ({type(exc).__name__})"
+        if len(out) != u:
+            return f"decompresses to {len(out)} bytes, not {u}"
+        return out
 
     def records(
         self,
+        first: int,
         name_at: list[int],
         name_len: list[int],
         at: list[int],
         end: list[int],
         usize: list[int],
         slot: int = 0,
-    ) -> tuple[bytearray, int]:
-        """(buffer, n): the chunks' records back to back in buffer[:n], then _PAD zero bytes.
+    ) -> tuple[bytearray, int, list[int]]:
+        """(buffer, n, sizes): the sound chunks' records back to back in buffer[:n], then _PAD zero
+        bytes; sizes[k] is what chunk first + k contributed (0: damaged, skipped).
 
         Two buffers (slot 0 or 1): one is filled while the other is decoded."""
         total = sum(usize)
@@ -310,22 +438,24 @@ class _Decompressor:
             self.bufs[slot] = bytearray(total + _PAD)
         buf, data, mv = self.bufs[slot], self.data, memoryview(self.data)  # released on return
         pos = 0
-        for na, nl, a, b, u in zip(name_at, name_len, at, end, usize, strict=True):
-            comp = data[na : na + nl]
-            if comp == b"zstd":
-                out = self.zstd(mv[a:b], max_output_size=u)
-            elif comp == b"lz4":
-                out = self.lz4(mv[a:b])
-            elif comp == b"":
-                out = mv[a:b]
-            else:
-                raise _NotFast(f"compression {comp!r}")
-            if len(out) != u:
-                raise _NotFast("chunk size")
+        sizes = []
+        for k, (na, nl, a, b, u) in enumerate(zip(name_at, name_len, at, end, usize, strict=True)):
+            if nl < 0:  # header already found damaged
+                sizes.append(0)
+                continue
+            out = self._one(data[na : na + nl], mv[a:b], u)
+            j = first + k
+            if not isinstance(out, str) and self.crc[j] and zlib.crc32(out) != self.crc[j]:
+                out = "CRC mismatch"
+            if isinstance(out, str):
+                self.damaged.append(Damage(self.at[j], self.t0[j], self.t1[j], out))
+                sizes.append(0)
+                continue
             buf[pos : pos + u] = out
             pos += u
+            sizes.append(u)
         buf[pos : pos + _PAD] = bytes(_PAD)
-        return buf, pos
+        return buf, pos, sizes
 
 
 def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:

@@ -8,6 +8,7 @@ two halves on two threads. Also ``read_vector3`` (derived channels), ``read_atta
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -16,10 +17,10 @@ import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from accellog.core.errors import InputError
+from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
 from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
-from accellog.store.collect import Collected, Decoder, check_file, generic_collect, recover
+from accellog.store.collect import Collected, Damage, Decoder, check_file, generic_collect, recover
 from accellog.store.fastread import fast_collect
 from accellog.store.layout import (
     DERIVED_PREFIX,
@@ -87,7 +88,13 @@ def read_session(path: str | Path) -> Session:
     col = _collect(path)
     if col.topics.get(TOPIC_IMU) != full_name("ImuBatch"):
         found = ", ".join(f"{t} ({s})" for t, s in sorted(col.topics.items())) or "none"
+        if col.damaged:
+            raise InputError(
+                "nothing readable: " + "; ".join(d.describe() for d in col.damaged[:3]), where=where
+            )
         if col.recovered is not None and not col.topics:
+            if col.recovered.startswith("damaged"):
+                raise InputError(f"no complete chunk with IMU data to recover: {col.recovered}", where=where)
             raise InputError("truncated MCAP file: no complete chunk with IMU data to recover", where=where)
         raise InputError(
             f"not an accellog session: no {TOPIC_IMU} channel of {full_name('ImuBatch')} (channels: {found})",
@@ -180,7 +187,36 @@ def read_session(path: str | Path) -> Session:
     session.truth = _read_truth(col.decoders.get(TOPIC_TRUTH), where)
     if col.recovered is not None:
         session.events.append(Event(float(session.t_s[-1]), "recovered", col.recovered))
+    for d in col.damaged:
+        ev = _damage_event(session, d)
+        session.events.append(ev)
+        warnings.warn(f"{where}: {ev.detail}", DataIntegrityWarning, stacklevel=2)
     return session
+
+
+def _damage_event(session: Session, d: Damage) -> Event:
+    """Event('damaged') for a skipped chunk: what was lost, counted from the sample-index gaps the
+    skipped chunk left (its IMU batches start within [start, end] of the chunk's log times), less
+    the gaps other events already account for."""
+    if not d.chunk:
+        return Event(float(session.t_s[-1]), "damaged", d.describe() + "; the session metadata is unverified")
+    base = session.meta.start_time_unix_ns
+    t0, t1 = (d.start_ns - base) / NS_PER_S, (d.end_ns - base) / NS_PER_S
+    t, si, n = session.t_s, session.sample_index, session.n
+    i0 = max(int(np.searchsorted(t, t0)) - 1, 0)
+    i1 = min(int(np.searchsorted(t, t1, "right")), n - 1)
+    lost = int(si[i1] - si[i0]) - (i1 - i0)
+    lost -= sum(e.lost_samples for e in session.events if t0 <= e.t_s <= t[i1] and e.kind != "damaged")
+    lost = max(lost, 0)
+    rate = session.meta.sample_rate_hz
+    tail = t1 >= t[-1]  # the chunk held the last batches: how many samples they had is unknown
+    if tail and rate:
+        lost += round((t1 - t[-1]) * rate)
+    detail = (
+        f"damaged chunk at byte {d.offset} (t {t0:.3f}-{t1:.3f} s): {d.reason}; skipped, "
+        f"{'at least ' if tail else ''}{lost} IMU samples lost (and any pose, event or mag message in it)"
+    )
+    return Event(float(min(max(t0, 0.0), t[-1])), "damaged", detail, int(si[i0]) + 1, lost)
 
 
 def _read_mag(session: Session, dec: Decoder | None, where: str) -> None:

@@ -8,7 +8,6 @@ the readers salvage every complete chunk of an unfinished file.
 from __future__ import annotations
 
 import math
-import os
 import time
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
 from accellog.core.units import temp_counts_to_degC
 from accellog.core.version import __version__
+from accellog.store.atomic import AtomicOutput, OutputLock, check_output
 from accellog.store.codec import encode
 from accellog.store.layout import (
     _TOPIC_MESSAGE,
@@ -61,7 +61,11 @@ class SessionWriter:
         flush_interval_s: float = 0.5,
         chunk_size: int = 64 * 1024,
         compression: str = DEFAULT_COMPRESSION,
+        exclusive: bool = False,
+        overwrite: bool = False,
     ) -> None:
+        """exclusive=True (live recording): the file is created new under an exclusive output lock
+        (accellog.store.atomic), an existing file is refused unless overwrite=True (``--force``)."""
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
         self.path = Path(path)
@@ -69,9 +73,19 @@ class SessionWriter:
         self._flush_s = float(flush_interval_s)
         self._flush_ns = _ns(self._flush_s) if math.isfinite(self._flush_s) else None
         self._base_ns = int(meta.start_time_unix_ns)
+        self._lock: OutputLock | None = None
+        if exclusive:
+            check_output(self.path, overwrite=overwrite)
+            self._lock = OutputLock(self.path).acquire()
         try:
-            self._f = open(self.path, "wb")  # noqa: SIM115 (closed in close())
+            if exclusive and overwrite and self.path.exists():
+                self.path.unlink()
+            self._f = open(self.path, "xb" if exclusive else "wb")  # noqa: SIM115 (closed in close())
+        except FileExistsError:
+            self._unlock()
+            raise InputError("file exists; use --force to replace it", where=str(path)) from None
         except OSError as exc:
+            self._unlock()
             raise InputError(f"cannot create the MCAP file: {exc.strerror or exc}", where=str(path)) from None
         self._w = Writer(
             self._f, chunk_size=chunk_size, compression=_COMPRESSION[compression], enable_data_crcs=True
@@ -332,6 +346,12 @@ class SessionWriter:
             self._w.finish()
         finally:
             self._f.close()
+            self._unlock()
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
     def __enter__(self) -> SessionWriter:
         return self
@@ -380,8 +400,11 @@ def write_session(
     batch_size: int = 500,
     compression: str = DEFAULT_COMPRESSION,
     chunk_size: int = 1024 * 1024,
+    inputs: tuple = (),
+    overwrite: bool = True,
 ) -> Path:
-    """Write a whole in-memory Session atomically (temp file + rename); returns the path.
+    """Write a whole in-memory Session atomically (accellog.store.atomic: lock, temp file, fsync,
+    rename); an output equal to one of `inputs` is refused, an existing one too with overwrite=False.
 
     IMU batches hold up to batch_size samples and are split where sample_index jumps or host time
     changes (so both round-trip exactly; host time varying at nearly every sample is stored per
@@ -391,7 +414,7 @@ def write_session(
     path = Path(path)
     meta = session.meta
     n = session.n
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    ao = AtomicOutput(path, inputs=(*inputs, session.path or None), overwrite=overwrite)
     t_ns = _ns_array(session.t_s)
     si = np.asarray(session.sample_index, dtype=np.int64)
     host_ns = None if session.host_time_s is None else _ns_array(session.host_time_s)
@@ -404,6 +427,7 @@ def write_session(
     )
     tc = session.temp_counts
     put_td = session.temp_degC is not None and _values_needed(tc, session.temp_degC, temp_counts_to_degC)
+    tmp = ao.begin()
     try:
         with SessionWriter(
             tmp, meta, flush_interval_s=math.inf, chunk_size=chunk_size, compression=compression
@@ -438,8 +462,8 @@ def write_session(
                 w.write_event(ev)
             if session.truth is not None:
                 w.write_truth(session.truth)
-        os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        ao.abort()
         raise
+    ao.commit()
     return path

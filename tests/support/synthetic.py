@@ -10,7 +10,7 @@ from accellog.calibrate.effects import AXES, LIBRARY
 from accellog.calibrate.fit import obs_drivers
 from accellog.calibrate.model import Model
 from accellog.core.protocol import PoseSpec, parse_protocol
-from accellog.core.rotations import quat_between
+from accellog.core.rotations import quat_between, quat_from_rotvec, rotate
 from accellog.core.session import ObsTable
 
 # ---------------------------------------------------------------------------------------------
@@ -171,3 +171,22 @@ def synthetic_session(
         host_time_s=host,
         poses=labels,
     )
+
+
+def hold_disturbance(tilt_rad: float, wander_g: float, seed: int):
+    """extra(obs) -> (n,3) g: a per-hold placement tilt error of the truth plus a per-hold bias offset."""
+
+    def extra(obs):
+        rng = np.random.default_rng(10_000 + seed)
+        pid = np.asarray(obs.pose_id)
+        holds = np.unique(pid)
+        out = np.zeros((obs.n, 3))
+        wander = rng.standard_normal((holds.size, 3)) * wander_g
+        for k, h in enumerate(holds):
+            m = pid == h
+            q = quat_from_rotvec(rng.standard_normal(3) * tilt_rad)
+            up = np.asarray(obs.up_sensor, float)[m]
+            out[m] = rotate(q, up) - up + wander[k]
+        return out
+
+    return extra

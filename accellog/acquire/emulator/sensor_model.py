@@ -11,8 +11,10 @@ frame), die temperature T (degC, dT = T - t_ref_degC), time since session start 
 
 Gyro: w' = (I diag(1 + s) + C) omega + b0 + b_T dT + n (deg/s), counts = clip(round(w' LSB_per_dps)).
 Temperature: TEMP_OUT = round((T - 21) 333.87 + n_T).
-Magnetometer (AK8963 axes: x_m = y_s, y_m = x_s, z_m = -z_s): H = R^T B_world (mapped) + hard iron +
-n (uT); raw counts = H / (0.15 uT/LSB * ASA factor), ASA factor = (ASA - 128) 0.5 / 128 + 1.
+Magnetometer (AK8963 axes: x_m = y_s, y_m = x_s, z_m = -z_s): H = W R^T B_world (mapped) + hard iron +
+n (uT), W the soft-iron matrix (identity: none; B_world the local field); raw counts = H / (0.15 uT/LSB * ASA factor), ASA factor = (ASA - 128) 0.5 / 128 + 1.
+
+Slow bias noise (bias instability B, random walk K; emulator.slow_noise) adds to b for accel and gyro.
 
 Noise n: white Gaussian with the given density, keyed by the sample index (reproducible per seed,
 independent of how the stream is cut into reads) and low-pass filtered like the DLPF: a first-order
@@ -29,6 +31,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from accellog.acquire.emulator.temperature import TemperaturePath
 from accellog.core.errors import InputError
 from accellog.core.kinematics import Kinematics, Motion
 from accellog.core.rotations import rotate_inverse
@@ -93,6 +96,10 @@ class AccelErrors:
     """w (g): bias change after power-on, b += w (1 - exp(-t / warmup_tau_s))."""
     warmup_tau_s: float = 60.0
     noise_density_g_per_rtHz: np.ndarray = field(default_factory=_zeros3)
+    bias_instability_g: np.ndarray = field(default_factory=_zeros3)
+    """B (g): flicker bias noise, Allan deviation floor 0.664 B (emulator.slow_noise)."""
+    random_walk_g_per_s_rtHz: np.ndarray = field(default_factory=_zeros3)
+    """K (g/s/sqrt(Hz)): bias random walk, AVAR = K^2 tau / 3."""
     clock_error: float = 0.0
     """eps: the chip's real sample period is (1 + eps) / ODR (fraction; 0.01 = 1 % slow)."""
     t_ref_degC: float = 25.0
@@ -168,9 +175,15 @@ class GyroErrors:
     cross_axis: np.ndarray = field(default_factory=_zeros33)
     temp_bias_dps_per_degC: np.ndarray = field(default_factory=_zeros3)
     noise_density_dps_per_rtHz: np.ndarray = field(default_factory=_zeros3)
+    bias_instability_dps: np.ndarray = field(default_factory=_zeros3)
+    """B (deg/s): flicker bias noise, Allan deviation floor 0.664 B."""
+    random_walk_dps_per_s_rtHz: np.ndarray = field(default_factory=_zeros3)
+    """K (deg/s/s/sqrt(Hz)): rate random walk, AVAR = K^2 tau / 3."""
     t_ref_degC: float = 25.0
 
     def __post_init__(self) -> None:
+        self.bias_instability_dps = _as3("bias_instability_dps", self.bias_instability_dps)
+        self.random_walk_dps_per_s_rtHz = _as3("random_walk_dps_per_s_rtHz", self.random_walk_dps_per_s_rtHz)
         self.bias_dps = _as3("bias_dps", self.bias_dps)
         self.scale = _as3("scale", self.scale)
         self.cross_axis = _as33("cross_axis", self.cross_axis, zero_diagonal=True)
@@ -295,11 +308,11 @@ class SensorModel:
         local_gravity_mps2: float = STANDARD_GRAVITY_MPS2,
         mag_field_uT: tuple[float, float, float] = (20.0, 0.0, -45.0),
         mag_hard_iron_uT: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        mag_soft_iron=None,
         mag_asa: tuple[int, int, int] = (176, 178, 167),
         mag_noise_uT: float = 0.3,
         temp_noise_degC: float = 0.01,
     ) -> None:
-        from accellog.acquire.emulator.temperature import TemperaturePath
 
         self.motion = motion
         self.accel = accel if accel is not None else AccelErrors.perfect()
@@ -312,6 +325,7 @@ class SensorModel:
         ) / STANDARD_GRAVITY_MPS2
         self.mag_field_uT = _as3("mag_field_uT", mag_field_uT)
         self.mag_hard_iron_uT = _as3("mag_hard_iron_uT", mag_hard_iron_uT)
+        self.mag_soft_iron = np.eye(3) if mag_soft_iron is None else _as33("mag_soft_iron", mag_soft_iron)
         asa = np.asarray(mag_asa, int)
         if asa.shape != (3,) or np.any((asa < 0) | (asa > 255)):
             raise InputError("mag_asa must be 3 bytes (0..255)")
@@ -322,6 +336,23 @@ class SensorModel:
             s: _WhiteNoise(self.seed, s, 1 if s == _STREAM_TEMP else 3)
             for s in (_STREAM_ACCEL, _STREAM_GYRO, _STREAM_TEMP, _STREAM_MAG)
         }
+        self._slow: dict[tuple[int, float], object] = {}
+
+    def _slow_bias(self, stream: int, odr_hz: float, index: np.ndarray) -> np.ndarray | None:
+        """Bias instability + random walk of the accel or gyro at sample indices (None if both off)."""
+        from accellog.acquire.emulator.slow_noise import slow_bias
+
+        key = (stream, float(odr_hz))
+        if key not in self._slow:
+            e = self.accel if stream == _STREAM_ACCEL else self.gyro
+            B, K = (
+                (e.bias_instability_g, e.random_walk_g_per_s_rtHz)
+                if stream == _STREAM_ACCEL
+                else (e.bias_instability_dps, e.random_walk_dps_per_s_rtHz)
+            )
+            self._slow[key] = slow_bias(self.seed, stream, odr_hz, B, K)
+        bank = self._slow[key]
+        return None if bank is None else bank.at(np.maximum(index, 0))
 
     @property
     def clock_error(self) -> float:
@@ -385,11 +416,17 @@ class SensorModel:
         if np.any(dens_a):
             sigma = dens_a * np.sqrt(0.5 * np.pi * accel_bandwidth_hz)
             a = a + sigma * self._noise[_STREAM_ACCEL].filtered(idx, _dlpf_taps(accel_bandwidth_hz, odr_hz))
+        slow = self._slow_bias(_STREAM_ACCEL, odr_hz, idx)
+        if slow is not None:
+            a = a + slow
         w = self.gyro.apply(k.omega_dps, T)
         dens_g = self.gyro.noise_density_dps_per_rtHz
         if np.any(dens_g):
             sigma = dens_g * np.sqrt(0.5 * np.pi * gyro_bandwidth_hz)
             w = w + sigma * self._noise[_STREAM_GYRO].filtered(idx, _dlpf_taps(gyro_bandwidth_hz, odr_hz))
+        slow = self._slow_bias(_STREAM_GYRO, odr_hz, idx)
+        if slow is not None:
+            w = w + slow
         temp = (T - TEMP_OFFSET_DEGC) * TEMP_LSB_PER_DEGC
         if self.temp_noise_degC > 0:
             temp = (
@@ -404,10 +441,10 @@ class SensorModel:
         )
 
     def mag_field_sensor_uT(self, t_s: np.ndarray) -> np.ndarray:
-        """Noise-free field (n,3, uT) in AK8963 axes (x_m = y_s, y_m = x_s, z_m = -z_s) incl. hard iron."""
+        """Noise-free field (n,3, uT) in AK8963 axes (x_m = y_s, y_m = x_s, z_m = -z_s), soft and hard iron."""
         k = self._kin(t_s)
         b = rotate_inverse(k.q_sensor_to_world, np.broadcast_to(self.mag_field_uT, (k.t_s.size, 3)))
-        return np.stack([b[:, 1], b[:, 0], -b[:, 2]], axis=1) + self.mag_hard_iron_uT
+        return np.stack([b[:, 1], b[:, 0], -b[:, 2]], axis=1) @ self.mag_soft_iron.T + self.mag_hard_iron_uT
 
     def mag_sample(
         self, t_s: np.ndarray, index: np.ndarray, *, bits16: bool = True

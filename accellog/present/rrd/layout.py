@@ -50,6 +50,20 @@ def build_blueprint(entities: Mapping[str, str]):
     track_views = [rrb.TimeSeriesView(origin=f"/{e}", name=f"{e.split('/', 1)[1]} (m)") for e in tracks]
     world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)") if "track3d" in roles else None
     charts = []
+    scatter: dict[str, list[str]] = {}  # residual-vs-driver plots: driver -> plot origins (logged order)
+    for ent in roles.get("scatter2d", []):
+        parts = ent.split("/")
+        origin = "/" + "/".join(parts[:3])
+        if origin not in scatter.setdefault(parts[1], []):
+            scatter[parts[1]].append(origin)
+    for driver, origins in scatter.items():
+        views = [
+            rrb.Spatial2DView(
+                origin=o, name=f"{o.split('/')[-1].replace('_', ' ')}: residual (mg) vs {driver}"
+            )
+            for o in origins
+        ]
+        charts.append(rrb.Vertical(*views, name=f"residual vs {driver}"))
     for model in sorted({e.split("/")[1] for e in roles.get("residual_bar", [])}):
         charts.append(rrb.BarChartView(origin=f"/{RESIDUALS}/{model}", name=f"residuals {model} (mg)"))
     if "ladder_bar" in roles:

@@ -8,6 +8,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from accellog.core.session import PoseLabel
+from accellog.core.units import temp_counts_to_degC
+from accellog.navigate.online import OnlineIntegrator
 from accellog.present.rrd.entities import AXES, LIVE, TRACKS
 from accellog.present.rrd.recording import RunRecording
 
@@ -26,8 +28,6 @@ class LiveView:
         self._t_s = 0.0
         self._integrator = None
         if integrate:
-            from accellog.navigate.online import OnlineIntegrator
-
             self._integrator = OnlineIntegrator()
 
     @classmethod
@@ -118,8 +118,6 @@ class LiveView:
             idx = int(batch.first_index) + np.arange(t.shape[0])
             temp = getattr(batch, "temp_counts", None)
             if temp is not None:
-                from accellog.core.units import temp_counts_to_degC
-
                 temp = temp_counts_to_degC(np.asarray(temp, dtype=np.float64))
         except Exception as exc:
             self.run._fail(f"live view: bad batch: {exc}")

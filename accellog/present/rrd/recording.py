@@ -9,7 +9,6 @@ per sample) on the main timeline ``sensor_time`` (duration, s since session star
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 import threading
 import urllib.parse
@@ -48,6 +47,7 @@ from accellog.present.rrd.entities import (
 )
 from accellog.present.rrd.layout import build_blueprint, live_blueprint
 from accellog.present.rrd.sinks import SinkWatch, parse_sink, spawn_viewer
+from accellog.store.atomic import AtomicOutput
 
 
 class RunRecording:
@@ -84,6 +84,7 @@ class RunRecording:
         self._watch: SinkWatch | None = None
         self._tmp: Path | None = None
         self._final: Path | None = None
+        self._out: AtomicOutput | None = None
         self._lock = threading.Lock()
         self._n_tracks = 0
         self._n_poses = 0  # holds logged so far: /poses/active/{k} numbers them across calls
@@ -93,10 +94,13 @@ class RunRecording:
         bp = self._initial_blueprint()
         if self.kind == "save":
             self._final = Path(self.target)
-            if self._final.parent and not self._final.parent.exists():
-                raise InputError("folder does not exist", where=str(self._final.parent))
-            self._tmp = self._final.with_name(f".{self._final.name}.{os.getpid()}.tmp")
-            self.rec.save(str(self._tmp), default_blueprint=bp)
+            self._out = AtomicOutput(self._final, what="--rrd output")
+            self._tmp = self._out.begin()  # checks the path, locks it, reserves a unique temp name
+            try:
+                self.rec.save(str(self._tmp), default_blueprint=bp)
+            except BaseException:
+                self._out.abort()
+                raise
         else:
             self._guarded(self._connect, bp)
 
@@ -187,6 +191,14 @@ class RunRecording:
             idx.append(rr.TimeColumn(SAMPLE_TIMELINE, sequence=np.asarray(sample_index, dtype=np.int64)))
         cols = v[:, 0] if v.shape[1] == 1 else v
         self.rec.send_columns(entity, indexes=idx, columns=rr.Scalars.columns(scalars=cols))
+
+    def log_static(self, entity: str, archetype: Any, role: str = "static") -> None:
+        """Any Rerun archetype logged once (static) at entity; role picks its view in the blueprint."""
+        self._guarded(self._log_static, entity, archetype, role)
+
+    def _log_static(self, entity: str, archetype: Any, role: str) -> None:
+        self._entities.setdefault(entity, role)
+        self.rec.log(entity, archetype, static=True)
 
     # -- pipeline data -------------------------------------------------------------------------------
     def log_samples(
@@ -515,8 +527,8 @@ class RunRecording:
             raise
         finally:
             self._closed = True
-        if self._tmp is not None and self._final is not None:
-            os.replace(self._tmp, self._final)
+        if self._out is not None:
+            self._out.commit()
 
     def abort(self) -> None:
         """Stop without producing a file (a temporary file is removed)."""
@@ -526,9 +538,8 @@ class RunRecording:
             self._closed = True
             with contextlib.suppress(Exception):
                 self.rec.disconnect()
-        if self._tmp is not None:
-            with contextlib.suppress(FileNotFoundError):
-                self._tmp.unlink()
+        if self._out is not None:
+            self._out.abort()
 
     def __enter__(self) -> RunRecording:
         return self

@@ -54,6 +54,26 @@ def _open(path: Path):
     return reader
 
 
+def is_ros2_bag(path: str | Path) -> bool:
+    """True for a rosbag2 bag: a folder with metadata.yaml, a .db3 file, or an MCAP file whose schemas
+    are ROS 2 message definitions (ros2msg / ros2idl), as opposed to an accellog session."""
+    p = Path(path)
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file()
+    if p.suffix.lower() == ".db3":
+        return True
+    if p.suffix.lower() != ".mcap" or not p.is_file():
+        return False
+    from mcap.reader import make_reader
+
+    try:
+        with open(p, "rb") as f:
+            summary = make_reader(f).get_summary()
+    except Exception:  # not readable as a finished MCAP: let the session reader say why
+        return False
+    return summary is not None and any(s.encoding in ("ros2msg", "ros2idl") for s in summary.schemas.values())
+
+
 def list_topics(path: str | Path) -> list[TopicInfo]:
     """Every topic of the bag with its message type and count."""
     reader = _open(Path(path))

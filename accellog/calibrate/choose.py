@@ -1,0 +1,147 @@
+"""Choose the effect that transfers: one step of the workbench, judged out of sample.
+
+Among the candidates diagnose() calls significant on the calibration data, the step picks the one
+with the lowest out-of-sample score (among those within Z_TIE standard errors of the lowest, the
+one with the lowest dBIC: parsimony) (accellog.calibrate.transfer: held-out sessions when given,
+else blocked validation over temperature and time). It adds nothing when
+
+    s_base - s_best <= Z_IMPROVE * se(s_best),   se(s) = sqrt(2 / m) max(1, s)
+
+(the best candidate does not predict unseen data better than the base model). Every significant
+runner-up whose columns are near-collinear with the best one (canonical correlation > 0.95) is
+named with rho and the recording that separates them. The step is *undecided* (the data cannot
+tell the two apart, and the verdict says so) when the runner-up's score is within Z_TIE * se of the
+best one's with no more parameters, or when, without a held-out session, the two are driven by different kinds of signal
+(temperature vs time): blocks of one session cannot separate drivers that move together.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from accellog.calibrate.fit import FitResult
+from accellog.calibrate.transfer import (
+    COLLINEAR_RHO,
+    Score,
+    blocked_scores,
+    canonical_correlation,
+    driver_kind,
+    heldout_score,
+    separating_recording,
+)
+from accellog.core.session import ObsTable
+
+Z_IMPROVE = 3.0
+"""An effect is added only if it lowers the out-of-sample score by more than 3 standard errors."""
+Z_TIE = 2.0
+"""Two collinear candidates whose scores differ by less than 2 standard errors are a tie."""
+
+
+@dataclass
+class Collinear:
+    """Two candidates that explain the same residual on this data."""
+
+    a: str
+    b: str
+    rho: float
+    separate_by: str
+
+    def to_dict(self) -> dict:
+        return {"a": self.a, "b": self.b, "rho": self.rho, "separate_by": self.separate_by}
+
+    def text(self) -> str:
+        return (
+            f"{self.a} and {self.b} are near-collinear on this data (canonical correlation "
+            f"{self.rho:.3f}); what separates them: {self.separate_by}"
+        )
+
+
+@dataclass
+class StepChoice:
+    """The evidence of one workbench step and what it chose."""
+
+    model: str
+    evidence: str
+    """'heldout' or 'blocks:<drivers>'."""
+    base_score: Score
+    scores: dict[str, Score]
+    chosen: str | None
+    reason: str
+    undecided: list[str] = field(default_factory=list)
+    collinear: list[Collinear] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "model": self.model,
+            "evidence": self.evidence,
+            "base_score": self.base_score.to_dict(),
+            "scores": {k: v.to_dict() for k, v in self.scores.items()},
+            "chosen": self.chosen,
+            "undecided": list(self.undecided),
+            "collinear": [c.to_dict() for c in self.collinear],
+            "reason": self.reason,
+        }
+
+
+def choose_effect(
+    base: FitResult,
+    candidates: Sequence[dict],
+    fits: Mapping[str, FitResult],
+    obs: ObsTable,
+    heldout: Sequence[ObsTable] | None = None,
+) -> StepChoice:
+    """Judge the significant candidates (diagnose rows with their fits of base model + effect) out
+    of sample and choose one (or none)."""
+    eligible = [c["effect"] for c in candidates if c.get("significant") and c["effect"] in fits]
+    model = base.model
+    fits = {"": base, **{n: fits[n] for n in eligible}}
+    sc = {n: heldout_score(r, heldout) for n, r in fits.items()} if heldout else blocked_scores(fits, obs)
+    base = sc.pop("")
+    evidence = base.kind
+    if not eligible:
+        return StepChoice(model.name, evidence, base, sc, None, "no candidate is significant here")
+    rows = {c["effect"]: c for c in candidates}
+
+    def score(n: str) -> float:
+        v = sc[n].chi2_per_eq
+        return v if np.isfinite(v) else np.inf
+
+    s_min = min(score(n) for n in eligible)
+    se_min = sc[min(eligible, key=score)].se
+    # parsimony among the equally good: the lowest dBIC (fewest parameters for the same fit) wins
+    tied_best = [n for n in eligible if score(n) <= s_min + Z_TIE * se_min]
+    best = min(tied_best, key=lambda n: rows[n].get("delta_bic", np.inf))
+    ranked = [best, *sorted((n for n in eligible if n != best), key=score)]
+    s_best = sc[best]
+    what = "held-out" if evidence == "heldout" else "blocked-validation"
+    gain = base.chi2_per_eq - s_best.chi2_per_eq
+    collinear, undecided = [], []
+    for other in ranked[1:]:
+        rho = canonical_correlation(fits[best], fits[other], model, obs)
+        if rho < COLLINEAR_RHO:
+            continue
+        collinear.append(Collinear(best, other, rho, separating_recording(best, other, model)))
+        # a tie with an alternative that is no more complex: the data cannot choose
+        tie = other in tied_best and rows[other]["n_params"] <= rows[best]["n_params"]
+        # within one session, blocks cannot break a confound of two drivers that move together
+        # (temperature following time): a difference in score then reflects functional form only
+        kinds = {driver_kind(best, model), driver_kind(other, model)}
+        confound = evidence != "heldout" and len(kinds) == 2 and "orientation" not in kinds
+        if tie or confound:
+            undecided.append(other)
+    if not np.isfinite(gain) or gain <= Z_IMPROVE * s_best.se:
+        reason = (
+            f"{best} is significant here but does not predict unseen data better: {what} chi2/eq "
+            f"{base.chi2_per_eq:.3g} -> {s_best.chi2_per_eq:.3g} (se {s_best.se:.2g})"
+        )
+        return StepChoice(model.name, evidence, base, sc, None, reason, undecided, collinear)
+    reason = f"{best}: {what} chi2/eq {base.chi2_per_eq:.3g} -> {s_best.chi2_per_eq:.3g}"
+    if len(ranked) > 1:
+        r2 = ranked[1]
+        reason += f" (next: {r2} {sc[r2].chi2_per_eq:.3g})"
+    if undecided:
+        reason += f"; cannot tell it from {', '.join(undecided)} on this data"
+    return StepChoice(model.name, evidence, base, sc, best, reason, undecided, collinear)

@@ -1,0 +1,153 @@
+"""Physics checks of a session before it is fitted: do the labels agree with what was measured?
+
+At rest an accelerometer reads f = u g (plus errors of a few % and tens of mg), where u is the
+unit up vector of the pose in the sensor frame. The measured direction m = mean(f) / |mean(f)| of a
+hold therefore lies within a few degrees of its label's u:
+
+    angle = arccos(m . u)   must be <= MAX_LABEL_ANGLE_DEG (default 10 deg)
+
+A hold labelled '+z' that is really '-z' gives 180 deg; the likely true label is the axis pose
+(or combined face pose) nearest to m. ``relabel_holds`` applies those likely labels (``--relabel``).
+
+``check_timestamps`` refuses degenerate sessions: fewer than 2 samples, zero duration, duplicated
+or decreasing sample times (named by sample index and time).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+
+from accellog.core.errors import InputError
+from accellog.core.session import POSE_UP_VECTORS, PoseLabel, Session
+
+MAX_LABEL_ANGLE_DEG = 10.0
+"""Largest angle (deg) between a hold's measured gravity direction and its label's up vector."""
+
+
+def _candidates() -> dict[str, np.ndarray]:
+    """Axis poses ('+z') and the 12 edge / 8 corner poses ('+x+y', '+x+y+z') with unit up vectors."""
+    out = {k: np.asarray(v, float) for k, v in POSE_UP_VECTORS.items()}
+    axes = list(POSE_UP_VECTORS)
+    for r in (2, 3):
+        for combo in itertools.combinations(axes, r):
+            if len({c[1] for c in combo}) < r:
+                continue  # the same axis twice ('+x-x')
+            v = np.sum([POSE_UP_VECTORS[c] for c in combo], axis=0)
+            out["".join(combo)] = v / np.linalg.norm(v)
+    return out
+
+
+_CANDIDATES = _candidates()
+
+
+def likely_label(direction: np.ndarray) -> tuple[str, np.ndarray]:
+    """Name and up vector of the standard pose nearest to a measured direction (unit 3-vector)."""
+    names = list(_CANDIDATES)
+    ups = np.array([_CANDIDATES[n] for n in names])
+    k = int(np.argmax(ups @ direction))
+    return names[k], ups[k]
+
+
+@dataclasses.dataclass(frozen=True)
+class LabelMismatch:
+    """A hold whose measured gravity direction contradicts its label."""
+
+    pose: str
+    hold_index: int
+    start_s: float
+    end_s: float
+    angle_deg: float
+    likely: str
+    likely_angle_deg: float
+
+    def line(self) -> str:
+        return (
+            f"pose {self.pose!r} ({self.start_s:.1f}-{self.end_s:.1f} s): measured gravity is "
+            f"{self.angle_deg:.0f} deg from the label; it looks like {self.likely!r} "
+            f"({self.likely_angle_deg:.1f} deg)"
+        )
+
+
+def label_mismatches(
+    session: Session, holds: list[tuple[PoseLabel, slice]], max_angle_deg: float = MAX_LABEL_ANGLE_DEG
+) -> list[LabelMismatch]:
+    """Every hold (label, sample slice) whose mean reading is more than max_angle_deg from its label."""
+    out = []
+    for p, sl in holds:
+        m = np.nanmean(session.accel_g[sl], axis=0)
+        norm = float(np.linalg.norm(m))
+        up = np.asarray(p.up_sensor, float)
+        if not np.isfinite(norm) or norm == 0 or not np.isfinite(up).all():
+            continue
+        d = m / norm
+        ang = float(np.degrees(np.arccos(np.clip(d @ up, -1.0, 1.0))))
+        if ang > max_angle_deg:
+            name, u = likely_label(d)
+            la = float(np.degrees(np.arccos(np.clip(d @ u, -1.0, 1.0))))
+            out.append(LabelMismatch(p.name, p.hold_index, p.start_s, p.end_s, ang, name, la))
+    return out
+
+
+def check_labels(
+    session: Session,
+    holds: list[tuple[PoseLabel, slice]],
+    where: str | None = None,
+    max_angle_deg: float = MAX_LABEL_ANGLE_DEG,
+) -> None:
+    """InputError naming the first mislabelled hold and its likely true label (see module doc)."""
+    bad = label_mismatches(session, holds, max_angle_deg)
+    if bad:
+        more = f" (and {len(bad) - 1} more holds)" if len(bad) > 1 else ""
+        raise InputError(f"{bad[0].line()}{more}; fix the label or fit with --relabel", where=where)
+
+
+def relabel_holds(
+    session: Session, max_angle_deg: float = MAX_LABEL_ANGLE_DEG, trim_s: float = 0.5
+) -> tuple[Session, list[LabelMismatch]]:
+    """A copy of the session whose mislabelled holds carry their likely true label (orientation
+    about the up axis unknown: q_sensor_to_world None), and the changes made."""
+    holds = []
+    for p in session.poses:
+        sl = session.slice_time(p.start_s + trim_s, p.end_s - trim_s)
+        if sl.stop > sl.start:
+            holds.append((p, sl))
+    bad = label_mismatches(session, holds, max_angle_deg)
+    if not bad:
+        return session, []
+    fix = {(b.pose, b.hold_index, b.start_s): b for b in bad}
+    poses = []
+    for p in session.poses:
+        b = fix.get((p.name, p.hold_index, p.start_s))
+        if b is None:
+            poses.append(p)
+            continue
+        up = tuple(float(v) for v in _CANDIDATES[b.likely])
+        poses.append(PoseLabel(b.likely, p.start_s, p.end_s, up, None, 100 + p.hold_index))
+    return dataclasses.replace(session, poses=poses), bad
+
+
+def check_timestamps(session: Session, where: str | None = None) -> None:
+    """InputError for a degenerate session: < 2 samples, zero duration, duplicated or decreasing
+    sample times (the first offending sample is named by index and time)."""
+    t = np.asarray(session.t_s, float)
+    if t.size < 2:
+        raise InputError(f"session has {t.size} sample(s): nothing to calibrate", where=where)
+    bad_t = ~np.isfinite(t)
+    if bad_t.any():
+        i = int(np.argmax(bad_t))
+        raise InputError(f"sample {i} has a non-finite time stamp", where=where)
+    if not t[-1] > t[0]:
+        raise InputError(f"session has zero duration ({t.size} samples at t = {t[0]:g} s)", where=where)
+    dt = np.diff(t)
+    bad = dt <= 0
+    if bad.any():
+        i = int(np.argmax(bad)) + 1
+        kind = "duplicated" if dt[i - 1] == 0 else "decreasing"
+        raise InputError(
+            f"{kind} time stamp at sample {i}: t = {t[i]:.6f} s after {t[i - 1]:.6f} s "
+            f"({int(bad.sum())} non-increasing steps)",
+            where=where,
+        )

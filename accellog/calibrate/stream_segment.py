@@ -1,0 +1,136 @@
+"""Stage 'segment' on a file, chunk by chunk: the observation table of ``segment.observations``
+without loading the session (memory bounded by the longest hold plus one chunk group).
+
+The pose labels are read first (``store.stream.read_labels``); the samples then stream past
+(``store.stream.iter_imu``) and each trimmed hold's samples are gathered until the hold ends, cut
+into windows and reduced to their rows by ``segment.observations`` on that hold alone, then
+dropped. The rows are exactly those of ``observations(read_session(path), ...)``: the same
+per-hold code runs on the same samples; the session-wide checks (labels, motion against the
+median window noise of all holds) run on the per-hold summaries. Window statistics (means,
+standard deviations, autocorrelation time) are sufficient for the fit, the diagnosis and the
+cross-validation, which all take the ObsTable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from accellog.calibrate.segment import checked_labels, moving_check, observations, static_windows
+from accellog.core.errors import InputError
+from accellog.core.session import ObsTable, PoseLabel, Session, SessionMeta
+from accellog.store.stream import iter_imu, read_labels
+
+
+def stream_observations(
+    path: str | Path,
+    window_s: float = 2.0,
+    trim_s: float = 0.5,
+    *,
+    min_samples: int = 20,
+    check_units: bool = True,
+    check_moving: bool = True,
+) -> ObsTable:
+    """observations(read_session(path), window_s, trim_s, ...) in bounded memory (module doc)."""
+    if not window_s > 0:
+        raise InputError(f"window_s must be > 0 s, got {window_s}")
+    where = str(path)
+    meta, poses, _events = read_labels(path)
+    labels = checked_labels(poses, where)
+    gather = _HoldGatherer(labels, trim_s)
+    tables: list[ObsTable] = []
+    moving: list[tuple] = []
+
+    def reduce(p: PoseLabel, parts: list[tuple]) -> None:
+        mini = _hold_session(meta, p, parts, where)
+        if mini.n < min_samples:
+            raise InputError(
+                f"pose {p.name!r} ({p.start_s:.2f}-{p.end_s:.2f} s) has {mini.n} samples after trimming "
+                f"{trim_s} s at each end (need >= {min_samples}): hold longer or lower --trim",
+                where=where,
+            )
+        tables.append(observations(mini, window_s, trim_s, min_samples=min_samples,
+                                   check_units=check_units, check_moving=False))  # fmt: skip
+        if check_moving:
+            moving.append((p, *static_windows(mini.t_s, mini.accel_g)))
+
+    for block in iter_imu(path):
+        for p, parts in gather.add(block):
+            reduce(p, parts)
+    for p, parts in gather.finish():
+        reduce(p, parts)
+    if check_moving:
+        q = 1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0
+        moving_check(moving, q, where)
+    return _joined(tables, where)
+
+
+class _HoldGatherer:
+    """Collects the samples of each trimmed hold [start + trim, end - trim) as blocks pass."""
+
+    def __init__(self, labels: list[PoseLabel], trim_s: float) -> None:
+        self.labels = labels
+        self.trim_s = trim_s
+        self.k = 0
+        self.parts: list[tuple] = []
+
+    def _range(self, p: PoseLabel) -> tuple[float, float]:
+        t0, t1 = p.start_s + self.trim_s, p.end_s - self.trim_s
+        return (t0, t1) if t1 > t0 else (t0, t0)
+
+    def add(self, b):
+        """Yield (label, parts) for every hold this block completes."""
+        while self.k < len(self.labels):
+            p = self.labels[self.k]
+            t0, t1 = self._range(p)
+            i, j = np.searchsorted(b.t_s, [t0, t1])
+            if j > i:
+                sl = slice(i, j)
+                temp = None if b.temp_degC is None else b.temp_degC[sl]
+                self.parts.append((b.t_s[sl], b.sample_index[sl], b.accel_g[sl], temp))
+            if b.t_s[-1] < t1:  # the hold goes on in the next block
+                return
+            yield p, self.parts
+            self.parts = []
+            self.k += 1
+
+    def finish(self):
+        while self.k < len(self.labels):
+            yield self.labels[self.k], self.parts
+            self.parts = []
+            self.k += 1
+
+
+def _hold_session(meta: SessionMeta, p: PoseLabel, parts: list[tuple], where: str) -> Session:
+    """A Session holding one trimmed hold's samples and its label."""
+    if parts:
+        t, si, acc = (np.concatenate([x[i] for x in parts]) for i in range(3))
+        temp = None if parts[0][3] is None else np.concatenate([x[3] for x in parts])
+    else:
+        t, si, acc, temp = np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 3)), None
+    return Session(meta=meta, t_s=t, sample_index=si, accel_g=acc, temp_degC=temp, poses=[p], path=where)
+
+
+def _joined(tables: list[ObsTable], where: str) -> ObsTable:
+    """One ObsTable from per-hold tables, pose ids by first appearance (as observations does)."""
+    names: list[str] = []
+    for tb in tables:
+        if tb.pose_names[0] not in names:
+            names.append(tb.pose_names[0])
+    out = {}
+    for f in dataclasses.fields(ObsTable):
+        vals = [getattr(tb, f.name) for tb in tables]
+        if f.name == "pose_id":
+            out[f.name] = np.concatenate([np.full(tb.n, names.index(tb.pose_names[0])) for tb in tables])
+        elif f.name == "pose_names":
+            out[f.name] = names
+        elif f.name == "session":
+            out[f.name] = where
+        elif isinstance(vals[0], np.ndarray):
+            out[f.name] = np.concatenate(vals)
+        else:
+            out[f.name] = None
+    out["pose_id"] = out["pose_id"].astype(int)
+    return ObsTable(**out)

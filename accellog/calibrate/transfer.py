@@ -1,0 +1,210 @@
+"""Does a fitted model transfer to data it was not fitted on?  Evidence that exposes a proxy.
+
+A candidate effect can reach chi2/dof ~ 1 on the calibration session by standing in for another
+one (a warm-up in time mimics a bias that follows temperature when temperature follows time). Three
+kinds of out-of-sample evidence, strongest first:
+
+- held-out sessions:  the model fitted on the calibration session predicts each held-out session;
+                      score = mean (r / sigma_g)^2 over its equations (chi2 per equation);
+- blocked validation: within one session, the windows are cut into K contiguous blocks of a
+                      driver (temperature range, time); each block is predicted by the fit to the
+                      other blocks (whitened hat matrix H = J (J^T J)^+ J^T, block rows B:
+                      r_cv,B = (I - H_BB)^-1 r_B, exact for linear models, one Gauss-Newton step
+                      for nonlinear ones), so a model must extrapolate across the driver's range;
+- collinearity:       two effects explain the same residual when their (whitened) Jacobian columns,
+                      after removing what the base model absorbs, span nearly the same space:
+                      rho = largest canonical correlation = sigma_max(Q_a^T Q_b).
+
+A score is judged against its own noise: for a correct model chi2 per equation has standard error
+~ sqrt(2 / m) over m equations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from accellog.calibrate.effects import all_effects
+from accellog.calibrate.fit import FitResult, obs_drivers
+from accellog.calibrate.model import Model
+from accellog.core.session import ObsTable
+
+N_BLOCKS = 5
+"""Contiguous blocks of each driver for blocked validation."""
+COLLINEAR_RHO = 0.95
+"""Canonical correlation above which two candidates are called near-collinear on this data."""
+
+
+@dataclass
+class Score:
+    """Out-of-sample chi2 per equation of one model; kind 'heldout' or 'blocks:<driver>'."""
+
+    kind: str
+    chi2_per_eq: float
+    n_eq: int
+    per_part: list[float]
+
+    @property
+    def se(self) -> float:
+        """Standard error of chi2_per_eq for a model at the noise floor: sqrt(2 / m) * max(1, score)."""
+        return float(np.sqrt(2.0 / max(self.n_eq, 1)) * max(1.0, self.chi2_per_eq))
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": self.kind,
+            "chi2_per_eq": _f(self.chi2_per_eq),
+            "n_eq": self.n_eq,
+            "per_part": [_f(x) for x in self.per_part],
+        }
+
+
+def _f(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def predict_residual(res: FitResult, obs: ObsTable) -> np.ndarray:
+    """Residual (n,3) g of a fitted model on other observations (same pose labelling)."""
+    m = res.model
+    drv = obs_drivers(obs)
+    q = None if obs.q_sensor_to_world is None else np.asarray(obs.q_sensor_to_world, float)
+    f = m.truth_g(res.theta, obs.up_sensor, q, res.gravity_g)
+    return np.asarray(obs.meas_g, float) - m.predict(res.theta, f, drv)
+
+
+def heldout_score(res: FitResult, heldout: Sequence[ObsTable]) -> Score:
+    """chi2 per equation of `res` predicting every held-out session (pooled) and per session."""
+    chi2, m, parts = 0.0, 0, []
+    for h in heldout:
+        z = predict_residual(res, h) / np.asarray(h.sigma_g, float)
+        c = float(np.sum(z**2))
+        chi2 += c
+        m += z.size
+        parts.append(c / max(z.size, 1))
+    return Score("heldout", chi2 / max(m, 1), m, parts)
+
+
+def block_groups(x: np.ndarray, k: int = N_BLOCKS) -> list[np.ndarray]:
+    """Row indices of k contiguous blocks of x (quantiles), smallest x first."""
+    order = np.argsort(np.asarray(x, float), kind="stable")
+    return [np.sort(b) for b in np.array_split(order, k) if b.size]
+
+
+def _whitened(res: FitResult, obs: ObsTable) -> tuple[np.ndarray, np.ndarray]:
+    sig = np.asarray(obs.sigma_g, float)
+    J = res.jacobian
+    if not res.weighted:
+        J = J / sig.ravel()[:, None]
+    return J, (res.residual_g / sig).ravel()
+
+
+def block_cv(res: FitResult, obs: ObsTable, groups: Sequence[np.ndarray]) -> np.ndarray:
+    """Chi2 of each block predicted from the others (inf where the others cannot determine it)."""
+    J, r = _whitened(res, obs)
+    A = np.linalg.pinv(J.T @ J)
+    out = []
+    for g in groups:
+        rows = (np.asarray(g)[:, None] * 3 + np.arange(3)).ravel()
+        Jg = J[rows]
+        M = np.eye(rows.size) - Jg @ A @ Jg.T
+        ev = np.linalg.eigvalsh(0.5 * (M + M.T))
+        if ev.min() < 1e-6:
+            out.append(np.inf)
+            continue
+        rc = np.linalg.solve(M, r[rows])
+        out.append(float(rc @ rc))
+    return np.asarray(out)
+
+
+def blocking_drivers(obs: ObsTable) -> dict[str, np.ndarray]:
+    """Drivers to cut into blocks: temperature (if it spans >= 1 degC) and time."""
+    out: dict[str, np.ndarray] = {}
+    T = obs.temp_degC
+    if T is not None and np.all(np.isfinite(T)) and np.ptp(T) >= 1.0:
+        out["temp_degC"] = np.asarray(T, float)
+    out["t_s"] = np.asarray(obs.t_s, float)
+    return out
+
+
+def blocked_scores(fits: Mapping[str, FitResult], obs: ObsTable, k: int = N_BLOCKS) -> dict[str, Score]:
+    """Blocked validation of several fits of the same observations, compared on the blocks every
+    fit can predict; pooled over the blocking drivers (temperature and time)."""
+    groups_all = {d: block_groups(x, k) for d, x in blocking_drivers(obs).items()}
+    cv = {name: {d: block_cv(r, obs, g) for d, g in groups_all.items()} for name, r in fits.items()}
+    kinds = "+".join(groups_all)
+    out: dict[str, Score] = {}
+    ok = {d: np.all([np.isfinite(cv[n][d]) for n in fits], axis=0) for d in groups_all}
+    for name in fits:
+        chi2, m, parts = 0.0, 0, []
+        for d, groups in groups_all.items():
+            for g, c, good in zip(groups, cv[name][d], ok[d], strict=True):
+                if good:
+                    chi2 += c
+                    m += 3 * g.size
+                    parts.append(c / (3 * g.size))
+        out[name] = Score(f"blocks:{kinds}", chi2 / m if m else np.nan, m, parts)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# collinearity of candidates
+
+
+def _effect_columns(res: FitResult, base: Model, obs: ObsTable) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened Jacobian columns of the terms not in `base` and of the base's terms."""
+    J, _ = _whitened(res, obs)
+    extra = [i for i, n in enumerate(res.model.param_names) if n not in base.index]
+    keep = [i for i, n in enumerate(res.model.param_names) if n in base.index]
+    return J[:, extra], J[:, keep]
+
+
+def _orth(A: np.ndarray) -> np.ndarray:
+    if A.shape[1] == 0:
+        return A
+    U, s, _ = np.linalg.svd(A, full_matrices=False)
+    return U[:, s > 1e-10 * max(s[0], 1e-300)]
+
+
+def canonical_correlation(res_a: FitResult, res_b: FitResult, base: Model, obs: ObsTable) -> float:
+    """Largest canonical correlation between the columns two candidates add to `base`, after
+    projecting out the base model's columns (1 = one can replace the other on this data)."""
+    Ea, Ba = _effect_columns(res_a, base, obs)
+    Eb, _ = _effect_columns(res_b, base, obs)
+    Qb = _orth(Ba)
+
+    def perp(E):
+        return E - Qb @ (Qb.T @ E) if Qb.size else E
+
+    Qa, Qe = _orth(perp(Ea)), _orth(perp(Eb))
+    if Qa.shape[1] == 0 or Qe.shape[1] == 0:
+        return 0.0
+    return float(np.clip(np.linalg.svd(Qa.T @ Qe, compute_uv=False)[0], 0.0, 1.0))
+
+
+def driver_kind(effect: str, base: Model) -> str:
+    """'temperature', 'time', 'orientation' (no driver signal) or 'user': what an effect follows."""
+    e = all_effects(base.effects_file).get(effect)
+    drivers = set(e.drivers) if e is not None else set()
+    if drivers & {"temp_degC", "dtemp_degC_per_s"}:
+        return "temperature"
+    if drivers & {"t_s", "t_in_pose_s"}:
+        return "time"
+    return "orientation" if not drivers else "user"
+
+
+def separating_recording(a: str, b: str, base: Model) -> str:
+    """What to record so that effects a and b stop looking alike."""
+    ka, kb = driver_kind(a, base), driver_kind(b, base)
+    if {ka, kb} == {"temperature", "time"}:
+        return (
+            "a recording where temperature does not follow time: heat then cool, two soak "
+            "temperatures, or a second session on another temperature path (--heldout)"
+        )
+    if ka == kb == "temperature":
+        return "a wider temperature range with three or more soak temperatures (or heat then cool)"
+    if ka == kb == "time":
+        return "a longer session that repeats a pose at the start, the middle and the end"
+    if "orientation" in (ka, kb):
+        return "more orientations: cube edges and corners (45 deg tilts), each face at several yaws"
+    return "a recording in which their driver signals vary independently"

@@ -1,0 +1,78 @@
+"""`replay` and `compare` of a session file: load it, open the sink (.rrd file or live viewer), run, close.
+
+Session files are only read. .rrd files are written to a temporary name and renamed when complete.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from accellog.core.errors import InputError
+from accellog.core.session import Session
+from accellog.flows.replay import compare as compare_fn
+from accellog.flows.replay import replay as replay_fn
+from accellog.flows.stages import load_input
+from accellog.present.rrd.recording import RunRecording
+
+
+def load_session_file(path: Path):
+    if not path.is_file():
+        raise InputError("no such file", where=str(path))
+    data = load_input(path)
+    if not isinstance(data, Session):
+        raise InputError("replay needs a recorded session with samples, not a pose table", where=str(path))
+    return data
+
+
+def sink_option(rrd: Path | None, rerun: str | None) -> str | None:
+    if rrd is not None and rerun is not None:
+        raise InputError("give either --rrd FILE or --rerun spawn|connect URL, not both")
+    if rrd is not None:
+        if rrd.suffix.lower() != ".rrd":
+            raise InputError("the recording file must end in .rrd", where=str(rrd))
+        return f"save:{rrd}"
+    if rerun is not None:
+        opt = rerun.strip()
+        head, _, rest = opt.partition(" ")
+        if head == "connect" and rest.strip():
+            return f"connect:{rest.strip()}"
+        if opt in ("spawn", "connect") or opt.startswith("connect:"):
+            return opt
+        raise InputError(f"--rerun {rerun!r}: use 'spawn', 'connect' or 'connect URL'")
+    return None
+
+
+def run_replay(
+    session: Path,
+    cal: list[Path] | None,
+    sink: str | None,
+    *,
+    speed: str | None,
+    up: str | None,
+    raw: bool,
+    label: list[str] | None,
+    compare_mode: bool,
+):
+    s = load_session_file(session)
+    cals = list(cal or [])
+    rec = (
+        RunRecording(sink, recording_id=f"accellog-{'compare' if compare_mode else 'replay'}")
+        if sink
+        else None
+    )
+    try:
+        if compare_mode:
+            res = compare_fn(s, cals, labels=label, recording=rec, up_sensor=up, include_raw=raw)
+        else:
+            res = replay_fn(
+                s, cals=cals, labels=label, speed=speed, recording=rec, up_sensor=up, include_raw=raw
+            )
+    except BaseException:
+        if rec is not None:
+            rec.abort()
+        raise
+    if rec is not None:
+        rec.close()
+        res.rrd = str(sink)[5:] if str(sink).startswith("save:") else sink
+        res.sink_report = rec.report()
+    return res

@@ -1,0 +1,171 @@
+"""Where the model fails: window residuals against each driver signal, in a Rerun recording.
+
+One scatter plot per (driver, model): x = the driver (temperature in degC, its rate in degC/s,
+time in s, time in pose in s), y = the window residual per axis (mg, axis colours x red, y green,
+z blue), passes kept apart (heating windows filled, cooling windows lighter, so a hysteresis or a
+heat/cool disagreement is not averaged away), and the candidate's predicted contribution drawn
+over the residual it explains (a line per axis). Rerun has no x-y plot with axes yet, so each plot
+is a 2D view with its own frame, zero line and tick labels; all models of one driver share the y
+scale (mg) so 'before' and 'after' compare at a glance.
+
+    contribution of a candidate = predict(model + effect) - predict(model), per window (mg)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from accellog.calibrate.fit import FitResult, obs_drivers
+from accellog.core.session import ObsTable
+from accellog.present.rrd.entities import AXIS_COLORS, slug
+
+SCATTER = "residual_vs"
+"""Entity root of the residual-vs-driver plots (role 'scatter2d' in the blueprint)."""
+DRIVERS = {
+    "temp_degC": "temperature (degC)",
+    "dtemp_degC_per_s": "dT/dt (degC/s)",
+    "t_s": "time (s)",
+    "t_in_pose_s": "time in pose (s)",
+}
+"""Driver signals plotted, with their axis titles."""
+W, H = 400.0, 240.0
+"""Plot frame in view units (x: driver range, y: residual range)."""
+
+
+@dataclass
+class Panel:
+    """One scatter plot: residuals (mg) of `label` against driver `driver`."""
+
+    driver: str
+    label: str
+    x: np.ndarray
+    residual_mg: np.ndarray
+    heating: np.ndarray
+    contribution_mg: np.ndarray | None = None
+
+
+def panels(
+    obs: ObsTable,
+    fits: Mapping[str, FitResult],
+    contributions: Mapping[str, np.ndarray] | None = None,
+) -> list[Panel]:
+    """Panels for every driver present (not constant) and every labelled fit; contributions
+    (label -> (n,3) g) are drawn over that label's residual."""
+    drv = obs_drivers(obs)
+    rate = drv.get("dtemp_degC_per_s", np.zeros(obs.n))
+    out = []
+    for d in DRIVERS:
+        if d not in drv or np.ptp(drv[d]) == 0:
+            continue
+        for label, res in fits.items():
+            c = None if contributions is None or label not in contributions else 1e3 * contributions[label]
+            out.append(Panel(d, label, drv[d], 1e3 * np.asarray(res.residual_g), rate >= 0, c))
+    return out
+
+
+def contribution_g(base: FitResult, with_effect: FitResult, obs: ObsTable) -> np.ndarray:
+    """What the added effect predicts per window (g): prediction of model + effect minus the base
+    model's prediction, both at their fitted parameters."""
+    return np.asarray(with_effect.predicted_g) - np.asarray(base.predicted_g)
+
+
+def _ticks(lo: float, hi: float) -> list[float]:
+    return [lo, 0.5 * (lo + hi), hi]
+
+
+def log_panels(rec, items: list[Panel]) -> None:
+    """Log the panels (one 2D view each, grouped per driver in the blueprint)."""
+    import rerun as rr
+
+    by_driver: dict[str, list[Panel]] = {}
+    for p in items:
+        by_driver.setdefault(p.driver, []).append(p)
+    for d, ps in by_driver.items():
+        x_lo = float(min(np.min(p.x) for p in ps))
+        x_hi = float(max(np.max(p.x) for p in ps))
+        ys = [np.abs(p.residual_mg) for p in ps] + [
+            np.abs(p.contribution_mg) for p in ps if p.contribution_mg is not None
+        ]
+        y_max = max(float(max(np.max(y) for y in ys)), 1e-6)
+
+        def sx(x, lo=x_lo, hi=x_hi):
+            return (np.asarray(x, float) - lo) / max(hi - lo, 1e-12) * W
+
+        def sy(y, m=y_max):
+            return -np.asarray(y, float) / m * (H / 2)  # view y grows downwards: positive residual up
+
+        for p in ps:
+            ent = f"{SCATTER}/{slug(d)}/{slug(p.label)}"
+            frame = [[0, -H / 2], [W, -H / 2], [W, H / 2], [0, H / 2], [0, -H / 2]]
+            rec.log_static(
+                f"{ent}/frame",
+                rr.LineStrips2D(
+                    [frame, [[0, 0], [W, 0]]], colors=[(150, 150, 150), (110, 110, 110)], radii=0.6
+                ),
+                "scatter2d",
+            )
+            tick_pos = [[sx(v), H / 2 + 14] for v in _ticks(x_lo, x_hi)]
+            tick_pos += [[-8, float(sy(v))] for v in (y_max, 0.0, -y_max)]
+            tick_txt = [f"{v:.3g}" for v in _ticks(x_lo, x_hi)] + [
+                f"{v:+.3g} mg" for v in (y_max, 0.0, -y_max)
+            ]
+            rec.log_static(
+                f"{ent}/ticks",
+                rr.Points2D(tick_pos, labels=tick_txt, radii=0.1, colors=[(200, 200, 200)] * len(tick_txt)),
+                "scatter2d",
+            )
+            legend = "x red, y green, z blue (light: cooling); lines: what the added effects predict"
+            rec.log_static(
+                f"{ent}/legend", rr.Points2D([[W / 2, -H / 2 - 12]], labels=[legend], radii=0.1), "scatter2d"
+            )
+            for i, a in enumerate("xyz"):
+                col = np.array(AXIS_COLORS[i])
+                light = (col + (255 - col) * 0.6).astype(int)
+                colors = np.where(p.heating[:, None], col, light).astype(np.uint8)
+                pts = np.column_stack([sx(p.x), sy(p.residual_mg[:, i])])
+                rec.log_static(f"{ent}/{a}", rr.Points2D(pts, colors=colors, radii=2.2), "scatter2d")
+                if p.contribution_mg is not None:
+                    o = np.argsort(p.x, kind="stable")
+                    line = np.column_stack([sx(p.x[o]), sy(p.contribution_mg[o, i])])
+                    rec.log_static(
+                        f"{ent}/contribution_{a}",
+                        rr.LineStrips2D([line], colors=[tuple(int(c) for c in col)], radii=1.0),
+                        "scatter2d",
+                    )
+
+
+def log_residuals_vs_drivers(
+    rec,
+    obs: ObsTable,
+    fits: Mapping[str, FitResult],
+    contributions: Mapping[str, np.ndarray] | None = None,
+) -> None:
+    """Residual-vs-driver plots of the labelled fits (e.g. {'before: model3': ..., 'after: ...': ...})."""
+    log_panels(rec, panels(obs, fits, contributions))
+
+
+def log_diagnosis_residuals(rec, diag, obs: ObsTable) -> None:
+    """diagnose --rrd: the model's residuals against each driver with the chosen candidate's
+    predicted contribution drawn over them, and the residuals once the candidate is added."""
+    before = f"{diag.model.name}"
+    fits = {before: diag.fit}
+    contrib = None
+    if diag.best is not None and diag.best in diag.fits:
+        after = diag.fits[diag.best]
+        fits[f"+{diag.best}"] = after
+        contrib = {before: contribution_g(diag.fit, after, obs)}
+    log_residuals_vs_drivers(rec, obs, fits, contrib)
+
+
+def log_workbench_residuals(rec, obs: ObsTable, start: FitResult, final: FitResult) -> None:
+    """workbench --rrd: residuals of the start model (with what the added effects predict drawn
+    over them) and of the final model, against each driver."""
+    fits = {f"start {start.model.name}": start}
+    contrib = None
+    if final.model.name != start.model.name:
+        fits[f"final {final.model.name}"] = final
+        contrib = {f"start {start.model.name}": contribution_g(start, final, obs)}
+    log_residuals_vs_drivers(rec, obs, fits, contrib)

@@ -1,0 +1,272 @@
+"""Safe outputs: every file accellog writes goes through here.
+
+One rule, four checks. An output is written to a unique temporary name in the target's folder,
+flushed to disk (fsync) and renamed into place only when complete, while holding an exclusive
+advisory lock (``flock`` on ``.NAME.lock`` beside the target) so that a second writer of the same
+path gets a one-line error instead of a corrupt or lost file. Before anything is written:
+
+- the output must not be a directory;
+- its folder must exist (or be created when the caller asks);
+- it must not be one of the inputs (same file by ``os.path.samefile`` or by resolved path);
+- with ``overwrite=False`` it must not exist (``record``/``simulate`` without ``--force``); the final
+  step then uses ``os.link`` so that even a foreign process creating the file meanwhile is not
+  clobbered.
+
+``check_output``/``check_outputs`` run the checks alone (to validate every output of a command
+before computing); ``AtomicOutput`` (begin/commit/abort) and ``atomic_output`` (a context manager
+yielding the temporary path) write; ``write_bytes_atomic``/``write_text_atomic`` are the one-call
+forms; ``OutputLock`` is the lock alone (``SessionWriter(exclusive=True)`` uses it for live
+recording, which writes under the real name with O_EXCL: a crash must leave the data there).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import os
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from accellog.core.errors import InputError
+
+PathLike = str | os.PathLike
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists() and os.path.samefile(a, b):
+            return True
+    except OSError:
+        pass
+    try:
+        return a.resolve() == b.resolve()
+    except (OSError, RuntimeError):
+        return False
+
+
+def check_output(
+    out: PathLike,
+    inputs: Iterable[PathLike | None] = (),
+    *,
+    overwrite: bool = True,
+    mkdir: bool = False,
+    what: str = "output",
+) -> Path:
+    """Refuse an output that is a directory, sits in a missing folder, is an input or (with
+    overwrite=False) already exists: InputError naming the path. Returns the output as a Path."""
+    p = Path(out)
+    if str(out) == "" or p.name in ("", ".", ".."):
+        raise InputError(f"{what} is not a file name", where=str(out))
+    if p.is_dir():
+        raise InputError(f"{what} is a directory; give a file name", where=str(p))
+    for inp in inputs:
+        if inp is not None and _same_file(p, Path(inp)):
+            raise InputError(f"{what} is the input file {inp}; choose another name", where=str(p))
+    parent = p.parent
+    if not parent.exists():
+        if not mkdir:
+            raise InputError("folder does not exist", where=str(parent))
+    elif not parent.is_dir():
+        raise InputError("not a folder", where=str(parent))
+    if not overwrite and (p.exists() or p.is_symlink()):
+        raise InputError("file exists; use --force to replace it", where=str(p))
+    return p
+
+
+class OutputLock:
+    """Exclusive, non-blocking advisory lock on ``.NAME.lock`` beside `path` (removed on release).
+
+    After ``flock`` succeeds the lock file's inode is compared with the path's: a writer that
+    opened a lock file just unlinked by a finishing writer retries on the new one."""
+
+    def __init__(self, path: PathLike) -> None:
+        self.path = Path(path)
+        self.lock_path = self.path.with_name(f".{self.path.name}.lock")
+        self._fd: int | None = None
+
+    def acquire(self) -> OutputLock:
+        for _ in range(50):
+            try:
+                fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as exc:
+                raise InputError(
+                    f"cannot create a lock file: {exc.strerror or exc}", where=str(self.path)
+                ) from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                os.close(fd)
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise InputError(
+                        "another process is writing this file right now; wait for it or choose another name",
+                        where=str(self.path),
+                    ) from None
+                raise
+            try:
+                same = os.fstat(fd).st_ino == os.stat(self.lock_path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                self._fd = fd
+                return self
+            os.close(fd)  # lost a race with a releasing writer: take the new lock file
+        raise InputError("could not lock the output (lock file keeps changing)", where=str(self.path))
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(self.lock_path)  # unlinked while still held, then unlocked by close
+        os.close(self._fd)
+        self._fd = None
+
+    def __enter__(self) -> OutputLock:
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+class AtomicOutput:
+    """One output written under a temporary name and renamed into place by commit().
+
+    ``begin()`` checks, locks and returns the temporary path (created empty, unique, in the
+    target's folder); ``commit()`` fsyncs and renames it; ``abort()`` removes it. Either way the
+    lock is released."""
+
+    def __init__(
+        self,
+        out: PathLike,
+        *,
+        inputs: Iterable[PathLike | None] = (),
+        overwrite: bool = True,
+        mkdir: bool = False,
+        what: str = "output",
+    ) -> None:
+        self.out = Path(out)
+        self.inputs = [i for i in inputs if i is not None]
+        self.overwrite = overwrite
+        self.mkdir = mkdir
+        self.what = what
+        self.tmp: Path | None = None
+        self._lock: OutputLock | None = None
+
+    def begin(self) -> Path:
+        p = check_output(self.out, self.inputs, overwrite=self.overwrite, mkdir=self.mkdir, what=self.what)
+        if self.mkdir:
+            try:
+                p.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise InputError(
+                    f"cannot create the folder: {exc.strerror or exc}", where=str(p.parent)
+                ) from None
+        self._lock = OutputLock(p).acquire()
+        try:
+            check_output(p, self.inputs, overwrite=self.overwrite, what=self.what)  # again, under the lock
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+        except OSError as exc:
+            self._lock.release()
+            raise InputError(f"cannot write here: {exc.strerror or exc}", where=str(p)) from None
+        except BaseException:
+            self._lock.release()
+            raise
+        os.close(fd)
+        self.tmp = Path(tmp)
+        return self.tmp
+
+    def commit(self) -> Path:
+        assert self.tmp is not None, "begin() first"
+        try:
+            with open(self.tmp, "rb+") as f:
+                os.fsync(f.fileno())
+            if self.overwrite:
+                if self.out.is_dir():
+                    raise InputError(f"{self.what} is a directory; give a file name", where=str(self.out))
+                os.replace(self.tmp, self.out)
+            else:
+                try:
+                    os.link(self.tmp, self.out)  # fails if anything created the file meanwhile
+                except FileExistsError:
+                    raise InputError("file exists; use --force to replace it", where=str(self.out)) from None
+                os.unlink(self.tmp)
+            _fsync_dir(self.out.parent)
+        except BaseException:
+            self.abort()
+            raise
+        self.tmp = None
+        self._release()
+        return self.out
+
+    def abort(self) -> None:
+        if self.tmp is not None:
+            with contextlib.suppress(FileNotFoundError):
+                self.tmp.unlink()
+            self.tmp = None
+        self._release()
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+
+@contextlib.contextmanager
+def atomic_output(
+    out: PathLike,
+    *,
+    inputs: Iterable[PathLike | None] = (),
+    overwrite: bool = True,
+    mkdir: bool = False,
+    what: str = "output",
+) -> Iterator[Path]:
+    """Context manager: yields the temporary path to write; renamed onto `out` on success, removed
+    on any exception (Ctrl-C included). See AtomicOutput."""
+    ao = AtomicOutput(out, inputs=inputs, overwrite=overwrite, mkdir=mkdir, what=what)
+    tmp = ao.begin()
+    try:
+        yield tmp
+    except BaseException:
+        ao.abort()
+        raise
+    ao.commit()
+
+
+def write_bytes_atomic(out: PathLike, data: bytes, **kw) -> Path:
+    """Write `data` to `out` atomically (see atomic_output for the keyword options)."""
+    with atomic_output(out, **kw) as tmp:
+        tmp.write_bytes(data)
+    return Path(out)
+
+
+def write_text_atomic(out: PathLike, text: str, **kw) -> Path:
+    """Write `text` (UTF-8) to `out` atomically (see atomic_output for the keyword options)."""
+    return write_bytes_atomic(out, text.encode(), **kw)
+
+
+def check_outputs(
+    outputs: Iterable[PathLike | None], inputs: Iterable[PathLike | None] = (), **kw
+) -> list[Path]:
+    """check_output for every given output (None skipped), and no two outputs the same file: run
+    it before computing, so that nothing is written unless every output is acceptable."""
+    ins = [i for i in inputs if i is not None]
+    done: list[Path] = []
+    for out in outputs:
+        if out is None:
+            continue
+        p = check_output(out, ins, **kw)
+        for q in done:
+            if _same_file(p, q):
+                raise InputError(f"two outputs are the same file ({q})", where=str(p))
+        done.append(p)
+    return done

@@ -1,0 +1,148 @@
+"""Chunk-by-chunk reading: an accellog MCAP session as a sequence of IMU sample blocks, memory
+bounded by one block (~4 MiB of decompressed records, ~50 k samples) whatever the session length.
+
+    for block in iter_imu("long.mcap"):
+        acc.add(block.accel_g)          # accumulate window sums, integrals, Allan sums, ...
+
+The blocks are exactly the samples ``read_session`` returns, in file order, split at chunk-group
+boundaries (same conversions: counts / LSB, temperature counts / 333.87 + 21 degC). Damaged chunks
+are skipped and named as in ``read_session`` (a ``DataIntegrityWarning`` each). Files the fast
+walker does not take (unfinished, non-canonical) are read by ``read_session`` and the rest of the
+samples handed out in one block (memory then is that of ``read_session``). ``read_session`` stays
+for notebooks and whole-session work; ``read_labels`` gives the poses and events (they are stored
+at the end of a recording, so a stage that needs them reads them first: one decompression pass).
+"""
+
+from __future__ import annotations
+
+import mmap
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from accellog.core.errors import DataIntegrityWarning, InputError
+from accellog.core.session import Event, PoseLabel, SessionMeta
+from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
+from accellog.store.batch_decode import DecodedBatch
+from accellog.store.collect import check_file
+from accellog.store.layout import NS_PER_S, TOPIC_EVENTS, TOPIC_IMU, TOPIC_POSES, metadata_to_meta
+
+
+@dataclass
+class ImuBlock:
+    """Consecutive IMU samples of a session (arrays as in Session; None where not recorded)."""
+
+    meta: SessionMeta
+    t_s: np.ndarray
+    sample_index: np.ndarray
+    accel_g: np.ndarray
+    gyro_dps: np.ndarray | None
+    temp_degC: np.ndarray | None
+
+    @property
+    def n(self) -> int:
+        return int(self.t_s.shape[0])
+
+
+def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
+    """The session's IMU samples block by block (see module doc); raises InputError as read_session."""
+    from accellog.store import fastread
+
+    path = Path(path)
+    where = str(path)
+    check_file(path)
+    n_done = [0]
+    try:
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            walk = fastread._fast_walk(data, [TOPIC_IMU], stream=TOPIC_IMU)
+            try:
+                yield from _walked(walk, where, n_done)
+            finally:
+                walk.close()  # release its views of the mapped file before the map closes
+        return
+    except fastread._Refuse as exc:
+        raise InputError(str(exc), where=where) from None
+    except InputError:
+        raise
+    except Exception:  # the fast walker declined: read the whole session, hand out the rest
+        pass
+    from accellog.store.reader import read_session
+
+    s = read_session(path)
+    rest = slice(n_done[0], None)
+    yield ImuBlock(
+        s.meta,
+        s.t_s[rest],
+        s.sample_index[rest],
+        s.accel_g[rest],
+        None if s.gyro_dps is None else s.gyro_dps[rest],
+        None if s.temp_degC is None else s.temp_degC[rest],
+    )
+
+
+def _walked(walk, where: str, n_done: list[int]) -> Iterator[ImuBlock]:
+    """The blocks of a _fast_walk stream (n_done[0] counts the samples handed out)."""
+    meta = None
+    while True:
+        try:
+            kv, dec = next(walk)
+        except StopIteration as end:
+            for d in end.value.damaged:
+                warnings.warn(f"{where}: {d.describe()}", DataIntegrityWarning, stacklevel=3)
+            return
+        if meta is None:
+            meta = metadata_to_meta(kv, where) if kv else SessionMeta(source="unknown")
+        if dec is not None and dec.n_messages:
+            block = _block(dec, meta, where)
+            n_done[0] += block.n
+            yield block
+
+
+def _block(dec: DecodedBatch, meta: SessionMeta, where: str) -> ImuBlock:
+    """One group's decoded ImuBatch messages as arrays in the units read_session gives."""
+    arrays, scalars, counts = dec.result()
+    n_per = counts["t_ns"]
+    n = int(n_per.sum())
+    first = np.asarray(scalars["first_sample_index"], dtype=np.int64)
+    starts = np.cumsum(n_per) - n_per
+    sample_index = np.repeat(first - starts, n_per) + np.arange(n, dtype=np.int64)
+    if np.any(np.diff(sample_index) < 0):
+        raise InputError("IMU batches out of order: read it whole with read_session", where=where)
+
+    def vec(name: str, width: int) -> np.ndarray | None:
+        a = arrays[name]
+        if a.size == 0:
+            return None
+        if a.size != n * width:
+            raise InputError(f"{name} has {a.size} values for {n} samples (mixed batches)", where=where)
+        return a.reshape(n, width) if width > 1 else a
+
+    accel_g = vec("accel_g", 3)
+    if accel_g is None:
+        ac = vec("accel_counts", 3)
+        if ac is None or not meta.accel_lsb_per_g:
+            raise InputError("IMU batches carry no usable accelerometer data", where=where)
+        accel_g = ac / meta.accel_lsb_per_g
+    gyro_dps = vec("gyro_dps", 3)
+    gc = vec("gyro_counts", 3)
+    if gyro_dps is None and gc is not None and meta.gyro_lsb_per_dps:
+        gyro_dps = gc / meta.gyro_lsb_per_dps
+    temp_degC = vec("temp_degC", 1)
+    tc = vec("temp_counts", 1)
+    if temp_degC is None and tc is not None:
+        temp_degC = tc / TEMP_LSB_PER_DEGC
+        temp_degC += TEMP_OFFSET_DEGC
+    return ImuBlock(meta, arrays["t_ns"] / NS_PER_S, sample_index, accel_g, gyro_dps, temp_degC)
+
+
+def read_labels(path: str | Path) -> tuple[SessionMeta, list[PoseLabel], list[Event]]:
+    """Metadata, pose labels and events of a session without its samples (bounded memory)."""
+    from accellog.store.reader import _collect, _read_events, _read_poses
+
+    path = Path(path)
+    col = _collect(path, [TOPIC_POSES, TOPIC_EVENTS])
+    meta = metadata_to_meta(col.metadata, str(path)) if col.metadata else SessionMeta(source="unknown")
+    return meta, _read_poses(col.decoders.get(TOPIC_POSES)), _read_events(col.decoders.get(TOPIC_EVENTS))

@@ -1,0 +1,89 @@
+"""Scale: wall time and peak memory against session length, whole-session vs chunk-by-chunk.
+
+Sessions of 1 min / 1 h / 4 h (optionally 24 h) at 1 kHz with accel, gyro and temperature, 12 holds
+per hour (benchmarks/synth_long.py, written hour by hour). Each measurement runs in a fresh
+process under GNU time (wall, peak RSS), one at a time:
+
+    read            read_session (the whole session in memory)
+    whole           read_session + segment.observations + fit model3 + diagnose (library calls)
+    stream          calibrate.stream_segment.stream_observations + fit model3 + diagnose: samples
+                    pass chunk group by chunk group, memory = the longest hold + one group
+    decompress      the floor of any reader: zstd-decompress every chunk of the file (no decoding)
+
+Prints the load average with each row (a loaded 2-core machine inflates every wall time).
+
+    python benchmarks/bench_scale.py [--hours 0.0167 1 4] [--keep]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from synth_long import write_long
+
+MODES = {
+    "read": "from accellog.store.reader import read_session; s = read_session(P)",
+    "whole": (
+        "from accellog.store.reader import read_session; from accellog.calibrate.segment import observations\n"
+        "from accellog.calibrate.fit import fit_model; from accellog.calibrate.model import build_model\n"
+        "from accellog.calibrate.diagnose import diagnose\n"
+        "obs = observations(read_session(P)); fit_model(obs, build_model('model3')); diagnose(obs, build_model('model3'))"
+    ),
+    "stream": (
+        "from accellog.calibrate.stream_segment import stream_observations\n"
+        "from accellog.calibrate.fit import fit_model; from accellog.calibrate.model import build_model\n"
+        "from accellog.calibrate.diagnose import diagnose\n"
+        "obs = stream_observations(P); fit_model(obs, build_model('model3')); diagnose(obs, build_model('model3'))"
+    ),
+    "decompress": (
+        "import zstandard, lz4.frame\n"
+        "from mcap.stream_reader import StreamReader; from mcap.records import Chunk\n"
+        "z = zstandard.ZstdDecompressor().decompress\n"
+        "for rec in StreamReader(open(P, 'rb'), emit_chunks=True).records:\n"
+        "    if isinstance(rec, Chunk):\n"
+        "        z(rec.data, max_output_size=rec.uncompressed_size) if rec.compression == 'zstd' else "
+        "lz4.frame.decompress(rec.data)"
+    ),
+}
+
+
+def run(mode: str, path: Path) -> tuple[float, float]:
+    """(wall s, peak RSS MB) of one fresh process doing `mode` on path, BLAS on one thread."""
+    code = f"P = {str(path)!r}\nfrom threadpoolctl import threadpool_limits\nthreadpool_limits(1, 'blas')\n{MODES[mode]}"
+    t0 = time.perf_counter()
+    r = subprocess.run(
+        ["/usr/bin/time", "-f", "%M", sys.executable, "-c", code], capture_output=True, text=True
+    )
+    wall = time.perf_counter() - t0
+    if r.returncode:
+        raise SystemExit(f"{mode}: {r.stderr[-2000:]}")
+    return wall, int(r.stderr.strip().splitlines()[-1]) / 1024
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--hours", type=float, nargs="+", default=[1 / 60, 1.0, 4.0])
+    ap.add_argument("--modes", nargs="+", default=list(MODES))
+    args = ap.parse_args()
+    print(f"{'session':>8} {'file MB':>8} {'mode':>11} {'wall s':>8} {'peak MB':>8}  load average")
+    with tempfile.TemporaryDirectory(dir="/tmp") as d:
+        for h in args.hours:
+            path = write_long(Path(d) / "s.mcap", h * 3600.0, seed=1)
+            mb = path.stat().st_size / 1e6
+            for mode in args.modes:
+                wall, peak = run(mode, path)
+                label = f"{h * 60:.0f} min" if h < 1 else f"{h:g} h"
+                load = " ".join(f"{x:.1f}" for x in os.getloadavg())
+                print(f"{label:>8} {mb:>8.1f} {mode:>11} {wall:>8.2f} {peak:>8.0f}  {load}", flush=True)
+            path.unlink()
+
+
+if __name__ == "__main__":
+    main()

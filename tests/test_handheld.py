@@ -1,0 +1,107 @@
+"""Hand-held sessions without pose labels (issue #10, item 3): diagnose works on the detected
+static intervals with the orientation-free gravity-norm residual, says what the norm cannot
+identify, and prints the detected intervals with the detector settings (CLI options)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+from support.synthetic import cube_poses, synthetic_session, true_theta
+
+from accellog.calibrate.handheld import HANDHELD_START
+from accellog.calibrate.model import build_model
+from accellog.cli import main
+from accellog.store.writer import write_session
+
+
+def _unlabelled(tmp_path, terms: str, seed: int):
+    truth = build_model(terms)
+    th = true_theta(truth, seed=seed)
+    s = synthetic_session(
+        truth,
+        th,
+        protocol=cube_poses(6.0),
+        hold_s=6.0,
+        move_s=2.0,
+        temp_path=lambda t: 40.0 - 16.0 * np.exp(-t / 120.0),
+        seed=seed,
+    )
+    path = write_session(tmp_path / f"hand_{seed}.mcap", dataclasses.replace(s, poses=[]))
+    return path, truth, th
+
+
+def test_handheld_warmup_temperature_effect_found_on_detected_holds(tmp_path, capsys):
+    path, truth, th = _unlabelled(tmp_path, HANDHELD_START + "+temp_bias", 3)
+    assert main(["diagnose", str(path), "--json", "--detect-window-s", "0.5"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["handheld"] and d["model"] == HANDHELD_START
+    det = d["detected"]
+    assert det["window_s"] == 0.5 and det["threshold"] is None
+    assert len(det["intervals"]) >= 20  # 26 holds, every one a distinct orientation
+    assert all(iv["end_s"] > iv["start_s"] and iv["n"] > 100 for iv in det["intervals"])
+    assert d["missing"] and d["best"] == "temp_bias", d["verdict"]
+    bt = d["candidates"][0]["params"]
+    truth_p = dict(zip(truth.param_names, th, strict=True))
+    for a in "xyz":
+        v, s = bt[f"bT_{a}"]
+        assert abs(v - truth_p[f"bT_{a}"]) < 3 * s, (a, v, truth_p[f"bT_{a}"], s)
+    advice = " ".join(d["advice"])
+    assert "cross_axis: cannot be identified without orientations" in advice
+    assert "rotation of the sensor frame" in advice and "fixture_tilt: needs pose labels" in advice
+    # with the effect added the norm residual is at the noise floor
+    assert main(["diagnose", str(path), "--model", HANDHELD_START, "--add", "temp_bias", "--json"]) == 0
+    d2 = json.loads(capsys.readouterr().out)
+    assert not d2["missing"] and d2["chi2_dof"] < 1.5, d2["verdict"]
+
+
+def test_handheld_fixed_threshold_and_clean_session(tmp_path, capsys):
+    path, _, _ = _unlabelled(tmp_path, HANDHELD_START, 4)
+    assert main(["diagnose", str(path), "--json", "--threshold", "4"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["detected"]["threshold"] == 4.0 and len(d["detected"]["intervals"]) >= 20
+    assert not d["missing"] and d["best"] is None, d["verdict"]
+    assert main(["diagnose", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "static intervals detected" in out and "nothing is missing that the norm can show" in out
+
+
+EDGES = "+z,-z,+y,-y,+x,-x,+x+y,-x-y,+x-y,-x+y,+x+z,-x-z,+x-z,-x+z,+y+z,-y-z,+y-z,-y+z"
+
+
+def test_handheld_gyro_from_rotations_between_detected_holds(tmp_path, capsys):
+    """An emulated session (gyro and accel) with its labels removed: `fit --orientation-free`
+    calibrates the gyro from the detected intervals and the rotations between them (imu_tk style),
+    reports it in --json, and agrees with the calibration from the labelled holds."""
+    from accellog.flows.simulate import Scenario, simulate
+    from accellog.store.reader import read_session
+
+    src = tmp_path / "edges.mcap"
+    simulate(Scenario(protocol=EDGES, hold_s=5.0, move_s=2.0, sample_rate_hz=200.0, seed=5), src)
+    labelled = read_session(src)
+    hand = write_session(tmp_path / "hand.mcap", dataclasses.replace(labelled, poses=[]))
+    out = {}
+    for name, path, extra in (("labelled", src, []), ("hand", hand, ["--orientation-free"])):
+        args = [
+            "fit",
+            str(path),
+            "--model",
+            HANDHELD_START,
+            *extra,
+            "-o",
+            str(tmp_path / f"{name}.json"),
+            "--json",
+        ]
+        assert main(args) == 0
+        capsys.readouterr()
+        out[name] = json.loads((tmp_path / f"{name}.json").read_text())["gyro"]
+    stored = json.loads((tmp_path / "hand.json").read_text())["fit"]["detected_intervals"]
+    assert len(stored) == 18 and all(iv["n"] > 500 and iv["end_s"] > iv["start_s"] for iv in stored)
+    g_l, g_h = out["labelled"], out["hand"]
+    assert g_h is not None and g_h["matrix"] is not None, g_h
+    M_l, M_h = np.array(g_l["matrix"]), np.array(g_h["matrix"])
+    s = np.hypot(np.array(g_l["matrix_sigma"]), np.array(g_h["matrix_sigma"]))
+    assert np.all(np.abs(M_h - M_l) < 5 * s + 2e-3), (M_h - M_l, s)
+    b_l, b_h = np.array(g_l["bias_dps"]), np.array(g_h["bias_dps"])
+    assert np.all(np.abs(b_h - b_l) < 0.02), (b_h, b_l)

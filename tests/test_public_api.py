@@ -1,0 +1,65 @@
+"""The notebook API in accellog/__init__.py: every public name resolves, and the docstring's example runs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+
+import accellog as al
+from accellog.core.jsonio import JsonResult
+
+
+def test_every_public_name_resolves():
+    assert {n for n in al.__all__ if getattr(al, n) is None} == set()
+    assert set(dir(al)) == set(al.__all__)
+
+
+def test_import_accellog_loads_no_heavy_module():
+    code = "import sys, accellog; print(' '.join(m for m in ('numpy', 'scipy', 'rerun', 'mcap') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == []
+
+
+def test_notebook_example(tmp_path):
+    """The module docstring's example on a simulated six-pose session recovers the chip's bias (g)."""
+    sc = al.Scenario(protocol="six", hold_s=6.0, sample_rate_hz=200.0, seed=3)
+    al.simulate(sc, tmp_path / "cal.mcap")
+    s = al.read_session(tmp_path / "cal.mcap")
+    obs = al.observations(s)
+    fit = al.fit_model(obs, al.build_model("model3"))
+    cal = al.Calibration.from_fit(fit, obs=obs)
+    cal.save(tmp_path / "cal.json")
+    back = al.load_calibration(tmp_path / "cal.json")
+    assert np.allclose(back.correct(s.accel_g[:10]), cal.correct(s.accel_g[:10]))
+    from accellog.flows.simulate import build_sensor_model
+
+    model, _ = build_sensor_model(sc)
+    z = (fit.b - model.accel.bias_g) / fit.sigma[[fit.param_names.index(f"b_{a}") for a in "xyz"]]
+    assert np.all(np.abs(z) < 5), z  # the chip's bias (g) within its 1-sigma, up to 5 sigma
+    assert isinstance(al.diagnose(obs, al.build_model("model3")).verdict, str)
+
+
+def test_typed_results_serialise_to_strict_json(tmp_path):
+    """to_json() of a result is the strict JSON of its to_dict() (NaN -> null), keys unchanged."""
+    import json
+    import math
+
+    from accellog.flows.stages import run_fit
+    from accellog.flows.static_stages import run_segment
+
+    sc = al.Scenario(protocol="six", hold_s=4.0, sample_rate_hz=200.0, seed=4)
+    al.simulate(sc, tmp_path / "s.mcap")
+    seg = run_segment(tmp_path / "s.mcap")
+    fo = run_fit(al.read_session(tmp_path / "s.mcap"), "model2")
+    for res in (seg, fo, fo.cal):
+        d = json.loads(res.to_json())
+        assert set(d) == set(res.to_dict())
+    assert not math.isnan(json.loads(fo.to_json())["chi2_dof"])
+
+    class Nan(JsonResult):
+        def to_dict(self) -> dict:
+            return {"chi2_dof": float("nan"), "b_g": np.array([1.0, np.inf, 2.0])}
+
+    assert json.loads(Nan().to_json()) == {"chi2_dof": None, "b_g": [1.0, None, 2.0]}

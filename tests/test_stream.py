@@ -1,0 +1,90 @@
+"""Chunk-by-chunk reading gives exactly read_session's samples, block by block."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from accellog.core.errors import DataIntegrityWarning
+from accellog.flows.simulate import Scenario, simulate
+from accellog.store import fastread
+from accellog.store.reader import read_session
+from accellog.store.stream import iter_imu, read_labels
+
+FIELDS = ("t_s", "sample_index", "accel_g", "gyro_dps", "temp_degC")
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    p = tmp_path_factory.mktemp("stream") / "six.mcap"
+    simulate(Scenario(protocol="six", hold_s=2.0, move_s=1.0, sample_rate_hz=500.0), p)
+    return p
+
+
+def _joined(blocks, name):
+    return np.concatenate([getattr(b, name) for b in blocks])
+
+
+def _same_samples(blocks, s):
+    for k in FIELDS:
+        np.testing.assert_array_equal(_joined(blocks, k), getattr(s, k))
+
+
+def test_blocks_are_read_session_split(recorded, monkeypatch):
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 32 << 10)  # small groups: many blocks
+    blocks = list(iter_imu(recorded))
+    assert len(blocks) > 5
+    assert max(b.n for b in blocks) < 3 * min(b.n for b in blocks[:-1])  # bounded, even sizes
+    s = read_session(recorded)
+    _same_samples(blocks, s)
+    meta, poses, events = read_labels(recorded)
+    assert meta == s.meta and poses == s.poses and events == s.events
+
+
+def test_damaged_chunk_is_skipped_with_a_warning(recorded, tmp_path):
+    from mcap.reader import make_reader
+
+    with open(recorded, "rb") as f:
+        mid = make_reader(f).get_summary().chunk_indexes[5]
+    b = bytearray(recorded.read_bytes())
+    b[mid.chunk_start_offset + mid.chunk_length // 2] ^= 0x04
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b)
+    with pytest.warns(DataIntegrityWarning, match="damaged chunk at byte"):
+        blocks = list(iter_imu(bad))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataIntegrityWarning)
+        s = read_session(bad)
+    _same_samples(blocks, s)
+
+
+def test_unfinished_file_falls_back_to_read_session(recorded, tmp_path):
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(recorded.read_bytes()[: recorded.stat().st_size * 2 // 3])
+    blocks = list(iter_imu(cut))
+    _same_samples(blocks, read_session(cut))
+
+
+def test_stream_observations_equal_observations(recorded, monkeypatch):
+    """Per-hold reduction while streaming gives exactly the whole-session observation table."""
+    import dataclasses
+
+    from accellog.calibrate.segment import observations
+    from accellog.calibrate.stream_segment import stream_observations
+
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 32 << 10)  # holds span several blocks
+    a = stream_observations(recorded, window_s=0.5, trim_s=0.3)
+    b = observations(read_session(recorded), window_s=0.5, trim_s=0.3)
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        assert np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y, f.name
+
+
+def test_stream_observations_refuse_as_observations(recorded):
+    from accellog.calibrate.stream_segment import stream_observations
+    from accellog.core.errors import InputError
+
+    with pytest.raises(InputError, match=r"has \d+ samples after trimming 1.5 s"):
+        stream_observations(recorded, trim_s=1.5)
