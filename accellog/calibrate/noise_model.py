@@ -384,6 +384,7 @@ def calibration_section(m: NoiseModel) -> dict:
         "rate_hz": m.rate_hz,
         "convention": "Allan/IEEE-952: ADEV(tau) = N / sqrt(tau); one-sided PSD density = sqrt(2) N",
         "kalibr": m.kalibr(),
+        "kalibr_random_walk_is_bound": any(not a.random_walk.detected for s in m.sensors() for a in s.axes),
     }
     for s in m.sensors():
         units = _SECTION_UNITS[s.sensor]

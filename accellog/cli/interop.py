@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Annotated
 
@@ -11,7 +10,6 @@ import typer
 from rich.console import Console
 
 from accellog.cli.app import app
-from accellog.core.errors import InputError
 
 
 @app.command("export", rich_help_panel="2. Calibrate")
@@ -35,19 +33,21 @@ def export_cmd(
 ) -> None:
     """Write a calibration in another tool's format and say which terms that format cannot hold."""
     from accellog.calibrate.calibration import load_calibration
-    from accellog.calibrate.imu_noise import characterise_noise
-    from accellog.flows.stages import as_session
+    from accellog.calibrate.imu_noise import NoiseCharacterisation
+    from accellog.flows.characterise import characterise_noise
     from accellog.present.exports import export_calibration
+    from accellog.store.atomic import check_outputs, write_text_atomic
+
+    check_outputs([output], [cal, noise_from])
 
     c = load_calibration(cal)
-    noise = characterise_noise(as_session(noise_from, "--noise-from")) if noise_from else None
+    if noise_from is not None:
+        noise = NoiseCharacterisation.from_model(characterise_noise(noise_from))
+    else:
+        noise = NoiseCharacterisation.from_section(c.noise) if c.noise else None
     ex = export_calibration(c, to, noise=noise, topic=topic, frame_id=frame_id)
     if output is not None:
-        if not output.parent.exists():
-            raise InputError("output folder does not exist", where=str(output))
-        tmp = output.with_name(f".{output.name}.{os.getpid()}.tmp")
-        tmp.write_text(ex.text)
-        os.replace(tmp, output)
+        write_text_atomic(output, ex.text, inputs=(cal, noise_from))
     if as_json:
         typer.echo(json.dumps({k: v for k, v in ex.to_dict().items() if k != "text"}, default=float))
         return

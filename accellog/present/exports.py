@@ -226,7 +226,7 @@ def _plain(cal: Calibration, noise: NoiseCharacterisation | None) -> Export:
         "gyro": {k: v for k, v in (cal.gyro or {}).items() if isinstance(v, (int, float, list, str)) or v is None},
     }  # fmt: skip
     if noise is not None:
-        d["noise"] = {k: v for k, v in noise.to_dict().items() if k != "per_axis"}
+        d["noise"] = noise.to_dict()
     text = "# accellog calibration as plain YAML (S row-major)\n" + "\n".join(_yaml(d)) + "\n"
     return Export("yaml", text, d, {"S": "1", "b_g": "g", "mps2_per_unit": "m/s^2 per unit"}, [])
 

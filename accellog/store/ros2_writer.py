@@ -145,8 +145,9 @@ class Ros2BagWriter:
             os.replace(mcap, self.out)
             shutil.rmtree(self._tmp)
         else:
-            if self.out.exists():
-                shutil.rmtree(self.out)
+            if self.out.exists():  # never delete a bag that is already there
+                self.abort()
+                raise InputError("the ROS 2 bag folder already exists; choose another name", where=str(self.out))
             os.replace(self._tmp, self.out)
         return self.out
 

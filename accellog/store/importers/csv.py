@@ -11,7 +11,6 @@ two rows spanning a non-zero duration.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +20,7 @@ import numpy as np
 from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import ACCEL_LSB_PER_G, STANDARD_GRAVITY_MPS2
+from accellog.store.atomic import AtomicOutput
 from accellog.store.importers.csv_blocks import BLOCK_BYTES, Block, BlockReader, read_header
 from accellog.store.importers.csv_options import FIELDS, GROUPS, TIME_UNITS, CsvOptions
 from accellog.store.importers.csv_poses import PoseRuns
@@ -385,7 +385,8 @@ def import_csv_to_mcap(
     block_bytes: int = BLOCK_BYTES,
     compression: str | None = None,
 ) -> CsvImportResult:
-    """Stream a CSV into an accellog MCAP (temp file + rename: nothing half-written on error).
+    """Stream a CSV into an accellog MCAP (accellog.store.atomic: locked temp file, fsync, rename;
+    nothing half-written on error, never over the CSV itself).
 
     Memory: one block of text (``block_bytes``) and its columns, plus the MCAP chunk being built.
     """
@@ -393,7 +394,8 @@ def import_csv_to_mcap(
 
     path, out = Path(path), Path(out)
     imp = CsvImport(path, options or CsvOptions(), block_bytes)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    ao = AtomicOutput(out, inputs=(path,), what="output session")
+    tmp = ao.begin()
     w = None
     t_first = t_last = 0.0
     try:
@@ -424,12 +426,12 @@ def import_csv_to_mcap(
             w.write_pose(p)
         w.update_meta(imp.meta)
         w.close()
-        os.replace(tmp, out)
     except BaseException:
         if w is not None:
             w.close()
-        tmp.unlink(missing_ok=True)
+        ao.abort()
         raise
+    ao.commit()
     m = imp.meta
     return CsvImportResult(
         input=str(path),
