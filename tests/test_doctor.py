@@ -43,6 +43,7 @@ def test_clean_log_passes(clean, capsys):
     assert ok["model3 on labelled poses (fit)"] and ok["gyro bias"]
     assert not ok["noise density (export --to kalibr)"]  # 3 s holds: too short, and it says so
     assert r["distinct_orientations"] == 6
+    assert r["device"]["who_am_i"] == 0x71 and r["device"]["i2c_bus"] == "emulator"  # the device key
 
 
 def _damage(s, *, counts: bool):

@@ -48,7 +48,9 @@ class NoiseCharacterisation:
         if "accelerometer_noise_density" not in k:
             raise InputError("the calibration's noise section has no Kalibr values: rerun `accellog noise`")
         bound = bool(d.get("kalibr_random_walk_is_bound", True))
-        return cls._from_values(k, bound, float(d["rate_hz"]), float(d["duration_s"]), str(d.get("source", "")))
+        return cls._from_values(
+            k, bound, float(d["rate_hz"]), float(d["duration_s"]), str(d.get("source", ""))
+        )
 
     @classmethod
     def _from_values(cls, k: dict, bound: bool, rate_hz: float, duration_s: float, source: str):

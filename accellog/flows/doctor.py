@@ -13,13 +13,13 @@ overflows, I2C errors) are counted by kind. Still intervals come from
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from accellog.core.errors import InputError
+from accellog.core.jsonio import dumps
 from accellog.core.session import Session
 
 GAP_FACTOR = 1.5
@@ -48,6 +48,8 @@ class Support:
 class DoctorReport:
     path: str
     source: str
+    device: dict
+    """The session's device key (accellog.core.device.DeviceKey.to_dict(); empty fields unknown)."""
     samples: int
     duration_s: float
     rate_hz: float
@@ -70,7 +72,7 @@ class DoctorReport:
         return d
 
     def to_json(self) -> str:
-        return json.dumps(self.to_dict())
+        return dumps(self.to_dict())
 
 
 def _where(t: np.ndarray, idx: np.ndarray) -> list[float]:
@@ -220,6 +222,7 @@ def examine(s: Session) -> DoctorReport:
     return DoctorReport(
         path=s.path or "",
         source=s.meta.source,
+        device=s.meta.device.to_dict(),
         samples=s.n,
         duration_s=float(t[-1] - t[0]) if s.n else 0.0,
         rate_hz=1e3 / stats["median"] if stats.get("median") else 0.0,

@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 from rich.table import Table
 
+from accellog.core.device import DeviceKey
+
 HIST_BINS = 60
 
 
@@ -16,6 +18,7 @@ def tables(r) -> list[Table]:
     s.add_column("what", style="bold")
     s.add_column("value")
     s.add_row("source", r.source)
+    s.add_row("device", DeviceKey.from_dict(r.device).describe())
     s.add_row("samples", f"{r.samples} over {r.duration_s:.6g} s")
     iv = r.interval_ms
     s.add_row("rate", f"{r.rate_hz:.6g} Hz (interval median {iv.get('median', 0):.4g} ms, "

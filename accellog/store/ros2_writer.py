@@ -147,7 +147,9 @@ class Ros2BagWriter:
         else:
             if self.out.exists():  # never delete a bag that is already there
                 self.abort()
-                raise InputError("the ROS 2 bag folder already exists; choose another name", where=str(self.out))
+                raise InputError(
+                    "the ROS 2 bag folder already exists; choose another name", where=str(self.out)
+                )
             os.replace(self._tmp, self.out)
         return self.out
 
