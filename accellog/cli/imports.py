@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
-from rich.table import Table
 
 from accellog.cli.app import app
-from accellog.core.session import Session
+
+if TYPE_CHECKING:
+    from accellog.core.session import Session
 
 import_app = typer.Typer(
     help="Import recordings (capstone CSV, imucal, any logger's CSV, ROS 2 bags) into accellog MCAP files.",
@@ -67,6 +68,8 @@ def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: in
 
 
 def _present(facts: dict, src: Path, out: Path, as_json: bool) -> None:
+    from rich.table import Table
+
     if as_json:
         typer.echo(json.dumps(facts))
         return
@@ -203,6 +206,8 @@ def import_ros2_cmd(
 
     Without -o, lists the bag's topics (IMU topics first) and exits.
     """
+    from rich.table import Table
+
     from accellog.calibrate.detected_holds import label_detected_holds
     from accellog.store.importers.ros2 import IMU_TYPE, import_ros2, list_topics
 
