@@ -277,14 +277,8 @@ def workbench_cmd(
     from accellog.calibrate.segment import observations
     from accellog.core.session import Session
     from accellog.flows.stages import as_session, load_input
-    from accellog.flows.workbench import (
-        discover,
-        ladder_json,
-        ladder_rows,
-        ladder_table,
-        log_ladder,
-        steps_for,
-    )
+    from accellog.flows.workbench import discover, ladder_rows, log_ladder, steps_for
+    from accellog.present.tables import ladder_table
 
     data = load_input(session)
     if not isinstance(data, Session):
@@ -321,25 +315,25 @@ def workbench_cmd(
         gyro=output is not None or rrd is not None,  # the gyro goes into the calibration file / .rrd
     )
     if output is not None:
-        rows[-1]["fit"].cal.save(output)
+        rows[-1].fit.cal.save(output)
     if rrd is not None:
         from accellog.present.residual_views import log_workbench_residuals
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_diagnosis, log_session
 
         with RunRecording(f"save:{rrd}") as rec:
-            log_session(rec, data, calibrations={found.final_model: rows[-1]["fit"].cal})
+            log_session(rec, data, calibrations={found.final_model: rows[-1].fit.cal})
             for i, d in enumerate(found.diagnoses, 1):
                 log_diagnosis(rec, d, obs, label=f"step {i}")
-            log_ladder(rec, rows, obs, at_s=at_s)
-            log_workbench_residuals(rec, obs, found.diagnoses[0].fit, rows[-1]["fit"].fit)
+            log_ladder(rec, rows, obs)
+            log_workbench_residuals(rec, obs, found.diagnoses[0].fit, rows[-1].fit.fit)
     if as_json:
-        print(json_text({"session": str(session), **found.to_json(), "ladder": ladder_json(rows)}))
+        print(json_text({"session": str(session), **found.to_json(), "ladder": [r.to_dict() for r in rows]}))
         return
     ok = found.decided and found.transfers is not False and not found.diagnoses[-1].missing
     con.print(("[bold green]OK[/] " if ok else "[bold red]CHECK[/] ") + escape(found.verdict))
     for a in found.advice:
         con.print(f"advice: {escape(a)}")
-    con.print(ladder_table(rows, at_s=at_s))
+    con.print(ladder_table(rows, title="watch the error fall: each step of model building"))
     if output is not None:
         con.print(f"wrote {output} ({found.final_model})")
