@@ -244,7 +244,11 @@ def _print(d, source: str) -> None:
 @app.command(name="workbench", rich_help_panel="3. Discover")
 def workbench_cmd(
     session: Annotated[
-        Path, typer.Argument(help="Calibration session with labelled static holds (.mcap or CSV).")
+        Path,
+        typer.Argument(
+            help="Calibration session (.mcap or CSV): labelled static holds, or a hand-held session "
+            "(no labels: detected static intervals, gravity-norm residual)."
+        ),
     ],
     heldout: Annotated[
         list[Path] | None,
@@ -284,6 +288,11 @@ def workbench_cmd(
     if not isinstance(data, Session):
         raise InputError(
             "the workbench needs a recorded session (samples), not a pose table", where=str(session)
+        )
+    if not data.poses:  # hand-held: detected static intervals, gravity-norm residual
+        test = as_session(static, "--static") if static is not None else None
+        return _workbench_handheld(
+            data, session, model, max_steps, effects_file, test, at_s, output, as_json, rrd
         )
     obs = observations(data)
     helds = [observations(as_session(h, "--heldout")) for h in heldout or []]
@@ -335,5 +344,51 @@ def workbench_cmd(
     for a in found.advice:
         con.print(f"advice: {escape(a)}")
     con.print(ladder_table(rows, title="watch the error fall: each step of model building"))
+    if output is not None:
+        con.print(f"wrote {output} ({found.final_model})")
+
+
+def _workbench_handheld(data, session, model, max_steps, effects_file, test, at_s, output, as_json, rrd):
+    """The workbench on an unlabelled session (accellog.flows.handheld_workbench)."""
+    from accellog.flows.handheld_workbench import discover_handheld
+    from accellog.present.tables import ladder_table
+
+    start = None if model == "model3" else model  # model3's cross_axis is not identifiable here
+    found = discover_handheld(
+        data, start, max_steps=max_steps, effects_file=effects_file, static_test=test, at_s=at_s
+    )
+    if output is not None:
+        from accellog.flows.stages import run_fit
+
+        # the full orientation-free fit: gyro from the detected intervals and the rotations between them
+        run_fit(
+            data, found.start, add=found.added, effects_file=effects_file, orientation_free=True
+        ).cal.save(output)
+    if rrd is not None:
+        from accellog.present.detection_views import log_detection
+        from accellog.present.rrd.recording import RunRecording
+        from accellog.present.views import log_session
+
+        with RunRecording(f"save:{rrd}") as rec:
+            log_session(rec, data)
+            log_detection(rec, found.detection)
+            rec.log_ladder(found.ladder)
+    if as_json:
+        print(json_text({"session": str(session), **found.to_dict()}))
+        return
+    con = Console(width=160)
+    det = found.detection
+    con.print(
+        f"[bold]{session}[/]: no pose labels: {len(det.intervals)} static intervals detected "
+        f"(window {det.window_s:g} s, threshold {det.threshold if det.threshold is not None else 'swept 2..10'}); "
+        "judged on the gravity norm"
+    )
+    for d in found.diagnoses:
+        con.print(f"step {escape(d.verdict)}")
+    for a in found.cannot_identify:
+        con.print(f"cannot identify: {escape(a)}")
+    con.print(
+        ladder_table(found.ladder, title="hand-held: each step of model building (gravity-norm residual)")
+    )
     if output is not None:
         con.print(f"wrote {output} ({found.final_model})")

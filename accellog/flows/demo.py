@@ -205,10 +205,11 @@ def run_demo(
     t2 = time.perf_counter()
     obs = observations(S["warmup_24"])
     held = observations(S["heldout_24"])
-    found = discover(obs, "model3", on_step=lambda d: con.print(f"  {d.verdict}"))
+    found = discover(obs, "model3", heldout=[held], on_step=lambda d: con.print(f"  {d.verdict}"))
     diags = res.diagnoses = found.diagnoses
     res.workbench_obs = obs
     res.discovered = list(found.added)
+    con.print(f"  held out: {found.verdict}")
     for a in diags[-1].advice[:3]:
         con.print(f"  advice: {a}")
     rows = ladder_rows(S["warmup_24"], obs, steps_for(found), heldout=held, static_test=S["static_hot"])

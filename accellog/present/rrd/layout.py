@@ -38,6 +38,7 @@ def build_blueprint(entities: Mapping[str, str]):
     samples = []
     for ent in [e for r, es in roles.items() if r.startswith("samples:") for e in es]:  # logged order
         contents = ["$origin/**"] + ([f"/{POSES_ACTIVE}/**"] if has_poses else [])
+        contents += [f"/{e}" for e in roles.get("detected", [])]  # detected still intervals (hand-held)
         samples.append(rrb.TimeSeriesView(origin=f"/{ent}", contents=contents, name=ent.replace("/", " ")))
     if "temperature" in roles or "lost" in roles:
         samples.append(
