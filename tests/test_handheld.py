@@ -138,3 +138,19 @@ def test_handheld_workbench_loop_ladder_and_detected_intervals_in_rrd(tmp_path, 
     # the still signal is drawn over the raw accel plot
     raw = next(v for v in r.views() if v["origin"] == "/accel/raw")
     assert any("/detect/still" in c for c in raw["contents"]), raw
+
+
+def test_handheld_workbench_on_real_ferraris_session_says_what_it_lacks(tmp_path, capsys, shared_data):
+    """Real data (imucal's Ferraris recording, 102.4 Hz) with its labels removed: six faces only,
+    so the orientation-free fit is refused with one line naming the file, and no .rrd is written."""
+    from accellog.flows.stages import load_input
+
+    s = load_input(shared_data / "imucal" / "example_ferraris_session.csv")
+    assert len(s.poses) == 6
+    path = write_session(tmp_path / "ferraris_unlabelled.mcap", dataclasses.replace(s, poses=[]))
+    rrd = tmp_path / "f.rrd"
+    assert main(["workbench", str(path), "--json", "--rrd", str(rrd)]) != 0
+    err = capsys.readouterr().err
+    assert "accellog: error:" in err and "ferraris_unlabelled.mcap" in err
+    assert "at most 6 distinct static orientations" in err and "Traceback" not in err
+    assert not rrd.exists()

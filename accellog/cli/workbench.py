@@ -291,6 +291,10 @@ def workbench_cmd(
         )
     if not data.poses:  # hand-held: detected static intervals, gravity-norm residual
         test = as_session(static, "--static") if static is not None else None
+        if heldout:
+            Console(stderr=True).print(
+                "note: --heldout is not used on a hand-held session (not yet supported)"
+            )
         return _workbench_handheld(
             data, session, model, max_steps, effects_file, test, at_s, output, as_json, rrd
         )
