@@ -16,8 +16,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import Session
 
@@ -105,7 +103,8 @@ def discover_handheld(
 def _ladder(session, obs, start, added, effects_file, static_test, at_s) -> list[LadderRow]:
     """start, start + e1, start + e1 + e2, ... fitted orientation-free on the detected windows."""
     from accellog.calibrate.ladder import ladder_row
-    from accellog.flows.stages import run_evaluate, run_fit
+    from accellog.flows.stages import run_fit
+    from accellog.flows.workbench import add_static_drift
 
     rows = []
     for k in range(len(added) + 1):
@@ -120,9 +119,6 @@ def _ladder(session, obs, start, added, effects_file, static_test, at_s) -> list
         )
         row = ladder_row(fo.fit, added=added[:k], fit=fo)
         if static_test is not None:
-            ev = run_evaluate(
-                static_test, [fo.cal], include_raw=False, labels=[fo.fit.model.name], times_s=(at_s,)
-            )[0]
-            row.drift_m, row.drift_at_s = float(np.linalg.norm(ev.disp_at(at_s))), float(at_s)
+            add_static_drift(row, static_test, at_s)
         rows.append(row)
     return rows

@@ -203,7 +203,7 @@ def ladder_rows(
 
 def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro) -> list[LadderRow]:
     from accellog.calibrate.ladder import ladder_row
-    from accellog.flows.stages import run_evaluate, run_fit
+    from accellog.flows.stages import run_fit
 
     rows = []
     for i, (preset, add) in enumerate(steps):
@@ -217,12 +217,21 @@ def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at
         )
         row = ladder_row(fo.fit, added=add, heldout=heldout, fit=fo)
         if static_test is not None:
-            ev = run_evaluate(
-                static_test, [fo.cal], include_raw=False, labels=[fo.fit.model.name], times_s=(at_s,)
-            )[0]
-            row.drift_m, row.drift_at_s = float(np.linalg.norm(ev.disp_at(at_s))), float(at_s)
+            add_static_drift(row, static_test, at_s)
         rows.append(row)
     return rows
+
+
+def add_static_drift(row: LadderRow, static_test: Session, at_s: float) -> None:
+    """Set row.drift_m: |displacement| (m) of the static test integrated with the row's calibration
+    (row.fit: a FitOutcome) at at_s (s)."""
+    from accellog.flows.stages import run_evaluate
+
+    fo = row.fit
+    ev = run_evaluate(static_test, [fo.cal], include_raw=False, labels=[fo.fit.model.name], times_s=(at_s,))[
+        0
+    ]
+    row.drift_m, row.drift_at_s = float(np.linalg.norm(ev.disp_at(at_s))), float(at_s)
 
 
 def steps_for(discovery: Discovery) -> list[tuple[str, list[str]]]:
