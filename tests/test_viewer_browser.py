@@ -72,7 +72,7 @@ def test_web_viewer_renders_demo_recording(chromium: str, tmp_path: Path) -> Non
     # --tab picks the workbench tab: its log10 ladder bars (translucent track colours) fill large areas
     png_tab = tmp_path / "workbench.png"
     assert (
-        main(["view", str(rrd), "--screenshot", str(png_tab), "--tab", "3 workbench", "--wait-s", "120"]) == 0
+        main(["view", str(rrd), "--screenshot", str(png_tab), "--tab", "3 workbench", "--wait-s", "240"]) == 0
     )
     tab = np.asarray(Image.open(io.BytesIO(png_tab.read_bytes())).convert("RGB")).astype(int)
     for rgb in BAR_COLORS:
