@@ -70,6 +70,15 @@ class Rrd:
         """Values of a static BarChart (1-D float64)."""
         return np.asarray(self.static(entity, "BarChart:values")[0]["buffer"], dtype=np.float64)
 
+    def ladder_bars(self, metric: str) -> list[tuple[float, str, float]]:
+        """(abscissa, entity name, value) of the one-bar charts under /ladder/<metric>, by abscissa."""
+        out = []
+        for ent in self.entities:
+            if ent.startswith(f"/ladder/{metric}/"):
+                x = self.static(ent, "BarChart:abscissa")[0]["buffer"]
+                out.append((float(x[0]), ent.rsplit("/", 1)[1], float(self.bar_values(ent)[0])))
+        return sorted(out)
+
     def views(self) -> list[dict]:
         """Blueprint views: class ('TimeSeries', 'Spatial3D', 'BarChart', ...), origin, name, contents."""
         out = []

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, synthetic_obs, synthetic_session, true_theta
 
-from accellog.calibrate.diagnose import diagnose, heldout_residual, ladder
+from accellog.calibrate.diagnose import diagnose, heldout_residual
 from accellog.calibrate.fit import fit_model
+from accellog.calibrate.ladder import ladder
 from accellog.calibrate.model import build_model
 from accellog.cli import main
 
@@ -66,8 +67,8 @@ def test_hidden_effect_is_found_and_fixed(effect):
     assert abs(res.chi2_dof - 1.0) < 6 * np.sqrt(2.0 / res.dof), res.chi2_dof
     held = _obs(truth, th, protocol, seed=99)
     rows = ladder(obs, [base, fixed], heldout_obs=held)
-    assert rows[1]["heldout_rms_g"] < 1.2 * rows[1]["heldout_noise_g"], rows
-    assert rows[0]["heldout_rms_g"] > rows[1]["heldout_rms_g"]
+    assert rows[1].heldout_rms_g < 1.2 * rows[1].heldout_noise_g, rows
+    assert rows[0].heldout_rms_g > rows[1].heldout_rms_g
 
 
 @pytest.mark.parametrize("seed", range(6))

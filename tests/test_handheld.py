@@ -105,3 +105,52 @@ def test_handheld_gyro_from_rotations_between_detected_holds(tmp_path, capsys):
     assert np.all(np.abs(M_h - M_l) < 5 * s + 2e-3), (M_h - M_l, s)
     b_l, b_h = np.array(g_l["bias_dps"]), np.array(g_h["bias_dps"])
     assert np.all(np.abs(b_h - b_l) < 0.02), (b_h, b_l)
+
+
+def test_handheld_workbench_loop_ladder_and_detected_intervals_in_rrd(tmp_path, capsys):
+    """workbench on an unlabelled warm-up: finds the temperature bias on the gravity norm, says what
+    the norm cannot identify, and draws the detected intervals on the .rrd timeline."""
+    from rrd_readback import load_rrd
+
+    path, _, _ = _unlabelled(tmp_path, HANDHELD_START + "+temp_bias", 5)
+    rrd = tmp_path / "wb.rrd"
+    assert main(["workbench", str(path), "--json", "--rrd", str(rrd)]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["handheld"] and d["start"] == HANDHELD_START and d["added"] == ["temp_bias"], d["verdicts"]
+    assert "nothing is missing that the norm can show" in d["verdict"]
+    assert any(
+        s.startswith("cross_axis: cannot be identified without orientations") for s in d["cannot_identify"]
+    )
+    lad = d["ladder"]
+    assert [r["model"] for r in lad] == [HANDHELD_START, HANDHELD_START + "+temp_bias"]
+    assert lad[0]["chi2_dof"] > 5 and lad[1]["chi2_dof"] < 1.5 and lad[1]["added"] == ["temp_bias"]
+    ivs = d["detected"]["intervals"]
+    assert len(ivs) >= 20
+    r = load_rrd(rrd)
+    t, v = r.series("detect/still")
+    np.testing.assert_allclose(t, [x for iv in ivs for x in (iv["start_s"], iv["end_s"])], atol=1e-9)
+    assert v[:, 0].tolist() == [1.0, 0.0] * len(ivs)
+    logs = r.texts("detect/log")
+    assert len(logs) == len(ivs) and f"n {ivs[0]['n']}" in logs[0][1] and "swept 2..10" in logs[0][1]
+    assert "Detected static intervals" in r.static("docs/detected", "TextDocument:text")[0]
+    bars = r.ladder_bars("log10_chi2_dof")
+    np.testing.assert_allclose([b[2] for b in bars], np.log10([x["chi2_dof"] for x in lad]), rtol=1e-6)
+    # the still signal is drawn over the raw accel plot
+    raw = next(v for v in r.views() if v["origin"] == "/accel/raw")
+    assert any("/detect/still" in c for c in raw["contents"]), raw
+
+
+def test_handheld_workbench_on_real_ferraris_session_says_what_it_lacks(tmp_path, capsys, shared_data):
+    """Real data (imucal's Ferraris recording, 102.4 Hz) with its labels removed: six faces only,
+    so the orientation-free fit is refused with one line naming the file, and no .rrd is written."""
+    from accellog.flows.stages import load_input
+
+    s = load_input(shared_data / "imucal" / "example_ferraris_session.csv")
+    assert len(s.poses) == 6
+    path = write_session(tmp_path / "ferraris_unlabelled.mcap", dataclasses.replace(s, poses=[]))
+    rrd = tmp_path / "f.rrd"
+    assert main(["workbench", str(path), "--json", "--rrd", str(rrd)]) != 0
+    err = capsys.readouterr().err
+    assert "accellog: error:" in err and "ferraris_unlabelled.mcap" in err
+    assert "at most 6 distinct static orientations" in err and "Traceback" not in err
+    assert not rrd.exists()

@@ -85,9 +85,9 @@ def test_workbench_pipeline_ladder(files, tmp_path):
         [files["cal"], files["held"], files["static_a"]],
         output_dir=tmp_path / "out",
     )
-    lad = {r["model"]: r for r in res.ladder()}
-    assert lad["model1"]["chi2_dof"] > 10 * lad["model3"]["chi2_dof"]
-    assert lad["model3"]["chi2_dof"] < 2.0
+    lad = {r.model: r for r in res.ladder()}
+    assert lad["model1"].chi2_dof > 10 * lad["model3"].chi2_dof
+    assert lad["model3"].chi2_dof < 2.0
     assert len(res.pose_evaluations) == 5 and res.pose_evaluations[2].chi2 / res.pose_evaluations[2].dof < 2.5
     assert (tmp_path / "out" / "results.json").exists()
     assert load_calibration(tmp_path / "out" / "cal_model3_temp_bias_nonlin2.json").terms[-1] == "nonlin2"

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from accellog.calibrate.ladder import LadderRow
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel
 from accellog.navigate.online import OnlineIntegrator, integrate_batch
-from accellog.present.rrd.entities import LadderRow
 from accellog.present.rrd.live import LiveView
 from accellog.present.rrd.recording import RunRecording
 from accellog.present.rrd.sinks import wait_for_port
@@ -65,25 +65,13 @@ def test_full_recording_reads_back(tmp_path: Path) -> None:
         rec.log_document("calibration/model3", "| param | value |\n|---|---|\n| b_x | 0.0900 +- 0.0001 g |")
         rec.log_ladder(
             [
-                LadderRow(
-                    "bias",
-                    "bias",
-                    120.0,
-                    8.0,
-                    40.0,
-                    t_s=t[:5],
-                    residual_g=raw[:5] - 0.1,
-                    driver_name="T",
-                    driver=t[:5],
-                ),
-                {
-                    "step": "bias+scale",
-                    "added": "scale",
-                    "chi2_dof": 1.1,
-                    "heldout_rms_mg": 0.9,
-                    "drift_60s_m": 2.0,
-                },
-            ]
+                LadderRow("bias", 3, 120.0, added=["bias"], heldout_rms_g=0.008, residual_g=raw[:5] - 0.1),
+                LadderRow("bias+scale", 6, 1.1, added=["bias", "scale"], heldout_rms_g=0.0009),
+            ],
+            t_s=t[:5],
+            driver=t[:5],
+            driver_name="T",
+            residual_steps=[0],
         )
     assert out.exists() and not list(tmp_path.glob(".*tmp"))
     r = load_rrd(out)
@@ -126,6 +114,18 @@ def test_full_recording_reads_back(tmp_path: Path) -> None:
         np.testing.assert_allclose(bars, (meas - pred)[:, k] * 1000.0, atol=1e-12)
     assert "b_x" in r.static("docs/calibration/model3", "TextDocument:text")[0]
     assert "bias+scale" in r.static("docs/ladder", "TextDocument:text")[0]
+    # ladder bars: log10 per step at its index, the model in the entity name; no drift measured, no drift bars
+    assert r.ladder_bars("log10_chi2_dof") == [
+        (0.0, "00_bias", pytest.approx(np.log10(120.0))),
+        (1.0, "01_bias_scale", pytest.approx(np.log10(1.1))),
+    ]
+    assert [v for _, _, v in r.ladder_bars("log10_heldout_rms_mg")] == pytest.approx(
+        [np.log10(8.0), np.log10(0.9)]
+    )
+    assert r.ladder_bars("log10_drift_m") == []
+    _, res0 = r.series("ladder/steps/00/residual_mg")
+    np.testing.assert_allclose(res0, (raw[:5] - 0.1) * 1000.0)
+    assert "/ladder/steps/01/residual_mg" not in r.entities
 
     # the blueprint shows what the user looks for, and follows the sensor time
     views = {(v["class"], v["origin"]) for v in r.views()}

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from accellog.cli import main
 from accellog.present.rrd.recording import RunRecording
 from accellog.present.viewer import Chromium, find_chromium, pixel_stats, screenshot_rrd, serve_rrd
 
@@ -30,6 +31,10 @@ def chromium() -> str:
         pytest.skip("chromium not installed")
     pytest.importorskip("websockets")
     return exe
+
+
+BAR_COLORS = [(244, 184, 94), (109, 192, 237)]
+"""The ladder's first two bars as drawn (track colours (240, 160, 40), (60, 170, 230) over white)."""
 
 
 def _demo_rrd(path: Path) -> None:
@@ -63,6 +68,18 @@ def test_web_viewer_renders_demo_recording(chromium: str, tmp_path: Path) -> Non
         near = np.abs(img - np.array(rgb)).sum(axis=2) < 40
         assert near.sum() > 300, f"{axis} series colour {rgb}: only {near.sum()} pixels"
     assert rrd.read_bytes() == before  # the viewer only reads the recording
+
+    # --tab picks the workbench tab: its log10 ladder bars (translucent track colours) fill large areas
+    png_tab = tmp_path / "workbench.png"
+    assert (
+        main(["view", str(rrd), "--screenshot", str(png_tab), "--tab", "3 workbench", "--wait-s", "240"]) == 0
+    )
+    tab = np.asarray(Image.open(io.BytesIO(png_tab.read_bytes())).convert("RGB")).astype(int)
+    for rgb in BAR_COLORS:
+        n_tab = (np.abs(tab - np.array(rgb)).sum(axis=2) < 30).sum()
+        n_default = (np.abs(img - np.array(rgb)).sum(axis=2) < 30).sum()
+        assert n_tab > 20000 and n_tab > 5 * n_default, (rgb, n_tab, n_default)
+    assert rrd.read_bytes() == before
 
 
 def test_web_viewer_binds_localhost_only(chromium: str, tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ from rrd_readback import load_rrd
 
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
+from accellog.present.rrd.entities import slug
 
 HOT = {"kind": "points", "t_s": [0.0, 60.0, 130.0, 200.0], "T": [22.0, 40.0, 28.0, 36.0]}
 HOT2 = {"kind": "points", "t_s": [0.0, 70.0, 140.0, 200.0], "T": [30.0, 44.0, 33.0, 41.0]}
@@ -74,8 +75,13 @@ def test_hidden_temperature_effect_is_found_and_the_error_falls(sessions, capsys
     assert m3["chi2_dof"] > 20 and final["chi2_dof"] < 1.5
     assert final["heldout_rms_g"] < 1.3 * final["heldout_noise_g"] < m3["heldout_rms_g"] / 5
     assert "nothing is missing" in out["verdicts"][-1]
-    bars = load_rrd(rrd).bar_values("/ladder/heldout_rms_mg")
-    np.testing.assert_allclose(bars, [r["heldout_rms_g"] * 1000 for r in ladder], rtol=1e-9)
+    # the .rrd ladder: one bar per step at its index, log10 of the held-out RMS (mg), named by its model
+    bars = load_rrd(rrd).ladder_bars("log10_heldout_rms_mg")
+    assert [x for x, _, _ in bars] == list(range(len(ladder)))
+    assert [n.split("_", 1)[1] for _, n, _ in bars] == [slug(r["model"]) for r in ladder]
+    np.testing.assert_allclose(
+        [v for _, _, v in bars], [np.log10(r["heldout_rms_g"] * 1000) for r in ladder], rtol=1e-6
+    )
 
 
 def test_clean_session_adds_nothing(sessions, capsys):

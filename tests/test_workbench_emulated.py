@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from accellog.calibrate.diagnose import diagnose, ladder
+from accellog.calibrate.diagnose import diagnose
+from accellog.calibrate.ladder import ladder
 from accellog.calibrate.model import build_model
 from accellog.calibrate.segment import observations
 from accellog.cli import main
@@ -216,10 +217,10 @@ def test_hidden_effect_ranked_first_fitted_and_held_out(cache: SessionCache, eff
     # held out: independent noise seed (and temperature order), same chip
     held = cache.obs(effect, seed=12, held_out=True)
     rows = ladder(obs, [base, base.with_terms([effect])], held)
-    floor = rows[1]["heldout_noise_g"]
-    assert rows[1]["chi2_dof"] < 1.5
-    assert rows[1]["heldout_rms_g"] < 1.3 * floor, rows
-    assert rows[0]["heldout_rms_g"] > 1.5 * floor, rows  # the base model alone: clearly above
+    floor = rows[1].heldout_noise_g
+    assert rows[1].chi2_dof < 1.5
+    assert rows[1].heldout_rms_g < 1.3 * floor, rows
+    assert rows[0].heldout_rms_g > 1.5 * floor, rows  # the base model alone: clearly above
 
 
 def test_two_temperature_levels_cannot_tell_linear_from_quadratic(cache: SessionCache) -> None:

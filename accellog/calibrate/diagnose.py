@@ -550,7 +550,7 @@ def _verdict(model, base, floor, missing, sig_cands, signals, rows, clock) -> tu
 
 
 # ---------------------------------------------------------------------------------------------
-# ladder
+# held-out judgement (the ladder itself: accellog.calibrate.ladder)
 
 
 def heldout_residual(
@@ -573,29 +573,3 @@ def heldout_stats(res: FitResult, heldout: ObsTable) -> dict[str, float]:
         "heldout_noise_g": float(np.sqrt(np.mean(sig**2))),
         "heldout_chi2_dof": float(np.mean((r / sig) ** 2)),
     }
-
-
-def ladder(
-    obs: ObsTable,
-    steps: Sequence[Model],
-    heldout_obs: ObsTable | None = None,
-    *,
-    weighted: bool = True,
-    gravity_g: float = 1.0,
-) -> list[dict]:
-    """One row per model: n_params, chi2/dof and RMS on the calibration data, held-out RMS (g)
-    and held-out noise floor (RMS of sigma_g) when heldout_obs is given."""
-    out = []
-    for m in steps:
-        res = fit_model(obs, m, weighted=weighted, gravity_g=gravity_g)
-        row = {
-            "model": m.name,
-            "n_params": m.n_params,
-            "chi2_dof": _j(res.chi2_dof),
-            "rms_g": res.rms_g,
-            "warnings": res.warnings,
-        }
-        if heldout_obs is not None:
-            row.update(heldout_stats(res, heldout_obs))
-        out.append(row)
-    return out

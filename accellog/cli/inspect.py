@@ -111,22 +111,35 @@ def view(
     width: Annotated[int, typer.Option(help="Screenshot width (px).", min=200)] = 1400,
     height: Annotated[int, typer.Option(help="Screenshot height (px).", min=200)] = 900,
     wait_s: Annotated[float, typer.Option(help="Longest wait for the viewer to render (s).", min=1.0)] = 90.0,
+    tab: Annotated[
+        str | None, typer.Option("--tab", help="Show this blueprint tab (its name, e.g. '3 workbench').")
+    ] = None,
 ) -> None:
     """Open an .rrd: native viewer (default), web viewer on 127.0.0.1 (--web), or a PNG (--screenshot)."""
+    import tempfile
+
     from accellog.present import viewer
+    from accellog.present.rrd.tabs import tab_blueprint
 
     if not recording.is_file():
         raise InputError("no such .rrd file", where=str(recording))
     if screenshot is not None:
-        stats = viewer.screenshot_rrd(recording, screenshot, size=(width, height), wait_s=wait_s)
+        stats = viewer.screenshot_rrd(recording, screenshot, size=(width, height), wait_s=wait_s, tab=tab)
         _console.print(f"{screenshot}: {stats.colors} colours, {100 * stats.non_background:.0f}% drawn")
         if not stats.looks_rendered():
             raise InputError(
                 "the viewer did not render within the wait (blank screenshot)", where=str(screenshot)
             )
         return
+    # the tab's blueprint (.rbl) is written to a temporary folder that stays (a few kB): the viewer
+    # (native) reads it after this process has returned
+    extra = (
+        []
+        if tab is None
+        else [tab_blueprint(recording, tab, Path(tempfile.mkdtemp(prefix="accellog-tab-")) / "tab.rbl")]
+    )
     if web:
-        with viewer.serve_rrd(recording) as v:
+        with viewer.serve_rrd(recording, extra=extra) as v:
             _console.print(f"web viewer: {v.url}  (Ctrl-C to stop)")
             try:
                 while v.proc.poll() is None:
@@ -136,5 +149,11 @@ def view(
         return
     import subprocess
 
-    cmd = [viewer.rerun_binary(), "--bind", "127.0.0.1", str(recording)]  # its viewer server: local only
+    cmd = [
+        viewer.rerun_binary(),
+        "--bind",
+        "127.0.0.1",
+        str(recording),
+        *map(str, extra),
+    ]  # its viewer server: local only
     subprocess.Popen(cmd, env=viewer.rerun_env(), start_new_session=True)

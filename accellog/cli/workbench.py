@@ -244,7 +244,11 @@ def _print(d, source: str) -> None:
 @app.command(name="workbench", rich_help_panel="3. Discover")
 def workbench_cmd(
     session: Annotated[
-        Path, typer.Argument(help="Calibration session with labelled static holds (.mcap or CSV).")
+        Path,
+        typer.Argument(
+            help="Calibration session (.mcap or CSV): labelled static holds, or a hand-held session "
+            "(no labels: detected static intervals, gravity-norm residual)."
+        ),
     ],
     heldout: Annotated[
         list[Path] | None,
@@ -277,19 +281,22 @@ def workbench_cmd(
     from accellog.calibrate.segment import observations
     from accellog.core.session import Session
     from accellog.flows.stages import as_session, load_input
-    from accellog.flows.workbench import (
-        discover,
-        ladder_json,
-        ladder_rows,
-        ladder_table,
-        log_ladder,
-        steps_for,
-    )
+    from accellog.flows.workbench import discover, ladder_rows, log_ladder, steps_for
+    from accellog.present.tables import ladder_table
 
     data = load_input(session)
     if not isinstance(data, Session):
         raise InputError(
             "the workbench needs a recorded session (samples), not a pose table", where=str(session)
+        )
+    if not data.poses:  # hand-held: detected static intervals, gravity-norm residual
+        test = as_session(static, "--static") if static is not None else None
+        if heldout:
+            Console(stderr=True).print(
+                "note: --heldout is not used on a hand-held session (not yet supported)"
+            )
+        return _workbench_handheld(
+            data, session, model, max_steps, effects_file, test, at_s, output, as_json, rrd
         )
     obs = observations(data)
     helds = [observations(as_session(h, "--heldout")) for h in heldout or []]
@@ -321,25 +328,71 @@ def workbench_cmd(
         gyro=output is not None or rrd is not None,  # the gyro goes into the calibration file / .rrd
     )
     if output is not None:
-        rows[-1]["fit"].cal.save(output)
+        rows[-1].fit.cal.save(output)
     if rrd is not None:
         from accellog.present.residual_views import log_workbench_residuals
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_diagnosis, log_session
 
         with RunRecording(f"save:{rrd}") as rec:
-            log_session(rec, data, calibrations={found.final_model: rows[-1]["fit"].cal})
+            log_session(rec, data, calibrations={found.final_model: rows[-1].fit.cal})
             for i, d in enumerate(found.diagnoses, 1):
                 log_diagnosis(rec, d, obs, label=f"step {i}")
-            log_ladder(rec, rows, obs, at_s=at_s)
-            log_workbench_residuals(rec, obs, found.diagnoses[0].fit, rows[-1]["fit"].fit)
+            log_ladder(rec, rows, obs)
+            log_workbench_residuals(rec, obs, found.diagnoses[0].fit, rows[-1].fit.fit)
     if as_json:
-        print(json_text({"session": str(session), **found.to_json(), "ladder": ladder_json(rows)}))
+        print(json_text({"session": str(session), **found.to_json(), "ladder": [r.to_dict() for r in rows]}))
         return
     ok = found.decided and found.transfers is not False and not found.diagnoses[-1].missing
     con.print(("[bold green]OK[/] " if ok else "[bold red]CHECK[/] ") + escape(found.verdict))
     for a in found.advice:
         con.print(f"advice: {escape(a)}")
-    con.print(ladder_table(rows, at_s=at_s))
+    con.print(ladder_table(rows, title="watch the error fall: each step of model building"))
+    if output is not None:
+        con.print(f"wrote {output} ({found.final_model})")
+
+
+def _workbench_handheld(data, session, model, max_steps, effects_file, test, at_s, output, as_json, rrd):
+    """The workbench on an unlabelled session (accellog.flows.handheld_workbench)."""
+    from accellog.flows.handheld_workbench import discover_handheld
+    from accellog.present.tables import ladder_table
+
+    start = None if model == "model3" else model  # model3's cross_axis is not identifiable here
+    found = discover_handheld(
+        data, start, max_steps=max_steps, effects_file=effects_file, static_test=test, at_s=at_s
+    )
+    if output is not None:
+        from accellog.flows.stages import run_fit
+
+        # the full orientation-free fit: gyro from the detected intervals and the rotations between them
+        run_fit(
+            data, found.start, add=found.added, effects_file=effects_file, orientation_free=True
+        ).cal.save(output)
+    if rrd is not None:
+        from accellog.present.detection_views import log_detection
+        from accellog.present.rrd.recording import RunRecording
+        from accellog.present.views import log_session
+
+        with RunRecording(f"save:{rrd}") as rec:
+            log_session(rec, data)
+            log_detection(rec, found.detection)
+            rec.log_ladder(found.ladder)
+    if as_json:
+        print(json_text({"session": str(session), **found.to_dict()}))
+        return
+    con = Console(width=160)
+    det = found.detection
+    con.print(
+        f"[bold]{session}[/]: no pose labels: {len(det.intervals)} static intervals detected "
+        f"(window {det.window_s:g} s, threshold {det.threshold if det.threshold is not None else 'swept 2..10'}); "
+        "judged on the gravity norm"
+    )
+    for d in found.diagnoses:
+        con.print(f"step {escape(d.verdict)}")
+    for a in found.cannot_identify:
+        con.print(f"cannot identify: {escape(a)}")
+    con.print(
+        ladder_table(found.ladder, title="hand-held: each step of model building (gravity-norm residual)")
+    )
     if output is not None:
         con.print(f"wrote {output} ({found.final_model})")

@@ -27,11 +27,12 @@ from rich.table import Table
 from accellog.calibrate.segment import observations
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import run_drift, run_evaluate, run_fit
-from accellog.flows.workbench import discover, ladder_rows, ladder_table, log_ladder, steps_for
+from accellog.flows.workbench import discover, ladder_rows, log_ladder, steps_for
 from accellog.navigate.track_eval import run_session_tracks
 from accellog.present.rrd.entities import (
     DOCS,
     LADDER,
+    LADDER_METRICS,
     MAIN_TIMELINE,
     POSES_ACTIVE,
     RESIDUALS,
@@ -40,11 +41,12 @@ from accellog.present.rrd.entities import (
     WORLD_TRACKS,
     slug_path,
 )
-from accellog.present.rrd.layout import time_panel
+from accellog.present.rrd.layout import ladder_bars_view, time_panel
 from accellog.present.rrd.recording import RunRecording
 from accellog.present.tables import (
     displacement_table,
     drift_table,
+    ladder_table,
     params_table,
     print_tables,
     static_means_table,
@@ -203,24 +205,23 @@ def run_demo(
     t2 = time.perf_counter()
     obs = observations(S["warmup_24"])
     held = observations(S["heldout_24"])
-    found = discover(obs, "model3", on_step=lambda d: con.print(f"  {d.verdict}"))
+    found = discover(obs, "model3", heldout=[held], on_step=lambda d: con.print(f"  {d.verdict}"))
     diags = res.diagnoses = found.diagnoses
     res.workbench_obs = obs
     res.discovered = list(found.added)
+    con.print(f"  held out: {found.verdict}")
     for a in diags[-1].advice[:3]:
         con.print(f"  advice: {a}")
     rows = ladder_rows(S["warmup_24"], obs, steps_for(found), heldout=held, static_test=S["static_hot"])
     res.ladder = rows
-    table = ladder_table(rows)
+    table = ladder_table(rows, title="watch the error fall: each step of model building")
     table.caption = (
         "held-out: a 24-pose session of the same chip on another temperature path; "
         "drift: |displacement| of a 60 s static test at 40 °C"
     )
     print_tables([table], con)
     # the robot again, with the model the workbench found (its gyro part carries the temperature terms)
-    res.tracks = (
-        first + run_session_tracks(robot, {rows[-1]["model"]: rows[-1]["fit"].cal}, use_zupt=True)[1:]
-    )
+    res.tracks = first + run_session_tracks(robot, {rows[-1].model: rows[-1].fit.cal}, use_zupt=True)[1:]
     print_tables([_robot_table(res.tracks, robot, "and with the model the workbench found")], con)
     res.seconds["workbench"] = time.perf_counter() - t2
 
@@ -333,13 +334,7 @@ def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3)
     )
     workbench = rrb.Horizontal(
         rrb.Vertical(
-            rrb.Horizontal(
-                *[
-                    rrb.BarChartView(origin=f"/{LADDER}/{m}", name=m)
-                    for m in ("chi2_dof", "heldout_rms_mg", "drift_60s_m")
-                ],
-                name="model ladder",
-            ),
+            ladder_bars_view(list(LADDER_METRICS)),
             _whole_range_plot(
                 origin=f"/{LADDER}/steps",
                 name="residuals (mg): Model 3 vs final model, and temperature (degC)",

@@ -13,9 +13,8 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import tomllib
 
 from accellog.calibrate.calibration import read_text, source_entry, write_json_atomic
@@ -36,6 +35,9 @@ from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_pose
 from accellog.present import tables as report
 from accellog.present import views
 from accellog.present.rrd.recording import RunRecording
+
+if TYPE_CHECKING:
+    from accellog.calibrate.ladder import LadderRow
 
 # ------------------------------------------------------------------------------------------ pipelines
 
@@ -206,17 +208,11 @@ class PipelineResult(JsonResult):
     at_s: float = 60.0
     written: list[str] = field(default_factory=list)
 
-    def ladder(self) -> list[dict]:
-        return [
-            {
-                "model": name,
-                "n_params": fo.fit.model.n_params,
-                "rms_g": fo.fit.rms_g,
-                "chi2_dof": float(fo.fit.chi2_dof) if np.isfinite(fo.fit.chi2_dof) else None,
-                "warnings": list(fo.fit.warnings),
-            }
-            for name, fo in self.fits.items()
-        ]
+    def ladder(self) -> list[LadderRow]:
+        """One ladder row per fitted model (named as in the pipeline file)."""
+        from accellog.calibrate.ladder import ladder_row
+
+        return [ladder_row(fo.fit, fit=fo, model=name) for name, fo in self.fits.items()]
 
     def tables(self) -> list:
 

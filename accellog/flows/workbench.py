@@ -15,10 +15,14 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from accellog.core.session import ObsTable, Session
+
+if TYPE_CHECKING:
+    from accellog.calibrate.ladder import LadderRow
 
 BASE_STEPS = ("model1", "model2")
 
@@ -188,18 +192,18 @@ def ladder_rows(
     effects_file: str | Path | None = None,
     at_s: float = 60.0,
     gyro: bool = True,
-) -> list[dict]:
+) -> list[LadderRow]:
     """Fit each step (preset, added effects) and judge it: chi2/dof and RMS on the calibration
     windows, held-out residual RMS and noise floor (g), |displacement| of the static test at at_s (m).
-    Each row keeps its FitOutcome under 'fit' (not JSON); gyro: calibrate the gyro with the last step
+    Each row keeps its FitOutcome in .fit (not JSON); gyro: calibrate the gyro with the last step
     (for the calibration file)."""
     with small_problem_threads():
         return _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro)
 
 
-def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro) -> list[dict]:
-    from accellog.calibrate.diagnose import heldout_stats
-    from accellog.flows.stages import run_evaluate, run_fit
+def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro) -> list[LadderRow]:
+    from accellog.calibrate.ladder import ladder_row
+    from accellog.flows.stages import run_fit
 
     rows = []
     for i, (preset, add) in enumerate(steps):
@@ -211,24 +215,23 @@ def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at
             obs=obs,
             gyro=gyro and i == len(steps) - 1,
         )
-        row = {
-            "model": fo.fit.model.name,
-            "added": list(add),
-            "n_params": fo.fit.model.n_params,
-            "chi2_dof": float(fo.fit.chi2_dof),
-            "rms_g": float(fo.fit.rms_g),
-            "warnings": list(fo.fit.warnings),
-            "fit": fo,
-        }
-        if heldout is not None:
-            row.update(heldout_stats(fo.fit, heldout))
+        row = ladder_row(fo.fit, added=add, heldout=heldout, fit=fo)
         if static_test is not None:
-            ev = run_evaluate(
-                static_test, [fo.cal], include_raw=False, labels=[fo.fit.model.name], times_s=(at_s,)
-            )[0]
-            row[f"drift_{at_s:g}s_m"] = float(np.linalg.norm(ev.disp_at(at_s)))
+            add_static_drift(row, static_test, at_s)
         rows.append(row)
     return rows
+
+
+def add_static_drift(row: LadderRow, static_test: Session, at_s: float) -> None:
+    """Set row.drift_m: |displacement| (m) of the static test integrated with the row's calibration
+    (row.fit: a FitOutcome) at at_s (s)."""
+    from accellog.flows.stages import run_evaluate
+
+    fo = row.fit
+    ev = run_evaluate(static_test, [fo.cal], include_raw=False, labels=[fo.fit.model.name], times_s=(at_s,))[
+        0
+    ]
+    row.drift_m, row.drift_at_s = float(np.linalg.norm(ev.disp_at(at_s))), float(at_s)
 
 
 def steps_for(discovery: Discovery) -> list[tuple[str, list[str]]]:
@@ -240,57 +243,14 @@ def steps_for(discovery: Discovery) -> list[tuple[str, list[str]]]:
     return steps
 
 
-def ladder_table(rows: Sequence[dict], at_s: float = 60.0):
-    """Rich table of ladder rows (mg for residuals, m for drift)."""
-    from rich.table import Table
-
-    t = Table(title="watch the error fall: each step of model building")
-    cols = ["model", "params", "χ²/dof (fit)", "RMS (mg)"]
-    has_held = any("heldout_rms_g" in r for r in rows)
-    has_drift = any(f"drift_{at_s:g}s_m" in r for r in rows)
-    if has_held:
-        cols += ["held-out RMS (mg)", "noise floor (mg)"]
-    if has_drift:
-        cols += [f"{at_s:g} s drift (m)"]
-    for c in cols:
-        t.add_column(c, justify="left" if c == "model" else "right", overflow="fold", no_wrap=c == "model")
-    for r in rows:
-        cells = [r["model"], str(r["n_params"]), f"{r['chi2_dof']:.3g}", f"{r['rms_g'] * 1000:.3g}"]
-        if has_held:
-            cells += [
-                f"{r.get('heldout_rms_g', np.nan) * 1000:.3g}",
-                f"{r.get('heldout_noise_g', np.nan) * 1000:.3g}",
-            ]
-        if has_drift:
-            cells += [f"{r.get(f'drift_{at_s:g}s_m', np.nan):.3g}"]
-        t.add_row(*cells)
-    return t
-
-
-def ladder_json(rows: Sequence[dict]) -> list[dict]:
-    """Ladder rows without the fit objects (for --json)."""
-    return [{k: v for k, v in r.items() if k != "fit"} for r in rows]
-
-
-def log_ladder(rec, rows: Sequence[dict], obs: ObsTable, at_s: float = 60.0) -> None:
-    """The ladder in a RunRecording: bars per metric, and the residuals of the start model and of
-    the final model next to the temperature (the usual driver of what was missing)."""
-    from accellog.present.rrd.entities import LadderRow
-
-    show = {rows[-1]["model"]} | {r["model"] for r in rows if not r["added"] and r["model"] not in BASE_STEPS}
+def log_ladder(rec, rows: Sequence[LadderRow], obs: ObsTable) -> None:
+    """The ladder in a RunRecording (bars per metric, log10), with the residuals of the start model
+    and of the final model next to the temperature (the usual driver of what was missing)."""
+    show = {len(rows) - 1} | {i for i, r in enumerate(rows) if not r.added and r.model not in BASE_STEPS}
     rec.log_ladder(
-        [
-            LadderRow(
-                step=r["model"],
-                added="+".join(r["added"]),
-                chi2_dof=r["chi2_dof"],
-                heldout_rms_mg=r.get("heldout_rms_g", np.nan) * 1000,
-                drift_60s_m=r.get(f"drift_{at_s:g}s_m", np.nan),
-                t_s=np.asarray(obs.t_s) if r["model"] in show else None,
-                residual_g=np.asarray(r["fit"].fit.residual_g),
-                driver_name="temperature (degC)",
-                driver=None if obs.temp_degC is None else np.asarray(obs.temp_degC),
-            )
-            for r in rows
-        ]
+        rows,
+        t_s=np.asarray(obs.t_s),
+        driver=None if obs.temp_degC is None else np.asarray(obs.temp_degC),
+        driver_name="temperature (degC)",
+        residual_steps=show,
     )

@@ -5,14 +5,13 @@
 
 from __future__ import annotations
 
-import re
 from typing import Any
 
 from rich.table import Table
 
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
-from accellog.present.tables import fmt_pm
+from accellog.present.tables import fmt_pm, ladder_table
 
 AXES = ("x", "y", "z")
 
@@ -65,25 +64,6 @@ def _vec(v) -> str:
     return "-" if v is None else ", ".join("-" if x is None else f"{x:.4g}" for x in v)
 
 
-def _ladder(rows: list[dict], name: str) -> Table:
-    """Workbench ladder rows; the static-test drift column is `drift_<at_s>s_m` (workbench --at-s)."""
-    drift_key = next((k for r in rows for k in r if re.fullmatch(r"drift_.+s_m", k)), "drift_60s_m")
-    at = drift_key[len("drift_") : -len("s_m")]
-    t = Table(title=f"{name}: model ladder")
-    for c in ("model", "params", "χ²/dof", "held-out RMS (mg)", "noise floor (mg)", f"{at} s drift (m)"):
-        t.add_column(c, justify="left" if c == "model" else "right")
-    for r in rows:
-        t.add_row(
-            r["model"],
-            str(r["n_params"]),
-            "-" if r.get("chi2_dof") is None else f"{r['chi2_dof']:.3g}",
-            f"{1000 * r['heldout_rms_g']:.3g}" if r.get("heldout_rms_g") is not None else "-",
-            f"{1000 * r['heldout_noise_g']:.3g}" if r.get("heldout_noise_g") is not None else "-",
-            f"{r[drift_key]:.3g}" if r.get(drift_key) is not None else "-",
-        )
-    return t
-
-
 def tables_for(d: Any, name: str) -> list[Table]:
     """The tables of one JSON artifact, by what it contains; InputError for anything else."""
     if isinstance(d, dict) and d.get("format") == "accellog.calibration":
@@ -91,7 +71,9 @@ def tables_for(d: Any, name: str) -> list[Table]:
     if isinstance(d, dict) and "raw" in d and "calibrated" in d and d.get("kind") != "poses":
         return _evaluations([x for x in [d["raw"], *d["calibrated"]] if x], name)
     if isinstance(d, dict) and "ladder" in d:
-        return [_ladder(d["ladder"], name)]
+        from accellog.calibrate.ladder import LadderRow
+
+        return [ladder_table([LadderRow.from_dict(r) for r in d["ladder"]], title=f"{name}: model ladder")]
     if isinstance(d, dict) and "disp_end_m" in d and "displacement_at_s" in d:
         t = Table(title=f"{name}: {d.get('label', '')} displacement (m)")
         t.add_column("t (s)", justify="right")

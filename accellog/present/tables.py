@@ -5,13 +5,14 @@
   +- its autocorrelation-aware standard error (m/s^2), chi2 against the noise;
 - `displacement_table` (seed Table 5): integrated displacement at a time per model (m);
 - `drift_table` (the seed's final table): before / after the drift model, and the q with +-.
+- `ladder_table`: the model ladder (accellog.calibrate.ladder.LadderRow rows).
 Every column names its unit.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rich.console import Console
@@ -21,6 +22,9 @@ from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.drift_model import DriftModel
 from accellog.core.jsonio import dumps
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation
+
+if TYPE_CHECKING:
+    from accellog.calibrate.ladder import LadderRow
 
 AXES = ("x", "y", "z")
 
@@ -127,19 +131,31 @@ def drift_table(
     return t, q
 
 
-def ladder_table(rows: Sequence[dict[str, Any]], title: str = "model ladder") -> Table:
-    """One row per fitted model: name, n params, residual RMS (mg), chi2/dof, warnings count."""
+def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Table:
+    """The one table of the model ladder: model, params, chi2/dof and RMS (mg) on the calibration
+    data; held-out RMS and noise floor (mg), static-test drift (m) and warnings when any row has them."""
+
+    def mg(v: float | None) -> str:
+        return "-" if v is None else f"{v * 1000:.3g}"
+
+    def num(v: float | None) -> str:
+        return "-" if v is None else f"{v:.3g}"
+
+    held = any(r.heldout_rms_g is not None for r in rows)
+    ats = sorted({r.drift_at_s for r in rows if r.drift_at_s is not None})
+    warn = any(r.warnings for r in rows)
+    cols = ["model", "params", "χ²/dof (fit)", "RMS (mg)"]
+    cols += ["held-out RMS (mg)", "noise floor (mg)"] if held else []
+    cols += [f"{a:g} s drift (m)" for a in ats] + (["warnings"] if warn else [])
     t = Table(title=title)
-    for c in ("model", "params", "RMS (mg)", "χ²/dof", "warnings"):
-        t.add_column(c, justify="left" if c == "model" else "right")
+    for c in cols:
+        t.add_column(c, justify="left" if c == "model" else "right", overflow="fold", no_wrap=c == "model")
     for r in rows:
-        t.add_row(
-            r["model"],
-            str(r["n_params"]),
-            f"{r['rms_g'] * 1000:.4g}",
-            "-" if r.get("chi2_dof") is None else f"{r['chi2_dof']:.4g}",
-            str(len(r.get("warnings", []))),
-        )
+        cells = [r.model, str(r.n_params), num(r.chi2_dof), mg(r.rms_g)]
+        cells += [mg(r.heldout_rms_g), mg(r.heldout_noise_g)] if held else []
+        cells += [num(r.drift_m) if r.drift_at_s == a else "-" for a in ats]
+        cells += [str(len(r.warnings))] if warn else []
+        t.add_row(*cells)
     return t
 
 

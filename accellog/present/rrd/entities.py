@@ -10,15 +10,15 @@
 - ``/tracks/{label}``           displacement (N,3) in m on sensor_time
 - ``/world/tracks/{label}``     LineStrips3D of the track (m), static; ``.../final`` Points3D
 - ``/docs/{path}``              TextDocument (markdown), static
-- ``/ladder/...``               model-building steps: tables, bar charts, residuals vs drivers
+- ``/ladder/{metric}/{k:02d}_{model}`` BarChart of log10(metric) of ladder step k at abscissa k
+  (metric in LADDER_METRICS; the entity name puts the model on its bar); ``/ladder/steps/...``
+  residuals (mg) vs the driver
 - ``/live/...``                 live recording panels (prompt, stillness, running calibration)
 """
 
 from __future__ import annotations
 
-import math
 import re
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,6 +40,12 @@ TRACKS = "tracks"
 WORLD_TRACKS = "world/tracks"
 DOCS = "docs"
 LADDER = "ladder"
+# ladder bar charts: entity name -> view title (values are log10 of the metric)
+LADDER_METRICS = {
+    "log10_chi2_dof": "log10 χ²/dof (fit)",
+    "log10_heldout_rms_mg": "log10 held-out RMS (mg)",
+    "log10_drift_m": "log10 static-test drift (m)",
+}
 LIVE = "live"
 
 AXES = ("x", "y", "z")
@@ -92,25 +98,3 @@ def _as_2d(values: np.ndarray, n: int, what: str) -> np.ndarray:
     if v.shape[0] != n:
         raise InputError(f"{what}: {v.shape[0]} rows for {n} time stamps")
     return v
-
-
-@dataclass
-class LadderRow:
-    """One model-building step of the workbench ladder.
-
-    chi2_dof: chi^2 / degrees of freedom of the fit; heldout_rms_mg: RMS of held-out residuals (mg);
-    drift_60s_m: |displacement| after 60 s of the static test integrated with this model (m).
-    t_s / residual_g: residuals of the static windows (s, (n,3) g) left by this step; driver: the
-    signal (e.g. temperature in degC) that the *next* effect explains, sampled at t_s.
-    """
-
-    step: str
-    added: str = ""
-    chi2_dof: float = math.nan
-    heldout_rms_mg: float = math.nan
-    drift_60s_m: float = math.nan
-    t_s: np.ndarray | None = None
-    residual_g: np.ndarray | None = None
-    driver_name: str = ""
-    driver: np.ndarray | None = None
-    extra: dict[str, float] = field(default_factory=dict)

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 from accellog.present.rrd.entities import (
     DOCS,
     EVENTS_LOST,
     LADDER,
+    LADDER_METRICS,
     LIVE,
     MAIN_TIMELINE,
     POSES_ACTIVE,
@@ -37,6 +38,7 @@ def build_blueprint(entities: Mapping[str, str]):
     samples = []
     for ent in [e for r, es in roles.items() if r.startswith("samples:") for e in es]:  # logged order
         contents = ["$origin/**"] + ([f"/{POSES_ACTIVE}/**"] if has_poses else [])
+        contents += [f"/{e}" for e in roles.get("detected", [])]  # detected still intervals (hand-held)
         samples.append(rrb.TimeSeriesView(origin=f"/{ent}", contents=contents, name=ent.replace("/", " ")))
     if "temperature" in roles or "lost" in roles:
         samples.append(
@@ -67,15 +69,7 @@ def build_blueprint(entities: Mapping[str, str]):
     for model in sorted({e.split("/")[1] for e in roles.get("residual_bar", [])}):
         charts.append(rrb.BarChartView(origin=f"/{RESIDUALS}/{model}", name=f"residuals {model} (mg)"))
     if "ladder_bar" in roles:
-        charts.append(
-            rrb.Horizontal(
-                *[
-                    rrb.BarChartView(origin=f"/{LADDER}/{m}", name=m)
-                    for m in ("chi2_dof", "heldout_rms_mg", "drift_60s_m")
-                ],
-                name="model ladder",
-            )
-        )
+        charts.append(ladder_bars_view(sorted({e.split("/")[1] for e in roles["ladder_bar"]})))
     if "ladder_step" in roles:
         charts.append(rrb.TimeSeriesView(origin=f"/{LADDER}/steps", name="ladder residuals (mg) vs driver"))
     texts = [
@@ -148,3 +142,16 @@ def live_blueprint():
         time_panel(),
         collapse_panels=True,
     )
+
+
+def ladder_bars_view(metrics: Sequence[str]):
+    """The ladder's bar charts side by side, one per metric present (log10 values; the legend names
+    each bar's model)."""
+    import rerun.blueprint as rrb
+
+    views = [
+        rrb.BarChartView(origin=f"/{LADDER}/{m}", name=LADDER_METRICS[m])
+        for m in LADDER_METRICS
+        if m in metrics
+    ]
+    return rrb.Horizontal(*views, name="model ladder (log10)")

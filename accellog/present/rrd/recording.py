@@ -12,9 +12,9 @@ import contextlib
 import sys
 import threading
 import urllib.parse
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,7 @@ from accellog.present.rrd.entities import (
     EVENTS,
     EVENTS_LOST,
     LADDER,
+    LADDER_METRICS,
     MAIN_TIMELINE,
     POSE_TIMELINE,
     POSES_ACTIVE,
@@ -40,7 +41,6 @@ from accellog.present.rrd.entities import (
     TRACK_3D_MAX_POINTS,
     TRACKS,
     WORLD_TRACKS,
-    LadderRow,
     _as_2d,
     slug,
     slug_path,
@@ -48,6 +48,9 @@ from accellog.present.rrd.entities import (
 from accellog.present.rrd.layout import build_blueprint, live_blueprint
 from accellog.present.rrd.sinks import SinkWatch, parse_sink, spawn_viewer
 from accellog.store.atomic import AtomicOutput
+
+if TYPE_CHECKING:
+    from accellog.calibrate.ladder import LadderRow
 
 
 class RunRecording:
@@ -427,56 +430,60 @@ class RunRecording:
         self._entities.setdefault(entity, "doc")
         self.rec.log(entity, rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
 
-    def log_ladder(self, rows: Sequence[LadderRow | Mapping[str, Any]]) -> None:
-        """Model-building steps: a table (chi2/dof, held-out RMS, 60 s drift), one bar chart per
-        metric over the steps, and per step its residuals (mg) next to the driver that explains them."""
-        self._guarded(self._log_ladder, [r if isinstance(r, LadderRow) else LadderRow(**r) for r in rows])
+    def log_ladder(
+        self,
+        rows: Sequence[LadderRow],
+        *,
+        t_s: np.ndarray | None = None,
+        driver: np.ndarray | None = None,
+        driver_name: str = "",
+        residual_steps: Iterable[int] = (),
+    ) -> None:
+        """The model ladder: a table document, per metric (LADDER_METRICS) one bar per step with
+        log10 of chi2/dof, held-out RMS (mg) and static-test drift (m), named by the step's model;
+        for the steps in residual_steps their calibration residuals (mg) at t_s (s) next to the
+        driver (e.g. temperature, degC) that the next effect explains."""
+        self._guarded(self._log_ladder, list(rows), t_s, driver, driver_name, set(residual_steps))
 
-    def _log_ladder(self, rows: list[LadderRow]) -> None:
+    def _log_ladder(self, rows, t_s, driver, driver_name, residual_steps) -> None:
         import rerun as rr
 
         if not rows:
             return
-        md = [
-            "### Model ladder\n",
-            "| # | step | added | chi2/dof | held-out RMS (mg) | drift 60 s (m) |",
-            "|---|---|---|---|---|---|",
-        ]
+        self._log_document("ladder", _ladder_markdown(rows))
         for i, r in enumerate(rows):
-            md.append(
-                f"| {i} | {r.step} | {r.added} | {r.chi2_dof:.3g} | {r.heldout_rms_mg:.3g} | {r.drift_60s_m:.3g} |"
-            )
-        self._log_document("ladder", "\n".join(md) + "\n")
-        for metric in ("chi2_dof", "heldout_rms_mg", "drift_60s_m"):
-            ent = f"{LADDER}/{metric}"
-            self._entities[ent] = "ladder_bar"
-            vals = np.array([getattr(r, metric) for r in rows], dtype=np.float64)
-            self.rec.log(ent, rr.BarChart(vals), static=True)
+            held = None if r.heldout_rms_g is None else r.heldout_rms_g * 1000.0
+            for metric, v in zip(LADDER_METRICS, (r.chi2_dof, held, r.drift_m), strict=True):
+                if v is None or not np.isfinite(v) or v <= 0:
+                    continue
+                ent = f"{LADDER}/{metric}/{i:02d}_{slug(r.model)}"
+                self._entities[ent] = "ladder_bar"
+                color = _TRACK_COLORS[i % len(_TRACK_COLORS)]
+                self.rec.log(ent, rr.BarChart([np.log10(v)], abscissa=[float(i)], color=color), static=True)
         self.rec.log(
-            LADDER, rr.AnyValues(step=[r.step for r in rows], added=[r.added for r in rows]), static=True
+            LADDER,
+            rr.AnyValues(step=[r.model for r in rows], added=["+".join(r.added) for r in rows]),
+            static=True,
         )
-        for i, r in enumerate(rows):
-            if r.t_s is None or r.residual_g is None:
+        if t_s is None:
+            return
+        t = np.asarray(t_s, dtype=np.float64)
+        for i in sorted(residual_steps):
+            r = rows[i]
+            if r.residual_g is None:
                 continue
             base = f"{LADDER}/steps/{i:02d}"
-            t = np.asarray(r.t_s, dtype=np.float64)
+            res_mg = np.asarray(r.residual_g, dtype=np.float64).reshape(-1, 3) * 1000.0
+            names = [f"{i} {r.model} res {a} (mg)" for a in AXES]
             self._log_series(
-                f"{base}/residual_mg",
-                t,
-                np.asarray(r.residual_g, dtype=np.float64).reshape(-1, 3) * 1000.0,
-                [f"{i} {r.step} res {a} (mg)" for a in AXES],
-                None,
-                "ladder_step",
-                AXIS_COLORS,
-                True,
-                False,
+                f"{base}/residual_mg", t, res_mg, names, None, "ladder_step", AXIS_COLORS, True, False
             )
-            if r.driver is not None:
+            if driver is not None:
                 self._log_series(
                     f"{base}/driver",
                     t,
-                    np.asarray(r.driver, dtype=np.float64),
-                    [f"driver {r.driver_name}"],
+                    np.asarray(driver, dtype=np.float64),
+                    [f"driver {driver_name}"],
                     None,
                     "ladder_step",
                     [(120, 120, 120)],
@@ -552,3 +559,23 @@ class RunRecording:
 
 
 # -- blueprints --------------------------------------------------------------------------------------
+
+
+def _ladder_markdown(rows: Sequence[LadderRow]) -> str:
+    """The ladder as a markdown table (chi2/dof, held-out RMS in mg, static-test drift in m)."""
+
+    def f(v: float | None, scale: float = 1.0) -> str:
+        return "-" if v is None else f"{v * scale:.3g}"
+
+    md = [
+        "### Model ladder\n",
+        "| # | model | added | chi2/dof | held-out RMS (mg) | drift (m) at (s) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for i, r in enumerate(rows):
+        at = "" if r.drift_at_s is None else f" at {r.drift_at_s:g}"
+        md.append(
+            f"| {i} | {r.model} | {'+'.join(r.added)} | {f(r.chi2_dof)} | {f(r.heldout_rms_g, 1000.0)} "
+            f"| {f(r.drift_m)}{at} |"
+        )
+    return "\n".join(md) + "\n"
