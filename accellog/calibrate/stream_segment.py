@@ -134,3 +134,41 @@ def _joined(tables: list[ObsTable], where: str) -> ObsTable:
             out[f.name] = None
     out["pose_id"] = out["pose_id"].astype(int)
     return ObsTable(**out)
+
+
+def stream_check_timestamps(path: str | Path) -> None:
+    """label_check.check_timestamps on the file's samples, block by block (the same messages)."""
+    where = str(path)
+    n, t0, t_last, bad_n = 0, np.nan, np.nan, 0
+    nonfinite = first_bad = None  # global index of the first non-finite stamp / (i, t_i, t_i-1)
+    for b in iter_imu(path):
+        t = np.asarray(b.t_s, float)
+        fin = ~np.isfinite(t)
+        if nonfinite is None and fin.any():
+            nonfinite = n + int(np.argmax(fin))
+        ext = np.concatenate([[t_last], t]) if n else t
+        dt = np.diff(ext)
+        bad = dt <= 0
+        bad_n += int(bad.sum())
+        if first_bad is None and bad.any():
+            j = int(np.argmax(bad)) + 1
+            first_bad = (n - (1 if n else 0) + j, ext[j], ext[j - 1])
+        if not n and t.size:
+            t0 = t[0]
+        n += t.size
+        if t.size:
+            t_last = t[-1]
+    if n < 2:
+        raise InputError(f"session has {n} sample(s): nothing to calibrate", where=where)
+    if nonfinite is not None:
+        raise InputError(f"sample {nonfinite} has a non-finite time stamp", where=where)
+    if not t_last > t0:
+        raise InputError(f"session has zero duration ({n} samples at t = {t0:g} s)", where=where)
+    if first_bad is not None:
+        i, ti, tp = first_bad
+        kind = "duplicated" if ti == tp else "decreasing"
+        raise InputError(
+            f"{kind} time stamp at sample {i}: t = {ti:.6f} s after {tp:.6f} s "
+            f"({bad_n} non-increasing steps)",
+            where=where,
+        )

@@ -1,0 +1,74 @@
+"""A recorded MCAP session as the fit and segment stages see it, read chunk by chunk: metadata, pose
+labels and the observation table (``calibrate.stream_segment.stream_observations``), never the
+whole sample arrays; the gyro calibration streams the file again (``calibrate.stream_gyro``).
+Memory is bounded by one chunk group plus the longest hold, whatever the session length.
+
+``can_stream`` says which inputs take this path: finished accellog MCAP files (a truncated file is
+recovered by ``read_session``, which says what it kept; ROS 2 bags and CSV are imported whole).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from accellog.calibrate.stream_gyro import stream_calibrate_gyro
+from accellog.calibrate.stream_segment import stream_check_timestamps, stream_observations
+from accellog.core.errors import AccellogError, InputError
+from accellog.core.session import ObsTable, PoseLabel, SessionMeta
+from accellog.store.stream import read_labels
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass
+class StreamedSession:
+    """Labels and observations of a session file (module doc); ``path`` is the file."""
+
+    meta: SessionMeta
+    poses: list[PoseLabel]
+    obs: ObsTable | None
+    path: str
+
+    def gyro_calibration(self) -> dict | None:
+        """Gyro calibration (dict) from the holds and the moves between them, as
+        flows.stages._gyro_calibration on the whole session; None without gyro data or holds."""
+        if len(self.poses) < 2:
+            return None
+        try:
+            cal = stream_calibrate_gyro(self.path, self.poses)
+        except AccellogError:
+            return None
+        return None if cal is None else cal.to_dict()
+
+
+def can_stream(path: str | os.PathLike) -> bool:
+    """True for a finished accellog MCAP file (not a ROS 2 bag; ends with the MCAP magic)."""
+    from accellog.store.importers.ros2 import is_ros2_bag
+
+    p = Path(path)
+    if p.suffix.lower() != ".mcap" or not p.is_file() or is_ros2_bag(p):
+        return False
+    try:
+        with open(p, "rb") as f:
+            if f.seek(0, os.SEEK_END) < 2 * len(_MCAP_MAGIC):
+                return False
+            f.seek(-len(_MCAP_MAGIC), os.SEEK_END)
+            return f.read() == _MCAP_MAGIC
+    except OSError:
+        return False
+
+
+def open_streamed(
+    path: str | os.PathLike, *, window_s: float = 2.0, trim_s: float = 0.5, observe: bool = True
+) -> StreamedSession:
+    """The session's labels (after the time-stamp checks of load_input) and, when observe, its
+    observation table (segment.observations' defaults); InputError as load_input/observations."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError("no such file", where=str(p))
+    stream_check_timestamps(p)
+    meta, poses, _events = read_labels(p)
+    obs = stream_observations(p, window_s=window_s, trim_s=trim_s) if observe else None
+    return StreamedSession(meta, poses, obs, str(p))
