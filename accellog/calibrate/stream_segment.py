@@ -158,7 +158,10 @@ def stream_check_timestamps(path: str | Path) -> None:
         n += t.size
         if t.size:
             t_last = t[-1]
-    if n < 2:
+    if n < 2:  # no samples to hold: read_session names a file that is not a session at all
+        from accellog.store.reader import read_session
+
+        read_session(path)
         raise InputError(f"session has {n} sample(s): nothing to calibrate", where=where)
     if nonfinite is not None:
         raise InputError(f"sample {nonfinite} has a non-finite time stamp", where=where)
