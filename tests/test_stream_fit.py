@@ -85,3 +85,24 @@ def test_stream_time_checks_equal_whole_session(recorded, small_groups, tmp_path
     assert str(streamed.value) == str(whole.value)
     assert main(["fit", str(bad), "-o", str(tmp_path / "c.json")]) not in (0, None)
     assert not (tmp_path / "c.json").exists()
+
+
+def test_segment_streams_and_matches_whole_session(recorded, small_groups):
+    from accellog.calibrate.segment import observations, pose_stats
+    from accellog.flows.static_stages import run_segment
+    from accellog.flows.stream_input import StreamedSession
+
+    res = run_segment(recorded)
+    assert isinstance(res.session, StreamedSession)
+    s = read_session(recorded)
+    whole_stats, whole_obs = pose_stats(s), observations(s)
+    assert len(res.stats) == len(whole_stats) == 6
+    for a, b in zip(res.stats, whole_stats, strict=True):
+        _close(a.to_dict(), b.to_dict())
+    _close(obs_dict(res.obs), obs_dict(whole_obs))
+
+
+def obs_dict(o):
+    from accellog.calibrate.obs_file import obs_to_dict
+
+    return json.loads(json.dumps(obs_to_dict(o)))

@@ -18,7 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.segment import checked_labels, moving_check, observations, static_windows
+from accellog.calibrate.segment import (
+    PoseStats,
+    checked_labels,
+    moving_check,
+    observations,
+    pose_stats,
+    static_windows,
+)
 from accellog.core.errors import InputError
 from accellog.core.session import ObsTable, PoseLabel, Session, SessionMeta
 from accellog.store.stream import iter_imu, read_labels
@@ -32,8 +39,10 @@ def stream_observations(
     min_samples: int = 20,
     check_units: bool = True,
     check_moving: bool = True,
+    stats_out: list[PoseStats] | None = None,
 ) -> ObsTable:
-    """observations(read_session(path), window_s, trim_s, ...) in bounded memory (module doc)."""
+    """observations(read_session(path), window_s, trim_s, ...) in bounded memory (module doc);
+    stats_out (a list), when given, receives pose_stats(read_session(path), trim_s, ...) as well."""
     if not window_s > 0:
         raise InputError(f"window_s must be > 0 s, got {window_s}")
     where = str(path)
@@ -53,6 +62,9 @@ def stream_observations(
             )
         tables.append(observations(mini, window_s, trim_s, min_samples=min_samples,
                                    check_units=check_units, check_moving=False))  # fmt: skip
+        if stats_out is not None:
+            stats_out.extend(pose_stats(mini, trim_s=trim_s, min_samples=min_samples,
+                                         check_units=check_units, check_moving=False))  # fmt: skip
         if check_moving:
             moving.append((p, *static_windows(mini.t_s, mini.accel_g)))
 

@@ -213,8 +213,8 @@ def run_fit(
     src = str(data) if isinstance(data, (str, os.PathLike)) else None
     if src is not None and obs is None and not (relabel or orientation_free) and can_stream(src):
         data = open_streamed(src, window_s=window_s, trim_s=trim_s)  # bounded memory
-        obs = data.obs
-    elif src is not None:
+        obs = None if data is None else data.obs
+    if src is not None and not isinstance(data, StreamedSession):
         data = load_input(src, n_per_pose=n_per_pose)
     if relabel and isinstance(data, Session):
         data, changes = relabel_holds(data, trim_s=trim_s)

@@ -10,12 +10,14 @@ recovered by ``read_session``, which says what it kept; ROS 2 bags and CSV are i
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from accellog.calibrate.segment import PoseStats
 from accellog.calibrate.stream_gyro import stream_calibrate_gyro
 from accellog.calibrate.stream_segment import stream_check_timestamps, stream_observations
-from accellog.core.errors import AccellogError, InputError
+from accellog.core.errors import AccellogError, DataIntegrityWarning, InputError
 from accellog.core.session import ObsTable, PoseLabel, SessionMeta
 from accellog.store.stream import read_labels
 
@@ -30,6 +32,8 @@ class StreamedSession:
     poses: list[PoseLabel]
     obs: ObsTable | None
     path: str
+    stats: list[PoseStats] | None = None
+    """Per-hold statistics (segment.pose_stats), when asked for."""
 
     def gyro_calibration(self) -> dict | None:
         """Gyro calibration (dict) from the holds and the moves between them, as
@@ -61,14 +65,28 @@ def can_stream(path: str | os.PathLike) -> bool:
 
 
 def open_streamed(
-    path: str | os.PathLike, *, window_s: float = 2.0, trim_s: float = 0.5, observe: bool = True
-) -> StreamedSession:
+    path: str | os.PathLike,
+    *,
+    window_s: float = 2.0,
+    trim_s: float = 0.5,
+    observe: bool = True,
+    stats: bool = False,
+) -> StreamedSession | None:
     """The session's labels (after the time-stamp checks of load_input) and, when observe, its
-    observation table (segment.observations' defaults); InputError as load_input/observations."""
+    observation table (segment.observations' defaults) and, with stats, its per-hold statistics
+    (segment.pose_stats); InputError as load_input/observations. None for a file with damaged
+    chunks: the whole-session reader (load_input) says what it skipped and how many samples."""
     p = Path(path)
     if not p.exists():
         raise InputError("no such file", where=str(p))
-    stream_check_timestamps(p)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        stream_check_timestamps(p)
+    if any(issubclass(w.category, DataIntegrityWarning) for w in caught):
+        return None
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     meta, poses, _events = read_labels(p)
-    obs = stream_observations(p, window_s=window_s, trim_s=trim_s) if observe else None
-    return StreamedSession(meta, poses, obs, str(p))
+    held: list[PoseStats] | None = [] if stats else None
+    obs = stream_observations(p, window_s=window_s, trim_s=trim_s, stats_out=held) if observe else None
+    return StreamedSession(meta, poses, obs, str(p), held)
