@@ -106,3 +106,26 @@ def obs_dict(o):
     from accellog.calibrate.obs_file import obs_to_dict
 
     return json.loads(json.dumps(obs_to_dict(o)))
+
+
+def test_host_clock_points_equal_whole_session(recorded, small_groups):
+    from accellog.calibrate.diagnose import clock_from_host_time
+    from accellog.store.stream import read_host_clock
+
+    s = read_session(recorded)
+    assert s.host_time_s is not None
+    pts = read_host_clock(recorded)
+    assert pts[0].size < s.n / 5  # one point per read batch, not per sample
+    assert clock_from_host_time(*pts) == clock_from_host_time(s.t_s, s.host_time_s)
+
+
+def test_diagnose_streams_and_matches_whole_session(recorded, small_groups, monkeypatch, capsys):
+    from accellog.flows import stream_input
+
+    assert main(["diagnose", str(recorded), "--json"]) in (0, None)
+    streamed = json.loads(capsys.readouterr().out)
+    monkeypatch.setattr(stream_input, "can_stream", lambda p: False)  # the whole-session path
+    assert main(["diagnose", str(recorded), "--json"]) in (0, None)
+    whole = json.loads(capsys.readouterr().out)
+    assert streamed["clock"] is not None
+    _close(whole, streamed)

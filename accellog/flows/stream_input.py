@@ -19,7 +19,7 @@ from accellog.calibrate.stream_gyro import stream_calibrate_gyro
 from accellog.calibrate.stream_segment import stream_check_timestamps, stream_observations
 from accellog.core.errors import AccellogError, DataIntegrityWarning, InputError
 from accellog.core.session import ObsTable, PoseLabel, SessionMeta
-from accellog.store.stream import read_labels
+from accellog.store.stream import read_host_clock, read_labels
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
@@ -34,6 +34,8 @@ class StreamedSession:
     path: str
     stats: list[PoseStats] | None = None
     """Per-hold statistics (segment.pose_stats), when asked for."""
+    host_clock: tuple | None = None
+    """(sensor, host) times for diagnose.clock_from_host_time (store.stream.read_host_clock)."""
 
     def gyro_calibration(self) -> dict | None:
         """Gyro calibration (dict) from the holds and the moves between them, as
@@ -62,6 +64,22 @@ def can_stream(path: str | os.PathLike) -> bool:
             return f.read() == _MCAP_MAGIC
     except OSError:
         return False
+
+
+def open_labelled(
+    path: str | os.PathLike, *, window_s: float = 2.0, host: bool = False
+) -> StreamedSession | None:
+    """open_streamed for a labelled session (plus its host clock points when host), else None: not
+    a finished MCAP file, damaged chunks or no pose labels (those take the whole-session path)."""
+    if not can_stream(path):
+        return None
+    _meta, poses, _events = read_labels(path)
+    if not poses:
+        return None
+    s = open_streamed(path, window_s=window_s)
+    if s is not None and host:
+        s.host_clock = read_host_clock(path)
+    return s
 
 
 def open_streamed(
