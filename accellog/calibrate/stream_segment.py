@@ -158,13 +158,17 @@ def stream_check_timestamps(path: str | Path) -> None:
         fin = ~np.isfinite(t)
         if nonfinite is None and fin.any():
             nonfinite = n + int(np.argmax(fin))
-        ext = np.concatenate([[t_last], t]) if n else t
-        dt = np.diff(ext)
-        bad = dt <= 0
-        bad_n += int(bad.sum())
-        if first_bad is None and bad.any():
-            j = int(np.argmax(bad)) + 1
-            first_bad = (n - (1 if n else 0) + j, ext[j], ext[j - 1])
+        if n and t.size and not t[0] > t_last:  # the step from the previous block (NaN: not bad)
+            bad_n += int(t[0] <= t_last)
+            if first_bad is None and t[0] <= t_last:
+                first_bad = (n, t[0], t_last)
+        bad = t[1:] <= t[:-1]
+        nb = int(np.count_nonzero(bad))
+        if nb:
+            bad_n += nb
+            if first_bad is None:
+                j = int(np.argmax(bad)) + 1
+                first_bad = (n + j, t[j], t[j - 1])
         if not n and t.size:
             t0 = t[0]
         n += t.size
