@@ -40,13 +40,15 @@ def stream_observations(
     check_units: bool = True,
     check_moving: bool = True,
     stats_out: list[PoseStats] | None = None,
+    labels: tuple[SessionMeta, list[PoseLabel], list] | None = None,
 ) -> ObsTable:
     """observations(read_session(path), window_s, trim_s, ...) in bounded memory (module doc);
-    stats_out (a list), when given, receives pose_stats(read_session(path), trim_s, ...) as well."""
+    stats_out (a list), when given, receives pose_stats(read_session(path), trim_s, ...) as well;
+    labels: read_labels(path) when the caller has it already."""
     if not window_s > 0:
         raise InputError(f"window_s must be > 0 s, got {window_s}")
     where = str(path)
-    meta, poses, _events = read_labels(path)
+    meta, poses, _events = labels if labels is not None else read_labels(path)
     labels = checked_labels(poses, where)
     gather = _HoldGatherer(labels, trim_s)
     tables: list[ObsTable] = []

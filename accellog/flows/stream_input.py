@@ -104,7 +104,11 @@ def open_streamed(
         return None
     for w in caught:
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    meta, poses, _events = read_labels(p)
+    meta, poses, events = read_labels(p)
     held: list[PoseStats] | None = [] if stats else None
-    obs = stream_observations(p, window_s=window_s, trim_s=trim_s, stats_out=held) if observe else None
+    obs = None
+    if observe:
+        obs = stream_observations(
+            p, window_s=window_s, trim_s=trim_s, stats_out=held, labels=(meta, poses, events)
+        )
     return StreamedSession(meta, poses, obs, str(p), held)
