@@ -8,6 +8,9 @@ process under GNU time (wall, peak RSS), one at a time:
     whole           read_session + segment.observations + fit model3 + diagnose (library calls)
     stream          calibrate.stream_segment.stream_observations + fit model3 + diagnose: samples
                     pass chunk group by chunk group, memory = the longest hold + one group
+    fit_whole       flows.stages.run_fit(load_input(P)): the fit command before streaming (model3 + gyro)
+    fit_stream      flows.stages.run_fit(P): the fit command now (observations, time checks and the
+                    gyro calibration streamed; same calibration)
     decompress      the floor of any reader: zstd-decompress every chunk of the file (no decoding)
 
 Prints the load average with each row (a loaded 2-core machine inflates every wall time).
@@ -42,6 +45,8 @@ MODES = {
         "from accellog.calibrate.diagnose import diagnose\n"
         "obs = stream_observations(P); fit_model(obs, build_model('model3')); diagnose(obs, build_model('model3'))"
     ),
+    "fit_whole": "from accellog.flows.stages import load_input, run_fit; run_fit(load_input(P))",
+    "fit_stream": "from accellog.flows.stages import run_fit; run_fit(P)",
     "decompress": (
         "import zstandard, lz4.frame\n"
         "from mcap.stream_reader import StreamReader; from mcap.records import Chunk\n"

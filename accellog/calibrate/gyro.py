@@ -178,27 +178,41 @@ def fit_gyro_bias(
     iv = _holds(holds)
     if iv.shape[0] == 0:
         raise InputError("no static holds: the gyro bias cannot be estimated")
-    starts, ends = [], []  # sample index range [a, b) of every whole window_s window of every hold
+    a, b = _bias_windows([np.searchsorted(t, q) for q in _bias_window_times(iv, window_s, trim_s)])
+    means = _window_means(w, a, b)
+    temps = np.full(a.size, np.nan) if temp is None else _window_means(temp, a, b)
+    return _bias_fit(
+        means, temps, temp is not None, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC
+    )
+
+
+def _bias_window_times(iv: np.ndarray, window_s: float, trim_s: float) -> list[np.ndarray]:
+    """Edge times (s) of the whole window_s windows of every trimmed hold (one array per hold)."""
+    out = []
     for lo, hi in iv:
         lo, hi = lo + trim_s, hi - trim_s
         n_win = int((hi - lo) // window_s)
-        if n_win < 1:
-            continue
-        idx = np.searchsorted(t, lo + window_s * np.arange(n_win + 1))
-        starts.append(idx[:-1])
-        ends.append(idx[1:])
-    a = np.concatenate(starts) if starts else np.zeros(0, np.int64)
-    b = np.concatenate(ends) if ends else np.zeros(0, np.int64)
+        if n_win >= 1:
+            out.append(lo + window_s * np.arange(n_win + 1))
+    return out
+
+
+def _bias_windows(edges: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Sample index ranges [a, b) of the windows (edges: sample indices per hold), >= 2 samples each."""
+    a = np.concatenate([e[:-1] for e in edges]) if edges else np.zeros(0, np.int64)
+    b = np.concatenate([e[1:] for e in edges]) if edges else np.zeros(0, np.int64)
     keep = b - a >= 2
-    a, b = a[keep], b[keep]
-    means = _window_means(w, a, b)
-    temps = np.full(a.size, np.nan) if temp is None else _window_means(temp, a, b)
+    return a[keep], b[keep]
+
+
+def _bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_span_degC) -> GyroCalibration:
+    """Least squares mean = b0 + b_T (T - T_ref) over the window means (module doc)."""
     if len(means) < 2:
         raise InputError(
             f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
         )
     y, tt = means, temps
-    use_temp = temp is not None and np.isfinite(tt).all() and np.ptp(tt) >= min_temp_span_degC
+    use_temp = has_temp and np.isfinite(tt).all() and np.ptp(tt) >= min_temp_span_degC
     cols = [np.ones(len(y))] + ([tt - t_ref_degC] if use_temp else [])
     A = np.stack(cols, axis=1)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
@@ -206,9 +220,7 @@ def fit_gyro_bias(
     s2 = ((y - A @ coef) ** 2).sum(axis=0) / dof
     cov_unit = np.linalg.inv(A.T @ A)
     sig = np.sqrt(np.outer(np.diag(cov_unit), s2))
-    cal = GyroCalibration(
-        bias_dps=coef[0], bias_sigma_dps=sig[0], t_ref_degC=t_ref_degC, n_holds=int(iv.shape[0])
-    )
+    cal = GyroCalibration(bias_dps=coef[0], bias_sigma_dps=sig[0], t_ref_degC=t_ref_degC, n_holds=n_holds)
     if use_temp:
         cal.temp_bias_dps_per_degC = coef[1]
         cal.temp_bias_sigma_dps_per_degC = sig[1]
@@ -273,10 +285,18 @@ def _block_increments(
     if hi == lo:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.searchsorted(coarse, mids)
     tt, fe = t[lo : hi + 1], fine - lo
-    span = np.diff(tt[fe])
-    b = _trapezoid_blocks(tt, np.asarray(w_dps[lo : hi + 1], float), fe) - np.outer(span, base.bias_dps)
+    w_int = _trapezoid_blocks(tt, np.asarray(w_dps[lo : hi + 1], float), fe)
+    temp_int = None
     if temp_degC is not None:
         temp_int = _trapezoid_blocks(tt, np.asarray(temp_degC[lo : hi + 1], float), fe)
+    return _increments(w_int, temp_int, np.diff(tt[fe]), base, fine, coarse, mids)
+
+
+def _increments(w_int, temp_int, span, base: GyroCalibration, fine, coarse, mids) -> tuple:
+    """_block_increments from the fine blocks' trapezoid integrals of the raw rate (deg) and the
+    temperature (degC s) and their durations span (s)."""
+    b = w_int - np.outer(span, base.bias_dps)
+    if temp_int is not None:
         b -= np.outer(temp_int - base.t_ref_degC * span, base.temp_bias_dps_per_degC)
     b = np.deg2rad(b)
     p_excl = np.concatenate([np.zeros((1, 3)), np.cumsum(b, axis=0)[:-1]])  # sum of earlier blocks
@@ -381,8 +401,18 @@ def fit_gyro_matrix(
     nominal rotation q_a^-1 q_b (for fixtures or vehicles whose heading is known).
     floor_deg: smallest residual scatter assumed (deg, nominal pose orientation error).
     """
-    from scipy.optimize import least_squares
+    known = _known_poses(poses, model, reference)
+    t = np.asarray(t_s, float)
+    idx = lambda times: np.clip(np.searchsorted(t, times), 0, t.size - 1)  # noqa: E731
+    mid_t, end_t, start_t = _pose_times(known)
+    mids, ends, starts = idx(mid_t), idx(end_t), idx(start_t)
+    temp = temp_degC if np.any(base.temp_bias_dps_per_degC != 0) else None
+    phi, c, at = _block_increments(t, gyro_dps, temp, base, (mids, ends, starts), block_s=0.01)
+    return _fit_matrix(phi, c, at, known, base, model, floor_deg, reference)
 
+
+def _known_poses(poses: Sequence[PoseLabel], model: str, reference: str) -> list[PoseLabel]:
+    """The poses fit_gyro_matrix rotates between (checks model and reference)."""
     if model not in ("scale", "full"):
         raise InputError(f"unknown gyro model {model!r}: use 'scale' or 'full'")
     if reference not in ("gravity", "orientation"):
@@ -390,12 +420,22 @@ def fit_gyro_matrix(
     known = [p for p in poses if reference == "gravity" or p.q_sensor_to_world is not None]
     if len(known) < 2:
         raise InputError("fewer than 2 labelled poses with known orientation: gyro scale cannot be fitted")
-    t = np.asarray(t_s, float)
-    idx = lambda times: np.clip(np.searchsorted(t, times), 0, t.size - 1)  # noqa: E731
-    mids = idx([0.5 * (p.start_s + p.end_s) for p in known])
-    ends, starts = idx([p.end_s for p in known]), idx([p.start_s for p in known])
-    temp = temp_degC if np.any(base.temp_bias_dps_per_degC != 0) else None
-    phi, c, at = _block_increments(t, gyro_dps, temp, base, (mids, ends, starts), block_s=0.01)
+    return known
+
+
+def _pose_times(known: list[PoseLabel]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Middle, end and start time (s) of every hold."""
+    return (
+        np.array([0.5 * (p.start_s + p.end_s) for p in known]),
+        np.array([p.end_s for p in known]),
+        np.array([p.start_s for p in known]),
+    )
+
+
+def _fit_matrix(phi, c, at, known, base: GyroCalibration, model: str, floor_deg: float, reference: str):
+    """fit_gyro_matrix from the block increments of _block_increments."""
+    from scipy.optimize import least_squares
+
     if reference == "orientation":
         qn = np.array([p.q_sensor_to_world for p in known], float)
         dq_nom_c = _qconj(quat_multiply(quat_conjugate(qn[:-1]), qn[1:]))

@@ -18,7 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.segment import checked_labels, moving_check, observations, static_windows
+from accellog.calibrate.segment import (
+    PoseStats,
+    checked_labels,
+    moving_check,
+    observations,
+    pose_stats,
+    static_windows,
+)
 from accellog.core.errors import InputError
 from accellog.core.session import ObsTable, PoseLabel, Session, SessionMeta
 from accellog.store.stream import iter_imu, read_labels
@@ -32,12 +39,16 @@ def stream_observations(
     min_samples: int = 20,
     check_units: bool = True,
     check_moving: bool = True,
+    stats_out: list[PoseStats] | None = None,
+    labels: tuple[SessionMeta, list[PoseLabel], list] | None = None,
 ) -> ObsTable:
-    """observations(read_session(path), window_s, trim_s, ...) in bounded memory (module doc)."""
+    """observations(read_session(path), window_s, trim_s, ...) in bounded memory (module doc);
+    stats_out (a list), when given, receives pose_stats(read_session(path), trim_s, ...) as well;
+    labels: read_labels(path) when the caller has it already."""
     if not window_s > 0:
         raise InputError(f"window_s must be > 0 s, got {window_s}")
     where = str(path)
-    meta, poses, _events = read_labels(path)
+    meta, poses, _events = labels if labels is not None else read_labels(path)
     labels = checked_labels(poses, where)
     gather = _HoldGatherer(labels, trim_s)
     tables: list[ObsTable] = []
@@ -53,6 +64,9 @@ def stream_observations(
             )
         tables.append(observations(mini, window_s, trim_s, min_samples=min_samples,
                                    check_units=check_units, check_moving=False))  # fmt: skip
+        if stats_out is not None:
+            stats_out.extend(pose_stats(mini, trim_s=trim_s, min_samples=min_samples,
+                                         check_units=check_units, check_moving=False))  # fmt: skip
         if check_moving:
             moving.append((p, *static_windows(mini.t_s, mini.accel_g)))
 
@@ -134,3 +148,48 @@ def _joined(tables: list[ObsTable], where: str) -> ObsTable:
             out[f.name] = None
     out["pose_id"] = out["pose_id"].astype(int)
     return ObsTable(**out)
+
+
+def stream_check_timestamps(path: str | Path) -> None:
+    """label_check.check_timestamps on the file's samples, block by block (the same messages)."""
+    where = str(path)
+    n, t0, t_last, bad_n = 0, np.nan, np.nan, 0
+    nonfinite = first_bad = None  # global index of the first non-finite stamp / (i, t_i, t_i-1)
+    for b in iter_imu(path):
+        t = np.asarray(b.t_s, float)
+        fin = ~np.isfinite(t)
+        if nonfinite is None and fin.any():
+            nonfinite = n + int(np.argmax(fin))
+        if n and t.size and not t[0] > t_last:  # the step from the previous block (NaN: not bad)
+            bad_n += int(t[0] <= t_last)
+            if first_bad is None and t[0] <= t_last:
+                first_bad = (n, t[0], t_last)
+        bad = t[1:] <= t[:-1]
+        nb = int(np.count_nonzero(bad))
+        if nb:
+            bad_n += nb
+            if first_bad is None:
+                j = int(np.argmax(bad)) + 1
+                first_bad = (n + j, t[j], t[j - 1])
+        if not n and t.size:
+            t0 = t[0]
+        n += t.size
+        if t.size:
+            t_last = t[-1]
+    if n < 2:  # no samples to hold: read_session names a file that is not a session at all
+        from accellog.store.reader import read_session
+
+        read_session(path)
+        raise InputError(f"session has {n} sample(s): nothing to calibrate", where=where)
+    if nonfinite is not None:
+        raise InputError(f"sample {nonfinite} has a non-finite time stamp", where=where)
+    if not t_last > t0:
+        raise InputError(f"session has zero duration ({n} samples at t = {t0:g} s)", where=where)
+    if first_bad is not None:
+        i, ti, tp = first_bad
+        kind = "duplicated" if ti == tp else "decreasing"
+        raise InputError(
+            f"{kind} time stamp at sample {i}: t = {ti:.6f} s after {tp:.6f} s "
+            f"({bad_n} non-increasing steps)",
+            where=where,
+        )

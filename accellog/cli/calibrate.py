@@ -117,7 +117,7 @@ def fit(
     from accellog.store.atomic import check_outputs
 
     check_outputs([output, rrd], [session, effects_file], mkdir=True)
-    data = load_input(session)
+    data = load_input(session) if rrd is not None else session  # a path: run_fit may stream it
     out = run_fit(
         data,
         model,

@@ -114,8 +114,12 @@ def diagnose(
     from accellog.calibrate.segment import observations
     from accellog.core.session import ObsTable, Session
     from accellog.flows.stages import as_session, load_input
+    from accellog.flows.stream_input import open_labelled
 
-    data = load_input(session)  # pose tables (per-pose means) and observation files: ObsTable
+    streamed = open_labelled(session, window_s=window_s, host=True) if rrd is None else None
+    data = (
+        streamed if streamed is not None else load_input(session)
+    )  # pose tables and observation files: ObsTable
     if isinstance(data, Session) and not data.poses:
         return _diagnose_handheld(
             data, session, model, add, effects_file, window_s, detect_window_s, threshold, as_json
@@ -124,6 +128,8 @@ def diagnose(
     host = None
     if isinstance(data, ObsTable):
         obs = data
+    elif streamed is not None:  # an MCAP session, chunk by chunk (bounded memory)
+        obs, host = streamed.obs, streamed.host_clock
     else:
         obs = observations(data, window_s=window_s)
         if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:

@@ -34,6 +34,7 @@ from accellog.core.jsonio import JsonResult, dumps
 from accellog.core.notices import note
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
 from accellog.navigate.drift import drift_from_session
 from accellog.navigate.evaluate import Evaluation, evaluate
 from accellog.present import views
@@ -109,8 +110,8 @@ def _read_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Se
     )
 
 
-def _name(x: Session | ObsTable) -> str:
-    return (x.path or x.meta.source) if isinstance(x, Session) else x.session
+def _name(x: Session | StreamedSession | ObsTable) -> str:
+    return (x.path or x.meta.source) if isinstance(x, (Session, StreamedSession)) else x.session
 
 
 def _path_of(x: Session | ObsTable) -> str | None:
@@ -210,7 +211,10 @@ def run_fit(
     """
 
     src = str(data) if isinstance(data, (str, os.PathLike)) else None
-    if src is not None:
+    if src is not None and obs is None and not (relabel or orientation_free) and can_stream(src):
+        data = open_streamed(src, window_s=window_s, trim_s=trim_s)  # bounded memory
+        obs = None if data is None else data.obs
+    if src is not None and not isinstance(data, StreamedSession):
         data = load_input(src, n_per_pose=n_per_pose)
     if relabel and isinstance(data, Session):
         data, changes = relabel_holds(data, trim_s=trim_s)
@@ -219,7 +223,9 @@ def run_fit(
     m = build_model(model, add=list(add), effects_file=effects_file)
     if local_gravity_mps2 is None:
         local_gravity_mps2 = (
-            data.meta.local_gravity_mps2 if isinstance(data, Session) else STANDARD_GRAVITY_MPS2
+            data.meta.local_gravity_mps2
+            if isinstance(data, (Session, StreamedSession))
+            else STANDARD_GRAVITY_MPS2
         )
     truth = _truth_g(gravity, float(local_gravity_mps2))
     detected = None  # static intervals found in an unlabelled session
@@ -250,7 +256,7 @@ def run_fit(
         fit = with_uncertainty(fit, obs, uncertainty)
     sensor: dict[str, Any] = {}
     kind = ""
-    if isinstance(data, Session):
+    if isinstance(data, (Session, StreamedSession)):
         meta = data.meta
         sensor = {
             "chip": meta.chip,
@@ -266,7 +272,7 @@ def run_fit(
         sources=[_source(data, src, kind)],
         sensor=sensor,
     )
-    if isinstance(data, Session):
+    if isinstance(data, (Session, StreamedSession)):
         cal.device = data.meta.device.to_dict()
     if detected:  # hand-held: the static intervals the fit used go into the calibration file
         t = data.t_s
@@ -283,6 +289,8 @@ def run_fit(
         # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
         # and the rotations between them (imu_tk style), not skipped
         cal.gyro = _gyro_calibration(with_labels(data, detected) if detected else data)
+    elif gyro and isinstance(data, StreamedSession):
+        cal.gyro = data.gyro_calibration()  # the holds and moves, streamed from the file again
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
 

@@ -23,6 +23,7 @@ from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 from accellog.core.timeseries import cumtrapz
 from accellog.flows.stages import load_input, run_evaluate
+from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_poses
 from accellog.present import tables, views
 from accellog.present.rrd.recording import RunRecording
@@ -39,7 +40,7 @@ def _session_input(path: str | os.PathLike, what: str) -> Session:
 class SegmentResult(JsonResult):
     """Per-pose statistics and the windowed observation table of one session."""
 
-    session: Session
+    session: Session | StreamedSession
     stats: list[PoseStats]
     obs: ObsTable
     window_s: float
@@ -53,6 +54,10 @@ class SegmentResult(JsonResult):
 
 def run_segment(path: str | os.PathLike, *, window_s: float = 2.0, trim_s: float = 0.5) -> SegmentResult:
     """Statistics of every labelled hold and observations of ~window_s (s), trim_s (s) dropped at both ends."""
+    if can_stream(path):  # an MCAP session: chunk by chunk, bounded memory
+        s = open_streamed(path, window_s=window_s, trim_s=trim_s, stats=True)
+        if s is not None:
+            return SegmentResult(s, s.stats or [], s.obs, window_s)
     data = _session_input(path, "segment")
     stats = pose_stats(data, trim_s=trim_s)
     return SegmentResult(data, stats, observations(data, window_s=window_s, trim_s=trim_s), window_s)

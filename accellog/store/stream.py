@@ -41,6 +41,8 @@ class ImuBlock:
     accel_g: np.ndarray
     gyro_dps: np.ndarray | None
     temp_degC: np.ndarray | None
+    host_time_s: np.ndarray | None = None
+    """Host read time of every sample (s; 0 where the recorder stored none)."""
 
     @property
     def n(self) -> int:
@@ -80,6 +82,7 @@ def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
         s.accel_g[rest],
         None if s.gyro_dps is None else s.gyro_dps[rest],
         None if s.temp_degC is None else s.temp_degC[rest],
+        None if s.host_time_s is None else s.host_time_s[rest],
     )
 
 
@@ -135,7 +138,34 @@ def _block(dec: DecodedBatch, meta: SessionMeta, where: str) -> ImuBlock:
     if temp_degC is None and tc is not None:
         temp_degC = tc / TEMP_LSB_PER_DEGC
         temp_degC += TEMP_OFFSET_DEGC
-    return ImuBlock(meta, arrays["t_ns"] / NS_PER_S, sample_index, accel_g, gyro_dps, temp_degC)
+    host_s = np.repeat(np.asarray(scalars["host_time_ns"], dtype=np.int64) / NS_PER_S, n_per)
+    return ImuBlock(meta, arrays["t_ns"] / NS_PER_S, sample_index, accel_g, gyro_dps, temp_degC, host_s)
+
+
+def read_host_clock(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """(sensor time, host time) (s) of the last sample of every run of equal host times, i.e. the
+    points calibrate.diagnose.clock_from_host_time uses (one per read batch: memory ~ samples /
+    batch size), streamed; None when the session stores no host time (as read_session's None)."""
+    ts_parts, th_parts, any_host, n = [], [], False, 0
+    carry = None  # (t, host) of the previous block's last sample: its run may go on
+    for b in iter_imu(path):
+        n += b.n
+        if b.host_time_s is None:
+            return None
+        th, ts = b.host_time_s, b.t_s
+        any_host = any_host or bool(np.any(th != 0))
+        if carry is not None and th[0] != carry[1]:
+            ts_parts.append(np.array([carry[0]]))
+            th_parts.append(np.array([carry[1]]))
+        last = np.flatnonzero(np.diff(th) != 0)  # run ends inside the block (not its last sample)
+        ts_parts.append(ts[last])
+        th_parts.append(th[last])
+        carry = (ts[-1], th[-1])
+    if not any_host or n <= 2 or carry is None:
+        return None
+    ts_parts.append(np.array([carry[0]]))
+    th_parts.append(np.array([carry[1]]))
+    return np.concatenate(ts_parts), np.concatenate(th_parts)
 
 
 def read_labels(path: str | Path) -> tuple[SessionMeta, list[PoseLabel], list[Event]]:

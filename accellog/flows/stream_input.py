@@ -1,0 +1,114 @@
+"""A recorded MCAP session as the fit and segment stages see it, read chunk by chunk: metadata, pose
+labels and the observation table (``calibrate.stream_segment.stream_observations``), never the
+whole sample arrays; the gyro calibration streams the file again (``calibrate.stream_gyro``).
+Memory is bounded by one chunk group plus the longest hold, whatever the session length.
+
+``can_stream`` says which inputs take this path: finished accellog MCAP files (a truncated file is
+recovered by ``read_session``, which says what it kept; ROS 2 bags and CSV are imported whole).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+from accellog.calibrate.segment import PoseStats
+from accellog.calibrate.stream_gyro import stream_calibrate_gyro
+from accellog.calibrate.stream_segment import stream_check_timestamps, stream_observations
+from accellog.core.errors import AccellogError, DataIntegrityWarning, InputError
+from accellog.core.session import ObsTable, PoseLabel, SessionMeta
+from accellog.store.stream import read_host_clock, read_labels
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass
+class StreamedSession:
+    """Labels and observations of a session file (module doc); ``path`` is the file."""
+
+    meta: SessionMeta
+    poses: list[PoseLabel]
+    obs: ObsTable | None
+    path: str
+    stats: list[PoseStats] | None = None
+    """Per-hold statistics (segment.pose_stats), when asked for."""
+    host_clock: tuple | None = None
+    """(sensor, host) times for diagnose.clock_from_host_time (store.stream.read_host_clock)."""
+
+    def gyro_calibration(self) -> dict | None:
+        """Gyro calibration (dict) from the holds and the moves between them, as
+        flows.stages._gyro_calibration on the whole session; None without gyro data or holds."""
+        if len(self.poses) < 2:
+            return None
+        try:
+            cal = stream_calibrate_gyro(self.path, self.poses)
+        except AccellogError:
+            return None
+        return None if cal is None else cal.to_dict()
+
+
+def can_stream(path: str | os.PathLike) -> bool:
+    """True for a finished accellog MCAP file (not a ROS 2 bag; ends with the MCAP magic)."""
+    from accellog.store.importers.ros2 import is_ros2_bag
+
+    p = Path(path)
+    if p.suffix.lower() != ".mcap" or not p.is_file() or is_ros2_bag(p):
+        return False
+    try:
+        with open(p, "rb") as f:
+            if f.seek(0, os.SEEK_END) < 2 * len(_MCAP_MAGIC):
+                return False
+            f.seek(-len(_MCAP_MAGIC), os.SEEK_END)
+            return f.read() == _MCAP_MAGIC
+    except OSError:
+        return False
+
+
+def open_labelled(
+    path: str | os.PathLike, *, window_s: float = 2.0, host: bool = False
+) -> StreamedSession | None:
+    """open_streamed for a labelled session (plus its host clock points when host), else None: not
+    a finished MCAP file, damaged chunks or no pose labels (those take the whole-session path)."""
+    if not can_stream(path):
+        return None
+    _meta, poses, _events = read_labels(path)
+    if not poses:
+        return None
+    s = open_streamed(path, window_s=window_s)
+    if s is not None and host:
+        s.host_clock = read_host_clock(path)
+    return s
+
+
+def open_streamed(
+    path: str | os.PathLike,
+    *,
+    window_s: float = 2.0,
+    trim_s: float = 0.5,
+    observe: bool = True,
+    stats: bool = False,
+) -> StreamedSession | None:
+    """The session's labels (after the time-stamp checks of load_input) and, when observe, its
+    observation table (segment.observations' defaults) and, with stats, its per-hold statistics
+    (segment.pose_stats); InputError as load_input/observations. None for a file with damaged
+    chunks: the whole-session reader (load_input) says what it skipped and how many samples."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError("no such file", where=str(p))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        stream_check_timestamps(p)
+    if any(issubclass(w.category, DataIntegrityWarning) for w in caught):
+        return None
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    meta, poses, events = read_labels(p)
+    held: list[PoseStats] | None = [] if stats else None
+    obs = None
+    if observe:
+        obs = stream_observations(
+            p, window_s=window_s, trim_s=trim_s, stats_out=held, labels=(meta, poses, events)
+        )
+    return StreamedSession(meta, poses, obs, str(p), held)

@@ -1,0 +1,134 @@
+"""fit and segment on an MCAP file stream it (bounded memory) and give the whole-session results."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from accellog.calibrate.gyro import calibrate_gyro
+from accellog.calibrate.stream_gyro import stream_calibrate_gyro
+from accellog.calibrate.stream_segment import stream_check_timestamps
+from accellog.cli import main
+from accellog.core.errors import InputError
+from accellog.flows.simulate import Scenario, simulate
+from accellog.flows.stages import load_input, run_fit
+from accellog.flows.stream_input import can_stream
+from accellog.store import fastread
+from accellog.store.reader import read_session
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    p = tmp_path_factory.mktemp("sfit") / "six.mcap"
+    simulate(Scenario(protocol="six", hold_s=3.0, move_s=1.0, sample_rate_hz=500.0), p)
+    return p
+
+
+@pytest.fixture
+def small_groups(monkeypatch):
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 32 << 10)  # many blocks: holds and windows span them
+
+
+def _close(a, b, path="") -> None:
+    """Nested JSON values equal, floats within 1e-12 (relative to max(1, |a|))."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for k in a.keys() - {"created_utc"}:  # the time of writing
+            _close(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _close(x, y, f"{path}[{i}]")
+    elif isinstance(a, float) and isinstance(b, float):
+        assert abs(a - b) <= 1e-12 * max(1.0, abs(a)), (path, a, b)
+    else:
+        assert a == b, path
+
+
+def test_stream_gyro_equals_whole_session(recorded, small_groups):
+    s = read_session(recorded)
+    whole = calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC).to_dict()
+    streamed = stream_calibrate_gyro(recorded, s.poses).to_dict()
+    assert "scale" in whole["effects"]
+    _close(whole, streamed)
+
+
+def test_fit_streams_and_matches_whole_session(recorded, small_groups, tmp_path):
+    assert can_stream(recorded)
+    whole = run_fit(load_input(recorded))  # a Session: the whole-session path
+    streamed = run_fit(recorded)  # a path: streamed
+    assert type(streamed.obs) is type(whole.obs)
+    _close(json.loads(whole.cal.to_json()), json.loads(streamed.cal.to_json()))
+    assert streamed.cal.gyro is not None and streamed.cal.gyro["effects"] == whole.cal.gyro["effects"]
+    out = tmp_path / "cal.json"
+    assert main(["fit", str(recorded), "-o", str(out)]) in (0, None)
+    _close(json.loads(whole.cal.to_json()), json.loads(out.read_text()))
+
+
+@pytest.mark.parametrize("i", [700, 1, 2999, None])
+def test_stream_time_checks_equal_whole_session(recorded, small_groups, tmp_path, i):
+    from accellog.calibrate.label_check import check_timestamps
+    from accellog.store.stream import iter_imu
+    from accellog.store.writer import write_session
+
+    stream_check_timestamps(recorded)  # a good session passes
+    s = read_session(recorded)
+    if i is None:  # the first sample of the second block repeats the last of the first
+        i = next(iter(iter_imu(write_session(tmp_path / "ok.mcap", s, chunk_size=8 * 1024)))).n
+    s.t_s = s.t_s.copy()
+    s.t_s[i] = s.t_s[i - 1]
+    s.t_s[i + 200] = s.t_s[i + 100]  # one decreasing step as well
+    bad = write_session(tmp_path / "bad.mcap", s, chunk_size=8 * 1024)
+    with pytest.raises(InputError) as whole:
+        check_timestamps(s, where=str(bad))
+    with pytest.raises(InputError) as streamed:
+        stream_check_timestamps(bad)
+    assert f"duplicated time stamp at sample {i}" in str(whole.value)
+    assert str(streamed.value) == str(whole.value)
+    assert main(["fit", str(bad), "-o", str(tmp_path / "c.json")]) not in (0, None)
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_segment_streams_and_matches_whole_session(recorded, small_groups):
+    from accellog.calibrate.segment import observations, pose_stats
+    from accellog.flows.static_stages import run_segment
+    from accellog.flows.stream_input import StreamedSession
+
+    res = run_segment(recorded)
+    assert isinstance(res.session, StreamedSession)
+    s = read_session(recorded)
+    whole_stats, whole_obs = pose_stats(s), observations(s)
+    assert len(res.stats) == len(whole_stats) == 6
+    for a, b in zip(res.stats, whole_stats, strict=True):
+        _close(a.to_dict(), b.to_dict())
+    _close(obs_dict(res.obs), obs_dict(whole_obs))
+
+
+def obs_dict(o):
+    from accellog.calibrate.obs_file import obs_to_dict
+
+    return json.loads(json.dumps(obs_to_dict(o)))
+
+
+def test_host_clock_points_equal_whole_session(recorded, small_groups):
+    from accellog.calibrate.diagnose import clock_from_host_time
+    from accellog.store.stream import read_host_clock
+
+    s = read_session(recorded)
+    assert s.host_time_s is not None
+    pts = read_host_clock(recorded)
+    assert pts[0].size < s.n / 5  # one point per read batch, not per sample
+    assert clock_from_host_time(*pts) == clock_from_host_time(s.t_s, s.host_time_s)
+
+
+def test_diagnose_streams_and_matches_whole_session(recorded, small_groups, monkeypatch, capsys):
+    from accellog.flows import stream_input
+
+    assert main(["diagnose", str(recorded), "--json"]) in (0, None)
+    streamed = json.loads(capsys.readouterr().out)
+    monkeypatch.setattr(stream_input, "can_stream", lambda p: False)  # the whole-session path
+    assert main(["diagnose", str(recorded), "--json"]) in (0, None)
+    whole = json.loads(capsys.readouterr().out)
+    assert streamed["clock"] is not None
+    _close(whole, streamed)
