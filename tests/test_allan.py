@@ -274,3 +274,28 @@ def test_obs_sigma_floored_by_the_noise_section():
     out = floor_obs_sigma(obs, section)
     np.testing.assert_allclose(out.sigma_g[:, 0], 2e-4 / np.sqrt([1.0, 4.0, 16.0, 64.0]))
     assert obs.sigma_g[0, 0] == 1e-6  # the input is not altered
+    out200 = floor_obs_sigma(obs, section, rate_hz=200.0)  # the session's own rate sets the window length
+    np.testing.assert_allclose(out200.sigma_g[:, 0], 2e-4 / np.sqrt([0.5, 2.0, 8.0, 32.0]))
+
+
+def test_diagnose_judges_chi2_against_the_characterised_noise(static_mcap, tmp_path, capsys):
+    """diagnose --noise-from: a calibration whose noise section says 10x the real white noise lowers
+    chi2/dof by about 100x (windows' sigma floored by N / sqrt(T)); no section is one clear line."""
+    sim = tmp_path / "c.mcap"
+    simulate(Scenario(protocol="six", hold_s=4.0, move_s=2.0, sample_rate_hz=200.0, seed=3), sim)
+    cal, noisy = tmp_path / "cal.json", tmp_path / "cal_noise.json"
+    assert main(["fit", str(sim), "-o", str(cal)]) == 0
+    assert main(["noise", str(static_mcap), "--cal", str(cal), "-o", str(noisy)]) == 0
+    c = json.loads(noisy.read_text())
+    for ax in "xyz":
+        c["noise"]["accel"]["axes"][ax]["white"]["value"] *= 10.0
+    noisy.write_text(json.dumps(c))
+    capsys.readouterr()
+    assert main(["diagnose", str(sim), "-m", "model1", "--json"]) == 0
+    plain = json.loads(capsys.readouterr().out)
+    assert main(["diagnose", str(sim), "-m", "model1", "--json", "--noise-from", str(noisy)]) == 0
+    floored = json.loads(capsys.readouterr().out)
+    assert floored["chi2_dof"] < plain["chi2_dof"] / 20
+    assert main(["diagnose", str(sim), "--noise-from", str(cal)]) != 0
+    err = capsys.readouterr().err
+    assert "no noise section" in err and len(err.strip().splitlines()) == 1

@@ -443,14 +443,14 @@ def sem_with_noise_floor(section: dict, sem_mps2: np.ndarray, duration_s: float)
     return np.maximum(sem_mps2, n / math.sqrt(duration_s))
 
 
-def floor_obs_sigma(obs, section: dict):
+def floor_obs_sigma(obs, section: dict, rate_hz: float | None = None):
     """A copy of an ObsTable whose window sigma_g is at least the white noise of a 'noise' section:
-    sigma_g >= N / g0 / sqrt(n_samples / rate_hz) (g). The hook for diagnose's noise floor (its owner wires
-    it in); windows are assumed sampled at the section's rate."""
+    sigma_g >= N / g0 / sqrt(n_samples / rate_hz) (g), the standard error of a mean over the window's
+    duration (`diagnose --noise-from`). rate_hz: the session's sample rate (default the section's)."""
     import dataclasses
 
     n = white_floor_from_section(section, "accel")
-    rate = float(section.get("rate_hz") or 0.0)
+    rate = float(rate_hz or section.get("rate_hz") or 0.0)
     if n is None or rate <= 0:
         return obs
     floor_g = n[None, :] / STANDARD_GRAVITY_MPS2 / np.sqrt(np.asarray(obs.n_samples, float)[:, None] / rate)

@@ -102,6 +102,13 @@ def diagnose(
             min=1.0,
         ),
     ] = None,
+    noise_from: Annotated[
+        Path | None,
+        typer.Option(
+            help="Calibration JSON with a noise section (`accellog noise --cal`): its white noise (Allan) "
+            "floors each window's sigma, so chi2 is judged against the characterised noise."
+        ),
+    ] = None,
 ) -> None:
     """Fit a model, compare it with the noise floor and rank the effects that could be missing.
     A session without pose labels (hand-held) is diagnosed on its detected static intervals with
@@ -136,6 +143,19 @@ def diagnose(
             host = (data.t_s, data.host_time_s)
 
     helds = [observations(as_session(h, "--heldout"), window_s=window_s) for h in heldout or []]
+    if noise_from is not None:
+        from accellog.calibrate.calibration import load_calibration
+        from accellog.calibrate.noise_model import floor_obs_sigma
+
+        section = load_calibration(noise_from).noise
+        if not section:
+            raise InputError(
+                "no noise section: add one with `accellog noise STILL.mcap --cal C -o C2`",
+                where=str(noise_from),
+            )
+        meta = getattr(data, "meta", None)
+        rate = meta.sample_rate_hz if meta is not None else None
+        obs, helds = floor_obs_sigma(obs, section, rate), [floor_obs_sigma(h, section, rate) for h in helds]
     d = dg.diagnose(obs, m, weighted=not unweighted, gravity_g=gravity_g, host_time=host, heldout=helds)
     if rrd is not None:
         from accellog.present.residual_views import log_diagnosis_residuals
