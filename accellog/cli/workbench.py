@@ -6,18 +6,17 @@ import json
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.markup import escape
-from rich.table import Table
 
 from accellog.cli.app import app
 from accellog.core.errors import InputError
-from accellog.present.tables import json_text
 
 
 def _fmt(v, spec: str = ".3g") -> str:
+    import numpy as np
+
     if v is None or (isinstance(v, float) and not np.isfinite(v)):
         return "-"
     return format(v, spec)
@@ -31,6 +30,8 @@ def effects(
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable list on stdout.")] = False,
 ) -> None:
     """List the effect library: name, parameters with units, driver signals, meaning."""
+    from rich.table import Table
+
     from accellog.calibrate.effects import describe, load_effects_file
 
     ef = load_effects_file(effects_file) if effects_file else None
@@ -113,8 +114,11 @@ def diagnose(
     """Fit a model, compare it with the noise floor and rank the effects that could be missing.
     A session without pose labels (hand-held) is diagnosed on its detected static intervals with
     the orientation-free gravity-norm residual."""
+    import numpy as np
+
     from accellog.calibrate import diagnose as dg
     from accellog.calibrate.model import build_model
+    from accellog.present.tables import json_text
 
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
@@ -188,6 +192,7 @@ def _diagnose_handheld(
     """diagnose on an unlabelled session: detected static intervals, gravity-norm residual."""
     from accellog.calibrate.handheld import HANDHELD_START, detect_holds, diagnose_handheld
     from accellog.calibrate.model import build_model
+    from accellog.present.tables import json_text
 
     name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
     m = build_model(name, add=add or [], effects_file=effects_file)
@@ -207,6 +212,8 @@ def _diagnose_handheld(
 
 
 def _print(d, source: str) -> None:
+    from rich.table import Table
+
     con = Console(width=160)
     f = d.fit
     con.print(f"[bold]{source}[/]: {f.n_obs} windows, model {d.model.name} ({d.model.n_params} params)")
@@ -304,11 +311,13 @@ def workbench_cmd(
 ) -> None:
     """Diagnose, add the missing effect, refit - until the model fits to the noise; then the ladder
     model1 -> model2 -> model3 -> + each found effect, judged on held-out data and a static test."""
+    import numpy as np
+
     from accellog.calibrate.segment import observations
     from accellog.core.session import Session
     from accellog.flows.stages import as_session, load_input
     from accellog.flows.workbench import discover, ladder_rows, log_ladder, steps_for
-    from accellog.present.tables import ladder_table
+    from accellog.present.tables import json_text, ladder_table
 
     data = load_input(session)
     if not isinstance(data, Session):
@@ -381,7 +390,7 @@ def workbench_cmd(
 def _workbench_handheld(data, session, model, max_steps, effects_file, test, at_s, output, as_json, rrd):
     """The workbench on an unlabelled session (accellog.flows.handheld_workbench)."""
     from accellog.flows.handheld_workbench import discover_handheld
-    from accellog.present.tables import ladder_table
+    from accellog.present.tables import json_text, ladder_table
 
     start = None if model == "model3" else model  # model3's cross_axis is not identifiable here
     found = discover_handheld(
