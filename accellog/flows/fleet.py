@@ -247,11 +247,14 @@ WORKER_CONFIG = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.system-monitor.interval": "2s",
     "distributed.admin.system-monitor.gil.enabled": False,
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": 1 << 30,
 }
 """Dask settings of local workers: no statistical profiler (a thread sampling the task thread's
-stack every 10 ms) and a slower system monitor, i.e. less background CPU per worker. (Measured here
-under heavy load: no visible change in throughput.) On a real cluster set the same keys in the
-workers' dask config if wanted (docs/fleet.md)."""
+stack every 10 ms), a slower system monitor, and glibc's malloc trim threshold raised from Dask's
+64 KiB to 1 GiB: with Dask's value every freed numpy array went back to the kernel and came back as
+page faults, which doubled the CPU time of a task (172 vs 92 ms; 2 workers ran at 0.94x the serial
+loop, 1.78x with this setting, benchmarks/bench_fleet.py). On a real cluster set the same keys in the
+workers' dask config (docs/fleet.md)."""
 
 
 def local_cluster(n_workers: int | None = None):
