@@ -43,7 +43,7 @@ def test_fit_evaluate_drift_apply_cli(files, tmp_path, capsys):
     assert d["terms"] == ["bias", "scale", "cross_axis"]
     assert len(d["params"]) == 12 and all(p["sigma"] > 0 for p in d["params"])
     assert 0.5 < d["chi2_dof"] < 2.0 and d["rms_g"] < 1e-3
-    assert load_calibration(cal).fit["weighted"] is True
+    assert load_calibration(cal).fit.weighted is True
     assert main(["evaluate", str(files["static_a"]), "--cal", str(cal), "--json"]) == 0
     ev = _json(capsys)
     assert ev["raw"]["label"] == "no calibration"

@@ -60,7 +60,7 @@ def test_fit_streams_and_matches_whole_session(recorded, small_groups, tmp_path)
     streamed = run_fit(recorded)  # a path: streamed
     assert type(streamed.obs) is type(whole.obs)
     _close(json.loads(whole.cal.to_json()), json.loads(streamed.cal.to_json()))
-    assert streamed.cal.gyro is not None and streamed.cal.gyro["effects"] == whole.cal.gyro["effects"]
+    assert streamed.cal.gyro is not None and streamed.cal.gyro.effects == whole.cal.gyro.effects
     out = tmp_path / "cal.json"
     assert main(["fit", str(recorded), "-o", str(out)]) in (0, None)
     _close(json.loads(whole.cal.to_json()), json.loads(out.read_text()))

@@ -16,6 +16,10 @@ temperature at calibration, fit statistics, source files with SHA-256, the devic
 (accellog.core.device; absent in older files = unknown), software version, an optional
 displacement-drift model (accellog.navigate.drift), and optional versioned sections `noise`
 (accellog.calibrate.noise_model) and `magnetometer` (accellog.calibrate.magnetometer).
+
+The `temperature`, `fit` and `sensor` sections are typed (accellog.calibrate.cal_sections:
+TemperatureInfo, FitInfo, SensorInfo), `gyro` is an accellog.calibrate.gyro.GyroCalibration; a file
+read and saved again is the same text (unknown keys kept, absent keys left absent).
 """
 
 from __future__ import annotations
@@ -32,7 +36,9 @@ from typing import Any
 
 import numpy as np
 
+from accellog.calibrate.cal_sections import FitInfo, SensorInfo, TemperatureInfo, gyro_from_dict, gyro_to_dict
 from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.gyro import GyroCalibration
 from accellog.calibrate.model import model_from_spec
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError, ModelError
@@ -125,22 +131,35 @@ class Calibration(JsonResult):
     truth_g: float = 1.0
     gravity_convention: str = "seed"
     local_gravity_mps2: float = STANDARD_GRAVITY_MPS2
-    temperature: dict = field(default_factory=dict)
-    fit: dict = field(default_factory=dict)
+    temperature: TemperatureInfo = field(default_factory=TemperatureInfo.empty)
+    """Reference and observed temperatures (degC)."""
+    fit: FitInfo = field(default_factory=FitInfo.empty)
+    """Statistics of the fit (chi2/dof, residual RMS, warnings, detected intervals)."""
     sources: list[dict] = field(default_factory=list)
-    sensor: dict = field(default_factory=dict)
+    sensor: SensorInfo = field(default_factory=SensorInfo.empty)
+    """Accelerometer set-up of the calibrated session (chip, range, sensitivity)."""
     software: str = f"accellog {__version__}"
     created_utc: str = ""
     drift: DriftModel | None = None
     device: dict = field(default_factory=dict)
     """Device key of the calibrated sensor (accellog.core.device.DeviceKey.to_dict()); {} = unknown."""
-    gyro: dict | None = None
-    """Gyro calibration (accellog.calibrate.gyro.GyroCalibration.to_dict()), when the session allowed it."""
+    gyro: GyroCalibration | None = None
+    """Gyro calibration, when the session allowed it."""
     noise: dict | None = None
     """Noise terms (accellog.calibrate.noise_model.calibration_section), when `accellog noise` added them."""
     magnetometer: dict | None = None
     """Magnetometer hard/soft iron (accellog.calibrate.magnetometer.MagCalibration.to_dict())."""
     path: str | None = None
+    gyro_source: dict | None = field(default=None, repr=False, compare=False)
+    """The `gyro` section as read from the file (written back unchanged while `gyro` equals it)."""
+
+    def __post_init__(self) -> None:
+        # sections given as their JSON dicts (older callers) become the typed sections
+        for name, cls in (("temperature", TemperatureInfo), ("fit", FitInfo), ("sensor", SensorInfo)):
+            if isinstance(getattr(self, name), Mapping):
+                setattr(self, name, cls.from_dict(getattr(self, name)))
+        if isinstance(self.gyro, Mapping):
+            self.gyro, self.gyro_source = gyro_from_dict(self.gyro), dict(self.gyro)
 
     # ------------------------------------------------------------------ derived
     @property
@@ -208,34 +227,17 @@ class Calibration(JsonResult):
         gravity_convention: str = "seed",
         local_gravity_mps2: float = STANDARD_GRAVITY_MPS2,
         sources: list[dict] | None = None,
-        sensor: dict | None = None,
+        sensor: SensorInfo | Mapping | None = None,
     ) -> Calibration:
         """From an accellog.calibrate.fit.FitResult (truth_g = fit.gravity_g)."""
-        temp: dict[str, Any] = {"t_ref_degC": fit.model.t_ref_degC}
+        temp = TemperatureInfo(t_ref_degC=fit.model.t_ref_degC)
         if obs is not None and obs.temp_degC is not None and np.isfinite(obs.temp_degC).all():
-            temp.update(
+            temp = TemperatureInfo(
+                t_ref_degC=fit.model.t_ref_degC,
                 mean_degC=float(np.mean(obs.temp_degC)),
                 min_degC=float(np.min(obs.temp_degC)),
                 max_degC=float(np.max(obs.temp_degC)),
             )
-        fd = fit.to_dict()
-        fit_info = {
-            k: fd.get(k)
-            for k in (
-                "method",
-                "weighted",
-                "chi2",
-                "dof",
-                "chi2_dof",
-                "p_value",
-                "rms_g",
-                "n_obs",
-                "uncertainty",
-                "between_hold_g",
-            )
-        }
-        fit_info["warnings"] = list(fit.warnings)
-        fit_info["sigma_scaled"] = [float(x) for x in fit.sigma_scaled] if len(fit.sigma_scaled) else None
         return cls(
             model_spec=fit.model.to_spec(),
             param_names=list(fit.param_names),
@@ -246,9 +248,9 @@ class Calibration(JsonResult):
             gravity_convention=gravity_convention,
             local_gravity_mps2=float(local_gravity_mps2),
             temperature=temp,
-            fit=fit_info,
+            fit=FitInfo.from_result(fit),
             sources=list(sources or []),
-            sensor=dict(sensor or {}),
+            sensor=sensor if isinstance(sensor, SensorInfo) else SensorInfo.from_dict(sensor or {}),
             created_utc=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         )
 
@@ -277,13 +279,13 @@ class Calibration(JsonResult):
                 "local_gravity_mps2": self.local_gravity_mps2,
                 "mps2_per_unit": self.mps2_per_unit,
             },
-            "temperature": dict(self.temperature),
-            "fit": dict(self.fit),
-            "sensor": dict(self.sensor),
+            "temperature": self.temperature.to_dict(),
+            "fit": self.fit.to_dict(),
+            "sensor": self.sensor.to_dict(),
             "device": dict(self.device),
             "sources": list(self.sources),
             "drift": self.drift.to_dict() if self.drift is not None else None,
-            "gyro": self.gyro,
+            "gyro": gyro_to_dict(self.gyro, self.gyro_source),
             **({"noise": self.noise} if self.noise is not None else {}),
             **({"magnetometer": self.magnetometer} if self.magnetometer is not None else {}),
         }
@@ -377,15 +379,16 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         truth_g=truth_g,
         gravity_convention=str(grav.get("convention", "")),
         local_gravity_mps2=lg,
-        temperature=dict(d.get("temperature") or {}),
-        fit=dict(d.get("fit") or {}),
+        temperature=TemperatureInfo.from_dict(d.get("temperature"), where),
+        fit=FitInfo.from_dict(d.get("fit"), where),
         sources=list(d.get("sources") or []),
-        sensor=dict(d.get("sensor") or {}),
+        sensor=SensorInfo.from_dict(d.get("sensor"), where),
         device=dict(d.get("device") or {}),
         software=str(d.get("software", "")),
         created_utc=str(d.get("created_utc", "")),
         drift=DriftModel.from_dict(d["drift"], where=where) if d.get("drift") else None,
-        gyro=d.get("gyro") or None,
+        gyro=gyro_from_dict(d.get("gyro"), where),
+        gyro_source=d.get("gyro") or None,
         noise=_optional_section(d, "noise", where),
         magnetometer=_optional_section(d, "magnetometer", where),
     )

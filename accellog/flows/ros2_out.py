@@ -71,13 +71,11 @@ def param_cov_mps2(cal: Calibration, meas_g: np.ndarray, drivers: dict) -> np.nd
 
 def _gyro(cal: Calibration, s: Session):
     """Corrected gyro (n,3) deg/s and the parameter variance (n,3) (deg/s)^2, or raw and zeros."""
-    from accellog.calibrate.gyro import GyroCalibration
-
     if s.gyro_dps is None:
         return np.zeros((s.n, 3)), np.zeros((s.n, 3)), False
-    if not cal.gyro:
+    g = cal.gyro
+    if g is None:
         return s.gyro_dps, np.zeros((s.n, 3)), False
-    g = GyroCalibration.from_dict(cal.gyro)
     w = g.correct(s.gyro_dps, s.temp_degC)
     var = np.broadcast_to(np.nan_to_num(g.bias_sigma_dps) ** 2, (s.n, 3)).copy()
     if s.temp_degC is not None and np.isfinite(g.temp_bias_sigma_dps_per_degC).all():

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 import warnings
@@ -20,11 +21,12 @@ from typing import Any
 
 import numpy as np
 
+from accellog.calibrate.cal_sections import DetectedInterval, SensorInfo
 from accellog.calibrate.calibration import Calibration, load_calibration, read_json, source_entry
 from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.fit import fit_model, fit_orientation_free
-from accellog.calibrate.gyro import calibrate_gyro
+from accellog.calibrate.gyro import GyroCalibration, calibrate_gyro
 from accellog.calibrate.label_check import check_timestamps, relabel_holds
 from accellog.calibrate.model import build_model
 from accellog.calibrate.obs_file import OBS_FORMAT, obs_from_dict
@@ -254,16 +256,9 @@ def run_fit(
         from accellog.calibrate.variance import with_uncertainty
 
         fit = with_uncertainty(fit, obs, uncertainty)
-    sensor: dict[str, Any] = {}
-    kind = ""
+    sensor, kind = SensorInfo.empty(), ""
     if isinstance(data, (Session, StreamedSession)):
-        meta = data.meta
-        sensor = {
-            "chip": meta.chip,
-            "accel_range_g": meta.accel_range_g,
-            "accel_lsb_per_g": meta.accel_lsb_per_g,
-        }
-        kind = meta.source
+        sensor, kind = SensorInfo.from_meta(data.meta), data.meta.source
     cal = Calibration.from_fit(
         fit,
         obs=obs,
@@ -276,15 +271,16 @@ def run_fit(
         cal.device = data.meta.device.to_dict()
     if detected:  # hand-held: the static intervals the fit used go into the calibration file
         t = data.t_s
-        cal.fit["detected_intervals"] = [
-            {
-                "start_s": p.start_s,
-                "end_s": p.end_s,
-                "n": int(np.sum((t >= p.start_s) & (t < p.end_s))),
-                "up_sensor": [float(x) for x in p.up_sensor],
-            }
+        intervals = tuple(
+            DetectedInterval(
+                start_s=p.start_s,
+                end_s=p.end_s,
+                n=int(np.sum((t >= p.start_s) & (t < p.end_s))),
+                up_sensor=tuple(float(x) for x in p.up_sensor),
+            )
             for p in detected
-        ]
+        )
+        cal.fit = dataclasses.replace(cal.fit, detected_intervals=intervals)
     if gyro and isinstance(data, Session):
         # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
         # and the rotations between them (imu_tk style), not skipped
@@ -294,14 +290,14 @@ def run_fit(
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
 
-def _gyro_calibration(session: Session) -> dict | None:
+def _gyro_calibration(session: Session) -> GyroCalibration | None:
     """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
     session, stored next to the accelerometer's; None when the session has no gyro or holds."""
 
     if session.gyro_dps is None or len(session.poses) < 2:
         return None
     try:
-        return calibrate_gyro(session.t_s, session.gyro_dps, session.poses, session.temp_degC).to_dict()
+        return calibrate_gyro(session.t_s, session.gyro_dps, session.poses, session.temp_degC)
     except AccellogError:
         return None
 

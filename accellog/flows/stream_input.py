@@ -14,6 +14,7 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from accellog.calibrate.gyro import GyroCalibration
 from accellog.calibrate.segment import PoseStats
 from accellog.calibrate.stream_gyro import stream_calibrate_gyro
 from accellog.calibrate.stream_segment import stream_check_timestamps, stream_observations
@@ -37,8 +38,8 @@ class StreamedSession:
     host_clock: tuple | None = None
     """(sensor, host) times for diagnose.clock_from_host_time (store.stream.read_host_clock)."""
 
-    def gyro_calibration(self) -> dict | None:
-        """Gyro calibration (dict) from the holds and the moves between them, as
+    def gyro_calibration(self) -> GyroCalibration | None:
+        """Gyro calibration from the holds and the moves between them, as
         flows.stages._gyro_calibration on the whole session; None without gyro data or holds."""
         if len(self.poses) < 2:
             return None
@@ -46,7 +47,7 @@ class StreamedSession:
             cal = stream_calibrate_gyro(self.path, self.poses)
         except AccellogError:
             return None
-        return None if cal is None else cal.to_dict()
+        return cal
 
 
 def can_stream(path: str | os.PathLike) -> bool:

@@ -130,13 +130,11 @@ def accel_corrector(cal, session=None) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def gyro_corrector(cal, session=None) -> Callable[[np.ndarray], np.ndarray] | None:
-    """The gyro part of a calibration (attribute or key 'gyro': GyroCalibration or its dict), or None."""
+    """The gyro part of a calibration (its ``gyro`` attribute, a GyroCalibration), or None."""
 
-    g = cal.get("gyro") if isinstance(cal, dict) else getattr(cal, "gyro", None)
+    g: GyroCalibration | None = getattr(cal, "gyro", None)
     if g is None:
         return None
-    if isinstance(g, dict):
-        g = GyroCalibration.from_dict(g)
     temp = None if session is None else session.temp_degC
     return lambda w: g.correct(w, temp_degC=temp)
 

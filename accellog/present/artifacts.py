@@ -9,6 +9,7 @@ from typing import Any
 
 from rich.table import Table
 
+from accellog.calibrate.cal_sections import FitInfo
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
 from accellog.present.tables import fmt_pm, ladder_table
@@ -23,11 +24,10 @@ def _params(d: dict, name: str) -> Table:
         t.add_column(c, justify="right" if c.startswith("value") else "left")
     for p in d["params"]:
         t.add_row(p["name"], fmt_pm(float(p["value"]), float(p.get("sigma") or 0.0)), p.get("unit", ""))
-    fit = d.get("fit", {})
-    if fit.get("chi2_dof") is not None:
-        t.caption = (
-            f"chi2/dof {fit['chi2_dof']:.4g}, residual RMS {1000 * fit.get('rms_g', float('nan')):.4g} mg"
-        )
+    fit = FitInfo.from_dict(d.get("fit"), name)
+    if fit.chi2_dof is not None:
+        rms_g = float("nan") if fit.rms_g is None else fit.rms_g
+        t.caption = f"chi2/dof {fit.chi2_dof:.4g}, residual RMS {1000 * rms_g:.4g} mg"
     if d.get("device"):
         dev = DeviceKey.from_dict(d["device"]).describe()
         t.caption = f"{t.caption}\ndevice {dev}" if t.caption else f"device {dev}"

@@ -55,9 +55,9 @@ def _dropped_terms(cal: Calibration) -> list[str]:
 
 
 def _gyro_bias_radps(cal: Calibration) -> np.ndarray | None:
-    if not cal.gyro or cal.gyro.get("bias_dps") is None:
+    if cal.gyro is None:
         return None
-    return np.deg2rad(np.asarray(cal.gyro["bias_dps"], float))
+    return np.deg2rad(np.asarray(cal.gyro.bias_dps, float))
 
 
 def _diag_only(cal: Calibration, target: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -70,10 +70,10 @@ def _diag_only(cal: Calibration, target: str) -> tuple[np.ndarray, np.ndarray, l
             f"cross-axis/misalignment (off-diagonal of K): up to {worst:.4g} m/s^2 at 1 g is lost in {target}"
         )
     lost += [f"model term {t!r} (not a {target} parameter)" for t in _dropped_terms(cal)]
-    m = (cal.gyro or {}).get("matrix")
-    if m is not None and not np.allclose(np.array(m, dtype=float), np.eye(3), equal_nan=False):
+    g = cal.gyro
+    if g is not None and not np.allclose(np.asarray(g.matrix, float), np.eye(3), equal_nan=False):
         lost.append(f"gyro scale/misalignment matrix ({target} holds gyro offsets only)")
-    if cal.gyro and any(v not in (None, 0) for v in (cal.gyro.get("temp_bias_dps_per_degC") or [])):
+    if g is not None and np.any(np.nan_to_num(np.asarray(g.temp_bias_dps_per_degC, float)) != 0):
         lost.append("gyro temperature bias")
     return np.diag(K), o, lost
 
@@ -223,7 +223,7 @@ def _plain(cal: Calibration, noise: NoiseCharacterisation | None) -> Export:
         "mps2_per_unit": cal.mps2_per_unit,
         "params": {n: {"value": float(v), "sigma": float(s), "unit": u}
                    for n, v, s, u in zip(cal.param_names, cal.theta, cal.sigma, cal.param_units, strict=True)},
-        "gyro": {k: v for k, v in (cal.gyro or {}).items() if isinstance(v, (int, float, list, str)) or v is None},
+        "gyro": {} if cal.gyro is None else cal.gyro.to_dict(),
     }  # fmt: skip
     if noise is not None:
         d["noise"] = noise.to_dict()

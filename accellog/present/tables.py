@@ -49,11 +49,11 @@ def params_table(cal: Calibration, title: str | None = None) -> Table:
         t.add_row(n, fmt_pm(float(v), float(s)), u)
     f = cal.fit
     parts = []
-    if f.get("rms_g") is not None:
-        parts.append(f"residual RMS {f['rms_g'] * 1000:.4g} mg")
-    if f.get("chi2_dof") is not None:
-        parts.append(f"chi2/dof {f['chi2_dof']:.4g} (dof {f.get('dof')})")
-    parts.append("weighted" if f.get("weighted") else "unweighted")
+    if f.rms_g is not None:
+        parts.append(f"residual RMS {f.rms_g * 1000:.4g} mg")
+    if f.chi2_dof is not None:
+        parts.append(f"chi2/dof {f.chi2_dof:.4g} (dof {f.dof})")
+    parts.append("weighted" if f.weighted else "unweighted")
     parts.append(
         f"truth {cal.truth_g:.6g} g/pose ({cal.gravity_convention}), g_local {cal.local_gravity_mps2} m/s²"
     )

@@ -1,0 +1,269 @@
+"""Typed sections of the calibration file: `temperature`, `fit`, `sensor` (and the `gyro` round trip).
+
+Each section is a frozen dataclass with units in its field names. The JSON form is an interface
+(accellog.calibrate.calibration), so a section read from a file and written again is the same
+text, byte for byte:
+
+- ``from_dict`` reads what every accellog version wrote; a key an older version did not write
+  is None and stays absent when the section is written back;
+- keys are written in the order they were read; a section built by this version (``source_keys``
+  None) writes its keys in field order, optional ones (``optional`` in the field metadata) only
+  when set;
+- keys this version does not know are kept in ``extra`` and written back unchanged;
+- values keep their JSON type (an int stays an int), lists become tuples in the typed form.
+
+The gyro section is accellog.calibrate.gyro.GyroCalibration; ``gyro_from_dict`` / ``gyro_to_dict``
+give it the same round trip (the section as read is written back when the calibration is
+unchanged; unknown keys are kept otherwise).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
+
+from accellog.calibrate.gyro import GyroCalibration
+from accellog.core.errors import InputError
+
+
+def _f(kind: str, *, optional: bool = False) -> Any:
+    """A typed section field of JSON `kind` (num, int, bool, str, nums, strs, or a Section class)."""
+    return field(default=None, metadata={"kind": kind, "optional": optional})
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+_WORDS = {
+    "num": "a number",
+    "int": "an integer",
+    "bool": "true or false",
+    "str": "a string",
+    "nums": "a list of numbers",
+    "strs": "a list of strings",
+}
+
+
+def _read(kind: Any, v: Any, name: str, where: str | None) -> Any:
+    """The typed value of JSON value `v` (None stays None); InputError naming `name` when malformed."""
+    if v is None:
+        return None
+    ok = {
+        "num": _is_num,
+        "int": lambda x: _is_num(x) and float(x).is_integer(),
+        "bool": lambda x: isinstance(x, bool),
+        "str": lambda x: isinstance(x, str),
+        "nums": lambda x: isinstance(x, list) and all(e is None or _is_num(e) for e in x),
+        "strs": lambda x: isinstance(x, list) and all(isinstance(e, str) for e in x),
+    }
+    if isinstance(kind, type) and issubclass(kind, Section):
+        if not isinstance(v, list):
+            raise InputError(f"calibration field {name} is {type(v).__name__}, expected a list", where=where)
+        return tuple(kind.from_dict(e, where, name=f"{name}[{i}]") for i, e in enumerate(v))
+    if not ok[kind](v):
+        raise InputError(f"calibration field {name} = {str(v)[:40]!r} is not {_WORDS[kind]}", where=where)
+    return tuple(v) if isinstance(v, list) else v
+
+
+def _write(v: Any) -> Any:
+    """JSON form of a typed value (tuples -> lists, sections -> dicts)."""
+    if isinstance(v, Section):
+        return v.to_dict()
+    if isinstance(v, tuple):
+        return [_write(e) for e in v]
+    return v
+
+
+@dataclass(frozen=True)
+class Section:
+    """Base of a typed section: fields declared with `_f`, unknown keys and key order kept."""
+
+    NAME: ClassVar[str] = "section"
+
+    extra: Mapping[str, Any] = field(default_factory=dict, kw_only=True)
+    """Keys this version does not know, as read (written back unchanged)."""
+    source_keys: tuple[str, ...] | None = field(default=None, kw_only=True, repr=False, compare=False)
+    """Keys of the section as read, in file order (None: built by this version)."""
+
+    @classmethod
+    def empty(cls):
+        """A section with no keys (written as {}: unknown, as in files of pose tables)."""
+        return cls(source_keys=())
+
+    @classmethod
+    def _typed(cls) -> list:
+        return [f for f in fields(cls) if "kind" in f.metadata]
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str | None = None, *, name: str | None = None):
+        """The section of JSON object `d` (None or absent = empty); InputError on a malformed value."""
+        name = name or cls.NAME
+        if d is None:
+            d = {}
+        if not isinstance(d, Mapping):
+            raise InputError(f"calibration section {name!r} is not an object", where=where)
+        typed = cls._typed()
+        kw = {
+            f.name: _read(f.metadata["kind"], d[f.name], f"{name}.{f.name}", where)
+            for f in typed
+            if f.name in d
+        }
+        known = {f.name for f in typed}
+        extra = {k: copy.deepcopy(v) for k, v in d.items() if k not in known}
+        return cls(**kw, extra=extra, source_keys=tuple(d))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object: the keys as read (or all non-optional ones when built here), then new
+        keys set since, then unknown keys added since."""
+        src = self.source_keys
+        vals = {}
+        for f in self._typed():
+            v = getattr(self, f.name)
+            if v is not None or (f.name in src if src is not None else not f.metadata["optional"]):
+                vals[f.name] = _write(v)
+        out: dict[str, Any] = {}
+        for k in src or ():
+            if k in vals:
+                out[k] = vals.pop(k)
+            elif k in self.extra:
+                out[k] = copy.deepcopy(self.extra[k])
+        out.update(vals)
+        for k, v in self.extra.items():
+            out.setdefault(k, copy.deepcopy(v))
+        return out
+
+
+@dataclass(frozen=True)
+class TemperatureInfo(Section):
+    """Die temperature of the calibration: the model's reference and, when the observations had
+    temperatures, their mean and range (degC)."""
+
+    NAME: ClassVar[str] = "temperature"
+
+    t_ref_degC: float | None = _f("num")
+    """Reference temperature T_ref of the model's temperature terms (degC)."""
+    mean_degC: float | None = _f("num", optional=True)
+    """Mean temperature of the fitted observations (degC)."""
+    min_degC: float | None = _f("num", optional=True)
+    max_degC: float | None = _f("num", optional=True)
+
+    @property
+    def range_degC(self) -> tuple[float, float] | None:
+        """(min, max) temperature of the observations (degC), None when not recorded."""
+        if self.min_degC is None or self.max_degC is None:
+            return None
+        return (self.min_degC, self.max_degC)
+
+
+@dataclass(frozen=True)
+class DetectedInterval(Section):
+    """A static interval found in an unlabelled (hand-held) session and used by the fit."""
+
+    NAME: ClassVar[str] = "interval"
+
+    start_s: float | None = _f("num")
+    end_s: float | None = _f("num")
+    n: int | None = _f("int")
+    """Number of samples in [start_s, end_s)."""
+    up_sensor: tuple[float, ...] | None = _f("nums")
+    """Unit vector of gravity 'up' in the sensor frame during the interval."""
+
+
+@dataclass(frozen=True)
+class FitInfo(Section):
+    """Statistics of the fit that made the calibration (accellog.calibrate.fit.FitResult).
+
+    chi2 = sum of squared normalised residuals, dof = 3 n_obs - n_params, chi2_dof = chi2 / dof,
+    p_value = P(chi2' > chi2); rms_g = residual RMS (g). sigma_scaled: 1-sigma of the parameters
+    scaled by sqrt(chi2_dof) (units of the parameters), None when not computed.
+    """
+
+    NAME: ClassVar[str] = "fit"
+
+    method: str | None = _f("str")
+    """'labelled' (known poses) or 'orientation_free' (|f| = truth_g)."""
+    weighted: bool | None = _f("bool")
+    chi2: float | None = _f("num")
+    dof: int | None = _f("int")
+    chi2_dof: float | None = _f("num")
+    p_value: float | None = _f("num")
+    rms_g: float | None = _f("num")
+    n_obs: int | None = _f("int")
+    uncertainty: str | None = _f("str")
+    """Uncertainty method: 'noise', 'between_hold' or 'jackknife' (accellog.calibrate.variance)."""
+    between_hold_g: tuple[float, ...] | None = _f("nums")
+    """Between-hold scatter [tau_along, tau_across] (g) of the 'between_hold' method."""
+    warnings: tuple[str, ...] | None = _f("strs")
+    sigma_scaled: tuple[float | None, ...] | None = _f("nums")
+    detected_intervals: tuple[DetectedInterval, ...] | None = _f(DetectedInterval, optional=True)
+    """Static intervals detected in an unlabelled session (hand-held fits), None otherwise."""
+
+    @classmethod
+    def from_result(cls, fit: Any) -> FitInfo:
+        """From an accellog.calibrate.fit.FitResult (or its orientation-free variant)."""
+        fd = fit.to_dict()
+        return cls(
+            method=fd.get("method"),
+            weighted=fd.get("weighted"),
+            chi2=fd.get("chi2"),
+            dof=fd.get("dof"),
+            chi2_dof=fd.get("chi2_dof"),
+            p_value=fd.get("p_value"),
+            rms_g=fd.get("rms_g"),
+            n_obs=fd.get("n_obs"),
+            uncertainty=fd.get("uncertainty"),
+            between_hold_g=None if fd.get("between_hold_g") is None else tuple(fd["between_hold_g"]),
+            warnings=tuple(fit.warnings),
+            sigma_scaled=tuple(float(x) for x in fit.sigma_scaled) if len(fit.sigma_scaled) else None,
+        )
+
+
+@dataclass(frozen=True)
+class SensorInfo(Section):
+    """Accelerometer set-up of the calibrated session (``SensorInfo.empty()`` for pose tables and
+    observation files)."""
+
+    NAME: ClassVar[str] = "sensor"
+
+    chip: str | None = _f("str")
+    """Chip name from the session metadata (e.g. 'MPU-9250')."""
+    accel_range_g: float | None = _f("num")
+    """Full-scale range (+- g); None when the source did not say."""
+    accel_lsb_per_g: float | None = _f("num")
+    """Sensitivity (LSB per g); None when the source gave values without counts."""
+
+    @classmethod
+    def from_meta(cls, meta: Any) -> SensorInfo:
+        """From a session's SessionMeta (chip, accel_range_g, accel_lsb_per_g)."""
+        return cls(chip=meta.chip, accel_range_g=meta.accel_range_g, accel_lsb_per_g=meta.accel_lsb_per_g)
+
+
+# ------------------------------------------------------------------------------ gyro section
+
+
+def gyro_from_dict(d: Any, where: str | None = None) -> GyroCalibration | None:
+    """The `gyro` section as a GyroCalibration (None when absent or empty); InputError naming the file."""
+    if not d:
+        return None
+    if not isinstance(d, Mapping):
+        raise InputError("calibration section 'gyro' is not an object", where=where)
+    try:
+        return GyroCalibration.from_dict(dict(d))
+    except InputError as exc:
+        raise InputError(str(exc), where=where) from None
+
+
+def gyro_to_dict(g: GyroCalibration | None, source: Mapping[str, Any] | None = None) -> dict | None:
+    """JSON form of the gyro section. `source` is the section as read: written back as it was when
+    `g` still equals it, else g.to_dict() followed by the source's keys it does not know."""
+    if g is None:
+        return None
+    d = g.to_dict()
+    if not source:
+        return d
+    if GyroCalibration.from_dict(dict(source)).to_dict() == d:
+        return copy.deepcopy(dict(source))
+    return {**d, **{k: copy.deepcopy(v) for k, v in source.items() if k not in d}}
