@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibrate.cal_sections import DetectedInterval, FitInfo, SensorInfo, TemperatureInfo
+from accellog.calibrate.cal_sections import DetectedInterval, DeviceInfo, FitInfo, SensorInfo, TemperatureInfo
 from accellog.calibrate.calibration import load_calibration
 from accellog.calibrate.gyro import GyroCalibration
 from accellog.cli import main
+from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
 from accellog.core.jsonio import dumps
 from accellog.flows.simulate import Scenario, simulate
@@ -50,6 +51,9 @@ def test_sections_read_as_attributes():
         raw["temperature"]["max_degC"],
     )
     assert lab.sensor == SensorInfo(chip="emulated MPU-9250", accel_range_g=2.0, accel_lsb_per_g=16384.0)
+    assert lab.device.id == "vm/emulator/0x68" and lab.device.key == DeviceKey(
+        who_am_i=0x71, i2c_bus="emulator", i2c_address=0x68, host="vm"
+    )
     g = lab.gyro
     assert g.effects == ["bias", "temp_bias", "scale", "cross_axis"] and g.n_holds == 6
     np.testing.assert_array_equal(g.matrix, raw["gyro"]["matrix"])
@@ -75,6 +79,7 @@ def _older(tmp_path) -> tuple[Path, dict]:
     d["fit"]["detected_intervals"][0]["quality"] = 0.93
     d["temperature"] = {"max_degC": 26, "t_ref_degC": 25, "chamber": "off"}
     d["sensor"] = {"board": "GY-9250"}
+    d["device"] = {}
     d["gyro"] = {"firmware": "1.2", **d["gyro"], "t_ref_degC": 25}
     p = tmp_path / "older.json"
     p.write_text(dumps(d) + "\n")
@@ -91,6 +96,7 @@ def test_older_files_and_unknown_keys_round_trip(tmp_path):
     assert cal.temperature.t_ref_degC == 25 and cal.temperature.mean_degC is None
     assert cal.temperature.extra == {"chamber": "off"} and cal.sensor.chip is None
     assert cal.sensor.extra == {"board": "GY-9250"} and cal.gyro.t_ref_degC == 25.0
+    assert cal.device == DeviceInfo.empty() and cal.device.key == DeviceKey()
     cal.save(tmp_path / "again.json")
     assert (tmp_path / "again.json").read_text() == p.read_text()
 
@@ -130,6 +136,7 @@ def test_noise_command_keeps_the_other_sections(tmp_path):
         ("fit", "warnings", "one", r"fit.warnings = 'one' is not a list of strings"),
         ("temperature", "t_ref_degC", [25], r"temperature.t_ref_degC = '\[25\]'"),
         ("sensor", "chip", 9250, r"sensor.chip = '9250' is not a string"),
+        ("device", "i2c_address", "0x68", r"device.i2c_address = '0x68' is not an integer"),
         ("gyro", "bias_dps", [1.0, 2.0], r"gyro calibration 'bias_dps' has shape \(2,\)"),
     ],
 )
@@ -163,6 +170,6 @@ def test_fresh_fit_writes_the_keys_main_wrote(tmp_path):
             return [shape(v) for v in x[:1]]
         return type(x).__name__
 
-    for sec in ("temperature", "fit", "sensor", "gyro"):
+    for sec in ("temperature", "fit", "sensor", "device", "gyro"):
         assert list(got[sec]) == list(ref[sec]) and shape(got[sec]) == shape(ref[sec]), sec
     assert list(got) == [k for k in ref if k != "noise"]

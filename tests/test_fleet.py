@@ -93,7 +93,7 @@ def test_table_columns_and_calibration_files(fleet):
     # held-out RMS is at its noise floor (the model explains the held-out windows)
     assert r["heldout_rms_g"] < 2.0 * r["heldout_noise_g"]
     cal = load_calibration(out / r["calibration"])
-    assert cal.device["serial"] == "IMU-0001" and cal.device["who_am_i"] == 0x71
+    assert cal.device.serial == "IMU-0001" and cal.device.who_am_i == 0x71
     np.testing.assert_allclose(cal.theta, r["values"])
     assert sum(1 for _ in (out / "cal").rglob("*.json")) == N_DEVICES * N_SESSIONS
 

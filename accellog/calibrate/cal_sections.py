@@ -1,4 +1,5 @@
-"""Typed sections of the calibration file: `temperature`, `fit`, `sensor` (and the `gyro` round trip).
+"""Typed sections of the calibration file: `temperature`, `fit`, `sensor`, `device` (and the `gyro`
+round trip).
 
 Each section is a frozen dataclass with units in its field names. The JSON form is an interface
 (accellog.calibrate.calibration), so a section read from a file and written again is the same
@@ -25,6 +26,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
 from accellog.calibrate.gyro import GyroCalibration
+from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
 
 
@@ -239,6 +241,33 @@ class SensorInfo(Section):
     def from_meta(cls, meta: Any) -> SensorInfo:
         """From a session's SessionMeta (chip, accel_range_g, accel_lsb_per_g)."""
         return cls(chip=meta.chip, accel_range_g=meta.accel_range_g, accel_lsb_per_g=meta.accel_lsb_per_g)
+
+
+@dataclass(frozen=True)
+class DeviceInfo(Section):
+    """Device key of the calibrated sensor as stored (accellog.core.device.DeviceKey.to_dict());
+    ``DeviceInfo.empty()`` = unknown (files written before device keys existed)."""
+
+    NAME: ClassVar[str] = "device"
+
+    id: str | None = _f("str")
+    """Fleet grouping name (DeviceKey.id: the serial, else 'host/bus/0xADDR')."""
+    who_am_i: int | None = _f("int")
+    ak8963_wia: int | None = _f("int")
+    serial: str | None = _f("str")
+    i2c_bus: str | None = _f("str")
+    i2c_address: int | None = _f("int")
+    host: str | None = _f("str")
+
+    @classmethod
+    def from_key(cls, key: DeviceKey) -> DeviceInfo:
+        """The section of a DeviceKey (its to_dict(): id, then the key's fields)."""
+        return cls.from_dict(key.to_dict())
+
+    @property
+    def key(self) -> DeviceKey:
+        """The DeviceKey (unknown facts empty; the stored id is derived, not read)."""
+        return DeviceKey.from_dict(self.to_dict())
 
 
 # ------------------------------------------------------------------------------ gyro section

@@ -36,7 +36,14 @@ from typing import Any
 
 import numpy as np
 
-from accellog.calibrate.cal_sections import FitInfo, SensorInfo, TemperatureInfo, gyro_from_dict, gyro_to_dict
+from accellog.calibrate.cal_sections import (
+    DeviceInfo,
+    FitInfo,
+    SensorInfo,
+    TemperatureInfo,
+    gyro_from_dict,
+    gyro_to_dict,
+)
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.gyro import GyroCalibration
 from accellog.calibrate.model import model_from_spec
@@ -141,8 +148,8 @@ class Calibration(JsonResult):
     software: str = f"accellog {__version__}"
     created_utc: str = ""
     drift: DriftModel | None = None
-    device: dict = field(default_factory=dict)
-    """Device key of the calibrated sensor (accellog.core.device.DeviceKey.to_dict()); {} = unknown."""
+    device: DeviceInfo = field(default_factory=DeviceInfo.empty)
+    """Device key of the calibrated sensor (DeviceInfo.key); empty = unknown."""
     gyro: GyroCalibration | None = None
     """Gyro calibration, when the session allowed it."""
     noise: dict | None = None
@@ -155,7 +162,12 @@ class Calibration(JsonResult):
 
     def __post_init__(self) -> None:
         # sections given as their JSON dicts (older callers) become the typed sections
-        for name, cls in (("temperature", TemperatureInfo), ("fit", FitInfo), ("sensor", SensorInfo)):
+        for name, cls in (
+            ("temperature", TemperatureInfo),
+            ("fit", FitInfo),
+            ("sensor", SensorInfo),
+            ("device", DeviceInfo),
+        ):
             if isinstance(getattr(self, name), Mapping):
                 setattr(self, name, cls.from_dict(getattr(self, name)))
         if isinstance(self.gyro, Mapping):
@@ -186,7 +198,7 @@ class Calibration(JsonResult):
     def device_conflicts(self, key: DeviceKey) -> list[str]:
         """How `key` (a session's device) differs from the calibrated device; [] when they match
         or either is unknown (see DeviceKey.conflicts)."""
-        return DeviceKey.from_dict(self.device).conflicts(key)
+        return self.device.key.conflicts(key)
 
     def S_b(self) -> tuple[np.ndarray, np.ndarray]:
         """Linear part at reference conditions: S (3,3), b (3,) g."""
@@ -282,7 +294,7 @@ class Calibration(JsonResult):
             "temperature": self.temperature.to_dict(),
             "fit": self.fit.to_dict(),
             "sensor": self.sensor.to_dict(),
-            "device": dict(self.device),
+            "device": self.device.to_dict(),
             "sources": list(self.sources),
             "drift": self.drift.to_dict() if self.drift is not None else None,
             "gyro": gyro_to_dict(self.gyro, self.gyro_source),
@@ -383,7 +395,7 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         fit=FitInfo.from_dict(d.get("fit"), where),
         sources=list(d.get("sources") or []),
         sensor=SensorInfo.from_dict(d.get("sensor"), where),
-        device=dict(d.get("device") or {}),
+        device=DeviceInfo.from_dict(d.get("device"), where),
         software=str(d.get("software", "")),
         created_utc=str(d.get("created_utc", "")),
         drift=DriftModel.from_dict(d["drift"], where=where) if d.get("drift") else None,

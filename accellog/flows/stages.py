@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from accellog.calibrate.cal_sections import DetectedInterval, SensorInfo
+from accellog.calibrate.cal_sections import DetectedInterval, DeviceInfo, SensorInfo
 from accellog.calibrate.calibration import Calibration, load_calibration, read_json, source_entry
 from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
@@ -268,7 +268,7 @@ def run_fit(
         sensor=sensor,
     )
     if isinstance(data, (Session, StreamedSession)):
-        cal.device = data.meta.device.to_dict()
+        cal.device = DeviceInfo.from_key(data.meta.device)
     if detected:  # hand-held: the static intervals the fit used go into the calibration file
         t = data.t_s
         intervals = tuple(
@@ -417,7 +417,7 @@ def check_device(session: Session, cal: Calibration, other_device: str = "refuse
     diff = cal.device_conflicts(session.meta.device)
     if not diff:
         return ""
-    cal_id = cal.device.get("id") or "?"
+    cal_id = cal.device.id or "?"
     msg = f"calibration is for device {cal_id}, session is from {session.meta.device.id} ({'; '.join(diff)})"
     if other_device == "refuse":
         raise InputError(msg + ": use --other-device warn to apply it anyway", where=where)
