@@ -17,6 +17,7 @@ import pytest
 from accellog.calibrate.cal_sections import DetectedInterval, DeviceInfo, FitInfo, SensorInfo, TemperatureInfo
 from accellog.calibrate.calibration import load_calibration
 from accellog.calibrate.gyro import GyroCalibration
+from accellog.calibrate.magnetometer import MagCalibration
 from accellog.cli import main
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
@@ -64,8 +65,16 @@ def test_sections_read_as_attributes():
         json.loads((FIXTURES / "handheld.json").read_text())["fit"]["detected_intervals"][0]["up_sensor"]
     )
     assert hand.temperature.range_degC is not None and np.isnan(hand.gyro.temp_bias_sigma_dps_per_degC).all()
-    table = load_calibration(FIXTURES / "posetable.json")
+    table = load_calibration(FIXTURES / "posetable_mag.json")
     assert table.sensor == SensorInfo.empty() and table.sensor.to_dict() == {} and table.gyro is None
+    mag = table.magnetometer
+    assert (
+        isinstance(mag, MagCalibration)
+        and mag.form == "sym"
+        and [t.driver for t in mag.trends] == ["time", "temperature", "rotation rate"]
+    )
+    raw_mag = json.loads((FIXTURES / "posetable_mag.json").read_text())["magnetometer"]
+    assert json.loads(dumps(mag.to_dict())) == raw_mag
 
 
 def _older(tmp_path) -> tuple[Path, dict]:

@@ -11,9 +11,10 @@ import pytest
 from rrd_readback import load_rrd
 
 from accellog.calibrate.calibration import load_calibration
-from accellog.calibrate.magnetometer import MagCalibration, fit_magnetometer
+from accellog.calibrate.magnetometer import fit_magnetometer
 from accellog.cli import main
 from accellog.core.errors import InputError, ModelError
+from accellog.core.jsonio import dumps
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import run_apply
 from accellog.store.reader import read_session, read_vector3
@@ -56,7 +57,10 @@ def test_hard_and_soft_iron_recovered_within_uncertainties(rotation, capsys):
     assert not any(t["flagged"] for t in r["trends"])
     # the calibration file carries it; the rrd shows corrected samples on the sphere of radius F
     c = load_calibration(d / "calm.json")
-    assert c.magnetometer["form"] == "sym"
+    assert c.magnetometer.form == "sym" and len(c.magnetometer.trends) == len(r["trends"]) > 0
+    assert json.loads(dumps([t.to_dict() for t in c.magnetometer.trends])) == r["trends"]
+    c.save(d / "calm_again.json")  # read and written again: the same file
+    assert (d / "calm_again.json").read_bytes() == (d / "calm.json").read_bytes()
     rrd = load_rrd(d / "mag.rrd")
     pts = np.asarray(rrd.static("/mag/corrected", "Points3D:positions"), float).reshape(-1, 3)
     raw = np.asarray(rrd.static("/mag/raw", "Points3D:positions"), float).reshape(-1, 3)
@@ -69,7 +73,7 @@ def test_apply_corrects_the_magnetometer(rotation):
     out = run_apply(d / "rot.mcap", d / "calm.json", d / "applied.mcap")
     s = read_session(d / "rot.mcap")
     t, v, unit, frame = read_vector3(out, "mag_calibrated")
-    mc = MagCalibration.from_dict(load_calibration(d / "calm.json").magnetometer)
+    mc = load_calibration(d / "calm.json").magnetometer
     assert unit == "uT" and frame == "AK8963"
     np.testing.assert_allclose(t, s.mag_t_s, atol=1e-9)
     np.testing.assert_allclose(v, mc.correct(s.mag_uT), rtol=1e-12)

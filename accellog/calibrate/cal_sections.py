@@ -1,5 +1,5 @@
-"""Typed sections of the calibration file: `temperature`, `fit`, `sensor`, `device` (and the `gyro`
-round trip).
+"""Typed sections of the calibration file: `temperature`, `fit`, `sensor`, `device` (and the round
+trip of `gyro` and `magnetometer`).
 
 Each section is a frozen dataclass with units in its field names. The JSON form is an interface
 (accellog.calibrate.calibration), so a section read from a file and written again is the same
@@ -13,21 +13,23 @@ text, byte for byte:
 - keys this version does not know are kept in ``extra`` and written back unchanged;
 - values keep their JSON type (an int stays an int), lists become tuples in the typed form.
 
-The gyro section is accellog.calibrate.gyro.GyroCalibration; ``gyro_from_dict`` / ``gyro_to_dict``
-give it the same round trip (the section as read is written back when the calibration is
-unchanged; unknown keys are kept otherwise).
+The gyro section is accellog.calibrate.gyro.GyroCalibration, the magnetometer section
+accellog.calibrate.magnetometer.MagCalibration; ``object_section`` gives them the same round trip
+(the section as read is written back while the object is unchanged; unknown keys are kept otherwise).
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
 from accellog.calibrate.gyro import GyroCalibration
+from accellog.calibrate.magnetometer import MagCalibration
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
+from accellog.core.jsonio import dumps
 
 
 def _f(kind: str, *, optional: bool = False) -> Any:
@@ -270,7 +272,7 @@ class DeviceInfo(Section):
         return DeviceKey.from_dict(self.to_dict())
 
 
-# ------------------------------------------------------------------------------ gyro section
+# ------------------------------------------------------------------------------ gyro and magnetometer
 
 
 def gyro_from_dict(d: Any, where: str | None = None) -> GyroCalibration | None:
@@ -285,14 +287,22 @@ def gyro_from_dict(d: Any, where: str | None = None) -> GyroCalibration | None:
         raise InputError(str(exc), where=where) from None
 
 
-def gyro_to_dict(g: GyroCalibration | None, source: Mapping[str, Any] | None = None) -> dict | None:
-    """JSON form of the gyro section. `source` is the section as read: written back as it was when
-    `g` still equals it, else g.to_dict() followed by the source's keys it does not know."""
-    if g is None:
+def mag_from_dict(d: Any, where: str | None = None) -> MagCalibration | None:
+    """The `magnetometer` section as a MagCalibration (None when absent); InputError naming the file."""
+    return None if d is None else MagCalibration.from_dict(d, where)
+
+
+def object_section(obj: Any, source: Mapping[str, Any] | None, reread: Callable[[dict], Any]) -> dict | None:
+    """JSON form of a section held as an object with to_dict() (GyroCalibration, MagCalibration).
+
+    `source` is the section as read and `reread` its parser: while `obj` still equals what was read
+    (same strict JSON), the source is written back as it was (key order, ints, keys this version
+    does not know); else obj.to_dict() followed by the source's keys it does not know."""
+    if obj is None:
         return None
-    d = g.to_dict()
+    d = obj.to_dict()
     if not source:
         return d
-    if GyroCalibration.from_dict(dict(source)).to_dict() == d:
+    if dumps(reread(dict(source)).to_dict()) == dumps(d):
         return copy.deepcopy(dict(source))
     return {**d, **{k: copy.deepcopy(v) for k, v in source.items() if k not in d}}

@@ -42,10 +42,12 @@ from accellog.calibrate.cal_sections import (
     SensorInfo,
     TemperatureInfo,
     gyro_from_dict,
-    gyro_to_dict,
+    mag_from_dict,
+    object_section,
 )
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.gyro import GyroCalibration
+from accellog.calibrate.magnetometer import MagCalibration
 from accellog.calibrate.model import model_from_spec
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError, ModelError
@@ -154,11 +156,13 @@ class Calibration(JsonResult):
     """Gyro calibration, when the session allowed it."""
     noise: dict | None = None
     """Noise terms (accellog.calibrate.noise_model.calibration_section), when `accellog noise` added them."""
-    magnetometer: dict | None = None
-    """Magnetometer hard/soft iron (accellog.calibrate.magnetometer.MagCalibration.to_dict())."""
+    magnetometer: MagCalibration | None = None
+    """Magnetometer hard/soft iron, when `accellog magcal --cal` added them."""
     path: str | None = None
     gyro_source: dict | None = field(default=None, repr=False, compare=False)
     """The `gyro` section as read from the file (written back unchanged while `gyro` equals it)."""
+    magnetometer_source: dict | None = field(default=None, repr=False, compare=False)
+    """The `magnetometer` section as read (as gyro_source)."""
 
     def __post_init__(self) -> None:
         # sections given as their JSON dicts (older callers) become the typed sections
@@ -172,6 +176,9 @@ class Calibration(JsonResult):
                 setattr(self, name, cls.from_dict(getattr(self, name)))
         if isinstance(self.gyro, Mapping):
             self.gyro, self.gyro_source = gyro_from_dict(self.gyro), dict(self.gyro)
+        if isinstance(self.magnetometer, Mapping):
+            self.magnetometer_source = dict(self.magnetometer)
+            self.magnetometer = mag_from_dict(self.magnetometer)
 
     # ------------------------------------------------------------------ derived
     @property
@@ -297,10 +304,13 @@ class Calibration(JsonResult):
             "device": self.device.to_dict(),
             "sources": list(self.sources),
             "drift": self.drift.to_dict() if self.drift is not None else None,
-            "gyro": gyro_to_dict(self.gyro, self.gyro_source),
+            "gyro": object_section(self.gyro, self.gyro_source, GyroCalibration.from_dict),
             **({"noise": self.noise} if self.noise is not None else {}),
-            **({"magnetometer": self.magnetometer} if self.magnetometer is not None else {}),
+            **({"magnetometer": self._magnetometer_dict()} if self.magnetometer is not None else {}),
         }
+
+    def _magnetometer_dict(self) -> dict | None:
+        return object_section(self.magnetometer, self.magnetometer_source, MagCalibration.from_dict)
 
     def save(self, path: str | os.PathLike, *, inputs: tuple = ()) -> None:
         """Write the JSON file atomically (accellog.store.atomic); refused when `path` is one of the
@@ -402,7 +412,8 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         gyro=gyro_from_dict(d.get("gyro"), where),
         gyro_source=d.get("gyro") or None,
         noise=_optional_section(d, "noise", where),
-        magnetometer=_optional_section(d, "magnetometer", where),
+        magnetometer=mag_from_dict(d.get("magnetometer"), where),
+        magnetometer_source=d.get("magnetometer"),
     )
     try:
         model = cal.model
@@ -416,14 +427,12 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
 
 
 def _optional_section(d: dict, name: str, where: str | None) -> dict | None:
-    """The optional 'noise' / 'magnetometer' section, validated by its own module (None when absent)."""
+    """The optional 'noise' section, validated by its own module (None when absent)."""
     sec = d.get(name)
     if sec is None:
         return None
-    if name == "noise":
-        from accellog.calibrate.noise_model import check_section
-    else:
-        from accellog.calibrate.magnetometer import check_section
+    from accellog.calibrate.noise_model import check_section
+
     return check_section(sec, where)
 
 

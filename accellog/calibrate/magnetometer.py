@@ -62,6 +62,24 @@ class DriverTrend:
             "flagged": self.flagged,
         }
 
+    @classmethod
+    def from_dict(cls, d: dict) -> DriverTrend:
+        """Inverse of to_dict (null -> NaN)."""
+
+        def num(v: object) -> float:
+            return math.nan if v is None else float(v)
+
+        return cls(
+            driver=str(d["driver"]),
+            unit=str(d.get("unit", "")),
+            slope=num(d.get("slope")),
+            slope_sigma=num(d.get("slope_sigma")),
+            shift=np.array([num(v) for v in d.get("shift") or [None] * 3]),
+            shift_sigma=np.array([num(v) for v in d.get("shift_sigma") or [None] * 3]),
+            chi2=num(d.get("chi2")),
+            flagged=bool(d.get("flagged", False)),
+        )
+
 
 @dataclass
 class MagCalibration:
@@ -127,9 +145,18 @@ class MagCalibration:
             noise_uT=float(d.get("noise_uT") or math.nan),
             n_samples=int(d.get("n_samples", 0)),
             expected_field_uT=d.get("expected_field_uT"),
+            trends=_trends(d.get("trends"), where),
             notes=list(d.get("notes", [])),
             version=int(d["version"]),
         )
+
+
+def _trends(v, where: str | None) -> list[DriverTrend]:
+    """The stored residual trends (none in files of older versions); InputError when malformed."""
+    try:
+        return [DriverTrend.from_dict(t) for t in v or []]
+    except (KeyError, TypeError, ValueError, AttributeError):
+        raise InputError("calibration 'magnetometer' has a malformed trends entry", where=where) from None
 
 
 def check_section(d, where: str | None = None) -> dict:

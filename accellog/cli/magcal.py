@@ -49,7 +49,7 @@ def magcal_cmd(
         from accellog.calibrate.calibration import load_calibration
 
         k = load_calibration(cal)
-        k.magnetometer = c.to_dict()
+        k.magnetometer = c
         k.save(out)
     if rrd is not None:
         from accellog.present.mag_views import log_magcal

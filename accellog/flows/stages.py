@@ -28,6 +28,7 @@ from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.fit import fit_model, fit_orientation_free
 from accellog.calibrate.gyro import GyroCalibration, calibrate_gyro
 from accellog.calibrate.label_check import check_timestamps, relabel_holds
+from accellog.calibrate.magnetometer import MagCalibration
 from accellog.calibrate.model import build_model
 from accellog.calibrate.obs_file import OBS_FORMAT, obs_from_dict
 from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations
@@ -392,12 +393,10 @@ def run_drift(
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
 
 
-def _write_mag_calibrated(w, s: Session, section: dict) -> None:
+def _write_mag_calibrated(w, s: Session, mc: MagCalibration) -> None:
     """/derived/mag_calibrated: A (m - h) in uT, AK8963 axes (accellog.calibrate.magnetometer)."""
-    from accellog.calibrate.magnetometer import MagCalibration
     from accellog.store.layout import NS_PER_S
 
-    mc = MagCalibration.from_dict(section)
     t_ns = np.round(s.mag_t_s * NS_PER_S).astype(np.int64)
     w.write_vector3("mag_calibrated", t_ns, mc.correct(s.mag_uT), "uT", frame="AK8963")
 
