@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import allantools
 import numpy as np
@@ -23,6 +24,7 @@ from accellog.calibrate.allan import AllanAccumulator, edf_simple, oadev
 from accellog.calibrate.calibration import load_calibration
 from accellog.calibrate.noise import integrated_autocorr_time
 from accellog.calibrate.noise_model import fit_axis
+from accellog.calibrate.noise_section import AxisNoiseTerms, NoiseSection, NoiseTerm, SensorNoiseTerms
 from accellog.cli import main
 from accellog.flows.characterise import characterise_noise, tau_min_samples
 from accellog.flows.simulate import Scenario, simulate
@@ -185,11 +187,9 @@ def test_noise_cli_json_rrd_and_calibration_section(static_mcap, tmp_path, capsy
     )
     assert cal_in.read_bytes() == before
     c = load_calibration(tmp_path / "cal_noise.json")
-    assert c.noise["version"] == 1
-    assert c.noise["kalibr"]["gyroscope_noise_density"] == pytest.approx(
-        d["kalibr"]["gyroscope_noise_density"]
-    )
-    assert c.noise["gyro"]["units"]["white"] == "rad/s/sqrt(Hz)"
+    assert c.noise.version == 1
+    assert c.noise.kalibr["gyroscope_noise_density"] == pytest.approx(d["kalibr"]["gyroscope_noise_density"])
+    assert c.noise.gyro.units["white"] == "rad/s/sqrt(Hz)"
 
 
 def test_noise_of_the_real_capstone_static_recording(shared_data):
@@ -247,8 +247,9 @@ def test_evaluate_uses_the_calibration_noise_floor(static_mcap, tmp_path):
     s = read_session(static_mcap)
     plain = evaluate(s, load_calibration(tmp_path / "cal.json"))
     c = load_calibration(tmp_path / "n.json")
-    for ax in "xyz":  # a floor far above the data's own sem
-        c.noise["accel"]["axes"][ax]["white"]["value"] *= 1e3
+    acc = c.noise.accel  # a floor far above the data's own sem
+    axes = {ax: replace(t, white=replace(t.white, value=t.white.value * 1e3)) for ax, t in acc.axes.items()}
+    c.noise = replace(c.noise, accel=replace(acc, axes=axes))
     floored = evaluate(s, c)
     assert floored.chi2_noise < 1e-3 * plain.chi2_noise
     assert any("noise floor" in n for n in floored.notes)
@@ -270,7 +271,8 @@ def test_obs_sigma_floored_by_the_noise_section():
         n_samples=np.array([100, 400, 1600, 6400]),
         std_g=np.zeros((n, 3)),
     )
-    section = {"rate_hz": 100.0, "accel": {"axes": {a: {"white": {"value": G0 * 2e-4}} for a in "xyz"}}}
+    white = AxisNoiseTerms(white=NoiseTerm(value=G0 * 2e-4))
+    section = NoiseSection(rate_hz=100.0, accel=SensorNoiseTerms(axes=dict.fromkeys("xyz", white)))
     out = floor_obs_sigma(obs, section)
     np.testing.assert_allclose(out.sigma_g[:, 0], 2e-4 / np.sqrt([1.0, 4.0, 16.0, 64.0]))
     assert obs.sigma_g[0, 0] == 1e-6  # the input is not altered

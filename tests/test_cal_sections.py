@@ -18,6 +18,7 @@ from accellog.calibrate.cal_sections import DetectedInterval, DeviceInfo, FitInf
 from accellog.calibrate.calibration import load_calibration
 from accellog.calibrate.gyro import GyroCalibration
 from accellog.calibrate.magnetometer import MagCalibration
+from accellog.calibrate.noise_section import NoiseSection
 from accellog.cli import main
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
@@ -55,6 +56,11 @@ def test_sections_read_as_attributes():
     assert lab.device.id == "vm/emulator/0x68" and lab.device.key == DeviceKey(
         who_am_i=0x71, i2c_bus="emulator", i2c_address=0x68, host="vm"
     )
+    n = lab.noise
+    assert isinstance(n, NoiseSection) and n.version == 1 and n.rate_hz == raw["noise"]["rate_hz"]
+    assert n.gyro.units["white"] == "rad/s/sqrt(Hz)" and n.kalibr == raw["noise"]["kalibr"]
+    white = [raw["noise"]["accel"]["axes"][a]["white"]["value"] for a in "xyz"]
+    np.testing.assert_array_equal(n.white_noise("accel"), white)
     g = lab.gyro
     assert g.effects == ["bias", "temp_bias", "scale", "cross_axis"] and g.n_holds == 6
     np.testing.assert_array_equal(g.matrix, raw["gyro"]["matrix"])
@@ -147,6 +153,13 @@ def test_noise_command_keeps_the_other_sections(tmp_path):
         ("sensor", "chip", 9250, r"sensor.chip = '9250' is not a string"),
         ("device", "i2c_address", "0x68", r"device.i2c_address = '0x68' is not an integer"),
         ("gyro", "bias_dps", [1.0, 2.0], r"gyro calibration 'bias_dps' has shape \(2,\)"),
+        (
+            "noise",
+            "kalibr",
+            {"accelerometer_noise_density": "low"},
+            r"noise.kalibr = .* is not an object of numbers",
+        ),
+        ("noise", "version", 2, r"calibration 'noise' section version 2 is newer than this accellog"),
     ],
 )
 def test_malformed_section_is_one_line_naming_the_file(tmp_path, section, key, value, message):

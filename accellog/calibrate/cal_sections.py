@@ -32,8 +32,10 @@ from accellog.core.errors import InputError
 from accellog.core.jsonio import dumps
 
 
-def _f(kind: str, *, optional: bool = False) -> Any:
-    """A typed section field of JSON `kind` (num, int, bool, str, nums, strs, or a Section class)."""
+def json_field(kind: Any, *, optional: bool = False) -> Any:
+    """A typed section field of JSON `kind`: 'num', 'int', 'bool', 'str', 'nums', 'strs' (lists),
+    'nummap', 'strmap' (objects of numbers / strings), a Section class (a nested object), or
+    ('list', Section class) / ('map', Section class) (a list / an object of them)."""
     return field(default=None, metadata={"kind": kind, "optional": optional})
 
 
@@ -41,13 +43,21 @@ def _is_num(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-_WORDS = {
-    "num": "a number",
-    "int": "an integer",
-    "bool": "true or false",
-    "str": "a string",
-    "nums": "a list of numbers",
-    "strs": "a list of strings",
+_CHECKS = {
+    "num": ("a number", _is_num),
+    "int": ("an integer", lambda x: _is_num(x) and float(x).is_integer()),
+    "bool": ("true or false", lambda x: isinstance(x, bool)),
+    "str": ("a string", lambda x: isinstance(x, str)),
+    "nums": ("a list of numbers", lambda x: isinstance(x, list) and all(e is None or _is_num(e) for e in x)),
+    "strs": ("a list of strings", lambda x: isinstance(x, list) and all(isinstance(e, str) for e in x)),
+    "nummap": (
+        "an object of numbers",
+        lambda x: isinstance(x, dict) and all(e is None or _is_num(e) for e in x.values()),
+    ),
+    "strmap": (
+        "an object of strings",
+        lambda x: isinstance(x, dict) and all(isinstance(e, str) for e in x.values()),
+    ),
 }
 
 
@@ -55,35 +65,39 @@ def _read(kind: Any, v: Any, name: str, where: str | None) -> Any:
     """The typed value of JSON value `v` (None stays None); InputError naming `name` when malformed."""
     if v is None:
         return None
-    ok = {
-        "num": _is_num,
-        "int": lambda x: _is_num(x) and float(x).is_integer(),
-        "bool": lambda x: isinstance(x, bool),
-        "str": lambda x: isinstance(x, str),
-        "nums": lambda x: isinstance(x, list) and all(e is None or _is_num(e) for e in x),
-        "strs": lambda x: isinstance(x, list) and all(isinstance(e, str) for e in x),
-    }
-    if isinstance(kind, type) and issubclass(kind, Section):
-        if not isinstance(v, list):
-            raise InputError(f"calibration field {name} is {type(v).__name__}, expected a list", where=where)
-        return tuple(kind.from_dict(e, where, name=f"{name}[{i}]") for i, e in enumerate(v))
-    if not ok[kind](v):
-        raise InputError(f"calibration field {name} = {str(v)[:40]!r} is not {_WORDS[kind]}", where=where)
-    return tuple(v) if isinstance(v, list) else v
+    if isinstance(kind, type):  # a nested section
+        return kind.from_dict(v, where, name=name)
+    if isinstance(kind, tuple):
+        form, cls = kind
+        if form == "list":
+            if not isinstance(v, list):
+                raise InputError(f"calibration field {name} is not a list", where=where)
+            return tuple(cls.from_dict(e, where, name=f"{name}[{i}]") for i, e in enumerate(v))
+        if not isinstance(v, dict):
+            raise InputError(f"calibration field {name} is not an object", where=where)
+        return {k: cls.from_dict(e, where, name=f"{name}.{k}") for k, e in v.items()}
+    what, ok = _CHECKS[kind]
+    if not ok(v):
+        raise InputError(f"calibration field {name} = {str(v)[:40]!r} is not {what}", where=where)
+    if isinstance(v, list):
+        return tuple(v)
+    return dict(v) if isinstance(v, dict) else v
 
 
 def _write(v: Any) -> Any:
-    """JSON form of a typed value (tuples -> lists, sections -> dicts)."""
+    """JSON form of a typed value (sections -> objects, tuples -> lists)."""
     if isinstance(v, Section):
         return v.to_dict()
     if isinstance(v, tuple):
         return [_write(e) for e in v]
+    if isinstance(v, Mapping):
+        return {k: _write(e) for k, e in v.items()}
     return v
 
 
 @dataclass(frozen=True)
 class Section:
-    """Base of a typed section: fields declared with `_f`, unknown keys and key order kept."""
+    """Base of a typed section: fields declared with `json_field`, unknown keys and key order kept."""
 
     NAME: ClassVar[str] = "section"
 
@@ -147,12 +161,12 @@ class TemperatureInfo(Section):
 
     NAME: ClassVar[str] = "temperature"
 
-    t_ref_degC: float | None = _f("num")
+    t_ref_degC: float | None = json_field("num")
     """Reference temperature T_ref of the model's temperature terms (degC)."""
-    mean_degC: float | None = _f("num", optional=True)
+    mean_degC: float | None = json_field("num", optional=True)
     """Mean temperature of the fitted observations (degC)."""
-    min_degC: float | None = _f("num", optional=True)
-    max_degC: float | None = _f("num", optional=True)
+    min_degC: float | None = json_field("num", optional=True)
+    max_degC: float | None = json_field("num", optional=True)
 
     @property
     def range_degC(self) -> tuple[float, float] | None:
@@ -168,11 +182,11 @@ class DetectedInterval(Section):
 
     NAME: ClassVar[str] = "interval"
 
-    start_s: float | None = _f("num")
-    end_s: float | None = _f("num")
-    n: int | None = _f("int")
+    start_s: float | None = json_field("num")
+    end_s: float | None = json_field("num")
+    n: int | None = json_field("int")
     """Number of samples in [start_s, end_s)."""
-    up_sensor: tuple[float, ...] | None = _f("nums")
+    up_sensor: tuple[float, ...] | None = json_field("nums")
     """Unit vector of gravity 'up' in the sensor frame during the interval."""
 
 
@@ -187,22 +201,24 @@ class FitInfo(Section):
 
     NAME: ClassVar[str] = "fit"
 
-    method: str | None = _f("str")
+    method: str | None = json_field("str")
     """'labelled' (known poses) or 'orientation_free' (|f| = truth_g)."""
-    weighted: bool | None = _f("bool")
-    chi2: float | None = _f("num")
-    dof: int | None = _f("int")
-    chi2_dof: float | None = _f("num")
-    p_value: float | None = _f("num")
-    rms_g: float | None = _f("num")
-    n_obs: int | None = _f("int")
-    uncertainty: str | None = _f("str")
+    weighted: bool | None = json_field("bool")
+    chi2: float | None = json_field("num")
+    dof: int | None = json_field("int")
+    chi2_dof: float | None = json_field("num")
+    p_value: float | None = json_field("num")
+    rms_g: float | None = json_field("num")
+    n_obs: int | None = json_field("int")
+    uncertainty: str | None = json_field("str")
     """Uncertainty method: 'noise', 'between_hold' or 'jackknife' (accellog.calibrate.variance)."""
-    between_hold_g: tuple[float, ...] | None = _f("nums")
+    between_hold_g: tuple[float, ...] | None = json_field("nums")
     """Between-hold scatter [tau_along, tau_across] (g) of the 'between_hold' method."""
-    warnings: tuple[str, ...] | None = _f("strs")
-    sigma_scaled: tuple[float | None, ...] | None = _f("nums")
-    detected_intervals: tuple[DetectedInterval, ...] | None = _f(DetectedInterval, optional=True)
+    warnings: tuple[str, ...] | None = json_field("strs")
+    sigma_scaled: tuple[float | None, ...] | None = json_field("nums")
+    detected_intervals: tuple[DetectedInterval, ...] | None = json_field(
+        ("list", DetectedInterval), optional=True
+    )
     """Static intervals detected in an unlabelled session (hand-held fits), None otherwise."""
 
     @classmethod
@@ -232,11 +248,11 @@ class SensorInfo(Section):
 
     NAME: ClassVar[str] = "sensor"
 
-    chip: str | None = _f("str")
+    chip: str | None = json_field("str")
     """Chip name from the session metadata (e.g. 'MPU-9250')."""
-    accel_range_g: float | None = _f("num")
+    accel_range_g: float | None = json_field("num")
     """Full-scale range (+- g); None when the source did not say."""
-    accel_lsb_per_g: float | None = _f("num")
+    accel_lsb_per_g: float | None = json_field("num")
     """Sensitivity (LSB per g); None when the source gave values without counts."""
 
     @classmethod
@@ -252,14 +268,14 @@ class DeviceInfo(Section):
 
     NAME: ClassVar[str] = "device"
 
-    id: str | None = _f("str")
+    id: str | None = json_field("str")
     """Fleet grouping name (DeviceKey.id: the serial, else 'host/bus/0xADDR')."""
-    who_am_i: int | None = _f("int")
-    ak8963_wia: int | None = _f("int")
-    serial: str | None = _f("str")
-    i2c_bus: str | None = _f("str")
-    i2c_address: int | None = _f("int")
-    host: str | None = _f("str")
+    who_am_i: int | None = json_field("int")
+    ak8963_wia: int | None = json_field("int")
+    serial: str | None = json_field("str")
+    i2c_bus: str | None = json_field("str")
+    i2c_address: int | None = json_field("int")
+    host: str | None = json_field("str")
 
     @classmethod
     def from_key(cls, key: DeviceKey) -> DeviceInfo:

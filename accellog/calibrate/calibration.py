@@ -49,6 +49,7 @@ from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.gyro import GyroCalibration
 from accellog.calibrate.magnetometer import MagCalibration
 from accellog.calibrate.model import model_from_spec
+from accellog.calibrate.noise_section import NoiseSection
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult, dumps
@@ -154,8 +155,8 @@ class Calibration(JsonResult):
     """Device key of the calibrated sensor (DeviceInfo.key); empty = unknown."""
     gyro: GyroCalibration | None = None
     """Gyro calibration, when the session allowed it."""
-    noise: dict | None = None
-    """Noise terms (accellog.calibrate.noise_model.calibration_section), when `accellog noise` added them."""
+    noise: NoiseSection | None = None
+    """Noise terms (accellog.calibrate.noise_section), when `accellog noise --cal` added them."""
     magnetometer: MagCalibration | None = None
     """Magnetometer hard/soft iron, when `accellog magcal --cal` added them."""
     path: str | None = None
@@ -176,6 +177,8 @@ class Calibration(JsonResult):
                 setattr(self, name, cls.from_dict(getattr(self, name)))
         if isinstance(self.gyro, Mapping):
             self.gyro, self.gyro_source = gyro_from_dict(self.gyro), dict(self.gyro)
+        if isinstance(self.noise, Mapping):
+            self.noise = NoiseSection.from_dict(self.noise)
         if isinstance(self.magnetometer, Mapping):
             self.magnetometer_source = dict(self.magnetometer)
             self.magnetometer = mag_from_dict(self.magnetometer)
@@ -305,7 +308,7 @@ class Calibration(JsonResult):
             "sources": list(self.sources),
             "drift": self.drift.to_dict() if self.drift is not None else None,
             "gyro": object_section(self.gyro, self.gyro_source, GyroCalibration.from_dict),
-            **({"noise": self.noise} if self.noise is not None else {}),
+            **({"noise": self.noise.to_dict()} if self.noise is not None else {}),
             **({"magnetometer": self._magnetometer_dict()} if self.magnetometer is not None else {}),
         }
 
@@ -411,7 +414,7 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         drift=DriftModel.from_dict(d["drift"], where=where) if d.get("drift") else None,
         gyro=gyro_from_dict(d.get("gyro"), where),
         gyro_source=d.get("gyro") or None,
-        noise=_optional_section(d, "noise", where),
+        noise=None if d.get("noise") is None else NoiseSection.from_dict(d["noise"], where),
         magnetometer=mag_from_dict(d.get("magnetometer"), where),
         magnetometer_source=d.get("magnetometer"),
     )
@@ -424,16 +427,6 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
             f"parameter names {names} do not match model {model.name!r} ({model.param_names})", where=where
         )
     return cal
-
-
-def _optional_section(d: dict, name: str, where: str | None) -> dict | None:
-    """The optional 'noise' section, validated by its own module (None when absent)."""
-    sec = d.get(name)
-    if sec is None:
-        return None
-    from accellog.calibrate.noise_model import check_section
-
-    return check_section(sec, where)
 
 
 # Physical plausibility of a stored calibration of a MEMS accelerometer (datasheet: bias within

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from accellog.calibrate.noise_model import NoiseModel
+from accellog.calibrate.noise_section import NoiseSection
 from accellog.core.errors import InputError
 
 
@@ -42,15 +43,13 @@ class NoiseCharacterisation:
         return cls._from_values(k, bound, m.rate_hz, m.duration_s, m.source)
 
     @classmethod
-    def from_section(cls, d: dict) -> NoiseCharacterisation:
+    def from_section(cls, d: NoiseSection) -> NoiseCharacterisation:
         """From the 'noise' section of a calibration file (written by `accellog noise --cal`)."""
-        k = d.get("kalibr") or {}
+        k = dict(d.kalibr or {})
         if "accelerometer_noise_density" not in k:
             raise InputError("the calibration's noise section has no Kalibr values: rerun `accellog noise`")
-        bound = bool(d.get("kalibr_random_walk_is_bound", True))
-        return cls._from_values(
-            k, bound, float(d["rate_hz"]), float(d["duration_s"]), str(d.get("source", ""))
-        )
+        bound = True if d.kalibr_random_walk_is_bound is None else d.kalibr_random_walk_is_bound
+        return cls._from_values(k, bound, float(d.rate_hz), float(d.duration_s), d.source or "")
 
     @classmethod
     def _from_values(cls, k: dict, bound: bool, rate_hz: float, duration_s: float, source: str):

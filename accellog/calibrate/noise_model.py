@@ -35,6 +35,13 @@ from accellog.calibrate.allan import (
     AllanCurve,
     edf_simple,
 )
+from accellog.calibrate.noise_section import (
+    NOISE_SECTION_VERSION,
+    AxisNoiseTerms,
+    NoiseSection,
+    NoiseTerm,
+    SensorNoiseTerms,
+)
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 BI_FACTOR = 2.0 * math.log(2.0) / math.pi
@@ -357,7 +364,6 @@ def _finite(x):
 
 # -- calibration-file section ----------------------------------------------------------------------------
 
-NOISE_SECTION_VERSION = 1
 _SECTION_UNITS = {
     "accel": {
         "white": "m/s^2/sqrt(Hz)",
@@ -374,67 +380,42 @@ _SECTION_UNITS = {
 }
 
 
-def calibration_section(m: NoiseModel) -> dict:
-    """The 'noise' section of a calibration file: per sensor and axis each term as
-    {name_with_unit: value, name_sigma: sigma}, plus the Kalibr values (what exporters read)."""
-    out: dict = {
-        "version": NOISE_SECTION_VERSION,
-        "source": m.source,
-        "duration_s": m.duration_s,
-        "rate_hz": m.rate_hz,
-        "convention": "Allan/IEEE-952: ADEV(tau) = N / sqrt(tau); one-sided PSD density = sqrt(2) N",
-        "kalibr": m.kalibr(),
-        "kalibr_random_walk_is_bound": any(not a.random_walk.detected for s in m.sensors() for a in s.axes),
-    }
-    for s in m.sensors():
-        units = _SECTION_UNITS[s.sensor]
-        out[s.sensor] = {
-            "units": units,
-            "axes": {
-                a.axis: {
-                    name: {"value": getattr(a, name).value, "sigma": getattr(a, name).sigma}
-                    for name in ("white", "bias_instability", "random_walk", "quantisation")
-                }
+def calibration_section(m: NoiseModel) -> NoiseSection:
+    """The 'noise' section of a calibration file: per sensor and axis each term as value and 1-sigma
+    (SI units), plus the Kalibr values (what exporters read)."""
+    sensors = {
+        s.sensor: SensorNoiseTerms(
+            units=dict(_SECTION_UNITS[s.sensor]),
+            axes={
+                a.axis: AxisNoiseTerms(
+                    **{
+                        name: NoiseTerm(value=getattr(a, name).value, sigma=getattr(a, name).sigma)
+                        for name in ("white", "bias_instability", "random_walk", "quantisation")
+                    }
+                )
                 for a in s.axes
             },
-        }
-    return out
-
-
-def check_section(d, where: str | None = None) -> dict:
-    """Validate a 'noise' section read from a calibration file (InputError naming what is wrong)."""
-    from accellog.core.errors import InputError
-
-    if not isinstance(d, dict) or not isinstance(d.get("version"), int):
-        raise InputError("calibration 'noise' section has no integer version", where=where)
-    if d["version"] > NOISE_SECTION_VERSION:
-        raise InputError(
-            f"calibration 'noise' section version {d['version']} is newer than this accellog "
-            f"(reads <= {NOISE_SECTION_VERSION})",
-            where=where,
         )
-    for sensor in ("accel", "gyro"):
-        if sensor not in d:
-            continue
-        try:
-            for ax in ("x", "y", "z"):
-                float(d[sensor]["axes"][ax]["white"]["value"])
-        except (KeyError, TypeError, ValueError):
-            raise InputError(
-                f"calibration 'noise.{sensor}' lacks axes x/y/z white values", where=where
-            ) from None
-    return d
+        for s in m.sensors()
+    }
+    return NoiseSection(
+        version=NOISE_SECTION_VERSION,
+        source=m.source,
+        duration_s=m.duration_s,
+        rate_hz=m.rate_hz,
+        convention="Allan/IEEE-952: ADEV(tau) = N / sqrt(tau); one-sided PSD density = sqrt(2) N",
+        kalibr=m.kalibr(),
+        kalibr_random_walk_is_bound=any(not a.random_walk.detected for s in m.sensors() for a in s.axes),
+        **sensors,
+    )
 
 
-def white_floor_from_section(d: dict, sensor: str = "accel") -> np.ndarray | None:
+def white_floor_from_section(section: NoiseSection | None, sensor: str = "accel") -> np.ndarray | None:
     """(3,) white noise N per axis from a 'noise' section (m/s^2/sqrt(Hz) or rad/s/sqrt(Hz)), or None."""
-    s = d.get(sensor) if isinstance(d, dict) else None
-    if not s:
-        return None
-    return np.array([float(s["axes"][ax]["white"]["value"]) for ax in ("x", "y", "z")])
+    return None if section is None else section.white_noise(sensor)
 
 
-def sem_with_noise_floor(section: dict, sem_mps2: np.ndarray, duration_s: float) -> np.ndarray:
+def sem_with_noise_floor(section: NoiseSection, sem_mps2: np.ndarray, duration_s: float) -> np.ndarray:
     """The standard error of a T-second mean of the accelerometer (m/s^2, per axis), floored at the white
     noise of a calibration's 'noise' section: N / sqrt(T) (AVAR(T) = N^2 / T is the variance of that mean)."""
     n = white_floor_from_section(section, "accel")
@@ -443,14 +424,14 @@ def sem_with_noise_floor(section: dict, sem_mps2: np.ndarray, duration_s: float)
     return np.maximum(sem_mps2, n / math.sqrt(duration_s))
 
 
-def floor_obs_sigma(obs, section: dict, rate_hz: float | None = None):
+def floor_obs_sigma(obs, section: NoiseSection, rate_hz: float | None = None):
     """A copy of an ObsTable whose window sigma_g is at least the white noise of a 'noise' section:
     sigma_g >= N / g0 / sqrt(n_samples / rate_hz) (g), the standard error of a mean over the window's
     duration (`diagnose --noise-from`). rate_hz: the session's sample rate (default the section's)."""
     import dataclasses
 
     n = white_floor_from_section(section, "accel")
-    rate = float(rate_hz or section.get("rate_hz") or 0.0)
+    rate = float(rate_hz or section.rate_hz or 0.0)
     if n is None or rate <= 0:
         return obs
     floor_g = n[None, :] / STANDARD_GRAVITY_MPS2 / np.sqrt(np.asarray(obs.n_samples, float)[:, None] / rate)
