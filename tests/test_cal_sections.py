@@ -61,6 +61,7 @@ def test_sections_read_as_attributes():
     assert n.gyro.units["white"] == "rad/s/sqrt(Hz)" and n.kalibr == raw["noise"]["kalibr"]
     white = [raw["noise"]["accel"]["axes"][a]["white"]["value"] for a in "xyz"]
     np.testing.assert_array_equal(n.white_noise("accel"), white)
+    assert 1e-3 < white[0] < 1e-2  # m/s^2/sqrt(Hz): the emulated MPU-9250's white noise
     g = lab.gyro
     assert g.effects == ["bias", "temp_bias", "scale", "cross_axis"] and g.n_holds == 6
     np.testing.assert_array_equal(g.matrix, raw["gyro"]["matrix"])
