@@ -14,7 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibrate.cal_sections import DetectedInterval, DeviceInfo, FitInfo, SensorInfo, TemperatureInfo
+from accellog.calibrate.cal_sections import (
+    DetectedInterval,
+    DeviceInfo,
+    FitInfo,
+    SensorInfo,
+    SourceFile,
+    TemperatureInfo,
+)
 from accellog.calibrate.calibration import load_calibration
 from accellog.calibrate.gyro import GyroCalibration
 from accellog.calibrate.magnetometer import MagCalibration
@@ -56,6 +63,9 @@ def test_sections_read_as_attributes():
     assert lab.device.id == "vm/emulator/0x68" and lab.device.key == DeviceKey(
         who_am_i=0x71, i2c_bus="emulator", i2c_address=0x68, host="vm"
     )
+    src = lab.sources[0]
+    assert isinstance(src, SourceFile) and (src.path, src.kind) == ("six.mcap", "emulator")
+    assert src.sha256 == raw["sources"][0]["sha256"] and src.recovered is None
     n = lab.noise
     assert isinstance(n, NoiseSection) and n.version == 1 and n.rate_hz == raw["noise"]["rate_hz"]
     assert n.gyro.units["white"] == "rad/s/sqrt(Hz)" and n.kalibr == raw["noise"]["kalibr"]
@@ -96,6 +106,7 @@ def _older(tmp_path) -> tuple[Path, dict]:
     d["temperature"] = {"max_degC": 26, "t_ref_degC": 25, "chamber": "off"}
     d["sensor"] = {"board": "GY-9250"}
     d["device"] = {}
+    d["sources"][0]["note"] = "copied from the lab share"
     d["gyro"] = {"firmware": "1.2", **d["gyro"], "t_ref_degC": 25}
     p = tmp_path / "older.json"
     p.write_text(dumps(d) + "\n")
@@ -113,6 +124,7 @@ def test_older_files_and_unknown_keys_round_trip(tmp_path):
     assert cal.temperature.extra == {"chamber": "off"} and cal.sensor.chip is None
     assert cal.sensor.extra == {"board": "GY-9250"} and cal.gyro.t_ref_degC == 25.0
     assert cal.device == DeviceInfo.empty() and cal.device.key == DeviceKey()
+    assert cal.sources[0].extra == {"note": "copied from the lab share"}
     cal.save(tmp_path / "again.json")
     assert (tmp_path / "again.json").read_text() == p.read_text()
 

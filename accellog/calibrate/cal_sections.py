@@ -1,5 +1,5 @@
-"""Typed sections of the calibration file: `temperature`, `fit`, `sensor`, `device` (and the round
-trip of `gyro` and `magnetometer`).
+"""Typed sections of the calibration file: `temperature`, `fit`, `sensor`, `device`, the entries of
+`sources` (and the round trip of `gyro` and `magnetometer`).
 
 Each section is a frozen dataclass with units in its field names. The JSON form is an interface
 (accellog.calibrate.calibration), so a section read from a file and written again is the same
@@ -34,7 +34,7 @@ from accellog.core.jsonio import dumps
 
 def json_field(kind: Any, *, optional: bool = False) -> Any:
     """A typed section field of JSON `kind`: 'num', 'int', 'bool', 'str', 'nums', 'strs' (lists),
-    'nummap', 'strmap' (objects of numbers / strings), a Section class (a nested object), or
+    'nummap', 'strmap' (objects of numbers / strings), 'obj' (any object, kept as read), a Section class (a nested object), or
     ('list', Section class) / ('map', Section class) (a list / an object of them)."""
     return field(default=None, metadata={"kind": kind, "optional": optional})
 
@@ -54,6 +54,7 @@ _CHECKS = {
         "an object of numbers",
         lambda x: isinstance(x, dict) and all(e is None or _is_num(e) for e in x.values()),
     ),
+    "obj": ("an object", lambda x: isinstance(x, dict)),
     "strmap": (
         "an object of strings",
         lambda x: isinstance(x, dict) and all(isinstance(e, str) for e in x.values()),
@@ -81,7 +82,7 @@ def _read(kind: Any, v: Any, name: str, where: str | None) -> Any:
         raise InputError(f"calibration field {name} = {str(v)[:40]!r} is not {what}", where=where)
     if isinstance(v, list):
         return tuple(v)
-    return dict(v) if isinstance(v, dict) else v
+    return copy.deepcopy(v) if isinstance(v, dict) else v
 
 
 def _write(v: Any) -> Any:
@@ -259,6 +260,21 @@ class SensorInfo(Section):
     def from_meta(cls, meta: Any) -> SensorInfo:
         """From a session's SessionMeta (chip, accel_range_g, accel_lsb_per_g)."""
         return cls(chip=meta.chip, accel_range_g=meta.accel_range_g, accel_lsb_per_g=meta.accel_lsb_per_g)
+
+
+@dataclass(frozen=True)
+class SourceFile(Section):
+    """One input of the calibration (an entry of `sources`): its path and the SHA-256 of its bytes."""
+
+    NAME: ClassVar[str] = "source"
+
+    path: str | None = json_field("str")
+    sha256: str | None = json_field("str")
+    """Hex SHA-256 of the file, None when it could not be read."""
+    kind: str | None = json_field("str")
+    """What the file is ('emulator', 'hardware', 'import:...', 'drift', ...)."""
+    recovered: Mapping[str, Any] | None = json_field("obj", optional=True)
+    """What was salvaged from a truncated input (accellog.store.recovery.RecoveryInfo.to_dict())."""
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,7 @@ from accellog.calibrate.cal_sections import (
     DeviceInfo,
     FitInfo,
     SensorInfo,
+    SourceFile,
     TemperatureInfo,
     gyro_from_dict,
     mag_from_dict,
@@ -75,9 +76,9 @@ def sha256_file(path: str | os.PathLike) -> str | None:
         return None
 
 
-def source_entry(path: str | None, kind: str = "") -> dict[str, Any]:
-    """{'path', 'sha256', 'kind'} of an input file (sha256 None when unreadable)."""
-    return {"path": path, "sha256": sha256_file(path) if path else None, "kind": kind}
+def source_entry(path: str | None, kind: str = "") -> SourceFile:
+    """Path, SHA-256 (None when unreadable) and kind of an input file."""
+    return SourceFile(path=path, sha256=sha256_file(path) if path else None, kind=kind)
 
 
 def rate_of_change(t_s: np.ndarray, y: np.ndarray, span_s: float = 5.0) -> np.ndarray:
@@ -145,7 +146,8 @@ class Calibration(JsonResult):
     """Reference and observed temperatures (degC)."""
     fit: FitInfo = field(default_factory=FitInfo.empty)
     """Statistics of the fit (chi2/dof, residual RMS, warnings, detected intervals)."""
-    sources: list[dict] = field(default_factory=list)
+    sources: list[SourceFile] = field(default_factory=list)
+    """The input files (path, SHA-256, kind)."""
     sensor: SensorInfo = field(default_factory=SensorInfo.empty)
     """Accelerometer set-up of the calibrated session (chip, range, sensitivity)."""
     software: str = f"accellog {__version__}"
@@ -177,6 +179,7 @@ class Calibration(JsonResult):
                 setattr(self, name, cls.from_dict(getattr(self, name)))
         if isinstance(self.gyro, Mapping):
             self.gyro, self.gyro_source = gyro_from_dict(self.gyro), dict(self.gyro)
+        self.sources = [SourceFile.from_dict(x) if isinstance(x, Mapping) else x for x in self.sources]
         if isinstance(self.noise, Mapping):
             self.noise = NoiseSection.from_dict(self.noise)
         if isinstance(self.magnetometer, Mapping):
@@ -248,7 +251,7 @@ class Calibration(JsonResult):
         obs: ObsTable | None = None,
         gravity_convention: str = "seed",
         local_gravity_mps2: float = STANDARD_GRAVITY_MPS2,
-        sources: list[dict] | None = None,
+        sources: list[SourceFile] | None = None,
         sensor: SensorInfo | Mapping | None = None,
     ) -> Calibration:
         """From an accellog.calibrate.fit.FitResult (truth_g = fit.gravity_g)."""
@@ -305,7 +308,7 @@ class Calibration(JsonResult):
             "fit": self.fit.to_dict(),
             "sensor": self.sensor.to_dict(),
             "device": self.device.to_dict(),
-            "sources": list(self.sources),
+            "sources": [x.to_dict() for x in self.sources],
             "drift": self.drift.to_dict() if self.drift is not None else None,
             "gyro": object_section(self.gyro, self.gyro_source, GyroCalibration.from_dict),
             **({"noise": self.noise.to_dict()} if self.noise is not None else {}),
@@ -318,7 +321,7 @@ class Calibration(JsonResult):
     def save(self, path: str | os.PathLike, *, inputs: tuple = ()) -> None:
         """Write the JSON file atomically (accellog.store.atomic); refused when `path` is one of the
         source files, this calibration's own file or `inputs`."""
-        srcs = [s.get("path") for s in self.sources if isinstance(s, dict)]
+        srcs = [x.path for x in self.sources]
         write_json_atomic(path, self.to_dict(), inputs=(*srcs, self.path, *inputs))
         self.path = str(path)
 
@@ -406,7 +409,7 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         local_gravity_mps2=lg,
         temperature=TemperatureInfo.from_dict(d.get("temperature"), where),
         fit=FitInfo.from_dict(d.get("fit"), where),
-        sources=list(d.get("sources") or []),
+        sources=_sources(d.get("sources"), where),
         sensor=SensorInfo.from_dict(d.get("sensor"), where),
         device=DeviceInfo.from_dict(d.get("device"), where),
         software=str(d.get("software", "")),
@@ -427,6 +430,15 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
             f"parameter names {names} do not match model {model.name!r} ({model.param_names})", where=where
         )
     return cal
+
+
+def _sources(v: Any, where: str | None) -> list[SourceFile]:
+    """The `sources` list (absent = none); InputError when it or an entry is not what it should be."""
+    if v is None:
+        return []
+    if not isinstance(v, list):
+        raise InputError("calibration field sources is not a list", where=where)
+    return [SourceFile.from_dict(x, where, name=f"sources[{i}]") for i, x in enumerate(v)]
 
 
 # Physical plausibility of a stored calibration of a MEMS accelerometer (datasheet: bias within

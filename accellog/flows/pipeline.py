@@ -316,7 +316,7 @@ def _fit_models(spec: dict, inp: _Inputs, res: PipelineResult) -> None:
             )
         except ModelError as exc:
             raise ModelError(f"model {mname!r}: {exc}", where=inp.where) from None
-        kind = fo.cal.sources[0].get("kind", "") if fo.cal.sources else ""
+        kind = (fo.cal.sources[0].kind or "") if fo.cal.sources else ""
         fo.cal.sources = [source_entry(inp.files[fs["input"]], kind)]
         obs = fo.obs
         res.fits[mname] = fo

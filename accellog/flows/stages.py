@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from accellog.calibrate.cal_sections import DetectedInterval, DeviceInfo, SensorInfo
+from accellog.calibrate.cal_sections import DetectedInterval, DeviceInfo, SensorInfo, SourceFile
 from accellog.calibrate.calibration import Calibration, load_calibration, read_json, source_entry
 from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
@@ -123,14 +123,14 @@ def _path_of(x: Session | ObsTable) -> str | None:
     return p if p and Path(p).is_file() else None
 
 
-def _source(data: Session | ObsTable, src: str | None, kind: str) -> dict:
+def _source(data: Session | ObsTable, src: str | None, kind: str) -> SourceFile:
     """Provenance entry of the input; a recovered (truncated) session says what was kept."""
     from accellog.store.recovery import recovery_info
 
     entry = source_entry(src or _path_of(data), kind)
     info = recovery_info(data) if isinstance(data, Session) else None
     if info is not None:
-        entry["recovered"] = info.to_dict()
+        entry = dataclasses.replace(entry, recovered=info.to_dict())
     return entry
 
 
@@ -145,7 +145,7 @@ def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
 
 def _with_recovered(d: dict, cal: Calibration) -> dict:
     """d plus 'recovered': what was salvaged from truncated inputs (the calibration's provenance)."""
-    rec = [x["recovered"] for x in cal.sources if isinstance(x, dict) and x.get("recovered")]
+    rec = [x.recovered for x in cal.sources if x.recovered]
     return {**d, "recovered": rec} if rec else d
 
 
@@ -388,7 +388,7 @@ def run_drift(
     cal_d, dm = drift_from_session(s, c, until_s=until_s, max_samples=max_samples)
     ev = evaluate(s, cal_d, until_s=until_s, max_samples=max_samples)
     entry = _source(s, None, "drift")
-    if "recovered" in entry:  # provenance: the drift was fitted on a recovered (truncated) file
+    if entry.recovered is not None:  # provenance: the drift was fitted on a recovered (truncated) file
         cal_d.sources = [*cal_d.sources, entry]
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
 
