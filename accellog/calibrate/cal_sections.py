@@ -276,6 +276,15 @@ class SourceFile(Section):
     recovered: Mapping[str, Any] | None = json_field("obj", optional=True)
     """What was salvaged from a truncated input (accellog.store.recovery.RecoveryInfo.to_dict())."""
 
+    @classmethod
+    def list_from_json(cls, v: Any, where: str | None = None) -> list[SourceFile]:
+        """The `sources` list (absent = none); InputError when it or an entry is malformed."""
+        if v is None:
+            return []
+        if not isinstance(v, list):
+            raise InputError("calibration field sources is not a list", where=where)
+        return [cls.from_dict(x, where, name=f"sources[{i}]") for i, x in enumerate(v)]
+
 
 @dataclass(frozen=True)
 class DeviceInfo(Section):

@@ -17,9 +17,11 @@ temperature at calibration, fit statistics, source files with SHA-256, the devic
 displacement-drift model (accellog.navigate.drift), and optional versioned sections `noise`
 (accellog.calibrate.noise_model) and `magnetometer` (accellog.calibrate.magnetometer).
 
-The `temperature`, `fit` and `sensor` sections are typed (accellog.calibrate.cal_sections:
-TemperatureInfo, FitInfo, SensorInfo), `gyro` is an accellog.calibrate.gyro.GyroCalibration; a file
-read and saved again is the same text (unknown keys kept, absent keys left absent).
+Every section is typed: `temperature`, `fit`, `sensor`, `device` and the `sources` entries are
+accellog.calibrate.cal_sections types (TemperatureInfo, FitInfo, SensorInfo, DeviceInfo, SourceFile),
+`noise` an accellog.calibrate.noise_section.NoiseSection, `gyro` a GyroCalibration, `magnetometer` a
+MagCalibration. A file read and saved again is the same text (keys a section lacked stay absent, keys
+this version does not know are kept).
 """
 
 from __future__ import annotations
@@ -177,9 +179,9 @@ class Calibration(JsonResult):
         ):
             if isinstance(getattr(self, name), Mapping):
                 setattr(self, name, cls.from_dict(getattr(self, name)))
+        self.sources = [SourceFile.from_dict(x) if isinstance(x, Mapping) else x for x in self.sources]
         if isinstance(self.gyro, Mapping):
             self.gyro, self.gyro_source = gyro_from_dict(self.gyro), dict(self.gyro)
-        self.sources = [SourceFile.from_dict(x) if isinstance(x, Mapping) else x for x in self.sources]
         if isinstance(self.noise, Mapping):
             self.noise = NoiseSection.from_dict(self.noise)
         if isinstance(self.magnetometer, Mapping):
@@ -281,6 +283,7 @@ class Calibration(JsonResult):
 
     # ------------------------------------------------------------------ file
     def to_dict(self) -> dict:
+        mag = object_section(self.magnetometer, self.magnetometer_source, MagCalibration.from_dict)
         S, b = self.S_b()
         sig = self.sigma
         return {
@@ -312,11 +315,8 @@ class Calibration(JsonResult):
             "drift": self.drift.to_dict() if self.drift is not None else None,
             "gyro": object_section(self.gyro, self.gyro_source, GyroCalibration.from_dict),
             **({"noise": self.noise.to_dict()} if self.noise is not None else {}),
-            **({"magnetometer": self._magnetometer_dict()} if self.magnetometer is not None else {}),
+            **({"magnetometer": mag} if mag is not None else {}),
         }
-
-    def _magnetometer_dict(self) -> dict | None:
-        return object_section(self.magnetometer, self.magnetometer_source, MagCalibration.from_dict)
 
     def save(self, path: str | os.PathLike, *, inputs: tuple = ()) -> None:
         """Write the JSON file atomically (accellog.store.atomic); refused when `path` is one of the
@@ -409,7 +409,7 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         local_gravity_mps2=lg,
         temperature=TemperatureInfo.from_dict(d.get("temperature"), where),
         fit=FitInfo.from_dict(d.get("fit"), where),
-        sources=_sources(d.get("sources"), where),
+        sources=SourceFile.list_from_json(d.get("sources"), where),
         sensor=SensorInfo.from_dict(d.get("sensor"), where),
         device=DeviceInfo.from_dict(d.get("device"), where),
         software=str(d.get("software", "")),
@@ -430,15 +430,6 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
             f"parameter names {names} do not match model {model.name!r} ({model.param_names})", where=where
         )
     return cal
-
-
-def _sources(v: Any, where: str | None) -> list[SourceFile]:
-    """The `sources` list (absent = none); InputError when it or an entry is not what it should be."""
-    if v is None:
-        return []
-    if not isinstance(v, list):
-        raise InputError("calibration field sources is not a list", where=where)
-    return [SourceFile.from_dict(x, where, name=f"sources[{i}]") for i, x in enumerate(v)]
 
 
 # Physical plausibility of a stored calibration of a MEMS accelerometer (datasheet: bias within
