@@ -63,17 +63,20 @@ def integrated_autocorr_time(x: np.ndarray, c: float = SOKAL_C) -> np.ndarray:
     """
     x = np.asarray(x, float)
     squeeze = x.ndim == 1
-    rho = autocorrelation(x[:, None] if squeeze else x)
+    tau = tau_from_rho(autocorrelation(x[:, None] if squeeze else x), c)
+    return float(tau[0]) if squeeze else tau
+
+
+def tau_from_rho(rho: np.ndarray, c: float = SOKAL_C) -> np.ndarray:
+    """Sokal's windowed tau (k,) from autocorrelations rho (lags, k) (see integrated_autocorr_time)."""
     n = rho.shape[0]
     if n < 3:
-        tau = np.ones(rho.shape[1])
-    else:
-        taus = 2.0 * np.cumsum(rho, axis=0) - 1.0  # tau(M) for M = 0..n-1
-        lags = np.arange(n)[:, None]
-        ok = lags >= c * taus
-        first = np.where(ok.any(axis=0), ok.argmax(axis=0), n - 1)
-        tau = np.maximum(taus[first, np.arange(rho.shape[1])], 1.0)
-    return float(tau[0]) if squeeze else tau
+        return np.ones(rho.shape[1])
+    taus = 2.0 * np.cumsum(rho, axis=0) - 1.0  # tau(M) for M = 0..n-1
+    lags = np.arange(n)[:, None]
+    ok = lags >= c * taus
+    first = np.where(ok.any(axis=0), ok.argmax(axis=0), n - 1)
+    return np.maximum(taus[first, np.arange(rho.shape[1])], 1.0)
 
 
 def sem_autocorr(x: np.ndarray, quantum: float = 0.0, c: float = SOKAL_C) -> tuple[np.ndarray, np.ndarray]:

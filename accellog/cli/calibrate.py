@@ -157,7 +157,9 @@ def evaluate_cmd(
     from accellog.flows.static_stages import run_evaluate_report
     from accellog.present import tables as report
 
-    rep = run_evaluate_report(test, cal, until_s=until_s, max_samples=max_samples, at_s=at_s)
+    rep = run_evaluate_report(
+        test, cal, until_s=until_s, max_samples=max_samples, at_s=at_s, stream=rrd is None
+    )
     if rrd is not None:
         rep.write_rrd(rrd)
     if json_out:
@@ -291,14 +293,13 @@ def integrate(
     local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
     from accellog.flows.static_stages import run_integrate
     from accellog.present import tables as report
-    from accellog.store.atomic import check_outputs, write_text_atomic
+    from accellog.store.atomic import check_outputs
 
     check_outputs([output], [session, cal])
-    res = run_integrate(session, cal, until_s=until_s)
-    write_text_atomic(output, res.csv_text(), inputs=(session, cal))
+    res = run_integrate(session, cal, until_s=until_s, output=output)
     if json_out:
         _echo_json(res.to_dict(str(output)))
         return
     ev = res.evaluation
     report.print_tables([report.displacement_table([ev], at_s=float(ev.times_s[-1]))], _console)
-    _console.print(f"wrote {output} ({len(ev.t_s)} rows)")
+    _console.print(f"wrote {output} ({ev.n} rows)")

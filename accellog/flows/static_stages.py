@@ -18,15 +18,18 @@ import numpy as np
 from accellog.calibrate.calibration import Calibration, load_calibration
 from accellog.calibrate.obs_file import obs_to_dict
 from accellog.calibrate.segment import PoseStats, observations, pose_stats
+from accellog.calibrate.stream_segment import stream_observations
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 from accellog.core.timeseries import cumtrapz
 from accellog.flows.stages import load_input, run_evaluate
 from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
-from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_poses
+from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_pose_obs, evaluate_poses
+from accellog.navigate.stream_evaluate import can_stream_cals, stream_evaluate
 from accellog.present import tables, views
 from accellog.present.rrd.recording import RunRecording
+from accellog.store.atomic import atomic_output, write_text_atomic
 
 
 def _session_input(path: str | os.PathLike, what: str) -> Session:
@@ -68,7 +71,7 @@ class EvaluationReport(JsonResult):
     """`evaluate` of one or more calibrations: ``single`` (one static hold: raw first, then each
     calibration) or ``poses`` (a session with several labelled holds, evaluated hold by hold)."""
 
-    data: Session | ObsTable
+    data: Session | ObsTable | StreamedSession
     cals: list[Calibration]
     labels: list[str] | None
     at_s: float
@@ -112,20 +115,23 @@ def run_evaluate_report(
     until_s: float | None = None,
     max_samples: int | None = None,
     at_s: float = 60.0,
+    stream: bool = True,
 ) -> EvaluationReport:
-    """Residual of calibrated static data vs gravity and the displacement, per calibration file."""
+    """Residual of calibrated static data vs gravity and the displacement, per calibration file.
+
+    An MCAP session streams chunk by chunk when `stream` (memory independent of its length; the
+    .rrd of a run needs the samples: stream=False); other inputs are read whole."""
     cals = [load_calibration(c) for c in cal_paths]
     names = [c.model_spec.get("name", "") for c in cals]
     labels = [p.stem for p in cal_paths] if len(set(names)) < len(names) else None  # same-model files apart
+    if stream and can_stream(test):
+        rep = _streamed_report(test, cals, labels, until_s=until_s, max_samples=max_samples, at_s=at_s)
+        if rep is not None:
+            return rep
     data = load_input(test)
     rep = EvaluationReport(data, cals, labels, at_s)
     if isinstance(data, Session) and len(data.poses) > 1:
-        if until_s is not None or max_samples is not None:
-            raise InputError(
-                "--until-s/--max-samples cut a single static hold; this session has "
-                f"{len(data.poses)} labelled holds",
-                where=data.path,
-            )
+        _refuse_cut(len(data.poses), until_s, max_samples, data.path)
         g = cals[0].local_gravity_mps2 if cals else None
         rep.poses = [evaluate_poses(data, None, at_s=at_s, local_gravity_mps2=g)]
         rep.poses += [evaluate_poses(data, c, at_s=at_s) for c in cals]
@@ -140,20 +146,55 @@ def run_evaluate_report(
     return rep
 
 
+def _refuse_cut(n_poses: int, until_s: float | None, max_samples: int | None, where: str | None) -> None:
+    if until_s is not None or max_samples is not None:
+        raise InputError(
+            f"--until-s/--max-samples cut a single static hold; this session has {n_poses} labelled holds",
+            where=where,
+        )
+
+
+def _streamed_report(
+    test, cals: list[Calibration], labels, *, until_s, max_samples, at_s: float
+) -> EvaluationReport | None:
+    """run_evaluate_report on an MCAP file chunk by chunk; None: the whole-session path must read it
+    (damaged chunks, or a model reading dT/dt on a single hold)."""
+    s = open_streamed(test, observe=False)
+    if s is None:
+        return None
+    rep = EvaluationReport(s, cals, labels, at_s)
+    if len(s.poses) > 1:
+        _refuse_cut(len(s.poses), until_s, max_samples, s.path)
+        obs = stream_observations(s.path, labels=(s.meta, s.poses, []))
+        g = cals[0].local_gravity_mps2 if cals else s.meta.local_gravity_mps2
+        rep.poses = [evaluate_pose_obs(obs, None, at_s=at_s, raw_gravity_mps2=g, session=s.path)]
+        rep.poses += [evaluate_pose_obs(obs, c, at_s=at_s, raw_gravity_mps2=g, session=s.path) for c in cals]
+        return rep
+    evs = stream_evaluate(
+        s.path, s.meta, s.poses, cals, labels=labels, until_s=until_s, max_samples=max_samples
+    )
+    if evs is None:
+        return None
+    rep.single = evs
+    return rep
+
+
 @dataclass
 class Integration(JsonResult):
-    """v(t) (m/s) and d(t) (m) of a static session after a calibration (or of the raw reading)."""
+    """v(t) (m/s) and d(t) (m) of a static session after a calibration (or of the raw reading);
+    velocity_mps None when the series were streamed to the CSV (run_integrate with output)."""
 
     session_path: str
     cal_path: str | None
     evaluation: Evaluation
-    velocity_mps: np.ndarray
+    velocity_mps: np.ndarray | None
+    written: Path | None = None
 
     def csv_text(self) -> str:
         """t_s, vx_mps, vy_mps, vz_mps, x_m, y_m, z_m (one row per sample)."""
 
         buf = io.StringIO()
-        buf.write("t_s,vx_mps,vy_mps,vz_mps,x_m,y_m,z_m\n")
+        buf.write(CSV_HEADER)
         ev = self.evaluation
         np.savetxt(
             buf, np.column_stack([ev.t_s, self.velocity_mps, ev.disp_series_m]), delimiter=",", fmt="%.9g"
@@ -173,13 +214,49 @@ class Integration(JsonResult):
         }
 
 
+CSV_HEADER = "t_s,vx_mps,vy_mps,vz_mps,x_m,y_m,z_m\n"
+
+
 def run_integrate(
-    path: str | os.PathLike, cal_path: Path | None = None, *, until_s: float | None = None
+    path: str | os.PathLike,
+    cal_path: Path | None = None,
+    *,
+    until_s: float | None = None,
+    output: Path | None = None,
+    stream: bool = True,
 ) -> Integration:
     """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
-    local gravity: a = f g_local - up g_local (m/s^2); v, d by cumulative trapezoid."""
-    data = _session_input(path, "integrate")
+    local gravity: a = f g_local - up g_local (m/s^2); v, d by cumulative trapezoid. With output,
+    the CSV (CSV_HEADER, one row per sample) is written atomically; an MCAP session then streams
+    chunk by chunk (rows written as they are integrated, memory independent of the length)."""
     c = load_calibration(cal_path) if cal_path is not None else None
+    cp = str(cal_path) if cal_path else None
+    if output is not None and stream and can_stream(path):
+        res = _stream_integrate(path, c, cp, until_s=until_s, output=output)
+        if res is not None:
+            return res
+    data = _session_input(path, "integrate")
     ev = run_evaluate(data, [c] if c else [], include_raw=c is None, until_s=until_s)[-1]
     v = cumtrapz(ev.t_s, ev.resid_series_mps2)  # the residual acceleration (m/s^2) is what integrates to d
-    return Integration(str(path), str(cal_path) if cal_path else None, ev, v)
+    res = Integration(str(path), cp, ev, v)
+    if output is not None:
+        res.written = write_text_atomic(output, res.csv_text(), inputs=(path, cal_path))
+    return res
+
+
+def _stream_integrate(
+    path, c: Calibration | None, cp: str | None, *, until_s, output: Path
+) -> Integration | None:
+    """run_integrate of an MCAP file in one pass, CSV rows written per block (None: not streamable)."""
+    s = open_streamed(path, observe=False)
+    if s is None or not can_stream_cals([c] if c else []):
+        return None
+    with atomic_output(output, inputs=(path, cp)) as tmp, open(tmp, "w", encoding="utf-8") as f:
+        f.write(CSV_HEADER)
+
+        def rows(_k: int, t: np.ndarray, v: np.ndarray, d: np.ndarray) -> None:
+            np.savetxt(f, np.column_stack([t, v, d]), delimiter=",", fmt="%.9g")
+
+        evs = stream_evaluate(s.path, s.meta, s.poses, [c] if c else [], include_raw=c is None,
+                              until_s=until_s, on_block=rows)  # fmt: skip
+    return Integration(str(path), cp, evs[-1], None, Path(output))

@@ -26,13 +26,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from accellog.calibrate.calibration import Calibration, session_drivers
-from accellog.calibrate.noise import sem_autocorr
+from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.noise_model import sem_with_noise_floor
 from accellog.calibrate.segment import check_static, observations
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
-from accellog.core.session import PoseLabel, Session
-from accellog.navigate.integrate import DEFAULT_TIMES_S, displacement, values_at
+from accellog.core.session import ObsTable, PoseLabel, Session
+from accellog.core.timeseries import check_time
+from accellog.navigate.integrate import DEFAULT_TIMES_S
+from accellog.navigate.stream_sums import ResidualSums
 
 AXES = ("x", "y", "z")
 
@@ -134,12 +136,7 @@ def _infer_up(session: Session, notes: list[str]) -> np.ndarray:
             "labels (use evaluate_poses / the pipeline's evaluate_poses stage)",
             where=session.path,
         )
-    m = np.nanmean(session.accel_g, axis=0)
-    i = int(np.argmax(np.abs(m)))
-    up = np.zeros(3)
-    up[i] = np.sign(m[i])
-    notes.append(f"orientation inferred from the mean reading: {'+' if up[i] > 0 else '-'}{AXES[i]} up")
-    return up
+    return infer_up(np.nanmean(session.accel_g, axis=0), notes)
 
 
 def _slice(session: Session, until_s: float | None, max_samples: int | None) -> slice:
@@ -179,39 +176,30 @@ def calibrated_residual(
         i = int(np.argmax(~np.isfinite(reading).all(axis=1)))
         raise InputError(f"accel is NaN/inf at t = {t[i]:.3f} s", where=where)
     up = np.asarray(up_sensor, float) if up_sensor is not None else _infer_up(session, notes)
-    if cal is not None:
-        g_local = float(local_gravity_mps2 or cal.local_gravity_mps2)
-        unit = g_local / cal.truth_g
-    else:
-        g_local = float(local_gravity_mps2 or session.meta.local_gravity_mps2)
-        unit = g_local / raw_truth_g
-    norm = float(np.linalg.norm(reading.mean(axis=0)))
-    if not 0.5 <= norm <= 2.0:
-        raise InputError(
-            f"|accel| at rest is {norm:.4g} g, expected about 1 g"
-            + (" (are raw counts declared as g?)" if norm > 2 else ""),
-            where=where,
-        )
+    check_norm(reading.mean(axis=0), where)
     if check_moving:
         sub = Session(
             meta=session.meta, t_s=t, sample_index=session.sample_index[sl], accel_g=reading, path=where
         )
         label = PoseLabel("static test", float(t[0]), float(t[-1]) + 1e-9, tuple(up))
         check_static(sub, [(label, slice(0, t.size))])
-    if cal is not None:
-        sub = Session(
-            meta=session.meta,
-            t_s=t,
-            sample_index=session.sample_index[sl],
-            accel_g=reading,
-            temp_degC=None if session.temp_degC is None else session.temp_degC[sl],
-            poses=session.poses,
-            path=session.path,
+    ctx = eval_context(where, session.meta, cal, up, notes, local_gravity_mps2=local_gravity_mps2,
+                       raw_truth_g=raw_truth_g, apply_drift=False)  # fmt: skip
+    temp = None if session.temp_degC is None else session.temp_degC[sl]
+    block = Session(meta=session.meta, t_s=t, sample_index=session.sample_index[sl], accel_g=reading,
+                    temp_degC=temp, poses=session.poses, path=session.path)  # fmt: skip
+    return t, block_residual(ctx, block), up, ctx.g_local, ctx.unit, reading
+
+
+def check_norm(mean_reading_g: np.ndarray, where: str | None) -> None:
+    """InputError unless |mean reading| at rest is 0.5-2 g (raw counts declared as g, wrong units)."""
+    norm = float(np.linalg.norm(mean_reading_g))
+    if not 0.5 <= norm <= 2.0:
+        raise InputError(
+            f"|accel| at rest is {norm:.4g} g, expected about 1 g"
+            + (" (are raw counts declared as g?)" if norm > 2 else ""),
+            where=where,
         )
-        f = cal.correct(sub)
-    else:
-        f = reading
-    return t, f * unit - up * g_local, up, g_local, unit, reading
 
 
 def _cal_sigma_mps2(cal: Calibration, reading_mean: np.ndarray, drivers: dict, unit: float) -> np.ndarray:
@@ -229,6 +217,141 @@ def _cal_sigma_mps2(cal: Calibration, reading_mean: np.ndarray, drivers: dict, u
         tm[k] -= step[k]
         J[:, k] = (model.correct(tp, x, drivers)[0] - model.correct(tm, x, drivers)[0]) / (2 * step[k])
     return np.sqrt(np.clip(np.diag(J @ cal.cov @ J.T), 0, None)) * unit
+
+
+def infer_up(mean_reading_g: np.ndarray, notes: list[str]) -> np.ndarray:
+    """The face whose axis carries the largest |mean reading| (a noted guess, not a label)."""
+    m = np.asarray(mean_reading_g, float)
+    i = int(np.argmax(np.abs(m)))
+    up = np.zeros(3)
+    up[i] = np.sign(m[i])
+    notes.append(f"orientation inferred from the mean reading: {'+' if up[i] > 0 else '-'}{AXES[i]} up")
+    return up
+
+
+@dataclass
+class EvalContext:
+    """What one evaluation of one static session needs besides the samples (units: m/s^2)."""
+
+    cal: Calibration | None
+    label: str
+    session: str
+    up: np.ndarray
+    g_local: float
+    unit: float
+    """m/s^2 per unit of the evaluated output."""
+    quantum_mps2: float
+    notes: list[str]
+    drift: DriftModel | None = None
+    """The calibration's drift model when it applies to this orientation (see drift_for)."""
+
+
+def eval_context(
+    session_name: str,
+    meta,
+    cal: Calibration | None,
+    up: np.ndarray,
+    notes: list[str],
+    *,
+    label: str | None = None,
+    local_gravity_mps2: float | None = None,
+    raw_truth_g: float = 1.0,
+    apply_drift: bool = True,
+) -> EvalContext:
+    """Units, label and the applicable drift model of one evaluation (cal None: the raw reading)."""
+    if cal is not None:
+        g_local = float(local_gravity_mps2 or cal.local_gravity_mps2)
+        unit = g_local / cal.truth_g
+        name = cal.model_spec.get("name", "calibrated")
+    else:
+        g_local = float(local_gravity_mps2 or meta.local_gravity_mps2)
+        unit = g_local / raw_truth_g
+        name = "no calibration"
+    q = (unit / meta.accel_lsb_per_g) if meta.accel_lsb_per_g else 0.0
+    ctx = EvalContext(cal, label or name, session_name, np.asarray(up, float), g_local, unit, q, notes)
+    if cal is not None and cal.drift is not None and apply_drift:
+        dm = cal.drift
+        if dm.up_sensor is not None and not np.allclose(dm.up_sensor, ctx.up, atol=1e-6):
+            notes.append(
+                f"drift model not applied: fitted with up {list(dm.up_sensor)}, this session has up {ctx.up.tolist()}"
+            )
+        else:
+            ctx.drift = dm
+    return ctx
+
+
+def block_residual(ctx: EvalContext, block: Session) -> np.ndarray:
+    """resid = correct(reading) * unit - up * g_local (n,3) m/s^2 of consecutive samples."""
+    f = ctx.cal.correct(block) if ctx.cal is not None else block.accel_g
+    return f * ctx.unit - ctx.up * ctx.g_local
+
+
+def driver_sums(cal: Calibration | None, block: Session) -> dict[str, float]:
+    """Sums over the block of the drivers the calibration's model needs (for their session mean)."""
+    if cal is None:
+        return {}
+    return {k: float(np.sum(v)) for k, v in session_drivers(block, cal.model.required_drivers).items()}
+
+
+def finish_evaluation(
+    ctx: EvalContext, st: dict, reading_mean_g: np.ndarray, drv_mean: dict[str, float], times_s
+) -> Evaluation:
+    """The Evaluation from ResidualSums.finish() statistics (see the module doc for the formulas)."""
+    n = int(st["n"])
+    mean, std = st["mean"], st["std"]
+    sem = np.maximum(std * np.sqrt(st["tau"] / n), ctx.quantum_mps2 / np.sqrt(12.0 * n))
+    duration = float(st["t_last"] - st["t_first"])
+    cal = ctx.cal
+    if cal is not None and cal.noise is not None:  # the calibration's measured white noise is the floor
+        sem = sem_with_noise_floor(cal.noise, sem, duration)
+        ctx.notes.append("noise floor: at least the white noise of the calibration's noise section")
+    cal_sigma = np.zeros(3)
+    if cal is not None:
+        drv = {k: np.array([v]) for k, v in drv_mean.items()}
+        cal_sigma = _cal_sigma_mps2(cal, np.asarray(reading_mean_g, float), drv, ctx.unit)
+    tot = sem**2 + np.nan_to_num(cal_sigma) ** 2
+    series = st.get("series", {})
+    ev = Evaluation(
+        label=ctx.label,
+        session=ctx.session,
+        up_sensor=ctx.up,
+        n=n,
+        duration_s=duration,
+        local_gravity_mps2=ctx.g_local,
+        mps2_per_unit=ctx.unit,
+        mean_resid_mps2=mean,
+        sem_mps2=sem,
+        std_mps2=std,
+        cal_sigma_mps2=cal_sigma,
+        chi2_noise=float(np.sum((mean / sem) ** 2)),
+        chi2_total=float(np.sum(mean**2 / tot)),
+        dof=3,
+        rms_mps2=st["rms"],
+        times_s=np.asarray(times_s, float),
+        t_used_s=st["t_used"],
+        disp_m=st["disp_at"],
+        t_end_s=float(st["t_last"]),
+        disp_end_m=st["disp_end"],
+        notes=ctx.notes,
+        t_s=series.get("t"),
+        resid_series_mps2=series.get("r"),
+        disp_series_m=series.get("d"),
+    )
+    if ctx.drift is not None:
+        _drift_result(ev, ctx.drift, st, series)
+    return ev
+
+
+def _drift_result(ev: Evaluation, dm: DriftModel, st: dict, series: dict) -> None:
+    ev.drift_applied = True
+    ev.disp_drift_series_m = series.get("dd")
+    ev.disp_drift_m = st["disp_drift_at"]
+    ev.disp_end_drift_m = st["disp_drift_end"]
+    if ev.duration_s > 1.05 * dm.fit_duration_s:
+        ev.notes.append(
+            f"drift model fitted over {dm.fit_duration_s:.1f} s, applied over {ev.duration_s:.1f} s: extrapolated"
+        )
+    ev.notes.append("drift model: " + dm.limits)
 
 
 def evaluate(
@@ -250,9 +373,11 @@ def evaluate(
 
     until_s / max_samples cut the session first (the seed used the first 10,800 samples of its
     300 s final test). A drift model is applied only when its orientation matches up_sensor.
+    Steps: checks and residual (calibrated_residual), running sums (stream_sums.ResidualSums, the
+    same code the chunk-by-chunk path feeds), statistics (finish_evaluation).
     """
     notes: list[str] = []
-    t, r, up, g_local, unit, reading = calibrated_residual(
+    t, r, up, _g, _unit, reading = calibrated_residual(
         session,
         cal,
         up_sensor=up_sensor,
@@ -263,86 +388,19 @@ def evaluate(
         check_moving=check_moving,
         notes=notes,
     )
-    mean = r.mean(axis=0)
-    std = r.std(axis=0, ddof=1)
-    sem, _ = sem_autocorr(
-        r, quantum=(unit / session.meta.accel_lsb_per_g) if session.meta.accel_lsb_per_g else 0.0
-    )
-    if cal is not None and cal.noise is not None:  # the calibration's measured white noise is the floor
-        sem = sem_with_noise_floor(cal.noise, sem, float(t[-1] - t[0]))
-        notes.append("noise floor: at least the white noise of the calibration's noise section")
+    name = session.path or session.meta.source
+    check_time(t, session.path)
+    ctx = eval_context(name, session.meta, cal, up, notes, label=label, local_gravity_mps2=local_gravity_mps2,
+                       raw_truth_g=raw_truth_g, apply_drift=apply_drift)  # fmt: skip
+    acc = ResidualSums(times_s, window_s, drift=ctx.drift, keep_series=True)
+    acc.add(t, r)
+    drv: dict[str, float] = {}
     if cal is not None:
-        drv_all = session_drivers(
-            Session(
-                meta=session.meta,
-                t_s=t,
-                sample_index=np.arange(t.size),
-                accel_g=reading,
-                temp_degC=None if session.temp_degC is None else session.temp_degC[: t.size],
-                poses=session.poses,
-            ),
-            cal.model.required_drivers,
-        )
-        drv_mean = {k: np.array([float(np.mean(v))]) for k, v in drv_all.items()}
-        cal_sigma = _cal_sigma_mps2(cal, reading.mean(axis=0), drv_mean, unit)
-    else:
-        cal_sigma = np.zeros(3)
-    chi2_noise = float(np.sum((mean / sem) ** 2))
-    tot = sem**2 + np.nan_to_num(cal_sigma) ** 2
-    chi2_total = float(np.sum(mean**2 / tot))
-    # window-mean RMS
-    edges = np.arange(t[0], t[-1], window_s)
-    starts = np.unique(np.searchsorted(t, edges))
-    sums = np.add.reduceat(r, starts, axis=0)
-    cnt = np.diff(np.append(starts, t.size))[:, None]
-    rms = float(np.sqrt(np.mean((sums / cnt) ** 2)))
-    _, disp = displacement(t, r, remove_gravity_mps2=None, where=session.path)
-    tq = np.asarray(times_s, float)
-    used, d_at = values_at(t, disp, tq)
-    ev = Evaluation(
-        label=label or (cal.model_spec.get("name", "calibrated") if cal is not None else "no calibration"),
-        session=session.path or session.meta.source,
-        up_sensor=up,
-        n=int(t.size),
-        duration_s=float(t[-1] - t[0]),
-        local_gravity_mps2=g_local,
-        mps2_per_unit=unit,
-        mean_resid_mps2=mean,
-        sem_mps2=sem,
-        std_mps2=std,
-        cal_sigma_mps2=cal_sigma,
-        chi2_noise=chi2_noise,
-        chi2_total=chi2_total,
-        dof=3,
-        rms_mps2=rms,
-        times_s=tq,
-        t_used_s=used,
-        disp_m=d_at,
-        t_end_s=float(t[-1]),
-        disp_end_m=disp[-1].copy(),
-        notes=notes,
-        t_s=t,
-        resid_series_mps2=r,
-        disp_series_m=disp,
-    )
-    if cal is not None and cal.drift is not None and apply_drift:
-        dm = cal.drift
-        if dm.up_sensor is not None and not np.allclose(dm.up_sensor, up, atol=1e-6):
-            notes.append(
-                f"drift model not applied: fitted with up {list(dm.up_sensor)}, this session has up {up.tolist()}"
-            )
-        else:
-            dd = dm.apply(t, disp)
-            ev.drift_applied = True
-            ev.disp_drift_series_m = dd
-            ev.disp_drift_m = values_at(t, dd, tq)[1]
-            ev.disp_end_drift_m = dd[-1].copy()
-            if ev.duration_s > 1.05 * dm.fit_duration_s:
-                notes.append(
-                    f"drift model fitted over {dm.fit_duration_s:.1f} s, applied over {ev.duration_s:.1f} s: extrapolated"
-                )
-            notes.append("drift model: " + dm.limits)
-    return ev
+        temp = None if session.temp_degC is None else session.temp_degC[: t.size]
+        sub = Session(meta=session.meta, t_s=t, sample_index=np.arange(t.size), accel_g=reading,
+                      temp_degC=temp, poses=session.poses)  # fmt: skip
+        drv = {k: v / t.size for k, v in driver_sums(cal, sub).items()}
+    return finish_evaluation(ctx, acc.finish(), reading.mean(axis=0), drv, times_s)
 
 
 @dataclass
@@ -412,12 +470,22 @@ def evaluate_poses(
     """Residual corrected - truth_g * up per window of every labelled hold; chi2 against sigma_g.
 
     cal=None: the raw reading against up (truth 1, unit g_local: the seed's "No calibration")."""
+    obs = observations(session, window_s=window_s, trim_s=trim_s)
+    g = float(local_gravity_mps2 or session.meta.local_gravity_mps2)
+    return evaluate_pose_obs(
+        obs, cal, at_s=at_s, raw_gravity_mps2=g, session=session.path or session.meta.source
+    )
+
+
+def evaluate_pose_obs(
+    obs: ObsTable, cal: Calibration | None, *, at_s: float = 60.0, raw_gravity_mps2: float, session: str
+) -> PoseEvaluation:
+    """evaluate_poses from the session's observation table (segment.observations, or streamed)."""
     from accellog.calibrate.fit import obs_drivers
 
-    obs = observations(session, window_s=window_s, trim_s=trim_s)
     if cal is None:
         r = np.asarray(obs.meas_g, float) - np.asarray(obs.up_sensor, float)
-        unit = float(local_gravity_mps2 or session.meta.local_gravity_mps2)
+        unit = float(raw_gravity_mps2)
     else:
         model = cal.model
         drv = {k: v for k, v in obs_drivers(obs).items() if k in model.required_drivers}
@@ -435,7 +503,7 @@ def evaluate_poses(
         sem[i] = 1.0 / np.sqrt(np.sum(w, axis=0))
     return PoseEvaluation(
         label=cal.model_spec.get("name", "calibrated") if cal is not None else "no calibration",
-        session=session.path or session.meta.source,
+        session=session,
         pose_names=list(obs.pose_names),
         mean_resid_g=mean,
         sem_g=sem,

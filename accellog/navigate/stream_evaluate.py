@@ -1,0 +1,200 @@
+"""`evaluate` and `integrate` of a static MCAP session chunk by chunk (memory bounded by one chunk group
+plus a few window tables, whatever the session length).
+
+The samples stream past once (``store.stream.iter_imu``; a second, cheaper pass first only when the
+orientation must be inferred from the mean reading); each block is cut (until_s, max_samples),
+checked (finite), calibrated (``evaluate.block_residual``, per calibration) and folded into
+``stream_sums.ResidualSums``, the same running sums the whole-session ``evaluate`` feeds with one
+block, so both give the same Evaluation up to rounding (tests: JSON within 1e-9 relative). The
+motion check runs on the 0.5 s windows of the raw reading (``segment.moving_check``, the same
+verdict as ``check_static``). Not streamed: models that read dT/dt (a 5 s centred slope needs
+samples on both sides of a block boundary): ``stream_evaluate`` returns None and the caller reads
+the whole session.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from accellog.calibrate.calibration import Calibration
+from accellog.calibrate.segment import _window_stats, moving_check
+from accellog.core.errors import InputError
+from accellog.core.session import PoseLabel, Session, SessionMeta
+from accellog.navigate.evaluate import (
+    EvalContext,
+    Evaluation,
+    block_residual,
+    check_norm,
+    driver_sums,
+    eval_context,
+    finish_evaluation,
+    infer_up,
+)
+from accellog.navigate.integrate import DEFAULT_TIMES_S
+from accellog.navigate.stream_sums import ResidualSums, WindowCarry
+from accellog.store.stream import ImuBlock, iter_imu
+
+STREAM_BLIND_DRIVERS = ("dtemp_degC_per_s",)
+"""Drivers computed over a centred span of samples: models reading them take the whole-session path."""
+
+BlockSink = Callable[[int, np.ndarray, np.ndarray, np.ndarray], None]
+"""on_block(evaluation index, t_s, v_mps (n,3), d_m (n,3)) receives every block's integration."""
+
+
+def can_stream_cals(cals: Sequence[Calibration]) -> bool:
+    """False when a calibration's model needs a driver that is not pointwise (STREAM_BLIND_DRIVERS)."""
+    return not any(d in c.model.required_drivers for c in cals for d in STREAM_BLIND_DRIVERS)
+
+
+def _cut_blocks(path: str | Path, until_s: float | None, max_samples: int | None) -> Iterator[ImuBlock]:
+    """The file's blocks with t <= until_s and at most max_samples samples (evaluate's _slice)."""
+    n = 0
+    with contextlib.closing(iter_imu(path)) as blocks:
+        for b in blocks:
+            k = b.n
+            if until_s is not None:
+                k = min(k, int(np.searchsorted(b.t_s, until_s, side="right")))
+            if max_samples is not None:
+                k = min(k, int(max_samples) - n)
+            if k > 0:
+                n += k
+                yield b if k == b.n else ImuBlock(
+                    b.meta, b.t_s[:k], b.sample_index[:k], b.accel_g[:k],
+                    None if b.gyro_dps is None else b.gyro_dps[:k],
+                    None if b.temp_degC is None else b.temp_degC[:k],
+                )  # fmt: skip
+            if k < b.n:
+                return
+
+
+def _mean_reading(path: str | Path) -> np.ndarray:
+    """nanmean of every accel sample of the file (g): the first pass when the orientation is inferred."""
+    s = np.zeros(3)
+    c = np.zeros(3)
+    for b in iter_imu(path):
+        ok = np.isfinite(b.accel_g)
+        s += np.where(ok, b.accel_g, 0.0).sum(axis=0)
+        c += ok.sum(axis=0)
+    return s / np.maximum(c, 1)
+
+
+def _up(path, poses: list[PoseLabel], up_sensor, notes: list[str]) -> np.ndarray:
+    if up_sensor is not None:
+        return np.asarray(up_sensor, float)
+    if len(poses) == 1:
+        return np.asarray(poses[0].up_sensor, float)
+    if len(poses) > 1:
+        raise InputError(
+            f"evaluate needs a static session in one orientation; this one has {len(poses)} pose "
+            "labels (use evaluate_poses / the pipeline's evaluate_poses stage)",
+            where=str(path),
+        )
+    return infer_up(_mean_reading(path), notes)
+
+
+class _Motion:
+    """check_static's 0.5 s windows of the raw reading, gathered block by block."""
+
+    def __init__(self) -> None:
+        self.cut = WindowCarry(0.5)
+        self.parts: list[tuple] = []
+
+    def add(self, t: np.ndarray, acc: np.ndarray) -> None:
+        self._take(self.cut.push(t, acc))
+
+    def _take(self, out) -> None:
+        if out is None:
+            return
+        t, (acc,), starts = out
+        mean, std, n = _window_stats(acc, starts)
+        ends = np.append(starts[1:] - 1, t.shape[0] - 1)
+        self.parts.append((t[starts], t[ends], mean, std, n))
+
+    def check(self, up: np.ndarray, quantum: float, where: str) -> None:
+        self._take(self.cut.flush())
+        cols = [np.concatenate([p[i] for p in self.parts]) for i in range(5)]
+        label = PoseLabel("static test", float(cols[0][0]), float(cols[1][-1]) + 1e-9, tuple(up))
+        moving_check([(label, *cols)], quantum, where)
+
+
+def stream_evaluate(
+    path: str | Path,
+    meta: SessionMeta,
+    poses: list[PoseLabel],
+    cals: Sequence[Calibration],
+    *,
+    labels: Sequence[str] | None = None,
+    include_raw: bool = True,
+    up_sensor: Sequence[float] | None = None,
+    times_s: Sequence[float] = DEFAULT_TIMES_S,
+    until_s: float | None = None,
+    max_samples: int | None = None,
+    window_s: float = 2.0,
+    check_moving: bool = True,
+    on_block: BlockSink | None = None,
+) -> list[Evaluation] | None:
+    """run_evaluate(read_session(path), cals, ...) in one pass over the file's chunks (module doc):
+    the raw reading first when include_raw (gravity of the first calibration), then each
+    calibration. None when a model reads a driver that does not stream (STREAM_BLIND_DRIVERS)."""
+    if not can_stream_cals(cals):
+        return None
+    where = str(path)
+    notes: list[str] = []
+    up = _up(path, poses, up_sensor, notes)
+    ctxs: list[EvalContext] = []
+    if include_raw:
+        g = cals[0].local_gravity_mps2 if cals else None
+        ctxs.append(eval_context(where, meta, None, up, list(notes), local_gravity_mps2=g))
+    for i, c in enumerate(cals):
+        ctxs.append(eval_context(where, meta, c, up, list(notes), label=labels[i] if labels else None))
+    sums = [ResidualSums(times_s, window_s, drift=x.drift) for x in ctxs]
+    drv: list[dict[str, float]] = [{} for _ in ctxs]
+    motion = _Motion() if check_moving else None
+    n, t_prev, read_sum = 0, np.nan, np.zeros(3)
+    for b in _cut_blocks(path, until_s, max_samples):
+        if not np.isfinite(b.accel_g).all():
+            i = int(np.argmax(~np.isfinite(b.accel_g).all(axis=1)))
+            raise InputError(f"accel is NaN/inf at t = {b.t_s[i]:.3f} s", where=where)
+        _check_step(b, n, t_prev, where)
+        t_prev = float(b.t_s[-1])
+        block = Session(meta=meta, t_s=b.t_s, sample_index=b.sample_index, accel_g=b.accel_g,
+                        temp_degC=b.temp_degC, poses=poses, path=where)  # fmt: skip
+        n += b.n
+        read_sum += b.accel_g.sum(axis=0)
+        if motion is not None:
+            motion.add(b.t_s, b.accel_g)
+        for k, (x, acc) in enumerate(zip(ctxs, sums, strict=True)):
+            v, d = acc.add(b.t_s, block_residual(x, block))
+            for name, val in driver_sums(x.cal, block).items():
+                drv[k][name] = drv[k].get(name, 0.0) + val
+            if on_block is not None:
+                on_block(k, b.t_s, v, d)
+    if n < 10:
+        raise InputError(f"static session has {n} samples (need >= 10)", where=where)
+    check_norm(read_sum / n, where)
+    if motion is not None:
+        motion.check(up, 1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0, where)
+    return [
+        finish_evaluation(x, acc.finish(), read_sum / n, {k: v / n for k, v in dv.items()}, times_s)
+        for x, acc, dv in zip(ctxs, sums, drv, strict=True)
+    ]
+
+
+def _check_step(b: ImuBlock, n_before: int, t_prev: float, where: str) -> None:
+    """integrate.check_time across blocks: finite, strictly increasing stamps (same message)."""
+    t = b.t_s
+    if not np.all(np.isfinite(t)):
+        raise InputError("timestamps contain NaN or infinite values", where=where)
+    tt = t if n_before == 0 else np.concatenate([[t_prev], t])
+    bad = np.diff(tt) <= 0
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"timestamps not strictly increasing at sample {n_before - (n_before > 0) + i + 1} "
+            f"(t = {tt[i + 1]:.6f} s): they must increase",
+            where=where,
+        )

@@ -1,0 +1,286 @@
+"""Running sums of a static residual fed block by block: the statistics `evaluate` reports, in memory
+bounded independently of the session length, equal to the whole-series formulas up to rounding.
+
+For a residual series r_i (m/s^2, i = 0..n-1, times t_i s) fed in consecutive blocks:
+
+- mean and std (ddof 1) from shifted sums S1 = sum (r - c), S2 = sum (r - c)^2 (c: the first
+  block's mean, so no cancellation);
+- the integrated autocorrelation time of ``calibrate.noise.integrated_autocorr_time``: for
+  n > 2 B (B = noise.BLOCK) the autocovariance is averaged over non-overlapping B-blocks centred on
+  the global mean m, which is only known at the end; with y = r - c and m' = m - c,
+
+      sum_j (y_j - m')(y_{j+k} - m') = Syy(k) - m' (P(k) + Q(k)) + m'^2 (B - k)
+
+  (pairs inside one block; P(k) = sum_{j<B-k} y_j, Q(k) = sum_{j>=k} y_j), so Syy (summed block
+  power spectra), P and Q accumulate and m' enters at the end;
+- windows [t0 + k w, t0 + (k+1) w) exactly as ``np.arange(t0, t_end, w)`` cuts the whole series (the
+  open window is carried to the next block);
+- v(t), d(t): the cumulative trapezoid rule carried across blocks (v_i = v_{i-1} + dt (a_i +
+  a_{i-1}) / 2), read at requested times by linear interpolation between samples.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from accellog.calibrate.noise import BLOCK, SOKAL_C, integrated_autocorr_time, tau_from_rho
+
+
+class AutocorrTime:
+    """integrated_autocorr_time(x) of a (n,k) series fed in consecutive pieces (module doc)."""
+
+    def __init__(self, block: int = BLOCK, c: float = SOKAL_C) -> None:
+        self.block, self.c = block, c
+        self.pending: list[np.ndarray] = []
+        self.n_pending = 0
+        self.n = 0
+        self.shift: np.ndarray | None = None
+        self.total: np.ndarray | None = None  # sum of y over every sample (remainder included)
+        self.nb = 0
+        self.spec = self.ysum = None
+        self.long = False
+
+    def add(self, x: np.ndarray) -> None:
+        x = np.asarray(x, float)
+        if x.shape[0] == 0:
+            return
+        if self.shift is None:
+            self.shift = x.mean(axis=0)
+            self.total = np.zeros(x.shape[1])
+        self.n += x.shape[0]
+        self.total += (x - self.shift).sum(axis=0)
+        self.pending.append(x)
+        self.n_pending += x.shape[0]
+        if not self.long and self.n_pending > 2 * self.block:
+            self.long = True
+        if self.long and self.n_pending >= self.block:
+            self._blocks()
+
+    def _blocks(self) -> None:
+        """Fold every complete B-block of the pending samples into the sums."""
+        buf = np.concatenate(self.pending) - self.shift
+        nb = buf.shape[0] // self.block
+        b = self.block
+        y = buf[: nb * b].reshape(nb, b, -1)
+        if self.spec is None:
+            self.spec = np.zeros((b + 1, buf.shape[1]))
+            self.ysum = np.zeros((b, buf.shape[1]))
+        s = np.fft.rfft(y, n=2 * b, axis=1)
+        self.spec += (s * np.conj(s)).real.sum(axis=0)
+        self.ysum += y.sum(axis=0)  # P and Q are linear in y: built from the block sum at the end
+        self.nb += nb
+        rest = buf[nb * b :] + self.shift
+        self.pending = [rest] if rest.shape[0] else []
+        self.n_pending = rest.shape[0]
+
+    def tau(self) -> np.ndarray:
+        """(k,) tau in samples, >= 1 (integrated_autocorr_time of everything added)."""
+        if not self.long:
+            return np.atleast_1d(integrated_autocorr_time(np.concatenate(self.pending), c=self.c))
+        b = self.block
+        m = self.total / self.n
+        syy = np.fft.irfft(self.spec, n=2 * b, axis=0)[:b]
+        lags = np.arange(b, dtype=float)[:, None]
+        cs = np.cumsum(self.ysum, axis=0)  # summed over blocks: cs[j] = sum_b sum_{i<=j} y_bi
+        p = cs[::-1]  # P(k) = cs[B-1-k]
+        q = cs[-1] - np.concatenate([np.zeros((1, cs.shape[1])), cs[:-1]])  # Q(k) = total - cs[k-1]
+        acov = syy - m * (p + q) + m * m * (b - lags) * self.nb
+        var0 = acov[0]
+        ok = var0 > 1e-300
+        rho = np.zeros_like(acov)
+        rho[:, ok] = acov[:, ok] / var0[ok]
+        rho[0, :] = 1.0
+        return tau_from_rho(rho, self.c)
+
+
+class WindowCarry:
+    """Cuts a series fed in blocks into the windows np.arange(t0, t_end, width) gives the whole series
+    (``np.unique(np.searchsorted(t, edges))``), carrying the open window to the next block."""
+
+    def __init__(self, width_s: float) -> None:
+        self.width = float(width_s)
+        self.t0: float | None = None
+        self.carry: tuple[np.ndarray, ...] | None = None
+
+    def push(self, t: np.ndarray, *cols: np.ndarray) -> tuple[np.ndarray, tuple, np.ndarray] | None:
+        """(t, cols, starts) of the windows this block completes (None: none yet)."""
+        if t.shape[0] == 0:
+            return None
+        if self.t0 is None:
+            self.t0 = float(t[0])
+        if self.carry is not None:
+            t = np.concatenate([self.carry[0], t])
+            cols = tuple(np.concatenate([c, x]) for c, x in zip(self.carry[1:], cols, strict=True))
+        starts = self._starts(t)
+        last = int(starts[-1])
+        self.carry = (t[last:], *(c[last:] for c in cols))
+        if starts.size < 2:
+            return None
+        return t[:last], tuple(c[:last] for c in cols), starts[:-1]
+
+    def _starts(self, t: np.ndarray) -> np.ndarray:
+        edges = np.arange(self.t0, t[-1], self.width)
+        edges = edges[edges > t[0]] if edges.size else edges
+        return np.unique(np.concatenate([[0], np.searchsorted(t, edges)]))
+
+    def flush(self) -> tuple[np.ndarray, tuple, np.ndarray] | None:
+        """The last (open) window: the series has ended."""
+        if self.carry is None or self.carry[0].shape[0] == 0:
+            return None
+        t, *cols = self.carry
+        self.carry = None
+        return t, tuple(cols), np.zeros(1, dtype=int)
+
+
+class Integrator:
+    """v = cumtrapz(t, a), d = cumtrapz(t, v) carried across blocks; values at requested times."""
+
+    def __init__(self, times_s: Sequence[float], tolerance_s: float = 0.5) -> None:
+        self.req = np.asarray(times_s, float)
+        self.tol = tolerance_s
+        self.used = np.full(self.req.shape, np.nan)
+        self.at: dict[str, np.ndarray] = {}
+        self.last: dict[str, np.ndarray] | None = None  # t, a, v, d (and extra series) of the last sample
+        self.t0: float | None = None
+
+    def add(
+        self, t: np.ndarray, a: np.ndarray, extra: Callable[[np.ndarray, np.ndarray], dict] | None = None
+    ) -> tuple[np.ndarray, np.ndarray, dict]:
+        """(v, d, extra series) of this block; extra(t, d) -> {name: (m,3)} series also read at times."""
+        if t.shape[0] == 0:
+            z = np.zeros((0, 3))
+            return z, z, {}
+        if self.last is None:
+            self.t0 = float(t[0])
+            tt, aa, v0, d0 = t, a, np.zeros(3), np.zeros(3)
+        else:
+            tt = np.concatenate([[self.last["t"]], t])
+            aa = np.concatenate([self.last["a"][None, :], a])
+            v0, d0 = self.last["v"], self.last["d"]
+        dt = np.diff(tt)[:, None]
+        v = np.cumsum(dt * (aa[1:] + aa[:-1]) / 2.0, axis=0) + v0
+        if self.last is None:
+            v = np.concatenate([np.zeros((1, 3)), v])
+        vv = v if self.last is None else np.concatenate([v0[None, :], v])
+        d = np.cumsum(dt * (vv[1:] + vv[:-1]) / 2.0, axis=0) + d0
+        if self.last is None:
+            d = np.concatenate([np.zeros((1, 3)), d])
+        series = {"d": d, **(extra(t, d) if extra is not None else {})}
+        self._read_at(t, series)
+        self.last = {"t": float(t[-1]), "a": a[-1].copy(), "v": v[-1].copy(), "d": d[-1].copy()}
+        self.last.update({f"end_{k}": s[-1].copy() for k, s in series.items()})
+        return v, d, series
+
+    def _read_at(self, t: np.ndarray, series: dict[str, np.ndarray]) -> None:
+        want = np.maximum(self.req, self.t0)
+        prev = self.last
+        lo = prev["t"] if prev is not None else t[0]
+        sel = np.flatnonzero(np.isnan(self.used) & (want >= lo) & (want <= t[-1]))
+        if sel.size == 0:
+            return
+        tt = t if prev is None else np.concatenate([[prev["t"]], t])
+        for k, s in series.items():
+            ss = s if prev is None else np.concatenate([prev[f"end_{k}"][None, :], s])
+            out = self.at.setdefault(k, np.full((self.req.size, 3), np.nan))
+            for j in range(3):  # 3 columns: not a per-sample loop
+                out[sel, j] = np.interp(want[sel], tt, ss[:, j])
+        self.used[sel] = want[sel]
+
+    def finish(self) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """(t_used_s, values at the times per series, end values per series); values_at's rule: a
+        time after the last sample within tolerance_s takes the last sample, further out NaN."""
+        t_end = self.last["t"]
+        late = np.isnan(self.used) & (self.req > t_end) & (self.req - t_end <= self.tol)
+        ends = {k[4:]: v for k, v in self.last.items() if k.startswith("end_")}
+        for k, e in ends.items():
+            out = self.at.setdefault(k, np.full((self.req.size, 3), np.nan))
+            out[late] = e
+        self.used[late] = t_end
+        return self.used.copy(), self.at, ends
+
+
+class ResidualSums:
+    """Everything `evaluate` reports about one residual series r (n,3) m/s^2 fed block by block:
+    mean, std, tau, RMS of window means, displacement at times and at the end (module doc).
+
+    drift: a DriftModel applied to d(t) (its series read at the same times); keep_series keeps
+    t, r, d (and the drifted d) for plots (the whole-session path)."""
+
+    def __init__(
+        self, times_s: Sequence[float], window_s: float, drift=None, keep_series: bool = False
+    ) -> None:
+        self.n = 0
+        self.shift: np.ndarray | None = None
+        self.s1 = np.zeros(3)
+        self.s2 = np.zeros(3)
+        self.tau = AutocorrTime()
+        self.windows = WindowCarry(window_s)
+        self.win_sq = 0.0
+        self.win_n = 0
+        self.integ = Integrator(times_s)
+        self.drift = drift
+        self.t_first = self.t_last = np.nan
+        self.keep = keep_series
+        self.series: dict[str, list[np.ndarray]] = {"t": [], "r": [], "v": [], "d": [], "dd": []}
+
+    def add(self, t: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fold one block in; returns its (v, d) (m/s, m) for a caller writing them out."""
+        if t.shape[0] == 0:
+            z = np.zeros((0, 3))
+            return z, z
+        if self.shift is None:
+            self.shift = r.mean(axis=0)
+            self.t_first = float(t[0])
+        y = r - self.shift
+        self.n += t.shape[0]
+        self.s1 += y.sum(axis=0)
+        self.s2 += (y * y).sum(axis=0)
+        self.tau.add(r)
+        self._windows(self.windows.push(t, r))
+        extra = None
+        if self.drift is not None:
+            dm = self.drift
+            extra = lambda tb, d: {"dd": dm.apply(tb, d)}  # noqa: E731
+        v, d, series = self.integ.add(t, r, extra)
+        self.t_last = float(t[-1])
+        if self.keep:
+            for k, s in (("t", t), ("r", r), ("v", v), ("d", d), ("dd", series.get("dd"))):
+                if s is not None:
+                    self.series[k].append(s)
+        return v, d
+
+    def _windows(self, out) -> None:
+        if out is None:
+            return
+        _t, (r,), starts = out
+        sums = np.add.reduceat(r, starts, axis=0)
+        cnt = np.diff(np.append(starts, r.shape[0]))[:, None]
+        self.win_sq += float(np.sum((sums / cnt) ** 2))
+        self.win_n += sums.size
+
+    def finish(self) -> dict:
+        """Statistics of everything added (keys as Evaluation's fields)."""
+        self._windows(self.windows.flush())
+        n = self.n
+        m_c = self.s1 / n
+        var = np.maximum(self.s2 - n * m_c**2, 0.0) / max(n - 1, 1)
+        used, at, ends = self.integ.finish()
+        out = {
+            "n": n,
+            "mean": m_c + self.shift,
+            "std": np.sqrt(var),
+            "tau": self.tau.tau(),
+            "rms": float(np.sqrt(self.win_sq / self.win_n)),
+            "t_used": used,
+            "disp_at": at["d"],
+            "disp_end": ends["d"],
+            "disp_drift_at": at.get("dd"),
+            "disp_drift_end": ends.get("dd"),
+            "t_first": self.t_first,
+            "t_last": self.t_last,
+        }
+        if self.keep:
+            out["series"] = {k: np.concatenate(v) for k, v in self.series.items() if v}
+        return out
