@@ -12,10 +12,16 @@ process under GNU time (wall, peak RSS), one at a time:
     fit_stream      flows.stages.run_fit(P): the fit command now (observations, time checks and the
                     gyro calibration streamed; same calibration)
     decompress      the floor of any reader: zstd-decompress every chunk of the file (no decoding)
+    evaluate_whole  the evaluate command before streaming: run_evaluate_report(P, [CAL], stream=False)
+                    on a static '+z' session of the same length (synth_static.py), raw + model3
+    evaluate_stream the evaluate command now (navigate.stream_evaluate: one pass over the chunks)
+    integrate_whole the integrate command before streaming (whole session, CSV of every sample)
+    integrate_stream the integrate command now (rows written block by block)
 
 Prints the load average with each row (a loaded 2-core machine inflates every wall time).
 
-    python benchmarks/bench_scale.py [--hours 0.0167 1 4] [--keep]
+    python benchmarks/bench_scale.py [--hours 0.0167 1 4] [--modes ...]
+    python benchmarks/bench_scale.py --hours 1 4 --modes evaluate_whole evaluate_stream integrate_stream
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from synth_long import write_long
+from synth_static import write_static
 
 MODES = {
     "read": "from accellog.store.reader import read_session; s = read_session(P)",
@@ -56,12 +63,21 @@ MODES = {
         "        z(rec.data, max_output_size=rec.uncompressed_size) if rec.compression == 'zstd' else "
         "lz4.frame.decompress(rec.data)"
     ),
+    "evaluate_whole": "from accellog.flows.static_stages import run_evaluate_report as r; r(P, [CAL], stream=False)",
+    "evaluate_stream": "from accellog.flows.static_stages import run_evaluate_report as r; r(P, [CAL])",
+    "integrate_whole": (
+        "from accellog.flows.static_stages import run_integrate as r; r(P, CAL, output=OUT, stream=False)"
+    ),
+    "integrate_stream": "from accellog.flows.static_stages import run_integrate as r; r(P, CAL, output=OUT)",
 }
+STATIC_MODES = ("evaluate_whole", "evaluate_stream", "integrate_whole", "integrate_stream")
+"""Modes run on a static one-hold session (synth_static.py) with a model3 calibration CAL."""
 
 
-def run(mode: str, path: Path) -> tuple[float, float]:
+def run(mode: str, path: Path, cal: Path | None = None) -> tuple[float, float]:
     """(wall s, peak RSS MB) of one fresh process doing `mode` on path, BLAS on one thread."""
-    code = f"P = {str(path)!r}\nfrom threadpoolctl import threadpool_limits\nthreadpool_limits(1, 'blas')\n{MODES[mode]}"
+    out = path.with_suffix(".csv")
+    code = f"P = {str(path)!r}\nCAL = {str(cal)!r}\nOUT = {str(out)!r}\nfrom threadpoolctl import threadpool_limits\nthreadpool_limits(1, 'blas')\n{MODES[mode]}"
     t0 = time.perf_counter()
     r = subprocess.run(
         ["/usr/bin/time", "-f", "%M", sys.executable, "-c", code], capture_output=True, text=True
@@ -69,7 +85,17 @@ def run(mode: str, path: Path) -> tuple[float, float]:
     wall = time.perf_counter() - t0
     if r.returncode:
         raise SystemExit(f"{mode}: {r.stderr[-2000:]}")
+    out.unlink(missing_ok=True)
     return wall, int(r.stderr.strip().splitlines()[-1]) / 1024
+
+
+def _calibration(d: Path) -> Path:
+    """model3 fitted on a 10 min synth_long session (the calibration the static modes evaluate)."""
+    from accellog.flows.stages import run_fit
+
+    src = write_long(d / "cal.mcap", 600.0, seed=7)
+    run_fit(src).cal.save(d / "cal.json")
+    return d / "cal.json"
 
 
 def main() -> None:
@@ -77,17 +103,28 @@ def main() -> None:
     ap.add_argument("--hours", type=float, nargs="+", default=[1 / 60, 1.0, 4.0])
     ap.add_argument("--modes", nargs="+", default=list(MODES))
     args = ap.parse_args()
-    print(f"{'session':>8} {'file MB':>8} {'mode':>11} {'wall s':>8} {'peak MB':>8}  load average")
+    print(f"{'session':>8} {'file MB':>8} {'mode':>16} {'wall s':>8} {'peak MB':>8}  load average")
     with tempfile.TemporaryDirectory(dir="/tmp") as d:
+        static = [m for m in args.modes if m in STATIC_MODES]
+        cal = _calibration(Path(d)) if static else None
         for h in args.hours:
-            path = write_long(Path(d) / "s.mcap", h * 3600.0, seed=1)
-            mb = path.stat().st_size / 1e6
-            for mode in args.modes:
-                wall, peak = run(mode, path)
-                label = f"{h * 60:.0f} min" if h < 1 else f"{h:g} h"
-                load = " ".join(f"{x:.1f}" for x in os.getloadavg())
-                print(f"{label:>8} {mb:>8.1f} {mode:>11} {wall:>8.2f} {peak:>8.0f}  {load}", flush=True)
-            path.unlink()
+            label = f"{h * 60:.0f} min" if h < 1 else f"{h:g} h"
+            for kind, modes in (
+                ("labelled", [m for m in args.modes if m not in STATIC_MODES]),
+                ("static", static),
+            ):
+                if not modes:
+                    continue
+                if kind == "static":
+                    path = write_static(Path(d) / "static.mcap", h * 3600.0, seed=1)
+                else:
+                    path = write_long(Path(d) / "s.mcap", h * 3600.0, seed=1)
+                mb = path.stat().st_size / 1e6
+                for mode in modes:
+                    wall, peak = run(mode, path, cal)
+                    load = " ".join(f"{x:.1f}" for x in os.getloadavg())
+                    print(f"{label:>8} {mb:>8.1f} {mode:>16} {wall:>8.2f} {peak:>8.0f}  {load}", flush=True)
+                path.unlink()
 
 
 if __name__ == "__main__":

@@ -167,8 +167,11 @@ def evaluate_cmd(
         return
     if rep.poses:
         report.print_tables([report.pose_eval_table(p) for p in rep.poses], _console)
+        report.print_tables([report.pass_eval_table(p) for p in rep.poses[1:]], _console)  # not the raw
         for line in report.pose_eval_summary(rep.poses, at_s):
             _console.print(line)
+        for line in (f for p in rep.poses for f in p.flags):
+            _console.print(f"[yellow]{line}[/]")
         return
     evs = rep.single
     report.print_tables([report.static_means_table(evs), report.displacement_table(evs, at_s=at_s)], _console)

@@ -25,9 +25,10 @@ from accellog.core.session import ObsTable, Session
 from accellog.core.timeseries import cumtrapz
 from accellog.flows.stages import load_input, run_evaluate
 from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
-from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_pose_obs, evaluate_poses
+from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_pose_obs
 from accellog.navigate.stream_evaluate import can_stream_cals, stream_evaluate
 from accellog.present import tables, views
+from accellog.present.residual_views import log_residuals_vs_drivers
 from accellog.present.rrd.recording import RunRecording
 from accellog.store.atomic import atomic_output, write_text_atomic
 
@@ -77,6 +78,8 @@ class EvaluationReport(JsonResult):
     at_s: float
     single: list[Evaluation] = field(default_factory=list)
     poses: list[PoseEvaluation] = field(default_factory=list)
+    obs: ObsTable | None = None
+    """The observation windows the pose evaluations judge (multi-pose sessions)."""
 
     @property
     def kind(self) -> str:
@@ -103,9 +106,21 @@ class EvaluationReport(JsonResult):
                 views.log_session(rec, self.data, calibrations=self.calibrations_by_label())
             if self.poses:
                 md = "\n".join(views.table_markdown(tables.pose_eval_table(p)) for p in self.poses)
+                passes = [t for t in (tables.pass_eval_table(p) for p in self.poses) if t is not None]
+                md += "".join("\n" + views.table_markdown(t) for t in passes)
+                md += "".join(f"\n- {f}" for p in self.poses for f in p.flags)
                 rec.log_document("results/poses", md)
+                fits = {p.label: _WindowResiduals(p.window_resid_g) for p in self.poses}
+                log_residuals_vs_drivers(rec, self.obs, fits)
             else:
                 views.log_evaluations(rec, self.single)
+
+
+@dataclass
+class _WindowResiduals:
+    """The window residuals of one evaluation, as present.residual_views plots a fit's (g)."""
+
+    residual_g: np.ndarray
 
 
 def run_evaluate_report(
@@ -132,9 +147,7 @@ def run_evaluate_report(
     rep = EvaluationReport(data, cals, labels, at_s)
     if isinstance(data, Session) and len(data.poses) > 1:
         _refuse_cut(len(data.poses), until_s, max_samples, data.path)
-        g = cals[0].local_gravity_mps2 if cals else None
-        rep.poses = [evaluate_poses(data, None, at_s=at_s, local_gravity_mps2=g)]
-        rep.poses += [evaluate_poses(data, c, at_s=at_s) for c in cals]
+        _pose_evaluations(rep, observations(data), data.meta, data.path or data.meta.source)
         return rep
     rep.single = run_evaluate(
         data if isinstance(data, Session) else test,
@@ -144,6 +157,16 @@ def run_evaluate_report(
         labels=labels,
     )
     return rep
+
+
+def _pose_evaluations(rep: EvaluationReport, obs: ObsTable, meta, session: str) -> None:
+    """The raw reading, then each calibration, window by window (gravity of the first calibration)."""
+    g = rep.cals[0].local_gravity_mps2 if rep.cals else meta.local_gravity_mps2
+    rep.obs = obs
+    rep.poses = [
+        evaluate_pose_obs(obs, c, at_s=rep.at_s, raw_gravity_mps2=g, session=session)
+        for c in [None, *rep.cals]
+    ]
 
 
 def _refuse_cut(n_poses: int, until_s: float | None, max_samples: int | None, where: str | None) -> None:
@@ -165,10 +188,7 @@ def _streamed_report(
     rep = EvaluationReport(s, cals, labels, at_s)
     if len(s.poses) > 1:
         _refuse_cut(len(s.poses), until_s, max_samples, s.path)
-        obs = stream_observations(s.path, labels=(s.meta, s.poses, []))
-        g = cals[0].local_gravity_mps2 if cals else s.meta.local_gravity_mps2
-        rep.poses = [evaluate_pose_obs(obs, None, at_s=at_s, raw_gravity_mps2=g, session=s.path)]
-        rep.poses += [evaluate_pose_obs(obs, c, at_s=at_s, raw_gravity_mps2=g, session=s.path) for c in cals]
+        _pose_evaluations(rep, stream_observations(s.path, labels=(s.meta, s.poses, [])), s.meta, s.path)
         return rep
     evs = stream_evaluate(
         s.path, s.meta, s.poses, cals, labels=labels, until_s=until_s, max_samples=max_samples

@@ -34,6 +34,7 @@ from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, PoseLabel, Session
 from accellog.core.timeseries import check_time
 from accellog.navigate.integrate import DEFAULT_TIMES_S
+from accellog.navigate.pose_passes import PassRow, TrendRow, disagreements, flag_lines, passes, trends
 from accellog.navigate.stream_sums import ResidualSums
 
 AXES = ("x", "y", "z")
@@ -420,6 +421,14 @@ class PoseEvaluation(JsonResult):
     mean_resid_all_g: np.ndarray | None = None
     """(3,) mean residual over every window of every hold (g)."""
     at_s: float = 60.0
+    passes: list[PassRow] = field(default_factory=list)
+    """One row per visit of a pose (navigate.pose_passes)."""
+    trends: list[TrendRow] = field(default_factory=list)
+    """Slopes of each pose's window residuals against temperature and time in the hold."""
+    flags: list[str] = field(default_factory=list)
+    """Poses whose passes disagree beyond noise or whose windows trend (sentences)."""
+    window_resid_g: np.ndarray | None = None
+    """(windows,3) residual of every window (g; for plots, not in to_dict)."""
 
     @property
     def disp_at_m(self) -> np.ndarray:
@@ -455,6 +464,12 @@ class PoseEvaluation(JsonResult):
             f"displacement_{self.at_s:g}s_m": worst.tolist(),
             "displacement_note": f"per hold, extrapolated from rest: 1/2 mean residual ({self.at_s:g} s)^2; "
             "top level: the hold with the largest |d| per axis",
+            "passes": [p.to_dict() for p in self.passes],
+            "pass_disagreement": {
+                k: {"chi2": c, "dof": d, "p_value": p} for k, (c, d, p) in disagreements(self.passes).items()
+            },
+            "trends": [t.to_dict() for t in self.trends],
+            "flags": list(self.flags),
         }
 
 
@@ -501,8 +516,10 @@ def evaluate_pose_obs(
         w = 1.0 / obs.sigma_g[m] ** 2
         mean[i] = np.sum(r[m] * w, axis=0) / np.sum(w, axis=0)
         sem[i] = 1.0 / np.sqrt(np.sum(w, axis=0))
+    label = cal.model_spec.get("name", "calibrated") if cal is not None else "no calibration"
+    rows, trend_rows = passes(obs, r), trends(obs, r)
     return PoseEvaluation(
-        label=cal.model_spec.get("name", "calibrated") if cal is not None else "no calibration",
+        label=label,
         session=session,
         pose_names=list(obs.pose_names),
         mean_resid_g=mean,
@@ -513,4 +530,8 @@ def evaluate_pose_obs(
         mps2_per_unit=float(unit),
         mean_resid_all_g=r.mean(axis=0),
         at_s=float(at_s),
+        passes=rows,
+        trends=trend_rows,
+        flags=flag_lines(rows, trend_rows, label) if cal is not None else [],  # raw: a baseline
+        window_resid_g=r,
     )

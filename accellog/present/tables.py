@@ -171,6 +171,22 @@ def pose_eval_table(pe: PoseEvaluation) -> Table:
     return t
 
 
+def pass_eval_table(pe: PoseEvaluation) -> Table | None:
+    """Mean residual per visit of a pose (mg) +- sem with span, temperature and chi2/dof; None when
+    every pose was visited once and no pose trends (the pose table says it all)."""
+    if len(pe.passes) <= len({p.pose for p in pe.passes}) and not pe.flags:
+        return None
+    t = Table(title=f"{pe.label} on {pe.session}: residual per pass (visit of a pose)")
+    for c in ("pose", "visit", "t (s)", "T (degC)", *(f"{ax} (mg)" for ax in AXES), "chi2/dof"):
+        t.add_column(c, justify="left" if c == "pose" else "right")
+    for p in pe.passes:
+        temp = "-" if p.temp_min_degC is None else f"{p.temp_min_degC:.1f}-{p.temp_max_degC:.1f}"
+        t.add_row(p.pose, str(p.visit), f"{p.start_s:.0f}-{p.end_s:.0f}", temp,
+                  *(fmt_pm(float(a) * 1000, float(b) * 1000) for a, b in zip(p.mean_resid_g, p.sem_g, strict=True)),
+                  f"{p.chi2_dof:.3g}")  # fmt: skip
+    return t
+
+
 def print_tables(tables: Sequence[Table | None], console: Console | None = None) -> None:
     console = console or Console()
     for t in tables:
