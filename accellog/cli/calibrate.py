@@ -173,6 +173,10 @@ def evaluate_cmd(
         for line in (f for p in rep.poses for f in p.flags):
             _console.print(f"[yellow]{line}[/]")
         return
+    if rep.handheld:
+        report.print_tables([report.handheld_eval_table(h) for h in rep.handheld], _console)
+        _console.print(f"[dim]{rep.to_dict()['cannot_judge']}[/]")
+        return
     evs = rep.single
     report.print_tables([report.static_means_table(evs), report.displacement_table(evs, at_s=at_s)], _console)
     drifted = [e for e in evs if e.drift_applied]

@@ -26,6 +26,12 @@ from accellog.core.timeseries import cumtrapz
 from accellog.flows.stages import load_input, run_evaluate
 from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_pose_obs
+from accellog.navigate.handheld_evaluate import (
+    CANNOT_JUDGE,
+    HandheldEvaluation,
+    detect_intervals,
+    evaluate_handheld,
+)
 from accellog.navigate.stream_evaluate import can_stream_cals, stream_evaluate
 from accellog.present import tables, views
 from accellog.present.residual_views import log_residuals_vs_drivers
@@ -79,13 +85,22 @@ class EvaluationReport(JsonResult):
     single: list[Evaluation] = field(default_factory=list)
     poses: list[PoseEvaluation] = field(default_factory=list)
     obs: ObsTable | None = None
-    """The observation windows the pose evaluations judge (multi-pose sessions)."""
+    """The observation windows the pose evaluations judge (multi-pose and hand-held sessions)."""
+    handheld: list[HandheldEvaluation] = field(default_factory=list)
+    """Unlabelled sessions that move: per detected interval, the gravity-norm residual."""
 
     @property
     def kind(self) -> str:
-        return "poses" if self.poses else "single"
+        return "poses" if self.poses else "handheld" if self.handheld else "single"
 
     def to_dict(self) -> dict:
+        if self.handheld:
+            return {
+                "kind": "handheld",
+                "raw": self.handheld[0].to_dict(),
+                "calibrated": [h.to_dict() for h in self.handheld[1:]],
+                "cannot_judge": CANNOT_JUDGE,
+            }
         if self.poses:
             return {
                 "kind": "poses",
@@ -95,7 +110,7 @@ class EvaluationReport(JsonResult):
         return {"raw": self.single[0].to_dict(), "calibrated": [e.to_dict() for e in self.single[1:]]}
 
     def calibrations_by_label(self) -> dict[str, Calibration]:
-        rows = self.poses[1:] if self.poses else self.single[1:]
+        rows = self.poses[1:] if self.poses else self.handheld[1:] if self.handheld else self.single[1:]
         return dict(zip(self.labels or [r.label for r in rows], self.cals, strict=True))
 
     def write_rrd(self, path: str | Path) -> None:
@@ -112,6 +127,9 @@ class EvaluationReport(JsonResult):
                 rec.log_document("results/poses", md)
                 fits = {p.label: _WindowResiduals(p.window_resid_g) for p in self.poses}
                 log_residuals_vs_drivers(rec, self.obs, fits)
+            elif self.handheld:
+                md = "\n".join(views.table_markdown(tables.handheld_eval_table(h)) for h in self.handheld)
+                rec.log_document("results/handheld", md + "\n\n" + CANNOT_JUDGE)
             else:
                 views.log_evaluations(rec, self.single)
 
@@ -139,6 +157,42 @@ def run_evaluate_report(
     cals = [load_calibration(c) for c in cal_paths]
     names = [c.model_spec.get("name", "") for c in cals]
     labels = [p.stem for p in cal_paths] if len(set(names)) < len(names) else None  # same-model files apart
+    try:
+        return _labelled_or_static(test, cals, labels, until_s=until_s, max_samples=max_samples, at_s=at_s,
+                                   stream=stream)  # fmt: skip
+    except InputError as exc:
+        return _handheld_report(test, cals, labels, at_s, exc)
+
+
+def _handheld_report(
+    test, cals: list[Calibration], labels, at_s: float, refused: InputError
+) -> EvaluationReport:
+    """A session without pose labels that is not one static hold (it moves, its mean is not 1 g):
+    judged on its detected static intervals with the gravity-norm residual
+    (navigate.handheld_evaluate). `refused` (the single-hold error) is raised again when the session
+    is labelled or fewer than 2 distinct static orientations are found."""
+    try:
+        data = load_input(test)
+        if not isinstance(data, Session) or data.poses:
+            raise refused
+        obs, intervals = detect_intervals(data)
+    except InputError:
+        raise refused from None
+    g = cals[0].local_gravity_mps2 if cals else data.meta.local_gravity_mps2
+    name = data.path or data.meta.source
+    rep = EvaluationReport(data, cals, labels, at_s, obs=obs)
+    rep.handheld = [
+        evaluate_handheld(obs, intervals, c, session=name, raw_gravity_mps2=g) for c in [None, *cals]
+    ]
+    for h, lab in zip(rep.handheld[1:], labels or [], strict=False):
+        h.label = lab
+    return rep
+
+
+def _labelled_or_static(
+    test, cals: list[Calibration], labels, *, until_s, max_samples, at_s: float, stream: bool
+) -> EvaluationReport:
+    """A labelled multi-pose session hold by hold, or one static hold (streamed for MCAP)."""
     if stream and can_stream(test):
         rep = _streamed_report(test, cals, labels, until_s=until_s, max_samples=max_samples, at_s=at_s)
         if rep is not None:

@@ -187,6 +187,20 @@ def pass_eval_table(pe: PoseEvaluation) -> Table | None:
     return t
 
 
+def handheld_eval_table(h) -> Table:
+    """Gravity-norm residual |f| - g (mg) +- sem per detected static interval of a hand-held session."""
+    t = Table(title=f"{h.label} on {h.session}: |f| - g per detected static interval")
+    for c in ("interval", "t (s)", "up (sensor)", "windows", "|f| - g (mg)", "chi2/dof"):
+        t.add_column(c, justify="right")
+    for k, r in enumerate(h.rows()):
+        up = " ".join(f"{v:+.2f}" for v in r["up_sensor"])
+        t.add_row(str(k), f"{r['start_s']:.1f}-{r['end_s']:.1f}", up, str(r["n_windows"]),
+                  fmt_pm(1e3 * r["mean_norm_residual_g"], 1e3 * r["sem_g"]), f"{r['chi2_dof']:.3g}")  # fmt: skip
+    d = h.to_dict()
+    t.caption = f"RMS {d['rms_g'] * 1e3:.4g} mg, chi2/dof {d['chi2_dof']:.3g} ({d['dof']} windows)"
+    return t
+
+
 def print_tables(tables: Sequence[Table | None], console: Console | None = None) -> None:
     console = console or Console()
     for t in tables:
