@@ -12,10 +12,9 @@ For a session at rest in one orientation (up vector u, sensor frame):
     and after the drift model when the calibration carries one (d - 1/2 q2 t^2 - q1 t - q0).
 
 `cal=None` evaluates the raw reading (the seed's "No calibration" row: a = reading * g_local).
-`evaluate_poses` evaluates a multi-pose session window by window; its displacement at 60 s is per
-hold, extrapolated from the hold's mean residual as if it persisted from rest:
-d_k(60 s) = 1/2 mean_r_k (m/s^2) (60 s)^2 (holds are shorter than 60 s; for a constant residual this
-is what the double integral gives).
+The statistics come from running sums (navigate.stream_sums.ResidualSums), fed here with the whole
+session as one block and by navigate.stream_evaluate chunk by chunk from an MCAP file: both paths
+give the same numbers. Multi-pose sessions: navigate.pose_evaluate (evaluate_poses, re-exported).
 """
 
 from __future__ import annotations
@@ -28,13 +27,12 @@ import numpy as np
 from accellog.calibrate.calibration import Calibration, session_drivers
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.noise_model import sem_with_noise_floor
-from accellog.calibrate.segment import check_static, observations
+from accellog.calibrate.segment import check_static
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
-from accellog.core.session import ObsTable, PoseLabel, Session
+from accellog.core.session import PoseLabel, Session
 from accellog.core.timeseries import check_time
 from accellog.navigate.integrate import DEFAULT_TIMES_S
-from accellog.navigate.pose_passes import PassRow, TrendRow, disagreements, flag_lines, passes, trends
 from accellog.navigate.stream_sums import ResidualSums
 
 AXES = ("x", "y", "z")
@@ -404,134 +402,22 @@ def evaluate(
     return finish_evaluation(ctx, acc.finish(), reading.mean(axis=0), drv, times_s)
 
 
-@dataclass
-class PoseEvaluation(JsonResult):
-    """Window-by-window residuals of a calibration on a multi-pose session (g)."""
+# multi-pose sessions: accellog.navigate.pose_evaluate (re-exported here for existing callers)
+from accellog.navigate.pose_evaluate import PoseEvaluation, evaluate_pose_obs, evaluate_poses  # noqa: E402
 
-    label: str
-    session: str
-    pose_names: list[str]
-    mean_resid_g: np.ndarray  # (poses,3)
-    sem_g: np.ndarray  # (poses,3)
-    rms_g: float
-    chi2: float
-    dof: int
-    mps2_per_unit: float = float("nan")
-    """m/s^2 per unit of the evaluated output (calibration's, or g_local for the raw reading)."""
-    mean_resid_all_g: np.ndarray | None = None
-    """(3,) mean residual over every window of every hold (g)."""
-    at_s: float = 60.0
-    passes: list[PassRow] = field(default_factory=list)
-    """One row per visit of a pose (navigate.pose_passes)."""
-    trends: list[TrendRow] = field(default_factory=list)
-    """Slopes of each pose's window residuals against temperature and time in the hold."""
-    flags: list[str] = field(default_factory=list)
-    """Poses whose passes disagree beyond noise or whose windows trend (sentences)."""
-    window_resid_g: np.ndarray | None = None
-    """(windows,3) residual of every window (g; for plots, not in to_dict)."""
-
-    @property
-    def disp_at_m(self) -> np.ndarray:
-        """(poses,3) m: per-hold displacement at at_s, 1/2 mean_r (m/s^2) at_s^2 (see module doc)."""
-        return 0.5 * self.mean_resid_g * self.mps2_per_unit * self.at_s**2
-
-    def to_dict(self) -> dict:
-        d60 = self.disp_at_m
-        worst = d60[np.argmax(np.abs(d60), axis=0), np.arange(3)] if d60.size else np.full(3, np.nan)
-        mean_all = self.mean_resid_all_g if self.mean_resid_all_g is not None else np.full(3, np.nan)
-        return {
-            "label": self.label,
-            "session": self.session,
-            "kind": "poses",
-            "poses": {
-                n: {
-                    "mean_residual_g": m.tolist(),
-                    "sem_g": s.tolist(),
-                    "mean_residual_mps2": (m * self.mps2_per_unit).tolist(),
-                    f"displacement_{self.at_s:g}s_m": d.tolist(),
-                }
-                for n, m, s, d in zip(self.pose_names, self.mean_resid_g, self.sem_g, d60, strict=True)
-            },
-            "rms_g": self.rms_g,
-            "rms_mps2": self.rms_g * self.mps2_per_unit,
-            "mean_residual_mps2": dict(zip(AXES, (mean_all * self.mps2_per_unit).tolist(), strict=True)),
-            "chi2": self.chi2,
-            "dof": self.dof,
-            "chi2_dof": self.chi2 / self.dof if self.dof else None,
-            "chi2_noise": self.chi2,
-            "chi2_noise_dof": self.chi2 / self.dof if self.dof else None,
-            "mps2_per_unit": self.mps2_per_unit,
-            f"displacement_{self.at_s:g}s_m": worst.tolist(),
-            "displacement_note": f"per hold, extrapolated from rest: 1/2 mean residual ({self.at_s:g} s)^2; "
-            "top level: the hold with the largest |d| per axis",
-            "passes": [p.to_dict() for p in self.passes],
-            "pass_disagreement": {
-                k: {"chi2": c, "dof": d, "p_value": p} for k, (c, d, p) in disagreements(self.passes).items()
-            },
-            "trends": [t.to_dict() for t in self.trends],
-            "flags": list(self.flags),
-        }
-
-
-def evaluate_poses(
-    session: Session,
-    cal: Calibration | None,
-    *,
-    window_s: float = 2.0,
-    trim_s: float = 0.5,
-    at_s: float = 60.0,
-    local_gravity_mps2: float | None = None,
-) -> PoseEvaluation:
-    """Residual corrected - truth_g * up per window of every labelled hold; chi2 against sigma_g.
-
-    cal=None: the raw reading against up (truth 1, unit g_local: the seed's "No calibration")."""
-    obs = observations(session, window_s=window_s, trim_s=trim_s)
-    g = float(local_gravity_mps2 or session.meta.local_gravity_mps2)
-    return evaluate_pose_obs(
-        obs, cal, at_s=at_s, raw_gravity_mps2=g, session=session.path or session.meta.source
-    )
-
-
-def evaluate_pose_obs(
-    obs: ObsTable, cal: Calibration | None, *, at_s: float = 60.0, raw_gravity_mps2: float, session: str
-) -> PoseEvaluation:
-    """evaluate_poses from the session's observation table (segment.observations, or streamed)."""
-    from accellog.calibrate.fit import obs_drivers
-
-    if cal is None:
-        r = np.asarray(obs.meas_g, float) - np.asarray(obs.up_sensor, float)
-        unit = float(raw_gravity_mps2)
-    else:
-        model = cal.model
-        drv = {k: v for k, v in obs_drivers(obs).items() if k in model.required_drivers}
-        f = model.correct(cal.theta, obs.meas_g, drv)
-        truth = model.truth_g(cal.theta, obs.up_sensor, obs.q_sensor_to_world, cal.truth_g)
-        r = f - truth
-        unit = cal.mps2_per_unit
-    k = len(obs.pose_names)
-    mean = np.zeros((k, 3))
-    sem = np.zeros((k, 3))
-    for i in range(k):  # poses, not samples
-        m = obs.pose_id == i
-        w = 1.0 / obs.sigma_g[m] ** 2
-        mean[i] = np.sum(r[m] * w, axis=0) / np.sum(w, axis=0)
-        sem[i] = 1.0 / np.sqrt(np.sum(w, axis=0))
-    label = cal.model_spec.get("name", "calibrated") if cal is not None else "no calibration"
-    rows, trend_rows = passes(obs, r), trends(obs, r)
-    return PoseEvaluation(
-        label=label,
-        session=session,
-        pose_names=list(obs.pose_names),
-        mean_resid_g=mean,
-        sem_g=sem,
-        rms_g=float(np.sqrt(np.mean(r**2))),
-        chi2=float(np.sum((r / obs.sigma_g) ** 2)),
-        dof=int(r.size),
-        mps2_per_unit=float(unit),
-        mean_resid_all_g=r.mean(axis=0),
-        at_s=float(at_s),
-        passes=rows,
-        trends=trend_rows,
-        flags=flag_lines(rows, trend_rows, label) if cal is not None else [],  # raw: a baseline
-        window_resid_g=r,
-    )
+__all__ = [
+    "AXES",
+    "EvalContext",
+    "Evaluation",
+    "PoseEvaluation",
+    "block_residual",
+    "calibrated_residual",
+    "check_norm",
+    "driver_sums",
+    "eval_context",
+    "evaluate",
+    "evaluate_pose_obs",
+    "evaluate_poses",
+    "finish_evaluation",
+    "infer_up",
+]
