@@ -74,19 +74,21 @@ STATIC_MODES = ("evaluate_whole", "evaluate_stream", "integrate_whole", "integra
 """Modes run on a static one-hold session (synth_static.py) with a model3 calibration CAL."""
 
 
-def run(mode: str, path: Path, cal: Path | None = None) -> tuple[float, float]:
-    """(wall s, peak RSS MB) of one fresh process doing `mode` on path, BLAS on one thread."""
+def run(mode: str, path: Path, cal: Path | None = None) -> tuple[float, float, float]:
+    """(wall s, peak RSS MB, CPU s = user + system) of one fresh process doing `mode` on path, BLAS on
+    one thread (on a loaded machine the CPU time is the better guide to the quiet wall time)."""
     out = path.with_suffix(".csv")
     code = f"P = {str(path)!r}\nCAL = {str(cal)!r}\nOUT = {str(out)!r}\nfrom threadpoolctl import threadpool_limits\nthreadpool_limits(1, 'blas')\n{MODES[mode]}"
     t0 = time.perf_counter()
     r = subprocess.run(
-        ["/usr/bin/time", "-f", "%M", sys.executable, "-c", code], capture_output=True, text=True
+        ["/usr/bin/time", "-f", "%M %U %S", sys.executable, "-c", code], capture_output=True, text=True
     )
     wall = time.perf_counter() - t0
     if r.returncode:
         raise SystemExit(f"{mode}: {r.stderr[-2000:]}")
     out.unlink(missing_ok=True)
-    return wall, int(r.stderr.strip().splitlines()[-1]) / 1024
+    rss_kb, user_s, sys_s = r.stderr.strip().splitlines()[-1].split()
+    return wall, int(rss_kb) / 1024, float(user_s) + float(sys_s)
 
 
 def _calibration(d: Path) -> Path:
@@ -103,7 +105,9 @@ def main() -> None:
     ap.add_argument("--hours", type=float, nargs="+", default=[1 / 60, 1.0, 4.0])
     ap.add_argument("--modes", nargs="+", default=list(MODES))
     args = ap.parse_args()
-    print(f"{'session':>8} {'file MB':>8} {'mode':>16} {'wall s':>8} {'peak MB':>8}  load average")
+    print(
+        f"{'session':>8} {'file MB':>8} {'mode':>16} {'wall s':>8} {'CPU s':>7} {'peak MB':>8}  load average"
+    )
     with tempfile.TemporaryDirectory(dir="/tmp") as d:
         static = [m for m in args.modes if m in STATIC_MODES]
         cal = _calibration(Path(d)) if static else None
@@ -121,9 +125,12 @@ def main() -> None:
                     path = write_long(Path(d) / "s.mcap", h * 3600.0, seed=1)
                 mb = path.stat().st_size / 1e6
                 for mode in modes:
-                    wall, peak = run(mode, path, cal)
+                    wall, peak, cpu = run(mode, path, cal)
                     load = " ".join(f"{x:.1f}" for x in os.getloadavg())
-                    print(f"{label:>8} {mb:>8.1f} {mode:>16} {wall:>8.2f} {peak:>8.0f}  {load}", flush=True)
+                    print(
+                        f"{label:>8} {mb:>8.1f} {mode:>16} {wall:>8.2f} {cpu:>7.2f} {peak:>8.0f}  {load}",
+                        flush=True,
+                    )
                 path.unlink()
 
 
