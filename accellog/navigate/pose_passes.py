@@ -13,7 +13,9 @@ again while cooling has two). For the window residuals r_w (g, per axis) with st
                   sigma_c (and the driver spans a range)
 
 Window residuals are treated as independent (the window sigma is autocorrelation-aware within a
-window, not across windows).
+window, not across windows). The calibration's own uncertainty is not included: a long test session
+can flag a calibration whose temperature term is off by a few of its sigmas where it extrapolates
+beyond the calibration's temperature range (that is a real disagreement, not noise).
 """
 
 from __future__ import annotations
