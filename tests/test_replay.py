@@ -130,10 +130,9 @@ def test_replay_tracks_equal_batch_evaluation_and_rrd(files, tmp_path: Path) -> 
         np.testing.assert_array_equal(d[-1], t.final_m)
         final = np.array(r.static(f"world/tracks/{t.label}/final", "Points3D:positions")).reshape(3)
         np.testing.assert_allclose(final, t.final_m, rtol=1e-6, atol=1e-9)
-    tt, temp = r.series("temperature")  # slow series: every k-th sample (<= 100 Hz) + the last one
-    k = np.rint(tt * 200.0).astype(int)
-    assert k[-1] == s.n - 1 and 0.5 * 60 * 100 <= len(k) <= 60 * 100 + 2
-    np.testing.assert_array_equal(temp[:, 0], s.temp_degC[k])
+    tt, temp = r.series("temperature")  # a short session (<= FULL_RATE_MAX_SAMPLES): every sample
+    np.testing.assert_allclose(tt, s.t_s, rtol=0, atol=2e-9)  # ns on the timeline
+    np.testing.assert_array_equal(temp[:, 0], s.temp_degC)
     doc = r.static("docs/replay/final_displacement", "TextDocument:text")[0]
     assert all(t.label in doc for t in res.tracks) and f"{res.track('model3').final_m[0]:+.3f}" in doc
     views = {(v["class"], v["origin"]) for v in r.views()}
@@ -243,3 +242,69 @@ def test_compare_seed_final_trial(shared_data: Path, tmp_path: Path) -> None:
     test = import_capstone(ft / "six_position_test_data.csv")
     res = compare(test, [cal], labels=["model3"], up_sensor="+z")
     np.testing.assert_allclose(res.track("model3").final_m, [-43.6, 57.6, 22.7], atol=0.1)
+
+
+@pytest.fixture(scope="module")
+def spiky(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Session]:
+    """40 s at 1 kHz, z up, one-sample spikes (+1.5 g on x, -1.2 g on y) and a clipped stretch on z."""
+    d = tmp_path_factory.mktemp("spiky")
+    rng = np.random.default_rng(7)
+    rate, n = 1000.0, 40_000
+    counts = _counts(np.tile([0.0, 0.0, 1.0], (n, 1)), rng)
+    counts[12_347, 0] += int(1.5 * LSB)  # not on a stride of n // 4000 = 10 samples
+    counts[30_001, 1] -= int(1.2 * LSB)
+    counts[20_000:20_400, 2] = 32767  # clipping
+    s = _session(counts, rate, temp=30.0 + np.linspace(0, 0.5, n))
+    write_session(d / "spiky.mcap", s, batch_size=1000)
+    return d / "spiky.mcap", read_session(d / "spiky.mcap")
+
+
+def test_replay_rrd_envelope_keeps_spikes_and_each_buckets_min_max(spiky, tmp_path: Path) -> None:
+    """Issue 11 item 5: a long series is drawn as min/max per bucket: the spikes plain striding drops
+    are in the recording, and every bucket's two rows are numpy's min and max of its samples."""
+    from accellog.present.rrd.envelope import ENVELOPE_BUCKETS
+
+    path, s = spiky
+    out = tmp_path / "env.rrd"
+    with RunRecording(f"save:{out}") as rec:
+        replay(path, speed=None, recording=rec, up_sensor="+z")
+    r = load_rrd(out)
+    t, v = r.series("accel/raw")
+    idx, _ = r.series("accel/raw", timeline="sample")  # the device sample index of every row
+    assert len(t) % 2 == 0 and ENVELOPE_BUCKETS <= len(t) // 2 <= ENVELOPE_BUCKETS + 2
+    stride = s.n // ENVELOPE_BUCKETS
+    strided = s.accel_g[::stride]
+    assert strided[:, 0].max() < 1.0 and strided[:, 1].min() > -0.5  # striding loses both spikes
+    assert v[:, 0].max() == s.accel_g[:, 0].max() and v[:, 1].min() == s.accel_g[:, 1].min()
+    assert np.count_nonzero(v[:, 2] == 32767 / LSB) >= 2 * (400 // stride - 2)  # the clipped stretch
+    first, last = idx[0::2].astype(int), idx[1::2].astype(int)
+    np.testing.assert_array_equal(first[1:], last[:-1] + 1)  # the buckets tile the session
+    assert first[0] == 0 and last[-1] == s.n - 1
+    np.testing.assert_allclose(t[0::2], s.t_s[first], rtol=0, atol=2e-9)
+    np.testing.assert_allclose(t[1::2], s.t_s[last], rtol=0, atol=2e-9)
+    ends = np.r_[first[1:], s.n]
+    mn = np.minimum.reduceat(s.accel_g, first, axis=0)
+    mx = np.maximum.reduceat(s.accel_g, first, axis=0)
+    np.testing.assert_array_equal(np.minimum(v[0::2], v[1::2]), mn)
+    np.testing.assert_array_equal(np.maximum(v[0::2], v[1::2]), mx)
+    assert (ends - first).max() <= 2 * stride  # pixel-scale buckets
+    tt, temp = r.series("temperature")  # an envelope too, tracks every k-th sample + the last
+    assert len(tt) <= 2 * ENVELOPE_BUCKETS + 4 and temp[:, 0].max() == s.temp_degC.max()
+    _, d = r.series("tracks/raw")
+    assert len(d) <= 2 * ENVELOPE_BUCKETS + 2
+
+
+def test_replay_streams_and_full_rate_on_demand(spiky, tmp_path: Path, capsys) -> None:
+    """The streamed file and the Session in memory replay to the same tracks; --rrd-full logs every
+    sample."""
+    path, s = spiky
+    a = replay(path, speed=None, batch_s=3.7)
+    b = replay(s, speed=None)
+    np.testing.assert_array_equal(a.track("raw").disp_end_m, b.track("raw").disp_end_m)
+    assert a.n == b.n == s.n and a.t_end_s == b.t_end_s
+    out = tmp_path / "full.rrd"
+    assert main(["replay", str(path), "--speed", "max", "--up", "+z", "--rrd", str(out), "--rrd-full"]) == 0
+    capsys.readouterr()
+    t, v = load_rrd(out).series("accel/raw")
+    np.testing.assert_allclose(t, s.t_s, rtol=0, atol=2e-9)
+    np.testing.assert_array_equal(v, s.accel_g)

@@ -31,6 +31,13 @@ UpOpt = Annotated[
     str | None, typer.Option("--up", help="Up axis of the static session (+x..-z); default: inferred.")
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON on stdout instead of tables.")]
+FullOpt = Annotated[
+    bool,
+    typer.Option(
+        "--rrd-full",
+        help="Log every sample to the recording (default: long series as min/max display envelopes).",
+    ),
+]
 
 
 def _print_result(res, title: str, json_out: bool) -> None:
@@ -63,6 +70,7 @@ def replay(
     up: UpOpt = None,
     raw: Annotated[bool, typer.Option("--raw/--no-raw", help="Also integrate the raw reading.")] = True,
     json_out: JsonOpt = False,
+    rrd_full: FullOpt = False,
 ) -> None:
     """Feed a session through online correction + integration in sensor time, logging raw and
     calibrated accel and displacement tracks to a live viewer or an .rrd."""
@@ -71,7 +79,9 @@ def replay(
 
     parse_speed(speed)  # fail early on a bad value
     sink = sink_option(rrd, rerun)
-    res = run_replay(session, cal, sink, speed=speed, up=up, raw=raw, label=label, compare_mode=False)
+    res = run_replay(
+        session, cal, sink, speed=speed, up=up, raw=raw, label=label, compare_mode=False, full_rate=rrd_full
+    )
     title = f"{session.name}: {res.n} samples, {res.duration_s:.1f} s replayed in {res.wall_s:.1f} s"
     _print_result(res, title, json_out)
 
@@ -85,6 +95,7 @@ def compare(
     up: UpOpt = None,
     raw: Annotated[bool, typer.Option("--raw/--no-raw", help="Include the uncalibrated track.")] = True,
     json_out: JsonOpt = False,
+    rrd_full: FullOpt = False,
 ) -> None:
     """Displacement tracks of several calibrations of one test session side by side, with their
     final drift (terminal table, --json, and a document in the .rrd)."""
@@ -93,7 +104,15 @@ def compare(
     if not cal:
         raise InputError("compare needs at least one --cal calibration.json")
     res = run_replay(
-        test, cal, sink_option(rrd, None), speed="max", up=up, raw=raw, label=label, compare_mode=True
+        test,
+        cal,
+        sink_option(rrd, None),
+        speed="max",
+        up=up,
+        raw=raw,
+        label=label,
+        compare_mode=True,
+        full_rate=rrd_full,
     )
     _print_result(res, f"{test.name}: final displacement after {res.duration_s:.1f} s", json_out)
 

@@ -12,12 +12,17 @@ from accellog.core.session import Session
 from accellog.flows.replay import compare as compare_fn
 from accellog.flows.replay import replay as replay_fn
 from accellog.flows.stages import load_input
+from accellog.flows.stream_input import can_stream
 from accellog.present.rrd.recording import RunRecording
 
 
 def load_session_file(path: Path):
+    """A session file to replay: the path itself when it streams (a finished accellog MCAP file,
+    flows.replay_input), else the Session load_input reads (CSV, ROS 2 bag, damaged MCAP)."""
     if not path.is_file():
         raise InputError("no such file", where=str(path))
+    if can_stream(path):
+        return path
     data = load_input(path)
     if not isinstance(data, Session):
         raise InputError("replay needs a recorded session with samples, not a pose table", where=str(path))
@@ -52,11 +57,16 @@ def run_replay(
     raw: bool,
     label: list[str] | None,
     compare_mode: bool,
+    full_rate: bool = False,
 ):
+    """Replay or compare a session file into the sink (None: no recording); full_rate: every sample
+    in the recording instead of display envelopes."""
     s = load_session_file(session)
     cals = list(cal or [])
     rec = (
-        RunRecording(sink, recording_id=f"accellog-{'compare' if compare_mode else 'replay'}")
+        RunRecording(
+            sink, recording_id=f"accellog-{'compare' if compare_mode else 'replay'}", full_rate=full_rate
+        )
         if sink
         else None
     )

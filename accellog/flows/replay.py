@@ -17,7 +17,6 @@ which is exactly what ``accellog.navigate.evaluate`` computes in one batch (test
 
 from __future__ import annotations
 
-import itertools
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -29,17 +28,16 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.session import Session
+from accellog.flows.replay_input import batches, open_replay_input
 from accellog.navigate.online import OnlineIntegrator
 from accellog.present.rrd.entities import AXES, AXIS_COLORS, TRACKS, slug
+from accellog.present.rrd.envelope import ENVELOPE_BUCKETS
 from accellog.present.rrd.recording import RunRecording
 
 MAX_BATCH_S = 60.0
 """Sensor seconds per batch when replaying as fast as possible (columnar logging)."""
 PACED_UPDATES_PER_S = 20.0
 """Batches per wall-clock second when pacing (--speed 1, 4, ...)."""
-SLOW_SERIES_HZ = 100.0
-"""Displacement tracks and temperature are smooth: their time series are logged at about this rate
-(every k-th sample, plus the last sample of the session); accel is logged at the full rate."""
 
 
 @dataclass
@@ -162,13 +160,17 @@ def parse_up(text: str | Sequence[float] | None) -> np.ndarray | None:
 
 def infer_up(session: Session) -> tuple[np.ndarray, str | None]:
     """Up vector of a static session: its single pose label, else the dominant axis of the mean."""
-    if len(session.poses) == 1:
-        return np.asarray(session.poses[0].up_sensor, dtype=np.float64), None
-    m = np.nanmean(session.accel_g, axis=0)
+    return _infer_up(session.poses, lambda: np.nanmean(session.accel_g, axis=0))
+
+
+def _infer_up(poses: Sequence[Any], mean: Callable[[], np.ndarray]) -> tuple[np.ndarray, str | None]:
+    if len(poses) == 1:
+        return np.asarray(poses[0].up_sensor, dtype=np.float64), None
+    m = mean()
     i = int(np.argmax(np.abs(m)))
     up = np.zeros(3)
     up[i] = np.sign(m[i]) or 1.0
-    why = "several pose labels" if session.poses else "no pose label"
+    why = "several pose labels" if poses else "no pose label"
     return up, f"orientation from the mean reading ({why}): {'+' if up[i] > 0 else '-'}{AXES[i]} up"
 
 
@@ -177,22 +179,11 @@ class _Track:
     label: str
     integ: OnlineIntegrator
     cal: Any = None
-    drivers: dict[str, np.ndarray] = field(default_factory=dict)
+    needed: list[str] = field(default_factory=list)  # driver signals its calibration reads
     drift: Any = None
     notes: list[str] = field(default_factory=list)
     parts: list[np.ndarray] = field(default_factory=list)  # decimated displacement for the 3D strip
     last: np.ndarray | None = None  # displacement at the newest sample (m)
-
-
-def _open_session(session: Session | str | os.PathLike) -> Session:
-    if isinstance(session, Session):
-        return session
-    p = Path(session)
-    if not p.is_file():
-        raise InputError("no such session file", where=str(p))
-    from accellog.store.reader import read_session
-
-    return read_session(p)
 
 
 def _load_cal(c: Any):
@@ -208,6 +199,31 @@ def _label_of(cal: Any, fallback: str) -> str:
         return Path(cal.path).stem
     spec = getattr(cal, "model_spec", None) or {}
     return str(spec.get("name") or fallback)
+
+
+def _tracks(cal_objs: list, labels, up: np.ndarray, g_local: float, include_raw: bool, apply_drift: bool):
+    """One integrator per track: the raw reading (when include_raw), then each calibration."""
+    tracks: list[_Track] = []
+    if include_raw:
+        tracks.append(_Track("raw", OnlineIntegrator(up_sensor=up, local_gravity_mps2=g_local)))
+    used: set[str] = {t.label for t in tracks}
+    for i, cal in enumerate(cal_objs):
+        lab = labels[i] if labels is not None else _label_of(cal, f"cal{i + 1}")
+        while lab in used:
+            lab = f"{lab}'"
+        used.add(lab)
+        tr = _Track(lab, OnlineIntegrator.from_calibration(cal, up_sensor=up), cal=cal)
+        tr.needed = list(cal.model.required_drivers)
+        dm = getattr(cal, "drift", None)
+        if dm is not None and apply_drift:
+            if dm.up_sensor is not None and not np.allclose(dm.up_sensor, up, atol=1e-6):
+                tr.notes.append(f"{lab}: drift model not applied (fitted with up {list(dm.up_sensor)})")
+            else:
+                tr.drift = dm
+        tracks.append(tr)
+    if not tracks:
+        raise InputError("nothing to replay: no calibration given and the raw track is off")
+    return tracks
 
 
 def replay(
@@ -226,117 +242,51 @@ def replay(
 ) -> ReplayResult:
     """Replay a session (path or Session) through online correction + integration.
 
-    cals: Calibration objects or JSON paths (one track each, after the raw track when include_raw).
-    speed: sensor seconds per wall second (None/'max': no pacing). recording: where to log (raw and
-    calibrated accel, temperature, poses, events, tracks, final table); None logs nothing.
+    A session file is streamed block by block (flows.replay_input: memory bounded by one chunk group
+    plus the display series, whatever the session length). cals: Calibration objects or JSON paths
+    (one track each, after the raw track when include_raw). speed: sensor seconds per wall second
+    (None/'max': no pacing). recording: where to log (raw and calibrated accel and temperature as
+    display envelopes, poses, events, decimated tracks, final table); None logs nothing.
     """
     t_wall0 = clock()
     speed_f = parse_speed(speed)
-    s = _open_session(session)
-    where = s.path or s.meta.source
-    if s.n < 2:
-        raise InputError(f"session has {s.n} samples: nothing to replay", where=where)
-    up = parse_up(up_sensor)
-    notes: list[str] = []
-    if up is None:
-        up, note = infer_up(s)
-        if note:
-            notes.append(note)
     cal_objs = [_load_cal(c) for c in cals]
     if labels is not None and len(labels) != len(cal_objs):
         raise InputError(f"{len(labels)} labels for {len(cal_objs)} calibrations")
-    g_local = float(cal_objs[0].local_gravity_mps2) if cal_objs else float(s.meta.local_gravity_mps2)
-    tracks: list[_Track] = []
-    if include_raw:
-        tracks.append(_Track("raw", OnlineIntegrator(up_sensor=up, local_gravity_mps2=g_local)))
-    used: set[str] = {t.label for t in tracks}
-    for i, cal in enumerate(cal_objs):
-        lab = labels[i] if labels is not None else _label_of(cal, f"cal{i + 1}")
-        while lab in used:
-            lab = f"{lab}'"
-        used.add(lab)
-        from accellog.calibrate.calibration import session_drivers
-
-        tr = _Track(lab, OnlineIntegrator.from_calibration(cal, up_sensor=up), cal=cal)
-        tr.drivers = session_drivers(s, cal.model.required_drivers)
-        dm = getattr(cal, "drift", None)
-        if dm is not None and apply_drift:
-            if dm.up_sensor is not None and not np.allclose(dm.up_sensor, up, atol=1e-6):
-                tr.notes.append(f"{lab}: drift model not applied (fitted with up {list(dm.up_sensor)})")
-            else:
-                tr.drift = dm
-        tracks.append(tr)
-    if not tracks:
-        raise InputError("nothing to replay: no calibration given and the raw track is off")
-
-    t = s.t_s
+    src = open_replay_input(session, sorted({d for c in cal_objs for d in c.model.required_drivers}))
+    up = parse_up(up_sensor)
+    notes: list[str] = []
+    if up is None:
+        up, note = _infer_up(src.poses, src.mean_accel_g)
+        if note:
+            notes.append(note)
+    g_local = float(cal_objs[0].local_gravity_mps2) if cal_objs else float(src.meta.local_gravity_mps2)
+    tracks = _tracks(cal_objs, labels, up, g_local, include_raw, apply_drift)
     rec = recording
     if rec is not None:
-        if s.poses:
-            rec.log_poses(s.poses)
-        if s.events:
-            rec.log_events(s.events)
-
-    # batch bounds in sensor time
-    span = float(t[-1] - t[0])
+        if src.poses:
+            rec.log_poses(src.poses)
+        if src.events:
+            rec.log_events(src.events)
+        rec.begin_batches(src.t0_s, src.t0_s + src.span_s, src.n)
     if batch_s is None:
         batch_s = MAX_BATCH_S if speed_f is None else max(speed_f / PACED_UPDATES_PER_S, 1e-3)
-    edges = np.searchsorted(t, t[0] + np.arange(0.0, span + batch_s, batch_s)[1:], side="left")
-    bounds = np.unique(np.r_[0, edges, s.n])
-    t_pace0 = clock()
-    last_3d = clock()
-    stride = max(1, s.n // 20_000)
-    rate_hz = (s.n - 1) / span if span > 0 else 1.0
-    slow = max(1, round(rate_hz / SLOW_SERIES_HZ))
-    for i0, i1 in itertools.pairwise(bounds.tolist()):
-        sl = slice(int(i0), int(i1))
-        tb = t[sl]
-        if speed_f is not None:
-            wait = t_pace0 + (float(tb[-1]) - float(t[0])) / speed_f - clock()
-            if wait > 0:
-                sleep(wait)
-        raw = s.accel_g[sl]
-        pos = np.arange(int(i0), int(i1))
-        keep = (pos % slow == 0) | (pos == s.n - 1)  # decimated slow series (last sample kept)
-        if rec is not None:
-            rec.log_samples("raw", tb, s.sample_index[sl], raw, "g")
-            if s.temp_degC is not None:
-                rec.log_temperature(tb[keep], s.temp_degC[sl][keep])
-        for tr in tracks:
-            drv = {k: v[sl] for k, v in tr.drivers.items()}
-            step = tr.integ.push(tb, raw, drv)
-            d = tr.drift.apply(tb, step.disp_m) if tr.drift is not None else step.disp_m
-            tr.parts.append(d[pos % stride == 0])
-            tr.last = d[-1]
-            if rec is not None:
-                if tr.cal is not None:
-                    rec.log_samples(tr.label, tb, None, step.f_g, "g")
-                rec.log_series(
-                    f"{TRACKS}/{slug(tr.label)}",
-                    tb[keep],
-                    d[keep],
-                    [f"{tr.label} {a} (m)" for a in AXES],
-                    role="track",
-                    colors=AXIS_COLORS,
-                )
-        if rec is not None and speed_f is not None and clock() - last_3d > 1.0:
-            last_3d = clock()
-            for tr in tracks:
-                rec.log_track_3d(tr.label, np.concatenate([*tr.parts, tr.last[None, :]]))
-
+    n, t_end = _run(src, tracks, rec, speed_f, batch_s, sleep, clock)
+    if n < 2:
+        raise InputError(f"session has {n} samples: nothing to replay", where=src.where)
     results = []
     for tr in tracks:
         d_end = tr.integ.disp_m
-        d_drift = tr.drift.apply(np.array([t[-1]]), d_end[None, :])[0] if tr.drift is not None else None
+        d_drift = tr.drift.apply(np.array([t_end]), d_end[None, :])[0] if tr.drift is not None else None
         results.append(TrackResult(tr.label, d_end, d_drift, getattr(tr.cal, "path", None), notes=tr.notes))
         if rec is not None:
             final = d_drift if d_drift is not None else d_end
             rec.log_track_3d(tr.label, np.concatenate([*tr.parts, final[None, :]]))
     res = ReplayResult(
-        session=str(where),
-        n=s.n,
-        t_end_s=float(t[-1]),
-        duration_s=span,
+        session=str(src.where),
+        n=n,
+        t_end_s=t_end,
+        duration_s=t_end - src.t0_s,
         wall_s=clock() - t_wall0,
         speed=speed_f,
         up_sensor=up,
@@ -345,8 +295,59 @@ def replay(
     )
     res.tracks[0].notes[:0] = notes
     if rec is not None:
+        rec.end_batches()
         rec.log_document("replay/final_displacement", res.markdown())
     return res
+
+
+def _run(src, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float]:
+    """Feed every batch to every track (and the recording), paced when speed_f; returns the number
+    of samples and the last sample time (s). Tracks are logged every k-th sample plus the last one,
+    k = n / (2 ENVELOPE_BUCKETS) (smooth double integrals: no spike to lose)."""
+    t0 = src.t0_s
+    t_pace0 = clock()
+    last_3d = clock()
+    stride = max(1, src.n // 20_000)  # 3D strip
+    slow = max(1, src.n // (2 * ENVELOPE_BUCKETS))  # displacement time series
+    n, t_end = 0, t0
+    for b in batches(src.blocks(), t0, batch_s):
+        tb = b.t_s
+        if speed_f is not None:
+            wait = t_pace0 + (float(tb[-1]) - t0) / speed_f - clock()
+            if wait > 0:
+                sleep(wait)
+        pos = np.arange(n, n + b.n)
+        keep = pos % slow == 0
+        if rec is not None:
+            rec.log_samples("raw", tb, b.sample_index, b.accel_g, "g")
+            if b.temp_degC is not None:
+                rec.log_temperature(tb, b.temp_degC)
+        for tr in tracks:
+            step = tr.integ.push(tb, b.accel_g, src.drivers(b, n, tr.needed))
+            d = tr.drift.apply(tb, step.disp_m) if tr.drift is not None else step.disp_m
+            tr.parts.append(d[pos % stride == 0])
+            tr.last = d[-1]
+            if rec is not None:
+                if tr.cal is not None:
+                    rec.log_samples(tr.label, tb, None, step.f_g, "g")
+                _log_track_rows(rec, tr, tb[keep], d[keep])
+        n += b.n
+        t_end = float(tb[-1])
+        if rec is not None and speed_f is not None and clock() - last_3d > 1.0:
+            last_3d = clock()
+            for tr in tracks:
+                rec.log_track_3d(tr.label, np.concatenate([*tr.parts, tr.last[None, :]]))
+    if rec is not None and (n - 1) % slow:  # a track ends at its final displacement
+        for tr in tracks:
+            _log_track_rows(rec, tr, np.array([t_end]), tr.last[None, :])
+    return n, t_end
+
+
+def _log_track_rows(rec: RunRecording, tr: _Track, t_s: np.ndarray, disp_m: np.ndarray) -> None:
+    names = [f"{tr.label} {a} (m)" for a in AXES]
+    rec.log_series(
+        f"{TRACKS}/{slug(tr.label)}", t_s, disp_m, names, role="track", colors=AXIS_COLORS, decimate=False
+    )
 
 
 def compare(

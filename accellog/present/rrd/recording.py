@@ -9,6 +9,7 @@ per sample) on the main timeline ``sensor_time`` (duration, s since session star
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import threading
 import urllib.parse
@@ -45,6 +46,13 @@ from accellog.present.rrd.entities import (
     slug,
     slug_path,
 )
+from accellog.present.rrd.envelope import (
+    FULL_RATE_MAX_SAMPLES,
+    EnvelopeBuilder,
+    bucket_width_s,
+    minmax_envelope,
+    track_keep,
+)
 from accellog.present.rrd.layout import build_blueprint, live_blueprint
 from accellog.present.rrd.sinks import SinkWatch, parse_sink, spawn_viewer
 from accellog.store.atomic import AtomicOutput
@@ -60,7 +68,9 @@ class RunRecording:
     close from what was logged; live sinks get the full standard layout up front), None (no
     blueprint), or an ``rrb.Blueprint``. guard: catch and count logging failures instead of raising
     (default: True for live sinks, False for files). on_failure: called once with a one-line
-    message at the first failure (default: print to stderr).
+    message at the first failure (default: print to stderr). full_rate: log long series at the full
+    rate instead of display envelopes (``present.rrd.envelope``; default: the environment variable
+    ACCELLOG_RRD_FULL=1, else envelopes for series longer than FULL_RATE_MAX_SAMPLES).
     """
 
     def __init__(
@@ -72,9 +82,15 @@ class RunRecording:
         blueprint: Any = "auto",
         guard: bool | None = None,
         on_failure: Callable[[str], None] | None = None,
+        full_rate: bool | None = None,
     ) -> None:
         import rerun as rr
 
+        if full_rate is None:
+            full_rate = os.environ.get("ACCELLOG_RRD_FULL", "").strip().lower() in ("1", "true", "yes")
+        self.full_rate = bool(full_rate)
+        self._span: tuple[float, float] | None = None  # batched logging: (t0, bucket width) s
+        self._builders: dict[str, tuple[EnvelopeBuilder, bool]] = {}  # entity -> (builder, has index)
         self.kind, self.target = parse_sink(sink)
         self.guard = (self.kind != "save") if guard is None else guard
         self.failures = 0
@@ -167,15 +183,25 @@ class RunRecording:
         colors: Sequence[tuple[int, int, int]] | None = None,
         points: bool = False,
         step: bool = False,
+        decimate: bool = True,
     ) -> None:
-        """Columnar scalars (N,k) on sensor_time (and ``sample`` if given); names label the k series."""
-        self._guarded(self._log_series, entity, t_s, values, names, sample_index, role, colors, points, step)
+        """Columnar scalars (N,k) on sensor_time (and ``sample`` if given); names label the k series.
 
-    def _log_series(self, entity, t_s, values, names, sample_index, role, colors, points, step) -> None:
+        decimate: a long series (or any series while ``begin_batches`` is in force) is logged as its
+        min/max display envelope unless the recording is ``full_rate`` (see the module docstring)."""
+        self._guarded(
+            self._log_series, entity, t_s, values, names, sample_index, role, colors, points, step, decimate
+        )
+
+    def _log_series(
+        self, entity, t_s, values, names, sample_index, role, colors, points, step, decimate=False
+    ) -> None:
         import rerun as rr
 
         t = np.asarray(t_s, dtype=np.float64)
         v = _as_2d(values, t.shape[0], entity)
+        if decimate and not self.full_rate:
+            t, v, sample_index = self._envelope(entity, t, v, sample_index)
         if entity not in self._entities:
             self._entities[entity] = role
             style: dict[str, Any] = {"names": list(names)}
@@ -194,6 +220,34 @@ class RunRecording:
             idx.append(rr.TimeColumn(SAMPLE_TIMELINE, sequence=np.asarray(sample_index, dtype=np.int64)))
         cols = v[:, 0] if v.shape[1] == 1 else v
         self.rec.send_columns(entity, indexes=idx, columns=rr.Scalars.columns(scalars=cols))
+
+    def _envelope(self, entity, t, v, sample_index):
+        """(t, v, sample_index) to log: the display envelope's rows, or the input when it is short."""
+        if self._span is not None:
+            if entity not in self._builders:
+                self._builders[entity] = (EnvelopeBuilder(*self._span), sample_index is not None)
+            env = self._builders[entity][0].push(t, v, sample_index)
+        elif t.shape[0] > FULL_RATE_MAX_SAMPLES:
+            env = minmax_envelope(t, v, index=sample_index)
+        else:
+            return t, v, sample_index
+        return env.t_s, env.values, (None if sample_index is None else env.row_index)
+
+    def begin_batches(self, t0_s: float, t1_s: float, n_samples: int) -> None:
+        """Series of a session spanning t0_s..t1_s (s, n_samples samples) follow batch by batch: their
+        envelopes share buckets of (t1 - t0) / ENVELOPE_BUCKETS s across calls (no envelope when
+        n_samples <= FULL_RATE_MAX_SAMPLES). ``end_batches`` (or close) writes the last buckets."""
+        self.end_batches()
+        if n_samples > FULL_RATE_MAX_SAMPLES:
+            self._span = (float(t0_s), bucket_width_s(float(t1_s) - float(t0_s)))
+
+    def end_batches(self) -> None:
+        """Write the open bucket of every batched envelope and return to one-shot logging."""
+        builders, self._builders, self._span = self._builders, {}, None
+        for entity, (eb, has_index) in builders.items():
+            env = eb.finish()
+            idx = env.row_index if has_index else None
+            self._guarded(self._log_series, entity, env.t_s, env.values, [], idx, "", None, False, False)
 
     def log_static(self, entity: str, archetype: Any, role: str = "static") -> None:
         """Any Rerun archetype logged once (static) at entity; role picks its view in the blueprint."""
@@ -366,10 +420,14 @@ class RunRecording:
         if f"{TRACKS}/{slug_path(label)}" not in self._entities:
             self._n_tracks += 1
         name = str(label).rsplit("/", 1)[-1]
+        t = np.asarray(t_s, dtype=np.float64)
+        keep = slice(None)
+        if not self.full_rate and d.shape[0] > FULL_RATE_MAX_SAMPLES:  # smooth: every k-th + the last
+            keep = track_keep(d.shape[0])
         self._log_series(
             f"{TRACKS}/{slug_path(label)}",
-            t_s,
-            d,
+            t[keep],
+            d[keep],
             [f"{name} {a} (m)" for a in AXES],
             None,
             "track",
@@ -521,6 +579,7 @@ class RunRecording:
         if self._watch is not None:
             self._watch.stop()
         try:
+            self.end_batches()
             if self._blueprint == "auto" and self.kind == "save":
                 self.rec.send_blueprint(build_blueprint(self._entities), make_active=True, make_default=True)
             if self.kind == "save":

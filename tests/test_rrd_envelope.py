@@ -1,0 +1,52 @@
+"""Display envelopes (present/rrd/envelope.py): min/max per time bucket, independent of batching."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from accellog.present.rrd.envelope import EnvelopeBuilder, bucket_width_s, minmax_envelope
+
+
+def _reference(t, v, t0, w):
+    """Per bucket floor((t - t0) / w): (min, max) of every column, by numpy on each bucket."""
+    b = np.floor((t - t0) / w).astype(np.int64)
+    ids = np.unique(b)
+    return (
+        ids,
+        np.array([np.nanmin(v[b == k], axis=0) for k in ids]),
+        np.array([np.nanmax(v[b == k], axis=0) for k in ids]),
+    )
+
+
+def test_envelope_is_numpys_min_max_per_bucket_whatever_the_batches() -> None:
+    rng = np.random.default_rng(3)
+    n = 50_000
+    t = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, n))  # irregular sampling
+    v = rng.normal(size=(n, 3))
+    v[rng.integers(0, n, 20), rng.integers(0, 3, 20)] = 40.0  # single-sample spikes
+    v[1000:1010, 1] = np.nan  # NaNs are ignored
+    w = bucket_width_s(t[-1] - t[0], 700)
+    one = minmax_envelope(t, v, buckets=700)
+    ids, mn, mx = _reference(t, v, t[0], w)
+    np.testing.assert_array_equal(one.bucket[0::2], ids)
+    np.testing.assert_array_equal(np.minimum(one.values[0::2], one.values[1::2]), mn)
+    np.testing.assert_array_equal(np.maximum(one.values[0::2], one.values[1::2]), mx)
+    assert np.all(np.diff(one.t_s) >= 0) and (one.values == 40.0).sum() == 20
+    # the same samples pushed in random pieces give the same rows
+    eb = EnvelopeBuilder(t[0], w)
+    cuts = np.sort(rng.choice(np.arange(1, n), 60, replace=False))
+    parts = [eb.push(t[a:b], v[a:b]) for a, b in zip(np.r_[0, cuts], np.r_[cuts, n], strict=True)]
+    parts.append(eb.finish())
+    np.testing.assert_array_equal(np.concatenate([p.values for p in parts]), one.values)
+    np.testing.assert_array_equal(np.concatenate([p.t_s for p in parts]), one.t_s)
+    np.testing.assert_array_equal(np.concatenate([p.row_index for p in parts]), one.row_index)
+
+
+def test_envelope_keeps_the_order_of_min_and_max() -> None:
+    """Within a bucket the earlier extreme comes first (a line through the rows keeps the shape)."""
+    t = np.arange(8, dtype=float)
+    v = np.array([[0.0, 5], [3, 4], [9, 1], [1, 0], [2, 2], [-4, 7], [0, 3], [1, 1]])
+    env = minmax_envelope(t, v, buckets=2)  # width 3.5 s: samples 0-3, 4-6, 7
+    np.testing.assert_array_equal(env.t_s, [0, 3, 4, 6, 7, 7])
+    np.testing.assert_array_equal(env.values[:2], [[0, 5], [9, 0]])  # x: min first; y: max first
+    np.testing.assert_array_equal(env.values[2:4], [[2, 2], [-4, 7]])  # x: max (2) first, y: min first
