@@ -1,119 +1,152 @@
-"""Replay of a one-hour 1 kHz session to an .rrd vs the pipeline's own work on the same session.
+"""Replay to an .rrd against the same replay without logging, with peak memory, by session length.
 
 Goal (issues #4, #11): logging adds under 50 % to the same replay without logging (the right
-baseline; `evaluate`, one batch, is shown for context only).
+baseline, measured in the same run); replay memory bounded independently of session length.
 
-    baseline: read_session + model3 correct + double trapezoid (accellog.navigate.evaluate, one batch)
-    replay:   accellog.flows.replay.replay(..., speed=max) without a recording (online, batch by batch)
-    replay + .rrd: the same, logging raw + calibrated accel, temperature and tracks to a file
+    replay            flows.replay.replay(P, model3, speed=max): the file streamed block by block
+    replay_rrd        the same, logging raw + calibrated accel and temperature (min/max display
+                      envelopes), poses, events and the decimated tracks to an .rrd file
+    replay_rrd_full   the same with every sample in the .rrd (--rrd-full): what logging cost before
+    replay_whole      replay(read_session(P)): the whole session in memory first (before streaming)
+    evaluate          read_session + model3 correct + double trapezoid in one batch (context only)
 
-The session (3.6 M samples, int16 counts, seeded) is synthesised once with accellog.store.writer.write_session.
-Run: python benchmarks/bench_replay.py [--minutes 60]
+Sessions: a static z-up session at 1 kHz (accel + temperature counts, seeded), written hour by hour
+with SessionWriter (1 MiB chunks, zstd). Every figure is one fresh process under /usr/bin/time
+(peak RSS), imports done before the clock starts (wall = the work only), best of --repeat; the
+load average is printed with each row (a loaded 2-core machine inflates every wall time).
+
+    python benchmarks/bench_replay.py [--minutes 60 240] [--modes replay replay_rrd ...] [--repeat 2]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
+import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
-from accellog.calibrate.calibration import load_calibration
-from accellog.core.session import PoseLabel, Session, SessionMeta
+LSB = 16384.0
+S_TRUE = np.array([[1.01, 0.004, -0.003], [0.002, 0.995, 0.006], [-0.005, 0.001, 1.02]])
+B_TRUE = np.array([0.03, -0.02, 0.05])
+
+_PRELUDE = """
+import json, os, time, resource
+os.environ.setdefault("RERUN_ANALYTICS", "0")
 from accellog.flows.replay import replay
-from accellog.flows.stages import run_fit
 from accellog.navigate.evaluate import evaluate
+from accellog.calibrate.calibration import load_calibration
 from accellog.present.rrd.recording import RunRecording
 from accellog.store.reader import read_session
-from accellog.store.writer import write_session
+import rerun
+"""
+MODES = {
+    "replay": "replay(P, cals=[C], speed=None, up_sensor='+z')",
+    "replay_rrd": (
+        "rec = RunRecording(f'save:{R}')\n"
+        "replay(P, cals=[C], speed=None, up_sensor='+z', recording=rec)\nrec.close()"
+    ),
+    "replay_rrd_full": (
+        "rec = RunRecording(f'save:{R}', full_rate=True)\n"
+        "replay(P, cals=[C], speed=None, up_sensor='+z', recording=rec)\nrec.close()"
+    ),
+    "replay_whole": "replay(read_session(P), cals=[C], speed=None, up_sensor='+z')",
+    "evaluate": ("evaluate(read_session(P), load_calibration(C), up_sensor=(0, 0, 1), check_moving=False)"),
+}
 
-LSB = 16384.0
+
+def write_static(path: Path, minutes: float, seed: int = 0) -> Path:
+    """A static z-up session of `minutes` at 1 kHz, generated and written ten minutes at a time."""
+    from accellog.core.session import SessionMeta
+    from accellog.store.writer import SessionWriter
+
+    rng = np.random.default_rng(seed)
+    n = round(minutes * 60_000)
+    meta = SessionMeta(source="emulator", accel_lsb_per_g=LSB, accel_range_g=2.0, sample_rate_hz=1000.0)
+    with SessionWriter(path, meta, flush_interval_s=np.inf, chunk_size=1 << 20) as w:
+        for a0 in range(0, n, 600_000):
+            m = min(600_000, n - a0)
+            f = np.tile([0.0, 0.0, 1.0], (m, 1))
+            counts = np.round((f @ S_TRUE.T + B_TRUE + rng.normal(0, 0.002, f.shape)) * LSB).astype(np.int32)
+            i = np.arange(a0, a0 + m)
+            temp = np.round((30.0 + 2.0 * i / n - 21.0) * 333.87).astype(np.int32)
+            t_ns = i * 1_000_000
+            for a in range(0, m, 1000):
+                w.write_imu(a0 + a, t_ns[a : a + 1000], accel_counts=counts[a : a + 1000],
+                            temp_counts=temp[a : a + 1000])  # fmt: skip
+    return path
 
 
-def _session(f_g: np.ndarray, rate: float, rng, poses=()) -> Session:
-    S = np.array([[1.01, 0.004, -0.003], [0.002, 0.995, 0.006], [-0.005, 0.001, 1.02]])
-    counts = np.round((f_g @ S.T + [0.03, -0.02, 0.05] + rng.normal(0, 0.002, f_g.shape)) * LSB).astype(
-        np.int32
-    )
+def write_calibration(d: Path) -> Path:
+    """model3 fitted on a six-pose session of the same synthetic chip (2 s per pose)."""
+    from accellog.core.session import PoseLabel, Session, SessionMeta
+    from accellog.flows.stages import run_fit
+    from accellog.store.writer import write_session
+
+    rng = np.random.default_rng(1)
+    ups = [(0, 0, 1), (0, 0, -1), (0, 1, 0), (0, -1, 0), (1, 0, 0), (-1, 0, 0)]
+    f = np.concatenate([np.tile(np.array(u, float), (2000, 1)) for u in ups])
+    counts = np.round((f @ S_TRUE.T + B_TRUE + rng.normal(0, 0.002, f.shape)) * LSB).astype(np.int32)
+    poses = [PoseLabel(str(k), k * 2 + 0.1, (k + 1) * 2 - 0.1, u, None, k) for k, u in enumerate(ups)]
+    meta = SessionMeta(source="emulator", accel_lsb_per_g=LSB, accel_range_g=2.0, sample_rate_hz=1000.0)
     n = counts.shape[0]
-    temp = np.round((30.0 + np.linspace(0, 2.0, n) - 21.0) * 333.87).astype(np.int32)
-    meta = SessionMeta(source="emulator", accel_lsb_per_g=LSB, accel_range_g=2.0, sample_rate_hz=rate)
-    return Session(
-        meta=meta,
-        t_s=np.arange(n) / rate,
-        sample_index=np.arange(n, dtype=np.int64),
-        accel_g=counts / LSB,
-        accel_counts=counts,
-        temp_counts=temp,
-        temp_degC=temp / 333.87 + 21.0,
-        poses=list(poses),
+    s = Session(meta=meta, t_s=np.arange(n) / 1000.0, sample_index=np.arange(n), accel_g=counts / LSB,
+                accel_counts=counts, poses=poses)  # fmt: skip
+    write_session(d / "cal.mcap", s)
+    run_fit(d / "cal.mcap", "model3", gravity="seed").cal.save(d / "model3.json")
+    return d / "model3.json"
+
+
+def run(mode: str, session: Path, cal: Path, rrd: Path) -> tuple[float, float]:
+    """(wall s of the work, peak RSS MB of the process) of one fresh process doing `mode`."""
+    code = (
+        f"{_PRELUDE}P, C, R = {str(session)!r}, {str(cal)!r}, {str(rrd)!r}\n"
+        f"t0 = time.perf_counter()\n{MODES[mode]}\nprint(json.dumps(time.perf_counter() - t0))"
     )
+    r = subprocess.run(
+        ["/usr/bin/time", "-f", "%M", sys.executable, "-c", code], capture_output=True, text=True
+    )
+    if r.returncode:
+        raise SystemExit(f"{mode}: {r.stderr[-2000:]}")
+    return float(json.loads(r.stdout.strip().splitlines()[-1])), int(r.stderr.strip().splitlines()[-1]) / 1024
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--minutes", type=float, default=60.0)
+    ap.add_argument("--minutes", type=float, nargs="+", default=[60.0])
+    ap.add_argument("--modes", nargs="+", default=["replay", "replay_rrd", "replay_rrd_full", "evaluate"])
     ap.add_argument("--repeat", type=int, default=2)
     args = ap.parse_args()
-    rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
-        ups = [(0, 0, 1), (0, 0, -1), (0, 1, 0), (0, -1, 0), (1, 0, 0), (-1, 0, 0)]
-        per = 2000
-        f = np.concatenate([np.tile(np.array(u, float), (per, 1)) for u in ups])
-        poses = [PoseLabel(str(k), k * 2 + 0.1, (k + 1) * 2 - 0.1, u, None, k) for k, u in enumerate(ups)]
-        write_session(d / "cal.mcap", _session(f, 1000.0, rng, poses))
-        run_fit(d / "cal.mcap", "model3", gravity="seed").cal.save(d / "model3.json")
-        n = int(args.minutes * 60 * 1000)
-        t0 = time.perf_counter()
-        write_session(
-            d / "hour.mcap", _session(np.tile([0.0, 0.0, 1.0], (n, 1)), 1000.0, rng), batch_size=1000
-        )
-        t_write = time.perf_counter() - t0
-        size_mb = (d / "hour.mcap").stat().st_size / 1e6
-
-        def baseline() -> None:
-            s = read_session(d / "hour.mcap")
-            evaluate(s, load_calibration(d / "model3.json"), up_sensor=(0, 0, 1), check_moving=False)
-
-        def replay_only() -> None:
-            replay(d / "hour.mcap", cals=[d / "model3.json"], speed=None, up_sensor="+z")
-
-        def replay_rrd() -> None:
-            rec = RunRecording(f"save:{d / 'hour.rrd'}")
-            replay(d / "hour.mcap", cals=[d / "model3.json"], speed=None, up_sensor="+z", recording=rec)
-            rec.close()
-
-        rows = []
-        for name, fn in (
-            ("read+correct+integrate (evaluate)", baseline),
-            ("replay, no logging", replay_only),
-            ("replay -> .rrd", replay_rrd),
-        ):
-            best = min(_timed(fn) for _ in range(args.repeat))
-            rows.append((name, best))
-        rrd_mb = (d / "hour.rrd").stat().st_size / 1e6
-    base = rows[1][1]  # the right baseline: the same replay without logging
-    print(
-        f"session: {n:,} samples ({args.minutes:g} min at 1 kHz), MCAP {size_mb:.1f} MB written in {t_write:.1f} s; .rrd {rrd_mb:.0f} MB"
-    )
-    print(f"load average {os.getloadavg()} (2 cores; a loaded machine inflates every figure)")
-    print(f"{'variant':40s} {'best s':>8s} {'x replay':>9s}")
-    for name, t in rows:
-        print(f"{name:40s} {t:8.2f} {t / base:9.2f}")
-    added = rows[2][1] / base - 1.0
-    print(f"logging adds {100 * added:.0f} % to the same replay without logging (goal: under 50 %)")
-
-
-def _timed(fn) -> float:
-    t0 = time.perf_counter()
-    fn()
-    return time.perf_counter() - t0
+        cal = write_calibration(d)
+        for minutes in args.minutes:
+            session = write_static(d / f"s{minutes:g}.mcap", minutes)
+            print(f"\nsession: {minutes:g} min at 1 kHz ({minutes * 60_000:,.0f} samples), "
+                  f"MCAP {session.stat().st_size / 1e6:.0f} MB")  # fmt: skip
+            print(
+                f"{'mode':16s} {'best s':>8s} {'x replay':>9s} {'peak MB':>8s} {'rrd MB':>7s}  load average"
+            )
+            base = None
+            for mode in args.modes:
+                rrd = d / f"{mode}.rrd"
+                runs = [run(mode, session, cal, rrd) for _ in range(args.repeat)]
+                wall, peak = min(w for w, _ in runs), max(m for _, m in runs)
+                if mode == "replay":
+                    base = wall
+                size = f"{rrd.stat().st_size / 1e6:7.1f}" if rrd.exists() else f"{'-':>7s}"
+                ratio = f"{wall / base:9.2f}" if base else f"{'-':>9s}"
+                load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+                print(f"{mode:16s} {wall:8.2f} {ratio} {peak:8.0f} {size}  {load}", flush=True)
+                rrd.unlink(missing_ok=True)
+            session.unlink()
+    print("\n2-core machine shared with other developers: compare ratios within one run, not across runs.")
 
 
 if __name__ == "__main__":

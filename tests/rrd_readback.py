@@ -80,23 +80,35 @@ class Rrd:
         return sorted(out)
 
     def views(self) -> list[dict]:
-        """Blueprint views: class ('TimeSeries', 'Spatial3D', 'BarChart', ...), origin, name, contents."""
+        """Blueprint views: class ('TimeSeries', 'Spatial3D', 'BarChart', ...), origin, name, contents,
+        time_range and axis_range ((start, end) s on sensor_time, or None)."""
         out = []
         for ent, comps in self.blueprint.items():
             if "ViewBlueprint:class_identifier" in comps:
                 contents = self.blueprint.get(ent + "/ViewContents", {}).get("ViewContents:query", [])
+                ranges = self.blueprint.get(ent + "/VisibleTimeRanges", {}).get(
+                    "VisibleTimeRanges:ranges", []
+                )
+                axis = self.blueprint.get(ent + "/TimeAxis", {}).get("TimeAxis:view_range", [None])[0]
                 out.append(
                     {
                         "class": comps["ViewBlueprint:class_identifier"][0],
                         "origin": comps.get("ViewBlueprint:space_origin", [""])[0],
                         "name": (comps.get("ViewBlueprint:display_name") or [""])[0],
                         "contents": contents,
+                        "time_range": _seconds(ranges[0]["range"]) if ranges else None,
+                        "axis_range": _seconds(axis) if axis else None,
                     }
                 )
         return out
 
     def time_panel(self) -> dict[str, list]:
         return self.blueprint.get("/time_panel", {})
+
+
+def _seconds(r: dict) -> tuple[float | None, float | None]:
+    """(start, end) in s of a blueprint time range (None: unbounded or cursor-relative)."""
+    return tuple(None if r.get(k) is None else r[k] / NS for k in ("start", "end"))
 
 
 def _flat(v):

@@ -336,3 +336,33 @@ def test_live_holds_logged_one_by_one_keep_their_own_series(tmp_path: Path) -> N
         np.testing.assert_allclose(tp, [p.start_s, p.end_s], atol=1e-9)
         np.testing.assert_array_equal(vp[:, 0], [1.0, 0.0])
         assert r.static(f"poses/active/{k:02d}", "SeriesLines:names") == [f"pose {p.name}"]
+
+
+def test_every_time_series_view_shows_its_own_data_range(tmp_path: Path) -> None:
+    """Issue 10 item 2: a calibration session (0-20 s, holds, temperature) and a held-out session
+    (100-160 s) in one recording: each view opens on its own data's time range (not the other
+    session's, not the last seconds), with an x axis of its own."""
+    out = tmp_path / "ranges.rrd"
+    rng = np.random.default_rng(0)
+    t_cal, t_test = np.arange(2000) / 100.0, 100.0 + np.arange(6000) / 100.0
+    poses = [PoseLabel("+z", 2.0, 8.0, (0, 0, 1), None, 0), PoseLabel("-z", 11.0, 18.0, (0, 0, -1), None, 1)]
+    with RunRecording(f"save:{out}") as rec:
+        rec.log_samples("cal", t_cal, None, rng.normal(size=(2000, 3)), "g")
+        rec.log_poses(poses)
+        rec.log_temperature(t_cal[::10], 30.0 + t_cal[::10] / 100)
+        rec.log_samples("heldout", t_test, None, rng.normal(size=(6000, 3)), "g")
+        rec.log_track("heldout/model3", t_test, rng.normal(size=(6000, 3)))
+        rec.log_track("heldout/raw", t_test[:3000], rng.normal(size=(3000, 3)))
+        assert rec.extents["accel/heldout"] == (100.0, t_test[-1])
+    views = {v["name"]: v for v in load_rrd(out).views() if v["class"] == "TimeSeries"}
+    want = {
+        "accel cal": (0.0, t_cal[-1]),  # its samples and the holds inside them
+        "accel heldout": (100.0, t_test[-1]),
+        "temperature (degC) + lost samples": (0.0, t_cal[::10][-1]),
+        "heldout/model3 (m)": (100.0, t_test[-1]),
+        "heldout/raw (m)": (100.0, t_test[2999]),
+    }
+    assert set(want) <= set(views)
+    for name, (lo, hi) in want.items():
+        np.testing.assert_allclose(views[name]["time_range"], (lo, hi), atol=1e-9, err_msg=name)
+        np.testing.assert_allclose(views[name]["axis_range"], (lo, hi), atol=1e-9, err_msg=name)

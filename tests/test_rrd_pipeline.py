@@ -91,6 +91,12 @@ def test_demo_rrd_tells_the_whole_story(tmp_path):
         assert e in ents, e
     names = {v["name"] for v in r.views()}
     assert {"static test tracks 3D (m)", "robot tracks vs truth (m)"} <= names
+    # every time-series view opens on its own data's time range (issue 10), e.g. the robot tab
+    plots = [v for v in r.views() if v["class"] == "TimeSeries"]
+    assert plots and all(v["axis_range"] and None not in v["time_range"] for v in plots)
+    robot_t = np.concatenate([r.series(e)[0] for e in ents if e.startswith("/tracks/robot/")])
+    robot = next(v for v in plots if v["name"] == "robot position per calibration (m)")
+    np.testing.assert_allclose(robot["time_range"], (robot_t.min(), robot_t.max()), atol=1e-9)
     # the ladder's held-out RMS falls step by step to the final model
     heldout = [v for _, _, v in r.ladder_bars("log10_heldout_rms_mg")]  # log10 mg
     assert heldout[-1] < heldout[2] - np.log10(5)  # model3 + found effects vs model3

@@ -54,6 +54,7 @@ from accellog.present.rrd.envelope import (
     track_keep,
 )
 from accellog.present.rrd.layout import build_blueprint, live_blueprint
+from accellog.present.rrd.ranges import with_time_ranges
 from accellog.present.rrd.sinks import SinkWatch, parse_sink, spawn_viewer
 from accellog.store.atomic import AtomicOutput
 
@@ -91,6 +92,7 @@ class RunRecording:
         self.full_rate = bool(full_rate)
         self._span: tuple[float, float] | None = None  # batched logging: (t0, bucket width) s
         self._builders: dict[str, tuple[EnvelopeBuilder, bool]] = {}  # entity -> (builder, has index)
+        self._extents: dict[str, tuple[float, float]] = {}  # entity -> (first, last) sensor_time (s)
         self.kind, self.target = parse_sink(sink)
         self.guard = (self.kind != "save") if guard is None else guard
         self.failures = 0
@@ -115,8 +117,8 @@ class RunRecording:
             self._final = Path(self.target)
             self._out = AtomicOutput(self._final, what="--rrd output")
             self._tmp = self._out.begin()  # checks the path, locks it, reserves a unique temp name
-            try:
-                self.rec.save(str(self._tmp), default_blueprint=bp)
+            try:  # the blueprint goes in on close, with each view's time range (present.rrd.ranges)
+                self.rec.save(str(self._tmp), default_blueprint=None)
             except BaseException:
                 self._out.abort()
                 raise
@@ -215,6 +217,8 @@ class RunRecording:
                 self.rec.log(entity, rr.SeriesLines(**style), static=True)
         if t.shape[0] == 0:
             return
+        lo, hi = self._extents.get(entity, (np.inf, -np.inf))
+        self._extents[entity] = (min(lo, float(np.nanmin(t))), max(hi, float(np.nanmax(t))))
         idx = [rr.TimeColumn(MAIN_TIMELINE, duration=t)]
         if sample_index is not None:
             idx.append(rr.TimeColumn(SAMPLE_TIMELINE, sequence=np.asarray(sample_index, dtype=np.int64)))
@@ -566,6 +570,11 @@ class RunRecording:
         """Entity paths logged so far -> role."""
         return dict(self._entities)
 
+    @property
+    def extents(self) -> dict[str, tuple[float, float]]:
+        """Entity paths of the series logged on sensor_time -> (first, last) time (s)."""
+        return dict(self._extents)
+
     def report(self) -> str | None:
         """One line describing live-view failures, or None when there were none."""
         if not self.failures:
@@ -580,8 +589,10 @@ class RunRecording:
             self._watch.stop()
         try:
             self.end_batches()
-            if self._blueprint == "auto" and self.kind == "save":
-                self.rec.send_blueprint(build_blueprint(self._entities), make_active=True, make_default=True)
+            if self.kind == "save" and self._blueprint is not None:
+                bp = build_blueprint(self._entities) if isinstance(self._blueprint, str) else self._blueprint
+                bp = with_time_ranges(bp, self._extents)
+                self.rec.send_blueprint(bp, make_active=True, make_default=True)
             if self.kind == "save":
                 self.rec.flush()
                 self.rec.disconnect()
