@@ -50,3 +50,33 @@ def test_envelope_keeps_the_order_of_min_and_max() -> None:
     np.testing.assert_array_equal(env.t_s, [0, 3, 4, 6, 7, 7])
     np.testing.assert_array_equal(env.values[:2], [[0, 5], [9, 0]])  # x: min first; y: max first
     np.testing.assert_array_equal(env.values[2:4], [[2, 2], [-4, 7]])  # x: max (2) first, y: min first
+
+
+def test_whole_series_envelope_and_full_rate_from_the_environment(tmp_path, monkeypatch) -> None:
+    """A whole long series logged at once (fit / evaluate / demo recordings) is an envelope with its
+    device sample numbers; ACCELLOG_RRD_FULL=1 (full data on demand) logs every sample."""
+    import sys
+    from pathlib import Path
+
+    from accellog.present.rrd.envelope import ENVELOPE_BUCKETS, FULL_RATE_MAX_SAMPLES
+    from accellog.present.rrd.recording import RunRecording
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from rrd_readback import load_rrd
+
+    n = 3 * FULL_RATE_MAX_SAMPLES
+    t = np.arange(n) / 1000.0
+    v = np.random.default_rng(5).normal(size=(n, 3))
+    idx = np.arange(n) + 1000
+    monkeypatch.delenv("ACCELLOG_RRD_FULL", raising=False)
+    with RunRecording(f"save:{tmp_path / 'env.rrd'}") as rec:
+        rec.log_samples("raw", t, idx, v, "g")
+    s_idx, vals = load_rrd(tmp_path / "env.rrd").series("accel/raw", timeline="sample")
+    assert len(vals) <= 2 * (ENVELOPE_BUCKETS + 1)
+    np.testing.assert_array_equal(vals, minmax_envelope(t, v).values)
+    np.testing.assert_array_equal(s_idx, minmax_envelope(t, v, index=idx).row_index)
+    monkeypatch.setenv("ACCELLOG_RRD_FULL", "1")
+    with RunRecording(f"save:{tmp_path / 'full.rrd'}") as rec:
+        assert rec.full_rate
+        rec.log_samples("raw", t, idx, v, "g")
+    np.testing.assert_array_equal(load_rrd(tmp_path / "full.rrd").series("accel/raw")[1], v)
