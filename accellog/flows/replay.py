@@ -1,9 +1,10 @@
 """Replay a recorded session through online correction + integration, paced in sensor time.
 
-The MCAP file is only read (``accellog.store.reader.read_session`` opens it read-only); the samples
-are fed batch by batch through ``accellog.navigate.online.OnlineIntegrator`` (one per track: the raw
-reading and each calibration) and logged to a ``RunRecording`` as they go, sleeping so that
-sensor time advances ``speed`` times faster than wall time (``speed=None``: as fast as possible).
+The MCAP file is only read, chunk group by chunk group (``flows.replay_input``: memory flat in the
+session length); the samples are fed batch by batch through ``accellog.navigate.online.OnlineIntegrator``
+(one per track: the raw reading and each calibration) and logged to a ``RunRecording`` as they go
+(long series as min/max display envelopes, tracks every k-th sample), sleeping so that sensor time
+advances ``speed`` times faster than wall time (``speed=None``: as fast as possible).
 
 For a session at rest with up vector u (sensor frame), every track is
 
