@@ -50,3 +50,27 @@ def test_tab_blueprint_activates_the_named_tab(tmp_path):
     with pytest.raises(InputError, match=r"no tab 'third'; tabs: .*'first', 'second'"):
         tab_blueprint(rrd, "third", tmp_path / "x.rbl")
     assert not (tmp_path / "x.rbl").exists()
+
+
+def test_tab_view_files_copy_the_data_without_its_blueprint(tmp_path):
+    """The viewer gets the recording's data without the saved (activated) layout, so the .rbl decides."""
+    import sys
+    from pathlib import Path
+
+    from accellog.present.rrd.tabs import tab_view_files
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from rrd_readback import load_rrd
+
+    rrd = tmp_path / "docs.rrd"
+    v = np.random.default_rng(1).normal(size=(50, 3))
+    with RunRecording(f"save:{rrd}") as rec:
+        rec.log_samples("raw", np.arange(50.0), None, v, "g")
+        rec.log_document("first", "# one")
+        rec.log_document("second", "# two")
+    before = rrd.read_bytes()
+    data, rbl = tab_view_files(rrd, "second", tmp_path / "view")
+    assert RrdReader(str(data)).blueprints() == [] and RrdReader(str(rbl)).blueprints()
+    assert RrdReader(str(data)).recordings() == RrdReader(str(rrd)).recordings()
+    np.testing.assert_array_equal(load_rrd(data).series("accel/raw")[1], v)
+    assert rrd.read_bytes() == before

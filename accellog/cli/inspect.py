@@ -138,7 +138,7 @@ def view(
     import tempfile
 
     from accellog.present import viewer
-    from accellog.present.rrd.tabs import tab_blueprint
+    from accellog.present.rrd.tabs import tab_view_files
 
     if not recording.is_file():
         raise InputError("no such .rrd file", where=str(recording))
@@ -150,13 +150,12 @@ def view(
                 "the viewer did not render within the wait (blank screenshot)", where=str(screenshot)
             )
         return
-    # the tab's blueprint (.rbl) is written to a temporary folder that stays (a few kB): the viewer
-    # (native) reads it after this process has returned
-    extra = (
-        []
-        if tab is None
-        else [tab_blueprint(recording, tab, Path(tempfile.mkdtemp(prefix="accellog-tab-")) / "tab.rbl")]
-    )
+    # the tab's blueprint (.rbl) and the recording without its own blueprints go to a temporary
+    # folder that stays: the viewer (native) reads them after this process has returned
+    extra = []
+    if tab is not None:
+        recording, rbl = tab_view_files(recording, tab, tempfile.mkdtemp(prefix="accellog-tab-"))
+        extra.append(rbl)
     if web:
         with viewer.serve_rrd(recording, extra=extra) as v:
             _console.print(f"web viewer: {v.url}  (Ctrl-C to stop)")

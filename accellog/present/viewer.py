@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from accellog.core.errors import InputError
-from accellog.present.rrd.tabs import tab_blueprint
+from accellog.present.rrd.tabs import tab_view_files
 from accellog.store.atomic import write_bytes_atomic
 
 CHROMIUM_CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "chrome")
@@ -421,6 +421,9 @@ def screenshot_rrd(
     rendered, save a PNG screenshot of size (width, height) pixels to png_path. tab: the display name
     of the blueprint tab to show (accellog.present.rrd.tabs)."""
     with tempfile.TemporaryDirectory(prefix="accellog-tab-") as tmp:
-        extra = [] if tab is None else [tab_blueprint(rrd_path, tab, Path(tmp) / "tab.rbl")]
+        extra: list[Path] = []
+        if tab is not None:
+            rrd_path, rbl = tab_view_files(rrd_path, tab, tmp)
+            extra.append(rbl)
         with serve_rrd(rrd_path, extra=extra) as viewer:
             return screenshot_url(viewer.url, png_path, size=size, wait_s=wait_s, min_wait_s=min_wait_s)

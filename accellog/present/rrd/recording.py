@@ -306,6 +306,7 @@ class RunRecording(PipelineLogs):
             if self.kind == "save" and self._blueprint is not None:
                 bp = build_blueprint(self._entities) if isinstance(self._blueprint, str) else self._blueprint
                 bp = with_time_ranges(bp, self._extents)
+                # active: a viewer reading the file has built a layout from the data by now
                 self.rec.send_blueprint(bp, make_active=True, make_default=True)
             if self.kind == "save":
                 self.rec.flush()

@@ -3,7 +3,9 @@
 The .rrd's (last) blueprint is read back with rerun.chunk.RrdReader, the container or view whose
 display name is NAME is found, and a blueprint file (.rbl) is written with the same chunks plus, at a
 later blueprint time, ``active_tab`` set on every Tabs container between the root and NAME. The
-recording itself is never modified; the viewer opens ``F.rrd`` together with the .rbl.
+recording itself is never modified: ``tab_view_files`` writes a copy of its data without any
+blueprint (the saved layout is activated when the file is loaded, so it could win over the .rbl in
+a viewer that reads both files in parallel), and the viewer opens that copy with the .rbl.
 """
 
 from __future__ import annotations
@@ -110,3 +112,32 @@ def tab_blueprint(rrd_path: str | Path, tab: str, out_rbl: str | Path) -> Path:
     out = Path(out_rbl)
     bindings.save_blueprint(str(out), stream.to_native())
     return out
+
+
+def recording_only(rrd_path: str | Path, out_rrd: str | Path) -> Path:
+    """Write out_rrd: the first recording of rrd_path (its data chunks, same application and
+    recording id) without any blueprint."""
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(rrd_path))
+    entries = reader.recordings()
+    if not entries:
+        raise InputError("the file holds no recording", where=str(rrd_path))
+    e = entries[0]
+    rec = rr.RecordingStream(e.application_id, recording_id=e.recording_id, send_properties=False)
+    out = Path(out_rrd)
+    rec.save(str(out))
+    rec.send_chunks(list(reader.stream(store=e).to_chunks()))
+    rec.flush()
+    rec.disconnect()
+    return out
+
+
+def tab_view_files(rrd_path: str | Path, tab: str, out_dir: str | Path) -> tuple[Path, Path]:
+    """(the recording without its blueprints, the blueprint with `tab` active) in out_dir: what a
+    viewer opens to show that tab."""
+    d = Path(out_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    rbl = tab_blueprint(rrd_path, tab, d / "tab.rbl")
+    return recording_only(rrd_path, d / "recording.rrd"), rbl
