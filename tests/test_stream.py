@@ -88,3 +88,34 @@ def test_stream_observations_refuse_as_observations(recorded):
 
     with pytest.raises(InputError, match=r"has \d+ samples after trimming 1.5 s"):
         stream_observations(recorded, trim_s=1.5)
+
+
+def test_labels_read_only_the_chunks_that_hold_them(recorded, tmp_path):
+    """read_labels decompresses only the chunks whose message index lists a pose or event channel:
+    a damaged IMU chunk is never touched (no damage named), the labels equal the clean file's, and
+    a read of every topic still names that chunk."""
+    from mcap.reader import make_reader
+
+    from accellog.core.session import PoseLabel
+    from accellog.store.fastread import fast_collect
+    from accellog.store.layout import TOPIC_EVENTS, TOPIC_POSES
+
+    with open(recorded, "rb") as f:
+        summary = make_reader(f).get_summary()
+    label_ids = {c.id for c in summary.channels.values() if c.topic in (TOPIC_POSES, TOPIC_EVENTS)}
+    imu_only = [ix for ix in summary.chunk_indexes if not label_ids & set(ix.message_index_offsets)]
+    assert imu_only and len(imu_only) < len(summary.chunk_indexes)
+    mid = imu_only[len(imu_only) // 2]
+    b = bytearray(recorded.read_bytes())
+    b[mid.chunk_start_offset + mid.chunk_length // 2] ^= 0x04
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b)
+    labels = fast_collect(bad, [TOPIC_POSES, TOPIC_EVENTS])
+    assert labels is not None and labels.damaged == []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataIntegrityWarning)
+        meta, poses, events = read_labels(bad)
+    assert (meta, poses, events) == read_labels(recorded)
+    assert len(poses) == 6 and all(isinstance(p, PoseLabel) for p in poses)
+    whole = fast_collect(bad)
+    assert [d.offset for d in whole.damaged] == [mid.chunk_start_offset]
