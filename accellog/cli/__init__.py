@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import os
 import pkgutil
 import sys
 import warnings
@@ -35,9 +36,13 @@ _show_warning = warnings.showwarning
 def _one_blas_thread():
     """BLAS on one thread for the whole command: accellog's matrices are small (windows x tens of
     parameters), where threads cost more than they give, and on a shared, loaded machine far more
-    (diagnose on a 1 h session: 5x faster wall time at load 12 on 2 cores)."""
+    (diagnose on a 1 h session: 5x faster wall time at load 12 on 2 cores). The commands import
+    numpy themselves, after this runs, and threadpoolctl only limits libraries already loaded: the
+    BLAS thread variables (unless the user set them) cover the BLAS that numpy loads later."""
     from threadpoolctl import threadpool_limits
 
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
     return threadpool_limits(limits=1, user_api="blas")
 
 
