@@ -78,7 +78,8 @@ def run(mode: str, path: Path, cal: Path | None = None) -> tuple[float, float, f
     """(wall s, peak RSS MB, CPU s = user + system) of one fresh process doing `mode` on path, BLAS on
     one thread (on a loaded machine the CPU time is the better guide to the quiet wall time)."""
     out = path.with_suffix(".csv")
-    code = f"P = {str(path)!r}\nCAL = {str(cal)!r}\nOUT = {str(out)!r}\nfrom threadpoolctl import threadpool_limits\nthreadpool_limits(1, 'blas')\n{MODES[mode]}"
+    # numpy first: threadpoolctl limits only the BLAS libraries already loaded
+    code = f"P = {str(path)!r}\nCAL = {str(cal)!r}\nOUT = {str(out)!r}\nimport numpy\nfrom threadpoolctl import threadpool_limits\nthreadpool_limits(1, 'blas')\n{MODES[mode]}"
     t0 = time.perf_counter()
     r = subprocess.run(
         ["/usr/bin/time", "-f", "%M %U %S", sys.executable, "-c", code], capture_output=True, text=True
