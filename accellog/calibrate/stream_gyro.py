@@ -145,8 +145,8 @@ def _sum_pass(path, a: np.ndarray, b: np.ndarray, fine: np.ndarray | None):
     buf, buf0, has_temp = None, 0, True  # samples (t, w, temp) kept from global index buf0
     for blk in iter_imu(path):
         g0 = buf0 + (0 if buf is None else buf[0].size)
-        at = (f >= g0) & (f < g0 + blk.n)
-        t_fine[at] = blk.t_s[f[at] - g0]
+        lo, hi = np.searchsorted(f, [g0, g0 + blk.n])  # the fine edges in this block (f is sorted)
+        t_fine[lo:hi] = blk.t_s[f[lo:hi] - g0]
         has_temp = has_temp and blk.temp_degC is not None
         new = (blk.t_s, np.asarray(blk.gyro_dps, float), blk.temp_degC if has_temp else np.zeros(blk.n))
         buf = new if buf is None else tuple(np.concatenate([o, n]) for o, n in zip(buf, new, strict=True))
