@@ -21,6 +21,7 @@ import struct
 import zlib
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -134,12 +135,8 @@ def _fast_parse(data: _Bytes, topics: Iterable[str] | None) -> Collected:
             return end.value
 
 
-def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = None):
-    """Generator over the chunk groups of a finished file; returns the Collected at the end.
-
-    stream: a topic whose messages are handed out group by group instead of accumulated: after
-    each group it yields (metadata, DecodedBatch of that topic's messages in the group, or None),
-    so memory stays bounded by one group. Without stream it yields nothing until the end."""
+def _footer(data: _Bytes) -> tuple[int, int, bool | None]:
+    """(footer offset, summary start, summary CRC verdict) of a finished file."""
     size = len(data)
     if size < 2 * len(MCAP_MAGIC) + _FOOTER_SIZE or data[-len(MCAP_MAGIC) :] != MCAP_MAGIC:
         raise _NotFast("no footer magic: unfinished file")
@@ -152,8 +149,12 @@ def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = 
     verified = summary_sound(data, footer, summary_start)
     if verified is False:
         raise _SummaryDamaged("summary section CRC mismatch")
+    return footer, summary_start, verified
 
-    # summary section: every record parsed must fill its declared length exactly
+
+def _summary(data: _Bytes, footer: int, summary_start: int):
+    """Schemas, channels, chunk index offsets and lengths, metadata offsets of the summary section
+    (every record parsed must fill its declared length exactly)."""
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     chunk_index_at: list[int] = []
@@ -187,7 +188,32 @@ def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = 
         raise _NotFast("summary without chunk indexes")
     if len({ch.topic for ch in channels.values()}) != len(channels):
         raise _NotFast("topic on several channels")
+    return schemas, channels, chunk_index_at, chunk_index_len, metadata_at
 
+
+@dataclass
+class _ChunkTable:
+    """Per chunk (summary order, arrays): chunk index offset ci and its message-index map length,
+    chunk offset, time range, header content offset c, uncompressed size, CRC, compression name
+    length, records range, and whether the header agrees with the index (sound)."""
+
+    ci: np.ndarray
+    map_len: np.ndarray
+    chunk_at: np.ndarray
+    t_first: np.ndarray
+    t_last: np.ndarray
+    c: np.ndarray
+    usize: np.ndarray
+    crc: np.ndarray
+    name_len: np.ndarray
+    rec_at: np.ndarray
+    rec_end: np.ndarray
+    sound: np.ndarray
+
+
+def _chunk_table(data: _Bytes, footer: int, verified: bool | None, chunk_index_at: list[int],
+                 chunk_index_len: list[int]) -> _ChunkTable:  # fmt: skip
+    """Every chunk index and chunk header read at once (numpy), checked against each other."""
     # chunk indexes (vectorised): start offset of each chunk, in summary order
     buf = np.frombuffer(data, np.uint8)
     ci = np.asarray(chunk_index_at, dtype=np.int64)
@@ -227,8 +253,28 @@ def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = 
             sound[k] = False
     if not sound.all() and not verified:  # without a summary CRC the index itself may be the damage
         raise _NotFast("chunk header disagrees with its index")
+    return _ChunkTable(
+        ci, map_len, chunk_at, t_first, t_last, c, usize, crc, name_len, rec_at, rec_end, sound
+    )
+
+
+def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = None):
+    """Generator over the chunk groups of a finished file; returns the Collected at the end.
+
+    stream: a topic whose messages are handed out group by group instead of accumulated: after
+    each group it yields (metadata, DecodedBatch of that topic's messages in the group, or None),
+    so memory stays bounded by one group. Without stream it yields nothing until the end."""
+    footer, summary_start, verified = _footer(data)
+    schemas, channels, chunk_index_at, chunk_index_len, metadata_at = _summary(data, footer, summary_start)
+    tab = _chunk_table(data, footer, verified, chunk_index_at, chunk_index_len)
+    sound, usize, crc = tab.sound, tab.usize, tab.crc
     damaged = [
-        Damage(int(chunk_at[k]), int(t_first[k]), int(t_last[k]), "chunk header disagrees with its index")
+        Damage(
+            int(tab.chunk_at[k]),
+            int(tab.t_first[k]),
+            int(tab.t_last[k]),
+            "chunk header disagrees with its index",
+        )
         for k in np.flatnonzero(~sound).tolist()
     ]
     usize = np.where(sound, usize, 0)
@@ -236,7 +282,7 @@ def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = 
     # the header reads above faulted in a few pages around every chunk (~30 % of a long file):
     # drop them, so resident memory does not grow with the file's length
     release_pages(data, 0, summary_start)
-    keep = _chunks_with(data, ci, map_len, channels, topics, stream)
+    keep = _chunks_with(data, tab.ci, tab.map_len, channels, topics, stream)
     if keep is not None:  # only chunks that hold a wanted channel are decompressed
         sound &= keep
         usize = np.where(keep, usize, 0)
@@ -258,12 +304,12 @@ def _fast_walk(data: _Bytes, topics: Iterable[str] | None, stream: str | None = 
     message_of: dict[int, str | None] = {}  # channel id -> accellog message type (None: not decoded)
     parts: dict[int, BatchAccumulator] = {}
     name_at, name_len, rec_at, rec_end = (
-        (c + 32).tolist(),
-        np.where(sound, name_len, -1).tolist(),  # -1: skip (damaged header)
-        rec_at.tolist(),
-        rec_end.tolist(),
+        (tab.c + 32).tolist(),
+        np.where(sound, tab.name_len, -1).tolist(),  # -1: skip (damaged header)
+        tab.rec_at.tolist(),
+        tab.rec_end.tolist(),
     )
-    chunk_info = (chunk_at.tolist(), t_first.tolist(), t_last.tolist(), crc.tolist())
+    chunk_info = (tab.chunk_at.tolist(), tab.t_first.tolist(), tab.t_last.tolist(), crc.tolist())
     chunks = _Decompressor(data, chunk_info, damaged)
     usize_list = usize.tolist()
     done = (np.cumsum(usize) / max(1, int(usize.sum()))).tolist()  # fraction read after each chunk
