@@ -1,0 +1,166 @@
+"""`accellog diagnose` as one library call: read the session, fit the model, rank what is missing.
+
+A labelled session (MCAP streamed chunk by chunk when no .rrd is asked for, CSV, pose table or
+observations JSON) goes to accellog.calibrate.diagnose with its observation windows, the host clock
+and the held-out sessions; a session without pose labels (hand-held) to
+accellog.calibrate.handheld on its detected static intervals (gravity-norm residual). The result is
+typed (DiagnoseOutcome); the CLI only presents it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from accellog.core.errors import InputError
+from accellog.core.jsonio import JsonResult
+from accellog.core.session import ObsTable, Session
+
+if TYPE_CHECKING:
+    from accellog.calibrate.diagnose import Diagnosis
+    from accellog.calibrate.handheld import Detection
+
+
+@dataclass
+class DiagnoseOutcome(JsonResult):
+    """One diagnose run: the diagnosis of `session` and, for a hand-held session, the detection."""
+
+    session: str
+    diagnosis: Diagnosis
+    detection: Detection | None = None
+    """Detected static intervals (hand-held sessions only)."""
+
+    @property
+    def handheld(self) -> bool:
+        return self.detection is not None
+
+    def to_dict(self) -> dict:
+        """diagnose --json: the diagnosis, the session and (hand-held) the detected intervals."""
+        out = self.diagnosis.to_dict()
+        if self.detection is None:
+            out["session"] = self.session
+        else:
+            out.update(session=self.session, handheld=True, detected=self.detection.to_dict())
+        return out
+
+
+def run_diagnose(
+    session: str | Path,
+    *,
+    model: str = "model3",
+    add: Sequence[str] = (),
+    effects_file: str | Path | None = None,
+    window_s: float = 2.0,
+    weighted: bool = True,
+    gravity_g: float = 1.0,
+    heldout: Sequence[str | Path] = (),
+    detect_window_s: float = 1.0,
+    threshold: float | None = None,
+    noise_from: str | Path | None = None,
+    rrd: str | Path | None = None,
+) -> DiagnoseOutcome:
+    """Diagnose one session file (module doc); rrd: also write a Rerun recording of the residuals
+    per pose, the verdict and the candidates (labelled sessions)."""
+    from accellog.flows.stages import load_input
+    from accellog.flows.stream_input import open_labelled
+
+    session = Path(session)
+    if not session.is_file():
+        raise InputError("session file not found", where=str(session))
+    streamed = open_labelled(session, window_s=window_s, host=True) if rrd is None else None
+    data = streamed if streamed is not None else load_input(session)  # pose tables, observations: ObsTable
+    if isinstance(data, Session) and not data.poses:
+        return _handheld(data, session, model, add, effects_file, window_s, detect_window_s, threshold)
+    return _labelled(
+        data,
+        streamed,
+        session,
+        model,
+        add,
+        effects_file,
+        window_s,
+        weighted,
+        gravity_g,
+        heldout,
+        noise_from,
+        rrd,
+    )
+
+
+def _labelled(
+    data, streamed, session, model, add, effects_file, window_s, weighted, gravity_g, heldout, noise_from, rrd
+) -> DiagnoseOutcome:
+    from accellog.calibrate import diagnose as dg
+    from accellog.calibrate.model import build_model
+    from accellog.calibrate.segment import observations
+    from accellog.flows.stages import as_session
+
+    m = build_model(model, add=list(add), effects_file=effects_file)
+    host = None
+    if isinstance(data, ObsTable):
+        obs = data
+    elif streamed is not None:  # an MCAP session, chunk by chunk (bounded memory)
+        obs, host = streamed.obs, streamed.host_clock
+    else:
+        obs = observations(data, window_s=window_s)
+        if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
+            host = (data.t_s, data.host_time_s)
+    helds = [observations(as_session(h, "--heldout"), window_s=window_s) for h in heldout]
+    if noise_from is not None:
+        obs, helds = _noise_floored(obs, helds, data, noise_from)
+    d = dg.diagnose(obs, m, weighted=weighted, gravity_g=gravity_g, host_time=host, heldout=helds)
+    if rrd is not None:
+        _write_rrd(rrd, data, d, obs)
+    return DiagnoseOutcome(str(session), d)
+
+
+def _noise_floored(obs, helds, data, noise_from):
+    """Floor every window's sigma by the calibration's white noise (Allan) at the session's rate."""
+    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.noise_model import floor_obs_sigma
+
+    section = load_calibration(noise_from).noise
+    if not section:
+        raise InputError(
+            "no noise section: add one with `accellog noise STILL.mcap --cal C -o C2`",
+            where=str(noise_from),
+        )
+    meta = getattr(data, "meta", None)
+    rate = meta.sample_rate_hz if meta is not None else None
+    return floor_obs_sigma(obs, section, rate), [floor_obs_sigma(h, section, rate) for h in helds]
+
+
+def _write_rrd(rrd, data, d, obs) -> None:
+    from accellog.present.residual_views import log_diagnosis_residuals
+    from accellog.present.rrd.recording import RunRecording
+    from accellog.present.views import log_diagnosis, log_session
+
+    with RunRecording(f"save:{rrd}") as rec:
+        if not isinstance(data, ObsTable):
+            log_session(rec, data)
+        log_diagnosis(rec, d, obs)
+        log_diagnosis_residuals(rec, d, obs)
+        rec.log_series(
+            "residuals/windows",
+            np.asarray(obs.t_s, float),
+            np.asarray(d.fit.residual_g, float) * 1000.0,
+            [f"{d.model.name} residual {a} (mg)" for a in "xyz"],
+            points=True,
+        )
+
+
+def _handheld(
+    data, session, model, add, effects_file, window_s, detect_window_s, threshold
+) -> DiagnoseOutcome:
+    """An unlabelled session: detected static intervals, gravity-norm residual."""
+    from accellog.calibrate.handheld import HANDHELD_START, detect_holds, diagnose_handheld
+    from accellog.calibrate.model import build_model
+
+    name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
+    m = build_model(name, add=list(add), effects_file=effects_file)
+    obs, det = detect_holds(data, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)
+    return DiagnoseOutcome(str(session), diagnose_handheld(obs, m), det)

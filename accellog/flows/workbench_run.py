@@ -1,0 +1,167 @@
+"""`accellog workbench` as one library call: the discovery loop and the model ladder on a session.
+
+A labelled session goes to accellog.flows.workbench (diagnose, add what transfers, refit; the
+ladder model1 -> model2 -> model3 -> + each found effect, judged on held-out data and a static
+test); a session without pose labels (hand-held) to accellog.flows.handheld_workbench (detected
+static intervals, gravity-norm residual). Optionally the final model's calibration file (-o) and a
+Rerun recording (--rrd). The result is typed (WorkbenchOutcome); the CLI only presents it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from accellog.core.errors import InputError
+from accellog.core.jsonio import JsonResult
+from accellog.core.session import Session
+
+if TYPE_CHECKING:
+    from accellog.calibrate.ladder import LadderRow
+    from accellog.flows.handheld_workbench import HandheldDiscovery
+    from accellog.flows.workbench import Discovery
+
+
+@dataclass
+class WorkbenchOutcome(JsonResult):
+    """One workbench run: what the loop found (Discovery, or HandheldDiscovery for an unlabelled
+    session), the ladder, and the calibration file written (if any)."""
+
+    session: str
+    found: Discovery | HandheldDiscovery
+    ladder: list[LadderRow]
+    output: str | None = None
+    notes: list[str] = field(default_factory=list)
+    """Remarks about the inputs (e.g. an option not used on this kind of session)."""
+
+    @property
+    def handheld(self) -> bool:
+        return bool(getattr(self.found, "detection", None) is not None)
+
+    @property
+    def ok(self) -> bool:
+        """The loop decided, the final model transfers (or no held-out session) and nothing is missing."""
+        f = self.found
+        if self.handheld:
+            return not f.diagnoses[-1].missing
+        return f.decided and f.transfers is not False and not f.diagnoses[-1].missing
+
+    def to_dict(self) -> dict:
+        """workbench --json: session, the loop's keys and the ladder."""
+        if self.handheld:
+            return {"session": self.session, **self.found.to_dict()}
+        return {"session": self.session, **self.found.to_json(), "ladder": [r.to_dict() for r in self.ladder]}
+
+
+def run_workbench(
+    session: str | Path,
+    *,
+    heldout: Sequence[str | Path] = (),
+    static: str | Path | None = None,
+    model: str = "model3",
+    max_steps: int = 4,
+    effects_file: str | Path | None = None,
+    at_s: float = 60.0,
+    output: str | Path | None = None,
+    rrd: str | Path | None = None,
+    on_step: Callable[[object], None] | None = None,
+) -> WorkbenchOutcome:
+    """Run the workbench on one session file (module doc); on_step(Diagnosis) after each step of a
+    labelled session's loop (progress)."""
+    from accellog.flows.stages import as_session, load_input
+
+    data = load_input(session)
+    if not isinstance(data, Session):
+        raise InputError(
+            "the workbench needs a recorded session (samples), not a pose table", where=str(session)
+        )
+    test = as_session(static, "--static") if static is not None else None
+    if not data.poses:  # hand-held: detected static intervals, gravity-norm residual
+        out = _handheld(data, session, model, max_steps, effects_file, test, at_s, output, rrd)
+        if heldout:
+            out.notes.append("--heldout is not used on a hand-held session (not yet supported)")
+        return out
+    return _labelled(data, session, heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step)
+
+
+def _labelled(
+    data, session, heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step
+) -> WorkbenchOutcome:
+    from accellog.calibrate.segment import observations
+    from accellog.flows.stages import as_session
+    from accellog.flows.workbench import discover, ladder_rows, steps_for
+
+    obs = observations(data)
+    helds = [observations(as_session(h, "--heldout")) for h in heldout]
+    host = None
+    if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
+        host = (data.t_s, data.host_time_s)
+    found = discover(
+        obs,
+        model,
+        heldout=helds,
+        max_steps=max_steps,
+        effects_file=effects_file,
+        host_time=host,
+        on_step=on_step,
+    )
+    rows = ladder_rows(
+        data,
+        obs,
+        steps_for(found),
+        heldout=helds[0] if helds else None,
+        static_test=test,
+        effects_file=effects_file,
+        at_s=at_s,
+        gyro=output is not None or rrd is not None,  # the gyro goes into the calibration file / .rrd
+    )
+    if output is not None:
+        rows[-1].fit.cal.save(output)
+    if rrd is not None:
+        _write_rrd(rrd, data, found, rows, obs)
+    return WorkbenchOutcome(str(session), found, rows, None if output is None else str(output))
+
+
+def _write_rrd(rrd, data, found, rows, obs) -> None:
+    from accellog.flows.workbench import log_ladder
+    from accellog.present.residual_views import log_workbench_residuals
+    from accellog.present.rrd.recording import RunRecording
+    from accellog.present.views import log_diagnosis, log_session
+
+    with RunRecording(f"save:{rrd}") as rec:
+        log_session(rec, data, calibrations={found.final_model: rows[-1].fit.cal})
+        for i, d in enumerate(found.diagnoses, 1):
+            log_diagnosis(rec, d, obs, label=f"step {i}")
+        log_ladder(rec, rows, obs)
+        log_workbench_residuals(rec, obs, found.diagnoses[0].fit, rows[-1].fit.fit)
+
+
+def _handheld(data, session, model, max_steps, effects_file, test, at_s, output, rrd) -> WorkbenchOutcome:
+    """The workbench on an unlabelled session (accellog.flows.handheld_workbench)."""
+    from accellog.flows.handheld_workbench import discover_handheld
+
+    start = None if model == "model3" else model  # model3's cross_axis is not identifiable here
+    found = discover_handheld(
+        data, start, max_steps=max_steps, effects_file=effects_file, static_test=test, at_s=at_s
+    )
+    if output is not None:
+        from accellog.flows.stages import run_fit
+
+        # the full orientation-free fit: gyro from the detected intervals and the rotations between them
+        run_fit(
+            data, found.start, add=found.added, effects_file=effects_file, orientation_free=True
+        ).cal.save(output)
+    if rrd is not None:
+        from accellog.present.detection_views import log_detection
+        from accellog.present.rrd.recording import RunRecording
+        from accellog.present.views import log_session
+
+        with RunRecording(f"save:{rrd}") as rec:
+            log_session(rec, data)
+            log_detection(rec, found.detection)
+            rec.log_ladder(found.ladder)
+    return WorkbenchOutcome(str(session), found, found.ladder, None if output is None else str(output))

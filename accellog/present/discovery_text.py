@@ -1,0 +1,166 @@
+"""Terminal output of the discovery commands: the effect library (`effects`), a diagnosis
+(`diagnose`: parameters, candidates, driver signals, verdict) and the workbench's verdict and ladder.
+
+The results are duck-typed (accellog.flows.diagnose_run.DiagnoseOutcome,
+accellog.flows.workbench_run.WorkbenchOutcome): present/ does not import flows/.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from accellog.present.tables import ladder_table
+
+WIDTH = 160
+
+
+def _fmt(v, spec: str = ".3g") -> str:
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return "-"
+    return format(v, spec)
+
+
+def effects_table(rows: Sequence[dict]) -> Table:
+    """The effect library (accellog.calibrate.effects.describe rows)."""
+    t = Table(title="accellog effect library (names accepted by --add)")
+    for c in ("effect", "parameters [unit]", "drivers", "meaning", "revealed by"):
+        t.add_column(c, overflow="fold")
+    for r in rows:
+        params = (
+            ", ".join(f"{p} [{u}]" for p, u in zip(r["params"], r["units"], strict=True))
+            or "(none in static model)"
+        )
+        t.add_row(
+            r["effect"],
+            escape(params),
+            ", ".join(r["drivers"]) or "-",
+            escape(r["meaning"]),
+            escape(r["reveal"]),
+        )
+    return t
+
+
+def print_effects(rows: Sequence[dict]) -> None:
+    Console(width=200).print(effects_table(rows))
+    print("presets: model1 = bias; model2 = bias+scale; model3 = bias+scale+cross_axis")
+
+
+def _detected_line(source: str, det) -> str:
+    k = det.threshold if det.threshold is not None else "swept 2..10"
+    return f"[bold]{source}[/]: no pose labels: {len(det.intervals)} static intervals detected (window {det.window_s:g} s, threshold {k})"
+
+
+def params_sigma_table(fit) -> Table:
+    """Parameters of a FitResult with their noise-only 1-sigma."""
+    t = Table(title="parameters (1-sigma: noise-only Cramer-Rao bound)")
+    for c in ("param", "value", "1-sigma", "unit"):
+        t.add_column(c, justify="right" if c in ("value", "1-sigma") else "left")
+    for n, v, s, u in zip(fit.param_names, fit.theta, fit.sigma, fit.param_units, strict=True):
+        t.add_row(n, f"{v:.6g}", f"{s:.2g}", u)
+    return t
+
+
+def candidates_table(candidates: Sequence[dict]) -> Table:
+    """Candidate effects of a diagnosis, ranked."""
+    t = Table(title="candidate effects (model + effect; OOS = held-out or blocked validation)")
+    cols = ("#", "effect", "ident.", "signif.", "chi2/dof", "dBIC", "CV chi2/eq", "OOS chi2/eq", "p")
+    for c in (*cols, "reason / what to record"):
+        t.add_column(c, overflow="fold")
+    for c in candidates:
+        t.add_row(
+            str(c["rank"]),
+            c["effect"],
+            "yes" if c["identifiable"] else "no",
+            "YES" if c.get("significant") else "",
+            _fmt(c.get("chi2_dof")),
+            _fmt(c.get("delta_bic"), ".1f"),
+            _fmt(c.get("cv_chi2_per_eq")),
+            _fmt(c.get("oos_chi2_per_eq")),
+            _fmt(c.get("p_value"), ".2g"),
+            escape(c.get("reason", "")),
+        )
+    return t
+
+
+def signals_table(signals: Sequence[dict], top: int = 10) -> Table:
+    """Residuals against driver signals (the `top` strongest)."""
+    t = Table(title="residuals vs driver signals (top 10; dchi2 = drop if added as a term on that axis)")
+    for c in ("signal", "axis", "corr", "partial R^2", "dchi2", "p"):
+        t.add_column(c)
+    for s in signals[:top]:
+        t.add_row(
+            s["signal"] + (" *" if s["significant"] else ""),
+            s["axis"],
+            f"{s['correlation']:+.2f}",
+            f"{s['partial_r2']:.3f}",
+            f"{s['delta_chi2']:.3g}",
+            f"{s['p_value']:.2g}",
+        )
+    return t
+
+
+def print_diagnosis(d, source: str, con: Console | None = None) -> None:
+    """A Diagnosis: parameters, out-of-sample evidence, candidates, driver signals, verdict, advice."""
+    con = con or Console(width=WIDTH)
+    f = d.fit
+    con.print(f"[bold]{source}[/]: {f.n_obs} windows, model {d.model.name} ({d.model.n_params} params)")
+    con.print(params_sigma_table(f))
+    if d.choice is not None:
+        con.print(
+            f"out-of-sample evidence ({d.choice.evidence}): base chi2/eq {d.choice.base_score.chi2_per_eq:.3g}; "
+            + escape(d.choice.reason)
+        )
+    con.print(candidates_table(d.candidates))
+    con.print(signals_table(d.driver_signals))
+    con.print(("[bold red]MISSING[/] " if d.missing else "[bold green]OK[/] ") + escape(d.verdict))
+    for a in d.advice:
+        con.print(f"  - {escape(a)}")
+
+
+def print_diagnose_outcome(out) -> None:
+    """diagnose's terminal output (a DiagnoseOutcome)."""
+    if out.detection is not None:
+        Console(width=WIDTH).print(_detected_line(out.session, out.detection))
+    print_diagnosis(out.diagnosis, out.session)
+
+
+def step_printer(con: Console) -> Callable[[object], None]:
+    """Progress of the workbench loop: one line per step (its out-of-sample choice or verdict)."""
+    return lambda d: con.print(f"step {d.model.name}: {escape(d.choice.reason if d.choice else d.verdict)}")
+
+
+def print_notes(notes: Sequence[str]) -> None:
+    """Remarks about the inputs, one 'note:' line each on stderr."""
+    for n in notes:
+        Console(stderr=True).print(f"note: {escape(n)}")
+
+
+def print_workbench(out, con: Console) -> None:
+    """The workbench's verdict, advice and ladder (a WorkbenchOutcome)."""
+    if out.handheld:
+        _print_handheld(out, con)
+    else:
+        found = out.found
+        con.print(("[bold green]OK[/] " if out.ok else "[bold red]CHECK[/] ") + escape(found.verdict))
+        for a in found.advice:
+            con.print(f"advice: {escape(a)}")
+        con.print(ladder_table(out.ladder, title="watch the error fall: each step of model building"))
+    if out.output is not None:
+        con.print(f"wrote {out.output} ({out.found.final_model})")
+
+
+def _print_handheld(out, con: Console) -> None:
+    found = out.found
+    con.print(_detected_line(out.session, found.detection) + "; judged on the gravity norm")
+    for d in found.diagnoses:
+        con.print(f"step {escape(d.verdict)}")
+    for a in found.cannot_identify:
+        con.print(f"cannot identify: {escape(a)}")
+    con.print(
+        ladder_table(out.ladder, title="hand-held: each step of model building (gravity-norm residual)")
+    )
