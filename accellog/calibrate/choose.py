@@ -17,7 +17,7 @@ best one's with no more parameters, or when, without a held-out session, the two
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -86,19 +86,39 @@ class StepChoice:
         }
 
 
+OUT_OF_SESSION = ("heldout", "leave-one-session-out")
+"""Evidence kinds that predict another session (they break confounds of drivers within one session)."""
+
+
 def choose_effect(
     base: FitResult,
     candidates: Sequence[dict],
     fits: Mapping[str, FitResult],
     obs: ObsTable,
     heldout: Sequence[ObsTable] | None = None,
+    *,
+    scores: Callable[[dict[str, FitResult]], dict[str, Score]] | None = None,
+    rho: Callable[[FitResult, FitResult], float] | None = None,
 ) -> StepChoice:
     """Judge the significant candidates (diagnose rows with their fits of base model + effect) out
-    of sample and choose one (or none)."""
+    of sample and choose one (or none). scores(fits by name, '' = base) -> Score by name replaces
+    the default evidence (held-out sessions if given, else blocked validation), e.g. leave one
+    session out or the gravity norm of a hand-held session; rho(fit_a, fit_b) replaces the
+    canonical correlation of the labelled Jacobian columns."""
     eligible = [c["effect"] for c in candidates if c.get("significant") and c["effect"] in fits]
     model = base.model
     fits = {"": base, **{n: fits[n] for n in eligible}}
-    sc = {n: heldout_score(r, heldout) for n, r in fits.items()} if heldout else blocked_scores(fits, obs)
+    if scores is not None:
+        sc = scores(fits)
+    elif heldout:
+        sc = {n: heldout_score(r, heldout) for n, r in fits.items()}
+    else:
+        sc = blocked_scores(fits, obs)
+    if rho is None:
+
+        def rho(a: FitResult, b: FitResult) -> float:
+            return canonical_correlation(a, b, model, obs)
+
     base = sc.pop("")
     evidence = base.kind
     if not eligible:
@@ -116,20 +136,22 @@ def choose_effect(
     best = min(tied_best, key=lambda n: rows[n].get("delta_bic", np.inf))
     ranked = [best, *sorted((n for n in eligible if n != best), key=score)]
     s_best = sc[best]
-    what = "held-out" if evidence == "heldout" else "blocked-validation"
+    what = {"heldout": "held-out", "leave-one-session-out": "leave-one-session-out"}.get(
+        evidence, "blocked-validation"
+    )
     gain = base.chi2_per_eq - s_best.chi2_per_eq
     collinear, undecided = [], []
     for other in ranked[1:]:
-        rho = canonical_correlation(fits[best], fits[other], model, obs)
-        if rho < COLLINEAR_RHO:
+        r = rho(fits[best], fits[other])
+        if r < COLLINEAR_RHO:
             continue
-        collinear.append(Collinear(best, other, rho, separating_recording(best, other, model)))
+        collinear.append(Collinear(best, other, r, separating_recording(best, other, model)))
         # a tie with an alternative that is no more complex: the data cannot choose
         tie = other in tied_best and rows[other]["n_params"] <= rows[best]["n_params"]
         # within one session, blocks cannot break a confound of two drivers that move together
         # (temperature following time): a difference in score then reflects functional form only
         kinds = {driver_kind(best, model), driver_kind(other, model)}
-        confound = evidence != "heldout" and len(kinds) == 2 and "orientation" not in kinds
+        confound = evidence not in OUT_OF_SESSION and len(kinds) == 2 and "orientation" not in kinds
         if tie or confound:
             undecided.append(other)
     if not np.isfinite(gain) or gain <= Z_IMPROVE * s_best.se:

@@ -178,3 +178,30 @@ def diagnose_handheld(obs: ObsTable, model: Model, *, candidates: Sequence[str] 
         best=sig[0]["effect"] if sig else None,
         fits=fits,
     )
+
+
+def norm_obs(session: Session, *, window_s: float = 2.0, detect_window_s: float = 1.0) -> ObsTable:
+    """Observation windows of another session for the gravity-norm judgement: its labelled holds
+    (the norm ignores their orientations), or its detected static intervals when it has none."""
+    if session.poses:
+        return observations(session, window_s=window_s)
+    return detect_holds(session, window_s=detect_window_s, obs_window_s=window_s)[0]
+
+
+def norm_choice(d: Diagnosis, obs: ObsTable, heldout: Sequence[ObsTable]):
+    """The out-of-sample choice among a hand-held diagnosis's significant candidates, judged by the
+    gravity norm on the held-out sessions (calibrate.choose.choose_effect with
+    calibrate.norm_transfer's score and collinearity); also stored as d.choice."""
+    from accellog.calibrate.choose import choose_effect
+    from accellog.calibrate.norm_transfer import norm_canonical_correlation, norm_heldout_score
+
+    held = list(heldout)
+    d.choice = choose_effect(
+        d.fit,
+        d.candidates,
+        d.fits,
+        obs,
+        scores=lambda fits: {n: norm_heldout_score(r, held) for n, r in fits.items()},
+        rho=lambda a, b: norm_canonical_correlation(a, b, d.model, obs),
+    )
+    return d.choice

@@ -74,7 +74,9 @@ def run_diagnose(
     streamed = open_labelled(session, window_s=window_s, host=True) if rrd is None else None
     data = streamed if streamed is not None else load_input(session)  # pose tables, observations: ObsTable
     if isinstance(data, Session) and not data.poses:
-        return _handheld(data, session, model, add, effects_file, window_s, detect_window_s, threshold)
+        return _handheld(
+            data, session, model, add, effects_file, window_s, detect_window_s, threshold, heldout
+        )
     return _labelled(
         data,
         streamed,
@@ -154,13 +156,25 @@ def _write_rrd(rrd, data, d, obs) -> None:
 
 
 def _handheld(
-    data, session, model, add, effects_file, window_s, detect_window_s, threshold
+    data, session, model, add, effects_file, window_s, detect_window_s, threshold, heldout
 ) -> DiagnoseOutcome:
-    """An unlabelled session: detected static intervals, gravity-norm residual."""
-    from accellog.calibrate.handheld import HANDHELD_START, detect_holds, diagnose_handheld
+    """An unlabelled session: detected static intervals, gravity-norm residual; held-out sessions
+    judge the significant candidates on their gravity norm (d.choice)."""
+    from accellog.calibrate.handheld import (
+        HANDHELD_START,
+        detect_holds,
+        diagnose_handheld,
+        norm_choice,
+        norm_obs,
+    )
     from accellog.calibrate.model import build_model
+    from accellog.flows.stages import as_session
 
     name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
     m = build_model(name, add=list(add), effects_file=effects_file)
     obs, det = detect_holds(data, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)
-    return DiagnoseOutcome(str(session), diagnose_handheld(obs, m), det)
+    d = diagnose_handheld(obs, m)
+    if heldout:
+        helds = [norm_obs(as_session(h, "--heldout"), window_s=window_s) for h in heldout]
+        norm_choice(d, obs, helds)
+    return DiagnoseOutcome(str(session), d, det)

@@ -3,23 +3,30 @@
 
     e_r = |correct(a'_r)| - g
 
-replace the labelled poses. Loop: diagnose_handheld, add the significant effect with the lowest
-dBIC, refit, until nothing the norm can identify is significant (or max_steps). Then the ladder
-start -> + each found effect, judged on the norm (chi^2/dof, RMS in g) and, with a static test, by
-its |displacement| at at_s (m). What the norm cannot identify (a frame rotation, fixture tilt, the
-clock, effects the data do not excite) is said in `cannot_identify`, never guessed.
+replace the labelled poses. Loop: diagnose_handheld, add a significant effect, refit, until nothing
+the norm can identify is significant (or max_steps). Which effect: with held-out sessions the one
+that predicts their gravity norm best (accellog.calibrate.norm_transfer, chosen as the labelled
+workbench chooses: accellog.calibrate.choose; ties and near-collinear candidates are named), else
+the one with the lowest dBIC. Then the ladder start -> + each found effect, judged on the norm
+(chi^2/dof, RMS in g), on the held-out norm, and, with a static test, by its |displacement| at at_s
+(m). The verdict never says "nothing is missing" while the held-out norm chi2/dof exceeds
+HELDOUT_OK. What the norm cannot identify (a frame rotation, fixture tilt, the clock, effects the
+data do not excite) is said in `cannot_identify`, never guessed.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import Session
+from accellog.flows.workbench import HELDOUT_OK
 
 if TYPE_CHECKING:
+    from accellog.calibrate.choose import StepChoice
     from accellog.calibrate.diagnose import Diagnosis
     from accellog.calibrate.handheld import Detection
     from accellog.calibrate.ladder import LadderRow
@@ -37,14 +44,27 @@ class HandheldDiscovery(JsonResult):
     diagnoses: list[Diagnosis] = field(default_factory=list)
     added: list[str] = field(default_factory=list)
     ladder: list[LadderRow] = field(default_factory=list)
+    choices: list[StepChoice] = field(default_factory=list)
+    """Out-of-sample choice of each step (held-out sessions only)."""
+    heldout: dict | None = None
+    """Held-out norm statistics of the final model (heldout_rms_g, heldout_noise_g, heldout_chi2_dof)."""
+    undecided: list[list[str]] = field(default_factory=list)
+    """Groups of effects the data cannot tell apart (first: the one added)."""
+    verdict: str = ""
+    advice: list[str] = field(default_factory=list)
 
     @property
     def final_model(self) -> str:
         return self.diagnoses[-1].model.name
 
     @property
-    def verdict(self) -> str:
-        return self.diagnoses[-1].verdict
+    def decided(self) -> bool:
+        return not self.undecided
+
+    @property
+    def transfers(self) -> bool | None:
+        """Held-out norm chi2/dof of the final model <= HELDOUT_OK (None without a held-out session)."""
+        return None if self.heldout is None else bool(self.heldout["heldout_chi2_dof"] <= HELDOUT_OK)
 
     @property
     def cannot_identify(self) -> list[str]:
@@ -60,6 +80,12 @@ class HandheldDiscovery(JsonResult):
             "final_model": self.final_model,
             "verdict": self.verdict,
             "verdicts": [d.verdict for d in self.diagnoses],
+            "decided": self.decided,
+            "undecided": [list(u) for u in self.undecided],
+            "transfers": self.transfers,
+            "heldout": self.heldout,
+            "steps": [c.to_dict() for c in self.choices],
+            "advice": list(self.advice),
             "cannot_identify": self.cannot_identify,
             "detected": self.detection.to_dict(),
             "ladder": [r.to_dict() for r in self.ladder],
@@ -70,6 +96,7 @@ def discover_handheld(
     session: Session,
     start: str | None = None,
     *,
+    heldout: Sequence[ObsTable] = (),
     window_s: float = 2.0,
     detect_window_s: float = 1.0,
     threshold: float | None = None,
@@ -79,30 +106,95 @@ def discover_handheld(
     at_s: float = 60.0,
 ) -> HandheldDiscovery:
     """Detect the static intervals of an unlabelled session, then diagnose / add / refit on the
-    gravity norm (start: HANDHELD_START by default; model3's cross_axis is not identifiable here)."""
-    from accellog.calibrate.handheld import HANDHELD_START, detect_holds, diagnose_handheld
-    from accellog.calibrate.model import build_model
+    gravity norm (start: HANDHELD_START by default; model3's cross_axis is not identifiable here).
+    heldout: windows of other sessions of the same sensor (calibrate.handheld.norm_obs): each step
+    adds the candidate that predicts their gravity norm best, and only if it does."""
+    from accellog.calibrate.handheld import HANDHELD_START, detect_holds
     from accellog.flows.workbench import small_problem_threads
 
     start = start or HANDHELD_START
     with small_problem_threads():
         obs, det = detect_holds(session, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)
         found = HandheldDiscovery(start=start, detection=det, obs=obs)
-        while True:
-            m = build_model(start, add=found.added, effects_file=effects_file)
-            d = diagnose_handheld(obs, m)
-            found.diagnoses.append(d)
-            sig = [r for r in d.candidates if r.get("significant")]
-            if not sig or len(found.added) >= max_steps:
-                break
-            found.added.append(sig[0]["effect"])
-        found.ladder = _ladder(session, obs, start, found.added, effects_file, static_test, at_s)
+        _loop(found, list(heldout), max_steps, effects_file)
+        found.ladder = _ladder(session, obs, start, found.added, effects_file, static_test, at_s, heldout)
+    found.verdict, found.advice = _final_verdict(found)
     return found
 
 
-def _ladder(session, obs, start, added, effects_file, static_test, at_s) -> list[LadderRow]:
-    """start, start + e1, start + e1 + e2, ... fitted orientation-free on the detected windows."""
+def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file) -> None:
+    from accellog.calibrate.handheld import diagnose_handheld, norm_choice
+    from accellog.calibrate.model import build_model
+    from accellog.calibrate.norm_transfer import norm_heldout_stats
+
+    while True:
+        m = build_model(found.start, add=found.added, effects_file=effects_file)
+        d = diagnose_handheld(found.obs, m)
+        found.diagnoses.append(d)
+        if len(found.added) >= max_steps:
+            break
+        if held:
+            ch = norm_choice(d, found.obs, held)
+            found.choices.append(ch)
+            chosen = ch.chosen
+            if chosen is not None and ch.undecided:
+                found.undecided.append([chosen, *ch.undecided])
+        else:
+            sig = [r for r in d.candidates if r.get("significant")]
+            chosen = sig[0]["effect"] if sig else None
+        if chosen is None or chosen in found.added:
+            break
+        found.added.append(chosen)
+    # a tie is resolved when every alternative ended up in the model too
+    found.undecided = [
+        g
+        for g in ([g[0], *[e for e in g[1:] if e not in found.added]] for g in found.undecided)
+        if len(g) > 1
+    ]
+    if held:
+        found.heldout = norm_heldout_stats(found.diagnoses[-1].fit, held)
+
+
+def _final_verdict(found: HandheldDiscovery) -> tuple[str, list[str]]:
+    """One verdict from the last diagnosis, the held-out norm and the ties (as the labelled
+    workbench's flows.workbench.final_verdict)."""
+    d = found.diagnoses[-1]
+    advice, parts = [], []
+    tied = {e for group in found.undecided for e in group}
+    advice += [c.text() for ch in found.choices for c in ch.collinear if c.b in tied]
+    if found.undecided:
+        groups = "; ".join(" vs ".join(u) for u in found.undecided)
+        parts.append(
+            f"cannot decide between {groups}: they explain the same norm residual on this data, so the "
+            "added effect may be a proxy that will not transfer (see advice for what to record)"
+        )
+    last = found.choices[-1] if found.choices else None
+    if last is not None and last.chosen is None and "does not predict" in last.reason:
+        parts.append(last.reason)
+    h = found.heldout
+    if h is not None and not found.transfers:
+        parts.append(
+            f"the model fits here but does not transfer: held-out norm chi2/dof {h['heldout_chi2_dof']:.3g} "
+            f"(residual {h['heldout_rms_g'] * 1e3:.3g} mg vs noise {h['heldout_noise_g'] * 1e3:.3g} mg)"
+        )
+        advice.append(
+            "what is missing shows only on the held-out session: run diagnose on it, or record a "
+            "session whose drivers (temperature, time, orientation) vary independently"
+        )
+    held_ok = (
+        f" (held-out norm chi2/dof {h['heldout_chi2_dof']:.3g}: it transfers)" if found.transfers else ""
+    )
+    if not parts:
+        return d.verdict.rstrip(".") + held_ok + ".", advice
+    head = f"{d.model.name}: norm chi2/dof {d.fit.chi2_dof:.3g} on the calibration session"
+    return f"{head}; " + "; ".join(parts) + held_ok + ".", advice
+
+
+def _ladder(session, obs, start, added, effects_file, static_test, at_s, heldout=()) -> list[LadderRow]:
+    """start, start + e1, start + e1 + e2, ... fitted orientation-free on the detected windows;
+    held-out norm statistics (mean over the held-out sessions) when given."""
     from accellog.calibrate.ladder import ladder_row
+    from accellog.calibrate.norm_transfer import norm_heldout_stats
     from accellog.flows.stages import run_fit
     from accellog.flows.workbench import add_static_drift
 
@@ -118,6 +210,9 @@ def _ladder(session, obs, start, added, effects_file, static_test, at_s) -> list
             gyro=False,
         )
         row = ladder_row(fo.fit, added=added[:k], fit=fo)
+        if heldout:
+            for key, v in norm_heldout_stats(fo.fit, heldout).items():
+                setattr(row, key, v)
         if static_test is not None:
             add_static_drift(row, static_test, at_s)
         rows.append(row)

@@ -46,8 +46,6 @@ class WorkbenchOutcome(JsonResult):
     def ok(self) -> bool:
         """The loop decided, the final model transfers (or no held-out session) and nothing is missing."""
         f = self.found
-        if self.handheld:
-            return not f.diagnoses[-1].missing
         return f.decided and f.transfers is not False and not f.diagnoses[-1].missing
 
     def to_dict(self) -> dict:
@@ -81,10 +79,7 @@ def run_workbench(
         )
     test = as_session(static, "--static") if static is not None else None
     if not data.poses:  # hand-held: detected static intervals, gravity-norm residual
-        out = _handheld(data, session, model, max_steps, effects_file, test, at_s, output, rrd)
-        if heldout:
-            out.notes.append("--heldout is not used on a hand-held session (not yet supported)")
-        return out
+        return _handheld(data, session, heldout, model, max_steps, effects_file, test, at_s, output, rrd)
     return _labelled(data, session, heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step)
 
 
@@ -140,13 +135,25 @@ def _write_rrd(rrd, data, found, rows, obs) -> None:
         log_workbench_residuals(rec, obs, found.diagnoses[0].fit, rows[-1].fit.fit)
 
 
-def _handheld(data, session, model, max_steps, effects_file, test, at_s, output, rrd) -> WorkbenchOutcome:
-    """The workbench on an unlabelled session (accellog.flows.handheld_workbench)."""
+def _handheld(
+    data, session, heldout, model, max_steps, effects_file, test, at_s, output, rrd
+) -> WorkbenchOutcome:
+    """The workbench on an unlabelled session (accellog.flows.handheld_workbench); held-out sessions
+    (labelled or not) are judged on their gravity norm."""
+    from accellog.calibrate.handheld import norm_obs
     from accellog.flows.handheld_workbench import discover_handheld
+    from accellog.flows.stages import as_session
 
+    helds = [norm_obs(as_session(h, "--heldout")) for h in heldout]
     start = None if model == "model3" else model  # model3's cross_axis is not identifiable here
     found = discover_handheld(
-        data, start, max_steps=max_steps, effects_file=effects_file, static_test=test, at_s=at_s
+        data,
+        start,
+        heldout=helds,
+        max_steps=max_steps,
+        effects_file=effects_file,
+        static_test=test,
+        at_s=at_s,
     )
     if output is not None:
         from accellog.flows.stages import run_fit

@@ -159,6 +159,11 @@ def _print_handheld(out, con: Console) -> None:
     con.print(_detected_line(out.session, found.detection) + "; judged on the gravity norm")
     for d in found.diagnoses:
         con.print(f"step {escape(d.verdict)}")
+        if d.choice is not None:
+            con.print(f"  held-out norm ({d.choice.evidence}): {escape(d.choice.reason)}")
+    con.print(("[bold green]OK[/] " if out.ok else "[bold red]CHECK[/] ") + escape(found.verdict))
+    for a in found.advice:
+        con.print(f"advice: {escape(a)}")
     for a in found.cannot_identify:
         con.print(f"cannot identify: {escape(a)}")
     con.print(
