@@ -128,3 +128,20 @@ def test_handheld_heldout_in_diagnose(sessions, capsys):
     assert d["handheld"] and d["choice"]["evidence"] == "heldout"
     assert d["choice"]["chosen"] in ("temp_bias", "temp_bias2"), d["choice"]
     assert np.isfinite(d["choice"]["base_score"]["chi2_per_eq"])
+
+
+def test_several_handheld_sessions_left_out_in_turn(sessions, capsys):
+    """Three hand-held warm-ups as calibration sessions: each candidate is judged by the gravity
+    norm of each session predicted from the other two; per-session held-out chi2/dof reported."""
+    paths = [sessions["cal1"], sessions["cal2"], sessions["held1"]]
+    out = _run(capsys, *paths)
+    assert out["handheld"] and out["sessions"] == [str(p) for p in paths]
+    assert all(s["evidence"] == "leave-one-session-out" for s in out["steps"]), out["steps"]
+    if not out["decided"]:
+        assert "cannot decide" in out["verdict"] and "nothing is missing" not in out["verdict"]
+        return
+    assert sorted(out["added"]) == ["temp_bias", "temp_bias2"], (out["added"], out["verdict"])
+    assert len(out["heldout_per_session"]) == 3
+    assert all(p["heldout_chi2_dof"] < 2.0 for p in out["heldout_per_session"]), out["heldout_per_session"]
+    last = out["leave_one_session_out"]["steps"][-1]
+    assert last["model"] == out["final_model"] and len(last["heldout_chi2_dof"]) == 3

@@ -188,20 +188,31 @@ def norm_obs(session: Session, *, window_s: float = 2.0, detect_window_s: float 
     return detect_holds(session, window_s=detect_window_s, obs_window_s=window_s)[0]
 
 
-def norm_choice(d: Diagnosis, obs: ObsTable, heldout: Sequence[ObsTable]):
+def norm_choice(d: Diagnosis, obs: ObsTable, heldout: Sequence[ObsTable], sessions: Sequence[ObsTable] = ()):
     """The out-of-sample choice among a hand-held diagnosis's significant candidates, judged by the
-    gravity norm on the held-out sessions (calibrate.choose.choose_effect with
+    gravity norm on the held-out sessions, or with several calibration sessions (obs their
+    concatenation) by leaving one session out (calibrate.choose.choose_effect with
     calibrate.norm_transfer's score and collinearity); also stored as d.choice."""
     from accellog.calibrate.choose import choose_effect
+    from accellog.calibrate.loso import loso_score
     from accellog.calibrate.norm_transfer import norm_canonical_correlation, norm_heldout_score
 
-    held = list(heldout)
+    held, parts = list(heldout), list(sessions)
+
+    def scores(fits):
+        if len(parts) > 1:
+            return {
+                n: loso_score(parts, r.model, fit_orientation_free, norm_heldout_score)
+                for n, r in fits.items()
+            }
+        return {n: norm_heldout_score(r, held) for n, r in fits.items()}
+
     d.choice = choose_effect(
         d.fit,
         d.candidates,
         d.fits,
         obs,
-        scores=lambda fits: {n: norm_heldout_score(r, held) for n, r in fits.items()},
+        scores=scores,
         rho=lambda a, b: norm_canonical_correlation(a, b, d.model, obs),
     )
     return d.choice

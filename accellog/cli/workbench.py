@@ -114,11 +114,13 @@ def diagnose(
 
 @app.command(name="workbench", rich_help_panel="3. Discover")
 def workbench_cmd(
-    session: Annotated[
-        Path,
+    sessions: Annotated[
+        list[Path],
         typer.Argument(
             help="Calibration session (.mcap or CSV): labelled static holds, or a hand-held session "
-            "(no labels: detected static intervals, gravity-norm residual)."
+            "(no labels: detected static intervals, gravity-norm residual). Several sessions of one "
+            "sensor: fitted together, each candidate judged by leaving one session out.",
+            show_default=False,
         ),
     ],
     heldout: Annotated[
@@ -157,7 +159,7 @@ def workbench_cmd(
 
     con = Console(stderr=as_json, width=160)
     out = run_workbench(
-        session,
+        sessions,
         heldout=heldout or [],
         static=static,
         model=model,

@@ -52,6 +52,10 @@ class HandheldDiscovery(JsonResult):
     """Groups of effects the data cannot tell apart (first: the one added)."""
     verdict: str = ""
     advice: list[str] = field(default_factory=list)
+    loso: list[dict | None] | None = None
+    """With several calibration sessions: the final model's held-out statistics per left-out session."""
+    ladder_loso: list[list[dict | None]] = field(default_factory=list)
+    """With several calibration sessions: per ladder row, its held-out statistics per left-out session."""
 
     @property
     def final_model(self) -> str:
@@ -86,6 +90,7 @@ class HandheldDiscovery(JsonResult):
             "heldout": self.heldout,
             "steps": [c.to_dict() for c in self.choices],
             "advice": list(self.advice),
+            **({} if self.loso is None else {"heldout_per_session": self.loso}),
             "cannot_identify": self.cannot_identify,
             "detected": self.detection.to_dict(),
             "ladder": [r.to_dict() for r in self.ladder],
@@ -104,26 +109,48 @@ def discover_handheld(
     effects_file: str | Path | None = None,
     static_test: Session | None = None,
     at_s: float = 60.0,
+    more_sessions: Sequence[Session] = (),
 ) -> HandheldDiscovery:
     """Detect the static intervals of an unlabelled session, then diagnose / add / refit on the
     gravity norm (start: HANDHELD_START by default; model3's cross_axis is not identifiable here).
     heldout: windows of other sessions of the same sensor (calibrate.handheld.norm_obs): each step
-    adds the candidate that predicts their gravity norm best, and only if it does."""
+    adds the candidate that predicts their gravity norm best, and only if it does. more_sessions:
+    further calibration sessions: the fit uses all of them and candidates are judged by leaving
+    one session out (calibrate.loso); `detection` is the first session's."""
     from accellog.calibrate.handheld import HANDHELD_START, detect_holds
+    from accellog.calibrate.loso import concat_obs
     from accellog.flows.workbench import small_problem_threads
 
     start = start or HANDHELD_START
     with small_problem_threads():
         obs, det = detect_holds(session, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)
+        parts = [obs] + [
+            detect_holds(s, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)[0]
+            for s in more_sessions
+        ]
+        obs = concat_obs(parts) if len(parts) > 1 else obs
         found = HandheldDiscovery(start=start, detection=det, obs=obs)
-        _loop(found, list(heldout), max_steps, effects_file)
-        found.ladder = _ladder(session, obs, start, found.added, effects_file, static_test, at_s, heldout)
+        _loop(found, list(heldout), max_steps, effects_file, parts)
+        found.ladder = _ladder(
+            session,
+            obs,
+            start,
+            found.added,
+            effects_file,
+            static_test,
+            at_s,
+            heldout,
+            parts,
+            found.ladder_loso,
+        )
     found.verdict, found.advice = _final_verdict(found)
     return found
 
 
-def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file) -> None:
+def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file, parts: list) -> None:
+    from accellog.calibrate.fit import fit_orientation_free
     from accellog.calibrate.handheld import diagnose_handheld, norm_choice
+    from accellog.calibrate.loso import loso_stats, mean_stats
     from accellog.calibrate.model import build_model
     from accellog.calibrate.norm_transfer import norm_heldout_stats
 
@@ -133,8 +160,8 @@ def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file) ->
         found.diagnoses.append(d)
         if len(found.added) >= max_steps:
             break
-        if held:
-            ch = norm_choice(d, found.obs, held)
+        if held or len(parts) > 1:
+            ch = norm_choice(d, found.obs, held, sessions=parts)
             found.choices.append(ch)
             chosen = ch.chosen
             if chosen is not None and ch.undecided:
@@ -151,8 +178,17 @@ def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file) ->
         for g in ([g[0], *[e for e in g[1:] if e not in found.added]] for g in found.undecided)
         if len(g) > 1
     ]
-    if held:
+    if len(parts) > 1:
+        found.loso = loso_stats(parts, found.diagnoses[-1].model, fit_orientation_free, _stats1)
+        found.heldout = mean_stats(found.loso)
+    elif held:
         found.heldout = norm_heldout_stats(found.diagnoses[-1].fit, held)
+
+
+def _stats1(res, obs) -> dict[str, float]:
+    from accellog.calibrate.norm_transfer import norm_heldout_stats
+
+    return norm_heldout_stats(res, [obs])
 
 
 def _final_verdict(found: HandheldDiscovery) -> tuple[str, list[str]]:
@@ -190,10 +226,15 @@ def _final_verdict(found: HandheldDiscovery) -> tuple[str, list[str]]:
     return f"{head}; " + "; ".join(parts) + held_ok + ".", advice
 
 
-def _ladder(session, obs, start, added, effects_file, static_test, at_s, heldout=()) -> list[LadderRow]:
+def _ladder(
+    session, obs, start, added, effects_file, static_test, at_s, heldout=(), parts=(), row_loso=None
+) -> list[LadderRow]:
     """start, start + e1, start + e1 + e2, ... fitted orientation-free on the detected windows;
-    held-out norm statistics (mean over the held-out sessions) when given."""
+    held-out norm statistics (mean over the held-out sessions, or with several calibration sessions
+    over the left-out sessions; then each row's per-session statistics are appended to row_loso)."""
+    from accellog.calibrate.fit import fit_orientation_free
     from accellog.calibrate.ladder import ladder_row
+    from accellog.calibrate.loso import loso_stats, mean_stats
     from accellog.calibrate.norm_transfer import norm_heldout_stats
     from accellog.flows.stages import run_fit
     from accellog.flows.workbench import add_static_drift
@@ -210,7 +251,12 @@ def _ladder(session, obs, start, added, effects_file, static_test, at_s, heldout
             gyro=False,
         )
         row = ladder_row(fo.fit, added=added[:k], fit=fo)
-        if heldout:
+        if len(parts) > 1:
+            per = loso_stats(parts, fo.fit.model, fit_orientation_free, _stats1)
+            row_loso.append(per)
+            for key, v in mean_stats(per).items():
+                setattr(row, key, v)
+        elif heldout:
             for key, v in norm_heldout_stats(fo.fit, heldout).items():
                 setattr(row, key, v)
         if static_test is not None:

@@ -46,6 +46,8 @@ class Discovery:
     advice: list[str] = field(default_factory=list)
     undecided: list[list[str]] = field(default_factory=list)
     """Groups of effects the data cannot tell apart (first: the one added)."""
+    loso: list[dict | None] | None = None
+    """With several calibration sessions: the final model's held-out statistics per left-out session."""
 
     @property
     def final_model(self) -> str:
@@ -76,6 +78,7 @@ class Discovery:
             "verdicts": [d.verdict for d in self.diagnoses],
             "steps": [c.to_dict() for c in self.choices],
             "advice": list(self.advice),
+            **({} if self.loso is None else {"heldout_per_session": self.loso}),
         }
 
 
@@ -88,13 +91,16 @@ def discover(
     effects_file: str | Path | None = None,
     host_time: tuple[np.ndarray, np.ndarray] | None = None,
     on_step: Callable[[object], None] | None = None,
+    sessions: Sequence[ObsTable] | None = None,
 ) -> Discovery:
     """Diagnose `start`, add the significant candidate that predicts unseen data best (held-out
     sessions if given, else blocked validation over temperature and time), repeat while one
     improves out of sample. on_step(Diagnosis) is called after each step (its .choice: the
-    out-of-sample judgement)."""
+    out-of-sample judgement). sessions: the windows of each of several calibration sessions (obs
+    is then their concatenation, calibrate.loso.concat_obs): candidates are judged by leaving one
+    session out (calibrate.loso) instead."""
     with small_problem_threads():
-        return _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step)
+        return _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step, sessions)
 
 
 def small_problem_threads():
@@ -105,16 +111,26 @@ def small_problem_threads():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step) -> Discovery:
+def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step, parts=None) -> Discovery:
+    from accellog.calibrate.choose import choose_effect
     from accellog.calibrate.diagnose import diagnose, heldout_stats
     from accellog.calibrate.fit import fit_model
+    from accellog.calibrate.loso import loso_score, loso_stats, mean_stats
     from accellog.calibrate.model import build_model
+    from accellog.calibrate.transfer import heldout_score
 
     held = [heldout] if isinstance(heldout, ObsTable) else list(heldout or [])
+    parts = list(parts or [])
     model = build_model(start, effects_file=effects_file)
     out = Discovery(start=start)
+
+    def loso_scores(fits):
+        return {n: loso_score(parts, r.model, fit_model, heldout_score) for n, r in fits.items()}
+
     for _ in range(max_steps + 1):
         d = diagnose(obs, model, host_time=host_time, heldout=held)
+        if len(parts) > 1:
+            d.choice = choose_effect(d.fit, d.candidates, d.fits, obs, scores=loso_scores)
         out.diagnoses.append(d)
         if on_step is not None:
             on_step(d)
@@ -131,7 +147,10 @@ def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step) 
     out.undecided = [
         g for g in ([g[0], *[e for e in g[1:] if e not in out.added]] for g in out.undecided) if len(g) > 1
     ]
-    if held:
+    if len(parts) > 1:
+        out.loso = loso_stats(parts, model, fit_model, heldout_stats)
+        out.heldout = mean_stats(out.loso)
+    elif held:
         final = fit_model(obs, model)
         stats = [heldout_stats(final, h) for h in held]
         out.heldout = {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}

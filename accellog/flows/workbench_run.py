@@ -18,7 +18,6 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
-from accellog.core.session import Session
 
 if TYPE_CHECKING:
     from accellog.calibrate.ladder import LadderRow
@@ -37,6 +36,33 @@ class WorkbenchOutcome(JsonResult):
     output: str | None = None
     notes: list[str] = field(default_factory=list)
     """Remarks about the inputs (e.g. an option not used on this kind of session)."""
+    sessions: list[str] = field(default_factory=list)
+    """All calibration sessions when there are several (session is the first)."""
+    ladder_loso: list[list[dict | None]] = field(default_factory=list)
+    """With several sessions: per ladder row, held-out statistics per left-out session."""
+
+    def loso_dict(self) -> dict | None:
+        """The leave-one-session-out evidence: per ladder step, held-out chi2/dof and RMS (g) of
+        each session predicted by the fit to the others."""
+        if len(self.sessions) < 2:
+            return None
+
+        def col(per, key):
+            return [None if p is None else p[key] for p in per]
+
+        return {
+            "sessions": list(self.sessions),
+            "steps": [
+                {
+                    "model": r.model,
+                    "added": list(r.added),
+                    "heldout_chi2_dof": col(per, "heldout_chi2_dof"),
+                    "heldout_rms_g": col(per, "heldout_rms_g"),
+                    "heldout_noise_g": col(per, "heldout_noise_g"),
+                }
+                for r, per in zip(self.ladder, self.ladder_loso, strict=True)
+            ],
+        }
 
     @property
     def handheld(self) -> bool:
@@ -49,14 +75,24 @@ class WorkbenchOutcome(JsonResult):
         return f.decided and f.transfers is not False and not f.diagnoses[-1].missing
 
     def to_dict(self) -> dict:
-        """workbench --json: session, the loop's keys and the ladder."""
+        """workbench --json: session, the loop's keys and the ladder; with several calibration
+        sessions also `sessions` and `leave_one_session_out` (loso_dict)."""
         if self.handheld:
-            return {"session": self.session, **self.found.to_dict()}
-        return {"session": self.session, **self.found.to_json(), "ladder": [r.to_dict() for r in self.ladder]}
+            out = {"session": self.session, **self.found.to_dict()}
+        else:
+            out = {
+                "session": self.session,
+                **self.found.to_json(),
+                "ladder": [r.to_dict() for r in self.ladder],
+            }
+        if len(self.sessions) > 1:
+            out["sessions"] = list(self.sessions)
+            out["leave_one_session_out"] = self.loso_dict()
+        return out
 
 
 def run_workbench(
-    session: str | Path,
+    session: str | Path | Sequence[str | Path],
     *,
     heldout: Sequence[str | Path] = (),
     static: str | Path | None = None,
@@ -68,32 +104,54 @@ def run_workbench(
     rrd: str | Path | None = None,
     on_step: Callable[[object], None] | None = None,
 ) -> WorkbenchOutcome:
-    """Run the workbench on one session file (module doc); on_step(Diagnosis) after each step of a
-    labelled session's loop (progress)."""
-    from accellog.flows.stages import as_session, load_input
+    """Run the workbench on one session file, or on several calibration sessions of one sensor
+    (fitted together, each candidate judged by leaving one session out: calibrate.loso), see the
+    module doc; on_step(Diagnosis) after each step of a labelled session's loop (progress)."""
+    from accellog.flows.stages import as_session
 
-    data = load_input(session)
-    if not isinstance(data, Session):
+    paths = [session] if isinstance(session, (str, Path)) else list(session)
+    datas = [as_session(p, "the workbench") for p in paths]
+    if len(paths) > 1 and heldout:
         raise InputError(
-            "the workbench needs a recorded session (samples), not a pose table", where=str(session)
+            "give several calibration sessions (each is left out in turn) or --heldout, not both",
+            where=str(heldout[0]),
+        )
+    if len({bool(d.poses) for d in datas}) > 1:
+        raise InputError(
+            "several calibration sessions must all have pose labels or all be hand-held (none)",
+            where=", ".join(str(p) for p in paths),
         )
     test = as_session(static, "--static") if static is not None else None
-    if not data.poses:  # hand-held: detected static intervals, gravity-norm residual
-        return _handheld(data, session, heldout, model, max_steps, effects_file, test, at_s, output, rrd)
-    return _labelled(data, session, heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step)
+    if not datas[0].poses:  # hand-held: detected static intervals, gravity-norm residual
+        out = _handheld(datas, paths[0], heldout, model, max_steps, effects_file, test, at_s, output, rrd)
+    else:
+        out = _labelled(
+            datas, paths[0], heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step
+        )
+    if len(paths) > 1:
+        out.sessions = [str(p) for p in paths]
+    return out
 
 
 def _labelled(
-    data, session, heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step
+    datas, session, heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step
 ) -> WorkbenchOutcome:
+    from accellog.calibrate.loso import concat_obs
     from accellog.calibrate.segment import observations
     from accellog.flows.stages import as_session
     from accellog.flows.workbench import discover, ladder_rows, steps_for
 
-    obs = observations(data)
+    data = datas[0]
+    parts = [observations(d) for d in datas]
+    obs = concat_obs(parts) if len(parts) > 1 else parts[0]
     helds = [observations(as_session(h, "--heldout")) for h in heldout]
-    host = None
-    if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
+    host = None  # the host clock of one session (several sessions: not one clock)
+    if (
+        len(datas) == 1
+        and data.host_time_s is not None
+        and np.all(np.isfinite(data.host_time_s))
+        and data.n > 2
+    ):
         host = (data.t_s, data.host_time_s)
     found = discover(
         obs,
@@ -103,6 +161,7 @@ def _labelled(
         effects_file=effects_file,
         host_time=host,
         on_step=on_step,
+        sessions=parts if len(parts) > 1 else None,
     )
     rows = ladder_rows(
         data,
@@ -114,11 +173,30 @@ def _labelled(
         at_s=at_s,
         gyro=output is not None or rrd is not None,  # the gyro goes into the calibration file / .rrd
     )
+    ladder_loso = _loso_rows(rows, parts) if len(parts) > 1 else []
     if output is not None:
         rows[-1].fit.cal.save(output)
     if rrd is not None:
         _write_rrd(rrd, data, found, rows, obs)
-    return WorkbenchOutcome(str(session), found, rows, None if output is None else str(output))
+    return WorkbenchOutcome(
+        str(session), found, rows, None if output is None else str(output), ladder_loso=ladder_loso
+    )
+
+
+def _loso_rows(rows, parts) -> list[list[dict | None]]:
+    """Each ladder row's model left-one-session-out: per session its held-out statistics; the
+    row's heldout_* columns become their mean."""
+    from accellog.calibrate.diagnose import heldout_stats
+    from accellog.calibrate.fit import fit_model
+    from accellog.calibrate.loso import loso_stats, mean_stats
+
+    out = []
+    for r in rows:
+        per = loso_stats(parts, r.fit.fit.model, fit_model, heldout_stats)
+        for k, v in mean_stats(per).items():
+            setattr(r, k, v)
+        out.append(per)
+    return out
 
 
 def _write_rrd(rrd, data, found, rows, obs) -> None:
@@ -136,7 +214,7 @@ def _write_rrd(rrd, data, found, rows, obs) -> None:
 
 
 def _handheld(
-    data, session, heldout, model, max_steps, effects_file, test, at_s, output, rrd
+    datas, session, heldout, model, max_steps, effects_file, test, at_s, output, rrd
 ) -> WorkbenchOutcome:
     """The workbench on an unlabelled session (accellog.flows.handheld_workbench); held-out sessions
     (labelled or not) are judged on their gravity norm."""
@@ -144,6 +222,7 @@ def _handheld(
     from accellog.flows.handheld_workbench import discover_handheld
     from accellog.flows.stages import as_session
 
+    data = datas[0]
     helds = [norm_obs(as_session(h, "--heldout")) for h in heldout]
     start = None if model == "model3" else model  # model3's cross_axis is not identifiable here
     found = discover_handheld(
@@ -154,13 +233,16 @@ def _handheld(
         effects_file=effects_file,
         static_test=test,
         at_s=at_s,
+        more_sessions=datas[1:],
     )
     if output is not None:
         from accellog.flows.stages import run_fit
 
         # the full orientation-free fit: gyro from the detected intervals and the rotations between them
+        # several sessions: the windows of all of them (the gyro: the first session's)
+        pooled = found.obs if len(datas) > 1 else None
         run_fit(
-            data, found.start, add=found.added, effects_file=effects_file, orientation_free=True
+            data, found.start, add=found.added, effects_file=effects_file, orientation_free=True, obs=pooled
         ).cal.save(output)
     if rrd is not None:
         from accellog.present.detection_views import log_detection
@@ -171,4 +253,10 @@ def _handheld(
             log_session(rec, data)
             log_detection(rec, found.detection)
             rec.log_ladder(found.ladder)
-    return WorkbenchOutcome(str(session), found, found.ladder, None if output is None else str(output))
+    return WorkbenchOutcome(
+        str(session),
+        found,
+        found.ladder,
+        None if output is None else str(output),
+        ladder_loso=found.ladder_loso,
+    )

@@ -150,8 +150,24 @@ def print_workbench(out, con: Console) -> None:
         for a in found.advice:
             con.print(f"advice: {escape(a)}")
         con.print(ladder_table(out.ladder, title="watch the error fall: each step of model building"))
+    loso = out.loso_dict()
+    if loso is not None:
+        con.print(loso_table(loso))
     if out.output is not None:
         con.print(f"wrote {out.output} ({out.found.final_model})")
+
+
+def loso_table(loso: dict) -> Table:
+    """Leave one session out: held-out chi2/dof of each session (fit to the others) per ladder step."""
+    from pathlib import Path
+
+    t = Table(title="leave one session out: held-out chi2/dof of each session, fitted on the others")
+    t.add_column("model")
+    for s in loso["sessions"]:
+        t.add_column(Path(s).name, justify="right")
+    for step in loso["steps"]:
+        t.add_row(step["model"], *(_fmt(v) for v in step["heldout_chi2_dof"]))
+    return t
 
 
 def _print_handheld(out, con: Console) -> None:
