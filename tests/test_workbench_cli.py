@@ -125,3 +125,23 @@ def test_workbench_rrd_shows_residuals_against_temperature(sessions, capsys):
 
     assert slope("start_model3") > 20 * slope("final_model3_temp_bias")
     assert f"{root}/start_model3/contribution_x" in r.entities
+
+
+def test_workbench_rrd_residuals_by_pose_are_named(sessions, capsys):
+    """The window residuals by pose carry the session's pose names (not indices), every window kept:
+    one point per window and axis, for the start and the final model."""
+    from accellog.store.reader import read_session
+
+    d = sessions
+    rrd = d / "wb_poses.rrd"
+    args = ["workbench", str(d / "hidden.mcap"), "--heldout", str(d / "heldout.mcap"), "--rrd", str(rrd)]
+    assert main([*args, "--json"]) == 0
+    capsys.readouterr()
+    r = load_rrd(rrd)
+    names = [p.name for p in read_session(d / "hidden.mcap").poses]
+    labels = r.static("/residual_vs/pose/start_model3/ticks", "Points2D:labels")
+    assert labels[: len(names)] == names, labels[:5]
+    pts = np.asarray(r.static("/residual_vs/pose/final_model3_temp_bias/x", "Points2D:positions"), float)
+    assert len(pts) >= 2 * len(names)  # several windows per hold, none averaged away
+    views = {v["origin"]: v for v in r.views() if v["class"] == "2D"}
+    assert "/residual_vs/pose/start_model3" in views

@@ -249,10 +249,13 @@ def _handheld(
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_session
 
+        from accellog.present.residual_views import log_workbench_residuals
+
         with RunRecording(f"save:{rrd}") as rec:
             log_session(rec, data)
             log_detection(rec, found.detection)
             rec.log_ladder(found.ladder)
+            log_workbench_residuals(rec, found.obs, found.diagnoses[0].fit, found.diagnoses[-1].fit)
     return WorkbenchOutcome(
         str(session),
         found,

@@ -6,7 +6,9 @@ z blue), passes kept apart (heating windows filled, cooling windows lighter, so 
 heat/cool disagreement is not averaged away), and the candidate's predicted contribution drawn
 over the residual it explains (a line per axis). Rerun has no x-y plot with axes yet, so each plot
 is a 2D view with its own frame, zero line and tick labels; all models of one driver share the y
-scale (mg) so 'before' and 'after' compare at a glance.
+scale (mg) so 'before' and 'after' compare at a glance. One more plot per model puts the windows
+by pose (`residual_vs/pose/...`): x = the pose, labelled with its name (not an index), every window
+kept (a per-pose mean would let heating and cooling passes cancel).
 
     contribution of a candidate = predict(model + effect) - predict(model), per window (mg)
 """
@@ -137,14 +139,69 @@ def log_panels(rec, items: list[Panel]) -> None:
                     )
 
 
+def log_pose_panels(rec, obs: ObsTable, fits: Mapping[str, FitResult]) -> None:
+    """Window residuals (mg) by pose, one 2D view per fit: pose k at x slot k (its name below the
+    frame), axes side by side (x, y, z at k - 0.25, k, k + 0.25), cooling windows lighter."""
+    import rerun as rr
+
+    pid = np.asarray(obs.pose_id, int)
+    names = list(obs.pose_names)
+    if not fits or len(names) < 2:
+        return
+    used = np.unique(pid)
+    slot = {int(p): i for i, p in enumerate(used)}
+    xs = np.array([slot[int(p)] for p in pid], float)
+    width = max(W, 30.0 * used.size)
+    y_max = max(max(float(np.max(np.abs(r.residual_g))) * 1e3 for r in fits.values()), 1e-6)
+    rate = obs_drivers(obs).get("dtemp_degC_per_s", np.zeros(obs.n))
+
+    def sx(x):
+        return (np.asarray(x, float) + 0.5) / used.size * width
+
+    def sy(y):
+        return -np.asarray(y, float) / y_max * (H / 2)
+
+    for label, res in fits.items():
+        ent = f"{SCATTER}/pose/{slug(label)}"
+        frame = [[0, -H / 2], [width, -H / 2], [width, H / 2], [0, H / 2], [0, -H / 2]]
+        rec.log_static(
+            f"{ent}/frame",
+            rr.LineStrips2D(
+                [frame, [[0, 0], [width, 0]]], colors=[(150, 150, 150), (110, 110, 110)], radii=0.6
+            ),
+            "scatter2d",
+        )
+        pos = [[float(sx(i)), H / 2 + 10 + 10 * (i % 2)] for i in range(used.size)]
+        pos += [[-8, float(sy(v))] for v in (y_max, 0.0, -y_max)]
+        txt = [names[int(p)] for p in used] + [f"{v:+.3g} mg" for v in (y_max, 0.0, -y_max)]
+        rec.log_static(
+            f"{ent}/ticks",
+            rr.Points2D(pos, labels=txt, radii=0.1, colors=[(200, 200, 200)] * len(txt)),
+            "scatter2d",
+        )
+        legend = "window residuals by pose: x red, y green, z blue (light: cooling)"
+        rec.log_static(
+            f"{ent}/legend", rr.Points2D([[width / 2, -H / 2 - 12]], labels=[legend], radii=0.1), "scatter2d"
+        )
+        r_mg = 1e3 * np.asarray(res.residual_g, float)
+        for i, a in enumerate("xyz"):
+            col = np.array(AXIS_COLORS[i])
+            light = (col + (255 - col) * 0.6).astype(int)
+            colors = np.where((rate >= 0)[:, None], col, light).astype(np.uint8)
+            pts = np.column_stack([sx(xs + 0.25 * (i - 1)), sy(r_mg[:, i])])
+            rec.log_static(f"{ent}/{a}", rr.Points2D(pts, colors=colors, radii=2.2), "scatter2d")
+
+
 def log_residuals_vs_drivers(
     rec,
     obs: ObsTable,
     fits: Mapping[str, FitResult],
     contributions: Mapping[str, np.ndarray] | None = None,
 ) -> None:
-    """Residual-vs-driver plots of the labelled fits (e.g. {'before: model3': ..., 'after: ...': ...})."""
+    """Residual-vs-driver plots of the labelled fits (e.g. {'before: model3': ..., 'after: ...': ...}),
+    and the window residuals by pose (named)."""
     log_panels(rec, panels(obs, fits, contributions))
+    log_pose_panels(rec, obs, fits)
 
 
 def log_diagnosis_residuals(rec, diag, obs: ObsTable) -> None:
