@@ -162,7 +162,8 @@ def final_verdict(found: Discovery) -> tuple[str, list[str]]:
     """One verdict from all the evidence: the last diagnosis, the held-out session, the ties."""
     d = found.diagnoses[-1]
     advice = list(d.advice)
-    fit = f"{d.model.name}: chi2/dof {d.fit.chi2_dof:.3g} on the calibration session"
+    where = "the calibration session" + ("s" if getattr(found, "loso", None) else "")
+    fit = f"{d.model.name}: chi2/dof {d.fit.chi2_dof:.3g} on {where}"
     parts = []
     tied = {e for group in found.undecided for e in group}
     for c in found.choices:

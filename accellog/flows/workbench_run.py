@@ -246,10 +246,9 @@ def _handheld(
         ).cal.save(output)
     if rrd is not None:
         from accellog.present.detection_views import log_detection
+        from accellog.present.residual_views import log_workbench_residuals
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_session
-
-        from accellog.present.residual_views import log_workbench_residuals
 
         with RunRecording(f"save:{rrd}") as rec:
             log_session(rec, data)
