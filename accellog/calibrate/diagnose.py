@@ -26,7 +26,8 @@ from scipy import stats
 
 from accellog.calibrate.choose import StepChoice, choose_effect
 from accellog.calibrate.effects import AXES, all_effects
-from accellog.calibrate.fit import FitResult, effect_requirement, fit_model, obs_drivers
+from accellog.calibrate.fit import FitResult, fit_model, obs_drivers
+from accellog.calibrate.identifiability import effect_requirement
 from accellog.calibrate.model import Model
 from accellog.core.errors import InputError, ModelError
 from accellog.core.rotations import quat_between, quat_conjugate, quat_multiply

@@ -22,7 +22,8 @@ from scipy import stats
 from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.diagnose import ALPHA, DBIC_MIN, Diagnosis, default_candidates
 from accellog.calibrate.effects import all_effects
-from accellog.calibrate.fit import effect_requirement, fit_orientation_free, obs_drivers
+from accellog.calibrate.fit import fit_orientation_free, obs_drivers
+from accellog.calibrate.identifiability import effect_requirement
 from accellog.calibrate.model import Model
 from accellog.calibrate.segment import observations
 from accellog.core.errors import InputError, ModelError
