@@ -14,7 +14,7 @@ fitted per axis by least squares; sigma = sqrt(s^2 (A^T A)^-1) with s^2 the resi
 the window means (so hold-to-hold scatter, e.g. from bias instability, widens the uncertainty).
 
 Scale/misalignment: for consecutive holds a, b, integrate the corrected rate from the middle of a
-to the middle of b (accellog.navigate.strapdown) and compare what gravity can check: the up vector of a,
+to the middle of b (accellog.calibrate.gyro_rotation, as accellog.navigate.strapdown) and compare what gravity can check: the up vector of a,
 carried through dq_int, must land on the up vector of b (residual dq_int^-1 up_a - up_b, deg;
 yaw about the vertical is free, so a hand-held operator's turns do no harm). With
 reference='orientation' (known headings: a fixture, a vehicle) the whole nominal change
@@ -25,17 +25,22 @@ reported as undetermined (sigma NaN). Covariance = s^2 (J^T J)^-1, s^2 = max(RSS
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from accellog.calibrate.gyro_rotation import (
+    _DEG,
+    _block_increments,
+    _qconj,
+    _relative_rotations,
+    _rotate_inverse,
+    _rotvec_deg,
+)
 from accellog.core.errors import InputError, ModelError
 from accellog.core.rotations import quat_conjugate, quat_multiply
 from accellog.core.session import PoseLabel
-
-_DEG = 180.0 / np.pi
 
 _LSQ_TOL = {"ftol": 1e-12, "xtol": 1e-12, "gtol": 1e-12}
 """least_squares tolerances: converge to the optimum itself (the Jacobian is exact), so the result
@@ -226,157 +231,6 @@ def _bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_sp
         cal.temp_bias_sigma_dps_per_degC = sig[1]
         cal.effects = ["bias", "temp_bias"]
     return cal
-
-
-def _block_edges(t: np.ndarray, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block_s: float):
-    """Fine and coarse block edges (sample indices) from mids[0] to mids[-1].
-
-    Fine: between the mids a, b of consecutive holds, ~block_s blocks evenly spaced from a to b
-    (np.linspace, rounded). Coarse: the fine edges of the move between the holds, but the fine
-    blocks inside a hold (a .. end of hold a, start of hold b .. b) merged into one each."""
-    fine, coarse = [np.array([mids[0]])], [np.array([mids[0]])]
-    for k, (a, b) in enumerate(itertools.pairwise(mids)):
-        n = max(1, int(np.ceil((t[b] - t[a]) / block_s)))
-        e = np.linspace(a, b, n + 1).round().astype(np.int64)
-        lo = e[e <= max(ends[k], a)].max()
-        hi = e[e >= min(max(starts[k + 1], lo), b)].min()
-        fine.append(e[1:])
-        coarse.append(e[1:][(e[1:] >= lo) & (e[1:] <= hi)])
-        coarse.append(np.array([b]))
-    return _sorted_unique(np.concatenate(fine)), _sorted_unique(np.concatenate(coarse))
-
-
-def _sorted_unique(e: np.ndarray) -> np.ndarray:
-    """np.unique of an already non-decreasing array, in one pass."""
-    return e[np.concatenate([[True], e[1:] != e[:-1]])] if e.size else e
-
-
-def _trapezoid_blocks(t: np.ndarray, x: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Trapezoid integrals of x ((N,) or (N,k)) over [t[e_j], t[e_j+1]] for consecutive edges."""
-    dt = np.diff(t)
-    inc = x[:-1] + x[1:]
-    inc *= (0.5 * dt)[:, None] if inc.ndim == 2 else 0.5 * dt
-    return np.add.reduceat(inc, edges[:-1], axis=0)
-
-
-def _block_increments(
-    t: np.ndarray,
-    w_dps: np.ndarray,
-    temp_degC: np.ndarray | None,
-    base: GyroCalibration,
-    holds: tuple[np.ndarray, np.ndarray, np.ndarray],
-    block_s: float,
-) -> tuple:
-    """Rotation increments over the coarse blocks of _block_edges: (phi (B,3) rad, c (B,3) rad^2,
-    block-edge index of each mid (K,)); holds = (mid, end, start) sample index of each hold.
-
-    phi is the trapezoid integral of the bias-corrected rate over a block (body frame):
-    int (w - b0 - b_T (T - T_ref)) dt = W - b0 dt - b_T (int T dt - T_ref dt), so only the raw
-    rate and the temperature are integrated per sample. It is exact for rotation about a fixed
-    axis (the protocol's moves) and second order in (rate x block_s) otherwise; it is linear in
-    the rate, so a gyro matrix correction applies to the blocks instead of every sample. A coarse
-    block that merges the fine blocks b_1..b_n of a static hold also carries their second-order
-    term c = 1/2 sum_{i<j} b_i x b_j, so that exp(b_1) ... exp(b_n) = exp(phi + c) + O(|b|^3)
-    (Baker-Campbell-Hausdorff; the product the dense integration forms). Cost: one pass over the
-    samples from the first to the last mid, then O(fine blocks)."""
-    mids, ends, starts = holds
-    fine, coarse = _block_edges(t, mids, ends, starts, block_s)
-    lo, hi = int(fine[0]), int(fine[-1])
-    if hi == lo:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.searchsorted(coarse, mids)
-    tt, fe = t[lo : hi + 1], fine - lo
-    w_int = _trapezoid_blocks(tt, np.asarray(w_dps[lo : hi + 1], float), fe)
-    temp_int = None
-    if temp_degC is not None:
-        temp_int = _trapezoid_blocks(tt, np.asarray(temp_degC[lo : hi + 1], float), fe)
-    return _increments(w_int, temp_int, np.diff(tt[fe]), base, fine, coarse, mids)
-
-
-def _increments(w_int, temp_int, span, base: GyroCalibration, fine, coarse, mids) -> tuple:
-    """_block_increments from the fine blocks' trapezoid integrals of the raw rate (deg) and the
-    temperature (degC s) and their durations span (s)."""
-    b = w_int - np.outer(span, base.bias_dps)
-    if temp_int is not None:
-        b -= np.outer(temp_int - base.t_ref_degC * span, base.temp_bias_dps_per_degC)
-    b = np.deg2rad(b)
-    p_excl = np.concatenate([np.zeros((1, 3)), np.cumsum(b, axis=0)[:-1]])  # sum of earlier blocks
-    at = np.searchsorted(fine, coarse[:-1])  # first fine block of each coarse block
-    phi = np.add.reduceat(b, at, axis=0)
-    c = 0.5 * (np.add.reduceat(np.cross(p_excl, b), at, axis=0) - np.cross(p_excl[at], phi))
-    return phi, c, np.searchsorted(coarse, mids)
-
-
-# complex-safe quaternion helpers: the same arithmetic as accellog.core.rotations, written so that
-# a complex step (x + i h) propagates through them (the Jacobian below is exact to rounding)
-
-
-def _qexp(phi: np.ndarray) -> np.ndarray:
-    """Quaternions (...,4) from rotation vectors (...,3) (rad): (cos a/2, sin(a/2)/a phi)."""
-    a = np.sqrt((phi * phi).sum(axis=-1, keepdims=True))
-    big = a.real > 1e-12
-    safe = np.where(big, a, 1.0)
-    k = np.where(big, np.sin(0.5 * safe) / safe, 0.5 - a * a / 48.0)
-    return np.concatenate([np.cos(0.5 * a), k * phi], axis=-1)
-
-
-def _qnormalize(q: np.ndarray) -> np.ndarray:
-    return q / np.sqrt((q * q).sum(axis=-1, keepdims=True))
-
-
-def _qconj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def _prefix_product(dq: np.ndarray) -> np.ndarray:
-    """Inclusive prefix product along axis -2 (Hillis-Steele scan, as rotations.prefix_quat_product)."""
-    out = dq.copy()
-    n = out.shape[-2]
-    d = 1
-    while d < n:
-        out[..., d:, :] = quat_multiply(out[..., :-d, :], out[..., d:, :])
-        d *= 2
-    return out
-
-
-def _relative_rotations(phi: np.ndarray, c: np.ndarray, at: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """Body-frame rotation (...,K-1,4) from each mid to the next, with rates corrected by M^-1
-    (m (3,3), or (P,3,3) for P matrices at once): block rotation vector M^-1 phi + det(M^-1) M^T c,
-    since (A u) x (A v) = det(A) A^-T (u x v) carries the second-order term c through A = M^-1."""
-    m_inv = np.linalg.inv(m)
-    phi = phi @ np.swapaxes(m_inv, -1, -2) + (c @ m) / np.linalg.det(m)[..., None, None]
-    ident = np.zeros((*phi.shape[:-2], 1, 4), phi.dtype)
-    ident[..., 0] = 1.0
-    q = _qnormalize(_prefix_product(np.concatenate([ident, _qexp(phi)], axis=-2)))
-    return _qnormalize(quat_multiply(_qconj(q[..., at[:-1], :]), q[..., at[1:], :]))
-
-
-def _rotate_inverse(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """World vectors v (K,3) into the sensor frame by q (...,K,4): R(q)^T v."""
-    q = _qnormalize(q)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
-    return np.stack(
-        [
-            (1 - 2 * (y * y + z * z)) * v0 + 2 * (x * y + w * z) * v1 + 2 * (x * z - w * y) * v2,
-            2 * (x * y - w * z) * v0 + (1 - 2 * (x * x + z * z)) * v1 + 2 * (y * z + w * x) * v2,
-            2 * (x * z + w * y) * v0 + 2 * (y * z - w * x) * v1 + (1 - 2 * (x * x + y * y)) * v2,
-        ],
-        axis=-1,
-    )
-
-
-def _rotvec_deg(q: np.ndarray) -> np.ndarray:
-    """Rotation vectors (deg) of unit quaternions (...,K,4), shortest arc."""
-    q = q * np.where(q[..., :1].real < 0, -1.0, 1.0)
-    s = np.sqrt((q[..., 1:] * q[..., 1:]).sum(axis=-1))
-    w = q[..., 0]
-    fwd = w.real > 0.5 * np.abs(s)
-    ang = np.where(
-        fwd, 2.0 * np.arctan(s / np.where(fwd, w, 1.0)), np.pi - 2.0 * np.arctan(w / np.where(fwd, 1.0, s))
-    )
-    tiny = np.abs(s) <= 1e-12
-    k = np.where(tiny, 2.0 / np.where(tiny, w, 1.0), ang / np.where(tiny, 1.0, s))
-    return _DEG * k[..., None] * q[..., 1:]
 
 
 def fit_gyro_matrix(

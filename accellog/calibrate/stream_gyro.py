@@ -27,13 +27,12 @@ from accellog.calibrate.gyro import (
     _bias_fit,
     _bias_window_times,
     _bias_windows,
-    _block_edges,
     _fit_matrix,
     _holds,
-    _increments,
     _known_poses,
     _pose_times,
 )
+from accellog.calibrate.gyro_rotation import _block_edges, _increments
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
 from accellog.store.stream import iter_imu
