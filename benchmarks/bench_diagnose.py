@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from accellog.calibrate.diagnose import cv_scores, diagnose
+from accellog.calibrate.cross_validation import cv_scores
+from accellog.calibrate.diagnose import diagnose
 from accellog.calibrate.fit import fit_model
 from accellog.calibrate.model import build_model
 from accellog.calibrate.segment import observations

@@ -193,7 +193,7 @@ def _cv_scores_dense(res, obs):
 def test_cv_scores_small_matrix_form_equals_the_dense_form(model, protocol, weighted, windows):
     """The p x p (push-through) cross-validation equals the dense per-hold inverse to 1e-9,
     infinities (holds the others cannot predict) included."""
-    from accellog.calibrate.diagnose import cv_scores
+    from accellog.calibrate.cross_validation import cv_scores
 
     name, *add = model.split("+")
     m = build_model(name, add=add)

@@ -112,7 +112,7 @@ def obs_dict(o):
 
 
 def test_host_clock_points_equal_whole_session(recorded, small_groups):
-    from accellog.calibrate.diagnose import clock_from_host_time
+    from accellog.calibrate.clock import clock_from_host_time
     from accellog.store.stream import read_host_clock
 
     s = read_session(recorded)

@@ -7,10 +7,11 @@ then tries every library effect as a candidate (model + effect) and ranks them b
 - information criteria:      dBIC = -dchi2 + dk ln m,  dAIC = -dchi2 + 2 dk  (m = equations);
 - out of sample:             leave-one-hold-out chi2 per row, r_cv,g = (I - H_gg)^-1 r_g (whitened
                              hat matrix H = J (J^T J)^-1 J^T; exact for linear models, one-step for
-                             nonlinear), compared on the holds both models can predict.
+                             nonlinear; accellog.calibrate.cross_validation), compared on the holds
+                             both models can predict.
 
 A candidate is *significant* when p < alpha / n_candidates, dBIC < -10 and its CV score improves.
-The driver-signal view projects each signal (temperature, its rate, t, t_in_pose, gravity components,
+The driver-signal view (accellog.calibrate.driver_signals) projects each signal (temperature, its rate, t, t_in_pose, gravity components,
 squares, products, rotation about the vertical, user signals) onto the residual after removing what
 the model can already absorb: dchi2 = (r . c_perp)^2 / |c_perp|^2 per (signal, axis), so an effect
 the library lacks still shows itself. Effects the data cannot reveal are reported with what to record.
@@ -25,219 +26,18 @@ import numpy as np
 from scipy import stats
 
 from accellog.calibrate.choose import StepChoice, choose_effect
-from accellog.calibrate.effects import AXES, all_effects
+from accellog.calibrate.clock import clock_from_host_time
+from accellog.calibrate.cross_validation import _cv_compare, cv_scores
+from accellog.calibrate.driver_signals import ALPHA, driver_signals
+from accellog.calibrate.effects import all_effects
 from accellog.calibrate.fit import FitResult, fit_model, obs_drivers
 from accellog.calibrate.identifiability import effect_requirement
 from accellog.calibrate.model import Model
 from accellog.core.errors import InputError, ModelError
-from accellog.core.rotations import quat_between, quat_conjugate, quat_multiply
 from accellog.core.session import ObsTable
 
-ALPHA = 1e-3
-"""Family-wise false-alarm rate of the candidate tests (Bonferroni over candidates)."""
 DBIC_MIN = -10.0
 """A candidate must lower BIC by more than 10 ("very strong" evidence) to count."""
-
-
-# ---------------------------------------------------------------------------------------------
-# statistics helpers
-
-
-def _groups(obs: ObsTable) -> list[np.ndarray]:
-    """Row indices of each hold (pose_id)."""
-    pid = np.asarray(obs.pose_id)
-    return [np.flatnonzero(pid == g) for g in np.unique(pid)]
-
-
-def cv_scores(res: FitResult, obs: ObsTable) -> np.ndarray:
-    """Leave-one-hold-out chi2 of each hold (inf where the rest cannot predict it).
-
-    Whitened residual r and Jacobian J (rows obs-major, axis-minor); for hold g with rows G:
-    r_cv = (I - H_GG)^-1 r_G, H = J C J^T, C = (J^T J)^+. With U = J_G (m x p, m = 3 windows in
-    the hold, p parameters) and G = U^T U (p x p), the m x m inverse is never formed
-    (push-through identity, valid for singular C too):
-
-        (I - U C U^T)^-1 = I + U C (I_p - G C)^-1 U^T,
-        r_cv = r_G + U C (I_p - G C)^-1 U^T r_G,
-
-    and the hold is predictable when min eig(I - U C U^T) = 1 - max eig(S^T G S) >= 1e-8
-    (C = S S^T; the other eigenvalues of I - U C U^T are 1). Cost O(m p^2) per hold: linear in the
-    windows. BLAS runs on one thread (these matrices are too small to gain from more).
-    """
-    J = res.jacobian
-    sig = np.asarray(obs.sigma_g, float)
-    r = (res.residual_g / sig).ravel()
-    if J is None:
-        return np.full(len(_groups(obs)), np.inf)
-    if not res.weighted:  # jacobian of unweighted residuals: whiten it
-        J = J / sig.ravel()[:, None]
-    with _blas_controller().limit(limits=1, user_api="blas"):
-        return _cv_small(J, r, _groups(obs))
-
-
-def _blas_controller():
-    """threadpoolctl's controller, made once (finding the BLAS libraries takes ~3 ms per call)."""
-    global _BLAS
-    if _BLAS is None:
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS = ThreadpoolController()
-    return _BLAS
-
-
-_BLAS = None
-
-
-def _cv_small(J: np.ndarray, r: np.ndarray, groups: list[np.ndarray]) -> np.ndarray:
-    """cv_scores' per-hold loop in the p x p form (see there)."""
-    C = np.linalg.pinv(J.T @ J)
-    ev_c, vec_c = np.linalg.eigh(0.5 * (C + C.T))
-    S = vec_c * np.sqrt(np.clip(ev_c, 0.0, None))  # C = S S^T
-    eye = np.eye(J.shape[1])
-    out = np.empty(len(groups))
-    for k, g in enumerate(groups):
-        rows = (g[:, None] * 3 + np.arange(3)).ravel()
-        U, rg = J[rows], r[rows]
-        G = U.T @ U
-        if 1.0 - np.linalg.eigvalsh(S.T @ G @ S).max() < 1e-8:
-            out[k] = np.inf
-            continue
-        rc = rg + U @ (C @ np.linalg.solve(eye - G @ C, U.T @ rg))
-        out[k] = float(rc @ rc)
-    return out
-
-
-def _cv_compare(cv_a: np.ndarray, cv_b: np.ndarray, obs: ObsTable) -> tuple[float, float, int]:
-    """Mean CV chi2 per equation of models a and b over holds both can predict."""
-    ok = np.isfinite(cv_a) & np.isfinite(cv_b)
-    sizes = np.array([g.size * 3 for g in _groups(obs)])
-    if not ok.any():
-        return np.nan, np.nan, 0
-    m = sizes[ok].sum()
-    return float(cv_a[ok].sum() / m), float(cv_b[ok].sum() / m), int(ok.sum())
-
-
-def _yaw_deg(obs: ObsTable) -> np.ndarray | None:
-    """Rotation about the vertical of each row (deg): q = q_yaw * q_face, q_face = up -> +z."""
-    q = obs.q_sensor_to_world
-    if q is None or not np.all(np.isfinite(q)):
-        return None
-    q = np.asarray(q, float)
-    up = np.asarray(obs.up_sensor, float)
-    qf = np.stack([quat_between(u, np.array([0.0, 0.0, 1.0])) for u in up])
-    qy = quat_multiply(q, quat_conjugate(qf))
-    return np.rad2deg(2.0 * np.arctan2(qy[:, 3], qy[:, 0]))
-
-
-def driver_signal_table(
-    obs: ObsTable, drivers: Mapping[str, np.ndarray], gravity_g: float = 1.0
-) -> dict[str, np.ndarray]:
-    """Candidate explanatory signals, each (n,) or (n,3) (per-axis), named with units."""
-    f = gravity_g * np.asarray(obs.up_sensor, float)
-    sig: dict[str, np.ndarray] = {}
-    if "temp_degC" in drivers:
-        dT = drivers["temp_degC"] - 25.0
-        sig["temp_degC"] = dT
-        sig["temp_degC^2"] = dT**2
-        sig["temp_degC*f_axis (g degC)"] = dT[:, None] * f
-    if "dtemp_degC_per_s" in drivers:
-        sig["dtemp_degC_per_s"] = drivers["dtemp_degC_per_s"]
-    sig["t_s"] = drivers["t_s"]
-    sig["t_s^2"] = drivers["t_s"] ** 2
-    sig["exp(-t_s/60)"] = np.exp(-drivers["t_s"] / 60.0)
-    sig["exp(-t_s/600)"] = np.exp(-drivers["t_s"] / 600.0)
-    sig["t_in_pose_s"] = drivers["t_in_pose_s"]
-    sig["t_in_pose_s^2"] = drivers["t_in_pose_s"] ** 2
-    for i, a in enumerate(AXES):
-        sig[f"f_{a} (g)"] = f[:, i]
-        sig[f"f_{a}^2 (g^2)"] = f[:, i] ** 2
-        sig[f"f_{a}^3 (g^3)"] = f[:, i] ** 3
-        sig[f"|f_{a}| (g)"] = np.abs(f[:, i])
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        sig[f"f_{AXES[i]}*f_{AXES[j]} (g^2)"] = f[:, i] * f[:, j]
-    yaw = _yaw_deg(obs)
-    if yaw is not None:
-        sig["cos(yaw about vertical)"] = np.cos(np.deg2rad(yaw))
-        sig["sin(yaw about vertical)"] = np.sin(np.deg2rad(yaw))
-    std = {"t_s", "t_in_pose_s", "temp_degC", "dtemp_degC_per_s"}
-    for k, v in drivers.items():
-        if k not in std:
-            sig[k] = np.asarray(v, float)
-            sig[f"{k}^2"] = np.asarray(v, float) ** 2
-    return sig
-
-
-def driver_signals(res: FitResult, obs: ObsTable, drivers: Mapping[str, np.ndarray]) -> list[dict]:
-    """Residuals against every driver signal: correlation, partial R^2 and the chi2 drop if the
-    signal were added as one more additive term on that axis (after projecting out the model)."""
-    sig = np.asarray(obs.sigma_g, float)
-    J = res.jacobian if res.weighted else res.jacobian / sig.ravel()[:, None]
-    rw = res.residual_g / sig
-    r = rw.ravel()
-    chi2 = float(r @ r)
-    Q, Rr = np.linalg.qr(J) if J.shape[1] else (np.zeros((r.size, 0)), None)
-    if J.shape[1]:
-        keep = np.abs(np.diag(Rr)) > 1e-12 * max(np.abs(np.diag(Rr)).max(), 1e-300)
-        Q = Q[:, keep]
-    dof = max(res.dof - 1, 1)
-    rows = []
-    table = driver_signal_table(obs, drivers, res.gravity_g)
-    n_tests = 3 * len(table)
-    for name, s in table.items():
-        s = np.asarray(s, float)
-        for i, a in enumerate(AXES):
-            col = s[:, i] if s.ndim == 2 else s
-            if np.ptp(col) == 0:
-                continue
-            c = np.zeros_like(rw)
-            c[:, i] = col / sig[:, i]
-            c = c.ravel()
-            cp = c - Q @ (Q.T @ c)
-            nc = float(cp @ cp)
-            if nc <= 1e-12 * float(c @ c):
-                continue  # the model already contains this signal on this axis
-            d = float(r @ cp) ** 2 / nc
-            F = d / max((chi2 - d) / dof, 1e-300)
-            p = float(stats.f.sf(F, 1, dof))
-            corr = float(np.corrcoef(rw[:, i], col)[0, 1]) if np.std(rw[:, i]) > 0 else 0.0
-            rows.append(
-                {
-                    "signal": name,
-                    "axis": a,
-                    "correlation": corr,
-                    "partial_r2": d / chi2 if chi2 > 0 else 0.0,
-                    "delta_chi2": d,
-                    "p_value": p,
-                    "significant": bool(p < ALPHA / n_tests and d > 25.0),
-                }
-            )
-    rows.sort(key=lambda x: -x["delta_chi2"])
-    return rows
-
-
-def clock_from_host_time(t_sensor_s: np.ndarray, t_host_s: np.ndarray) -> dict:
-    """Sample-clock error from host timestamps: t_host = (1 + eps_clock) t_sensor + c + jitter.
-
-    Host time is often stamped per read batch (every sample of a batch carries the batch's read
-    time), so only the last sample of each run of equal host times is used.
-    Returns eps_clock (1), its 1-sigma (from the residual scatter) and ppm values."""
-    ts = np.asarray(t_sensor_s, float)
-    th = np.asarray(t_host_s, float)
-    last = np.flatnonzero(np.append(np.diff(th) != 0, True))
-    ts, th = ts[last], th[last]
-    if ts.size < 3 or np.ptp(ts) <= 0:
-        raise InputError("host time needs >= 3 samples over a non-zero time span")
-    A = np.stack([ts - ts.mean(), np.ones_like(ts)], axis=1)
-    coef, *_ = np.linalg.lstsq(A, th, rcond=None)
-    res = th - A @ coef
-    s2 = float(res @ res) / max(ts.size - 2, 1)
-    sig = float(np.sqrt(s2 / np.sum((ts - ts.mean()) ** 2)))
-    eps = float(coef[0] - 1.0)
-    return {"eps_clock": eps, "sigma": sig, "eps_ppm": eps * 1e6, "sigma_ppm": sig * 1e6}
-
-
-# ---------------------------------------------------------------------------------------------
-# diagnosis
 
 
 @dataclass

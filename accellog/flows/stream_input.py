@@ -36,7 +36,7 @@ class StreamedSession:
     stats: list[PoseStats] | None = None
     """Per-hold statistics (segment.pose_stats), when asked for."""
     host_clock: tuple | None = None
-    """(sensor, host) times for diagnose.clock_from_host_time (store.stream.read_host_clock)."""
+    """(sensor, host) times for calibrate.clock.clock_from_host_time (store.stream.read_host_clock)."""
 
     def gyro_calibration(self) -> GyroCalibration | None:
         """Gyro calibration from the holds and the moves between them, as
