@@ -130,7 +130,8 @@ def diagnose(
     if not (sig.shape == obs.meas_g.shape and np.all(np.isfinite(sig) & (sig > 0))):
         raise InputError("diagnose needs a noise estimate: finite positive sigma_g for every observation")
     drv = obs_drivers(obs, drivers)
-    base = fit_model(obs, model, weighted=weighted, gravity_g=gravity_g, drivers=drivers)
+    fit_kw = {"weighted": weighted, "gravity_g": gravity_g, "drivers": drivers}
+    base = fit_model(obs, model, **fit_kw)
     m_eq = base.residual_g.size
     floor = float(np.sqrt(np.mean(sig**2)))
     cv_b_all = cv_scores(base, obs)
@@ -140,119 +141,13 @@ def diagnose(
     if unknown:
         raise ModelError(f"unknown candidate effect(s) {unknown}; valid: {', '.join(lib)}")
     n_tests = max(1, sum(1 for c in cands if lib[c].static))
-    rows: list[dict] = []
-    fits: dict[str, FitResult] = {}
-    clock = None
-    for name in cands:
-        row: dict = {"effect": name, "n_params": len(lib[name].params), "identifiable": False}
-        if name == "clock" and host_time is not None:
-            clock = clock_from_host_time(*host_time)
-            z = abs(clock["eps_clock"]) / max(clock["sigma"], 1e-300)
-            row.update(
-                identifiable=True,
-                significant=bool(z > 5 and abs(clock["eps_ppm"]) > 1.0),
-                p_value=float(2 * stats.norm.sf(z)),
-                reason=f"from host time: eps_clock = {clock['eps_ppm']:.1f} +- {clock['sigma_ppm']:.1f} ppm "
-                "(sample period is (1 + eps)/ODR; correct integration time, not static readings)",
-            )
-            rows.append(row)
-            continue
-        reason = effect_requirement(name, obs, drv, model)
-        if reason is not None:
-            row["reason"] = reason
-            rows.append(row)
-            continue
-        cm = model.with_terms([name])
-        try:
-            cr = fit_model(obs, cm, weighted=weighted, gravity_g=gravity_g, drivers=drivers)
-        except ModelError as exc:
-            row["reason"] = str(exc)
-            rows.append(row)
-            continue
-        fits[name] = cr
-        dk = cm.n_params - model.n_params
-        dchi2 = base.chi2 - cr.chi2
-        F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
-        p = float(stats.f.sf(F, max(dk, 1), max(cr.dof, 1))) if cr.dof > 0 else np.nan
-        cv_c, cv_b, n_cv = _cv_compare(cv_scores(cr, obs), cv_b_all, obs)
-        dbic = -dchi2 + dk * np.log(m_eq)
-        daic = -dchi2 + 2 * dk
-        sl = cm.slices[name]
-        weak = [
-            n
-            for n, s, t in zip(cm.param_names[sl], cr.sigma[sl], cm.param_typical[sl], strict=True)
-            if s > t and n != "tau_warmup_s"
-        ]
-        signif = bool(cr.dof > 0 and p < ALPHA / n_tests and dbic < DBIC_MIN and (n_cv == 0 or cv_c < cv_b))
-        row.update(
-            identifiable=True,
-            significant=signif,
-            chi2_dof=cr.chi2_dof,
-            delta_chi2=dchi2,
-            delta_chi2_dof=base.chi2_dof - cr.chi2_dof,
-            F=F,
-            p_value=p,
-            delta_bic=float(dbic),
-            delta_aic=float(daic),
-            cv_chi2_per_eq=cv_c,
-            cv_chi2_per_eq_base=cv_b,
-            cv_holds=n_cv,
-            params={
-                n: [float(v), float(s)]
-                for n, v, s in zip(cm.param_names[sl], cr.theta[sl], cr.sigma[sl], strict=True)
-            },
-            reason=(
-                f"chi2/dof {base.chi2_dof:.3g} -> {cr.chi2_dof:.3g}, dBIC {dbic:.1f}, "
-                f"CV chi2/eq {cv_b:.3g} -> {cv_c:.3g}"
-                + (f"; weakly determined: {', '.join(weak)} 1-sigma above typical size" if weak else "")
-            ),
-        )
-        rows.append(row)
+    rows, fits, clock = _candidate_rows(cands, obs, model, base, cv_b_all, drv, fit_kw, host_time, n_tests)
     choice = choose_effect(base, rows, fits, obs, heldout) if validate else None
-    if choice is not None:
-        for r in rows:
-            if r["effect"] in choice.scores:
-                r["oos_chi2_per_eq"] = choice.scores[r["effect"]].chi2_per_eq
-                r["oos_evidence"] = choice.evidence
-
-    # rank: significant first, the chosen one (out-of-sample evidence) first among them, then by the
-    # out-of-sample score, then by dBIC (identifiable), then the rest
-    def _key(r):
-        oos = r.get("oos_chi2_per_eq", np.inf)
-        dbic = r.get("delta_bic", np.inf)
-        return (
-            not r.get("significant", False),
-            not r["identifiable"],
-            choice is None or r["effect"] != choice.chosen,
-            oos if np.isfinite(oos) else np.inf,
-            dbic if np.isfinite(dbic) else np.inf,
-        )
-
-    rows.sort(key=_key)
-    for k, r in enumerate(rows, 1):
-        r["rank"] = k
+    _rank_rows(rows, choice)
     signals = driver_signals(base, obs, drv)
     sig_cands = [r for r in rows if r.get("significant") and r["effect"] != "clock"]
-    if len(sig_cands) > 1:  # second round: does each runner-up still help on top of the best?
-        mb = model.with_terms([sig_cands[0]["effect"]])
-        rb = fit_model(obs, mb, weighted=weighted, gravity_g=gravity_g, drivers=drivers)
-        for r in sig_cands[1:4]:
-            try:
-                r2 = fit_model(
-                    obs, mb.with_terms([r["effect"]]), weighted=weighted, gravity_g=gravity_g, drivers=drivers
-                )
-            except ModelError:
-                r["given_best"] = "not identifiable together with " + sig_cands[0]["effect"]
-                continue
-            dk = r2.model.n_params - mb.n_params
-            F = ((rb.chi2 - r2.chi2) / dk) / max(r2.chi2 / max(r2.dof, 1), 1e-300)
-            p2 = float(stats.f.sf(F, dk, max(r2.dof, 1)))
-            r["p_value_given_best"] = p2
-            r["given_best"] = (
-                f"still significant on top of {sig_cands[0]['effect']} (p = {p2:.2g})"
-                if p2 < ALPHA / n_tests and (rb.chi2 - r2.chi2) > dk * np.log(m_eq) + 10
-                else f"explained by {sig_cands[0]['effect']} (p = {p2:.2g} once it is added)"
-            )
+    if len(sig_cands) > 1:
+        _second_round(sig_cands, obs, model, fit_kw, n_tests, m_eq)
     base_bad = bool(np.isfinite(base.p_value) and base.p_value < ALPHA and base.dof > 0)
     missing = base_bad or bool(sig_cands)
     best = sig_cands[0]["effect"] if sig_cands else None
@@ -276,6 +171,136 @@ def diagnose(
         fits=fits,
         choice=choice,
     )
+
+
+def _candidate_rows(cands, obs, model, base, cv_b_all, drv, fit_kw, host_time, n_tests):
+    """(rows, fits of model + candidate by name, clock estimate or None): one row per candidate,
+    with the statistics of _candidate_stats, the host-clock test, or why it cannot be revealed."""
+    lib = all_effects(model.effects_file)
+    rows: list[dict] = []
+    fits: dict[str, FitResult] = {}
+    clock = None
+    for name in cands:
+        row: dict = {"effect": name, "n_params": len(lib[name].params), "identifiable": False}
+        rows.append(row)
+        if name == "clock" and host_time is not None:
+            clock = clock_from_host_time(*host_time)
+            row.update(_clock_row(clock))
+            continue
+        reason = effect_requirement(name, obs, drv, model)
+        if reason is not None:
+            row["reason"] = reason
+            continue
+        cm = model.with_terms([name])
+        try:
+            cr = fit_model(obs, cm, **fit_kw)
+        except ModelError as exc:
+            row["reason"] = str(exc)
+            continue
+        fits[name] = cr
+        row.update(_candidate_stats(name, cm, cr, model, base, obs, cv_b_all, n_tests))
+    return rows, fits, clock
+
+
+def _clock_row(clock: dict) -> dict:
+    """The clock candidate from host time: significant when |eps| > 5 sigma and > 1 ppm."""
+    z = abs(clock["eps_clock"]) / max(clock["sigma"], 1e-300)
+    return dict(
+        identifiable=True,
+        significant=bool(z > 5 and abs(clock["eps_ppm"]) > 1.0),
+        p_value=float(2 * stats.norm.sf(z)),
+        reason=f"from host time: eps_clock = {clock['eps_ppm']:.1f} +- {clock['sigma_ppm']:.1f} ppm "
+        "(sample period is (1 + eps)/ODR; correct integration time, not static readings)",
+    )
+
+
+def _candidate_stats(name, cm, cr, model, base, obs, cv_b_all, n_tests) -> dict:
+    """F test, dBIC, dAIC and leave-one-hold-out CV of fit cr (model cm = model + name) vs base."""
+    m_eq = base.residual_g.size
+    dk = cm.n_params - model.n_params
+    dchi2 = base.chi2 - cr.chi2
+    F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
+    p = float(stats.f.sf(F, max(dk, 1), max(cr.dof, 1))) if cr.dof > 0 else np.nan
+    cv_c, cv_b, n_cv = _cv_compare(cv_scores(cr, obs), cv_b_all, obs)
+    dbic = -dchi2 + dk * np.log(m_eq)
+    daic = -dchi2 + 2 * dk
+    sl = cm.slices[name]
+    weak = [
+        n
+        for n, s, t in zip(cm.param_names[sl], cr.sigma[sl], cm.param_typical[sl], strict=True)
+        if s > t and n != "tau_warmup_s"
+    ]
+    signif = bool(cr.dof > 0 and p < ALPHA / n_tests and dbic < DBIC_MIN and (n_cv == 0 or cv_c < cv_b))
+    return dict(
+        identifiable=True,
+        significant=signif,
+        chi2_dof=cr.chi2_dof,
+        delta_chi2=dchi2,
+        delta_chi2_dof=base.chi2_dof - cr.chi2_dof,
+        F=F,
+        p_value=p,
+        delta_bic=float(dbic),
+        delta_aic=float(daic),
+        cv_chi2_per_eq=cv_c,
+        cv_chi2_per_eq_base=cv_b,
+        cv_holds=n_cv,
+        params={
+            n: [float(v), float(s)]
+            for n, v, s in zip(cm.param_names[sl], cr.theta[sl], cr.sigma[sl], strict=True)
+        },
+        reason=(
+            f"chi2/dof {base.chi2_dof:.3g} -> {cr.chi2_dof:.3g}, dBIC {dbic:.1f}, "
+            f"CV chi2/eq {cv_b:.3g} -> {cv_c:.3g}"
+            + (f"; weakly determined: {', '.join(weak)} 1-sigma above typical size" if weak else "")
+        ),
+    )
+
+
+def _rank_rows(rows: list[dict], choice: StepChoice | None) -> None:
+    """Attach the out-of-sample scores and sort in place: significant first, the chosen one
+    (out-of-sample evidence) first among them, then by the out-of-sample score, then by dBIC
+    (identifiable), then the rest; number the rows 1.. as 'rank'."""
+    if choice is not None:
+        for r in rows:
+            if r["effect"] in choice.scores:
+                r["oos_chi2_per_eq"] = choice.scores[r["effect"]].chi2_per_eq
+                r["oos_evidence"] = choice.evidence
+
+    def _key(r):
+        oos = r.get("oos_chi2_per_eq", np.inf)
+        dbic = r.get("delta_bic", np.inf)
+        return (
+            not r.get("significant", False),
+            not r["identifiable"],
+            choice is None or r["effect"] != choice.chosen,
+            oos if np.isfinite(oos) else np.inf,
+            dbic if np.isfinite(dbic) else np.inf,
+        )
+
+    rows.sort(key=_key)
+    for k, r in enumerate(rows, 1):
+        r["rank"] = k
+
+
+def _second_round(sig_cands: list[dict], obs, model, fit_kw, n_tests: int, m_eq: int) -> None:
+    """Does each runner-up (2nd..4th) still help on top of the best? Adds 'given_best' (and its p)."""
+    mb = model.with_terms([sig_cands[0]["effect"]])
+    rb = fit_model(obs, mb, **fit_kw)
+    for r in sig_cands[1:4]:
+        try:
+            r2 = fit_model(obs, mb.with_terms([r["effect"]]), **fit_kw)
+        except ModelError:
+            r["given_best"] = "not identifiable together with " + sig_cands[0]["effect"]
+            continue
+        dk = r2.model.n_params - mb.n_params
+        F = ((rb.chi2 - r2.chi2) / dk) / max(r2.chi2 / max(r2.dof, 1), 1e-300)
+        p2 = float(stats.f.sf(F, dk, max(r2.dof, 1)))
+        r["p_value_given_best"] = p2
+        r["given_best"] = (
+            f"still significant on top of {sig_cands[0]['effect']} (p = {p2:.2g})"
+            if p2 < ALPHA / n_tests and (rb.chi2 - r2.chi2) > dk * np.log(m_eq) + 10
+            else f"explained by {sig_cands[0]['effect']} (p = {p2:.2g} once it is added)"
+        )
 
 
 def _with_choice(verdict: str, advice: list[str], choice: StepChoice, sig_cands: list[dict]):
