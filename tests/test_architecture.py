@@ -44,8 +44,6 @@ ALLOWED_FUNCTIONS = {
     "cli/workbench.py:diagnose": BEING_REWORKED,
     "cli/workbench.py:workbench_cmd": BEING_REWORKED,
     # not yet broken into named steps (#9, in progress on this branch)
-    "calibrate/fit.py:fit_orientation_free": TODO,
-    "calibrate/handheld.py:diagnose_handheld": TODO,
     "cli/record.py:simulate": TODO,
     "flows/demo.py:run_demo": TODO,
     "flows/demo.py:demo_blueprint": TODO,

@@ -391,6 +391,17 @@ def fit_orientation_free(
         return (np.linalg.norm(f, axis=1) - gravity_g) * wn
 
     th0 = model.initial_theta()
+    _norm_rank_check(fun, th0, model, obs)
+    theta = _solve(fun, th0, model, linear=False)
+    w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(meas)
+    prob = _Problem(model, _implied_truth(obs, model, theta, drv, gravity_g), drv, w, float(gravity_g), None)
+    out = _result(prob, theta, weighted, sig_ok, method="orientation_free")
+    _norm_statistics(out, fun, theta, weighted, sig_ok, wn, sig_n)
+    return out
+
+
+def _norm_rank_check(fun, th0: np.ndarray, model: Model, obs: ObsTable) -> None:
+    """Refuse (ModelError) a norm fit with fewer rows than parameters or a rank-deficient Jacobian."""
     J0 = _numjac(fun, th0, _steps(model, th0))
     if J0.shape[0] < J0.shape[1]:
         raise ModelError(
@@ -405,12 +416,14 @@ def fit_orientation_free(
             f"orientation-free fit cannot determine {', '.join(bad)}: record more, well-spread "
             "orientations (>= 9, including tilted ones)"
         )
-    theta = _solve(fun, th0, model, linear=False)
-    # Truth implied by the fit: the corrected direction scaled to gravity.
-    f = model.correct(theta, meas, drv)
+
+
+def _implied_truth(obs: ObsTable, model: Model, theta: np.ndarray, drv, gravity_g: float) -> ObsTable:
+    """obs with the truth implied by the fit: up = the corrected direction (f scaled to gravity)."""
+    f = model.correct(theta, np.asarray(obs.meas_g, float), drv)
     f_true = gravity_g * f / np.linalg.norm(f, axis=1, keepdims=True)
     up = f_true / gravity_g
-    obs2 = ObsTable(
+    return ObsTable(
         meas_g=obs.meas_g,
         sigma_g=obs.sigma_g,
         up_sensor=up,
@@ -425,14 +438,16 @@ def fit_orientation_free(
         q_sensor_to_world=None,
         session=obs.session,
     )
-    w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(meas)
-    prob = _Problem(model, obs2, drv, w, float(gravity_g), None)
-    out = _result(prob, theta, weighted, sig_ok, method="orientation_free")
-    # Covariance from the norm residuals (the quantity actually fitted).
+
+
+def _norm_statistics(out: FitResult, fun, theta, weighted: bool, sig_ok: bool, wn, sig_n) -> None:
+    """Covariance, chi2 and acceptance checks of `out` from the norm residuals fun (the quantity
+    actually fitted; wn, sig_n: weight and projected sigma per row), replacing the labelled-style ones."""
+    model, n = out.model, out.n_obs
     J = _numjac(fun, theta, _steps(model, theta))
     cov = np.linalg.pinv(J.T @ J)
     r = fun(theta)
-    dof = obs.n - model.n_params
+    dof = n - model.n_params
     if not weighted:
         cov = cov * (float(r @ r) / dof if dof > 0 else np.nan)
     out.cov = cov
@@ -446,4 +461,3 @@ def fit_orientation_free(
     out.sigma_scaled = out.sigma * np.sqrt(scale)  # as _result: the unweighted cov already carries s^2
     # the acceptance checks of _result saw the labelled-style statistics: redo them on the fitted ones
     out.warnings = _acceptance(model, out.S, out.b, out.chi2_dof, out.p_value, out.sigma, weighted, dof)
-    return out

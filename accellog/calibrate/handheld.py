@@ -103,10 +103,10 @@ def diagnose_handheld(obs: ObsTable, model: Model, *, candidates: Sequence[str] 
     lib = all_effects(model.effects_file)
     cands = list(candidates) if candidates is not None else default_candidates(model)
     n_tests = max(1, len(cands))
-    m_eq = obs.n
     rows, fits = [], {}
     for name in cands:
         row: dict = {"effect": name, "n_params": len(lib[name].params), "identifiable": False}
+        rows.append(row)
         why = NORM_BLIND.get(name) or effect_requirement(name, obs, drv, model)
         if why is None:
             try:
@@ -115,31 +115,9 @@ def diagnose_handheld(obs: ObsTable, model: Model, *, candidates: Sequence[str] 
                 why = str(exc)
         if why is not None:
             row["reason"] = why
-            rows.append(row)
             continue
         fits[name] = cr
-        dk = cr.model.n_params - model.n_params
-        dchi2 = base.chi2 - cr.chi2
-        F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
-        p = float(stats.f.sf(F, max(dk, 1), max(cr.dof, 1))) if cr.dof > 0 else np.nan
-        dbic = float(-dchi2 + dk * np.log(m_eq))
-        sl = cr.model.slices[name]
-        row.update(
-            identifiable=True,
-            significant=bool(cr.dof > 0 and p < ALPHA / n_tests and dbic < DBIC_MIN),
-            chi2_dof=cr.chi2_dof,
-            delta_chi2=dchi2,
-            delta_chi2_dof=base.chi2_dof - cr.chi2_dof,
-            F=F,
-            p_value=p,
-            delta_bic=dbic,
-            params={
-                n: [float(v), float(s)]
-                for n, v, s in zip(cr.model.param_names[sl], cr.theta[sl], cr.sigma[sl], strict=True)
-            },
-            reason=f"norm chi2/dof {base.chi2_dof:.3g} -> {cr.chi2_dof:.3g}, dBIC {dbic:.1f}",
-        )
-        rows.append(row)
+        row.update(_norm_candidate_stats(name, cr, model, base, n_tests, obs.n))
     rows.sort(
         key=lambda r: (not r.get("significant", False), not r["identifiable"], r.get("delta_bic", np.inf))
     )
@@ -149,6 +127,48 @@ def diagnose_handheld(obs: ObsTable, model: Model, *, candidates: Sequence[str] 
     floor = float(np.sqrt(np.mean(np.asarray(obs.sigma_g, float) ** 2)))
     base_bad = bool(np.isfinite(base.p_value) and base.p_value < ALPHA and base.dof > 0)
     missing = base_bad or bool(sig)
+    verdict, advice = _handheld_verdict(obs, model, base, rows, sig, missing)
+    return Diagnosis(
+        model=model,
+        fit=base,
+        noise_floor_g=floor,
+        missing=missing,
+        verdict=verdict,
+        candidates=rows,
+        driver_signals=[],
+        advice=advice,
+        best=sig[0]["effect"] if sig else None,
+        fits=fits,
+    )
+
+
+def _norm_candidate_stats(name: str, cr, model: Model, base, n_tests: int, m_eq: int) -> dict:
+    """F test and dBIC of the norm fit cr (model + name) against base (m_eq = rows)."""
+    dk = cr.model.n_params - model.n_params
+    dchi2 = base.chi2 - cr.chi2
+    F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
+    p = float(stats.f.sf(F, max(dk, 1), max(cr.dof, 1))) if cr.dof > 0 else np.nan
+    dbic = float(-dchi2 + dk * np.log(m_eq))
+    sl = cr.model.slices[name]
+    return dict(
+        identifiable=True,
+        significant=bool(cr.dof > 0 and p < ALPHA / n_tests and dbic < DBIC_MIN),
+        chi2_dof=cr.chi2_dof,
+        delta_chi2=dchi2,
+        delta_chi2_dof=base.chi2_dof - cr.chi2_dof,
+        F=F,
+        p_value=p,
+        delta_bic=dbic,
+        params={
+            n: [float(v), float(s)]
+            for n, v, s in zip(cr.model.param_names[sl], cr.theta[sl], cr.sigma[sl], strict=True)
+        },
+        reason=f"norm chi2/dof {base.chi2_dof:.3g} -> {cr.chi2_dof:.3g}, dBIC {dbic:.1f}",
+    )
+
+
+def _handheld_verdict(obs: ObsTable, model: Model, base, rows, sig, missing: bool) -> tuple[str, list[str]]:
+    """Verdict line and advice of diagnose_handheld (what the norm cannot show, listed too)."""
     head = (
         f"{model.name} (orientation-free, {obs.n} windows in {len(np.unique(obs.pose_id))} detected holds): "
         f"norm chi2/dof = {base.chi2_dof:.3g}"
@@ -167,18 +187,7 @@ def diagnose_handheld(obs: ObsTable, model: Model, *, candidates: Sequence[str] 
         verdict = f"{head}: residuals exceed the noise, but no effect the norm can identify explains them."
     else:
         verdict = f"{head}: the model fits to the noise floor of the gravity norm; nothing is missing that the norm can show."
-    return Diagnosis(
-        model=model,
-        fit=base,
-        noise_floor_g=floor,
-        missing=missing,
-        verdict=verdict,
-        candidates=rows,
-        driver_signals=[],
-        advice=advice,
-        best=sig[0]["effect"] if sig else None,
-        fits=fits,
-    )
+    return verdict, advice
 
 
 def norm_obs(session: Session, *, window_s: float = 2.0, detect_window_s: float = 1.0) -> ObsTable:
