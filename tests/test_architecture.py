@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import ast
+import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 from importlinter.cli import lint_imports
@@ -86,3 +90,51 @@ def test_size_allow_list_names_only_real_exceptions():
     stale = [m for m in ALLOWED_MODULES if modules.get(m, 0) <= MAX_MODULE_LINES]
     stale += [f for f in ALLOWED_FUNCTIONS if functions.get(f, 0) <= MAX_FUNCTION_LINES]
     assert stale == []
+
+
+def _run_cli_in_fresh_python(args: list[str], env: dict[str, str], after: str) -> str:
+    """stdout of `after` (Python printing JSON) run after accellog.cli.main(args) in a new interpreter."""
+    code = (
+        "import contextlib, io, json, os, sys\n"
+        "from accellog.cli import main\n"
+        f"with contextlib.redirect_stdout(io.StringIO()): rc = main({args!r})\n"
+        "assert rc == 0\n" + after
+    )
+    return subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True, cwd=ROOT
+    ).stdout
+
+
+def _env_without_blas_vars() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_VARS}
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
+    return env
+
+
+BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def test_help_loads_neither_numpy_nor_threadpoolctl():
+    out = _run_cli_in_fresh_python(
+        ["--help"],
+        _env_without_blas_vars(),
+        "print(json.dumps(sorted({'numpy', 'threadpoolctl'} & set(sys.modules))))",
+    )
+    assert json.loads(out) == []
+
+
+def test_commands_run_blas_on_one_thread_unless_the_user_says_otherwise():
+    """numpy loads inside the command, after main() set the BLAS variables: threadpoolctl (asked after
+    the command) sees every BLAS library on one thread; a variable the user set is left alone."""
+    ask = (
+        "from threadpoolctl import threadpool_info\n"
+        "blas = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']\n"
+        f"print(json.dumps({{'blas': blas, 'env': {{k: os.environ.get(k) for k in {BLAS_VARS!r}}}}}))"
+    )
+    env = _env_without_blas_vars()
+    got = json.loads(_run_cli_in_fresh_python(["effects"], env, ask))
+    assert got["blas"] and set(got["blas"]) == {1}
+    assert got["env"] == dict.fromkeys(BLAS_VARS, "1")
+    env["OPENBLAS_NUM_THREADS"] = "2"
+    got = json.loads(_run_cli_in_fresh_python(["effects"], env, ask))
+    assert got["env"] == {"OPENBLAS_NUM_THREADS": "2", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}

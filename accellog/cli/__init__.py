@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
 import pkgutil
@@ -33,16 +34,24 @@ def _integrity_line(message, category, filename, lineno, file=None, line=None) -
 _show_warning = warnings.showwarning
 
 
+_BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def _one_blas_thread():
     """BLAS on one thread for the whole command: accellog's matrices are small (windows x tens of
     parameters), where threads cost more than they give, and on a shared, loaded machine far more
-    (diagnose on a 1 h session: 5x faster wall time at load 12 on 2 cores). The commands import
-    numpy themselves, after this runs, and threadpoolctl only limits libraries already loaded: the
-    BLAS thread variables (unless the user set them) cover the BLAS that numpy loads later."""
+    (diagnose on a 1 h session: 5x faster wall time at load 12 on 2 cores).
+
+    Before numpy is loaded (the command line: commands import it when they run) the BLAS libraries'
+    own variables are set, unless the user set them, so BLAS starts on one thread and threadpoolctl is
+    not imported; when numpy is already loaded (main() called in-process, e.g. from a notebook or the
+    tests) threadpoolctl limits the loaded libraries for the duration of the command."""
+    if "numpy" not in sys.modules:
+        for var in _BLAS_THREAD_VARS:
+            os.environ.setdefault(var, "1")
+        return contextlib.nullcontext()
     from threadpoolctl import threadpool_limits
 
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
     return threadpool_limits(limits=1, user_api="blas")
 
 
