@@ -55,7 +55,6 @@ ALLOWED_FUNCTIONS = {
     "present/rrd/layout.py:build_blueprint": TODO,
     "store/batch_decode.py:_uniform_layout": TODO,
     "store/batch_decode.py:decode_batch": TODO,
-    "store/importers/imucal.py:import_imucal": TODO,
     "store/reader.py:read_session": TODO,
 }
 """Exceptions to the size limits, each with its reason (docs/architecture.md repeats them)."""
