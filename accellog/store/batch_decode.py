@@ -190,6 +190,53 @@ def _varints(buf: np.ndarray, pos: np.ndarray, end: np.ndarray) -> tuple[np.ndar
     return val, after
 
 
+def _first_layout(
+    t: bytes, key_to_field: np.ndarray, numbers: np.ndarray, field_codecs: list[FieldCodec], offs
+):
+    """The first message's layout under the canonical rules, for ``_uniform_layout``: (offsets of the
+    key and length bytes, varints (field, offset, bytes), doubles (field, offset), packed spans (field,
+    data offset, length)); None if it breaks a rule the vectorised check relies on."""
+    size = len(t)
+    fixed: list[int] = []  # offsets of bytes every message must share (keys, lengths)
+    varint_at: list[tuple[str, int, int]] = []  # (field, offset, bytes)
+    double_at: list[tuple[str, int]] = []
+    span_at: list[tuple[str, int, int]] = []  # (field, data offset, length)
+    p, last = 0, 0
+    while p < size:
+        f = int(key_to_field[t[p]])
+        if f < 0 or int(numbers[f]) <= last:
+            return None
+        last = int(numbers[f])
+        c = field_codecs[f]
+        fixed.append(p)
+        p += 1
+        if c.kind == "double":
+            if p + 8 > size:
+                return None
+            double_at.append((c.name, p))
+            p += 8
+            continue
+        q = p
+        while q < size and t[q] >= 0x80:
+            q += 1
+        if q >= size or q - p >= 9:  # runs past the message, or over 63 bits: the general walk decides
+            return None
+        if c.name in offs:
+            if c.kind != "packed":  # strings need a UTF-8 check per message
+                return None
+            ln = sum((t[p + j] & 0x7F) << (7 * j) for j in range(q + 1 - p))
+            fixed += range(p, q + 1)
+            p = q + 1
+            if p + ln > size:
+                return None
+            span_at.append((c.name, p, ln))
+            p += ln
+        else:
+            varint_at.append((c.name, p, q + 1 - p))
+            p = q + 1
+    return fixed, varint_at, double_at, span_at
+
+
 def _uniform_layout(
     buf: np.ndarray,
     pos: np.ndarray,
@@ -215,43 +262,10 @@ def _uniform_layout(
     if size <= 0 or np.any(end - pos != size):
         return False
     t = bytes(buf[int(pos[0]) : int(pos[0]) + size])
-    fixed: list[int] = []  # offsets of bytes every message must share (keys, lengths)
-    varint_at: list[tuple[str, int, int]] = []  # (field, offset, bytes)
-    double_at: list[tuple[str, int]] = []
-    span_at: list[tuple[str, int, int]] = []  # (field, data offset, length)
-    p, last = 0, 0
-    while p < size:
-        f = int(key_to_field[t[p]])
-        if f < 0 or int(numbers[f]) <= last:
-            return False
-        last = int(numbers[f])
-        c = field_codecs[f]
-        fixed.append(p)
-        p += 1
-        if c.kind == "double":
-            if p + 8 > size:
-                return False
-            double_at.append((c.name, p))
-            p += 8
-            continue
-        q = p
-        while q < size and t[q] >= 0x80:
-            q += 1
-        if q >= size or q - p >= 9:  # runs past the message, or over 63 bits: the general walk decides
-            return False
-        if c.name in offs:
-            if c.kind != "packed":  # strings need a UTF-8 check per message
-                return False
-            ln = sum((t[p + j] & 0x7F) << (7 * j) for j in range(q + 1 - p))
-            fixed += range(p, q + 1)
-            p = q + 1
-            if p + ln > size:
-                return False
-            span_at.append((c.name, p, ln))
-            p += ln
-        else:
-            varint_at.append((c.name, p, q + 1 - p))
-            p = q + 1
+    layout = _first_layout(t, key_to_field, numbers, field_codecs, offs)
+    if layout is None:
+        return False
+    fixed, varint_at, double_at, span_at = layout
     rel = np.asarray(fixed, dtype=np.int64)
     if np.any(buf[pos[:, None] + rel] != np.frombuffer(t, np.uint8)[rel]):
         return False
@@ -308,17 +322,35 @@ def decode_batch(
     offs = {c.name: np.zeros(n, np.int64) for c in codecs if c.kind in ("packed", "string", "bytes")}
     lens = {name: np.zeros(n, np.int64) for name in offs}
     vals = {c.name: np.zeros(n, np.uint64) for c in codecs if c.kind not in offs}
-    last = np.zeros(n, np.int64)  # field number read last in each message
-    uniform = _uniform_layout(buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals)
-    active = pos[:0] if uniform else np.flatnonzero(pos < end)
+    walk = (buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals)
+    if not (_uniform_layout(*walk) or _general_walk(*walk)):
+        return None
+    return _assemble(message, n, codecs, buf, offs, lens, vals, reserve)
+
+
+def _general_walk(
+    buf: np.ndarray,
+    pos: np.ndarray,
+    end: np.ndarray,
+    key_to_field: np.ndarray,
+    numbers: np.ndarray,
+    field_codecs: list[FieldCodec],
+    offs: dict[str, np.ndarray],
+    lens: dict[str, np.ndarray],
+    vals: dict[str, np.ndarray],
+) -> bool:
+    """``decode_batch``'s field walk for any layouts: one field of every unfinished message per step
+    (grouped by field), filling offs/lens/vals; False at the first break of the canonical rules."""
+    last = np.zeros(pos.shape[0], np.int64)  # field number read last in each message
+    active = np.flatnonzero(pos < end)
     while active.shape[0]:
         p = pos[active]
         field = key_to_field[buf[p]]
         if np.any(field < 0):
-            return None  # unknown field, wrong wire type or multi-byte key
+            return False  # unknown field, wrong wire type or multi-byte key
         num = numbers[field]
         if np.any(num <= last[active]):
-            return None  # out of order or repeated
+            return False  # out of order or repeated
         last[active] = num
         present = np.flatnonzero(np.bincount(field, minlength=len(field_codecs)))
         for f in present.tolist():
@@ -332,24 +364,38 @@ def decode_batch(
             if c.kind == "double":
                 after = q + 8
                 if np.any(after > e):
-                    return None
+                    return False
                 vals[c.name][idx] = read_le(buf, q, "<u8")
             else:
                 got = _varints(buf, q, e)
                 if got is None:
-                    return None
+                    return False
                 v, after = got
                 if c.name in offs:
                     ln = v.astype(np.int64)
                     if np.any((v > np.uint64(1 << 62)) | (after + ln > e)):
-                        return None
+                        return False
                     offs[c.name][idx], lens[c.name][idx] = after, ln
                     after = after + ln
                 else:
                     vals[c.name][idx] = v
             pos[idx] = after
         active = active[pos[active] < end[active]]
+    return True
 
+
+def _assemble(
+    message: str,
+    n: int,
+    codecs: tuple[FieldCodec, ...],
+    buf: np.ndarray,
+    offs: dict[str, np.ndarray],
+    lens: dict[str, np.ndarray],
+    vals: dict[str, np.ndarray],
+    reserve: Callable[[str, np.dtype, int], np.ndarray] | None,
+) -> DecodedBatch | None:
+    """The batch from the walked offsets and values: packed fields gathered (into ``reserve`` when
+    given), strings decoded, scalars as lists; None if a packed length or a string is invalid."""
     arrays, scalars, counts = {}, {}, {}
     placed: list[str] = []
     for c in codecs:
