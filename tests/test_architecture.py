@@ -49,8 +49,6 @@ ALLOWED_FUNCTIONS = {
     "cli/workbench.py:workbench_cmd": BEING_REWORKED,
     # not yet broken into named steps (#9, in progress on this branch)
     "cli/record.py:simulate": TODO,
-    "flows/demo.py:run_demo": TODO,
-    "flows/demo.py:demo_blueprint": TODO,
     "flows/stages.py:run_fit": TODO,
     "present/rrd/layout.py:build_blueprint": TODO,
     "store/reader.py:read_session": TODO,

@@ -151,6 +151,22 @@ def run_demo(
     out.mkdir(parents=True, exist_ok=True)
     res = DemoResult(out_dir=out, rrd=rrd)
     t0 = time.perf_counter()
+    _record_stage(res, out, quick, con, t0)
+    _seed_stage(res, out, con)
+    first = _robot_stage(res, con)
+    _workbench_stage(res, first, con)
+
+    if rrd is not None:
+        t4 = time.perf_counter()
+        write_rrd(res, rrd, first_tab)
+        res.seconds["rrd"] = time.perf_counter() - t4
+        con.print(f"wrote {rrd} (open it with: accellog view {rrd})")
+    con.print(f"sessions and calibrations in {out}/ ; total {time.perf_counter() - t0:.1f} s")
+    return res
+
+
+def _record_stage(res: DemoResult, out: Path, quick: bool, con: Console, t0: float) -> None:
+    """1. the demo's sessions from the emulated MPU-9250 (res.sessions)."""
     con.rule("[bold]1. record sessions from the emulated MPU-9250 (simulated clock)")
     paths = _sessions(out, quick)
     S = res.sessions = {k: read_session(p) for k, p in paths.items()}
@@ -160,6 +176,10 @@ def run_demo(
             f"  {paths[k].name}: {s.n} samples, {s.t_s[-1]:.0f} s, {len(s.poses)} holds, {s.lost_samples()} lost"
         )
 
+
+def _seed_stage(res: DemoResult, out: Path, con: Console) -> None:
+    """2. the seed's procedure: Models 1-3 (res.fits), static test (res.evals), drift model (res.drift)."""
+    S = res.sessions
     con.rule("[bold]2. the seed's procedure: Models 1-3, static test, drift model")
     t1 = time.perf_counter()
     cal_obs = observations(S["calibration"])
@@ -191,16 +211,25 @@ def run_demo(
     print_tables([tbl, qtbl], con)
     res.seconds["seed procedure"] = time.perf_counter() - t1
 
+
+def _robot_stage(res: DemoResult, con: Console) -> list:
+    """3. the moving robot with Model 3: its strapdown tracks with ZUPT (returned)."""
     con.rule("[bold]3. a moving robot at 38 °C: strapdown tracks with ZUPT vs the true path")
     t3 = time.perf_counter()
-    robot = S["robot"]
+    robot = res.sessions["robot"]
     first = run_session_tracks(robot, {"Model 3": res.fits["model3"].cal}, use_zupt=True)
     print_tables([_robot_table(first, robot, "raw gyro bias from the first second at rest")], con)
     con.print(
         "  Model 3 was fitted at 25 °C; at 38 °C it does worse than no calibration. What is it missing?"
     )
     res.seconds["robot"] = time.perf_counter() - t3
+    return first
 
+
+def _workbench_stage(res: DemoResult, first: list, con: Console) -> None:
+    """4. the workbench on the warm-up session (res.diagnoses, res.ladder) and the robot again (res.tracks)."""
+    S = res.sessions
+    robot = S["robot"]
     con.rule("[bold]4. workbench: heating and cooling reveal what Model 3 is missing")
     t2 = time.perf_counter()
     obs = observations(S["warmup_24"])
@@ -224,14 +253,6 @@ def run_demo(
     res.tracks = first + run_session_tracks(robot, {rows[-1].model: rows[-1].fit.cal}, use_zupt=True)[1:]
     print_tables([_robot_table(res.tracks, robot, "and with the model the workbench found")], con)
     res.seconds["workbench"] = time.perf_counter() - t2
-
-    if rrd is not None:
-        t4 = time.perf_counter()
-        write_rrd(res, rrd, first_tab)
-        res.seconds["rrd"] = time.perf_counter() - t4
-        con.print(f"wrote {rrd} (open it with: accellog view {rrd})")
-    con.print(f"sessions and calibrations in {out}/ ; total {time.perf_counter() - t0:.1f} s")
-    return res
 
 
 def _robot_table(runs, robot, note: str) -> Table:
@@ -293,7 +314,24 @@ def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3)
     workbench steps logged at /docs/workbench/step_{i}, i = 1..n_diagnoses."""
     import rerun.blueprint as rrb
 
-    calibration = rrb.Horizontal(
+    return rrb.Blueprint(
+        rrb.Tabs(
+            _static_tab(test_labels),
+            _calibration_tab(),
+            _workbench_tab(n_diagnoses),
+            _robot_tab(),
+            active_tab=first,
+        ),
+        time_panel(),
+        collapse_panels=True,
+    )
+
+
+def _calibration_tab():
+    """The demo's tab: the calibration session: raw and calibrated accel, temperature, residuals per model."""
+    import rerun.blueprint as rrb
+
+    return rrb.Horizontal(
         rrb.Vertical(
             _whole_range_plot(
                 origin="/accel/raw",
@@ -315,7 +353,13 @@ def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3)
         column_shares=[3, 2],
         name="1 calibration session",
     )
-    static = rrb.Horizontal(
+
+
+def _static_tab(test_labels: list[str]):
+    """The demo's tab: the static test: integrated displacement per calibration (one plot each), 3D tracks, tables."""
+    import rerun.blueprint as rrb
+
+    return rrb.Horizontal(
         rrb.Grid(
             *[
                 _whole_range_plot(origin=f"/{TRACKS}/test/{slug_path(lab)}", name=f"{lab}: displacement (m)")
@@ -332,7 +376,13 @@ def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3)
         ),
         name="2 static test",
     )
-    workbench = rrb.Horizontal(
+
+
+def _workbench_tab(n_diagnoses: int):
+    """The demo's tab: the workbench: the ladder's bars and residuals, its table and each diagnosis."""
+    import rerun.blueprint as rrb
+
+    return rrb.Horizontal(
         rrb.Vertical(
             ladder_bars_view(list(LADDER_METRICS)),
             _whole_range_plot(
@@ -352,7 +402,13 @@ def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3)
         column_shares=[3, 2],
         name="3 workbench",
     )
-    robot = rrb.Horizontal(
+
+
+def _robot_tab():
+    """The demo's tab: the moving robot: tracks vs truth, position per calibration, errors and ZUPT stops."""
+    import rerun.blueprint as rrb
+
+    return rrb.Horizontal(
         rrb.Spatial3DView(origin=f"/{WORLD_TRACKS}/robot", name="robot tracks vs truth (m)"),
         rrb.Vertical(
             _whole_range_plot(origin=f"/{TRACKS}/robot", name="robot position per calibration (m)"),
@@ -364,9 +420,4 @@ def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3)
             rrb.TextDocumentView(origin=f"/{DOCS}/results/robot_tracks", name="position errors"),
         ),
         name="4 moving robot",
-    )
-    return rrb.Blueprint(
-        rrb.Tabs(static, calibration, workbench, robot, active_tab=first),
-        time_panel(),
-        collapse_panels=True,
     )
