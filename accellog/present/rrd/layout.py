@@ -34,6 +34,23 @@ def build_blueprint(entities: Mapping[str, str]):
     roles: dict[str, list[str]] = {}
     for ent, role in entities.items():
         roles.setdefault(role, []).append(ent)
+    tracks = roles.get("track", [])  # logged order (raw first in replays)
+    track_views = [rrb.TimeSeriesView(origin=f"/{e}", name=f"{e.split('/', 1)[1]} (m)") for e in tracks]
+    world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)") if "track3d" in roles else None
+    texts = [
+        rrb.TextDocumentView(origin=f"/{e}", name=e[len(DOCS) + 1 :]) for e in sorted(roles.get("doc", []))
+    ]
+    if "textlog" in roles:
+        texts.append(rrb.TextLogView(origin="/", name="events and poses"))
+    root = _arrange(_sample_views(roles), track_views, world, _chart_views(roles), texts)
+    return rrb.Blueprint(root, time_panel(), collapse_panels=True)
+
+
+def _sample_views(roles: Mapping[str, list[str]]) -> list:
+    """One time series per sample stream (logged order) with the pose windows and detected still
+    intervals, and temperature + lost samples."""
+    import rerun.blueprint as rrb
+
     has_poses = "poses" in roles
     samples = []
     for ent in [e for r, es in roles.items() if r.startswith("samples:") for e in es]:  # logged order
@@ -48,9 +65,13 @@ def build_blueprint(entities: Mapping[str, str]):
                 name="temperature (degC) + lost samples",
             )
         )
-    tracks = roles.get("track", [])  # logged order (raw first in replays)
-    track_views = [rrb.TimeSeriesView(origin=f"/{e}", name=f"{e.split('/', 1)[1]} (m)") for e in tracks]
-    world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)") if "track3d" in roles else None
+    return samples
+
+
+def _chart_views(roles: Mapping[str, list[str]]) -> list:
+    """Residual-vs-driver plots (one column per driver), residual bars per model, ladder bars and steps."""
+    import rerun.blueprint as rrb
+
     charts = []
     scatter: dict[str, list[str]] = {}  # residual-vs-driver plots: driver -> plot origins (logged order)
     for ent in roles.get("scatter2d", []):
@@ -72,41 +93,48 @@ def build_blueprint(entities: Mapping[str, str]):
         charts.append(ladder_bars_view(sorted({e.split("/")[1] for e in roles["ladder_bar"]})))
     if "ladder_step" in roles:
         charts.append(rrb.TimeSeriesView(origin=f"/{LADDER}/steps", name="ladder residuals (mg) vs driver"))
-    texts = [
-        rrb.TextDocumentView(origin=f"/{e}", name=e[len(DOCS) + 1 :]) for e in sorted(roles.get("doc", []))
-    ]
-    if "textlog" in roles:
-        texts.append(rrb.TextLogView(origin="/", name="events and poses"))
+    return charts
 
-    def group(views, kind=rrb.Vertical):
-        views = [v for v in views if v is not None]
-        if not views:
-            return None
-        return views[0] if len(views) == 1 else kind(*views)
+
+def _group(views, kind=None):
+    """The views that are not None: None, the one view, or kind(*views) (default rrb.Vertical)."""
+    import rerun.blueprint as rrb
+
+    views = [v for v in views if v is not None]
+    if not views:
+        return None
+    return views[0] if len(views) == 1 else (kind or rrb.Vertical)(*views)
+
+
+def _arrange(samples: list, track_views: list, world, charts: list, texts: list):
+    """The root container: tracks in the main area with two or more (replay / compare), else the
+    sample streams on the left and tracks, charts and documents on the right."""
+    import rerun.blueprint as rrb
 
     if len(track_views) >= 2:  # replay / compare: the tracks are the question
-        top = [rrb.Grid(*track_views, name="displacement per track"), group([world, group(texts, rrb.Tabs)])]
+        top = [
+            rrb.Grid(*track_views, name="displacement per track"),
+            _group([world, _group(texts, rrb.Tabs)]),
+        ]
         rows = [rrb.Horizontal(*[c for c in top if c is not None], column_shares=[3, 2])]
-        bottom = group([*samples, *charts], rrb.Tabs)
+        bottom = _group([*samples, *charts], rrb.Tabs)
         if bottom is not None:
             rows.append(bottom)
-        root = rows[0] if len(rows) == 1 else rrb.Vertical(*rows, row_shares=[3, 1])
-    else:
-        left = group(samples if len(samples) <= 3 else [rrb.Tabs(*samples[:-1]), samples[-1]])
-        right = group(
-            [
-                group([*track_views, world], rrb.Horizontal),
-                group(charts, rrb.Tabs),
-                group(texts, rrb.Tabs),
-            ]
-        )
-        cols = [c for c in (left, right) if c is not None]
-        root = (
-            rrb.Horizontal(*cols, column_shares=[3, 2])
-            if len(cols) == 2
-            else (cols[0] if cols else rrb.Vertical())
-        )
-    return rrb.Blueprint(root, time_panel(), collapse_panels=True)
+        return rows[0] if len(rows) == 1 else rrb.Vertical(*rows, row_shares=[3, 1])
+    left = _group(samples if len(samples) <= 3 else [rrb.Tabs(*samples[:-1]), samples[-1]])
+    right = _group(
+        [
+            _group([*track_views, world], rrb.Horizontal),
+            _group(charts, rrb.Tabs),
+            _group(texts, rrb.Tabs),
+        ]
+    )
+    cols = [c for c in (left, right) if c is not None]
+    return (
+        rrb.Horizontal(*cols, column_shares=[3, 2])
+        if len(cols) == 2
+        else (cols[0] if cols else rrb.Vertical())
+    )
 
 
 def live_blueprint():
