@@ -178,49 +178,26 @@ def simulate(
     Faults to rehearse a flaky setup (--fault KEY=VALUE or scenario keys): i2c_error_rate,
     fifo_glitch_rate, host_stall_s, host_stall_every_s, disconnect_at_s, disconnect_s; every lost
     sample is counted in the session's events."""
-    from accellog.flows.simulate import Scenario
+    from accellog.flows.simulate import scenario_from_options
     from accellog.flows.simulate import simulate as run_simulation
 
     if fleet is not None:
         _simulate_fleet(out, fleet, fleet_sessions, seed, jobs)
         return
 
-    sc = Scenario.from_toml(scenario) if scenario else Scenario()
-    for name, value in (
-        ("protocol", protocol),
-        ("hold_s", hold),
-        ("sample_rate_hz", rate),
-        ("seed", seed),
-        ("chip_seed", chip_seed),
-        ("errors", errors),
-        ("motion", motion),
-    ):
-        if value is not None:
-            setattr(sc, name, value)
-    for item in set_ or []:
-        key, sep, val = item.partition("=")
-        if not sep:
-            raise InputError(f"--set {item!r}: use FIELD=VALUE or FIELD=X,Y,Z")
-        try:
-            nums = [float(v) for v in val.split(",")]
-        except ValueError:
-            raise InputError(f"--set {item!r}: value is not a number") from None
-        sc.set[key.strip()] = nums if len(nums) > 1 else nums[0]
-    if temperature:
-        sc.temperature = parse_temperature_option(temperature)
-    for item in fault or []:
-        key, sep, val = item.partition("=")
-        try:
-            value = float(val)
-        except ValueError:
-            value = None
-        if not sep or value is None:
-            raise InputError(f"--fault {item!r}: use KEY=NUMBER, e.g. --fault i2c_error_rate=0.01")
-        from accellog.acquire.emulator.faults import FaultPlan
-
-        FaultPlan.from_mapping({key.strip(): value}, where="--fault")
-        setattr(sc, key.strip(), value)
-    sc.validate()
+    sc = scenario_from_options(
+        scenario,
+        protocol=protocol,
+        hold_s=hold,
+        sample_rate_hz=rate,
+        seed=seed,
+        chip_seed=chip_seed,
+        errors=errors,
+        motion=motion,
+        set_items=set_,
+        temperature=temperature,
+        faults=fault,
+    )
     summary = run_simulation(sc, out, force=force)
     console.print(
         f"wrote {out}: {summary.samples} samples, {summary.duration_s:.1f} s simulated, "
@@ -238,17 +215,3 @@ def _simulate_fleet(out: Path, n: int, sessions: int, seed: int | None, jobs: in
         f"wrote {len(res.sessions)} sessions of {n} devices to {out} (damaged: {res.damaged_serial}; "
         f"truth in {res.truth_file})"
     )
-
-
-def parse_temperature_option(text: str) -> dict:
-    """'constant:T' | 'warmup:T_start:T_end:tau_s' | 'ramp:T0:rate_degC_per_s' -> scenario dict."""
-    kind, *vals = text.split(":")
-    keys = {"constant": ["T"], "warmup": ["T_start", "T_end", "tau_s"], "ramp": ["T0", "rate_degC_per_s"]}
-    if kind not in keys or len(vals) != len(keys[kind]):
-        raise InputError(
-            f"--temperature {text!r}: use constant:T, warmup:T_start:T_end:tau_s or ramp:T0:rate"
-        )
-    try:
-        return {"kind": kind, **{k: float(v) for k, v in zip(keys[kind], vals, strict=True)}}
-    except ValueError:
-        raise InputError(f"--temperature {text!r}: values must be numbers") from None

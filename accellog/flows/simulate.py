@@ -53,7 +53,7 @@ from accellog.acquire.device import configure_device
 from accellog.acquire.emulator import robot
 from accellog.acquire.emulator.chip import EmulatedMpu9250
 from accellog.acquire.emulator.clock import SimClock
-from accellog.acquire.emulator.faults import FaultyBus, stalling_sleep
+from accellog.acquire.emulator.faults import FaultPlan, FaultyBus, stalling_sleep
 from accellog.acquire.emulator.poses import PoseSequenceMotion
 from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
 from accellog.acquire.emulator.temperature import TemperaturePath
@@ -349,3 +349,57 @@ def simulate(
     ao.commit()
     rec.summary.duration_s = rec.t_s
     return rec.summary
+
+
+def scenario_from_options(
+    path: Path | None,
+    *,
+    set_items: list[str] | None = None,
+    temperature: str | None = None,
+    faults: list[str] | None = None,
+    **fields: Any,
+) -> Scenario:
+    """The scenario of `accellog simulate`: the TOML file (or the defaults), then the options given
+    (fields: Scenario fields, None = not given), --set FIELD=X[,Y,Z] error overrides, --temperature
+    and --fault KEY=NUMBER; validated (InputError naming the option)."""
+    sc = Scenario.from_toml(path) if path else Scenario()
+    for name, value in fields.items():
+        if value is not None:
+            setattr(sc, name, value)
+    for item in set_items or []:
+        key, sep, val = item.partition("=")
+        if not sep:
+            raise InputError(f"--set {item!r}: use FIELD=VALUE or FIELD=X,Y,Z")
+        try:
+            nums = [float(v) for v in val.split(",")]
+        except ValueError:
+            raise InputError(f"--set {item!r}: value is not a number") from None
+        sc.set[key.strip()] = nums if len(nums) > 1 else nums[0]
+    if temperature:
+        sc.temperature = parse_temperature_option(temperature)
+    for item in faults or []:
+        key, sep, val = item.partition("=")
+        try:
+            value = float(val)
+        except ValueError:
+            value = None
+        if not sep or value is None:
+            raise InputError(f"--fault {item!r}: use KEY=NUMBER, e.g. --fault i2c_error_rate=0.01")
+        FaultPlan.from_mapping({key.strip(): value}, where="--fault")
+        setattr(sc, key.strip(), value)
+    sc.validate()
+    return sc
+
+
+def parse_temperature_option(text: str) -> dict:
+    """'constant:T' | 'warmup:T_start:T_end:tau_s' | 'ramp:T0:rate_degC_per_s' -> scenario dict."""
+    kind, *vals = text.split(":")
+    keys = {"constant": ["T"], "warmup": ["T_start", "T_end", "tau_s"], "ramp": ["T0", "rate_degC_per_s"]}
+    if kind not in keys or len(vals) != len(keys[kind]):
+        raise InputError(
+            f"--temperature {text!r}: use constant:T, warmup:T_start:T_end:tau_s or ramp:T0:rate"
+        )
+    try:
+        return {"kind": kind, **{k: float(v) for k, v in zip(keys[kind], vals, strict=True)}}
+    except ValueError:
+        raise InputError(f"--temperature {text!r}: values must be numbers") from None
