@@ -2,6 +2,7 @@
 
 - `load_input(path)`        .mcap / capstone or imucal CSV / generic CSV -> Session; pose tables
                             (capstone six_position_data) and observation JSON -> ObsTable
+                            (accellog.flows.inputs)
 - `run_fit(...)`            -> FitOutcome (ObsTable, FitResult, Calibration)
 - `run_evaluate(...)`       -> list[Evaluation] (raw reading first when include_raw)
 - `run_drift(...)`          -> DriftOutcome (calibration + drift model, before/after on the fit session)
@@ -22,32 +23,29 @@ from typing import Any
 import numpy as np
 
 from accellog.calibrate.cal_sections import DetectedInterval, DeviceInfo, SensorInfo, SourceFile
-from accellog.calibrate.calibration import Calibration, load_calibration, read_json, source_entry
+from accellog.calibrate.calibration import Calibration, load_calibration, source_entry
 from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.fit import fit_model, fit_orientation_free
 from accellog.calibrate.gyro import GyroCalibration, calibrate_gyro
-from accellog.calibrate.label_check import check_timestamps, relabel_holds
+from accellog.calibrate.label_check import relabel_holds
 from accellog.calibrate.magnetometer import MagCalibration
 from accellog.calibrate.model import build_model
-from accellog.calibrate.obs_file import OBS_FORMAT, obs_from_dict
-from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations
+from accellog.calibrate.segment import check_coverage, observations
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.jsonio import JsonResult, dumps
 from accellog.core.notices import note
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.flows.inputs import load_input
 from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
 from accellog.navigate.drift import drift_from_session
 from accellog.navigate.evaluate import Evaluation, evaluate
 from accellog.present import views
 from accellog.present.rrd.recording import RunRecording
-from accellog.store import importers
 from accellog.store.atomic import AtomicOutput
-from accellog.store.importers.ros2 import import_ros2, is_ros2_bag
 from accellog.store.layout import NS_PER_S
 from accellog.store.reader import read_session
-from accellog.store.recovery import announce
 from accellog.store.writer import SessionWriter
 
 GRAVITY_CONVENTIONS = ("seed", "local")
@@ -56,61 +54,7 @@ g_local / g0 in standard g (the physical convention)."""
 
 
 # ------------------------------------------------------------------------------------------ inputs
-
-
-def load_input(
-    path: str | os.PathLike, *, n_per_pose: int | None = None, check_times: bool = True
-) -> Session | ObsTable:
-    """Read any supported input: a Session (accellog MCAP, a ROS 2 bag, CSV), or an ObsTable for pose
-    tables / observation files. A degenerate session (< 2 samples, zero duration, duplicated or
-    decreasing times) is refused unless check_times=False (tools that report such defects, e.g. doctor)."""
-    data = _read_input(path, n_per_pose=n_per_pose)
-    if check_times and isinstance(data, Session):
-        check_timestamps(data, where=str(path))
-    return data
-
-
-def _read_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Session | ObsTable:
-    p = Path(path)
-    if not p.exists():
-        raise InputError("no such file", where=str(p))
-    suffix = p.suffix.lower()
-    if is_ros2_bag(p):  # a ROS 2 bag's only sensor_msgs/Imu topic (import ros2 for the options)
-        return import_ros2(p)
-    if suffix == ".mcap":
-        session = read_session(p)
-        announce(session)  # a truncated file: say what was recovered (stderr)
-        return session
-    if suffix == ".json":
-        d = read_json(p)
-        if isinstance(d, dict) and d.get("format") == OBS_FORMAT:
-            return obs_from_dict(d, where=str(p))
-        raise InputError(
-            f"JSON input must be an observations file ('{OBS_FORMAT}', written by `accellog segment -o`)",
-            where=str(p),
-        )
-    if suffix in (".csv", ".txt"):
-        try:
-            with open(p, encoding="utf-8", errors="replace") as f:
-                first = f.readline().replace(" ", "").lower()
-        except OSError as exc:
-            raise InputError(f"cannot read: {exc.strerror}", where=str(p)) from None
-        if first.startswith("x_true"):
-            pt = importers.load_capstone_pose_table(p)
-            if n_per_pose is None:
-                n_per_pose = 5400  # 30 s at ~180 Hz: the capstone protocol (the table has no count)
-            return obs_from_pose_means(
-                pt.truth_g, pt.mean_g, pt.std_g, n_per_pose, names=pt.names, session=str(p)
-            )
-        if first.startswith("part,samples") or first.startswith("n_samples"):
-            return importers.import_imucal(p)
-        if "," not in first or first.startswith("acceleration") or not first[:1].isalpha():
-            return importers.import_capstone(p)
-        return importers.import_csv(p)
-    raise InputError(
-        f"unknown input type {suffix or '(no suffix)'!r}: give .mcap, .csv or observations .json",
-        where=str(p),
-    )
+# (reading them: accellog.flows.inputs.load_input, imported here for run_fit and the stages' callers)
 
 
 def _name(x: Session | StreamedSession | ObsTable) -> str:
@@ -213,16 +157,7 @@ def run_fit(
     hold labels that contradict the measured gravity direction (each change is a note on stderr).
     """
 
-    src = str(data) if isinstance(data, (str, os.PathLike)) else None
-    if src is not None and obs is None and not (relabel or orientation_free) and can_stream(src):
-        data = open_streamed(src, window_s=window_s, trim_s=trim_s)  # bounded memory
-        obs = None if data is None else data.obs
-    if src is not None and not isinstance(data, StreamedSession):
-        data = load_input(src, n_per_pose=n_per_pose)
-    if relabel and isinstance(data, Session):
-        data, changes = relabel_holds(data, trim_s=trim_s)
-        for c in changes:
-            note(f"{data.path or 'session'}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
+    data, src, obs = _fit_input(data, obs, relabel or orientation_free, relabel, window_s, trim_s, n_per_pose)
     m = build_model(model, add=list(add), effects_file=effects_file)
     if local_gravity_mps2 is None:
         local_gravity_mps2 = (
@@ -233,19 +168,52 @@ def run_fit(
     truth = _truth_g(gravity, float(local_gravity_mps2))
     detected = None  # static intervals found in an unlabelled session
     if obs is None:
-        if orientation_free and isinstance(data, Session) and not data.poses:
-            session = data
+        obs, detected = _fit_observations(data, m, truth, orientation_free, window_s, trim_s)
+    fit = _fit_obs(obs, m, data, orientation_free, weighted, truth, uncertainty)
+    cal = _calibration(fit, obs, data, src, gravity, float(local_gravity_mps2), detected)
+    if gyro and isinstance(data, Session):
+        # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
+        # and the rotations between them (imu_tk style), not skipped
+        cal.gyro = _gyro_calibration(with_labels(data, detected) if detected else data)
+    elif gyro and isinstance(data, StreamedSession):
+        cal.gyro = data.gyro_calibration()  # the holds and moves, streamed from the file again
+    return FitOutcome(obs=obs, fit=fit, cal=cal)
 
-            def cost(labels) -> float:
-                o = observations(
-                    with_labels(session, labels), window_s=window_s, trim_s=0.0, check_units=False
-                )
-                return fit_orientation_free(o, m, weighted=False, gravity_g=truth).rms_g
 
-            detected = detect_static(session, cost=cost)
-            obs = observations(with_labels(session, detected), window_s=window_s, trim_s=0.0)
-        else:
-            obs = make_obs(data, window_s=window_s, trim_s=trim_s)
+def _fit_input(data, obs, whole: bool, relabel: bool, window_s: float, trim_s: float, n_per_pose):
+    """(data, source path or None, obs): a file path opened streamed (bounded memory) unless the
+    whole session is needed (whole: relabelling, orientation-free) or obs are given, else loaded;
+    hold labels that contradict gravity replaced when relabel (a note each)."""
+    src = str(data) if isinstance(data, (str, os.PathLike)) else None
+    if src is not None and obs is None and not whole and can_stream(src):
+        data = open_streamed(src, window_s=window_s, trim_s=trim_s)  # bounded memory
+        obs = None if data is None else data.obs
+    if src is not None and not isinstance(data, StreamedSession):
+        data = load_input(src, n_per_pose=n_per_pose)
+    if relabel and isinstance(data, Session):
+        data, changes = relabel_holds(data, trim_s=trim_s)
+        for c in changes:
+            note(f"{data.path or 'session'}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
+    return data, src, obs
+
+
+def _fit_observations(data, m, truth: float, orientation_free: bool, window_s: float, trim_s: float):
+    """(obs, detected static intervals or None): windowed observations of the holds, or of the static
+    intervals detect_static finds in an unlabelled session for an orientation-free fit."""
+    if not (orientation_free and isinstance(data, Session) and not data.poses):
+        return make_obs(data, window_s=window_s, trim_s=trim_s), None
+    session = data
+
+    def cost(labels) -> float:
+        o = observations(with_labels(session, labels), window_s=window_s, trim_s=0.0, check_units=False)
+        return fit_orientation_free(o, m, weighted=False, gravity_g=truth).rms_g
+
+    detected = detect_static(session, cost=cost)
+    return observations(with_labels(session, detected), window_s=window_s, trim_s=0.0), detected
+
+
+def _fit_obs(obs, m, data, orientation_free: bool, weighted: bool, truth: float, uncertainty: str):
+    """The fit (orientation-free, or labelled after the pose coverage check), with the uncertainty asked."""
     if orientation_free:
         fit = fit_orientation_free(obs, m, weighted=weighted, gravity_g=truth)
     else:
@@ -257,6 +225,11 @@ def run_fit(
         from accellog.calibrate.variance import with_uncertainty
 
         fit = with_uncertainty(fit, obs, uncertainty)
+    return fit
+
+
+def _calibration(fit, obs, data, src, gravity: str, local_gravity_mps2: float, detected) -> Calibration:
+    """The calibration of a fit: sensor, source, device and the detected intervals it used."""
     sensor, kind = SensorInfo.empty(), ""
     if isinstance(data, (Session, StreamedSession)):
         sensor, kind = SensorInfo.from_meta(data.meta), data.meta.source
@@ -264,7 +237,7 @@ def run_fit(
         fit,
         obs=obs,
         gravity_convention=gravity,
-        local_gravity_mps2=float(local_gravity_mps2),
+        local_gravity_mps2=local_gravity_mps2,
         sources=[_source(data, src, kind)],
         sensor=sensor,
     )
@@ -282,13 +255,7 @@ def run_fit(
             for p in detected
         )
         cal.fit = dataclasses.replace(cal.fit, detected_intervals=intervals)
-    if gyro and isinstance(data, Session):
-        # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
-        # and the rotations between them (imu_tk style), not skipped
-        cal.gyro = _gyro_calibration(with_labels(data, detected) if detected else data)
-    elif gyro and isinstance(data, StreamedSession):
-        cal.gyro = data.gyro_calibration()  # the holds and moves, streamed from the file again
-    return FitOutcome(obs=obs, fit=fit, cal=cal)
+    return cal
 
 
 def _gyro_calibration(session: Session) -> GyroCalibration | None:
