@@ -12,6 +12,7 @@ import warnings
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 from mcap.exceptions import McapError
@@ -87,19 +88,7 @@ def read_session(path: str | Path) -> Session:
     where = str(path)
     col = _collect(path)
     if col.topics.get(TOPIC_IMU) != full_name("ImuBatch"):
-        found = ", ".join(f"{t} ({s})" for t, s in sorted(col.topics.items())) or "none"
-        if col.damaged:
-            raise InputError(
-                "nothing readable: " + "; ".join(d.describe() for d in col.damaged[:3]), where=where
-            )
-        if col.recovered is not None and not col.topics:
-            if col.recovered.startswith("damaged"):
-                raise InputError(f"no complete chunk with IMU data to recover: {col.recovered}", where=where)
-            raise InputError("truncated MCAP file: no complete chunk with IMU data to recover", where=where)
-        raise InputError(
-            f"not an accellog session: no {TOPIC_IMU} channel of {full_name('ImuBatch')} (channels: {found})",
-            where=where,
-        )
+        _refuse_without_imu(col, where)
     meta = metadata_to_meta(col.metadata, where) if col.metadata else SessionMeta(source="unknown")
     dec = col.decoders.get(TOPIC_IMU)
     if dec is None or dec.n_messages == 0:
@@ -111,9 +100,39 @@ def read_session(path: str | Path) -> Session:
     n = int(n_per.sum())
     if n == 0:
         raise InputError("session has no IMU samples", where=where)
-    t_ns = arrays["t_ns"]
+    sample_index, in_order = _sample_index(
+        np.asarray(scalars["first_sample_index"], dtype=np.int64), n_per, n
+    )
+    host = np.asarray(scalars["host_time_ns"], dtype=np.int64)
+    cols = _sample_arrays(arrays, n, meta, where)
+    cols["host_time_s"] = np.repeat(host / NS_PER_S, n_per) if np.any(host != 0) else None
+    if not in_order:  # batches out of order: sort samples once
+        order = np.argsort(sample_index, kind="stable")
+        sample_index = sample_index[order]
+        cols = {k: None if a is None else a[order] for k, a in cols.items()}
+    session = Session(meta=meta, sample_index=sample_index, path=str(path), **cols)
+    _read_other_topics(session, col, where)
+    return session
+
+
+def _refuse_without_imu(col: Collected, where: str) -> NoReturn:
+    """InputError for a file without a readable accellog IMU channel: damaged, truncated or another kind."""
+    found = ", ".join(f"{t} ({s})" for t, s in sorted(col.topics.items())) or "none"
+    if col.damaged:
+        raise InputError("nothing readable: " + "; ".join(d.describe() for d in col.damaged[:3]), where=where)
+    if col.recovered is not None and not col.topics:
+        if col.recovered.startswith("damaged"):
+            raise InputError(f"no complete chunk with IMU data to recover: {col.recovered}", where=where)
+        raise InputError("truncated MCAP file: no complete chunk with IMU data to recover", where=where)
+    raise InputError(
+        f"not an accellog session: no {TOPIC_IMU} channel of {full_name('ImuBatch')} (channels: {found})",
+        where=where,
+    )
+
+
+def _sample_index(first: np.ndarray, n_per: np.ndarray, n: int) -> tuple[np.ndarray, bool]:
+    """(sample index of every sample, whether the batches are in order) from each batch's first index."""
     starts = np.cumsum(n_per) - n_per
-    first = np.asarray(scalars["first_sample_index"], dtype=np.int64)
     offset = first - starts  # sample_index[i] = offset[k] + i for the samples i of message k
     if np.all(offset == offset[0]):  # no gap anywhere: one arange
         sample_index = np.arange(offset[0], offset[0] + n, dtype=np.int64)
@@ -121,9 +140,13 @@ def read_session(path: str | Path) -> Session:
         sample_index = np.repeat(offset, n_per) + np.arange(n, dtype=np.int64)
     full = n_per > 0  # samples out of order <=> a message starts below the previous one's last index
     in_order = not np.any(first[full][1:] < (first + n_per - 1)[full][:-1])
-    host = np.asarray(scalars["host_time_ns"], dtype=np.int64)
-    host_time_s = np.repeat(host / NS_PER_S, n_per) if np.any(host != 0) else None
+    return sample_index, bool(in_order)
 
+
+def _sample_arrays(arrays: dict, n: int, meta: SessionMeta, where: str) -> dict:
+    """The Session's sample columns (t_s, accel, gyro, temperature; counts and physical units), the
+    missing physical ones converted from counts in two halves on two threads."""
+    t_ns = arrays["t_ns"]
     lsb_a = lsb_g = temp_c = None  # conversions to do from counts (filled in halves on 2 threads)
     accel_counts = _reshape(arrays["accel_counts"], n, 3, "accel_counts", where)
     accel_g = _reshape(arrays["accel_g"], n, 3, "accel_g", where)
@@ -159,28 +182,20 @@ def read_session(path: str | Path) -> Session:
             np.add(out, TEMP_OFFSET_DEGC, out=out)
 
     _split_run(convert, n)
+    return {
+        "t_s": t_s,
+        "accel_g": accel_g,
+        "accel_counts": accel_counts,
+        "gyro_dps": gyro_dps,
+        "gyro_counts": gyro_counts,
+        "temp_degC": temp_degC,
+        "temp_counts": temp_counts,
+    }
 
-    if not in_order:  # batches out of order: sort samples once
-        order = np.argsort(sample_index, kind="stable")
-        sample_index, t_s = sample_index[order], t_s[order]
-        fix = [accel_g, accel_counts, gyro_dps, gyro_counts, temp_degC, temp_counts, host_time_s]
-        accel_g, accel_counts, gyro_dps, gyro_counts, temp_degC, temp_counts, host_time_s = (
-            None if a is None else a[order] for a in fix
-        )
 
-    session = Session(
-        meta=meta,
-        t_s=t_s,
-        sample_index=sample_index,
-        accel_g=accel_g,
-        accel_counts=accel_counts,
-        gyro_dps=gyro_dps,
-        gyro_counts=gyro_counts,
-        temp_degC=temp_degC,
-        temp_counts=temp_counts,
-        host_time_s=host_time_s,
-        path=str(path),
-    )
+def _read_other_topics(session: Session, col: Collected, where: str) -> None:
+    """Magnetometer, poses, events and truth into the session; the recovered and damaged parts as events
+    (each damaged chunk also a DataIntegrityWarning)."""
     _read_mag(session, col.decoders.get(TOPIC_MAG), where)
     session.poses = _read_poses(col.decoders.get(TOPIC_POSES))
     session.events = _read_events(col.decoders.get(TOPIC_EVENTS))
@@ -190,8 +205,7 @@ def read_session(path: str | Path) -> Session:
     for d in col.damaged:
         ev = _damage_event(session, d)
         session.events.append(ev)
-        warnings.warn(f"{where}: {ev.detail}", DataIntegrityWarning, stacklevel=2)
-    return session
+        warnings.warn(f"{where}: {ev.detail}", DataIntegrityWarning, stacklevel=3)  # read_session's caller
 
 
 def _damage_event(session: Session, d: Damage) -> Event:
