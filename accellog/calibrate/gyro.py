@@ -14,8 +14,8 @@ fitted per axis by least squares; sigma = sqrt(s^2 (A^T A)^-1) with s^2 the resi
 the window means (so hold-to-hold scatter, e.g. from bias instability, widens the uncertainty).
 
 Scale/misalignment: for consecutive holds a, b, integrate the corrected rate from the middle of a
-to the middle of b (accellog.calibrate.gyro_rotation, as accellog.navigate.strapdown) and compare what gravity can check: the up vector of a,
-carried through dq_int, must land on the up vector of b (residual dq_int^-1 up_a - up_b, deg;
+to the middle of b (accellog.calibrate.gyro_rotation, as accellog.navigate.strapdown) and compare
+what gravity can check: the up vector of a, carried through dq_int, must land on the up vector of b (residual dq_int^-1 up_a - up_b, deg;
 yaw about the vertical is free, so a hand-held operator's turns do no harm). With
 reference='orientation' (known headings: a fixture, a vehicle) the whole nominal change
 dq_nom = q_a^-1 q_b is compared instead: residual = rotation vector of dq_nom^-1 dq_int (deg). M is found by nonlinear least squares (scipy); parameters the rotations do
