@@ -41,6 +41,7 @@ ALLOWED_MODULES = {
     "acquire/driver.py": "one register-level device (probe, configure, FIFO, magnetometer bypass, error "
     "recovery) kept whole so the register protocol reads in one place beside registers.py",
     "acquire/emulator/chip.py": "the emulated chip: the same register protocol as driver.py, kept whole",
+    "store/fastread.py": BEING_REWORKED,
 }
 ALLOWED_FUNCTIONS = {
     "store/fastread.py:_fast_walk": BEING_REWORKED,
