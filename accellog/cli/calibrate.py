@@ -208,7 +208,7 @@ def drift(
     from accellog.store.atomic import check_outputs
 
     check_outputs([output, rrd], [static, cal], mkdir=True)
-    data = load_input(static)
+    data = load_input(static) if rrd is not None else static  # an MCAP file streams (no series to draw)
     out = run_drift(data, cal, until_s=until_s, max_samples=max_samples)
     if _save_outcome(out, data, output, rrd, json_out, inputs=(static, cal)):
         return

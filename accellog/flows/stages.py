@@ -39,6 +39,7 @@ from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.flows.inputs import load_input
 from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
+from accellog.flows.streamed_drift import streamed_drift
 from accellog.navigate.drift import drift_from_session
 from accellog.navigate.evaluate import Evaluation, evaluate
 from accellog.present import views
@@ -348,10 +349,14 @@ def run_drift(
     *,
     until_s: float | None = None,
     max_samples: int | None = None,
+    stream: bool = True,
 ) -> DriftOutcome:
-    """Fit the displacement-drift model on a calibrated static session."""
-    s = as_session(static, "drift")
+    """Fit the displacement-drift model on a calibrated static session (an MCAP file: chunk by chunk)."""
     c = _cal(cal)
+    got = streamed_drift(static, c, until_s=until_s, max_samples=max_samples) if stream else None
+    if got is not None:
+        return DriftOutcome(cal=got[0], drift=got[1], fit_eval=got[2])
+    s = as_session(static, "drift")
     cal_d, dm = drift_from_session(s, c, until_s=until_s, max_samples=max_samples)
     ev = evaluate(s, cal_d, until_s=until_s, max_samples=max_samples)
     entry = _source(s, None, "drift")

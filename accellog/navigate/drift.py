@@ -37,17 +37,130 @@ def _design(t: np.ndarray) -> np.ndarray:
     return np.c_[np.ones_like(t), t, 0.5 * t**2]
 
 
-def _noise_cov_q(t: np.ndarray, accel_noise_var: np.ndarray, n_grid: int = 400) -> np.ndarray:
-    """(3,3,3) covariance of the OLS q per axis under white acceleration noise (see module doc)."""
-    idx = np.unique(np.linspace(0, t.size - 1, min(n_grid, t.size)).astype(int))
-    tg = t[idx] - t[0]
-    A = _design(t[idx])
+def grid_index(n: int, n_grid: int = 400) -> np.ndarray:
+    """Indices of the <= n_grid samples (of n) the covariance is evaluated on."""
+    return np.unique(np.linspace(0, n - 1, min(n_grid, n)).astype(int))
+
+
+def _noise_cov_q(t: np.ndarray, accel_noise_var: np.ndarray, n_grid: int | None = 400) -> np.ndarray:
+    """(3,3,3) covariance of the OLS q per axis under white acceleration noise (see module doc);
+    n_grid None: t is already the grid (the sample times at grid_index)."""
+    tg_abs = t if n_grid is None else t[grid_index(t.size, n_grid)]
+    tg = tg_abs - tg_abs[0]
+    A = _design(tg_abs)
     m = np.minimum.outer(tg, tg)
     M = np.maximum.outer(tg, tg)
     K = m**2 * M / 2.0 - m**3 / 6.0  # s^3: Cov of a double integral of unit white noise density
     P = np.linalg.pinv(A)  # (3, g): OLS operator on the grid
     base = P @ K @ P.T
     return accel_noise_var[:, None, None] * base[None, :, :]
+
+
+class DriftSums:
+    """Normal equations of d(t) = q0 + q1 t + 1/2 q2 t^2 (per axis) fed block by block.
+
+    With u = t - t0 (t0: the first sample) the sums S_k = sum u^k (k = 0..4) and B_k = sum u^k d
+    (k = 0..2) accumulate; at the end the time is scaled, s = u / T (T = t_last - t0), so the 3x3
+    Gram matrix S_{j+k} / T^{j+k} is well conditioned, c solves it on the basis (1, s, s^2), and c is
+    mapped back to (q0, q1, q2) on the absolute t."""
+
+    def __init__(self) -> None:
+        self.t0: float | None = None
+        self.t_last = np.nan
+        self.s = np.zeros(5)
+        self.b = np.zeros((3, 3))
+
+    @staticmethod
+    def design(t: np.ndarray) -> np.ndarray:
+        """(n,3) columns 1, t, t^2/2 (the model's design on absolute t)."""
+        return _design(np.asarray(t, float))
+
+    def add(self, t: np.ndarray, d: np.ndarray) -> None:
+        if t.shape[0] == 0:
+            return
+        if self.t0 is None:
+            self.t0 = float(t[0])
+        pw = (t - self.t0)[:, None] ** np.arange(5)
+        self.s += pw.sum(axis=0)
+        self.b += pw[:, :3].T @ d
+        self.t_last = float(t[-1])
+
+    def solve(self) -> np.ndarray:
+        """(3 params q0 m, q1 m/s, q2 m/s^2; 3 axes), as np.linalg.lstsq(design(t), d) to ~1e-8
+        relative on the smallest coefficient (DriftRefine takes it to lstsq's accuracy)."""
+        T = self.t_last - self.t0
+        k = np.arange(3)
+        G = self.s[k[:, None] + k[None, :]] / T ** (k[:, None] + k[None, :])
+        return _to_q(np.linalg.solve(G, self.b / T ** k[:, None]), self.t0, T)
+
+
+def _to_q(c: np.ndarray, t0: float, h: float) -> np.ndarray:
+    """c0 + c1 s + c2 s^2 with s = (t - t0) / h as (q0, q1, q2) of q0 + q1 t + 1/2 q2 t^2."""
+    a1, a2 = c[1] / h, c[2] / h**2  # c0 + a1 u + a2 u^2, u = t - t0
+    return np.array([c[0] - a1 * t0 + a2 * t0 * t0, a1 - 2.0 * a2 * t0, 2.0 * a2])
+
+
+class DriftRefine:
+    """Second pass of the fit: one step of iterative refinement, and the residual RMS.
+
+    The residual e = d - A q of DriftSums' q is fitted again on the centred, scaled basis
+    (1, s, s^2), s = (t - c) / h (c, h: mid-point and half-span of the fitted times; Gram condition
+    ~20 instead of ~500 on [0, 1]), so q + delta has the accuracy of a QR least squares; the RMS of
+    e - A delta follows from sum e^2, A'e and the Gram matrix (delta is tiny: no cancellation)."""
+
+    def __init__(self, q: np.ndarray, t_first: float, t_last: float) -> None:
+        self.q = np.asarray(q, float)
+        self.c, self.h = 0.5 * (t_first + t_last), max(0.5 * (t_last - t_first), 1e-300)
+        self.n = 0
+        self.s = np.zeros(5)
+        self.b = np.zeros((3, 3))
+        self.ee = np.zeros(3)
+
+    def add(self, t: np.ndarray, d: np.ndarray) -> None:
+        e = d - _design(t) @ self.q
+        pw = ((t - self.c) / self.h)[:, None] ** np.arange(5)
+        self.s += pw.sum(axis=0)
+        self.b += pw[:, :3].T @ e
+        self.ee += (e * e).sum(axis=0)
+        self.n += t.shape[0]
+
+    def solve(self) -> tuple[np.ndarray, np.ndarray]:
+        """(q + delta (3 params, 3 axes), rms of the final residual per axis (3,) m)."""
+        k = np.arange(3)
+        G = self.s[k[:, None] + k[None, :]]
+        delta = np.linalg.solve(G, self.b)
+        sq = self.ee - 2.0 * np.sum(delta * self.b, axis=0) + np.einsum("ia,ij,ja->a", delta, G, delta)
+        return self.q + _to_q(delta, self.c, self.h), np.sqrt(np.maximum(sq, 0.0) / self.n)
+
+
+class IntervalCount:
+    """Every distinct sample interval dt = t_{i+1} - t_i (float, s) with its count, fed block by block;
+    median() equals np.median(np.diff(t)) exactly (the same multiset)."""
+
+    def __init__(self) -> None:
+        self.last: float | None = None
+        self.values = np.zeros(0)
+        self.counts = np.zeros(0, dtype=np.int64)
+
+    def add(self, t: np.ndarray) -> None:
+        if t.shape[0] == 0:
+            return
+        dt = np.diff(t if self.last is None else np.concatenate([[self.last], t]))
+        self.last = float(t[-1])
+        v, c = np.unique(dt, return_counts=True)
+        allv, inv = np.unique(np.concatenate([self.values, v]), return_inverse=True)
+        self.counts = np.bincount(inv, np.concatenate([self.counts, c]), minlength=allv.size).astype(np.int64)
+        self.values = allv
+
+    def median(self) -> float:
+        """Median interval (s): the middle value, or the mean of the two middle ones."""
+        m = int(self.counts.sum())
+        if m == 0:
+            return float("nan")
+        cum = np.cumsum(self.counts)
+        lo = self.values[np.searchsorted(cum, (m - 1) // 2, side="right")]
+        hi = self.values[np.searchsorted(cum, m // 2, side="right")]
+        return float(np.mean([lo, hi]))
 
 
 def fit_drift(
@@ -70,9 +183,11 @@ def fit_drift(
         raise InputError(f"drift fit needs >= 10 samples of (n,3) displacement, got t {t.shape}, d {d.shape}")
     if not (np.isfinite(t).all() and np.isfinite(d).all()):
         raise InputError("drift fit: displacement or time contains NaN")
-    A = _design(t)
-    coef, *_ = np.linalg.lstsq(A, d, rcond=None)  # (3 params, 3 axes)
-    resid = d - A @ coef
+    sums = DriftSums()  # the sums stream_drift feeds block by block (two passes), here in one block
+    sums.add(t, d)
+    refine = DriftRefine(sums.solve(), float(t[0]), float(t[-1]))
+    refine.add(t, d)
+    coef, rms = refine.solve()  # (3 params, 3 axes), (3,) m
     if accel_resid_mps2 is not None:
         a = np.asarray(accel_resid_mps2, float)
         tau = np.asarray(integrated_autocorr_time(a))
@@ -87,7 +202,7 @@ def fit_drift(
         fit_duration_s=float(t[-1] - t[0]),
         up_sensor=up_sensor,
         source=source,
-        rms_residual_m=np.sqrt(np.mean(resid**2, axis=0)),
+        rms_residual_m=rms,
     )
 
 
