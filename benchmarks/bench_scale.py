@@ -17,11 +17,15 @@ process under GNU time (wall, peak RSS), one at a time:
     evaluate_stream the evaluate command now (navigate.stream_evaluate: one pass over the chunks)
     integrate_whole the integrate command before streaming (whole session, CSV of every sample)
     integrate_stream the integrate command now (rows written block by block)
+    drift_whole     the drift command before streaming: run_drift(load_input(P), CAL) (whole session)
+    drift_stream    the drift command now: run_drift(P, CAL) (navigate.stream_drift: three passes
+                    over the chunks, same calibration to 1e-9 relative)
 
 Prints the load average with each row (a loaded 2-core machine inflates every wall time).
 
     python benchmarks/bench_scale.py [--hours 0.0167 1 4] [--modes ...]
     python benchmarks/bench_scale.py --hours 1 4 --modes evaluate_whole evaluate_stream integrate_stream
+    python benchmarks/bench_scale.py --hours 1 4 --modes drift_whole drift_stream
 """
 
 from __future__ import annotations
@@ -69,8 +73,17 @@ MODES = {
         "from accellog.flows.static_stages import run_integrate as r; r(P, CAL, output=OUT, stream=False)"
     ),
     "integrate_stream": "from accellog.flows.static_stages import run_integrate as r; r(P, CAL, output=OUT)",
+    "drift_whole": "from accellog.flows.stages import load_input, run_drift as r; r(load_input(P), CAL)",
+    "drift_stream": "from accellog.flows.stages import run_drift as r; r(P, CAL)",
 }
-STATIC_MODES = ("evaluate_whole", "evaluate_stream", "integrate_whole", "integrate_stream")
+STATIC_MODES = (
+    "evaluate_whole",
+    "evaluate_stream",
+    "integrate_whole",
+    "integrate_stream",
+    "drift_whole",
+    "drift_stream",
+)
 """Modes run on a static one-hold session (synth_static.py) with a model3 calibration CAL."""
 
 
