@@ -80,9 +80,9 @@ class DriftSums:
             return
         if self.t0 is None:
             self.t0 = float(t[0])
-        pw = (t - self.t0)[:, None] ** np.arange(5)
-        self.s += pw.sum(axis=0)
-        self.b += pw[:, :3].T @ d
+        s, b = _moments(t - self.t0, d)
+        self.s += s
+        self.b += b
         self.t_last = float(t[-1])
 
     def solve(self) -> np.ndarray:
@@ -92,6 +92,13 @@ class DriftSums:
         k = np.arange(3)
         G = self.s[k[:, None] + k[None, :]] / T ** (k[:, None] + k[None, :])
         return _to_q(np.linalg.solve(G, self.b / T ** k[:, None]), self.t0, T)
+
+
+def _moments(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sum x^k for k = 0..4, (3, m) sum x^k y for k = 0..2) by products (a float power is 10x slower)."""
+    x2 = x * x
+    s = np.array([x.size, x.sum(), x2.sum(), (x2 * x).sum(), (x2 * x2).sum()], float)
+    return s, np.stack([y.sum(axis=0), x @ y, x2 @ y])
 
 
 def _to_q(c: np.ndarray, t0: float, h: float) -> np.ndarray:
@@ -118,9 +125,9 @@ class DriftRefine:
 
     def add(self, t: np.ndarray, d: np.ndarray) -> None:
         e = d - _design(t) @ self.q
-        pw = ((t - self.c) / self.h)[:, None] ** np.arange(5)
-        self.s += pw.sum(axis=0)
-        self.b += pw[:, :3].T @ e
+        s, b = _moments((t - self.c) / self.h, e)
+        self.s += s
+        self.b += b
         self.ee += (e * e).sum(axis=0)
         self.n += t.shape[0]
 
