@@ -65,7 +65,7 @@ def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
             finally:
                 walk.close()  # release its views of the mapped file before the map closes
         return
-    except fastread._Refuse as exc:
+    except fastread.Refuse as exc:
         raise InputError(str(exc), where=where) from None
     except InputError:
         raise
