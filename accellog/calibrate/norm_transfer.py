@@ -21,7 +21,7 @@ import numpy as np
 
 from accellog.calibrate.fit import FitResult, obs_drivers
 from accellog.calibrate.model import Model
-from accellog.calibrate.transfer import Score
+from accellog.calibrate.transfer import Score, added_columns_correlation
 from accellog.core.session import ObsTable
 
 
@@ -79,13 +79,6 @@ def _norm_jacobian(res: FitResult, obs: ObsTable) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def _orth(A: np.ndarray) -> np.ndarray:
-    if A.shape[1] == 0:
-        return A
-    U, s, _ = np.linalg.svd(A, full_matrices=False)
-    return U[:, s > 1e-10 * max(s[0], 1e-300)]
-
-
 def norm_canonical_correlation(res_a: FitResult, res_b: FitResult, base: Model, obs: ObsTable) -> float:
     """Largest canonical correlation between the norm-residual columns two candidates add to
     `base` on `obs`, after projecting out the base model's columns (1: one replaces the other)."""
@@ -99,12 +92,4 @@ def norm_canonical_correlation(res_a: FitResult, res_b: FitResult, base: Model, 
 
     Ea, Ba = split(res_a)
     Eb, _ = split(res_b)
-    Qb = _orth(Ba)
-
-    def perp(E):
-        return E - Qb @ (Qb.T @ E) if Qb.size else E
-
-    Qa, Qe = _orth(perp(Ea)), _orth(perp(Eb))
-    if Qa.shape[1] == 0 or Qe.shape[1] == 0:
-        return 0.0
-    return float(np.clip(np.linalg.svd(Qa.T @ Qe, compute_uv=False)[0], 0.0, 1.0))
+    return added_columns_correlation(Ea, Eb, Ba)

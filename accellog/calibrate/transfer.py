@@ -188,7 +188,13 @@ def canonical_correlation(res_a: FitResult, res_b: FitResult, base: Model, obs: 
     projecting out the base model's columns (1 = one can replace the other on this data)."""
     Ea, Ba = _effect_columns(res_a, base, obs)
     Eb, _ = _effect_columns(res_b, base, obs)
-    Qb = _orth(Ba)
+    return added_columns_correlation(Ea, Eb, Ba)
+
+
+def added_columns_correlation(Ea: np.ndarray, Eb: np.ndarray, B: np.ndarray) -> float:
+    """Largest canonical correlation between the column spaces of Ea and Eb after projecting out
+    the columns of B: cos of the smallest principal angle, in [0, 1] (0 if either space is empty)."""
+    Qb = _orth(B)
 
     def perp(E):
         return E - Qb @ (Qb.T @ E) if Qb.size else E

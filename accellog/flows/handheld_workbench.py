@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import Session
-from accellog.flows.workbench import HELDOUT_OK
+from accellog.flows.workbench import HELDOUT_OK, evidence_parts
 
 if TYPE_CHECKING:
     from accellog.calibrate.choose import StepChoice
@@ -195,31 +195,7 @@ def _final_verdict(found: HandheldDiscovery) -> tuple[str, list[str]]:
     """One verdict from the last diagnosis, the held-out norm and the ties (as the labelled
     workbench's flows.workbench.final_verdict)."""
     d = found.diagnoses[-1]
-    advice, parts = [], []
-    tied = {e for group in found.undecided for e in group}
-    advice += [c.text() for ch in found.choices for c in ch.collinear if c.b in tied]
-    if found.undecided:
-        groups = "; ".join(" vs ".join(u) for u in found.undecided)
-        parts.append(
-            f"cannot decide between {groups}: they explain the same norm residual on this data, so the "
-            "added effect may be a proxy that will not transfer (see advice for what to record)"
-        )
-    last = found.choices[-1] if found.choices else None
-    if last is not None and last.chosen is None and "does not predict" in last.reason:
-        parts.append(last.reason)
-    h = found.heldout
-    if h is not None and not found.transfers:
-        parts.append(
-            f"the model fits here but does not transfer: held-out norm chi2/dof {h['heldout_chi2_dof']:.3g} "
-            f"(residual {h['heldout_rms_g'] * 1e3:.3g} mg vs noise {h['heldout_noise_g'] * 1e3:.3g} mg)"
-        )
-        advice.append(
-            "what is missing shows only on the held-out session: run diagnose on it, or record a "
-            "session whose drivers (temperature, time, orientation) vary independently"
-        )
-    held_ok = (
-        f" (held-out norm chi2/dof {h['heldout_chi2_dof']:.3g}: it transfers)" if found.transfers else ""
-    )
+    parts, advice, held_ok = evidence_parts(found, norm="norm ")
     if not parts:
         return d.verdict.rstrip(".") + held_ok + ".", advice
     head = f"{d.model.name}: norm chi2/dof {d.fit.chi2_dof:.3g} on the calibration session"

@@ -161,45 +161,46 @@ def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step, 
 def final_verdict(found: Discovery) -> tuple[str, list[str]]:
     """One verdict from all the evidence: the last diagnosis, the held-out session, the ties."""
     d = found.diagnoses[-1]
-    advice = list(d.advice)
     where = "the calibration session" + ("s" if getattr(found, "loso", None) else "")
     fit = f"{d.model.name}: chi2/dof {d.fit.chi2_dof:.3g} on {where}"
-    parts = []
+    parts, extra, held_ok = evidence_parts(found, norm="")
+    advice = list(d.advice) + extra
+    if not parts and not d.missing:
+        return f"{fit}: the model fits to the noise floor; nothing is missing{held_ok}.", advice
+    if not parts:
+        return d.verdict + held_ok, advice
+    return f"{fit}; " + "; ".join(parts) + held_ok + ".", advice
+
+
+def evidence_parts(found, norm: str) -> tuple[list[str], list[str], str]:
+    """(verdict parts, advice, held-out suffix) of a discovery's ties, refusals and held-out result,
+    shared by the labelled and hand-held workbenches (norm = "norm " names the gravity-norm residual)."""
+    parts, advice = [], []
     tied = {e for group in found.undecided for e in group}
-    for c in found.choices:
-        for col in c.collinear:
-            if col.b in tied:
-                advice.append(col.text())
+    advice += [col.text() for c in found.choices for col in c.collinear if col.b in tied]
     if found.undecided:
         groups = "; ".join(" vs ".join(u) for u in found.undecided)
         parts.append(
-            f"cannot decide between {groups}: they explain the same residual on this data, so the "
+            f"cannot decide between {groups}: they explain the same {norm}residual on this data, so the "
             "added effect may be a proxy that will not transfer (see advice for what to record)"
         )
     last = found.choices[-1] if found.choices else None
     if last is not None and last.chosen is None and "does not predict" in last.reason:
         parts.append(last.reason)
-    if found.heldout is not None and not found.transfers:
-        h = found.heldout["heldout_chi2_dof"]
+    h = found.heldout
+    if h is not None and not found.transfers:
         parts.append(
-            f"the model fits here but does not transfer: held-out chi2/dof {h:.3g} "
-            f"(residual {found.heldout['heldout_rms_g'] * 1e3:.3g} mg vs noise "
-            f"{found.heldout['heldout_noise_g'] * 1e3:.3g} mg)"
+            f"the model fits here but does not transfer: held-out {norm}chi2/dof {h['heldout_chi2_dof']:.3g} "
+            f"(residual {h['heldout_rms_g'] * 1e3:.3g} mg vs noise {h['heldout_noise_g'] * 1e3:.3g} mg)"
         )
         advice.append(
             "what is missing shows only on the held-out session: run diagnose on it, or record a "
             "session whose drivers (temperature, time, orientation) vary independently"
         )
     held_ok = (
-        f" (held-out chi2/dof {found.heldout['heldout_chi2_dof']:.3g}: it transfers)"
-        if found.transfers
-        else ""
+        f" (held-out {norm}chi2/dof {h['heldout_chi2_dof']:.3g}: it transfers)" if found.transfers else ""
     )
-    if not parts and not d.missing:
-        return f"{fit}: the model fits to the noise floor; nothing is missing{held_ok}.", advice
-    if not parts:
-        return d.verdict + held_ok, advice
-    return f"{fit}; " + "; ".join(parts) + held_ok + ".", advice
+    return parts, advice, held_ok
 
 
 def ladder_rows(

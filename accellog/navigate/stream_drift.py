@@ -1,7 +1,7 @@
 """`drift` of a static MCAP session chunk by chunk: the drift model of ``navigate.drift`` in memory
 bounded independently of the session length, equal to the whole-session fit up to rounding.
 
-Three passes over the file's blocks (``stream_evaluate._cut_blocks``, the same cut and checks),
+Three passes over the file's blocks (``stream_evaluate.checked_blocks``, the same cut and checks),
 after the time-stamp check of ``open_streamed``:
 
 1. residual r (m/s^2) per block (``evaluate.block_residual``) into ``stream_sums.ResidualSums``
@@ -34,10 +34,10 @@ import numpy as np
 from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.drift_model import DriftModel
 from accellog.core.errors import InputError
-from accellog.core.session import PoseLabel, Session, SessionMeta
+from accellog.core.session import PoseLabel, SessionMeta
 from accellog.navigate.drift import DriftRefine, DriftSums, IntervalCount, _noise_cov_q, grid_index
 from accellog.navigate.evaluate import Evaluation, block_residual, eval_context
-from accellog.navigate.stream_evaluate import _check_step, _cut_blocks, _up, can_stream_cals, stream_evaluate
+from accellog.navigate.stream_evaluate import _up, can_stream_cals, checked_blocks, stream_evaluate
 from accellog.navigate.stream_sums import Integrator, ResidualSums
 
 
@@ -45,16 +45,9 @@ def _residual_blocks(path, meta, poses, cal, up, until_s, max_samples) -> Iterat
     """(t_s, resid_mps2) of every block after the checks of stream_evaluate (finite, increasing)."""
     where = str(path)
     ctx = eval_context(where, meta, cal, up, [], apply_drift=False)
-    n, t_prev = 0, np.nan
-    for b in _cut_blocks(path, until_s, max_samples):
-        if not np.isfinite(b.accel_g).all():
-            i = int(np.argmax(~np.isfinite(b.accel_g).all(axis=1)))
-            raise InputError(f"accel is NaN/inf at t = {b.t_s[i]:.3f} s", where=where)
-        _check_step(b, n, t_prev, where)
-        t_prev = float(b.t_s[-1])
+    n = 0
+    for b, block in checked_blocks(path, meta, poses, until_s, max_samples):
         n += b.n
-        block = Session(meta=meta, t_s=b.t_s, sample_index=b.sample_index, accel_g=b.accel_g,
-                        temp_degC=b.temp_degC, poses=poses, path=where)  # fmt: skip
         yield b.t_s, block_residual(ctx, block)
     if n < 10:
         raise InputError(f"static session has {n} samples (need >= 10)", where=where)

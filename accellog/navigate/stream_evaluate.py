@@ -154,15 +154,8 @@ def stream_evaluate(
     sums = [ResidualSums(times_s, window_s, drift=x.drift) for x in ctxs]
     drv: list[dict[str, float]] = [{} for _ in ctxs]
     motion = _Motion() if check_moving else None
-    n, t_prev, read_sum = 0, np.nan, np.zeros(3)
-    for b in _cut_blocks(path, until_s, max_samples):
-        if not np.isfinite(b.accel_g).all():
-            i = int(np.argmax(~np.isfinite(b.accel_g).all(axis=1)))
-            raise InputError(f"accel is NaN/inf at t = {b.t_s[i]:.3f} s", where=where)
-        _check_step(b, n, t_prev, where)
-        t_prev = float(b.t_s[-1])
-        block = Session(meta=meta, t_s=b.t_s, sample_index=b.sample_index, accel_g=b.accel_g,
-                        temp_degC=b.temp_degC, poses=poses, path=where)  # fmt: skip
+    n, read_sum = 0, np.zeros(3)
+    for b, block in checked_blocks(path, meta, poses, until_s, max_samples):
         n += b.n
         read_sum += b.accel_g.sum(axis=0)
         if motion is not None:
@@ -182,6 +175,22 @@ def stream_evaluate(
         finish_evaluation(x, acc.finish(), read_sum / n, {k: v / n for k, v in dv.items()}, times_s)
         for x, acc, dv in zip(ctxs, sums, drv, strict=True)
     ]
+
+
+def checked_blocks(path, meta, poses, until_s: float | None, max_samples: int | None) -> Iterator[tuple]:
+    """(ImuBlock, the block as a Session) of every cut block whose accel is finite and whose
+    stamps are finite and strictly increasing across blocks (else one InputError line)."""
+    where = str(path)
+    n, t_prev = 0, np.nan
+    for b in _cut_blocks(path, until_s, max_samples):
+        if not np.isfinite(b.accel_g).all():
+            i = int(np.argmax(~np.isfinite(b.accel_g).all(axis=1)))
+            raise InputError(f"accel is NaN/inf at t = {b.t_s[i]:.3f} s", where=where)
+        _check_step(b, n, t_prev, where)
+        t_prev = float(b.t_s[-1])
+        n += b.n
+        yield b, Session(meta=meta, t_s=b.t_s, sample_index=b.sample_index, accel_g=b.accel_g,
+                         temp_degC=b.temp_degC, poses=poses, path=where)  # fmt: skip
 
 
 def _check_step(b: ImuBlock, n_before: int, t_prev: float, where: str) -> None:
