@@ -200,12 +200,17 @@ def norm_obs(session: Session, *, window_s: float = 2.0, detect_window_s: float 
 
 def norm_choice(d: Diagnosis, obs: ObsTable, heldout: Sequence[ObsTable], sessions: Sequence[ObsTable] = ()):
     """The out-of-sample choice among a hand-held diagnosis's significant candidates, judged by the
-    gravity norm on the held-out sessions, or with several calibration sessions (obs their
-    concatenation) by leaving one session out (calibrate.choose.choose_effect with
+    gravity norm on the held-out sessions, with several calibration sessions (obs their
+    concatenation) by leaving one session out, else by blocks of one session's temperature range
+    and time (calibrate.choose.choose_effect with
     calibrate.norm_transfer's score and collinearity); also stored as d.choice."""
     from accellog.calibrate.choose import choose_effect
     from accellog.calibrate.loso import loso_score
-    from accellog.calibrate.norm_transfer import norm_canonical_correlation, norm_heldout_score
+    from accellog.calibrate.norm_transfer import (
+        norm_blocked_scores,
+        norm_canonical_correlation,
+        norm_heldout_score,
+    )
 
     held, parts = list(heldout), list(sessions)
 
@@ -215,6 +220,8 @@ def norm_choice(d: Diagnosis, obs: ObsTable, heldout: Sequence[ObsTable], sessio
                 n: loso_score(parts, r.model, fit_orientation_free, norm_heldout_score)
                 for n, r in fits.items()
             }
+        if not held:  # one session: blocks of its temperature range and of time
+            return norm_blocked_scores(fits, obs)
         return {n: norm_heldout_score(r, held) for n, r in fits.items()}
 
     d.choice = choose_effect(

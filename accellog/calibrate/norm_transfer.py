@@ -21,7 +21,7 @@ import numpy as np
 
 from accellog.calibrate.fit import FitResult, obs_drivers
 from accellog.calibrate.model import Model
-from accellog.calibrate.transfer import Score, added_columns_correlation
+from accellog.calibrate.transfer import Score, added_columns_correlation, blocked_scores, loo_chi2
 from accellog.core.session import ObsTable
 
 
@@ -93,3 +93,18 @@ def norm_canonical_correlation(res_a: FitResult, res_b: FitResult, base: Model, 
     Ea, Ba = split(res_a)
     Eb, _ = split(res_b)
     return added_columns_correlation(Ea, Eb, Ba)
+
+
+def norm_block_cv(res: FitResult, obs: ObsTable, groups: Sequence[np.ndarray]) -> np.ndarray:
+    """Chi2 of the gravity-norm residual e_r / sigma_n,r of each block of windows predicted from
+    the others (calibrate.transfer.loo_chi2 with one equation per window; inf where the others
+    cannot determine it)."""
+    e, s = norm_residual(res, obs)
+    return loo_chi2(_norm_jacobian(res, obs), e / s, groups, tol=1e-6, per=1)
+
+
+def norm_blocked_scores(fits: dict[str, FitResult], obs: ObsTable) -> dict[str, Score]:
+    """Blocked validation on the gravity norm within one hand-held session: blocks of the
+    temperature range and of time, each predicted by the fit to the others (exposes a proxy that
+    only fits this session's warm-up)."""
+    return blocked_scores(fits, obs, cv_fn=norm_block_cv, per=1)

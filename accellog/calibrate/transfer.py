@@ -105,10 +105,13 @@ def block_cv(res: FitResult, obs: ObsTable, groups: Sequence[np.ndarray]) -> np.
     return loo_chi2(J, r, groups, tol=1e-6)
 
 
-def loo_chi2(J: np.ndarray, r: np.ndarray, groups: Sequence[np.ndarray], tol: float) -> np.ndarray:
+def loo_chi2(
+    J: np.ndarray, r: np.ndarray, groups: Sequence[np.ndarray], tol: float, per: int = 3
+) -> np.ndarray:
     """Chi2 of each group of observations predicted by the fit to the others, in the p x p form.
 
-    Whitened Jacobian J (3n x p, rows obs-major, axis-minor) and residual r (3n); group rows G,
+    Whitened Jacobian J (per*n x p, rows obs-major, axis-minor; per = 3 axes, or 1 for the gravity
+    norm) and residual r (per*n); group rows G,
     U = J_G (m x p), C = (J^T J)^+ = S S^T, G = U^T U. The m x m matrix I - U C U^T is never formed
     (push-through identity, valid for singular C):
 
@@ -123,7 +126,7 @@ def loo_chi2(J: np.ndarray, r: np.ndarray, groups: Sequence[np.ndarray], tol: fl
     eye = np.eye(J.shape[1])
     out = np.empty(len(groups))
     for k, g in enumerate(groups):
-        rows = (np.asarray(g)[:, None] * 3 + np.arange(3)).ravel()
+        rows = (np.asarray(g)[:, None] * per + np.arange(per)).ravel()
         U, rg = J[rows], r[rows]
         G = U.T @ U
         if 1.0 - np.linalg.eigvalsh(S.T @ G @ S).max() < tol:
@@ -144,11 +147,16 @@ def blocking_drivers(obs: ObsTable) -> dict[str, np.ndarray]:
     return out
 
 
-def blocked_scores(fits: Mapping[str, FitResult], obs: ObsTable, k: int = N_BLOCKS) -> dict[str, Score]:
+def blocked_scores(
+    fits: Mapping[str, FitResult], obs: ObsTable, k: int = N_BLOCKS, *, cv_fn=None, per: int = 3
+) -> dict[str, Score]:
     """Blocked validation of several fits of the same observations, compared on the blocks every
-    fit can predict; pooled over the blocking drivers (temperature and time)."""
+    fit can predict; pooled over the blocking drivers (temperature and time). cv_fn(res, obs,
+    groups) -> chi2 per group (default block_cv, 3 equations per window; the gravity norm's has
+    per = 1)."""
+    cv_fn = cv_fn or block_cv
     groups_all = {d: block_groups(x, k) for d, x in blocking_drivers(obs).items()}
-    cv = {name: {d: block_cv(r, obs, g) for d, g in groups_all.items()} for name, r in fits.items()}
+    cv = {name: {d: cv_fn(r, obs, g) for d, g in groups_all.items()} for name, r in fits.items()}
     kinds = "+".join(groups_all)
     out: dict[str, Score] = {}
     ok = {d: np.all([np.isfinite(cv[n][d]) for n in fits], axis=0) for d in groups_all}
@@ -158,8 +166,8 @@ def blocked_scores(fits: Mapping[str, FitResult], obs: ObsTable, k: int = N_BLOC
             for g, c, good in zip(groups, cv[name][d], ok[d], strict=True):
                 if good:
                     chi2 += c
-                    m += 3 * g.size
-                    parts.append(c / (3 * g.size))
+                    m += per * g.size
+                    parts.append(c / (per * g.size))
         out[name] = Score(f"blocks:{kinds}", chi2 / m if m else np.nan, m, parts)
     return out
 

@@ -6,8 +6,9 @@
 replace the labelled poses. Loop: diagnose_handheld, add a significant effect, refit, until nothing
 the norm can identify is significant (or max_steps). Which effect: with held-out sessions the one
 that predicts their gravity norm best (accellog.calibrate.norm_transfer, chosen as the labelled
-workbench chooses: accellog.calibrate.choose; ties and near-collinear candidates are named), else
-the one with the lowest dBIC. Then the ladder start -> + each found effect, judged on the norm
+workbench chooses: accellog.calibrate.choose; ties and near-collinear candidates are named); with
+several calibration sessions by leaving one out; with one session by blocks of its temperature
+range and of time (accellog.calibrate.norm_transfer.norm_blocked_scores). Then the ladder start -> + each found effect, judged on the norm
 (chi^2/dof, RMS in g), on the held-out norm, and, with a static test, by its |displacement| at at_s
 (m). The verdict never says "nothing is missing" while the held-out norm chi2/dof exceeds
 HELDOUT_OK. What the norm cannot identify (a frame rotation, fixture tilt, the clock, effects the
@@ -45,7 +46,7 @@ class HandheldDiscovery(JsonResult):
     added: list[str] = field(default_factory=list)
     ladder: list[LadderRow] = field(default_factory=list)
     choices: list[StepChoice] = field(default_factory=list)
-    """Out-of-sample choice of each step (held-out sessions only)."""
+    """Out-of-sample choice of each step (held-out sessions, leave one session out, or blocks)."""
     heldout: dict | None = None
     """Held-out norm statistics of the final model (heldout_rms_g, heldout_noise_g, heldout_chi2_dof)."""
     undecided: list[list[str]] = field(default_factory=list)
@@ -160,15 +161,11 @@ def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file, pa
         found.diagnoses.append(d)
         if len(found.added) >= max_steps:
             break
-        if held or len(parts) > 1:
-            ch = norm_choice(d, found.obs, held, sessions=parts)
-            found.choices.append(ch)
-            chosen = ch.chosen
-            if chosen is not None and ch.undecided:
-                found.undecided.append([chosen, *ch.undecided])
-        else:
-            sig = [r for r in d.candidates if r.get("significant")]
-            chosen = sig[0]["effect"] if sig else None
+        ch = norm_choice(d, found.obs, held, sessions=parts)
+        found.choices.append(ch)
+        chosen = ch.chosen
+        if chosen is not None and ch.undecided:
+            found.undecided.append([chosen, *ch.undecided])
         if chosen is None or chosen in found.added:
             break
         found.added.append(chosen)
