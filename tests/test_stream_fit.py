@@ -132,3 +132,32 @@ def test_diagnose_streams_and_matches_whole_session(recorded, small_groups, monk
     whole = json.loads(capsys.readouterr().out)
     assert streamed["clock"] is not None
     _close(whole, streamed)
+
+
+@pytest.mark.parametrize("batch", [1, 7, 1000])
+def test_coarse_blocks_fed_in_batches_equal_whole_array_increments(batch):
+    """_CoarseBlocks (the streamed reduction to coarse blocks, temperature term on) gives
+    gyro._increments' phi and c whatever the batches; coarse blocks span batches."""
+    import numpy as np
+
+    from accellog.calibrate.gyro import GyroCalibration
+    from accellog.calibrate.gyro_rotation import _increments
+    from accellog.calibrate.stream_gyro import _CoarseBlocks
+
+    rng = np.random.default_rng(5)
+    fine = np.cumsum(rng.integers(4, 7, 400))
+    coarse = np.concatenate([fine[:50:49], fine[50:120], fine[120:300:179], fine[300:]])
+    w_int, temp_int = rng.normal(0, 0.3, (399, 3)), 30.0 + rng.normal(0, 0.1, 399)
+    span = rng.uniform(0.009, 0.011, 399)
+    base = GyroCalibration(
+        bias_dps=np.array([0.5, -1.2, 0.8]),
+        bias_sigma_dps=np.full(3, 0.01),
+        temp_bias_dps_per_degC=np.array([0.01, -0.02, 0.03]),
+    )
+    phi, c, _ = _increments(w_int, temp_int, span, base, fine, coarse, fine[:1])
+    blocks = _CoarseBlocks(fine, coarse, base, use_temp=True)
+    for i in range(0, 399, batch):
+        blocks.add(w_int[i : i + batch], temp_int[i : i + batch], span[i : i + batch])
+    assert blocks.open is None and phi.shape == blocks.phi.shape == (coarse.size - 1, 3)
+    np.testing.assert_allclose(blocks.phi, phi, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(blocks.c, c, rtol=1e-12, atol=1e-18)

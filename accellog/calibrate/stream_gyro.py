@@ -1,14 +1,18 @@
 """Gyro calibration of an MCAP session chunk by chunk: ``calibrate_gyro`` on a file without loading
-it (memory: one block plus O(windows + 10 ms blocks between the first and last hold middle)).
+it (memory: one chunk group plus O(windows + coarse blocks), the coarse blocks being the 10 ms
+blocks of the moves and one per hold: bounded by the moves, not by the session length).
 
-Two streaming passes over ``store.stream.iter_imu``:
+Three streaming passes over ``store.stream.iter_imu``:
 
 1. locate: the sample index of every time the fit asks for (hold window edges, hold start/middle/end)
    is the count of samples before it, summed over blocks (``np.searchsorted`` on the whole time
    axis, block by block), plus the time of the first sample at or after each hold middle;
-2. sum: the rate and temperature sums over the bias windows, and the trapezoid integrals of the
-   rate and temperature over the 10 ms blocks between hold middles (a sample pair that straddles
-   two blocks is carried over), with the times at the block edges.
+2. windows: the rate and temperature sums over the bias windows, from which the bias model
+   (``gyro._bias_fit``) is fitted;
+3. integrate: the trapezoid integrals of the rate (and temperature) over the 10 ms fine blocks
+   between hold middles (a sample pair that straddles two groups is carried over), bias-corrected
+   and reduced to their coarse blocks (phi, c) as each chunk group completes them
+   (``_CoarseBlocks``: the prefix sum and any open coarse block carried between groups).
 
 The fit itself is the one of ``calibrate.gyro`` on these sums, so the result equals
 ``calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC)`` of ``s = read_session(path)`` up to the
@@ -32,7 +36,7 @@ from accellog.calibrate.gyro import (
     _known_poses,
     _pose_times,
 )
-from accellog.calibrate.gyro_rotation import _block_edges, _increments
+from accellog.calibrate.gyro_rotation import _block_edges
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
 from accellog.store.stream import iter_imu
@@ -68,10 +72,7 @@ def stream_calibrate_gyro(
     pidx = np.clip(counts[counts.size - 3 * k :], 0, n_total - 1) if k else np.zeros(0, np.int64)
     mids, ends, starts = pidx[:k], pidx[k : 2 * k], pidx[2 * k :]
     t_mid = {int(i): float(v) for i, v in zip(mids, first_at[first_at.size - 3 * k :][:k], strict=True)}
-    fine = coarse = None
-    if k:
-        fine, coarse = _block_edges(t_mid, mids, ends, starts, 0.01)
-    wins, pairs, t_fine, has_temp = _sum_pass(path, a, b, fine)
+    wins, has_temp = _window_pass(path, a, b)
     if a.size < 2:
         raise InputError(
             f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
@@ -82,12 +83,15 @@ def stream_calibrate_gyro(
     cal = _bias_fit(means, temps, has_temp, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC)
     if not k:
         return cal
-    temp_int = pairs[1].acc if has_temp and np.any(cal.temp_bias_dps_per_degC != 0) else None
+    fine, coarse = _block_edges(t_mid, mids, ends, starts, 0.01)
     if fine[-1] == fine[0]:
-        phi, c, at = np.zeros((0, 3)), np.zeros((0, 3)), np.searchsorted(coarse, mids)
+        phi, c = np.zeros((0, 3)), np.zeros((0, 3))
     else:
-        phi, c, at = _increments(pairs[0].acc, temp_int, np.diff(t_fine), cal, fine, coarse, mids)
-    return _fit_matrix(phi, c, at, known, cal, model, 0.05, reference)
+        use_temp = has_temp and bool(np.any(cal.temp_bias_dps_per_degC != 0))
+        blocks = _CoarseBlocks(fine, coarse, cal, use_temp)
+        _integrate_pass(path, fine, blocks)
+        phi, c = blocks.phi, blocks.c
+    return _fit_matrix(phi, c, np.searchsorted(coarse, mids), known, cal, model, 0.05, reference)
 
 
 def _locate(path, queries: np.ndarray):
@@ -114,54 +118,121 @@ def _locate(path, queries: np.ndarray):
 class _Segments:
     """Sums over sorted, non-overlapping index ranges [lo_j, hi_j), each summed in one np.add.reduceat
     call over exactly its samples (bit for bit the whole-session sums): a range is summed once the
-    buffer holds all of it; its start is carried to the next block until then."""
+    buffer holds all of it; its start is carried to the next block until then. keep=False: only the
+    sums of the ranges completed by the last add are held (self.new, ranges self.done), not all."""
 
-    def __init__(self, lo: np.ndarray, hi: np.ndarray, width: int) -> None:
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, width: int, keep: bool = True) -> None:
         self.lo, self.hi, self.k = np.asarray(lo, np.int64), np.asarray(hi, np.int64), 0
-        self.acc = np.zeros((self.lo.size, width) if width > 1 else self.lo.size)
+        shape = (self.lo.size if keep else 0, width) if width > 1 else (self.lo.size if keep else 0,)
+        self.acc, self.keep = np.zeros(shape), keep
+        self.new, self.done = self.acc[:0], (0, 0)
 
     def add(self, x: np.ndarray, x0: int) -> int:
         """Sum the ranges complete within x (global indices x0 ..); returns the first index still needed."""
         end = x0 + x.shape[0]
         m = self.k + int(np.searchsorted(self.hi[self.k :], end, side="right"))
+        self.new, self.done = self.acc[:0], (self.k, m)
         if m > self.k:
             lo, hi = self.lo[self.k : m] - x0, self.hi[self.k : m] - x0
             edges = np.stack([lo, hi], axis=1).ravel()
             if edges[-1] >= x.shape[0]:
                 edges = edges[:-1]
-            self.acc[self.k : m] = np.add.reduceat(x, edges, axis=0)[::2]
+            self.new = np.add.reduceat(x, edges, axis=0)[::2]
+            if self.keep:
+                self.acc[self.k : m] = self.new
             self.k = m
         return int(self.lo[m]) if m < self.lo.size else end
 
 
-def _sum_pass(path, a: np.ndarray, b: np.ndarray, fine: np.ndarray | None):
-    """Rate/temperature sums over the windows [a, b), trapezoid integrals over the fine blocks and
-    the times at their edges (module doc); returns (windows, fine, t_fine, has_temp)."""
+class _CoarseBlocks:
+    """gyro._increments fed the fine blocks in order, a batch at a time: each batch is reduced to
+    its coarse blocks at once (memory O(coarse blocks + one batch), not O(fine blocks)).
+
+    Carried between batches: the running sum p of all earlier fine blocks (the prefix p_excl of the
+    next one) and the partial (phi, sum p_excl x b) and p_excl at the start of a coarse block still
+    open, prepended as a row to the next batch's sums, so every sum is formed in the same order as
+    the whole-array cumsum/reduceat of gyro._increments."""
+
+    def __init__(self, fine: np.ndarray, coarse: np.ndarray, base: GyroCalibration, use_temp: bool):
+        self.at = np.searchsorted(fine, coarse[:-1])  # first fine block of each coarse block
+        self.end = np.append(self.at[1:], fine.size - 1)  # one past its last fine block
+        self.phi, self.c = np.zeros((self.at.size, 3)), np.zeros((self.at.size, 3))
+        self.base, self.use_temp = base, use_temp
+        self.p, self.k, self.open = np.zeros(3), 0, None  # open: (phi, cross sum, p at start)
+
+    def add(self, w_int: np.ndarray, temp_int: np.ndarray | None, span: np.ndarray) -> None:
+        """The next fine blocks: rate integrals (deg), temperature integrals (degC s), durations (s)."""
+        base = self.base
+        b = w_int - np.outer(span, base.bias_dps)
+        if self.use_temp:
+            b -= np.outer(temp_int - base.t_ref_degC * span, base.temp_bias_dps_per_degC)
+        b = np.deg2rad(b)
+        if b.shape[0] == 0:
+            return
+        k0, k1 = self.k, self.k + b.shape[0]
+        ps = np.cumsum(np.concatenate([self.p[None], b]), axis=0)
+        p_excl, self.p, self.k = ps[:-1], ps[-1], k1
+        cr = np.cross(p_excl, b)
+        qs, qe = np.searchsorted(self.at, [k0, k1])
+        offs, q = self.at[qs:qe] - k0, np.arange(qs, qe)
+        p_at = p_excl[offs]
+        if self.open is not None:
+            b, cr = np.concatenate([self.open[0][None], b]), np.concatenate([self.open[1][None], cr])
+            offs, q = np.concatenate([[0], offs + 1]), np.concatenate([[qs - 1], q])
+            p_at = np.concatenate([self.open[2][None], p_at])
+        phi, crs = np.add.reduceat(b, offs, axis=0), np.add.reduceat(cr, offs, axis=0)
+        self.open = None
+        if self.end[q[-1]] > k1:  # the last coarse block goes on in the next batch
+            self.open = (phi[-1], crs[-1], p_at[-1])
+            phi, crs, p_at, q = phi[:-1], crs[:-1], p_at[:-1], q[:-1]
+        self.phi[q] = phi
+        self.c[q] = 0.5 * (crs - np.cross(p_at, phi))
+
+
+def _window_pass(path, a: np.ndarray, b: np.ndarray):
+    """Rate and temperature sums over the windows [a, b) (sample indices); returns (sums, has_temp)."""
     wins = (_Segments(a, b, 3), _Segments(a, b, 1))
-    f = np.zeros(0, np.int64) if fine is None or fine.size < 2 else fine
-    pairs = (_Segments(f[:-1], f[1:], 3), _Segments(f[:-1], f[1:], 1))
-    t_fine = np.zeros(f.size)
-    buf, buf0, has_temp = None, 0, True  # samples (t, w, temp) kept from global index buf0
+    buf, buf0, has_temp = None, 0, True  # samples (w, temp) kept from global index buf0
     for blk in iter_imu(path):
-        g0 = buf0 + (0 if buf is None else buf[0].size)
-        lo, hi = np.searchsorted(f, [g0, g0 + blk.n])  # the fine edges in this block (f is sorted)
-        t_fine[lo:hi] = blk.t_s[f[lo:hi] - g0]
         has_temp = has_temp and blk.temp_degC is not None
-        new = (blk.t_s, np.asarray(blk.gyro_dps, float), blk.temp_degC if has_temp else np.zeros(blk.n))
+        new = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)
+        buf = new if buf is None else tuple(_cat(o, n) for o, n in zip(buf, new, strict=True))
+        need = wins[0].add(buf[0], buf0)
+        if has_temp:
+            wins[1].add(buf[1], buf0)
+        keep = min(need, buf0 + buf[0].shape[0]) - buf0
+        buf, buf0 = tuple(None if x is None else x[keep:] for x in buf), buf0 + keep
+    return wins, has_temp
+
+
+def _cat(old, new):
+    return None if old is None or new is None else np.concatenate([old, new])
+
+
+def _integrate_pass(path, fine: np.ndarray, blocks: _CoarseBlocks) -> None:
+    """Trapezoid integrals of the rate (and temperature) over the fine blocks, fed to blocks as
+    each chunk group completes them (a sample pair that straddles two groups is carried over)."""
+    pairs = (_Segments(fine[:-1], fine[1:], 3, keep=False), _Segments(fine[:-1], fine[1:], 1, keep=False))
+    buf, buf0 = None, 0  # samples (t, w, temp) kept from global index buf0
+    for blk in iter_imu(path):
+        temp = np.asarray(blk.temp_degC, float) if blocks.use_temp else np.zeros(blk.n)
+        new = (blk.t_s, np.asarray(blk.gyro_dps, float), temp)
         buf = new if buf is None else tuple(np.concatenate([o, n]) for o, n in zip(buf, new, strict=True))
         t, w, temp = buf
-        need = [wins[0].add(w, buf0)]
-        if has_temp:
-            wins[1].add(np.asarray(temp, float), buf0)
-        if f.size and t.size > 1:
+        need = buf0  # one sample: keep it for the pair it starts
+        if t.size > 1:
             dt = np.diff(t)
             inc = w[:-1] + w[1:]
             inc *= (0.5 * dt)[:, None]
-            need.append(pairs[0].add(inc, buf0))
-            if has_temp:
+            need = pairs[0].add(inc, buf0)
+            temp_int = None
+            if blocks.use_temp:
                 ti = temp[:-1] + temp[1:]
                 ti *= 0.5 * dt
                 pairs[1].add(ti, buf0)
-        keep = min(*need, buf0 + t.size) - buf0  # a range not yet begun: keep nothing
+                temp_int = pairs[1].new
+            k0, m = pairs[0].done
+            span = t[fine[k0 + 1 : m + 1] - buf0] - t[fine[k0:m] - buf0]
+            blocks.add(pairs[0].new, temp_int, span)
+        keep = min(need, buf0 + t.size) - buf0  # a range not yet begun: keep nothing
         buf, buf0 = tuple(x[keep:] for x in buf), buf0 + keep
-    return wins, pairs, t_fine, has_temp
