@@ -41,8 +41,7 @@ ALLOWED_MODULES = {
     "recovery) kept whole so the register protocol reads in one place beside registers.py",
     "acquire/emulator/chip.py": "the emulated chip: the same register protocol as driver.py, kept whole",
 }
-ALLOWED_FUNCTIONS = {
-}
+ALLOWED_FUNCTIONS = {}
 """Exceptions to the size limits, each with its reason (docs/architecture.md repeats them)."""
 
 

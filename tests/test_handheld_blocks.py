@@ -61,7 +61,7 @@ def test_norm_block_cv_equals_the_dense_form():
 
 def test_heat_then_cool_handheld_session_ends_at_the_temperature_effect(tmp_path, capsys):
     T = 26 * 8.0  # 26 holds of 6 s + 2 s moves
-    s, truth, th = _session(lambda t: 25.0 + 15.0 * np.sin(np.pi * np.asarray(t) / T), 4)
+    s, _, _ = _session(lambda t: 25.0 + 15.0 * np.sin(np.pi * np.asarray(t) / T), 4)
     path = write_session(tmp_path / "heat_cool.mcap", s)
     assert main(["workbench", str(path), "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
