@@ -343,7 +343,9 @@ def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
     Walks the record chain; at a Message record of length L it guesses that the records that follow
     are Messages of the same length (the usual case: same fields, same varint sizes) and checks all
     those guesses at once with numpy (opcode, length, no record across a chunk end), keeping the run
-    up to the first miss, so the Python walk only steps where the record layout changes.
+    up to the first miss, so the Python walk only steps where the record layout changes. At most
+    about twice the last run is guessed at a time, so short runs do not cost a scan to the end of the
+    group each (linear in the records, not quadratic).
     """
     unpack = REC.unpack_from
     ends = list(itertools.accumulate(usize))
@@ -351,7 +353,7 @@ def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
     ends_arr = np.asarray(ends, dtype=np.int64)
     rb = np.frombuffer(records, np.uint8)
     runs: list[np.ndarray] = []
-    pos, k = 0, 0
+    pos, k, span = 0, 0, 64  # span: guesses checked at once, doubled while runs fill it (linear time)
     while pos < total:
         while pos >= ends[k]:  # next chunk (a record never crosses a chunk end)
             k += 1
@@ -361,7 +363,8 @@ def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
             raise NotFast("record across a chunk boundary")
         if op == OP_MESSAGE:
             stride = 9 + ln
-            guess = np.arange(pos, total - stride + 1, stride, dtype=np.int64)  # guess[0] == pos: checked
+            stop = min(total - stride + 1, pos + stride * span)
+            guess = np.arange(pos, stop, stride, dtype=np.int64)  # guess[0] == pos: checked
             ok = (rb[guess] == OP_MESSAGE) & (read_le(rb, guess + 1, "<u8") == ln)
             ok &= np.searchsorted(ends_arr, guess, "right") == np.searchsorted(
                 ends_arr, guess + (stride - 1), "right"
@@ -369,6 +372,7 @@ def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
             m = guess.shape[0] if ok.all() else int(np.argmin(ok))
             runs.append(guess[:m])
             pos = int(guess[m - 1]) + stride
+            span = 2 * m if m == guess.shape[0] else max(64, 2 * m)
             continue
         if op in (OP_SCHEMA, OP_CHANNEL):  # read by content in mcap: length must agree
             q = (schema_at if op == OP_SCHEMA else channel_at)(records, pos + 9)[1]
