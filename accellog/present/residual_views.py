@@ -1,7 +1,7 @@
 """Where the model fails: window residuals against each driver signal, in a Rerun recording.
 
 One scatter plot per (driver, model): x = the driver (temperature in degC, its rate in degC/s,
-time in s, time in pose in s), y = the window residual per axis (mg, axis colours x red, y green,
+time in s, time in pose in s, the reading f_i and f_i f_j in g), y = the window residual per axis (mg, axis colours x red, y green,
 z blue), passes kept apart (heating windows filled, cooling windows lighter, so a hysteresis or a
 heat/cool disagreement is not averaged away), and the candidate's predicted contribution drawn
 over the residual it explains (a line per axis). Rerun has no x-y plot with axes yet, so each plot
@@ -31,8 +31,30 @@ DRIVERS = {
     "dtemp_degC_per_s": "dT/dt (degC/s)",
     "t_s": "time (s)",
     "t_in_pose_s": "time in pose (s)",
+    "f_x_g": "reading f_x (g)",
+    "f_y_g": "reading f_y (g)",
+    "f_z_g": "reading f_z (g)",
+    "f_xf_y_g2": "f_x f_y (g^2)",
+    "f_xf_z_g2": "f_x f_z (g^2)",
+    "f_yf_z_g2": "f_y f_z (g^2)",
 }
-"""Driver signals plotted, with their axis titles."""
+"""Driver signals plotted, with their axis titles: the model drivers, and the window's reading per
+axis f_i (a residual quadratic in f_i, i.e. linear in f_i^2, shows as a parabola) and the products
+f_i f_j (cross-axis nonlinearity). Yaw is not plotted: a static accelerometer cannot see rotation
+about gravity."""
+
+
+def driver_values(obs: ObsTable) -> dict[str, np.ndarray]:
+    """Every driver of DRIVERS on the windows of obs (model drivers, readings f_i and f_i f_j in g)."""
+    drv = dict(obs_drivers(obs))
+    f = np.asarray(obs.meas_g, float)
+    for i, a in enumerate("xyz"):
+        drv[f"f_{a}_g"] = f[:, i]
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        drv[f"f_{'xyz'[i]}f_{'xyz'[j]}_g2"] = f[:, i] * f[:, j]
+    return drv
+
+
 W, H = 400.0, 240.0
 """Plot frame in view units (x: driver range, y: residual range)."""
 
@@ -56,7 +78,7 @@ def panels(
 ) -> list[Panel]:
     """Panels for every driver present (not constant) and every labelled fit; contributions
     (label -> (n,3) g) are drawn over that label's residual."""
-    drv = obs_drivers(obs)
+    drv = driver_values(obs)
     rate = drv.get("dtemp_degC_per_s", np.zeros(obs.n))
     out = []
     for d in DRIVERS:
