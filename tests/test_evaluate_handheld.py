@@ -43,6 +43,24 @@ def test_simulated_imu_tk_session_is_judged_on_detected_intervals(tmp_path, caps
     assert "per detected static interval" in out and "cannot judge" in out
 
 
+def test_handheld_evaluate_rrd_plots_the_norm_residual_against_the_drivers(tmp_path, capsys):
+    from rrd_readback import load_rrd
+
+    cal_s, test_s = _unlabelled(tmp_path / "cal.mcap", 1), _unlabelled(tmp_path / "test.mcap", 2)
+    cal = tmp_path / "cal.json"
+    assert main(["fit", str(cal_s), "--orientation-free", "--model", HANDHELD_START, "-o", str(cal)]) == 0
+    rrd = tmp_path / "ev.rrd"
+    assert main(["evaluate", str(test_s), "--cal", str(cal), "--rrd", str(rrd)]) == 0
+    capsys.readouterr()
+    r = load_rrd(rrd)
+    ents = {e for e in r.entities if e.startswith("/residual_vs/")}
+    for drv in ("t_s", "f_x_g"):  # raw reading and the calibration, one norm series each
+        norm = sorted(e for e in ents if e.startswith(f"/residual_vs/{drv}/") and e.endswith("/norm"))
+        assert len(norm) == 2, sorted(ents)
+        pts = np.asarray(r.static(norm[0], "Points2D:positions"), float)
+        assert pts.shape[0] >= 20
+
+
 def test_real_ferraris_session_without_labels(tmp_path, capsys, shared_data):
     """imucal's Ferraris recording (102.4 Hz): fitted with its labels, evaluated with them removed.
     The six faces are found again; the calibration's norm residual is ~1 mg, the raw reading's ~57 mg

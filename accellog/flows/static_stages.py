@@ -34,7 +34,7 @@ from accellog.navigate.handheld_evaluate import (
 )
 from accellog.navigate.stream_evaluate import can_stream_cals, stream_evaluate
 from accellog.present import tables, views
-from accellog.present.residual_views import log_residuals_vs_drivers
+from accellog.present.residual_views import log_panels, log_residuals_vs_drivers, panels
 from accellog.present.rrd.recording import RunRecording
 from accellog.store.atomic import atomic_output, write_text_atomic
 
@@ -130,6 +130,8 @@ class EvaluationReport(JsonResult):
             elif self.handheld:
                 md = "\n".join(views.table_markdown(tables.handheld_eval_table(h)) for h in self.handheld)
                 rec.log_document("results/handheld", md + "\n\n" + CANNOT_JUDGE)
+                fits = {h.label: _WindowResiduals(h.resid_g[:, None]) for h in self.handheld}
+                log_panels(rec, panels(self.obs, fits))  # the norm residual against each driver
             else:
                 views.log_evaluations(rec, self.single)
 

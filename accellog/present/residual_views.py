@@ -61,7 +61,8 @@ W, H = 400.0, 240.0
 
 @dataclass
 class Panel:
-    """One scatter plot: residuals (mg) of `label` against driver `driver`."""
+    """One scatter plot: residuals (mg; (n, 3) per axis, or (n, 1) the gravity norm) of `label`
+    against driver `driver`."""
 
     driver: str
     label: str
@@ -141,13 +142,18 @@ def log_panels(rec, items: list[Panel]) -> None:
                 rr.Points2D(tick_pos, labels=tick_txt, radii=0.1, colors=[(200, 200, 200)] * len(tick_txt)),
                 "scatter2d",
             )
-            legend = "x red, y green, z blue (light: cooling); lines: what the added effects predict"
+            axes = "xyz" if p.residual_mg.shape[1] == 3 else ("norm",)
+            legend = (
+                "x red, y green, z blue (light: cooling); lines: what the added effects predict"
+                if len(axes) == 3
+                else "gravity-norm residual |f| - g per window (light: cooling)"
+            )
             rec.log_static(
                 f"{ent}/legend", rr.Points2D([[W / 2, -H / 2 - 12]], labels=[legend], radii=0.1), "scatter2d"
             )
-            for i, a in enumerate("xyz"):
-                col = np.array(AXIS_COLORS[i])
-                light = (col + (255 - col) * 0.6).astype(int)
+            for i, a in enumerate(axes):
+                col = np.array(AXIS_COLORS[i] if len(axes) == 3 else (230, 230, 230))
+                light = (col + (255 - col) * 0.6).astype(int) if len(axes) == 3 else np.array([130, 130, 130])
                 colors = np.where(p.heating[:, None], col, light).astype(np.uint8)
                 pts = np.column_stack([sx(p.x), sy(p.residual_mg[:, i])])
                 rec.log_static(f"{ent}/{a}", rr.Points2D(pts, colors=colors, radii=2.2), "scatter2d")
