@@ -58,28 +58,41 @@ class Envelope:
 
 
 def _envelope(t: np.ndarray, v: np.ndarray, b: np.ndarray, pos: np.ndarray) -> Envelope:
-    """Rows of complete buckets: t (n,), v (n,k), b bucket ids (n,, non-decreasing), pos sample idx."""
+    """Rows of complete buckets: t (n,), v (n,k), b bucket ids (n,, non-decreasing), pos sample idx.
+
+    Column by column on a contiguous copy (k, n): min and max by ``reduceat``, and the first sample
+    equal to each (which comes first) from the sorted positions of the equal samples."""
     n, k = v.shape
     if n == 0:
         return Envelope(np.empty(0), np.empty((0, k)), np.empty(0, np.int64), np.empty(0, np.int64))
-    starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
+    starts = np.flatnonzero(b[1:] != b[:-1]) + 1
+    starts = np.r_[0, starts]
     ends = np.r_[starts[1:], n]  # exclusive
     counts = ends - starts
+    cols = np.ascontiguousarray(v.T)  # (k, n): reduceat along contiguous rows is ~10x faster
     with np.errstate(invalid="ignore"):
-        mn = np.fmin.reduceat(v, starts, axis=0)
-        mx = np.fmax.reduceat(v, starts, axis=0)
-    local = np.arange(n)[:, None]
-    big = np.iinfo(np.int64).max
-    first_min = np.minimum.reduceat(np.where(v == np.repeat(mn, counts, axis=0), local, big), starts, axis=0)
-    first_max = np.minimum.reduceat(np.where(v == np.repeat(mx, counts, axis=0), local, big), starts, axis=0)
-    min_first = first_min <= first_max  # (buckets, k): the min comes first (NaN buckets: both big)
+        mn = np.fmin.reduceat(cols, starts, axis=1)  # (k, buckets), NaNs ignored
+        mx = np.fmax.reduceat(cols, starts, axis=1)
     rows = np.empty((2 * starts.shape[0], k))
-    rows[0::2] = np.where(min_first, mn, mx)
-    rows[1::2] = np.where(min_first, mx, mn)
+    for j in range(k):
+        first_min = _first_equal(cols[j], mn[j], starts, ends, counts)
+        first_max = _first_equal(cols[j], mx[j], starts, ends, counts)
+        min_first = first_min <= first_max  # the min comes first (NaN buckets: both n)
+        rows[0::2, j] = np.where(min_first, mn[j], mx[j])
+        rows[1::2, j] = np.where(min_first, mx[j], mn[j])
     idx = np.empty(2 * starts.shape[0], dtype=np.int64)
     idx[0::2] = starts
     idx[1::2] = ends - 1
     return Envelope(t[idx], rows, pos[idx], b[idx])
+
+
+def _first_equal(col: np.ndarray, ext: np.ndarray, starts, ends, counts) -> np.ndarray:
+    """Per bucket, the position of the first sample of col equal to the bucket's ext (n when none:
+    a bucket of only NaNs)."""
+    n = col.shape[0]
+    hits = np.append(np.flatnonzero(col == np.repeat(ext, counts)), n)  # sorted, n at the end
+    first = hits[np.searchsorted(hits, starts)]  # the first hit at or after each bucket's start
+    return np.where(first < ends, first, n)
 
 
 class EnvelopeBuilder:
