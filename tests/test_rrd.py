@@ -150,14 +150,26 @@ def test_full_recording_reads_back(tmp_path: Path) -> None:
 
 
 def test_streams_are_columnar_in_batches(tmp_path: Path) -> None:
-    """A stream written in many batches reads back complete and in order."""
+    """A stream written in many batches reads back complete and in order; a file sink gathers small
+    batches into few send_columns calls (a series whose sample timeline comes and goes too)."""
+    from accellog.present.rrd.recording import COALESCE_ROWS
+
     t, raw = _session(n=5000)
     out = tmp_path / "batches.rrd"
     with RunRecording(f"save:{out}") as rec:
-        for sl in np.array_split(np.arange(len(t)), 17):
+        for k, sl in enumerate(np.array_split(np.arange(len(t)), 17)):
             rec.log_samples("raw", t[sl], sl, raw[sl], "g")
-    _, v = load_rrd(out).series("accel/raw")
+            buf = raw[sl] * 2.0  # a caller reusing its buffer must not change what was gathered
+            rec.log_series("mixed", t[sl], buf, ["x", "y", "z"], sample_index=sl if k >= 8 else None)
+            buf[:] = np.nan
+    r = load_rrd(out)
+    s_idx, v = r.series("accel/raw", timeline="sample")
     np.testing.assert_array_equal(v, raw)
+    np.testing.assert_array_equal(s_idx, np.arange(len(t)))
+    np.testing.assert_array_equal(r.series("mixed")[1], raw * 2.0)
+    scalar_chunks = [b for b in r.chunks["/accel/raw"] if "Scalars:scalars" in b.schema.names]
+    assert len(scalar_chunks) == -(-len(t) // COALESCE_ROWS)  # 17 batches, one call
+    assert sum("Scalars:scalars" in b.schema.names for b in r.chunks["/mixed"]) == 2  # without, with
 
 
 def test_failed_run_leaves_no_file(tmp_path: Path) -> None:

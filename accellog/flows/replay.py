@@ -317,21 +317,21 @@ def _run(src, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float]:
             wait = t_pace0 + (float(tb[-1]) - t0) / speed_f - clock()
             if wait > 0:
                 sleep(wait)
-        pos = np.arange(n, n + b.n)
-        keep = pos % slow == 0
+        keep = slice(-n % slow, None, slow)  # replay samples k * slow (k * stride for the 3D strip)
         if rec is not None:
             rec.log_samples("raw", tb, b.sample_index, b.accel_g, "g")
             if b.temp_degC is not None:
                 rec.log_temperature(tb, b.temp_degC)
         for tr in tracks:
             step = tr.integ.push(tb, b.accel_g, src.drivers(b, n, tr.needed))
+            if rec is None:  # the displacement is read from the integrator at the end
+                continue
             d = tr.drift.apply(tb, step.disp_m) if tr.drift is not None else step.disp_m
-            tr.parts.append(d[pos % stride == 0])
+            tr.parts.append(d[-n % stride :: stride].copy())  # not a view: the batch is let go
             tr.last = d[-1]
-            if rec is not None:
-                if tr.cal is not None:
-                    rec.log_samples(tr.label, tb, None, step.f_g, "g")
-                _log_track_rows(rec, tr, tb[keep], d[keep])
+            if tr.cal is not None:
+                rec.log_samples(tr.label, tb, None, step.f_g, "g")
+            _log_track_rows(rec, tr, tb[keep], d[keep])
         n += b.n
         t_end = float(tb[-1])
         if rec is not None and speed_f is not None and clock() - last_3d > 1.0:

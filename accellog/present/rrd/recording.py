@@ -2,8 +2,9 @@
 
 It knows nothing about files of accellog: the stages hand it numpy arrays (samples, poses, residuals,
 tracks, documents) and it writes them columnar (``send_columns``, one call per stream and batch, never
-per sample) on the main timeline ``sensor_time`` (duration, s since session start) plus ``sample``
-(sequence, device sample index) for raw streams. Entity paths in ``entities``.
+per sample; a file sink gathers a series' small batches, such as envelope rows, into calls of up to
+``COALESCE_ROWS`` rows) on the main timeline ``sensor_time`` (duration, s since session start) plus
+``sample`` (sequence, device sample index) for raw streams. Entity paths in ``entities``.
 
 This module holds the sink, the guard against live-view failures, the generic series (display
 envelopes: ``envelope``) and closing with the blueprint (each view's time range: ``ranges``); holds,
@@ -46,6 +47,11 @@ from accellog.present.rrd.ranges import with_time_ranges
 from accellog.present.rrd.sinks import SinkWatch, parse_sink, spawn_viewer
 from accellog.store.atomic import AtomicOutput
 
+COALESCE_ROWS = 16_384
+"""A file sink sends a series' batches of fewer rows than this gathered, up to this many rows per
+``send_columns`` call (a call costs ~0.15 ms; a replay logs ~130 envelope rows per series and batch).
+Live sinks get every batch as it comes."""
+
 
 class RunRecording(PipelineLogs):
     """A Rerun recording of one pipeline run (see the module docstring for the entity layout).
@@ -78,6 +84,7 @@ class RunRecording(PipelineLogs):
         self._span: tuple[float, float] | None = None  # batched logging: (t0, bucket width) s
         self._builders: dict[str, tuple[EnvelopeBuilder, bool]] = {}  # entity -> (builder, has index)
         self._extents: dict[str, tuple[float, float]] = {}  # entity -> (first, last) sensor_time (s)
+        self._pending: dict[str, tuple[int, list]] = {}  # entity -> (rows, [(t, v, index)]) to send
         self.kind, self.target = parse_sink(sink)
         self.guard = (self.kind != "save") if guard is None else guard
         self.failures = 0
@@ -204,11 +211,36 @@ class RunRecording(PipelineLogs):
             return
         lo, hi = self._extents.get(entity, (np.inf, -np.inf))
         self._extents[entity] = (min(lo, float(np.nanmin(t))), max(hi, float(np.nanmax(t))))
-        idx = [rr.TimeColumn(MAIN_TIMELINE, duration=t)]
-        if sample_index is not None:
-            idx.append(rr.TimeColumn(SAMPLE_TIMELINE, sequence=np.asarray(sample_index, dtype=np.int64)))
+        idx = None if sample_index is None else np.asarray(sample_index, dtype=np.int64)
+        if self.kind != "save" or t.shape[0] >= COALESCE_ROWS:
+            self._send_pending(entity)
+            self._send(entity, t, v, idx)
+            return
+        rows, parts = self._pending.get(entity, (0, []))
+        if parts and (parts[0][2] is None) != (idx is None):  # the sample timeline comes or goes
+            self._send_pending(entity)
+            rows, parts = 0, []
+        parts.append((t.copy(), v.copy(), None if idx is None else idx.copy()))  # the caller's may change
+        self._pending[entity] = (rows + t.shape[0], parts)
+        if rows + t.shape[0] >= COALESCE_ROWS:
+            self._send_pending(entity)
+
+    def _send_pending(self, entity: str | None = None) -> None:
+        """Send the gathered rows of entity (None: of every series)."""
+        for e in list(self._pending) if entity is None else [entity]:
+            _, parts = self._pending.pop(e, (0, []))
+            if parts:  # every part has the sample index or none has
+                t, v, idx = (None if c[0] is None else np.concatenate(c) for c in zip(*parts, strict=True))
+                self._send(e, t, v, idx)
+
+    def _send(self, entity: str, t: np.ndarray, v: np.ndarray, idx: np.ndarray | None) -> None:
+        import rerun as rr
+
+        index = [rr.TimeColumn(MAIN_TIMELINE, duration=t)]
+        if idx is not None:
+            index.append(rr.TimeColumn(SAMPLE_TIMELINE, sequence=idx))
         cols = v[:, 0] if v.shape[1] == 1 else v
-        self.rec.send_columns(entity, indexes=idx, columns=rr.Scalars.columns(scalars=cols))
+        self.rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=cols))
 
     def _envelope(self, entity, t, v, sample_index):
         """(t, v, sample_index) to log: the display envelope's rows, or the input when it is short."""
@@ -231,12 +263,14 @@ class RunRecording(PipelineLogs):
             self._span = (float(t0_s), bucket_width_s(float(t1_s) - float(t0_s)))
 
     def end_batches(self) -> None:
-        """Write the open bucket of every batched envelope and return to one-shot logging."""
+        """Write the open bucket of every batched envelope (and every gathered row: module docstring)
+        and return to one-shot logging."""
         builders, self._builders, self._span = self._builders, {}, None
         for entity, (eb, has_index) in builders.items():
             env = eb.finish()
             idx = env.row_index if has_index else None
             self._guarded(self._log_series, entity, env.t_s, env.values, [], idx, "", None, False, False)
+        self._guarded(self._send_pending)
 
     def log_static(self, entity: str, archetype: Any, role: str = "static") -> None:
         """Any Rerun archetype logged once (static) at entity; role picks its view in the blueprint."""
