@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from accellog.present.rrd.envelope import EnvelopeBuilder, bucket_width_s, minmax_envelope
@@ -80,3 +82,31 @@ def test_whole_series_envelope_and_full_rate_from_the_environment(tmp_path, monk
         assert rec.full_rate
         rec.log_samples("raw", t, idx, v, "g")
     np.testing.assert_array_equal(load_rrd(tmp_path / "full.rrd").series("accel/raw")[1], v)
+
+
+def test_bucket_edges_are_exactly_floor_of_time_over_width() -> None:
+    """The builder finds bucket edges by searching the times (not bucketing every sample): on edges
+    that fall exactly on samples, repeated times, a jump in time and a large time offset it still
+    cuts exactly where floor((t - t0) / w) changes, whatever the batches."""
+    rng = np.random.default_rng(11)
+    n = 6000
+    cases = {
+        "regular, edges on samples": (np.arange(n) * 1e-3, 0.0, 0.3),
+        "repeated times": (np.sort(rng.choice(np.arange(n // 4) * 0.01, n)), 0.0, 0.05),
+        "jump in time": (np.r_[np.arange(n // 2), 1e7 + np.arange(n // 2)] * 1e-3, 0.0, 0.001),
+        "large offset": (1e9 + np.arange(n) * 0.1, 1e9 - 0.05, 0.7),
+    }
+    for name, (t, t0, w) in cases.items():
+        v = np.round(rng.normal(size=(n, 2)) * 4)  # many equal values: ties between min and max
+        ids, mn, mx = _reference(t, v, t0, w)
+        eb = EnvelopeBuilder(t0, w)
+        cuts = np.r_[0, np.sort(rng.choice(np.arange(1, n), 25, replace=False)), n]
+        parts = [eb.push(t[a:b], v[a:b]) for a, b in itertools.pairwise(cuts)] + [eb.finish()]
+        bucket = np.concatenate([p.bucket for p in parts])
+        rows = np.concatenate([p.values for p in parts])
+        np.testing.assert_array_equal(bucket[0::2], ids, err_msg=name)
+        np.testing.assert_array_equal(np.minimum(rows[0::2], rows[1::2]), mn, err_msg=name)
+        np.testing.assert_array_equal(np.maximum(rows[0::2], rows[1::2]), mx, err_msg=name)
+        b = np.floor((t - t0) / w)
+        first = np.r_[0, np.flatnonzero(np.diff(b)) + 1]  # first and last sample of every bucket
+        np.testing.assert_array_equal(np.concatenate([p.row_index for p in parts])[0::2], first, err_msg=name)

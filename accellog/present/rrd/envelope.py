@@ -57,42 +57,44 @@ class Envelope:
         return int(self.t_s.shape[0])
 
 
-def _envelope(t: np.ndarray, v: np.ndarray, b: np.ndarray, pos: np.ndarray) -> Envelope:
-    """Rows of complete buckets: t (n,), v (n,k), b bucket ids (n,, non-decreasing), pos sample idx.
+def _envelope(t: np.ndarray, v: np.ndarray, pos, starts: np.ndarray, ids: np.ndarray) -> Envelope:
+    """Rows of complete buckets: t (n,) s, v (n,k), pos the sample numbers (n,) or the number of the
+    first sample (int, then counted on); starts: first sample of each bucket (increasing, from 0), ids
+    their bucket numbers.
 
     Column by column on a contiguous copy (k, n): min and max by ``reduceat``, and the first sample
     equal to each (which comes first) from the sorted positions of the equal samples."""
     n, k = v.shape
     if n == 0:
         return Envelope(np.empty(0), np.empty((0, k)), np.empty(0, np.int64), np.empty(0, np.int64))
-    starts = np.flatnonzero(b[1:] != b[:-1]) + 1
-    starts = np.r_[0, starts]
-    ends = np.r_[starts[1:], n]  # exclusive
-    counts = ends - starts
+    nb = starts.shape[0]
+    ends = np.empty_like(starts)  # exclusive
+    ends[:-1], ends[-1] = starts[1:], n
     cols = np.ascontiguousarray(v.T)  # (k, n): reduceat along contiguous rows is ~10x faster
     with np.errstate(invalid="ignore"):
         mn = np.fmin.reduceat(cols, starts, axis=1)  # (k, buckets), NaNs ignored
         mx = np.fmax.reduceat(cols, starts, axis=1)
-    rows = np.empty((2 * starts.shape[0], k))
-    for j in range(k):
-        first_min = _first_equal(cols[j], mn[j], starts, ends, counts)
-        first_max = _first_equal(cols[j], mx[j], starts, ends, counts)
-        min_first = first_min <= first_max  # the min comes first (NaN buckets: both n)
-        rows[0::2, j] = np.where(min_first, mn[j], mx[j])
-        rows[1::2, j] = np.where(min_first, mx[j], mn[j])
-    idx = np.empty(2 * starts.shape[0], dtype=np.int64)
-    idx[0::2] = starts
-    idx[1::2] = ends - 1
-    return Envelope(t[idx], rows, pos[idx], b[idx])
+    counts = ends - starts
+    min_first = _first_equal(cols, mn, starts, ends, counts) <= _first_equal(cols, mx, starts, ends, counts)
+    rows = np.empty((2 * nb, k))
+    rows[0::2] = np.where(min_first, mn, mx).T  # the extreme that comes first (NaN buckets: NaN)
+    rows[1::2] = np.where(min_first, mx, mn).T
+    idx = np.empty(2 * nb, dtype=np.int64)
+    idx[0::2], idx[1::2] = starts, ends - 1
+    row_index = idx + pos if isinstance(pos, (int, np.integer)) else np.asarray(pos, np.int64)[idx]
+    return Envelope(t[idx], rows, row_index, np.asarray(ids, np.int64).repeat(2))
 
 
-def _first_equal(col: np.ndarray, ext: np.ndarray, starts, ends, counts) -> np.ndarray:
-    """Per bucket, the position of the first sample of col equal to the bucket's ext (n when none:
-    a bucket of only NaNs)."""
-    n = col.shape[0]
-    hits = np.append(np.flatnonzero(col == np.repeat(ext, counts)), n)  # sorted, n at the end
-    first = hits[np.searchsorted(hits, starts)]  # the first hit at or after each bucket's start
-    return np.where(first < ends, first, n)
+def _first_equal(cols: np.ndarray, ext: np.ndarray, starts, ends, counts) -> np.ndarray:
+    """Per column and bucket (k, buckets), the first sample of cols (k, n) equal to ext (k, buckets),
+    as a flat position j n + i (k n when there is none: a bucket of only NaNs)."""
+    k, n = cols.shape
+    hits = np.flatnonzero(cols == ext.repeat(counts, axis=1))  # increasing flat positions
+    if hits.shape[0] == 0:
+        return np.full(ext.shape, k * n)
+    row = (np.arange(k) * n)[:, None]
+    first = hits.take(hits.searchsorted(row + starts), mode="clip")  # first hit at or after each start
+    return np.where((first >= row + starts) & (first < row + ends), first, k * n)
 
 
 class EnvelopeBuilder:
@@ -105,36 +107,81 @@ class EnvelopeBuilder:
     def __init__(self, t0_s: float, width_s: float) -> None:
         self.t0_s = float(t0_s)
         self.width_s = float(width_s)
-        self._t: np.ndarray | None = None  # samples of the open bucket
-        self._v: np.ndarray | None = None
-        self._pos: np.ndarray | None = None
-        self._b: np.ndarray | None = None
+        self._open: tuple | None = None  # the open bucket: (t, v, pos, bucket number), copies
         self.n_in = 0
+
+    def bucket(self, t_s: np.ndarray) -> np.ndarray:
+        """Bucket number floor((t - t0) / w) of each time (s)."""
+        return np.floor((np.asarray(t_s, dtype=np.float64) - self.t0_s) / self.width_s).astype(np.int64)
+
+    def starts(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(first sample of each bucket in t, its bucket number) for times t (s, non-decreasing).
+
+        The bucket edges are searched in t and moved to where ``bucket`` changes, so only the
+        samples next to an edge are bucketed (all of them when that does not settle quickly)."""
+        n = t.shape[0]
+        lo, hi = self.bucket(t[[0, -1]])
+        if hi - lo <= n:  # else a jump in time: at most n buckets hold samples
+            ks = np.arange(lo + 1, hi + 1)
+            p = np.searchsorted(t, self.t0_s + ks * self.width_s)  # near the first sample with b >= k
+            for _ in range(4):  # b is non-decreasing: step each edge until b[p - 1] < k <= b[p]
+                down = (p > 0) & (self.bucket(t[np.maximum(p - 1, 0)]) >= ks)
+                up = (p < n) & (self.bucket(t[np.minimum(p, n - 1)]) < ks)
+                if not (down.any() or up.any()):
+                    p = p[np.diff(p, prepend=0) > 0]  # empty buckets share an edge
+                    starts = np.concatenate([[0], p])
+                    return starts, self.bucket(t[starts])
+                p = p - down + up
+        b = self.bucket(t)
+        starts = np.concatenate([[0], np.flatnonzero(b[1:] != b[:-1]) + 1])
+        return starts, b[starts]
 
     def push(self, t_s: np.ndarray, values: np.ndarray, index: np.ndarray | None = None) -> Envelope:
         """Add samples (t_s (n,) s non-decreasing, values (n,k)); index: their sample numbers (default:
         running count)."""
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         v = np.asarray(values, dtype=np.float64).reshape(t.shape[0], -1)
-        pos = np.arange(self.n_in, self.n_in + t.shape[0]) if index is None else np.asarray(index, np.int64)
-        self.n_in += t.shape[0]
-        b = np.floor((t - self.t0_s) / self.width_s).astype(np.int64)
-        if self._t is not None:
-            t, v = np.concatenate([self._t, t]), np.concatenate([self._v, v])
-            pos, b = np.concatenate([self._pos, pos]), np.concatenate([self._b, b])
-        if t.shape[0] == 0:
-            return _envelope(t, v, b, pos)
-        cut = int(np.searchsorted(b, b[-1], side="left"))  # the last bucket may go on
-        self._t, self._v, self._pos, self._b = t[cut:], v[cut:], pos[cut:], b[cut:]
-        return _envelope(t[:cut], v[:cut], b[:cut], pos[:cut])
+        n = t.shape[0]
+        pos = self.n_in if index is None else np.asarray(index, np.int64).reshape(-1)
+        self.n_in += n
+        if n == 0:
+            return _envelope(t, v, 0, np.empty(0, np.int64), np.empty(0, np.int64))
+        starts, ids = self.starts(t)
+        head = None  # rows of the bucket left open by the previous push, now complete
+        if self._open is not None:
+            ot, ov, op, oid = self._open
+            self._open = None
+            if ids[0] == oid:  # the open bucket goes on into this batch
+                e = starts[1] if starts.shape[0] > 1 else n
+                ot, ov = np.concatenate([ot, t[:e]]), np.concatenate([ov, v[:e]])
+                op = np.concatenate([op, np.arange(pos, pos + e) if isinstance(pos, int) else pos[:e]])
+                if e == n:
+                    self._open = (ot, ov, op, oid)
+                    return _envelope(t[:0], v[:0], 0, starts[:0], ids[:0])
+                starts, ids = starts[1:], ids[1:]
+            head = _envelope(ot, ov, op, np.zeros(1, np.int64), np.array([oid]))
+        a, z = int(starts[0]), int(starts[-1])  # complete buckets: samples a..z-1; z.. stay open
+        p_open = np.arange(pos + z, pos + n) if isinstance(pos, int) else pos[z:]
+        self._open = (t[z:].copy(), v[z:].copy(), p_open.copy(), ids[-1])
+        p_done = pos + a if isinstance(pos, int) else pos[a:z]
+        rows = _envelope(t[a:z], v[a:z], p_done, starts[:-1] - a, ids[:-1])
+        return rows if head is None else _concat(head, rows)
 
     def finish(self) -> Envelope:
         """Rows of the last (open) bucket; the builder is empty afterwards."""
-        if self._t is None:
-            return _envelope(np.empty(0), np.empty((0, 1)), np.empty(0, np.int64), np.empty(0, np.int64))
-        t, v, pos, b = self._t, self._v, self._pos, self._b
-        self._t = self._v = self._pos = self._b = None
-        return _envelope(t, v, b, pos)
+        if self._open is None:
+            return _envelope(np.empty(0), np.empty((0, 1)), 0, np.empty(0, np.int64), np.empty(0, np.int64))
+        t, v, pos, oid = self._open
+        self._open = None
+        return _envelope(t, v, pos, np.zeros(1, np.int64), np.array([oid]))
+
+
+def _concat(a: Envelope, b: Envelope) -> Envelope:
+    return Envelope(*(np.concatenate([x, y]) for x, y in zip(_fields(a), _fields(b), strict=True)))
+
+
+def _fields(e: Envelope) -> tuple[np.ndarray, ...]:
+    return e.t_s, e.values, e.row_index, e.bucket
 
 
 def minmax_envelope(
@@ -144,13 +191,6 @@ def minmax_envelope(
     t = np.asarray(t_s, dtype=np.float64).reshape(-1)
     if t.shape[0] == 0:
         v = np.asarray(values, dtype=np.float64).reshape(0, -1)
-        return _envelope(t, v, np.empty(0, np.int64), np.empty(0, np.int64))
+        return _envelope(t, v, 0, np.empty(0, np.int64), np.empty(0, np.int64))
     eb = EnvelopeBuilder(float(t[0]), bucket_width_s(float(t[-1] - t[0]), buckets))
-    first = eb.push(t, values, index)
-    last = eb.finish()
-    return Envelope(
-        np.r_[first.t_s, last.t_s],
-        np.concatenate([first.values, last.values]),
-        np.r_[first.row_index, last.row_index],
-        np.r_[first.bucket, last.bucket],
-    )
+    return _concat(eb.push(t, values, index), eb.finish())
