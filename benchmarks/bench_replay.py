@@ -12,8 +12,9 @@ baseline, measured in the same run); replay memory bounded independently of sess
 
 Sessions: a static z-up session at 1 kHz (accel + temperature counts, seeded), written hour by hour
 with SessionWriter (1 MiB chunks, zstd). Every figure is one fresh process under /usr/bin/time
-(peak RSS), imports done before the clock starts (wall = the work only), best of --repeat; the
-load average is printed with each row (a loaded 2-core machine inflates every wall time).
+(peak RSS), imports done before the clock starts (wall and CPU = the work only; CPU = user + sys of
+all threads), best of --repeat, the modes interleaved; the range of the load average during the
+runs is printed with each row (a loaded 2-core machine inflates every wall time, CPU time less).
 
     python benchmarks/bench_replay.py [--minutes 60 240] [--modes replay replay_rrd ...] [--repeat 2]
 """
@@ -38,6 +39,9 @@ B_TRUE = np.array([0.03, -0.02, 0.05])
 
 _PRELUDE = """
 import json, os, time, resource
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 from accellog.flows.replay import replay
 from accellog.navigate.evaluate import evaluate
@@ -103,18 +107,21 @@ def write_calibration(d: Path) -> Path:
     return d / "model3.json"
 
 
-def run(mode: str, session: Path, cal: Path, rrd: Path) -> tuple[float, float]:
-    """(wall s of the work, peak RSS MB of the process) of one fresh process doing `mode`."""
+def run(mode: str, session: Path, cal: Path, rrd: Path) -> tuple[float, float, float]:
+    """(wall s, CPU s (user + sys, all threads) of the work, peak RSS MB of the process) of one fresh
+    process doing `mode`."""
     code = (
         f"{_PRELUDE}P, C, R = {str(session)!r}, {str(cal)!r}, {str(rrd)!r}\n"
-        f"t0 = time.perf_counter()\n{MODES[mode]}\nprint(json.dumps(time.perf_counter() - t0))"
+        f"t0, c0 = time.perf_counter(), cpu()\n{MODES[mode]}\n"
+        "print(json.dumps([time.perf_counter() - t0, cpu() - c0]))"
     )
     r = subprocess.run(
         ["/usr/bin/time", "-f", "%M", sys.executable, "-c", code], capture_output=True, text=True
     )
     if r.returncode:
         raise SystemExit(f"{mode}: {r.stderr[-2000:]}")
-    return float(json.loads(r.stdout.strip().splitlines()[-1])), int(r.stderr.strip().splitlines()[-1]) / 1024
+    wall, cpu = json.loads(r.stdout.strip().splitlines()[-1])
+    return float(wall), float(cpu), int(r.stderr.strip().splitlines()[-1]) / 1024
 
 
 def main() -> None:
@@ -131,20 +138,29 @@ def main() -> None:
             print(f"\nsession: {minutes:g} min at 1 kHz ({minutes * 60_000:,.0f} samples), "
                   f"MCAP {session.stat().st_size / 1e6:.0f} MB")  # fmt: skip
             print(
-                f"{'mode':16s} {'best s':>8s} {'x replay':>9s} {'peak MB':>8s} {'rrd MB':>7s}  load average"
+                f"{'mode':16s} {'best s':>8s} {'x replay':>9s} {'CPU s':>7s} {'x replay':>9s} {'peak MB':>8s} "
+                f"{'rrd MB':>7s}  load average (during the runs)"
             )
-            base = None
-            for mode in args.modes:
-                rrd = d / f"{mode}.rrd"
-                runs = [run(mode, session, cal, rrd) for _ in range(args.repeat)]
-                wall, peak = min(w for w, _ in runs), max(m for _, m in runs)
-                if mode == "replay":
-                    base = wall
-                size = f"{rrd.stat().st_size / 1e6:7.1f}" if rrd.exists() else f"{'-':>7s}"
-                ratio = f"{wall / base:9.2f}" if base else f"{'-':>9s}"
-                load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
-                print(f"{mode:16s} {wall:8.2f} {ratio} {peak:8.0f} {size}  {load}", flush=True)
-                rrd.unlink(missing_ok=True)
+            runs: dict[str, list] = {m: [] for m in args.modes}
+            sizes: dict[str, float] = {}
+            loads = []
+            for _ in range(args.repeat):  # interleaved: a change of load hits every mode alike
+                for mode in args.modes:
+                    rrd = d / f"{mode}.rrd"
+                    runs[mode].append(run(mode, session, cal, rrd))
+                    loads.append(os.getloadavg()[0])
+                    if rrd.exists():
+                        sizes[mode] = rrd.stat().st_size / 1e6
+                    rrd.unlink(missing_ok=True)
+            base = runs.get("replay")
+            bw, bc = (min(r[0] for r in base), min(r[1] for r in base)) if base else (None, None)
+            load = f"{min(loads):.1f}-{max(loads):.1f}"
+            for mode, rs in runs.items():
+                wall, cpu, peak = min(r[0] for r in rs), min(r[1] for r in rs), max(r[2] for r in rs)
+                size = f"{sizes[mode]:7.1f}" if mode in sizes else f"{'-':>7s}"
+                rw = f"{wall / bw:9.2f}" if bw else f"{'-':>9s}"
+                rc = f"{cpu / bc:9.2f}" if bc else f"{'-':>9s}"
+                print(f"{mode:16s} {wall:8.2f} {rw} {cpu:7.2f} {rc} {peak:8.0f} {size}  {load}", flush=True)
             session.unlink()
     print("\n2-core machine shared with other developers: compare ratios within one run, not across runs.")
 
