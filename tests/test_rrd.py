@@ -316,21 +316,48 @@ def test_unreachable_viewer_from_the_start(tmp_path: Path) -> None:
 
 
 def test_live_view_to_file_records_prompts_and_batches(tmp_path: Path) -> None:
-    """The same LiveView calls against a file sink: what the viewer would have shown is all there."""
-    out = tmp_path / "live.rrd"
+    """The same LiveView calls against a file sink: what the viewer would have shown is all there,
+    the sample streams as min/max envelopes of LIVE_BUCKET_S buckets (every sample on demand)."""
+    from accellog.present.rrd.envelope import EnvelopeBuilder
+    from accellog.present.rrd.live import LIVE_BUCKET_S
+
+    out, full = tmp_path / "live.rrd", tmp_path / "full.rrd"
     live = LiveView(RunRecording(f"save:{out}"), integrate=True)
     worst = _write_mcap_while_live(tmp_path / "s.mcap", live, lambda: None, n_batches=60)
     live.close()
     assert max(worst) < 1.0 and live.failures == 0
+    acc = _read_mcap(tmp_path / "s.mcap")
+    n = acc.shape[0]
+    t = np.arange(n) / 1000.0
+
+    def envelope(v):
+        eb = EnvelopeBuilder(0.0, LIVE_BUCKET_S)
+        a, b = eb.push(t, v, np.arange(n)), eb.finish()
+        return np.r_[a.row_index, b.row_index], np.concatenate([a.values, b.values])
+
     r = load_rrd(out)
-    _, raw = r.series("accel/raw")
-    np.testing.assert_array_equal(raw, _read_mcap(tmp_path / "s.mcap"))
+    s_idx, raw = r.series("accel/raw", timeline="sample")
+    want_idx, want = envelope(acc)
+    assert raw.shape == (2 * round(n / 1000.0 / LIVE_BUCKET_S), 3)  # 20 ms buckets of 20 samples
+    np.testing.assert_array_equal(raw, want)
+    np.testing.assert_array_equal(s_idx, want_idx)
+    assert raw[:, 2].max() == acc[:, 2].max() and raw[:, 2].min() == acc[:, 2].min()
+    np.testing.assert_array_equal(r.series("temperature")[1], np.full((raw.shape[0], 1), 30.0))
     assert "+z" in r.static("live/prompt", "TextDocument:text")[0]
     _, still = r.series("live/stillness")
     assert still.shape == (60, 2) and still[:, 0].min() == 1.0
     _, d = r.series("tracks/live")
-    assert d.shape == (60 * 36, 3)
+    integ = OnlineIntegrator()  # as the live view: batch by batch
+    disp = np.concatenate([integ.push(t[a : a + 36], acc[a : a + 36]).disp_m for a in range(0, n, 36)])
+    np.testing.assert_array_equal(d, envelope(disp)[1])
     assert hashlib.sha256(out.read_bytes()).hexdigest()  # file complete and readable
+
+    live = LiveView(RunRecording(f"save:{full}", full_rate=True), integrate=True)
+    _write_mcap_while_live(tmp_path / "s2.mcap", live, lambda: None, n_batches=60)
+    live.close()
+    r = load_rrd(full)
+    np.testing.assert_array_equal(r.series("accel/raw")[1], acc)
+    assert r.series("tracks/live")[1].shape == (n, 3)
 
 
 def test_live_holds_logged_one_by_one_keep_their_own_series(tmp_path: Path) -> None:

@@ -13,6 +13,12 @@ from accellog.navigate.online import OnlineIntegrator
 from accellog.present.rrd.entities import AXES, LIVE, TRACKS
 from accellog.present.rrd.recording import RunRecording
 
+LIVE_BUCKET_S = 0.02
+"""The live sample streams (raw, calibrated, temperature, track) are shown as min/max envelopes of
+buckets this wide (s): 100 rows per second and stream whatever the sample rate, spikes kept; a
+bucket reaches the view when the next one starts. Every sample on demand: a ``full_rate``
+RunRecording (ACCELLOG_RRD_FULL=1); the MCAP file always has them all."""
+
 
 class LiveView:
     """Live panels for a guided recording, on top of a guarded RunRecording.
@@ -25,6 +31,7 @@ class LiveView:
     def __init__(self, recording: RunRecording | str, *, integrate: bool = False) -> None:
         self.run = recording if isinstance(recording, RunRecording) else RunRecording(recording, guard=True)
         self.run.guard = True
+        self.run.begin_stream(LIVE_BUCKET_S)
         self._t_s = 0.0
         self._integrator = None
         if integrate:
@@ -68,6 +75,7 @@ class LiveView:
             np.array([[1.0 if still else 0.0, float(stat)]]),
             ["still (0/1)", "motion statistic"],
             role="live",
+            decimate=False,  # one row per call
         )
 
     def running_calibration(self, text: str) -> None:
@@ -83,7 +91,7 @@ class LiveView:
         temp_degC: np.ndarray | None = None,
         calibrated_g: np.ndarray | None = None,
     ) -> None:
-        """One batch of samples as they arrive (columnar, sensor time)."""
+        """One batch of samples as they arrive (columnar, sensor time; envelopes: LIVE_BUCKET_S)."""
         t = np.asarray(t_s, dtype=np.float64)
         if t.size:
             self._t_s = max(self._t_s, float(t[-1]))

@@ -262,6 +262,12 @@ class RunRecording(PipelineLogs):
         if n_samples > FULL_RATE_MAX_SAMPLES:
             self._span = (float(t0_s), bucket_width_s(float(t1_s) - float(t0_s)))
 
+    def begin_stream(self, width_s: float, t0_s: float = 0.0) -> None:
+        """Series of an open-ended stream (a live recording) follow batch by batch: their envelopes
+        use buckets of width_s s from t0_s on. ``end_batches`` (or close) writes the last buckets."""
+        self.end_batches()
+        self._span = (float(t0_s), float(width_s))
+
     def end_batches(self) -> None:
         """Write the open bucket of every batched envelope (and every gathered row: module docstring)
         and return to one-shot logging."""
@@ -345,6 +351,9 @@ class RunRecording(PipelineLogs):
             if self.kind == "save":
                 self.rec.flush()
                 self.rec.disconnect()
+            elif self.down:  # dropping an unreachable gRPC sink waits up to 5 s: on a thread of its
+                # own, not in the caller nor wherever the garbage collector happens to drop it later
+                threading.Thread(target=self._disconnect_quietly, daemon=True).start()
             else:
                 self._guarded(self.rec.flush, timeout_sec=2.0)
                 self._guarded(self.rec.disconnect)
@@ -355,6 +364,10 @@ class RunRecording(PipelineLogs):
             self._closed = True
         if self._out is not None:
             self._out.commit()
+
+    def _disconnect_quietly(self) -> None:
+        with contextlib.suppress(Exception):
+            self.rec.disconnect()
 
     def abort(self) -> None:
         """Stop without producing a file (a temporary file is removed)."""
