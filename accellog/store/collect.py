@@ -15,7 +15,6 @@ is read by scanning its data section).
 from __future__ import annotations
 
 import dataclasses
-import zlib
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -28,6 +27,11 @@ from accellog.core.errors import InputError
 from accellog.store.batch_decode import DecodedBatch
 from accellog.store.codec import BatchDecoder
 from accellog.store.layout import MCAP_MAGIC
+
+try:  # ISA-L's CRC-32: the same polynomial and values as zlib.crc32, ~7x faster (PCLMUL); optional
+    from isal.isal_zlib import crc32
+except ImportError:  # pragma: no cover - the extra "fast" is not installed
+    from zlib import crc32
 from accellog.store.schema import MESSAGE_DEFS, PACKAGE
 
 # ---------------------------------------------------------------------------------------------
@@ -89,7 +93,7 @@ def data_section_damage(data, summary_start: int) -> Damage | None:
         return None
     got, mv, step = 0, memoryview(data), 16 << 20
     for lo in range(0, at, step):  # in pieces, dropping each piece's mapped pages behind us
-        got = zlib.crc32(mv[lo : min(lo + step, at)], got)
+        got = crc32(mv[lo : min(lo + step, at)], got)
         release_pages(data, lo, min(lo + step, at))
     mv.release()
     return None if got == want else Damage(at, -1, -1, "data section CRC mismatch", chunk=False)
@@ -167,9 +171,7 @@ def file_damage(path: Path) -> tuple[Exception | None, Damage | None]:
         if not 0 < start <= footer:
             return None, None
         want = int.from_bytes(data[footer + 25 : footer + 29], "little")
-        if want and want != zlib.crc32(
-            data[footer : footer + 25], zlib.crc32(memoryview(data)[start:footer])
-        ):
+        if want and want != crc32(data[footer : footer + 25], crc32(memoryview(data)[start:footer])):
             return McapError("summary section CRC mismatch"), None
         return None, data_section_damage(data, start)
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import itertools
 import mmap
-import zlib
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -27,7 +26,15 @@ from mcap.records import Channel, Schema
 
 from accellog.core.errors import InputError
 from accellog.store.batch_decode import BatchAccumulator, decode_batch, read_le
-from accellog.store.collect import Collected, Damage, _Sink, data_section_damage, recover, release_pages
+from accellog.store.collect import (
+    Collected,
+    Damage,
+    _Sink,
+    crc32,
+    data_section_damage,
+    recover,
+    release_pages,
+)
 from accellog.store.mcap_index import (
     MESSAGE_HEADER,
     OP_CHANNEL,
@@ -143,7 +150,7 @@ def _fast_walk(data: Bytes, topics: Iterable[str] | None, stream: str | None = N
     # leaving the with-block (also on an exception) waits for it, before the file is unmapped
     with ThreadPoolExecutor(1) as pool, ThreadPoolExecutor(1) as crc_pool:
         pending = pool.submit(decompress, 0)
-        # the data section CRC (zlib releases the GIL); a read of some chunks only (labels) skips it
+        # the data section CRC (crc32 releases the GIL); a read of some chunks only (labels) skips it
         # unless the metadata needs its verdict
         data_crc = None if keep is not None else crc_pool.submit(data_section_damage, data, summary_start)
         for i in range(len(groups)):
@@ -324,7 +331,7 @@ class _Decompressor:
                 continue
             out = self._one(data[na : na + nl], mv[a:b], u)
             j = first + k
-            if not isinstance(out, str) and self.crc[j] and zlib.crc32(out) != self.crc[j]:
+            if not isinstance(out, str) and self.crc[j] and crc32(out) != self.crc[j]:
                 out = "CRC mismatch"
             if isinstance(out, str):
                 self.damaged.append(Damage(self.at[j], self.t0[j], self.t1[j], out))

@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import mmap
 import struct
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
 from mcap.records import Channel, Schema
 
 from accellog.store.batch_decode import read_le
-from accellog.store.collect import release_pages
+from accellog.store.collect import crc32, release_pages
 from accellog.store.layout import MCAP_MAGIC
 
 REC = struct.Struct("<BQ")  # record prefix: opcode u8, content length u64
@@ -55,7 +54,7 @@ def summary_sound(data: Bytes, footer: int, summary_start: int) -> bool | None:
     want = U32.unpack_from(data, footer + 25)[0]
     if want == 0:
         return None
-    return zlib.crc32(data[footer : footer + 25], zlib.crc32(memoryview(data)[summary_start:footer])) == want
+    return crc32(data[footer : footer + 25], crc32(memoryview(data)[summary_start:footer])) == want
 
 
 def str_at(data: Bytes, pos: int) -> tuple[str, int]:
