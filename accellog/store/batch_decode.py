@@ -237,6 +237,21 @@ def _first_layout(
     return fixed, varint_at, double_at, span_at
 
 
+def _rows(buf: np.ndarray, pos: np.ndarray, size: int) -> Callable[[np.ndarray | slice], np.ndarray]:
+    """cols -> (n, ...) uint8 array of the bytes at columns ``cols`` of every message buf[pos[k]:][:size].
+
+    Evenly spaced messages (the usual case: equal records back to back) are one strided (n, size) view,
+    read by column without an index array per byte; others are gathered by offset."""
+    step = int(pos[1] - pos[0]) if pos.shape[0] > 1 else size
+    if step >= size and np.all(np.diff(pos) == step):
+        view = np.lib.stride_tricks.as_strided(
+            buf[int(pos[0]) :], shape=(pos.shape[0], size), strides=(step, 1)
+        )
+        return lambda cols: view[:, cols]
+    offsets = pos[:, None]
+    return lambda cols: buf[offsets + (np.arange(cols.start, cols.stop) if isinstance(cols, slice) else cols)]
+
+
 def _uniform_layout(
     buf: np.ndarray,
     pos: np.ndarray,
@@ -267,11 +282,12 @@ def _uniform_layout(
         return False
     fixed, varint_at, double_at, span_at = layout
     rel = np.asarray(fixed, dtype=np.int64)
-    if np.any(buf[pos[:, None] + rel] != np.frombuffer(t, np.uint8)[rel]):
+    rows = _rows(buf, pos, size)
+    if np.any(rows(rel) != np.frombuffer(t, np.uint8)[rel]):
         return False
     columns = {}
     for name, o, k in varint_at:
-        cols = buf[pos[:, None] + np.arange(o, o + k)]
+        cols = rows(slice(o, o + k))
         if np.any(cols[:, :-1] < 0x80) or np.any(cols[:, -1] >= 0x80):
             return False
         columns[name] = cols
@@ -281,7 +297,7 @@ def _uniform_layout(
             v |= (cols[:, j] & 0x7F).astype(np.uint64) << np.uint64(7 * j)
         vals[name][:] = v
     for name, o in double_at:
-        vals[name][:] = read_le(buf, pos + o, "<u8")
+        vals[name][:] = np.ascontiguousarray(rows(slice(o, o + 8))).view("<u8")[:, 0]
     for name, o, ln in span_at:
         offs[name][:] = pos + o
         lens[name][:] = ln
