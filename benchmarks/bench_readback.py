@@ -18,15 +18,23 @@ Floors: mapping the MCAP file and decompressing its chunks (no parsing, no decod
 read_session no decoder can avoid. 'generic' rows are the reader before the vectorised path (mcap's
 reader + per-message BatchDecoder; accellog.store.reader.FAST_READ = False), timed once.
 Every file is read once before timing (page cache warm); each figure is the best of --repeat runs,
-interleaved round-robin so that load from other processes hits all variants alike.
+interleaved round-robin so that load from other processes hits all variants alike. Each row shows its
+wall time and CPU time (user + sys of every thread: read_session decompresses on a second thread and
+converts units on two), each MCAP row both as a ratio to its own floor (issue #11: <= 1.5x), and the
+peak traced memory of one more run (tracemalloc: numpy arrays and Python objects, not the mapped file).
+The floor leaves out what read_session must do besides decompressing: the CRC checks of every chunk
+and of the data section, and the unit conversions (the 'raw binary + conversions' row less the 'raw
+binary' row prices those alone). --dir DIR keeps the generated files there and reuses them.
 """
 
 from __future__ import annotations
 
 import argparse
 import mmap
+import os
 import tempfile
 import time
+import tracemalloc
 from collections.abc import Callable
 from pathlib import Path
 
@@ -156,6 +164,27 @@ def decompress_floor(path: Path) -> Callable[[], None]:
     return run
 
 
+def timed(fn: Callable[[], object]) -> tuple[float, float]:
+    """(wall s, CPU s of the whole process: every thread) of one call."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
+def peak_mb(fn: Callable[[], object]) -> float:
+    """Peak traced memory (MB) of one call: what it allocates, not the mapped file."""
+    tracemalloc.start()
+    try:
+        fn()
+        return tracemalloc.get_traced_memory()[1] / 1e6
+    finally:
+        tracemalloc.stop()
+
+
+def load() -> str:
+    return "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
 def generic_read(path: Path) -> Session:
     reader.FAST_READ = False
     try:
@@ -169,12 +198,14 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--no-generic", action="store_true", help="skip the (slow) generic-reader rows")
+    ap.add_argument("--dir", type=Path, help="keep the generated files here and reuse them")
     args = ap.parse_args()
     n = int(args.minutes * 60 * 1000)
     s = simulate(n)
     rows: list[tuple[str, Callable[[], object], Path | list[Path], float]] = []
     with tempfile.TemporaryDirectory() as tmp:
-        d = Path(tmp)
+        d = Path(tmp) if args.dir is None else args.dir / f"{args.minutes:g}min"
+        d.mkdir(parents=True, exist_ok=True)
         arrays = raw_arrays(s)
         raw_bin = d / "raw.bin"
         with open(raw_bin, "wb") as f:
@@ -193,8 +224,10 @@ def main() -> None:
         ):
             p = d / f"{key}.mcap"
             t0 = time.perf_counter()
-            writer(p)
-            files[key] = (p, time.perf_counter() - t0)
+            fresh = not p.exists()  # --dir: written once, then reused (write time not measured)
+            if fresh:
+                writer(p)
+            files[key] = (p, time.perf_counter() - t0 if fresh else float("nan"))
             r = read_session(p)
             for name, a in raw_arrays(r).items():
                 assert np.array_equal(a, arrays[name]), (key, name)
@@ -223,13 +256,17 @@ def main() -> None:
             )
 
         best = {name: float("inf") for name, *_ in rows}
+        best_cpu = dict(best)
+        load_before = load()
         for fn in (r[1] for r in rows):  # warm the page cache and every code path
             fn()
         for _ in range(args.repeat):
             for name, fn, _, _ in rows:
-                t0 = time.perf_counter()
-                fn()
-                best[name] = min(best[name], time.perf_counter() - t0)
+                wall, cpu = timed(fn)
+                best[name] = min(best[name], wall)
+                best_cpu[name] = min(best_cpu[name], cpu)
+        load_after = load()
+        peak = {name: peak_mb(fn) for name, fn, _, _ in rows}
         generic: dict[str, float] = {}
         if not args.no_generic:
             for key in ("rec", "rec_zstd", "ws_zstd"):
@@ -245,19 +282,36 @@ def main() -> None:
 
     t_raw = best["raw binary (1 flat .bin, readinto)"]
     t_rawc = best["raw binary + the same conversions"]
+    floor_of = {
+        labels[key] + ": read_session": f"  floor ({key}): map file + decompress only" for key in files
+    }
     print(
         f"read-back of {args.minutes:g} min at 1 kHz = {n:,} samples (accel+gyro+temp counts, t_ns, "
-        f"sample index, host time); best of {args.repeat}, wall time"
+        f"sample index, host time); best of {args.repeat}; {load_before} before, {load_after} after"
     )
-    head = f"{'variant':<66} {'read s':>8} {'vs raw':>7} {'vs raw+conv':>12} {'size MB':>8} {'write s':>8}"
+    head = (
+        f"{'variant':<60} {'wall s':>7} {'CPU s':>7} {'vs raw':>7} {'vs raw+conv':>11} "
+        f"{'vs floor wall':>13} {'CPU':>5} {'peak MB':>8} {'size MB':>8} {'write s':>8}"
+    )
     print(head)
     print("-" * len(head))
     for name, _, _, tw in rows:
-        t = best[name]
-        print(f"{name:<66} {t:8.3f} {t / t_raw:7.2f} {t / t_rawc:12.2f} {sizes[name]:8.1f} {tw:8.2f}")
+        t, c = best[name], best_cpu[name]
+        fl = floor_of.get(name)
+        vs_floor = f"{t / best[fl]:13.2f} {c / best_cpu[fl]:5.2f}" if fl else f"{'':13} {'':5}"
+        print(
+            f"{name:<60} {t:7.3f} {c:7.3f} {t / t_raw:7.2f} {t / t_rawc:11.2f} {vs_floor} "
+            f"{peak[name]:8.1f} {sizes[name]:8.1f} {tw:8.2f}"
+        )
+    conv = t_rawc - t_raw
+    lz4_floor = best[floor_of[labels["ws"] + ": read_session"]]
+    print(
+        f"the unit conversions alone (raw + conversions less raw): {conv:.3f} s wall, "
+        f"{conv / lz4_floor:.2f}x the write_session lz4 floor"
+    )
     for key, t in generic.items():
         name = labels[key] + ": generic reader (before), 1 run"
-        print(f"{name:<66} {t:8.3f} {t / t_raw:7.2f} {t / t_rawc:12.2f} {file_mb[key]:8.1f}")
+        print(f"{name:<60} {t:7.3f} {'':7} {t / t_raw:7.2f} {t / t_rawc:11.2f} {'':30} {file_mb[key]:8.1f}")
 
 
 if __name__ == "__main__":
