@@ -604,3 +604,24 @@ def test_fast_reader_equals_generic_steady_recorder_stream(tmp_path, monkeypatch
     )
     assert np.array_equal(fast.accel_g, ac / meta.accel_lsb_per_g)
     assert len(uniform) > 20 and any(uniform) and not all(uniform)  # both field walks were taken
+
+
+def test_message_starts_runs_and_steps():
+    """The record walk finds every Message record, in order, whether lengths repeat (guessed runs),
+    vary from record to record (stepped in Python) or alternate between the two, across chunk ends."""
+    rng = np.random.default_rng(11)
+    lengths = [40] * 300 + [int(x) for x in rng.integers(22, 90, 700)] + [50] * 100 + [60, 61] * 200
+    lengths += [int(x) for x in rng.integers(22, 25, 500)] + [70] * 2000
+    chunks, starts, pos = [], [], 0
+    for lo in range(0, len(lengths), 450):  # chunks of 450 records
+        body = b""
+        for ln in lengths[lo : lo + 450]:
+            starts.append(pos + len(body))
+            body += bytes([0x05]) + ln.to_bytes(8, "little") + rng.integers(0, 256, ln, np.uint8).tobytes()
+        chunks.append(body)
+        pos += len(body)
+    records = bytearray(b"".join(chunks) + bytes(16))
+    got = fastread._message_starts(records, [len(c) for c in chunks])
+    assert got.tolist() == starts
+    with pytest.raises(fastread.NotFast):  # a record across a chunk end
+        fastread._message_starts(records, [len(chunks[0]) - 1, pos - len(chunks[0]) + 1])

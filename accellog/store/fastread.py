@@ -344,6 +344,10 @@ class _Decompressor:
         return buf, pos, sizes
 
 
+_STEP = 64  # _message_starts: records walked one by one in Python after a short run of equal lengths
+_SHORT = 32  # a run shorter than this did not pay for its numpy guess (~40 Python steps)
+
+
 def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
     """Offsets of the Message records in the concatenated chunk records (each chunk must be whole).
 
@@ -352,7 +356,9 @@ def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
     those guesses at once with numpy (opcode, length, no record across a chunk end), keeping the run
     up to the first miss, so the Python walk only steps where the record layout changes. At most
     about twice the last run is guessed at a time, so short runs do not cost a scan to the end of the
-    group each (linear in the records, not quadratic).
+    group each (linear in the records, not quadratic). After a short run (lengths that vary, as in
+    recorder files with FIFO reads of varying size) the next _STEP records are stepped in Python, a
+    fraction of a guess's cost each, until _SHORT/2 equal lengths in a row make guessing pay again.
     """
     unpack = REC.unpack_from
     ends = list(itertools.accumulate(usize))
@@ -360,7 +366,9 @@ def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
     ends_arr = np.asarray(ends, dtype=np.int64)
     rb = np.frombuffer(records, np.uint8)
     runs: list[np.ndarray] = []
+    single: list[int] = []  # messages stepped one by one since the last run (in order)
     pos, k, span = 0, 0, 64  # span: guesses checked at once, doubled while runs fill it (linear time)
+    step, same, last = 0, 0, -1  # records left to step; equal lengths in a row while stepping
     while pos < total:
         while pos >= ends[k]:  # next chunk (a record never crosses a chunk end)
             k += 1
@@ -368,6 +376,12 @@ def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
         nxt = pos + 9 + ln
         if nxt > ends[k]:
             raise NotFast("record across a chunk boundary")
+        if op == OP_MESSAGE and step:
+            single.append(pos)
+            same = same + 1 if ln == last else 0
+            step, last = (0 if same >= _SHORT // 2 else step - 1), ln
+            pos = nxt
+            continue
         if op == OP_MESSAGE:
             stride = 9 + ln
             stop = min(total - stride + 1, pos + stride * span)
@@ -377,13 +391,19 @@ def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
                 ends_arr, guess + (stride - 1), "right"
             )
             m = guess.shape[0] if ok.all() else int(np.argmin(ok))
+            if single:
+                runs.append(np.asarray(single, dtype=np.int64))
+                single = []
             runs.append(guess[:m])
             pos = int(guess[m - 1]) + stride
             span = 2 * m if m == guess.shape[0] else max(64, 2 * m)
+            step, same, last = (_STEP if m < _SHORT else 0), 0, -1
             continue
         if op in (OP_SCHEMA, OP_CHANNEL):  # read by content in mcap: length must agree
             q = (schema_at if op == OP_SCHEMA else channel_at)(records, pos + 9)[1]
             if q != nxt:
                 raise NotFast("schema/channel record length in a chunk")
         pos = nxt
+    if single:
+        runs.append(np.asarray(single, dtype=np.int64))
     return np.concatenate(runs) if runs else np.zeros(0, np.int64)
