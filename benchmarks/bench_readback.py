@@ -6,6 +6,8 @@ Data: a simulated static recording (seeded): accel/gyro/temp counts with noise, 
 36-sample FIFO read. MCAP layouts (same format, same schema, one message per batch):
 - recorder: 36-sample messages (one FIFO read each) written by SessionWriter with its defaults
   (chunk ended and flushed every 0.5 s: crash-safe), lz4 (default) or zstd;
+- recorder, varying reads: the same with FIFO reads of 30-42 samples (seeded), as a live recorder
+  polling a FIFO writes them: message lengths change from one message to the next, lz4;
 - write_session: whole-session writer (imports, simulations), 1 MiB chunks, lz4 (default) or zstd
   (messages are still split wherever host time changes, i.e. every 36 samples here).
 Baselines, holding exactly the arrays a Session gets (same dtypes; t_ns i8, sample_index i8,
@@ -30,6 +32,7 @@ binary' row prices those alone). --dir DIR keeps the generated files there and r
 from __future__ import annotations
 
 import argparse
+import itertools
 import mmap
 import os
 import tempfile
@@ -77,15 +80,32 @@ def simulate(n: int, seed: int = 0) -> Session:
     )
 
 
-def write_recorder_layout(path: Path, s: Session, compression: str = DEFAULT_COMPRESSION) -> None:
-    """As the recorder writes: one message per 36-sample FIFO read, SessionWriter defaults otherwise."""
-    t_ns = np.round(s.t_s * NS).astype(np.int64)
+def fifo_reads(n: int, vary: bool) -> np.ndarray:
+    """Start of each FIFO read (and n at the end): 36 samples each, or 30-42 (seeded) when vary."""
+    sizes = np.random.default_rng(1).integers(30, 43, n // 30 + 1) if vary else np.full(n // 36 + 1, 36)
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    return np.append(starts[starts < n], n)
+
+
+def stored_host_ns(s: Session, vary: bool) -> np.ndarray:
+    """The host time (ns) of each sample as the recorder stores it: that of its read's last sample."""
     host = np.round(s.host_time_s * NS).astype(np.int64)
+    bounds = fifo_reads(s.n, vary)
+    return np.repeat(host[bounds[1:] - 1], np.diff(bounds))
+
+
+def write_recorder_layout(
+    path: Path, s: Session, compression: str = DEFAULT_COMPRESSION, vary: bool = False
+) -> None:
+    """As the recorder writes: one message per FIFO read (36 samples; vary: 30-42), SessionWriter
+    defaults otherwise."""
+    t_ns = np.round(s.t_s * NS).astype(np.int64)
+    host = stored_host_ns(s, vary)
+    bounds = fifo_reads(s.n, vary).tolist()
     with SessionWriter(path, s.meta, compression=compression) as w:
-        for i in range(0, s.n, 36):
-            j = min(i + 36, s.n)
+        for i, j in itertools.pairwise(bounds):
             w.write_imu(
-                i, t_ns[i:j], s.accel_counts[i:j], s.gyro_counts[i:j], s.temp_counts[i:j], int(host[j - 1])
+                i, t_ns[i:j], s.accel_counts[i:j], s.gyro_counts[i:j], s.temp_counts[i:j], int(host[i])
             )
 
 
@@ -219,6 +239,7 @@ def main() -> None:
         for key, writer in (
             ("rec", lambda p: write_recorder_layout(p, s, "lz4")),
             ("rec_zstd", lambda p: write_recorder_layout(p, s, "zstd")),
+            ("rec_vary", lambda p: write_recorder_layout(p, s, "lz4", vary=True)),
             ("ws", lambda p: write_session(p, s, compression="lz4")),
             ("ws_zstd", lambda p: write_session(p, s, compression="zstd")),
         ):
@@ -230,7 +251,10 @@ def main() -> None:
             files[key] = (p, time.perf_counter() - t0 if fresh else float("nan"))
             r = read_session(p)
             for name, a in raw_arrays(r).items():
-                assert np.array_equal(a, arrays[name]), (key, name)
+                want = arrays[name]
+                if key.startswith("rec") and name == "host_time_ns":  # one host time per read
+                    want = stored_host_ns(s, key == "rec_vary")
+                assert np.array_equal(a, want), (key, name)
             del r
 
         rows += [
@@ -246,6 +270,7 @@ def main() -> None:
         labels = {
             "rec": "MCAP recorder 36/msg, lz4 (default)",
             "rec_zstd": "MCAP recorder 36/msg, zstd",
+            "rec_vary": "MCAP recorder 30-42/msg (varying reads), lz4",
             "ws": "MCAP write_session, 1 MiB lz4 chunks (default)",
             "ws_zstd": "MCAP write_session, 1 MiB zstd chunks",
         }
