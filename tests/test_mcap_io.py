@@ -606,22 +606,29 @@ def test_fast_reader_equals_generic_steady_recorder_stream(tmp_path, monkeypatch
     assert len(uniform) > 20 and any(uniform) and not all(uniform)  # both field walks were taken
 
 
-def test_message_starts_runs_and_steps():
-    """The record walk finds every Message record, in order, whether lengths repeat (guessed runs),
-    vary from record to record (stepped in Python) or alternate between the two, across chunk ends."""
+@pytest.mark.parametrize("per_chunk", [450, 10])
+def test_message_starts_runs_and_steps(per_chunk):
+    """The record walks find every Message record, in order, whether lengths repeat (guessed runs),
+    vary from record to record (stepped in Python) or alternate between the two, across chunk ends;
+    many small chunks are walked side by side (_chunkwise_starts), a long chunk makes it give up."""
     rng = np.random.default_rng(11)
     lengths = [40] * 300 + [int(x) for x in rng.integers(22, 90, 700)] + [50] * 100 + [60, 61] * 200
     lengths += [int(x) for x in rng.integers(22, 25, 500)] + [70] * 2000
     chunks, starts, pos = [], [], 0
-    for lo in range(0, len(lengths), 450):  # chunks of 450 records
+    for lo in range(0, len(lengths), per_chunk):
         body = b""
-        for ln in lengths[lo : lo + 450]:
+        for ln in lengths[lo : lo + per_chunk]:
             starts.append(pos + len(body))
             body += bytes([0x05]) + ln.to_bytes(8, "little") + rng.integers(0, 256, ln, np.uint8).tobytes()
         chunks.append(body)
         pos += len(body)
     records = bytearray(b"".join(chunks) + bytes(16))
-    got = fastread._message_starts(records, [len(c) for c in chunks])
-    assert got.tolist() == starts
-    with pytest.raises(fastread.NotFast):  # a record across a chunk end
-        fastread._message_starts(records, [len(chunks[0]) - 1, pos - len(chunks[0]) + 1])
+    sizes = [len(c) for c in chunks]
+    assert fastread._message_starts(records, sizes).tolist() == starts
+    chunkwise = fastread._chunkwise_starts(records, sizes)
+    assert (chunkwise is None) == (per_chunk > fastread._MAX_STEPS)
+    assert chunkwise is None or chunkwise.tolist() == starts
+    bad = [sizes[0] - 1, sizes[1] + 1, *sizes[2:]]  # a record across a chunk end
+    for walk in (fastread._message_starts, fastread._chunkwise_starts):
+        with pytest.raises(fastread.NotFast):
+            walk(records, bad)
