@@ -2,8 +2,9 @@
 
 The file is mapped, footer and summary parsed with struct, chunks decompressed ~4 MiB at a time into two
 reused buffers (the next group on a worker thread while this one is decoded), records walked by checked
-guesses (runs of equal-length messages), and every channel's payloads decoded at once by
-``batch_decode.decode_batch`` straight into arrays sized once. Anything unexpected raises ``NotFast``
+guesses (runs of equal-length messages) or, in groups of many small chunks, all chunks side by side,
+and every channel's payloads decoded at once by ``batch_decode.decode_batch`` straight into arrays
+sized once. Anything unexpected raises ``NotFast``
 and the generic reader decides.
 
 Integrity (see accellog.store.collect): the summary CRC is checked first (a damaged summary is not
