@@ -1,26 +1,16 @@
-"""`accellog` command line: one module per group of commands, all registered on one typer app."""
+"""`accellog` command line: one module per group of commands, all registered on one typer app
+(accellog.cli.app). A command line imports only the module of its command and builds only that
+command, and the top-level help is drawn from a table without typer (accellog.cli.registry, #9)."""
 
 from __future__ import annotations
 
 import contextlib
-import importlib
 import os
-import pkgutil
 import sys
 import warnings
 
-import typer
-
-from accellog.cli.app import app
 from accellog.core import notices
 from accellog.core.errors import AccellogError, DataIntegrityWarning
-
-# Every module in this package registers its commands on `app` when imported; the help lists the
-# panels in this order (the story: record, calibrate, discover, inspect, move), then any others.
-_ORDER = ["demo", "record", "imports", "calibrate", "report", "workbench", "inspect", "move"]
-_names = [m.name for m in pkgutil.iter_modules(__path__) if m.name != "app"]
-for _name in sorted(_names, key=lambda n: (_ORDER.index(n) if n in _ORDER else len(_ORDER), n)):
-    importlib.import_module(f"{__name__}.{_name}")
 
 
 def _integrity_line(message, category, filename, lineno, file=None, line=None) -> None:
@@ -55,43 +45,79 @@ def _one_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
+def _usage_error_line(command_path: str | None, message: str) -> str:
+    """A click usage error on one line: the command, the message, where to look."""
+    where = f"{command_path}: " if command_path is not None else ""
+    return f"accellog: error: {where}{' '.join(message.split())} (see --help)"
+
+
+def _run(args: list[str]) -> int:
+    """Parse and run one command line; the top-level help (`--help`, or nothing: then an error
+    too, as click's no_args_is_help) without typer."""
+    if args in ([], ["--help"]) and "TYPER_USE_RICH" not in os.environ:
+        from accellog.cli.tophelp import print_help
+
+        print_help()
+        if args:
+            print()
+            return 0
+        print(_usage_error_line("accellog", ""), file=sys.stderr)
+        return 2
+    from accellog.cli.registry import command_group
+
+    rc = command_group(args[0] if args else None)(args=args, prog_name="accellog", standalone_mode=False)
+    return rc if isinstance(rc, int) else 0
+
+
+def _exit_code(exc: Exception) -> int | None:
+    """One stderr line and the exit code for an exception a command let through, None to re-raise."""
+    typer = sys.modules.get("typer")  # not loaded: the exception is not one of typer's
+    if isinstance(exc, AccellogError):
+        print(f"accellog: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    if typer is not None and isinstance(exc, typer.Abort):
+        print("accellog: interrupted", file=sys.stderr)
+        return 130
+    if typer is not None and isinstance(exc, typer.Exit):
+        return int(exc.exit_code)
+    if isinstance(exc, OSError):  # a file system problem the command did not foresee: still one line
+        where = exc.filename if exc.filename is not None else "file system"
+        print(f"accellog: error: {where}: {exc.strerror or exc.__class__.__name__}", file=sys.stderr)
+        return 2
+    # typer bundles its own click: usage errors carry format_message() and exit_code; they are
+    # one line too (the command and the message; `--help` shows the usage).
+    if hasattr(exc, "format_message") and isinstance(getattr(exc, "exit_code", None), int):
+        ctx = getattr(exc, "ctx", None)
+        path = ctx.command_path if ctx is not None else None
+        print(_usage_error_line(path, str(exc.format_message())), file=sys.stderr)
+        return exc.exit_code
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: runs the app; input errors become one line on stderr and a non-zero exit;
     data-integrity warnings (a damaged chunk skipped) one 'accellog: warning:' line each, notes
     (e.g. what was recovered from a truncated file) one 'accellog: note:' line each."""
     notices.take()  # notes of an earlier in-process call are not this command's
+    args = sys.argv[1:] if argv is None else list(argv)
     try:
         with warnings.catch_warnings(), _one_blas_thread():
             warnings.simplefilter("always", DataIntegrityWarning)
             warnings.showwarning = _integrity_line
-            rc = app(args=argv, prog_name="accellog", standalone_mode=False)
+            rc = _run(args)
         for text in notices.take():
             print(f"accellog: note: {text}", file=sys.stderr)
-    except AccellogError as exc:
-        print(f"accellog: error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    except (KeyboardInterrupt, typer.Abort):
+    except KeyboardInterrupt:
         print("accellog: interrupted", file=sys.stderr)
         return 130
-    except typer.Exit as exc:
-        return int(exc.exit_code)
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    except OSError as exc:  # a file system problem the command did not foresee: still one line
-        where = exc.filename if exc.filename is not None else "file system"
-        print(f"accellog: error: {where}: {exc.strerror or exc.__class__.__name__}", file=sys.stderr)
-        return 2
     except Exception as exc:
-        # typer bundles its own click: usage errors carry format_message() and exit_code; they are
-        # one line too (the command and the message; `--help` shows the usage).
-        if hasattr(exc, "format_message") and isinstance(getattr(exc, "exit_code", None), int):
-            ctx = getattr(exc, "ctx", None)
-            cmd = f"{ctx.command_path}: " if ctx is not None else ""
-            msg = " ".join(str(exc.format_message()).split())
-            print(f"accellog: error: {cmd}{msg} (see --help)", file=sys.stderr)
-            return exc.exit_code
-        raise
-    return rc if isinstance(rc, int) else 0
+        code = _exit_code(exc)
+        if code is None:
+            raise
+        return code
+    return rc
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -14,8 +14,6 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from accellog.present.tables import ladder_table
-
 WIDTH = 160
 
 
@@ -138,6 +136,14 @@ def print_notes(notes: Sequence[str]) -> None:
     """Remarks about the inputs, one 'note:' line each on stderr."""
     for n in notes:
         Console(stderr=True).print(f"note: {escape(n)}")
+
+
+def ladder_table(ladder, title: str) -> Table:
+    """accellog.present.tables.ladder_table, imported when a ladder is drawn: the table module loads
+    calibrate/ and navigate/ (~70 ms), which `accellog effects` does not need (start-up, #9)."""
+    from accellog.present.tables import ladder_table as table
+
+    return table(ladder, title=title)
 
 
 def print_workbench(out, con: Console) -> None:
