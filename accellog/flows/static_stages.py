@@ -8,7 +8,6 @@
 
 from __future__ import annotations
 
-import io
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +20,7 @@ from accellog.calibrate.segment import PoseStats, observations, pose_stats
 from accellog.calibrate.stream_segment import stream_observations
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
+from accellog.core.numfmt import format_rows
 from accellog.core.session import ObsTable, Session
 from accellog.core.timeseries import cumtrapz
 from accellog.flows.stages import load_input, run_evaluate
@@ -269,13 +269,9 @@ class Integration(JsonResult):
     def csv_text(self) -> str:
         """t_s, vx_mps, vy_mps, vz_mps, x_m, y_m, z_m (one row per sample)."""
 
-        buf = io.StringIO()
-        buf.write(CSV_HEADER)
         ev = self.evaluation
-        np.savetxt(
-            buf, np.column_stack([ev.t_s, self.velocity_mps, ev.disp_series_m]), delimiter=",", fmt="%.9g"
-        )
-        return buf.getvalue()
+        rows = format_rows(np.column_stack([ev.t_s, self.velocity_mps, ev.disp_series_m]))
+        return CSV_HEADER + rows.decode("ascii")
 
     def to_dict(self, output: str = "") -> dict:
         ev = self.evaluation
@@ -327,11 +323,11 @@ def _stream_integrate(
     s = open_streamed(path, observe=False)
     if s is None or not can_stream_cals([c] if c else []):
         return None
-    with atomic_output(output, inputs=(path, cp)) as tmp, open(tmp, "w", encoding="utf-8") as f:
-        f.write(CSV_HEADER)
+    with atomic_output(output, inputs=(path, cp)) as tmp, open(tmp, "wb") as f:
+        f.write(CSV_HEADER.encode("ascii"))
 
         def rows(_k: int, t: np.ndarray, v: np.ndarray, d: np.ndarray) -> None:
-            np.savetxt(f, np.column_stack([t, v, d]), delimiter=",", fmt="%.9g")
+            f.write(format_rows(np.column_stack([t, v, d])))  # np.savetxt's "%.9g" bytes, ~4x faster
 
         evs = stream_evaluate(s.path, s.meta, s.poses, [c] if c else [], include_raw=c is None,
                               until_s=until_s, on_block=rows)  # fmt: skip
