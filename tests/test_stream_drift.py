@@ -63,6 +63,29 @@ def test_drift_sums_in_pieces_equal_one_block_and_lstsq():
     np.testing.assert_allclose(rms, np.sqrt(np.mean((d - _design(t) @ ref) ** 2, axis=0)), rtol=1e-9)
 
 
+def test_series_at_equals_the_series_read_while_adding():
+    """Integrator.series_at(fn) after the pass gives what add(extra=fn) read: same bits."""
+    from accellog.calibrate.drift_model import DriftModel
+    from accellog.navigate.stream_sums import Integrator
+
+    rng = np.random.default_rng(5)
+    n = 20_000
+    t = 3.0 + np.cumsum(rng.uniform(0.0009, 0.0011, n))
+    a = rng.normal(0, 0.01, (n, 3)) + 0.002
+    dm = DriftModel(q=rng.normal(0, 1e-3, (3, 3)), cov=np.zeros((3, 3, 3)), fit_duration_s=20.0)
+    times = (0.0, 5.0, t[4000], 10.0, t[-1], t[-1] + 0.3, t[-1] + 2.0)  # before, on samples, late, too late
+    live, later = Integrator(times), Integrator(times)
+    for sl in _blocks(n, rng):
+        live.add(t[sl], a[sl], lambda tb, d: {"dd": dm.apply(tb, d)})
+        later.add(t[sl], a[sl])
+    _used, at, ends = live.finish()
+    later.finish()
+    got, end = later.series_at(dm.apply)
+    np.testing.assert_array_equal(got, at["dd"])
+    np.testing.assert_array_equal(end, ends["dd"])
+    assert np.isnan(got[-1]).all() and np.isfinite(got[:-1]).all()
+
+
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory):
     """A model3 calibration, a 40 s 1 kHz labelled '+z' session and an unlabelled '-y' one."""

@@ -1,18 +1,22 @@
 """`drift` of a static MCAP session chunk by chunk: the drift model of ``navigate.drift`` in memory
 bounded independently of the session length, equal to the whole-session fit up to rounding.
 
-Three passes over the file's blocks (``stream_evaluate.checked_blocks``, the same cut and checks),
+Two passes over the file's blocks (``stream_evaluate.checked_blocks``, the same cut and checks),
 after the time-stamp check of ``open_streamed``:
 
-1. residual r (m/s^2) per block (``evaluate.block_residual``) into ``stream_sums.ResidualSums``
-   (n, std, autocorrelation time tau, v and d by the carried trapezoid rule); d(t) into
-   ``drift.DriftSums`` (normal equations of d = q0 + q1 t + 1/2 q2 t^2 on a scaled time) and the
-   sample intervals into ``drift.IntervalCount`` (their exact median);
+1. ``stream_evaluate`` of the calibration (without a drift model): residual r per block into
+   ``stream_sums.ResidualSums`` (n, std, autocorrelation time tau, v and d by the carried
+   trapezoid rule, the samples around each reported time) and everything else `evaluate`
+   reports; its d(t) into ``drift.DriftSums`` (normal equations of d = q0 + q1 t + 1/2 q2 t^2 on
+   a scaled time) and the sample intervals into ``drift.IntervalCount`` (their exact median);
 2. the same d again into ``drift.DriftRefine`` (one step of iterative refinement on a centred
    basis, which needs the span of pass 1: q to least-squares accuracy, and the residual RMS), and
-   the times of the decimated covariance grid (``drift.grid_index``, which needs n);
-3. ``stream_evaluate`` of the calibration + drift model: the fit session after the model, which
-   ``run_drift`` reports.
+   the times of the decimated covariance grid (``drift.grid_index``, which needs n).
+
+The evaluation of the calibration + drift model, which ``run_drift`` reports, is pass 1's: the
+residual does not depend on the drift model, and the drifted displacement at the reported times
+is the model applied to the two samples around each (``Integrator.series_at``), the same
+interpolation an evaluation of cal + drift makes (a third pass until #11 merged it).
 
 The whole-session ``fit_drift`` runs the same sums on one block, so both agree to rounding.
 
@@ -33,34 +37,18 @@ import numpy as np
 
 from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.drift_model import DriftModel
-from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel, SessionMeta
 from accellog.navigate.drift import DriftRefine, DriftSums, IntervalCount, _noise_cov_q, grid_index
-from accellog.navigate.evaluate import Evaluation, block_residual, eval_context
+from accellog.navigate.evaluate import Evaluation, _drift_result, block_residual, eval_context
 from accellog.navigate.stream_evaluate import _up, can_stream_cals, checked_blocks, stream_evaluate
-from accellog.navigate.stream_sums import Integrator, ResidualSums
+from accellog.navigate.stream_sums import Integrator
 
 
 def _residual_blocks(path, meta, poses, cal, up, until_s, max_samples) -> Iterator[tuple]:
     """(t_s, resid_mps2) of every block after the checks of stream_evaluate (finite, increasing)."""
-    where = str(path)
-    ctx = eval_context(where, meta, cal, up, [], apply_drift=False)
-    n = 0
+    ctx = eval_context(str(path), meta, cal, up, [], apply_drift=False)
     for b, block in checked_blocks(path, meta, poses, until_s, max_samples):
-        n += b.n
         yield b.t_s, block_residual(ctx, block)
-    if n < 10:
-        raise InputError(f"static session has {n} samples (need >= 10)", where=where)
-
-
-def _first_pass(blocks: Iterator[tuple]) -> tuple[dict, DriftSums, IntervalCount]:
-    """Residual statistics, normal equations and intervals (module doc, pass 1)."""
-    sums, fit, dt = ResidualSums((), 2.0), DriftSums(), IntervalCount()
-    for t, r in blocks:
-        _v, d = sums.add(t, r)
-        fit.add(t, d)
-        dt.add(t)
-    return sums.finish(), fit, dt
 
 
 def _second_pass(blocks: Iterator[tuple], refine: DriftRefine, grid: np.ndarray) -> np.ndarray:
@@ -92,10 +80,20 @@ def stream_drift(
         return None
     notes: list[str] = []
     up = _up(path, poses, up_sensor, notes)
-    args = (path, meta, poses, cal, up, until_s, max_samples)
-    st, fit, dt = _first_pass(_residual_blocks(*args))
+    cal0 = dataclasses.replace(cal, drift=None)  # pass 1 evaluates the calibration alone
+    fit, dt = DriftSums(), IntervalCount()
+
+    def first_pass(_k: int, t: np.ndarray, _v: np.ndarray, d: np.ndarray) -> None:
+        fit.add(t, d)
+        dt.add(t)
+
+    sums: list = []
+    ev = stream_evaluate(path, meta, poses, [cal0], include_raw=False, up_sensor=up, until_s=until_s,
+                         max_samples=max_samples, on_block=first_pass, sums_out=sums)[0]  # fmt: skip
+    acc, st = sums[0]
     refine = DriftRefine(fit.solve(), st["t_first"], st["t_last"])
-    tg = _second_pass(_residual_blocks(*args), refine, grid_index(st["n"]))
+    tg = _second_pass(_residual_blocks(path, meta, poses, cal, up, until_s, max_samples), refine,
+                      grid_index(st["n"]))  # fmt: skip
     q, rms = refine.solve()
     var_density = st["std"] ** 2 * st["tau"] * dt.median()  # (m/s^2)^2 s
     dm = DriftModel(
@@ -106,8 +104,7 @@ def stream_drift(
         source=str(path),
         rms_residual_m=rms,
     )
-    cal_d = dataclasses.replace(cal, drift=dm, path=None)
-    ev = stream_evaluate(path, meta, poses, [cal_d], include_raw=False, up_sensor=up, until_s=until_s,
-                         max_samples=max_samples)[0]  # fmt: skip
+    at, end = acc.integ.series_at(dm.apply)
+    _drift_result(ev, dm, {"disp_drift_at": at, "disp_drift_end": end}, {})
     ev.notes[:0] = notes  # the inferred orientation, as the whole-session evaluate notes it
-    return cal_d, dm, ev
+    return dataclasses.replace(cal, drift=dm, path=None), dm, ev

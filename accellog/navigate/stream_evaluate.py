@@ -136,10 +136,12 @@ def stream_evaluate(
     window_s: float = 2.0,
     check_moving: bool = True,
     on_block: BlockSink | None = None,
+    sums_out: list[tuple[ResidualSums, dict]] | None = None,
 ) -> list[Evaluation] | None:
     """run_evaluate(read_session(path), cals, ...) in one pass over the file's chunks (module doc):
     the raw reading first when include_raw (gravity of the first calibration), then each
-    calibration. None when a model reads a driver that does not stream (STREAM_BLIND_DRIVERS)."""
+    calibration. None when a model reads a driver that does not stream (STREAM_BLIND_DRIVERS).
+    sums_out receives each evaluation's (ResidualSums, its finish() statistics)."""
     if not can_stream_cals(cals):
         return None
     where = str(path)
@@ -171,9 +173,12 @@ def stream_evaluate(
     check_norm(read_sum / n, where)
     if motion is not None:
         motion.check(up, 1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0, where)
+    stats = [acc.finish() for acc in sums]
+    if sums_out is not None:
+        sums_out.extend(zip(sums, stats, strict=True))
     return [
-        finish_evaluation(x, acc.finish(), read_sum / n, {k: v / n for k, v in dv.items()}, times_s)
-        for x, acc, dv in zip(ctxs, sums, drv, strict=True)
+        finish_evaluation(x, st, read_sum / n, {k: v / n for k, v in dv.items()}, times_s)
+        for x, st, dv in zip(ctxs, stats, drv, strict=True)
     ]
 
 

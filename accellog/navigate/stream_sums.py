@@ -144,6 +144,9 @@ class Integrator:
         self.at: dict[str, np.ndarray] = {}
         self.last: dict[str, np.ndarray] | None = None  # t, a, v, d (and extra series) of the last sample
         self.t0: float | None = None
+        self.brackets: dict[
+            int, tuple[np.ndarray, np.ndarray]
+        ] = {}  # time index: the samples (t, d) around it
 
     def add(
         self, t: np.ndarray, a: np.ndarray, extra: Callable[[np.ndarray, np.ndarray], dict] | None = None
@@ -181,6 +184,10 @@ class Integrator:
         if sel.size == 0:
             return
         tt = t if prev is None else np.concatenate([[prev["t"]], t])
+        dd = series["d"] if prev is None else np.concatenate([prev["end_d"][None, :], series["d"]])
+        at = np.clip(np.searchsorted(tt, want[sel], side="right") - 1, 0, max(tt.size - 2, 0))
+        for i, j in zip(sel, at, strict=True):
+            self.brackets[int(i)] = (tt[j : j + 2].copy(), dd[j : j + 2].copy())
         for k, s in series.items():
             ss = s if prev is None else np.concatenate([prev[f"end_{k}"][None, :], s])
             out = self.at.setdefault(k, np.full((self.req.size, 3), np.nan))
@@ -199,6 +206,20 @@ class Integrator:
             out[late] = e
         self.used[late] = t_end
         return self.used.copy(), self.at, ends
+
+    def series_at(self, fn: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """(values at the times (m,3), end value (3,)) of the series fn(t, d) after finish(), as the
+        extra argument of add would have read them: fn on the two samples around each time (a
+        pointwise fn, e.g. DriftModel.apply, gives the same interpolation), at the end on the last."""
+        end = fn(np.array([self.last["t"]]), self.last["d"][None, :])[0]
+        out = np.full((self.req.size, 3), np.nan)
+        for i, (tb, db) in self.brackets.items():
+            s = fn(tb, db)
+            for j in range(3):
+                out[i, j] = np.interp(self.used[i], tb, s[:, j])
+        late = np.isfinite(self.used) & ~np.isin(np.arange(self.req.size), list(self.brackets))
+        out[late] = end
+        return out, end
 
 
 class ResidualSums:
