@@ -22,8 +22,11 @@ process under GNU time (wall, peak RSS), one at a time:
                     over the chunks, same calibration to 1e-9 relative)
 
 Prints the load average with each row (a loaded 2-core machine inflates every wall time).
+--baseline TREE runs every mode a second time, right after, with TREE (another checkout, e.g. a
+worktree of main) first on PYTHONPATH, and prints the CPU ratio this tree / TREE; --dir keeps the
+generated sessions there and reuses them (a 24 h static session is 1.6 GB).
 
-    python benchmarks/bench_scale.py [--hours 0.0167 1 4] [--modes ...]
+    python benchmarks/bench_scale.py [--hours 0.0167 1 4] [--modes ...] [--dir D] [--baseline TREE]
     python benchmarks/bench_scale.py --hours 1 4 --modes evaluate_whole evaluate_stream integrate_stream
     python benchmarks/bench_scale.py --hours 1 4 --modes drift_whole drift_stream
 """
@@ -87,15 +90,24 @@ STATIC_MODES = (
 """Modes run on a static one-hold session (synth_static.py) with a model3 calibration CAL."""
 
 
-def run(mode: str, path: Path, cal: Path | None = None) -> tuple[float, float, float]:
+def run(
+    mode: str, path: Path, cal: Path | None = None, tree: Path | None = None
+) -> tuple[float, float, float]:
     """(wall s, peak RSS MB, CPU s = user + system) of one fresh process doing `mode` on path, BLAS on
-    one thread (on a loaded machine the CPU time is the better guide to the quiet wall time)."""
+    one thread (on a loaded machine the CPU time is the better guide to the quiet wall time); tree:
+    the source tree put first on PYTHONPATH (None: as this process finds accellog)."""
     out = path.with_suffix(".csv")
     # numpy first: threadpoolctl limits only the BLAS libraries already loaded
     code = f"P = {str(path)!r}\nCAL = {str(cal)!r}\nOUT = {str(out)!r}\nimport numpy\nfrom threadpoolctl import threadpool_limits\nthreadpool_limits(1, 'blas')\n{MODES[mode]}"
     t0 = time.perf_counter()
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(tree), *filter(None, [env.get("PYTHONPATH")])])
     r = subprocess.run(
-        ["/usr/bin/time", "-f", "%M %U %S", sys.executable, "-c", code], capture_output=True, text=True
+        ["/usr/bin/time", "-f", "%M %U %S", sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=env,
     )
     wall = time.perf_counter() - t0
     if r.returncode:
@@ -109,22 +121,46 @@ def _calibration(d: Path) -> Path:
     """model3 fitted on a 10 min synth_long session (the calibration the static modes evaluate)."""
     from accellog.flows.stages import run_fit
 
+    if (d / "cal.json").exists():
+        return d / "cal.json"
     src = write_long(d / "cal.mcap", 600.0, seed=7)
     run_fit(src).cal.save(d / "cal.json")
     return d / "cal.json"
+
+
+def _session(d: Path, kind: str, hours: float, keep: bool) -> Path:
+    """The static or labelled session of that length in d (reused when keep and already there)."""
+    name = f"{kind}_{hours:g}h.mcap" if keep else f"{kind}.mcap"
+    path = d / name
+    if keep and path.exists():
+        return path
+    if kind == "static":
+        return write_static(path, hours * 3600.0, seed=1)
+    return write_long(path, hours * 3600.0, seed=1)
+
+
+def _row(label: str, mb: float, mode: str, wall: float, cpu: float, peak: float, extra: str = "") -> None:
+    load = " ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(
+        f"{label:>8} {mb:>8.1f} {mode:>16} {wall:>8.2f} {cpu:>7.2f} {peak:>8.0f}  {load}{extra}", flush=True
+    )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--hours", type=float, nargs="+", default=[1 / 60, 1.0, 4.0])
     ap.add_argument("--modes", nargs="+", default=list(MODES))
+    ap.add_argument("--dir", type=Path, help="keep the sessions here and reuse them")
+    ap.add_argument("--baseline", type=Path, help="a source tree to run every mode with as well")
     args = ap.parse_args()
     print(
         f"{'session':>8} {'file MB':>8} {'mode':>16} {'wall s':>8} {'CPU s':>7} {'peak MB':>8}  load average"
     )
-    with tempfile.TemporaryDirectory(dir="/tmp") as d:
+    with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
+        d = args.dir or Path(tmp)
+        d.mkdir(parents=True, exist_ok=True)
         static = [m for m in args.modes if m in STATIC_MODES]
-        cal = _calibration(Path(d)) if static else None
+        cal = _calibration(d) if static else None
         for h in args.hours:
             label = f"{h * 60:.0f} min" if h < 1 else f"{h:g} h"
             for kind, modes in (
@@ -133,19 +169,16 @@ def main() -> None:
             ):
                 if not modes:
                     continue
-                if kind == "static":
-                    path = write_static(Path(d) / "static.mcap", h * 3600.0, seed=1)
-                else:
-                    path = write_long(Path(d) / "s.mcap", h * 3600.0, seed=1)
+                path = _session(d, kind, h, args.dir is not None)
                 mb = path.stat().st_size / 1e6
                 for mode in modes:
                     wall, peak, cpu = run(mode, path, cal)
-                    load = " ".join(f"{x:.1f}" for x in os.getloadavg())
-                    print(
-                        f"{label:>8} {mb:>8.1f} {mode:>16} {wall:>8.2f} {cpu:>7.2f} {peak:>8.0f}  {load}",
-                        flush=True,
-                    )
-                path.unlink()
+                    _row(label, mb, mode, wall, cpu, peak)
+                    if args.baseline is not None:
+                        w0, p0, c0 = run(mode, path, cal, args.baseline)
+                        _row(label, mb, "  (baseline)", w0, c0, p0, f"   CPU {cpu / c0:.2f}x the baseline")
+                if args.dir is None:
+                    path.unlink()
 
 
 if __name__ == "__main__":
