@@ -95,10 +95,11 @@ def run(
 ) -> tuple[float, float, float]:
     """(wall s, peak RSS MB, CPU s = user + system) of one fresh process doing `mode` on path, BLAS on
     one thread (on a loaded machine the CPU time is the better guide to the quiet wall time); tree:
-    the source tree put first on PYTHONPATH (None: as this process finds accellog)."""
+    the source tree put first on PYTHONPATH (None: as this process finds accellog). The process runs
+    in path's directory and names the accellog it imported (checked against tree)."""
     out = path.with_suffix(".csv")
     # numpy first: threadpoolctl limits only the BLAS libraries already loaded
-    code = f"P = {str(path)!r}\nCAL = {str(cal)!r}\nOUT = {str(out)!r}\nimport numpy\nfrom threadpoolctl import threadpool_limits\nthreadpool_limits(1, 'blas')\n{MODES[mode]}"
+    code = f"P = {str(path)!r}\nCAL = {str(cal)!r}\nOUT = {str(out)!r}\nimport numpy\nfrom threadpoolctl import threadpool_limits\nthreadpool_limits(1, 'blas')\n{MODES[mode]}\nimport accellog, sys; print(accellog.__file__, file=sys.stderr)"
     t0 = time.perf_counter()
     env = dict(os.environ)
     if tree is not None:
@@ -108,12 +109,16 @@ def run(
         capture_output=True,
         text=True,
         env=env,
+        cwd=path.parent,  # not a checkout: `python -c` puts the working directory first on sys.path
     )
     wall = time.perf_counter() - t0
     if r.returncode:
         raise SystemExit(f"{mode}: {r.stderr[-2000:]}")
     out.unlink(missing_ok=True)
-    rss_kb, user_s, sys_s = r.stderr.strip().splitlines()[-1].split()
+    *_, used, times = r.stderr.strip().splitlines()
+    if tree is not None and not Path(used).resolve().is_relative_to(Path(tree).resolve()):
+        raise SystemExit(f"{mode}: imported {used}, not the baseline {tree}")
+    rss_kb, user_s, sys_s = times.split()
     return wall, int(rss_kb) / 1024, float(user_s) + float(sys_s)
 
 
