@@ -135,3 +135,16 @@ def test_streamed_drift_refuses_nan_in_a_late_block(tmp_path, sessions):
     with pytest.raises(InputError) as whole:
         run_drift(tmp_path / "nan.mcap", sessions / "m3.json", stream=False)
     assert str(streamed.value) == str(whole.value)
+
+
+def test_arange_above_is_numpys_arange_from_lo():
+    from accellog.navigate.stream_sums import arange_above
+
+    rng = np.random.default_rng(9)
+    for _ in range(3000):
+        t0 = float(rng.choice([0.0, rng.uniform(0, 10), rng.uniform(0, 1e5), rng.uniform(0, 2e9)]))
+        w = float(rng.choice([0.5, 2.0, 0.1, rng.uniform(0.001, 5)]))
+        stop = t0 + rng.uniform(-1, 3000) * w
+        lo = t0 + rng.uniform(-2, 3000) * w
+        ref = np.arange(t0, stop, w)
+        np.testing.assert_array_equal(arange_above(t0, stop, w, lo), ref[ref > lo])

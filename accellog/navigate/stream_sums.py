@@ -121,8 +121,7 @@ class WindowCarry:
         return t[:last], tuple(c[:last] for c in cols), starts[:-1]
 
     def _starts(self, t: np.ndarray) -> np.ndarray:
-        edges = np.arange(self.t0, t[-1], self.width)
-        edges = edges[edges > t[0]] if edges.size else edges
+        edges = arange_above(self.t0, t[-1], self.width, t[0])
         return np.unique(np.concatenate([[0], np.searchsorted(t, edges)]))
 
     def flush(self) -> tuple[np.ndarray, tuple, np.ndarray] | None:
@@ -132,6 +131,21 @@ class WindowCarry:
         t, *cols = self.carry
         self.carry = None
         return t, tuple(cols), np.zeros(1, dtype=int)
+
+
+def arange_above(start: float, stop: float, step: float, lo: float) -> np.ndarray:
+    """The elements > lo of np.arange(start, stop, step), the same floats, without making the ones
+    before lo (a block late in a long session needs a few of the session's window edges, not all):
+    numpy makes len ceil((stop - start) / step) values start, start + step, then start + i delta
+    with delta = (start + step) - start."""
+    n = max(int(np.ceil((stop - start) / step)), 0)
+    delta = (start + step) - start
+    i0 = min(max(int(np.floor((lo - start) / delta)) - 1, 0), n) if delta > 0 else 0
+    edges = start + np.arange(i0, n, dtype=float) * delta
+    for i, v in ((0, start), (1, start + step)):  # the two values numpy sets before its fill
+        if i0 <= i < n:
+            edges[i - i0] = v
+    return edges[edges > lo]
 
 
 class Integrator:
