@@ -148,3 +148,28 @@ def test_arange_above_is_numpys_arange_from_lo():
         lo = t0 + rng.uniform(-2, 3000) * w
         ref = np.arange(t0, stop, w)
         np.testing.assert_array_equal(arange_above(t0, stop, w, lo), ref[ref > lo])
+
+
+@pytest.mark.parametrize("cut", [{}, {"until_s": 10.0}], ids=["all", "cut_before_it"])
+def test_time_stamp_error_comes_first_in_the_merged_pass(tmp_path, sessions, capsys, cut):
+    """The time-stamp check runs inside the first streamed pass: a duplicated stamp late in the file
+    is still reported before a NaN reading early on (and after a cut), as by the whole-session path."""
+    from accellog.flows.static_stages import run_evaluate_report, run_integrate
+
+    s = synth_session(poses=["+z"], hold_s=30.0, move_s=0.0, rate_hz=1000.0, seed=8)
+    s.accel_g[5_000, 1] = np.nan
+    s.t_s[27_000] = s.t_s[26_999]
+    p = write_session(tmp_path / "dup.mcap", s, chunk_size=32 * 1024)
+    cal = sessions / "m3.json"
+    calls = {
+        "evaluate": lambda stream: run_evaluate_report(p, [cal], stream=stream, **cut),
+        "integrate": lambda stream: run_integrate(p, cal, output=tmp_path / "o.csv", stream=stream, **cut),
+        "drift": lambda stream: run_drift(p, cal, stream=stream, **cut),
+    }
+    for name, call in calls.items():
+        with pytest.raises(InputError, match="duplicated time stamp at sample 27000") as streamed:
+            call(True)
+        with pytest.raises(InputError) as whole:
+            call(False)
+        assert str(streamed.value) == str(whole.value), name
+    assert not (tmp_path / "o.csv").exists()

@@ -174,44 +174,58 @@ def _joined(tables: list[ObsTable], where: str) -> ObsTable:
 
 def stream_check_timestamps(path: str | Path) -> None:
     """label_check.check_timestamps on the file's samples, block by block (the same messages)."""
-    where = str(path)
-    n, t0, t_last, bad_n = 0, np.nan, np.nan, 0
-    nonfinite = first_bad = None  # global index of the first non-finite stamp / (i, t_i, t_i-1)
+    check = TimestampCheck()
     for b in iter_imu(path):
-        t = np.asarray(b.t_s, float)
+        check.add(b.t_s)
+    check.finish(path)
+
+
+class TimestampCheck:
+    """stream_check_timestamps fed block by block (a pass that reads the samples anyway runs it)."""
+
+    def __init__(self) -> None:
+        self.n, self.t0, self.t_last, self.bad_n = 0, np.nan, np.nan, 0
+        self.nonfinite = self.first_bad = None  # index of the first non-finite stamp / (i, t_i, t_i-1)
+
+    def add(self, t_s: np.ndarray) -> None:
+        t, n = np.asarray(t_s, float), self.n
         fin = ~np.isfinite(t)
-        if nonfinite is None and fin.any():
-            nonfinite = n + int(np.argmax(fin))
-        if n and t.size and not t[0] > t_last:  # the step from the previous block (NaN: not bad)
-            bad_n += int(t[0] <= t_last)
-            if first_bad is None and t[0] <= t_last:
-                first_bad = (n, t[0], t_last)
+        if self.nonfinite is None and fin.any():
+            self.nonfinite = n + int(np.argmax(fin))
+        if n and t.size and not t[0] > self.t_last:  # the step from the previous block (NaN: not bad)
+            self.bad_n += int(t[0] <= self.t_last)
+            if self.first_bad is None and t[0] <= self.t_last:
+                self.first_bad = (n, t[0], self.t_last)
         bad = t[1:] <= t[:-1]
         nb = int(np.count_nonzero(bad))
         if nb:
-            bad_n += nb
-            if first_bad is None:
+            self.bad_n += nb
+            if self.first_bad is None:
                 j = int(np.argmax(bad)) + 1
-                first_bad = (n + j, t[j], t[j - 1])
+                self.first_bad = (n + j, t[j], t[j - 1])
         if not n and t.size:
-            t0 = t[0]
-        n += t.size
+            self.t0 = t[0]
+        self.n += t.size
         if t.size:
-            t_last = t[-1]
-    if n < 2:  # no samples to hold: read_session names a file that is not a session at all
-        from accellog.store.reader import read_session
+            self.t_last = t[-1]
 
-        read_session(path)
-        raise InputError(f"session has {n} sample(s): nothing to calibrate", where=where)
-    if nonfinite is not None:
-        raise InputError(f"sample {nonfinite} has a non-finite time stamp", where=where)
-    if not t_last > t0:
-        raise InputError(f"session has zero duration ({n} samples at t = {t0:g} s)", where=where)
-    if first_bad is not None:
-        i, ti, tp = first_bad
-        kind = "duplicated" if ti == tp else "decreasing"
-        raise InputError(
-            f"{kind} time stamp at sample {i}: t = {ti:.6f} s after {tp:.6f} s "
-            f"({bad_n} non-increasing steps)",
-            where=where,
-        )
+    def finish(self, path: str | Path) -> None:
+        """InputError (one line) when the stamps fed are not a session's; else nothing."""
+        where, n, t0 = str(path), self.n, self.t0
+        if n < 2:  # no samples to hold: read_session names a file that is not a session at all
+            from accellog.store.reader import read_session
+
+            read_session(path)
+            raise InputError(f"session has {n} sample(s): nothing to calibrate", where=where)
+        if self.nonfinite is not None:
+            raise InputError(f"sample {self.nonfinite} has a non-finite time stamp", where=where)
+        if not self.t_last > t0:
+            raise InputError(f"session has zero duration ({n} samples at t = {t0:g} s)", where=where)
+        if self.first_bad is not None:
+            i, ti, tp = self.first_bad
+            kind = "duplicated" if ti == tp else "decreasing"
+            raise InputError(
+                f"{kind} time stamp at sample {i}: t = {ti:.6f} s after {tp:.6f} s "
+                f"({self.bad_n} non-increasing steps)",
+                where=where,
+            )

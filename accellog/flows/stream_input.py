@@ -90,21 +90,29 @@ def open_streamed(
     trim_s: float = 0.5,
     observe: bool = True,
     stats: bool = False,
+    check_times: bool = True,
 ) -> StreamedSession | None:
     """The session's labels (after the time-stamp checks of load_input) and, when observe, its
     observation table (segment.observations' defaults) and, with stats, its per-hold statistics
     (segment.pose_stats); InputError as load_input/observations. None for a file with damaged
-    chunks: the whole-session reader (load_input) says what it skipped and how many samples."""
+    chunks: the whole-session reader (load_input) says what it skipped and how many samples.
+    check_times False: the labels only (the caller's pass makes the check: stream_evaluate's
+    check_times; None still when reading the labels meets a damaged chunk)."""
     p = Path(path)
     if not p.exists():
         raise InputError("no such file", where=str(p))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        stream_check_timestamps(p)
+        if check_times:
+            stream_check_timestamps(p)
+        else:
+            labels = read_labels(p)
     if any(issubclass(w.category, DataIntegrityWarning) for w in caught):
         return None
     for w in caught:
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if not check_times:
+        return StreamedSession(*labels[:2], None, str(p), None)
     meta, poses, events = read_labels(p)
     held: list[PoseStats] | None = [] if stats else None
     obs = None

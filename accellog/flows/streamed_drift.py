@@ -23,7 +23,7 @@ def streamed_drift(
     """(cal + drift, drift, evaluation of the fit session after it), or None: not streamable."""
     if isinstance(static, Session) or not can_stream(static):
         return None
-    s = open_streamed(static, observe=False)
+    s = open_streamed(static, observe=False, check_times=False)  # checked in the first drift pass
     if s is None:
         return None
     return stream_drift(s.path, s.meta, s.poses, cal, until_s=until_s, max_samples=max_samples)

@@ -1,10 +1,11 @@
 """`drift` of a static MCAP session chunk by chunk: the drift model of ``navigate.drift`` in memory
 bounded independently of the session length, equal to the whole-session fit up to rounding.
 
-Two passes over the file's blocks (``stream_evaluate.checked_blocks``, the same cut and checks),
-after the time-stamp check of ``open_streamed``:
+Two passes over the file's blocks (``stream_evaluate.checked_blocks``, the same cut and checks):
 
-1. ``stream_evaluate`` of the calibration (without a drift model): residual r per block into
+1. ``stream_evaluate`` of the calibration (without a drift model), which also makes the file's
+   time-stamp check (``check_times``: the pass of its own ``open_streamed`` made before #11, its
+   error first) and infers the orientation when not given: residual r per block into
    ``stream_sums.ResidualSums`` (n, std, autocorrelation time tau, v and d by the carried
    trapezoid rule, the samples around each reported time) and everything else `evaluate`
    reports; its d(t) into ``drift.DriftSums`` (normal equations of d = q0 + q1 t + 1/2 q2 t^2 on
@@ -40,7 +41,7 @@ from accellog.calibrate.drift_model import DriftModel
 from accellog.core.session import PoseLabel, SessionMeta
 from accellog.navigate.drift import DriftRefine, DriftSums, IntervalCount, _noise_cov_q, grid_index
 from accellog.navigate.evaluate import Evaluation, _drift_result, block_residual, eval_context
-from accellog.navigate.stream_evaluate import _up, can_stream_cals, checked_blocks, stream_evaluate
+from accellog.navigate.stream_evaluate import can_stream_cals, checked_blocks, stream_evaluate
 from accellog.navigate.stream_sums import Integrator
 
 
@@ -78,8 +79,6 @@ def stream_drift(
     the calibration's model reads a driver that does not stream (stream_evaluate.STREAM_BLIND_DRIVERS)."""
     if not can_stream_cals([cal]):
         return None
-    notes: list[str] = []
-    up = _up(path, poses, up_sensor, notes)
     cal0 = dataclasses.replace(cal, drift=None)  # pass 1 evaluates the calibration alone
     fit, dt = DriftSums(), IntervalCount()
 
@@ -88,9 +87,12 @@ def stream_drift(
         dt.add(t)
 
     sums: list = []
-    ev = stream_evaluate(path, meta, poses, [cal0], include_raw=False, up_sensor=up, until_s=until_s,
-                         max_samples=max_samples, on_block=first_pass, sums_out=sums)[0]  # fmt: skip
-    acc, st = sums[0]
+    evs = stream_evaluate(path, meta, poses, [cal0], include_raw=False, up_sensor=up_sensor, until_s=until_s,
+                          max_samples=max_samples, on_block=first_pass, sums_out=sums, check_times=True)  # fmt: skip
+    if evs is None:  # damaged chunks: the whole-session path
+        return None
+    ev, (acc, st) = evs[0], sums[0]
+    up = ev.up_sensor  # inferred in pass 1 when not given (its note is in ev.notes)
     refine = DriftRefine(fit.solve(), st["t_first"], st["t_last"])
     tg = _second_pass(_residual_blocks(path, meta, poses, cal, up, until_s, max_samples), refine,
                       grid_index(st["n"]))  # fmt: skip
@@ -106,5 +108,4 @@ def stream_drift(
     )
     at, end = acc.integ.series_at(dm.apply)
     _drift_result(ev, dm, {"disp_drift_at": at, "disp_drift_end": end}, {})
-    ev.notes[:0] = notes  # the inferred orientation, as the whole-session evaluate notes it
     return dataclasses.replace(cal, drift=dm, path=None), dm, ev

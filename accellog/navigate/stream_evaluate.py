@@ -15,14 +15,17 @@ the whole session.
 from __future__ import annotations
 
 import contextlib
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
 from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.segment import _window_stats, moving_check
-from accellog.core.errors import InputError
+from accellog.calibrate.stream_segment import TimestampCheck
+from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.session import PoseLabel, Session, SessionMeta
 from accellog.navigate.evaluate import (
     EvalContext,
@@ -41,6 +44,7 @@ from accellog.store.stream import ImuBlock, iter_imu
 STREAM_BLIND_DRIVERS = ("dtemp_degC_per_s",)
 """Drivers computed over a centred span of samples: models reading them take the whole-session path."""
 
+T = TypeVar("T")
 BlockSink = Callable[[int, np.ndarray, np.ndarray, np.ndarray], None]
 """on_block(evaluation index, t_s, v_mps (n,3), d_m (n,3)) receives every block's integration."""
 
@@ -50,10 +54,14 @@ def can_stream_cals(cals: Sequence[Calibration]) -> bool:
     return not any(d in c.model.required_drivers for c in cals for d in STREAM_BLIND_DRIVERS)
 
 
-def _cut_blocks(path: str | Path, until_s: float | None, max_samples: int | None) -> Iterator[ImuBlock]:
-    """The file's blocks with t <= until_s and at most max_samples samples (evaluate's _slice)."""
+def _cut_blocks(
+    path: str | Path, until_s: float | None, max_samples: int | None, source: _Source | None = None
+) -> Iterator[ImuBlock]:
+    """The file's blocks (from source when given) with t <= until_s and at most max_samples samples
+    (evaluate's _slice)."""
     n = 0
-    with contextlib.closing(iter_imu(path)) as blocks:
+    own = source is None
+    with contextlib.closing(iter_imu(path)) if own else contextlib.nullcontext(source) as blocks:
         for b in blocks:
             k = b.n
             if until_s is not None:
@@ -71,18 +79,63 @@ def _cut_blocks(path: str | Path, until_s: float | None, max_samples: int | None
                 return
 
 
-def _mean_reading(path: str | Path) -> np.ndarray:
+class _Source:
+    """The file's blocks read once, each block's stamps fed to a TimestampCheck on the way; drain()
+    feeds the blocks a pass did not need (after a cut or an error)."""
+
+    def __init__(self, path: str | Path, check: TimestampCheck) -> None:
+        self.blocks = iter_imu(path)
+        self.check = check
+
+    def __iter__(self) -> Iterator[ImuBlock]:
+        for b in self.blocks:
+            self.check.add(b.t_s)
+            yield b
+
+    def drain(self) -> None:
+        for _ in self:
+            pass
+        self.blocks.close()
+
+
+def checked_pass(path: str | Path, run: Callable[[_Source], T]) -> T | None:
+    """run(source) with the file's time-stamp check (stream_segment.stream_check_timestamps) made in
+    the same pass: its error comes first, as when it ran before, then run's InputError; None for a
+    file with damaged chunks (DataIntegrityWarning: the whole-session reader says what it skips)."""
+    check = TimestampCheck()
+    src = _Source(path, check)
+    out, err = None, None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            out = run(src)
+        except InputError as e:
+            err = e
+        src.drain()
+    if any(issubclass(w.category, DataIntegrityWarning) for w in caught):
+        return None
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    check.finish(path)
+    if err is not None:
+        raise err
+    return out
+
+
+def _mean_reading(path: str | Path, source: _Source | None = None) -> np.ndarray:
     """nanmean of every accel sample of the file (g): the first pass when the orientation is inferred."""
     s = np.zeros(3)
     c = np.zeros(3)
-    for b in iter_imu(path):
+    for b in iter_imu(path) if source is None else source:
         ok = np.isfinite(b.accel_g)
         s += np.where(ok, b.accel_g, 0.0).sum(axis=0)
         c += ok.sum(axis=0)
     return s / np.maximum(c, 1)
 
 
-def _up(path, poses: list[PoseLabel], up_sensor, notes: list[str]) -> np.ndarray:
+def _up(
+    path, poses: list[PoseLabel], up_sensor, notes: list[str], source: _Source | None = None
+) -> np.ndarray:
     if up_sensor is not None:
         return np.asarray(up_sensor, float)
     if len(poses) == 1:
@@ -93,7 +146,7 @@ def _up(path, poses: list[PoseLabel], up_sensor, notes: list[str]) -> np.ndarray
             "labels (use evaluate_poses / the pipeline's evaluate_poses stage)",
             where=str(path),
         )
-    return infer_up(_mean_reading(path), notes)
+    return infer_up(_mean_reading(path, source), notes)
 
 
 class _Motion:
@@ -137,16 +190,34 @@ def stream_evaluate(
     check_moving: bool = True,
     on_block: BlockSink | None = None,
     sums_out: list[tuple[ResidualSums, dict]] | None = None,
+    check_times: bool = False,
 ) -> list[Evaluation] | None:
     """run_evaluate(read_session(path), cals, ...) in one pass over the file's chunks (module doc):
     the raw reading first when include_raw (gravity of the first calibration), then each
     calibration. None when a model reads a driver that does not stream (STREAM_BLIND_DRIVERS).
-    sums_out receives each evaluation's (ResidualSums, its finish() statistics)."""
+    sums_out receives each evaluation's (ResidualSums, its finish() statistics). check_times: the
+    file's time-stamp check runs in the same pass (checked_pass: its error first; None also for a
+    file with damaged chunks) instead of in a pass of its own before (open_streamed's)."""
     if not can_stream_cals(cals):
         return None
+    opts = dict(labels=labels, include_raw=include_raw, up_sensor=up_sensor, times_s=times_s,
+                until_s=until_s, max_samples=max_samples, window_s=window_s,
+                check_moving=check_moving, on_block=on_block, sums_out=sums_out)  # fmt: skip
+    if not check_times:
+        return _evaluate(path, meta, poses, cals, None, **opts)
+    return checked_pass(path, lambda src: _evaluate(path, meta, poses, cals, src, **opts))
+
+
+def _evaluate(
+    path, meta, poses, cals, source: _Source | None, *, labels, include_raw, up_sensor, times_s, until_s,
+    max_samples, window_s, check_moving, on_block, sums_out,
+) -> list[Evaluation]:  # fmt: skip
+    """stream_evaluate's pass (over source when given; an inferred orientation reads it first)."""
     where = str(path)
     notes: list[str] = []
-    up = _up(path, poses, up_sensor, notes)
+    up = _up(path, poses, up_sensor, notes, source)
+    if up_sensor is None and not poses:
+        source = None  # the orientation pass read the file (and fed the check): the sums read it again
     ctxs: list[EvalContext] = []
     if include_raw:
         g = cals[0].local_gravity_mps2 if cals else None
@@ -157,7 +228,7 @@ def stream_evaluate(
     drv: list[dict[str, float]] = [{} for _ in ctxs]
     motion = _Motion() if check_moving else None
     n, read_sum = 0, np.zeros(3)
-    for b, block in checked_blocks(path, meta, poses, until_s, max_samples):
+    for b, block in checked_blocks(path, meta, poses, until_s, max_samples, source):
         n += b.n
         read_sum += b.accel_g.sum(axis=0)
         if motion is not None:
@@ -182,12 +253,14 @@ def stream_evaluate(
     ]
 
 
-def checked_blocks(path, meta, poses, until_s: float | None, max_samples: int | None) -> Iterator[tuple]:
+def checked_blocks(
+    path, meta, poses, until_s: float | None, max_samples: int | None, source: _Source | None = None
+) -> Iterator[tuple]:
     """(ImuBlock, the block as a Session) of every cut block whose accel is finite and whose
     stamps are finite and strictly increasing across blocks (else one InputError line)."""
     where = str(path)
     n, t_prev = 0, np.nan
-    for b in _cut_blocks(path, until_s, max_samples):
+    for b in _cut_blocks(path, until_s, max_samples, source):
         if not np.isfinite(b.accel_g).all():
             i = int(np.argmax(~np.isfinite(b.accel_g).all(axis=1)))
             raise InputError(f"accel is NaN/inf at t = {b.t_s[i]:.3f} s", where=where)
