@@ -2,7 +2,9 @@
 plus a few window tables, whatever the session length).
 
 The samples stream past once (``store.stream.iter_imu``; a second, cheaper pass first only when the
-orientation must be inferred from the mean reading); each block is cut (until_s, max_samples),
+orientation must be inferred from the mean reading), the file's time-stamp check riding along when
+asked (``check_times``: ``checked_pass`` reads the blocks a cut left, raises its error before the
+pass's own, and returns None for damaged chunks); each block is cut (until_s, max_samples),
 checked (finite), calibrated (``evaluate.block_residual``, per calibration) and folded into
 ``stream_sums.ResidualSums``, the same running sums the whole-session ``evaluate`` feeds with one
 block, so both give the same Evaluation up to rounding (tests: JSON within 1e-9 relative). The

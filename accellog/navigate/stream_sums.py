@@ -49,9 +49,10 @@ class AutocorrTime:
         if self.shift is None:
             self.shift = x.mean(axis=0)
             self.total = np.zeros(x.shape[1])
+        y = x - self.shift  # pending samples are kept shifted
         self.n += x.shape[0]
-        self.total += (x - self.shift).sum(axis=0)
-        self.pending.append(x)
+        self.total += y.sum(axis=0)
+        self.pending.append(y)
         self.n_pending += x.shape[0]
         if not self.long and self.n_pending > 2 * self.block:
             self.long = True
@@ -60,25 +61,27 @@ class AutocorrTime:
 
     def _blocks(self) -> None:
         """Fold every complete B-block of the pending samples into the sums."""
-        buf = np.concatenate(self.pending) - self.shift
+        buf = np.concatenate(self.pending) if len(self.pending) > 1 else self.pending[0]
         nb = buf.shape[0] // self.block
         b = self.block
         y = buf[: nb * b].reshape(nb, b, -1)
         if self.spec is None:
             self.spec = np.zeros((b + 1, buf.shape[1]))
             self.ysum = np.zeros((b, buf.shape[1]))
-        s = np.fft.rfft(y, n=2 * b, axis=1)
-        self.spec += (s * np.conj(s)).real.sum(axis=0)
+        s = np.fft.rfft(np.ascontiguousarray(y.transpose(0, 2, 1)), n=2 * b, axis=2)  # (nb, k, b + 1)
+        self.spec += (s.real * s.real + s.imag * s.imag).sum(axis=0).T  # |s|^2
         self.ysum += y.sum(axis=0)  # P and Q are linear in y: built from the block sum at the end
         self.nb += nb
-        rest = buf[nb * b :] + self.shift
+        rest = buf[nb * b :].copy()  # not a view: buf is freed
         self.pending = [rest] if rest.shape[0] else []
         self.n_pending = rest.shape[0]
 
     def tau(self) -> np.ndarray:
         """(k,) tau in samples, >= 1 (integrated_autocorr_time of everything added)."""
         if not self.long:
-            return np.atleast_1d(integrated_autocorr_time(np.concatenate(self.pending), c=self.c))
+            return np.atleast_1d(
+                integrated_autocorr_time(np.concatenate(self.pending) + self.shift, c=self.c)
+            )
         b = self.block
         m = self.total / self.n
         syy = np.fft.irfft(self.spec, n=2 * b, axis=0)[:b]
@@ -171,19 +174,14 @@ class Integrator:
             return z, z, {}
         if self.last is None:
             self.t0 = float(t[0])
-            tt, aa, v0, d0 = t, a, np.zeros(3), np.zeros(3)
+            dt, a0, v0, d0 = np.diff(t), None, np.zeros(3), np.zeros(3)
         else:
-            tt = np.concatenate([[self.last["t"]], t])
-            aa = np.concatenate([self.last["a"][None, :], a])
-            v0, d0 = self.last["v"], self.last["d"]
-        dt = np.diff(tt)[:, None]
-        v = np.cumsum(dt * (aa[1:] + aa[:-1]) / 2.0, axis=0) + v0
-        if self.last is None:
-            v = np.concatenate([np.zeros((1, 3)), v])
-        vv = v if self.last is None else np.concatenate([v0[None, :], v])
-        d = np.cumsum(dt * (vv[1:] + vv[:-1]) / 2.0, axis=0) + d0
-        if self.last is None:
-            d = np.concatenate([np.zeros((1, 3)), d])
+            dt = np.empty(t.shape[0])
+            dt[0] = t[0] - self.last["t"]
+            np.subtract(t[1:], t[:-1], out=dt[1:])
+            a0, v0, d0 = self.last["a"], self.last["v"], self.last["d"]
+        v = _trapezoid_on(a, a0, dt, v0)
+        d = _trapezoid_on(v, None if a0 is None else v0, dt, d0)
         series = {"d": d, **(extra(t, d) if extra is not None else {})}
         self._read_at(t, series)
         self.last = {"t": float(t[-1]), "a": a[-1].copy(), "v": v[-1].copy(), "d": d[-1].copy()}
@@ -234,6 +232,30 @@ class Integrator:
         late = np.isfinite(self.used) & ~np.isin(np.arange(self.req.size), list(self.brackets))
         out[late] = end
         return out, end
+
+
+def _trapezoid_on(x: np.ndarray, x_prev: np.ndarray | None, dt: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """The cumulative trapezoid integral of x (n,3) carried on from the previous sample x_prev
+    (dt (n,): the steps from it), plus start; x_prev None: the series starts here (row 0 = start,
+    dt (n-1,)). The arithmetic of cumsum(dt (x_i + x_i-1) / 2) + start, without concatenating."""
+    out = np.empty_like(x)
+    if x_prev is None:
+        out[0] = 0.0
+        if x.shape[0] > 1:
+            s = x[1:] + x[:-1]
+            s *= dt[:, None]
+            s /= 2.0
+            np.cumsum(s, axis=0, out=out[1:])
+        out += start
+        return out
+    s = np.empty_like(x)
+    np.add(x[0], x_prev, out=s[0])
+    np.add(x[1:], x[:-1], out=s[1:])
+    s *= dt[:, None]
+    s /= 2.0
+    np.cumsum(s, axis=0, out=out)
+    out += start
+    return out
 
 
 class ResidualSums:
