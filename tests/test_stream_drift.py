@@ -173,3 +173,25 @@ def test_time_stamp_error_comes_first_in_the_merged_pass(tmp_path, sessions, cap
             call(False)
         assert str(streamed.value) == str(whole.value), name
     assert not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.parametrize("good_blocks", [0, 2])
+def test_merged_check_keeps_the_readers_own_refusal_first(monkeypatch, sessions, good_blocks):
+    """A reader error mid-file (after a cut, or before any block) is raised as the separate
+    time-stamp pass raised it, not replaced by the check's 'session has 0 samples'."""
+    from accellog.navigate import stream_evaluate as se
+    from accellog.store.stream import read_labels
+
+    path = sessions / "drift.mcap"
+    real = se.iter_imu
+
+    def failing(p):
+        for i, b in enumerate(real(p)):
+            if i == good_blocks:
+                raise InputError("reader says no", where=str(p))
+            yield b
+
+    monkeypatch.setattr(se, "iter_imu", failing)
+    meta, poses, _ = read_labels(path)
+    with pytest.raises(InputError, match="reader says no"):
+        se.stream_evaluate(path, meta, poses, [], until_s=1.0, check_times=True)

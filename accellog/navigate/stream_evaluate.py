@@ -88,9 +88,17 @@ class _Source:
     def __init__(self, path: str | Path, check: TimestampCheck) -> None:
         self.blocks = iter_imu(path)
         self.check = check
+        self.failed: Exception | None = None  # the reader's own refusal of the file
 
     def __iter__(self) -> Iterator[ImuBlock]:
-        for b in self.blocks:
+        while True:
+            try:
+                b = next(self.blocks)
+            except StopIteration:
+                return
+            except Exception as e:
+                self.failed = e
+                raise
             self.check.add(b.t_s)
             yield b
 
@@ -102,8 +110,9 @@ class _Source:
 
 def checked_pass(path: str | Path, run: Callable[[_Source], T]) -> T | None:
     """run(source) with the file's time-stamp check (stream_segment.stream_check_timestamps) made in
-    the same pass: its error comes first, as when it ran before, then run's InputError; None for a
-    file with damaged chunks (DataIntegrityWarning: the whole-session reader says what it skips)."""
+    the same pass: the reader's own refusal first, then the check's error, as when it ran before,
+    then run's InputError; None for a file with damaged chunks (DataIntegrityWarning: the
+    whole-session reader says what it skips)."""
     check = TimestampCheck()
     src = _Source(path, check)
     out, err = None, None
@@ -113,6 +122,8 @@ def checked_pass(path: str | Path, run: Callable[[_Source], T]) -> T | None:
             out = run(src)
         except InputError as e:
             err = e
+        if src.failed is not None:  # the reader refused the file: its error, as the check pass raised it
+            raise src.failed
         src.drain()
     if any(issubclass(w.category, DataIntegrityWarning) for w in caught):
         return None
