@@ -18,7 +18,8 @@ to the middle of b (accellog.calibrate.gyro_rotation, as accellog.navigate.strap
 what gravity can check: the up vector of a, carried through dq_int, must land on the up vector of b (residual dq_int^-1 up_a - up_b, deg;
 yaw about the vertical is free, so a hand-held operator's turns do no harm). With
 reference='orientation' (known headings: a fixture, a vehicle) the whole nominal change
-dq_nom = q_a^-1 q_b is compared instead: residual = rotation vector of dq_nom^-1 dq_int (deg). M is found by nonlinear least squares (scipy); parameters the rotations do
+dq_nom = q_a^-1 q_b is compared instead: residual = rotation vector of dq_nom^-1 dq_int (deg). M is found by nonlinear least squares (core.numeric.least_squares: Levenberg-Marquardt with the exact
+complex-step Jacobian, iterated to the optimum itself); parameters the rotations do
 not excite (e.g. x/y scale when the robot only turns about z) are held at the identity and
 reported as undetermined (sigma NaN). Covariance = s^2 (J^T J)^-1, s^2 = max(RSS/dof, s_min^2).
 """
@@ -39,12 +40,9 @@ from accellog.calibrate.gyro_rotation import (
     _rotvec_deg,
 )
 from accellog.core.errors import InputError, ModelError
+from accellog.core.numeric import least_squares
 from accellog.core.rotations import quat_conjugate, quat_multiply
 from accellog.core.session import PoseLabel
-
-_LSQ_TOL = {"ftol": 1e-12, "xtol": 1e-12, "gtol": 1e-12}
-"""least_squares tolerances: converge to the optimum itself (the Jacobian is exact), so the result
-does not depend on the path the iterations took."""
 
 PARAM_NAMES = [f"M{'xyz'[i]}{'xyz'[j]}" for i in range(3) for j in range(3)]
 """Names of the entries of M (row-major): M_ij maps true rate j into measured axis i."""
@@ -288,8 +286,6 @@ def _pose_times(known: list[PoseLabel]) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 def _fit_matrix(phi, c, at, known, base: GyroCalibration, model: str, floor_deg: float, reference: str):
     """fit_gyro_matrix from the block increments of _block_increments."""
-    from scipy.optimize import least_squares
-
     if reference == "orientation":
         qn = np.array([p.q_sensor_to_world for p in known], float)
         dq_nom_c = _qconj(quat_multiply(quat_conjugate(qn[:-1]), qn[1:]))
@@ -335,7 +331,7 @@ def _fit_matrix(phi, c, at, known, base: GyroCalibration, model: str, floor_deg:
     if not free:
         raise ModelError("the rotations between labelled poses are too small to determine any gyro scale")
     sol = least_squares(
-        residuals, np.eye(3).ravel()[free], jac=jacobian, args=(free,), x_scale=0.01, **_LSQ_TOL
+        lambda p: residuals(p, free), lambda p: jacobian(p, free), np.eye(3).ravel()[free], x_scale=0.01
     )
     r = sol.fun
     dof = r.size - len(free)
