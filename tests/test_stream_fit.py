@@ -54,6 +54,17 @@ def test_stream_gyro_equals_whole_session(recorded, small_groups):
     _close(whole, streamed)
 
 
+def test_stream_gyro_hold_labelled_past_the_end(recorded, small_groups):
+    """Bias windows whose edges lie past the last sample (a hold labelled beyond the end of the
+    recording: their ranges are found only at the end of the pass): the whole-session result."""
+    from dataclasses import replace
+
+    s = read_session(recorded)
+    poses = [*s.poses[:-1], replace(s.poses[-1], end_s=float(s.t_s[-1]) + 5.0)]
+    whole = calibrate_gyro(s.t_s, s.gyro_dps, poses, s.temp_degC).to_dict()
+    _close(whole, stream_calibrate_gyro(recorded, poses).to_dict())
+
+
 def test_fit_streams_and_matches_whole_session(recorded, small_groups, tmp_path):
     assert can_stream(recorded)
     whole = run_fit(load_input(recorded))  # a Session: the whole-session path
@@ -155,7 +166,7 @@ def test_coarse_blocks_fed_in_batches_equal_whole_array_increments(batch):
         temp_bias_dps_per_degC=np.array([0.01, -0.02, 0.03]),
     )
     phi, c, _ = _increments(w_int, temp_int, span, base, fine, coarse, fine[:1])
-    blocks = _CoarseBlocks(fine, coarse, base, use_temp=True)
+    blocks = _CoarseBlocks(np.searchsorted(fine, coarse[:-1]), fine.size, base, use_temp=True)
     for i in range(0, 399, batch):
         blocks.add(w_int[i : i + batch], temp_int[i : i + batch], span[i : i + batch])
     assert blocks.open is None and phi.shape == blocks.phi.shape == (coarse.size - 1, 3)
@@ -174,3 +185,30 @@ def test_stream_gyro_with_temperature_slope_equals_whole_session(tmp_path, small
     whole = calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC)
     assert any(whole.temp_bias_dps_per_degC != 0)
     _close(whole.to_dict(), stream_calibrate_gyro(p, s.poses).to_dict(), tol=1e-9)
+
+
+@pytest.mark.parametrize("rate_hz", [20.0, 99.0, 1000.0])
+def test_pair_by_pair_block_edges_equal_the_whole_arrays(rate_hz):
+    """_fine_pieces / _coarse_plan (one hold pair in memory at a time) give _block_edges' fine and
+    coarse edges and the fine index of each coarse edge, also when the 10 ms blocks are shorter
+    than a sample (rounded edges repeat) and when two holds share a middle."""
+    import numpy as np
+
+    from accellog.calibrate.gyro_rotation import _block_edges, _coarse_plan, _fine_pieces
+
+    rng = np.random.default_rng(int(rate_hz))
+    for trial in range(40):
+        n = int(rng.integers(50, 3000))
+        t = np.cumsum(rng.uniform(0.5, 1.5, n)) / rate_hz
+        k = int(rng.integers(2, 6))
+        starts = np.sort(rng.integers(0, n, k))
+        ends = np.maximum(np.sort(np.minimum(starts + rng.integers(0, n // k + 1, k), n - 1)), starts)
+        mids = np.sort((starts + ends) // 2)
+        if trial % 5 == 0:
+            mids[1] = mids[0]
+        fine, coarse = _block_edges(t, mids, ends, starts, 0.01)
+        np.testing.assert_array_equal(np.concatenate([mids[:1], *_fine_pieces(t, mids, 0.01)]), fine)
+        c2, at, n_fine = _coarse_plan(t, mids, ends, starts, 0.01)
+        np.testing.assert_array_equal(c2, coarse)
+        np.testing.assert_array_equal(at, np.searchsorted(fine, coarse[:-1]))
+        assert n_fine == fine.size

@@ -28,15 +28,61 @@ def _block_edges(t: np.ndarray, mids: np.ndarray, ends: np.ndarray, starts: np.n
     (np.linspace, rounded). Coarse: the fine edges of the move between the holds, but the fine
     blocks inside a hold (a .. end of hold a, start of hold b .. b) merged into one each."""
     fine, coarse = [np.array([mids[0]])], [np.array([mids[0]])]
-    for k, (a, b) in enumerate(itertools.pairwise(mids)):
-        n = max(1, int(np.ceil((t[b] - t[a]) / block_s)))
-        e = np.linspace(a, b, n + 1).round().astype(np.int64)
-        lo = e[e <= max(ends[k], a)].max()
-        hi = e[e >= min(max(starts[k + 1], lo), b)].min()
-        fine.append(e[1:])
-        coarse.append(e[1:][(e[1:] >= lo) & (e[1:] <= hi)])
-        coarse.append(np.array([b]))
+    for f, c in _pair_edges(t, mids, ends, starts, block_s):
+        fine.append(f)
+        coarse.append(c)
     return _sorted_unique(np.concatenate(fine)), _sorted_unique(np.concatenate(coarse))
+
+
+def _pair_edges(t, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block_s: float):
+    """_block_edges hold pair by hold pair: the fine edges after mids[k] up to mids[k+1] and the
+    coarse ones among them (repeats not removed); t: sample times (anything indexable by sample)."""
+    for k, (a, b) in enumerate(itertools.pairwise(mids)):
+        yield _pair_fine(t, a, b, block_s)[1:], _pair_coarse(t, a, b, ends[k], starts[k + 1], block_s)
+
+
+def _pair_fine(t, a: int, b: int, block_s: float) -> np.ndarray:
+    """The fine block edges a .. b of one hold pair (np.linspace, rounded)."""
+    n = max(1, int(np.ceil((t[b] - t[a]) / block_s)))
+    return np.linspace(a, b, n + 1).round().astype(np.int64)
+
+
+def _pair_coarse(t, a: int, b: int, end_a: int, start_b: int, block_s: float) -> np.ndarray:
+    """The coarse block edges after a up to b: the fine ones of the move from the end of hold a to
+    the start of hold b, then b (repeats not removed)."""
+    e = _pair_fine(t, a, b, block_s)
+    lo = e[e <= max(end_a, a)].max()
+    hi = e[e >= min(max(start_b, lo), b)].min()
+    return np.append(e[1:][(e[1:] >= lo) & (e[1:] <= hi)], b)
+
+
+def _fine_pieces(t, mids: np.ndarray, block_s: float):
+    """The fine edges of _block_edges as consecutive pieces, one per hold pair, without repeats:
+    their concatenation after mids[0] is _block_edges' fine array (memory: one pair's edges)."""
+    last = mids[0]
+    for a, b in itertools.pairwise(mids):
+        f = _sorted_unique(_pair_fine(t, a, b, block_s))
+        f = f[f > last]
+        if f.size:
+            last = f[-1]
+        yield f
+
+
+def _coarse_plan(t, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block_s: float):
+    """(coarse edges of _block_edges, index in the fine edges of each coarse edge but the last,
+    number of fine edges), formed hold pair by hold pair (memory: one pair's fine edges)."""
+    coarse, at = [np.array([mids[0]])], [np.zeros(1, np.int64)]
+    n_fine, last = 1, mids[0]
+    for k, f in enumerate(_fine_pieces(t, mids, block_s)):
+        a, b = mids[k], mids[k + 1]
+        c = _sorted_unique(_pair_coarse(t, a, b, ends[k], starts[k + 1], block_s))
+        c = c[c > last]
+        if c.size:
+            last = c[-1]
+        coarse.append(c)
+        at.append(n_fine + np.searchsorted(f, c))
+        n_fine += f.size
+    return np.concatenate(coarse), np.concatenate(at)[:-1], n_fine
 
 
 def _sorted_unique(e: np.ndarray) -> np.ndarray:

@@ -1,18 +1,21 @@
 """Gyro calibration of an MCAP session chunk by chunk: ``calibrate_gyro`` on a file without loading
-it (memory: one chunk group plus O(windows + coarse blocks), the coarse blocks being the 10 ms
-blocks of the moves and one per hold: bounded by the moves, not by the session length).
+it (memory: one chunk group plus O(windows + coarse blocks + the fine blocks of one hold pair), the
+coarse blocks being the 10 ms blocks of the moves and one per hold: bounded by the moves, not by
+the session length).
 
-Three streaming passes over ``store.stream.iter_imu``:
+Two streaming passes over ``store.stream.iter_imu``:
 
-1. locate: the sample index of every time the fit asks for (hold window edges, hold start/middle/end)
-   is the count of samples before it, summed over blocks (``np.searchsorted`` on the whole time
-   axis, block by block), plus the time of the first sample at or after each hold middle;
-2. windows: the rate and temperature sums over the bias windows, from which the bias model
-   (``gyro._bias_fit``) is fitted;
-3. integrate: the trapezoid integrals of the rate (and temperature) over the 10 ms fine blocks
+1. windows and locate: the sample index of every time the fit asks for (hold window edges, hold
+   start/middle/end) is the count of samples before it, summed over blocks (``np.searchsorted`` on
+   the whole time axis, block by block), plus the time of the first sample at or after each hold
+   middle; each bias window's rate and temperature sums are taken as soon as its end is found
+   (``_first_pass``), and the bias model (``gyro._bias_fit``) is fitted from them;
+2. integrate: the trapezoid integrals of the rate (and temperature) over the 10 ms fine blocks
    between hold middles (a sample pair that straddles two groups is carried over), bias-corrected
    and reduced to their coarse blocks (phi, c) as each chunk group completes them
-   (``_CoarseBlocks``: the prefix sum and any open coarse block carried between groups).
+   (``_CoarseBlocks``: the prefix sum and any open coarse block carried between groups). The fine
+   block edges are made one hold pair at a time (``gyro_rotation._fine_pieces``); the pass stops
+   at the last hold middle.
 
 The fit itself is the one of ``calibrate.gyro`` on these sums, so the result equals
 ``calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC)`` of ``s = read_session(path)`` up to the
@@ -21,7 +24,7 @@ rounding of sums split at block boundaries (~1e-16 relative).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -30,16 +33,18 @@ from accellog.calibrate.gyro import (
     GyroCalibration,
     _bias_fit,
     _bias_window_times,
-    _bias_windows,
     _fit_matrix,
     _holds,
     _known_poses,
     _pose_times,
 )
-from accellog.calibrate.gyro_rotation import _block_edges
+from accellog.calibrate.gyro_rotation import _coarse_plan, _fine_pieces
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
 from accellog.store.stream import iter_imu
+
+_BLOCK_S = 0.01
+"""Fine block length (s), as gyro.fit_gyro_matrix."""
 
 
 def stream_calibrate_gyro(
@@ -61,45 +66,55 @@ def stream_calibrate_gyro(
     known = _known_poses(poses, model, reference) if n_ref >= 2 else []
     win_times = _bias_window_times(iv, window_s, trim_s)
     pose_t = _pose_times(known) if known else (np.zeros(0),) * 3
-    queries = np.concatenate([*win_times, *pose_t])
-    found = _locate(path, queries)
+    found = _first_pass(path, win_times, np.concatenate(pose_t))
     if found is None:
         return None
-    counts, n_total, first_at = found
-    cuts = np.cumsum([len(q) for q in win_times])[:-1] if win_times else []
-    a, b = _bias_windows(np.split(counts[: sum(len(q) for q in win_times)], cuts) if win_times else [])
-    k = len(known)
-    pidx = np.clip(counts[counts.size - 3 * k :], 0, n_total - 1) if k else np.zeros(0, np.int64)
-    mids, ends, starts = pidx[:k], pidx[k : 2 * k], pidx[2 * k :]
-    t_mid = {int(i): float(v) for i, v in zip(mids, first_at[first_at.size - 3 * k :][:k], strict=True)}
-    wins, has_temp = _window_pass(path, a, b)
-    if a.size < 2:
+    sums, has_temp, (counts, n_total, first_at) = found
+    if sums[2].size < 2:
         raise InputError(
             f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
         )
-    n = (b - a).astype(float)
-    means = wins[0].acc / n[:, None]
-    temps = wins[1].acc / n if has_temp else np.full(a.size, np.nan)
+    means = sums[0] / sums[2][:, None]
+    temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
     cal = _bias_fit(means, temps, has_temp, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC)
+    k = len(known)
     if not k:
         return cal
-    fine, coarse = _block_edges(t_mid, mids, ends, starts, 0.01)
-    if fine[-1] == fine[0]:
+    pidx = np.clip(counts, 0, n_total - 1)
+    mids, ends, starts = pidx[:k], pidx[k : 2 * k], pidx[2 * k :]
+    t_mid = {int(i): float(v) for i, v in zip(mids, first_at[:k], strict=True)}
+    coarse, at, n_fine = _coarse_plan(t_mid, mids, ends, starts, _BLOCK_S)
+    if n_fine == 1:
         phi, c = np.zeros((0, 3)), np.zeros((0, 3))
     else:
         use_temp = has_temp and bool(np.any(cal.temp_bias_dps_per_degC != 0))
-        blocks = _CoarseBlocks(fine, coarse, cal, use_temp)
-        _integrate_pass(path, fine, blocks)
+        blocks = _CoarseBlocks(at, n_fine, cal, use_temp)
+        _integrate_pass(path, mids[0], _fine_pieces(t_mid, mids, _BLOCK_S), blocks)
         phi, c = blocks.phi, blocks.c
     return _fit_matrix(phi, c, np.searchsorted(coarse, mids), known, cal, model, 0.05, reference)
 
 
-def _locate(path, queries: np.ndarray):
-    """(samples before each query time, samples in all, time of the first sample >= each query
-    (the last sample's time when none is)); None when the session has no gyro rate."""
-    counts = np.zeros(queries.size, np.int64)
-    first_at = np.full(queries.size, np.nan)
-    n_total, t_last = 0, np.nan
+def _first_pass(path, win_times: list[np.ndarray], pose_q: np.ndarray):
+    """One pass: the rate and temperature sums over the bias windows (edge times win_times, one
+    array per hold) and the locate of module doc step 1 for the pose times pose_q. Returns
+    ((rate sums (W,3), temperature sums (W,), samples (W,)) of the windows of >= 2 samples,
+    has_temp, (samples before each pose time, samples in all, time of the first sample at or
+    after each (the last sample's time when none is))); None when the session has no gyro rate.
+
+    A window's sample range [a, b) is the count of samples before its edge times; the count is
+    final once a sample at or after the time has passed (times sorted), so each window is summed
+    (_Segments, one np.add.reduceat over exactly its samples) as soon as its end is found, the
+    samples from the first window still open kept over to the next block."""
+    nw = [len(q) for q in win_times]
+    queries = np.concatenate([*win_times, pose_q])
+    qlo = np.concatenate(
+        [s + np.arange(n - 1) for s, n in zip(np.cumsum([0, *nw]), nw, strict=False)] or [[]]
+    )
+    qlo = qlo.astype(np.int64)
+    counts, first_at = np.zeros(queries.size, np.int64), np.full(queries.size, np.nan)
+    n_total, t_last, nxt, has_temp = 0, np.nan, 0, True
+    out: list[tuple] = []
+    buf, buf0 = None, 0  # samples (w, temp) kept from global index buf0
     for blk in iter_imu(path):
         if blk.gyro_dps is None:
             return None
@@ -107,12 +122,40 @@ def _locate(path, queries: np.ndarray):
         new = (j < blk.n) & np.isnan(first_at)
         first_at[new] = blk.t_s[j[new]]
         counts += j
-        n_total += blk.n
-        t_last = blk.t_s[-1]
+        n_total, t_last = n_total + blk.n, blk.t_s[-1]
+        has_temp = has_temp and blk.temp_degC is not None
+        add = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)
+        buf = add if buf is None else tuple(_cat(o, n) for o, n in zip(buf, add, strict=True))
+        open_ = np.isnan(first_at[qlo[nxt:] + 1])
+        m = nxt + int(open_.argmax() if open_.any() else open_.size)  # leading windows with a found end
+        out.append(_window_sums(counts[qlo[nxt:m]], counts[qlo[nxt:m] + 1], buf, buf0))
+        nxt = m
+        need = counts[qlo[nxt]] if nxt < qlo.size else buf0 + buf[0].shape[0]
+        keep = min(need, buf0 + buf[0].shape[0]) - buf0
+        buf, buf0 = tuple(None if x is None else x[keep:] for x in buf), buf0 + keep
     if n_total == 0:
         return None
+    if nxt < qlo.size:  # windows running to the end of the session
+        out.append(_window_sums(counts[qlo[nxt:]], counts[qlo[nxt:] + 1], buf, buf0))
     first_at[np.isnan(first_at)] = t_last
-    return counts, n_total, first_at
+    sums = tuple(np.concatenate([o[i] for o in out]) for i in range(3))
+    return (
+        sums,
+        has_temp,
+        (counts[counts.size - pose_q.size :], n_total, first_at[first_at.size - pose_q.size :]),
+    )
+
+
+def _window_sums(a: np.ndarray, b: np.ndarray, buf: tuple, buf0: int) -> tuple:
+    """(rate sums, temperature sums, samples) of the windows [a, b) of >= 2 samples, all in buf."""
+    keep = b - a >= 2
+    a, b = a[keep], b[keep]
+    w, temp = _Segments(a, b, 3), _Segments(a, b, 1)
+    if a.size:
+        w.add(buf[0], buf0)
+        if buf[1] is not None:
+            temp.add(buf[1], buf0)
+    return w.acc, temp.acc, (b - a).astype(float)
 
 
 class _Segments:
@@ -153,9 +196,10 @@ class _CoarseBlocks:
     open, prepended as a row to the next batch's sums, so every sum is formed in the same order as
     the whole-array cumsum/reduceat of gyro._increments."""
 
-    def __init__(self, fine: np.ndarray, coarse: np.ndarray, base: GyroCalibration, use_temp: bool):
-        self.at = np.searchsorted(fine, coarse[:-1])  # first fine block of each coarse block
-        self.end = np.append(self.at[1:], fine.size - 1)  # one past its last fine block
+    def __init__(self, at: np.ndarray, n_fine: int, base: GyroCalibration, use_temp: bool):
+        """at: first fine block of each coarse block; n_fine: number of fine block edges."""
+        self.at = np.asarray(at, np.int64)
+        self.end = np.append(self.at[1:], n_fine - 1)  # one past its last fine block
         self.phi, self.c = np.zeros((self.at.size, 3)), np.zeros((self.at.size, 3))
         self.base, self.use_temp = base, use_temp
         self.p, self.k, self.open = np.zeros(3), 0, None  # open: (phi, cross sum, p at start)
@@ -209,30 +253,45 @@ def _cat(old, new):
     return None if old is None or new is None else np.concatenate([old, new])
 
 
-def _integrate_pass(path, fine: np.ndarray, blocks: _CoarseBlocks) -> None:
+def _integrate_pass(path, first: int, pieces: Iterator[np.ndarray], blocks: _CoarseBlocks) -> None:
     """Trapezoid integrals of the rate (and temperature) over the fine blocks, fed to blocks as
-    each chunk group completes them (a sample pair that straddles two groups is carried over)."""
-    pairs = (_Segments(fine[:-1], fine[1:], 3, keep=False), _Segments(fine[:-1], fine[1:], 1, keep=False))
+    each chunk group completes them (a sample pair that straddles two groups is carried over).
+    The fine edges come hold pair by hold pair from pieces (after the first, mids[0]), taken as
+    the samples reach them; the pass stops after the last edge."""
+    edges, more = np.array([first], np.int64), True  # the fine edges from the first block not summed
     buf, buf0 = None, 0  # samples (t, w, temp) kept from global index buf0
     for blk in iter_imu(path):
         temp = np.asarray(blk.temp_degC, float) if blocks.use_temp else np.zeros(blk.n)
         new = (blk.t_s, np.asarray(blk.gyro_dps, float), temp)
         buf = new if buf is None else tuple(np.concatenate([o, n]) for o, n in zip(buf, new, strict=True))
         t, w, temp = buf
-        need = buf0  # one sample: keep it for the pair it starts
-        if t.size > 1:
-            dt = np.diff(t)
-            inc = w[:-1] + w[1:]
+        end = buf0 + t.size - 1  # one past the last sample pair held
+        while more and edges[-1] < end:
+            piece = next(pieces, None)
+            more = piece is not None
+            edges = edges if piece is None else np.concatenate([edges, piece])
+        need = int(edges[0])
+        if edges.size > 1 and need < end:
+            pairs = (
+                _Segments(edges[:-1], edges[1:], 3, keep=False),
+                _Segments(edges[:-1], edges[1:], 1, keep=False),
+            )
+            lo = need - buf0
+            dt = np.diff(t[lo:])
+            inc = w[lo:-1] + w[lo + 1 :]
             inc *= (0.5 * dt)[:, None]
-            need = pairs[0].add(inc, buf0)
+            need = pairs[0].add(inc, need)
             temp_int = None
             if blocks.use_temp:
-                ti = temp[:-1] + temp[1:]
+                ti = temp[lo:-1] + temp[lo + 1 :]
                 ti *= 0.5 * dt
-                pairs[1].add(ti, buf0)
+                pairs[1].add(ti, buf0 + lo)
                 temp_int = pairs[1].new
-            k0, m = pairs[0].done
-            span = t[fine[k0 + 1 : m + 1] - buf0] - t[fine[k0:m] - buf0]
+            m = pairs[0].done[1]
+            span = t[edges[1 : m + 1] - buf0] - t[edges[:m] - buf0]
             blocks.add(pairs[0].new, temp_int, span)
+            edges = edges[m:]
+        if edges.size == 1 and not more:
+            return  # the last fine block is summed: the rest of the session is not needed
         keep = min(need, buf0 + t.size) - buf0  # a range not yet begun: keep nothing
         buf, buf0 = tuple(x[keep:] for x in buf), buf0 + keep
