@@ -165,3 +165,20 @@ def test_moves_only_fit_equals_the_dense_fit(seq, case):
     np.testing.assert_allclose(new.matrix, old.matrix, rtol=0, atol=1e-9 * np.abs(old.matrix).max())
     np.testing.assert_allclose(new.matrix_sigma, old.matrix_sigma, rtol=1e-6, equal_nan=True)
     assert new.rotation_rms_deg == pytest.approx(old.rotation_rms_deg, rel=1e-6)
+
+
+def test_relative_rotations_in_groups_of_hold_pairs_equal_one_scan():
+    """_relative_rotations formed a few hold pairs at a time (bounded memory) equals the one scan
+    over all blocks to rounding, for one matrix and for a stack of complex-stepped ones."""
+    from accellog.calibrate.gyro_rotation import _relative_rotations
+
+    rng = np.random.default_rng(4)
+    at = np.concatenate([[0], np.cumsum(rng.integers(1, 40, 15))])
+    phi, c = rng.normal(0, 0.02, (at[-1], 3)), rng.normal(0, 1e-5, (at[-1], 3))
+    m = M_TRUE + 1j * 1e-30 * rng.normal(size=(4, 3, 3))
+    for mm in (M_TRUE, m):
+        whole = _relative_rotations(phi, c, at, mm, budget=10**9)
+        for budget in (1, 7, 50):
+            part = _relative_rotations(phi, c, at, mm, budget=budget)
+            np.testing.assert_allclose(part.real, whole.real, rtol=0, atol=1e-14)
+            np.testing.assert_allclose(part.imag, whole.imag, rtol=1e-9, atol=1e-45)

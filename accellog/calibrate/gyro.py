@@ -311,9 +311,6 @@ def _fit_matrix(phi, c, at, known, base: GyroCalibration, model: str, floor_deg:
         m[free] = p
         return m.reshape(3, 3)
 
-    def residuals(p: np.ndarray, free: list[int]) -> np.ndarray:
-        return forward(matrix(p, free))
-
     def jacobian(p: np.ndarray, free: list[int]) -> np.ndarray:
         """d residuals / d M_free, all columns in one vectorised complex-step pass (exact to
         rounding: Im f(M + i h E_j) / h with h = 1e-30, no subtractive cancellation)."""
@@ -324,15 +321,16 @@ def _fit_matrix(phi, c, at, known, base: GyroCalibration, model: str, floor_deg:
 
     # which entries of M do the rotations excite? (sensitivity at M = I)
     p_init = np.eye(3).ravel()[free_all]
-    sens = np.linalg.norm(jacobian(p_init, free_all), axis=0)
+    j_init = jacobian(p_init, free_all)
+    sens = np.linalg.norm(j_init, axis=0)
     # a 1 % error in M_ij must move some rotation by > 10 floor_deg-ish to be determinable
     free = [f for f, s in zip(free_all, sens, strict=True) if s * 0.01 > floor_deg]
     undetermined = [PARAM_NAMES[f] for f in free_all if f not in free]
     if not free:
         raise ModelError("the rotations between labelled poses are too small to determine any gyro scale")
-    sol = least_squares(
-        lambda p: residuals(p, free), lambda p: jacobian(p, free), np.eye(3).ravel()[free], x_scale=0.01
-    )
+    j0 = j_init[:, [free_all.index(f) for f in free]]  # the Jacobian at M = I of the free entries
+    fun, jac = lambda p: forward(matrix(p, free)), lambda p: jacobian(p, free)
+    sol = least_squares(fun, jac, np.eye(3).ravel()[free], x_scale=0.01, jac0=j0)
     r = sol.fun
     dof = r.size - len(free)
     s2 = max(float(r @ r) / dof, floor_deg**2) if dof > 0 else floor_deg**2

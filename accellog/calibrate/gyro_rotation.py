@@ -177,16 +177,28 @@ def _prefix_product(dq: np.ndarray) -> np.ndarray:
     return out
 
 
-def _relative_rotations(phi: np.ndarray, c: np.ndarray, at: np.ndarray, m: np.ndarray) -> np.ndarray:
+def _relative_rotations(
+    phi: np.ndarray, c: np.ndarray, at: np.ndarray, m: np.ndarray, budget: int = 1 << 13
+) -> np.ndarray:
     """Body-frame rotation (...,K-1,4) from each mid to the next, with rates corrected by M^-1
     (m (3,3), or (P,3,3) for P matrices at once): block rotation vector M^-1 phi + det(M^-1) M^T c,
-    since (A u) x (A v) = det(A) A^-T (u x v) carries the second-order term c through A = M^-1."""
-    m_inv = np.linalg.inv(m)
-    phi = phi @ np.swapaxes(m_inv, -1, -2) + (c @ m) / np.linalg.det(m)[..., None, None]
-    ident = np.zeros((*phi.shape[:-2], 1, 4), phi.dtype)
-    ident[..., 0] = 1.0
-    q = _qnormalize(_prefix_product(np.concatenate([ident, _qexp(phi)], axis=-2)))
-    return _qnormalize(quat_multiply(_qconj(q[..., at[:-1], :]), q[..., at[1:], :]))
+    since (A u) x (A v) = det(A) A^-T (u x v) carries the second-order term c through A = M^-1.
+    Formed for consecutive hold pairs of up to budget blocks at a time (memory: P x budget
+    quaternions, whatever the number of moves; one group, the whole scan, for up to budget)."""
+    m_inv_t = np.swapaxes(np.linalg.inv(m), -1, -2)
+    det = np.linalg.det(m)[..., None, None]
+    out, i = [], 0
+    while i < at.size - 1:
+        j = max(i + 1, int(np.searchsorted(at, at[i] + budget, side="right")) - 1)
+        lo, hi = at[i], at[j]
+        ph = phi[lo:hi] @ m_inv_t + (c[lo:hi] @ m) / det
+        ident = np.zeros((*ph.shape[:-2], 1, 4), ph.dtype)
+        ident[..., 0] = 1.0
+        q = _qnormalize(_prefix_product(np.concatenate([ident, _qexp(ph)], axis=-2)))
+        a = at[i : j + 1] - lo
+        out.append(_qnormalize(quat_multiply(_qconj(q[..., a[:-1], :]), q[..., a[1:], :])))
+        i = j
+    return np.concatenate(out, axis=-2)
 
 
 def _rotate_inverse(q: np.ndarray, v: np.ndarray) -> np.ndarray:

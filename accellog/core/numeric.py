@@ -1,9 +1,9 @@
 """Small numerical kernels in numpy and math, so that the fit command does not import scipy
 (scipy.optimize and scipy.special cost ~0.5-1 s of its start-up):
 
-- ``least_squares``: Levenberg-Marquardt with an exact Jacobian for problems of a few parameters,
-  iterated to the optimum itself (Gauss-Newton steps below rounding), so the result does not depend
-  on the path the iterations took;
+- ``least_squares``: Gauss-Newton / Levenberg-Marquardt with an exact Jacobian for problems of a few
+  parameters, iterated to the optimum itself (until the Gauss-Newton step is at the rounding of the
+  residuals), so the result does not depend on the path the iterations took;
 - ``chi2_sf``: the chi-square survival function P(X > x), the regularised upper incomplete gamma
   function Q(k/2, x/2) (series / continued fraction, ~1e-14 relative).
 """
@@ -33,38 +33,41 @@ def least_squares(
     x0: np.ndarray,
     x_scale: float | np.ndarray = 1.0,
     *,
-    rtol: float = 1e-14,
-    max_iter: int = 200,
+    rtol: float = 1e-12,
+    max_iter: int = 100,
+    jac0: np.ndarray | None = None,
 ) -> LsqResult:
-    """min_x |fun(x)|^2 by Levenberg-Marquardt (damping lam * diag(1/x_scale^2), lam / 10 after an
-    accepted step, x 10 after a rejected one; steps solved by lstsq on the augmented Jacobian).
-    Stops when an accepted step is below rtol * max(|x|, x_scale) in every parameter, or when no
-    step lowers the cost (at the optimum, to rounding)."""
+    """min_x |fun(x)|^2 by Gauss-Newton steps, damped Levenberg-Marquardt style when a step raises
+    the cost by more than rounding (lam * diag(1/x_scale^2), x 10 per try; steps by lstsq on the
+    augmented Jacobian). Stops at the optimum to rounding: when the Gauss-Newton step is below
+    rtol * max(|x|, x_scale) in every parameter, or is below 1e-9 of that and no longer shrinks
+    (the rounding of the residuals), or no damped step lowers the cost. jac0: jac(x0) when known."""
     x = np.array(x0, float)
     scale = np.broadcast_to(np.asarray(x_scale, float), x.shape)
     r = np.asarray(fun(x), float)
     cost = float(r @ r)
-    J = np.asarray(jac(x), float)
-    lam, nit = 0.0, 0
+    J = np.asarray(jac(x) if jac0 is None else jac0, float)
+    nit, prev = 0, np.inf
     while nit < max_iter:
         nit += 1
-        a = J if lam == 0.0 else np.vstack([J, np.diag(np.sqrt(lam) / scale)])
-        b = -r if lam == 0.0 else np.concatenate([-r, np.zeros(x.size)])
-        step = np.linalg.lstsq(a, b, rcond=None)[0]
-        cand = x + step
-        rc = np.asarray(fun(cand), float)
-        cc = float(rc @ rc)
-        small = bool(np.all(np.abs(step) <= rtol * np.maximum(np.abs(x), scale)))
-        if np.isfinite(cc) and cc <= cost:
-            x, r, cost = cand, rc, cc
-            J = np.asarray(jac(x), float)
-            lam = 0.0 if lam < 1e-12 else lam / 10.0
-            if small:
-                break
-        else:
-            if small or lam > 1e16:
+        step = np.linalg.lstsq(J, -r, rcond=None)[0]
+        size = float(np.max(np.abs(step) / np.maximum(np.abs(x), scale)))
+        if size <= rtol or (size < 1e-9 and size > 0.5 * prev):
+            break
+        prev, lam, zeros = size, 0.0, np.zeros(x.size)
+        while True:
+            cand = x + step
+            rc = np.asarray(fun(cand), float)
+            cc = float(rc @ rc)
+            if np.isfinite(cc) and cc <= cost * (1.0 + 1e-12):  # lower, or higher by rounding only
                 break
             lam = 1e-6 if lam == 0.0 else lam * 10.0
+            if lam > 1e16:
+                return LsqResult(x, r, J, nit)
+            damp = np.diag(np.sqrt(lam) / scale)
+            step = np.linalg.lstsq(np.vstack([J, damp]), np.concatenate([-r, zeros]), rcond=None)[0]
+        x, r, cost = cand, rc, cc
+        J = np.asarray(jac(x), float)
     return LsqResult(x, r, J, nit)
 
 
