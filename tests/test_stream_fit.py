@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from accellog.calibrate.gyro import calibrate_gyro
@@ -13,7 +15,7 @@ from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import load_input, run_fit
-from accellog.flows.stream_input import can_stream
+from accellog.flows.stream_input import can_stream, open_streamed
 from accellog.store import fastread
 from accellog.store.reader import read_session
 
@@ -52,6 +54,23 @@ def test_stream_gyro_equals_whole_session(recorded, small_groups):
     streamed = stream_calibrate_gyro(recorded, s.poses).to_dict()
     assert "scale" in whole["effects"]
     _close(whole, streamed)
+
+
+def test_open_streamed_reads_a_good_file_once(recorded, monkeypatch):
+    """The time-stamp checks ride on the observation pass: one pass over the samples, and the same
+    observations as with the checks in a pass of their own."""
+    from accellog.calibrate import stream_segment
+    from accellog.flows import stream_input
+
+    passes = []
+    real = stream_segment.iter_imu
+    monkeypatch.setattr(stream_segment, "iter_imu", lambda p: passes.append(p) or real(p))
+    one = open_streamed(recorded, stats=True)
+    assert len(passes) == 1
+    two = stream_input._open_two_passes(Path(recorded), 2.0, 0.5, True, [], True)
+    assert len(passes) == 3
+    np.testing.assert_array_equal(one.obs.meas_g, two.obs.meas_g)
+    assert len(one.stats) == len(two.stats) == len(one.poses)
 
 
 def test_stream_gyro_hold_labelled_past_the_end(recorded, small_groups):
@@ -97,6 +116,9 @@ def test_stream_time_checks_equal_whole_session(recorded, small_groups, tmp_path
         stream_check_timestamps(bad)
     assert f"duplicated time stamp at sample {i}" in str(whole.value)
     assert str(streamed.value) == str(whole.value)
+    with pytest.raises(InputError) as opened:  # the checks taken in the observation pass
+        open_streamed(bad)
+    assert str(opened.value) == str(whole.value)
     assert main(["fit", str(bad), "-o", str(tmp_path / "c.json")]) not in (0, None)
     assert not (tmp_path / "c.json").exists()
 

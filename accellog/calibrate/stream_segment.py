@@ -41,10 +41,12 @@ def stream_observations(
     check_moving: bool = True,
     stats_out: list[PoseStats] | None = None,
     labels: tuple[SessionMeta, list[PoseLabel], list] | None = None,
+    on_block=None,
 ) -> ObsTable:
     """observations(read_session(path), window_s, trim_s, ...) in bounded memory (module doc);
     stats_out (a list), when given, receives pose_stats(read_session(path), trim_s, ...) as well;
-    labels: read_labels(path) when the caller has it already."""
+    labels: read_labels(path) when the caller has it already; on_block(block), when given, is
+    called with every block of the pass (e.g. feeding a TimestampCheck)."""
     if not window_s > 0:
         raise InputError(f"window_s must be > 0 s, got {window_s}")
     where = str(path)
@@ -72,6 +74,8 @@ def stream_observations(
         _trim_heap()
 
     for block in iter_imu(path):
+        if on_block is not None:
+            on_block(block)
         for p, parts in gather.add(block):
             reduce(p, parts)
     for p, parts in gather.finish():

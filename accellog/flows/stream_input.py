@@ -17,7 +17,7 @@ from pathlib import Path
 from accellog.calibrate.gyro import GyroCalibration
 from accellog.calibrate.segment import PoseStats
 from accellog.calibrate.stream_gyro import stream_calibrate_gyro
-from accellog.calibrate.stream_segment import stream_check_timestamps, stream_observations
+from accellog.calibrate.stream_segment import TimestampCheck, stream_check_timestamps, stream_observations
 from accellog.core.errors import AccellogError, DataIntegrityWarning, InputError
 from accellog.core.session import ObsTable, PoseLabel, SessionMeta
 from accellog.store.stream import read_host_clock, read_labels
@@ -48,6 +48,24 @@ class StreamedSession:
         except AccellogError:
             return None
         return cal
+
+
+def _observe_checked(p: Path, window_s: float, trim_s: float, held: list | None):
+    """(stream_observations, read_labels) of p with the time-stamp checks of load_input taken in the
+    same pass (TimestampCheck): one decompression pass fewer for a good file (open_streamed redoes a
+    file that fails in two passes, so the refusals and their order are those of the two passes)."""
+    check = TimestampCheck()
+    labels = read_labels(p)
+    obs = stream_observations(
+        p,
+        window_s=window_s,
+        trim_s=trim_s,
+        stats_out=held,
+        labels=labels,
+        on_block=lambda b: check.add(b.t_s),
+    )
+    check.finish(p)
+    return obs, labels
 
 
 def can_stream(path: str | os.PathLike) -> bool:
@@ -101,6 +119,27 @@ def open_streamed(
     p = Path(path)
     if not p.exists():
         raise InputError("no such file", where=str(p))
+    held: list[PoseStats] | None = [] if stats else None
+    if observe and check_times:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                obs, (meta, poses, _events) = _observe_checked(p, window_s, trim_s, held)
+                ok = True
+            except Exception:
+                ok = False
+        if ok and not any(issubclass(w.category, DataIntegrityWarning) for w in caught):
+            for w in caught:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            return StreamedSession(meta, poses, obs, str(p), held)
+        held = [] if stats else None  # failed or damaged: the two passes say why, as before
+    return _open_two_passes(p, window_s, trim_s, observe, held, check_times)
+
+
+def _open_two_passes(
+    p: Path, window_s: float, trim_s: float, observe: bool, held: list | None, check_times: bool
+):
+    """open_streamed with the time-stamp checks in a pass of their own, then the observations."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if check_times:
@@ -114,7 +153,6 @@ def open_streamed(
     if not check_times:
         return StreamedSession(*labels[:2], None, str(p), None)
     meta, poses, events = read_labels(p)
-    held: list[PoseStats] | None = [] if stats else None
     obs = None
     if observe:
         obs = stream_observations(
