@@ -111,39 +111,68 @@ def _first_pass(path, win_times: list[np.ndarray], pose_q: np.ndarray):
         [s + np.arange(n - 1) for s, n in zip(np.cumsum([0, *nw]), nw, strict=False)] or [[]]
     )
     qlo = qlo.astype(np.int64)
-    counts, first_at = np.zeros(queries.size, np.int64), np.full(queries.size, np.nan)
-    n_total, t_last, nxt, has_temp = 0, np.nan, 0, True
+    loc = _Locator(queries)
+    end_t = np.maximum.accumulate(queries[qlo + 1]) if qlo.size else np.zeros(0)  # prefix max
+    nxt, has_temp = 0, True
     out: list[tuple] = []
     buf, buf0 = None, 0  # samples (w, temp) kept from global index buf0
     for blk in iter_imu(path):
         if blk.gyro_dps is None:
             return None
-        j = np.searchsorted(blk.t_s, queries)
-        new = (j < blk.n) & np.isnan(first_at)
-        first_at[new] = blk.t_s[j[new]]
-        counts += j
-        n_total, t_last = n_total + blk.n, blk.t_s[-1]
+        loc.add(blk.t_s)
         has_temp = has_temp and blk.temp_degC is not None
         add = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)
         buf = add if buf is None else tuple(_cat(o, n) for o, n in zip(buf, add, strict=True))
-        open_ = np.isnan(first_at[qlo[nxt:] + 1])
-        m = nxt + int(open_.argmax() if open_.any() else open_.size)  # leading windows with a found end
-        out.append(_window_sums(counts[qlo[nxt:m]], counts[qlo[nxt:m] + 1], buf, buf0))
+        m = max(nxt, int(np.searchsorted(end_t, loc.t_last, side="right")))  # windows with a found end
+        out.append(_window_sums(loc.counts[qlo[nxt:m]], loc.counts[qlo[nxt:m] + 1], buf, buf0))
         nxt = m
-        need = counts[qlo[nxt]] if nxt < qlo.size else buf0 + buf[0].shape[0]
-        keep = min(need, buf0 + buf[0].shape[0]) - buf0
+        held = buf0 + buf[0].shape[0]
+        need = held if nxt == qlo.size else loc.count(qlo[nxt])
+        keep = min(need, held) - buf0
         buf, buf0 = tuple(None if x is None else x[keep:] for x in buf), buf0 + keep
-    if n_total == 0:
+    if loc.n == 0:
         return None
+    counts, n_total, first_at = loc.finish()
     if nxt < qlo.size:  # windows running to the end of the session
         out.append(_window_sums(counts[qlo[nxt:]], counts[qlo[nxt:] + 1], buf, buf0))
-    first_at[np.isnan(first_at)] = t_last
     sums = tuple(np.concatenate([o[i] for o in out]) for i in range(3))
     return (
         sums,
         has_temp,
         (counts[counts.size - pose_q.size :], n_total, first_at[first_at.size - pose_q.size :]),
     )
+
+
+class _Locator:
+    """For each query time: the count of samples before it and the time of the first sample at or
+    after it, as the blocks pass (times increasing, as the time-stamp checks require). A query is
+    settled by the first block whose last sample is at or after it; only unsettled queries are
+    searched, in time order (O(samples + queries log queries) in all, not blocks x queries)."""
+
+    def __init__(self, queries: np.ndarray) -> None:
+        self.q, self.order = queries, np.argsort(queries, kind="stable")
+        self.sorted, self.k = queries[self.order], 0  # settled: self.order[: self.k]
+        self.counts, self.first_at = np.zeros(queries.size, np.int64), np.full(queries.size, np.nan)
+        self.n, self.t_last = 0, -np.inf
+
+    def add(self, t: np.ndarray) -> None:
+        """The next block's sample times (s)."""
+        m = self.k + int(np.searchsorted(self.sorted[self.k :], t[-1], side="right"))
+        j = np.searchsorted(t, self.sorted[self.k : m])
+        idx = self.order[self.k : m]
+        self.counts[idx], self.first_at[idx] = self.n + j, t[j]
+        self.k, self.n, self.t_last = m, self.n + t.size, max(self.t_last, t[-1])
+
+    def count(self, i: int) -> int:
+        """Samples before query i: final once settled, else all samples so far (a lower bound)."""
+        return int(self.counts[i]) if self.q[i] <= self.t_last else self.n
+
+    def finish(self) -> tuple[np.ndarray, int, np.ndarray]:
+        """(counts, samples in all, first times): unsettled queries count every sample and take the
+        last sample's time."""
+        rest = self.order[self.k :]
+        self.counts[rest], self.first_at[rest] = self.n, self.t_last
+        return self.counts, self.n, self.first_at
 
 
 def _window_sums(a: np.ndarray, b: np.ndarray, buf: tuple, buf0: int) -> tuple:
