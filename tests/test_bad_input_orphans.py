@@ -5,6 +5,7 @@ the parent exits, no process of the child's group survives.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -93,14 +94,30 @@ def test_view_web_leaves_no_orphan(small_rrd, how):
     try:
         _wait_line(proc, "web viewer:", 25 if how != "timeout" else 10)
         py = proc.pid if how != "timeout" else _children(proc.pid)[0]
-        kids = _children(py)
+        end = time.monotonic() + 10  # /proc may lag on a loaded machine
+        while not (kids := _children(py)) and time.monotonic() < end:
+            time.sleep(0.2)
         assert kids, "the rerun server was not started as a child"
         _stop_and_check(proc, how, kids)
     finally:
         if proc.poll() is None:
             proc.kill()
+        _kill_serving(small_rrd)  # a failed check must not leave its server running
         proc.stdout.close()
         proc.stderr.close()
+
+
+def _kill_serving(rrd: Path) -> None:
+    """SIGKILL every process whose command line names rrd (the test's rerun servers)."""
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                cmdline = (d / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if str(rrd).encode() in cmdline and int(d.name) != os.getpid():
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(int(d.name), signal.SIGKILL)
 
 
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGHUP"])
