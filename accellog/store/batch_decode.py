@@ -91,6 +91,7 @@ class DecodedBatch:
     scalars: dict[str, list]
     counts: dict[str, np.ndarray]
     placed: frozenset[str] = frozenset()  # arrays already written in place by BatchAccumulator.reserve
+    derived: dict[str, np.ndarray] | None = None  # columns converted while reading (imu_arrays)
 
     def result(self) -> tuple[dict[str, np.ndarray], dict[str, list], dict[str, np.ndarray]]:
         """(arrays, scalars, counts), as ``BatchDecoder.result()`` (new dicts; the arrays are shared)."""

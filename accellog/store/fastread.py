@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import itertools
 import mmap
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -59,22 +59,27 @@ from accellog.store.mcap_index import (
 # fast path: walk the MCAP file with struct/numpy, decode every batch channel at once
 
 
+MakeAccumulator = Callable[[str, str, dict[str, str]], BatchAccumulator | None]
 _GROUP_BYTES = 4 << 20  # decompressed bytes decoded at a time (fits in L2/L3 cache)
 _PAD = 16  # zero bytes after the decompressed records (vectorised reads may look a few bytes ahead)
 
 
-def fast_collect(path: Path, topics: Iterable[str] | None = None) -> Collected | None:
+def fast_collect(
+    path: Path, topics: Iterable[str] | None = None, accumulator: MakeAccumulator | None = None
+) -> Collected | None:
     """``_collect`` of a finished file without per-message Python; None if the generic path must decide.
 
     Reads the footer and summary section (schemas, channels, chunk and metadata indexes) with struct,
     decompresses every chunk in summary order (zstd, lz4 or none) into one buffer, walks its records,
     and decodes each accellog channel with ``messages.decode_batch``: the same chunks, messages, order
     and bytes as mcap's SeekingReader with ``iter_messages(log_time_order=False)``. Unfinished files
-    (no footer magic or no summary) and anything unexpected return None.
+    (no footer magic or no summary) and anything unexpected return None. ``accumulator(topic,
+    message, session metadata)`` may give a channel's BatchAccumulator (e.g. one that converts units
+    group by group); None: a plain one.
     """
     try:
         with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            return _fast_parse(data, topics)
+            return _fast_parse(data, topics, accumulator)
     except SummaryDamaged as exc:
         return recover(path, topics, exc)
     except Refuse as exc:
@@ -83,9 +88,9 @@ def fast_collect(path: Path, topics: Iterable[str] | None = None) -> Collected |
         return None
 
 
-def _fast_parse(data: Bytes, topics: Iterable[str] | None) -> Collected:
+def _fast_parse(data: Bytes, topics: Iterable[str] | None, accumulator=None) -> Collected:
     """The whole file at once: _fast_walk drained."""
-    walk = _fast_walk(data, topics)
+    walk = _fast_walk(data, topics, accumulator=accumulator)
     while True:
         try:
             next(walk)
@@ -93,7 +98,12 @@ def _fast_parse(data: Bytes, topics: Iterable[str] | None) -> Collected:
             return end.value
 
 
-def _fast_walk(data: Bytes, topics: Iterable[str] | None, stream: str | None = None):
+def _fast_walk(
+    data: Bytes,
+    topics: Iterable[str] | None,
+    stream: str | None = None,
+    accumulator: MakeAccumulator | None = None,
+):
     """Generator over the chunk groups of a finished file; returns the Collected at the end.
 
     stream: a topic whose messages are handed out group by group instead of accumulated: after
@@ -105,15 +115,7 @@ def _fast_walk(data: Bytes, topics: Iterable[str] | None, stream: str | None = N
     )
     tab = chunk_table(data, footer, verified, chunk_index_at, chunk_index_len)
     sound, usize, crc = tab.sound, tab.usize, tab.crc
-    damaged = [
-        Damage(
-            int(tab.chunk_at[k]),
-            int(tab.t_first[k]),
-            int(tab.t_last[k]),
-            "chunk header disagrees with its index",
-        )
-        for k in np.flatnonzero(~sound).tolist()
-    ]
+    damaged = _header_damage(tab)
     usize = np.where(sound, usize, 0)
     crc = np.where(sound, crc, 0)
     release_pages(data, 0, summary_start)  # whatever the index pass touched: read again on demand
@@ -127,6 +129,11 @@ def _fast_walk(data: Bytes, topics: Iterable[str] | None, stream: str | None = N
     sink = _Sink(topics)
     message_of: dict[int, str | None] = {}  # channel id -> accellog message type (None: not decoded)
     parts: dict[int, BatchAccumulator] = {}
+
+    def new_part(cid: int, msg: str) -> BatchAccumulator:
+        made = None if accumulator is None else accumulator(channels[cid].topic, msg, meta_kv)
+        return BatchAccumulator(msg) if made is None else made
+
     name_at, name_len, rec_at, rec_end = (
         (tab.c + 32).tolist(),
         np.where(sound, tab.name_len, -1).tolist(),  # -1: skip (damaged header)
@@ -159,7 +166,7 @@ def _fast_walk(data: Bytes, topics: Iterable[str] | None, stream: str | None = N
             if i + 1 < len(groups):
                 pending = pool.submit(decompress, i + 1)
             frac = 1.0 if stream else done[groups[i][1] - 1]
-            _decode_group(records, used, sizes, frac, channels, schemas, sink, message_of, parts)
+            _decode_group(records, used, sizes, frac, channels, schemas, sink, message_of, parts, new_part)
             if stream is not None:
                 part = next(
                     (parts.pop(c) for c, ch in channels.items() if ch.topic == stream and c in parts), None
@@ -171,6 +178,13 @@ def _fast_walk(data: Bytes, topics: Iterable[str] | None, stream: str | None = N
     if outside is not None and not damaged:
         damaged.append(outside)
     return _finish(sink, schemas, channels, message_of, parts, meta_kv, meta_error, outside, damaged)
+
+
+def _header_damage(tab) -> list[Damage]:
+    """A Damage for every chunk whose header disagrees with its chunk index."""
+    why = "chunk header disagrees with its index"
+    bad = np.flatnonzero(~tab.sound).tolist()
+    return [Damage(int(tab.chunk_at[k]), int(tab.t_first[k]), int(tab.t_last[k]), why) for k in bad]
 
 
 def _session_metadata(data: Bytes, at_list: list[int], stream: str | None):
@@ -221,8 +235,10 @@ def _decode_group(
     sink: _Sink,
     message_of: dict[int, str | None],
     parts: dict[int, BatchAccumulator],
+    new_part: Callable[[int, str], BatchAccumulator],
 ) -> None:
-    """Decode the messages of one group of decompressed chunks into the channels' accumulators."""
+    """Decode the messages of one group of decompressed chunks into the channels' accumulators
+    (new_part(channel id, message type) makes one)."""
     messages = _chunkwise_starts(records, usize) if len(usize) >= _MANY_CHUNKS else None
     if messages is None:
         messages = _message_starts(records, usize)
@@ -246,7 +262,7 @@ def _decode_group(
         if msg is None:
             continue
         if cid not in parts:  # first message, or a streamed topic handed out after the last group
-            parts[cid] = BatchAccumulator(msg)
+            parts[cid] = new_part(cid, msg)
         sel = slice(None) if ids.shape[0] == 1 else np.flatnonzero(channel_id == cid)
         acc, frac = parts[cid], done
         dec = decode_batch(

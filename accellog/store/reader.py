@@ -23,6 +23,7 @@ from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
 from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
 from accellog.store.collect import Collected, Damage, Decoder, check_file, generic_collect, recover
 from accellog.store.fastread import fast_collect
+from accellog.store.imu_arrays import ImuAccumulator, lsb_scales
 from accellog.store.layout import (
     DERIVED_PREFIX,
     NS_PER_S,
@@ -40,7 +41,7 @@ from accellog.store.schema import full_name
 FAST_READ = True
 
 
-def _collect(path: Path, topics: Iterable[str] | None = None) -> Collected:
+def _collect(path: Path, topics: Iterable[str] | None = None, accumulator=None) -> Collected:
     """Read every message of ``topics`` (all if None); salvage unfinished files chunk by chunk.
 
     Finished files in the canonical layout take the vectorised ``fast_collect``; anything else (and
@@ -48,7 +49,7 @@ def _collect(path: Path, topics: Iterable[str] | None = None) -> Collected:
     the same result wherever both apply.
     """
     check_file(path)
-    fast = fast_collect(path, topics) if FAST_READ else None
+    fast = fast_collect(path, topics, accumulator) if FAST_READ else None
     if fast is not None:
         return fast
     return generic_collect(path, topics)
@@ -86,7 +87,7 @@ def read_session(path: str | Path) -> Session:
     """
     path = Path(path)
     where = str(path)
-    col = _collect(path)
+    col = _collect(path, accumulator=_imu_accumulator)
     if col.topics.get(TOPIC_IMU) != full_name("ImuBatch"):
         _refuse_without_imu(col, where)
     meta = metadata_to_meta(col.metadata, where) if col.metadata else SessionMeta(source="unknown")
@@ -100,12 +101,19 @@ def read_session(path: str | Path) -> Session:
     n = int(n_per.sum())
     if n == 0:
         raise InputError("session has no IMU samples", where=where)
-    sample_index, in_order = _sample_index(
-        np.asarray(scalars["first_sample_index"], dtype=np.int64), n_per, n
-    )
+    derived = getattr(dec, "derived", None) or {}  # converted group by group while reading
+    if derived and lsb_scales(col.metadata) != (meta.accel_lsb_per_g or None, meta.gyro_lsb_per_dps or None):
+        derived = {k: v for k, v in derived.items() if k not in ("accel_g", "gyro_dps")}  # other scales
+    first = np.asarray(scalars["first_sample_index"], dtype=np.int64)
+    sample_index, in_order = _sample_index(first, n_per, n, derived.get("sample_index"))
     host = np.asarray(scalars["host_time_ns"], dtype=np.int64)
-    cols = _sample_arrays(arrays, n, meta, where)
-    cols["host_time_s"] = np.repeat(host / NS_PER_S, n_per) if np.any(host != 0) else None
+    cols = _sample_arrays(arrays, n, meta, where, derived)
+    if not np.any(host != 0):
+        cols["host_time_s"] = None
+    elif "host_time_s" in derived:
+        cols["host_time_s"] = derived["host_time_s"]
+    else:
+        cols["host_time_s"] = np.repeat(host / NS_PER_S, n_per)
     if not in_order:  # batches out of order: sort samples once
         order = np.argsort(sample_index, kind="stable")
         sample_index = sample_index[order]
@@ -130,11 +138,23 @@ def _refuse_without_imu(col: Collected, where: str) -> NoReturn:
     )
 
 
-def _sample_index(first: np.ndarray, n_per: np.ndarray, n: int) -> tuple[np.ndarray, bool]:
-    """(sample index of every sample, whether the batches are in order) from each batch's first index."""
+def _imu_accumulator(topic: str, message: str, meta_kv: dict[str, str]):
+    """The fast reader's accumulator of the /imu channel: converts units group by group."""
+    if topic != TOPIC_IMU or message != "ImuBatch":
+        return None
+    return ImuAccumulator(message, *lsb_scales(meta_kv))
+
+
+def _sample_index(
+    first: np.ndarray, n_per: np.ndarray, n: int, done: np.ndarray | None = None
+) -> tuple[np.ndarray, bool]:
+    """(sample index of every sample, whether the batches are in order) from each batch's first index
+    (done: the sample index already computed group by group)."""
     starts = np.cumsum(n_per) - n_per
     offset = first - starts  # sample_index[i] = offset[k] + i for the samples i of message k
-    if np.all(offset == offset[0]):  # no gap anywhere: one arange
+    if done is not None:
+        sample_index = done
+    elif np.all(offset == offset[0]):  # no gap anywhere: one arange
         sample_index = np.arange(offset[0], offset[0] + n, dtype=np.int64)
     else:
         sample_index = np.repeat(offset, n_per) + np.arange(n, dtype=np.int64)
@@ -143,10 +163,10 @@ def _sample_index(first: np.ndarray, n_per: np.ndarray, n: int) -> tuple[np.ndar
     return sample_index, bool(in_order)
 
 
-def _sample_arrays(arrays: dict, n: int, meta: SessionMeta, where: str) -> dict:
+def _sample_arrays(arrays: dict, n: int, meta: SessionMeta, where: str, derived: dict) -> dict:
     """The Session's sample columns (t_s, accel, gyro, temperature; counts and physical units), the
-    missing physical ones converted from counts in two halves on two threads."""
-    t_ns = arrays["t_ns"]
+    missing physical ones taken from ``derived`` (converted while reading) or converted from counts
+    in two halves on two threads."""
     lsb_a = lsb_g = temp_c = None  # conversions to do from counts (filled in halves on 2 threads)
     accel_counts = _reshape(arrays["accel_counts"], n, 3, "accel_counts", where)
     accel_g = _reshape(arrays["accel_g"], n, 3, "accel_g", where)
@@ -155,23 +175,35 @@ def _sample_arrays(arrays: dict, n: int, meta: SessionMeta, where: str) -> dict:
             raise InputError("IMU batches carry neither accel_counts nor accel_g", where=where)
         if not meta.accel_lsb_per_g:
             raise InputError("accel_counts without accel_lsb_per_g in the session metadata", where=where)
-        accel_g = np.empty(accel_counts.shape)  # = accel_counts / accel_lsb_per_g, filled below
-        lsb_a = meta.accel_lsb_per_g
+        accel_g = derived.get("accel_g")  # = accel_counts / accel_lsb_per_g
+        if accel_g is None:
+            accel_g = np.empty(accel_counts.shape)  # filled below
+            lsb_a = meta.accel_lsb_per_g
+        accel_g = accel_g.reshape(accel_counts.shape)
     gyro_counts = _reshape(arrays["gyro_counts"], n, 3, "gyro_counts", where)
     gyro_dps = _reshape(arrays["gyro_dps"], n, 3, "gyro_dps", where)
     if gyro_dps is None and gyro_counts is not None and meta.gyro_lsb_per_dps:
-        gyro_dps = np.empty(gyro_counts.shape)  # = gyro_counts / gyro_lsb_per_dps
-        lsb_g = meta.gyro_lsb_per_dps
+        gyro_dps = derived.get("gyro_dps")  # = gyro_counts / gyro_lsb_per_dps
+        if gyro_dps is None:
+            gyro_dps = np.empty(gyro_counts.shape)
+            lsb_g = meta.gyro_lsb_per_dps
+        gyro_dps = gyro_dps.reshape(gyro_counts.shape)
     temp_counts = _reshape(arrays["temp_counts"], n, 1, "temp_counts", where)
     temp_degC = _reshape(arrays["temp_degC"], n, 1, "temp_degC", where)
     if temp_degC is None and temp_counts is not None:
-        temp_degC = np.empty(n)  # = temp_counts_to_degC(temp_counts)
-        temp_c = temp_counts
-    t_s = np.empty(n)
+        temp_degC = derived.get("temp_degC")  # = temp_counts_to_degC(temp_counts)
+        if temp_degC is None:
+            temp_degC = np.empty(n)
+            temp_c = temp_counts
+    t_ns = arrays.get("t_ns")
+    t_s = derived.get("t_s")
+    if t_s is None:
+        t_s = np.empty(n)
 
     def convert(lo: int, hi: int) -> None:
         """Unit conversions of samples lo..hi into the preallocated float64 arrays (no temporaries)."""
-        np.divide(t_ns[lo:hi], NS_PER_S, out=t_s[lo:hi])
+        if t_ns is not None:
+            np.divide(t_ns[lo:hi], NS_PER_S, out=t_s[lo:hi])
         if lsb_a is not None:
             np.divide(accel_counts[lo:hi], lsb_a, out=accel_g[lo:hi])
         if lsb_g is not None:
@@ -181,7 +213,8 @@ def _sample_arrays(arrays: dict, n: int, meta: SessionMeta, where: str) -> dict:
             np.divide(temp_c[lo:hi], TEMP_LSB_PER_DEGC, out=out)
             np.add(out, TEMP_OFFSET_DEGC, out=out)
 
-    _split_run(convert, n)
+    if t_ns is not None or lsb_a is not None or lsb_g is not None or temp_c is not None:
+        _split_run(convert, n)
     return {
         "t_s": t_s,
         "accel_g": accel_g,

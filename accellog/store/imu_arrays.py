@@ -1,0 +1,116 @@
+"""The Session's sample columns built group by group while the fast reader walks a file.
+
+``ImuAccumulator`` is the ``BatchAccumulator`` of the /imu channel for ``read_session``: after each
+group's ImuBatch messages are decoded into it, it converts their samples at once, while they are in
+the CPU cache and while the reader's other thread decompresses the next group, into arrays sized
+once: t_s (ns -> s, in place of t_ns: the integer times are not kept), accel_g and gyro_dps (counts /
+LSB), temp_degC (counts / 333.87 + 21), host_time_s (each message's host time on its samples) and
+sample_index. Every conversion is elementwise, so the values are those of converting the whole
+arrays at the end (bit for bit); ``read_session`` decides at the end which ones it uses (a file that
+stores values instead of counts, or mixed batches, take its usual path).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import numpy as np
+
+from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
+from accellog.store.batch_decode import BatchAccumulator, DecodedBatch
+from accellog.store.layout import NS_PER_S
+
+F8 = np.dtype(np.float64)
+
+
+def lsb_scales(meta_kv: dict[str, str]) -> tuple[float | None, float | None]:
+    """(accel LSB per g, gyro LSB per deg/s) of the 'session' metadata, None where absent/invalid/0
+    (read_session checks and reports the metadata itself)."""
+
+    def num(key: str) -> float | None:
+        try:
+            v = float(meta_kv.get(key) or 0.0)
+        except ValueError:
+            return None
+        return v or None
+
+    return num("accel_lsb_per_g"), num("gyro_lsb_per_dps")
+
+
+class ImuAccumulator(BatchAccumulator):
+    """ImuBatch parts joined as by BatchAccumulator, each part's samples converted as it is added
+    (see module doc) on a worker thread while the next group is decoded here (numpy releases the
+    GIL); ``finish()`` returns the batch without t_ns and with ``derived`` columns."""
+
+    def __init__(self, message: str, accel_lsb: float | None, gyro_lsb: float | None) -> None:
+        super().__init__(message)
+        self._lsb = {"accel_counts": accel_lsb, "gyro_counts": gyro_lsb, "temp_counts": TEMP_LSB_PER_DEGC}
+        self._phys = {"accel_counts": "accel_g", "gyro_counts": "gyro_dps", "temp_counts": "temp_degC"}
+        self._done: dict[str, int] = {}  # items of each stored field already handed to a conversion
+        self._derived = BatchAccumulator(message)  # the float and index columns (worker thread only)
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: Future | None = None
+
+    def _wait(self) -> None:
+        """Wait for the conversion in flight (raises its exception)."""
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            pending.result()
+
+    def reserve(self, name: str, dtype: np.dtype, count: int, done: float) -> np.ndarray:
+        store = self._store.get(name)
+        if store is not None and self._used.get(name, 0) + count > store.shape[0]:
+            self._wait()  # the store grows (may move): no conversion may be reading it
+        return super().reserve(name, dtype, count, done)
+
+    def add(self, part: DecodedBatch, done: float) -> None:
+        super().add(part, done)
+        views = {}
+        for name in ("t_ns", *self._lsb):
+            lo, hi = self._done.get(name, 0), self._used.get(name, 0)
+            self._done[name] = hi
+            if hi > lo and (name == "t_ns" or self._lsb[name] is not None):
+                views[name] = self._store[name][lo:hi]
+        self._wait()  # one conversion in flight: the previous group's
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(1)
+        self._pending = self._pool.submit(self._convert, views, part, done)
+
+    def _convert(self, views: dict[str, np.ndarray], part: DecodedBatch, done: float) -> None:
+        """The conversions of one part (worker thread): views of its new stored items."""
+        t = views.pop("t_ns", None)
+        if t is not None:  # ns -> s in place: the float64 times overwrite the int64 ones (same size)
+            np.divide(t, NS_PER_S, out=t.view(F8))
+        for name, counts in views.items():
+            out = self._derived.reserve(self._phys[name], F8, counts.shape[0], done)
+            np.divide(counts, self._lsb[name], out=out)
+            if name == "temp_counts":  # temp_counts_to_degC: the same two operations
+                np.add(out, TEMP_OFFSET_DEGC, out=out)
+        n_per = part.counts.get("t_ns")
+        if n_per is not None and n_per.shape[0]:
+            self._per_message(part, n_per, done)
+
+    def _per_message(self, part: DecodedBatch, n_per: np.ndarray, done: float) -> None:
+        """host_time_s and sample_index of the part's samples, as read_session computes them for all."""
+        k = int(n_per.sum())
+        s0 = self._derived._used.get("sample_index", 0)  # samples before this part
+        host = np.asarray(part.scalars["host_time_ns"], dtype=np.int64)
+        self._derived.reserve("host_time_s", F8, k, done)[...] = np.repeat(host / NS_PER_S, n_per)
+        first = np.asarray(part.scalars["first_sample_index"], dtype=np.int64)
+        offset = first - (s0 + np.cumsum(n_per) - n_per)  # sample_index[i] = offset[k] + i
+        idx = self._derived.reserve("sample_index", np.dtype(np.int64), k, done)
+        if np.all(offset == offset[0]):
+            idx[...] = np.arange(offset[0] + s0, offset[0] + s0 + k, dtype=np.int64)
+        else:
+            idx[...] = np.repeat(offset, n_per) + np.arange(s0, s0 + k, dtype=np.int64)
+
+    def finish(self) -> DecodedBatch:
+        self._wait()
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+        out = super().finish()
+        derived = self._derived.finish().arrays
+        derived["t_s"] = out.arrays.pop("t_ns").view(F8)
+        out.derived = derived
+        return out

@@ -1,0 +1,147 @@
+"""read_session's group-by-group conversions (store.imu_arrays) against the generic reader, bit for bit,
+on files shaped like bench_readback's: accel/gyro/temp counts with host times, FIFO reads of 36 or
+30-42 samples, recorder (0.5 s chunks) and write_session (1 MiB chunks) layouts, zstd and lz4, read
+in small chunk groups so that group and chunk boundaries fall inside every kind of run."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+import pytest
+
+from accellog.core.session import Session, SessionMeta
+from accellog.core.units import temp_counts_to_degC
+from accellog.store import fastread, imu_arrays, reader
+from accellog.store.batch_decode import decode_batch
+from accellog.store.codec import encode
+from accellog.store.reader import read_session
+from accellog.store.writer import SessionWriter, write_session
+
+NS = 1_000_000_000
+
+
+def _session(n: int, seed: int) -> Session:
+    """bench_readback.simulate in small: counts of a level sensor with noise, warm-up temperature."""
+    rng = np.random.default_rng(seed)
+    ac = np.round((np.array([0.02, -0.01, 1.0]) + rng.normal(0, 0.004, (n, 3))) * 16384).astype(np.int32)
+    gc = np.round(rng.normal(0, 0.05, (n, 3)) * 131 + [30, -12, 5]).astype(np.int32)
+    tc = np.round(3000 + rng.normal(0, 3, n)).astype(np.int32)
+    meta = SessionMeta(
+        source="emulator", accel_lsb_per_g=16384.0, gyro_lsb_per_dps=131.0, sample_rate_hz=1000.0
+    )
+    t_ns = np.arange(n, dtype=np.int64) * 1_000_000
+    return Session(
+        meta=meta,
+        t_s=t_ns / NS,
+        sample_index=np.arange(n, dtype=np.int64),
+        accel_g=ac / 16384.0,
+        accel_counts=ac,
+        gyro_dps=gc / 131.0,
+        gyro_counts=gc,
+        temp_degC=temp_counts_to_degC(tc.astype(np.float64)),
+        temp_counts=tc,
+        host_time_s=((np.arange(n) // 36 + 1) * 36_000_000 + 250_000) / NS,
+    )
+
+
+def _recorder(path, s: Session, compression: str, vary: bool, gap: bool) -> None:
+    """One message per FIFO read (36 samples, or 30-42 when vary), as the recorder writes them;
+    gap: 17 samples lost in the middle (the sample index jumps)."""
+    rng = np.random.default_rng(1)
+    bounds = [0]
+    while bounds[-1] < s.n:
+        bounds.append(min(s.n, bounds[-1] + (int(rng.integers(30, 43)) if vary else 36)))
+    t_ns = np.round(s.t_s * NS).astype(np.int64)
+    with SessionWriter(path, s.meta, compression=compression) as w:
+        for i, j in itertools.pairwise(bounds):
+            first = i + (17 if gap and i >= s.n // 2 else 0)
+            host = round(float(s.host_time_s[j - 1]) * NS)
+            w.write_imu(first, t_ns[i:j], s.accel_counts[i:j], s.gyro_counts[i:j], s.temp_counts[i:j], host)
+
+
+def _same(a: Session, b: Session) -> None:
+    for f in dataclasses.fields(Session):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            assert isinstance(x, np.ndarray) and isinstance(y, np.ndarray), f.name
+            assert (x.dtype, x.shape, x.tobytes()) == (y.dtype, y.shape, y.tobytes()), f.name
+        elif f.name != "path":
+            assert repr(x) == repr(y), f.name
+
+
+@pytest.mark.parametrize(
+    ("layout", "compression", "vary", "gap"),
+    [
+        ("recorder", "zstd", False, False),
+        ("recorder", "lz4", False, True),
+        ("recorder", "lz4", True, False),
+        ("recorder", "zstd", True, True),
+        ("write_session", "zstd", False, False),
+        ("write_session", "lz4", False, False),
+    ],
+)
+def test_group_conversions_equal_generic_reader(tmp_path, monkeypatch, layout, compression, vary, gap):
+    s = _session(30_000, seed=3)
+    p = tmp_path / "b.mcap"
+    if layout == "recorder":
+        _recorder(p, s, compression, vary, gap)
+    else:
+        write_session(p, s, compression=compression, chunk_size=64 * 1024)
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 96 << 10)  # many groups: boundaries inside runs
+    col = reader._collect(p, accumulator=reader._imu_accumulator)
+    assert col.recovered is None and set(col.decoders["/imu"].derived) == {
+        "t_s", "accel_g", "gyro_dps", "temp_degC", "host_time_s", "sample_index"
+    }  # fmt: skip
+    fast = read_session(p)
+    monkeypatch.setattr(reader, "FAST_READ", False)
+    generic = read_session(p)
+    _same(fast, generic)
+    assert fast.n == s.n and np.array_equal(fast.accel_counts, s.accel_counts)
+    assert np.array_equal(fast.t_s, s.t_s) and np.array_equal(fast.accel_g, s.accel_g)
+    if not gap:
+        assert np.array_equal(fast.sample_index, np.arange(s.n))
+
+
+def test_imu_accumulator_grows_while_converting():
+    """Parts added with done = 1 make every store grow at every part (realloc) while the previous
+    part's conversion may still be running: the columns equal those converted at the end."""
+    rng = np.random.default_rng(4)
+    msgs, first = [], 5
+    for k in range(40):
+        m = int(rng.integers(1, 60))
+        t = (first + np.arange(m)) * 1_000_000
+        msgs.append(
+            encode(
+                "ImuBatch",
+                first_sample_index=first,
+                t_ns=t,
+                accel_counts=rng.integers(-32768, 32768, 3 * m),
+                gyro_counts=rng.integers(-32768, 32768, 3 * m),
+                temp_counts=rng.integers(-5000, 5000, m),
+                host_time_ns=int(k * 7 + 1),
+            )
+        )
+        first += m + (3 if k == 20 else 0)
+    acc = imu_arrays.ImuAccumulator("ImuBatch", 16384.0, 131.0)
+    for lo in range(0, 40, 7):
+        part = b"".join(msgs[lo : lo + 7])
+        buf = np.frombuffer(part + bytes(16), np.uint8)
+        ends = np.cumsum([len(m) for m in msgs[lo : lo + 7]])
+        dec = decode_batch("ImuBatch", buf, ends - [len(m) for m in msgs[lo : lo + 7]], ends, None)
+        acc.add(dec, 1.0)
+    out = acc.finish()
+    counts = out.counts["t_ns"]
+    assert out.n_messages == 40 and "t_ns" not in out.arrays  # the times were converted in place
+    d = out.derived
+    n = int(counts.sum())
+    first_idx = np.asarray(out.scalars["first_sample_index"], dtype=np.int64)
+    want_idx = np.repeat(first_idx - (np.cumsum(counts) - counts), counts) + np.arange(n)
+    assert np.array_equal(d["sample_index"], want_idx)
+    assert np.array_equal(d["t_s"], want_idx * 1_000_000 / NS)
+    assert d["accel_g"].tobytes() == (out.arrays["accel_counts"] / 16384.0).tobytes()
+    assert d["gyro_dps"].tobytes() == (out.arrays["gyro_counts"] / 131.0).tobytes()
+    assert d["temp_degC"].tobytes() == temp_counts_to_degC(out.arrays["temp_counts"]).tobytes()
+    host = np.asarray(out.scalars["host_time_ns"], dtype=np.int64)
+    assert d["host_time_s"].tobytes() == np.repeat(host / NS, counts).tobytes()
