@@ -299,30 +299,36 @@ class _Decompressor:
         import zstandard
 
         self.data = data
-        self.zstd = zstandard.ZstdDecompressor().decompress
+        self.zstd = zstandard.ZstdDecompressor()
         self.lz4 = lz4.frame.decompress
         self.bufs = [bytearray(), bytearray()]
         self.at, self.t0, self.t1, self.crc = chunk_info
         self.damaged = damaged  # appended to (list.append is atomic)
 
-    def _one(self, comp: bytes, raw, u: int):
-        """Decompressed chunk records, or a reason why not."""
+    def _into(self, comp: bytes, raw, dst: memoryview) -> str | None:
+        """Decompress one chunk's records into dst (zstd straight into it, no copy); None if they
+        fill it exactly, else the reason why not."""
+        u = len(dst)
         try:
             if comp == b"zstd":
-                out = self.zstd(raw, max_output_size=u)
-            elif comp == b"lz4":
-                out = self.lz4(raw)
-            elif comp == b"":
-                out = raw
+                reader = self.zstd.stream_reader(raw, read_across_frames=False)
+                got = 0
+                while got < u and (k := reader.readinto(dst[got:])):
+                    got += k
+                if got == u and reader.read(1):
+                    return f"decompresses to more than {u} bytes"
+            elif comp in (b"lz4", b""):
+                out = self.lz4(raw) if comp == b"lz4" else raw
+                got = len(out)
+                if got == u:
+                    dst[:] = out
             else:
                 raise NotFast(f"compression {comp!r}")
         except NotFast:
             raise
         except Exception as exc:
             return f"does not decompress ({type(exc).__name__})"
-        if len(out) != u:
-            return f"decompresses to {len(out)} bytes, not {u}"
-        return out
+        return None if got == u else f"decompresses to {got} bytes, not {u}"
 
     def records(
         self,
@@ -342,21 +348,22 @@ class _Decompressor:
         if len(self.bufs[slot]) < total + _PAD:
             self.bufs[slot] = bytearray(total + _PAD)
         buf, data, mv = self.bufs[slot], self.data, memoryview(self.data)  # released on return
+        out = memoryview(buf)
         pos = 0
         sizes = []
         for k, (na, nl, a, b, u) in enumerate(zip(name_at, name_len, at, end, usize, strict=True)):
             if nl < 0:  # header already found damaged
                 sizes.append(0)
                 continue
-            out = self._one(data[na : na + nl], mv[a:b], u)
+            dst = out[pos : pos + u]
+            why = self._into(data[na : na + nl], mv[a:b], dst)
             j = first + k
-            if not isinstance(out, str) and self.crc[j] and crc32(out) != self.crc[j]:
-                out = "CRC mismatch"
-            if isinstance(out, str):
-                self.damaged.append(Damage(self.at[j], self.t0[j], self.t1[j], out))
+            if why is None and self.crc[j] and crc32(dst) != self.crc[j]:
+                why = "CRC mismatch"
+            if why is not None:
+                self.damaged.append(Damage(self.at[j], self.t0[j], self.t1[j], why))
                 sizes.append(0)
                 continue
-            buf[pos : pos + u] = out
             pos += u
             sizes.append(u)
         buf[pos : pos + _PAD] = bytes(_PAD)
