@@ -129,11 +129,13 @@ def test_imu_accumulator_grows_while_converting():
         part = b"".join(msgs[lo : lo + 7])
         buf = np.frombuffer(part + bytes(16), np.uint8)
         ends = np.cumsum([len(m) for m in msgs[lo : lo + 7]])
-        dec = decode_batch("ImuBatch", buf, ends - [len(m) for m in msgs[lo : lo + 7]], ends, None)
+        starts = ends - [len(m) for m in msgs[lo : lo + 7]]
+        dec = decode_batch("ImuBatch", buf, starts, ends, None, lo % 14 == 0)  # scalars as arrays or lists
         acc.add(dec, 1.0)
     out = acc.finish()
     counts = out.counts["t_ns"]
     assert out.n_messages == 40 and "t_ns" not in out.arrays  # the times were converted in place
+    assert np.asarray(out.scalars["host_time_ns"]).tolist() == [k * 7 + 1 for k in range(40)]
     d = out.derived
     n = int(counts.sum())
     first_idx = np.asarray(out.scalars["first_sample_index"], dtype=np.int64)

@@ -134,17 +134,22 @@ class BatchAccumulator:
         self._used[name] = need
         return store[used:need]
 
+    scalar_arrays = False  # decode_batch gives this accumulator numeric scalars as arrays (not lists)
+
     def add(self, part: DecodedBatch, done: float) -> None:
         for name, a in part.arrays.items():
             self._dtypes.setdefault(name, a.dtype)
             if name in part.placed or a.shape[0] == 0:
                 continue
             self.reserve(name, a.dtype, a.shape[0], done)[:] = a
-        for name, v in part.scalars.items():
-            self._scalars.setdefault(name, []).extend(v)
+        self._add_scalars(part)
         for name, c in part.counts.items():
             self._counts.setdefault(name, []).append(c)
         self.n_messages += part.n_messages
+
+    def _add_scalars(self, part: DecodedBatch) -> None:
+        for name, v in part.scalars.items():
+            self._scalars.setdefault(name, []).extend(v)
 
     def finish(self) -> DecodedBatch:
         arrays = {}
@@ -311,12 +316,14 @@ def decode_batch(
     starts: np.ndarray,
     ends: np.ndarray,
     reserve: Callable[[str, np.dtype, int], np.ndarray] | None = None,
+    scalar_arrays: bool = False,
 ) -> DecodedBatch | None:
     """Decode the messages buf[starts[k] : ends[k]] (uint8 array) all at once, field by field with numpy.
 
     ``reserve(name, dtype, count)`` (e.g. ``BatchAccumulator.reserve`` with ``done`` bound), if given,
     provides the destination of each packed field: the payloads are gathered straight into it and the
     field is listed in ``placed`` of the result (if None is returned, what was reserved is garbage).
+    scalar_arrays: numeric scalars as arrays (uint64, int64, float64) instead of lists.
 
     Accepts the canonical encoding (what ``encode`` and the stock runtime write): one-byte keys with the
     schema's wire type, field numbers strictly increasing within a message (no repeats, no unknown
@@ -342,7 +349,7 @@ def decode_batch(
     walk = (buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals)
     if not (_uniform_layout(*walk) or _general_walk(*walk)):
         return None
-    return _assemble(message, n, codecs, buf, offs, lens, vals, reserve)
+    return _assemble(message, n, codecs, buf, offs, lens, vals, reserve, scalar_arrays)
 
 
 def _general_walk(
@@ -410,6 +417,7 @@ def _assemble(
     lens: dict[str, np.ndarray],
     vals: dict[str, np.ndarray],
     reserve: Callable[[str, np.dtype, int], np.ndarray] | None,
+    scalar_arrays: bool = False,
 ) -> DecodedBatch | None:
     """The batch from the walked offsets and values: packed fields gathered (into ``reserve`` when
     given), strings decoded, scalars as lists; None if a packed length or a string is invalid."""
@@ -440,10 +448,8 @@ def _assemble(
                 except UnicodeDecodeError:
                     return None
             scalars[c.name] = items
-        elif c.kind == "varint_s":
-            scalars[c.name] = vals[c.name].view(np.int64).tolist()
-        elif c.kind == "double":
-            scalars[c.name] = vals[c.name].view(DOUBLE).tolist()
         else:
-            scalars[c.name] = vals[c.name].tolist()
+            v = vals[c.name]  # a fresh array per call
+            v = v.view(np.int64) if c.kind == "varint_s" else v.view(DOUBLE) if c.kind == "double" else v
+            scalars[c.name] = v if scalar_arrays else v.tolist()
     return DecodedBatch(message, n, arrays, scalars, counts, frozenset(placed))

@@ -271,6 +271,7 @@ def _decode_group(
             payload_at[sel],
             payload_end[sel],
             lambda nm, dt, k, a=acc, f=frac: a.reserve(nm, dt, k, f),
+            acc.scalar_arrays,
         )
         if dec is None:
             raise NotFast(f"{channels[cid].topic}: not canonical protobuf")

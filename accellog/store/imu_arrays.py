@@ -42,8 +42,11 @@ class ImuAccumulator(BatchAccumulator):
     (see module doc) on a worker thread while the next group is decoded here (numpy releases the
     GIL); ``finish()`` returns the batch without t_ns and with ``derived`` columns."""
 
+    scalar_arrays = True  # first_sample_index, host_time_ns as arrays: no lists of 100 k ints per hour
+
     def __init__(self, message: str, accel_lsb: float | None, gyro_lsb: float | None) -> None:
         super().__init__(message)
+        self._scalar_parts: dict[str, list] = {}
         self._lsb = {"accel_counts": accel_lsb, "gyro_counts": gyro_lsb, "temp_counts": TEMP_LSB_PER_DEGC}
         self._phys = {"accel_counts": "accel_g", "gyro_counts": "gyro_dps", "temp_counts": "temp_degC"}
         self._done: dict[str, int] = {}  # items of each stored field already handed to a conversion
@@ -56,6 +59,10 @@ class ImuAccumulator(BatchAccumulator):
         if self._pending is not None:
             pending, self._pending = self._pending, None
             pending.result()
+
+    def _add_scalars(self, part: DecodedBatch) -> None:
+        for name, v in part.scalars.items():
+            self._scalar_parts.setdefault(name, []).append(v)
 
     def reserve(self, name: str, dtype: np.dtype, count: int, done: float) -> np.ndarray:
         store = self._store.get(name)
@@ -110,6 +117,16 @@ class ImuAccumulator(BatchAccumulator):
             self._pool.shutdown()
             self._pool = None
         out = super().finish()
+        for name, parts in self._scalar_parts.items():
+            if all(isinstance(v, np.ndarray) for v in parts):
+                out.scalars[name] = np.concatenate(parts)
+            else:  # a part decoded with lists
+                out.scalars[name] = [
+                    x for v in parts for x in (v.tolist() if isinstance(v, np.ndarray) else v)
+                ]
+        first = out.scalars.get("first_sample_index")
+        if isinstance(first, np.ndarray) and first.dtype == np.uint64 and np.any(first >> np.uint64(63)):
+            out.scalars["first_sample_index"] = first.tolist()  # beyond int64: read_session refuses it
         derived = self._derived.finish().arrays
         derived["t_s"] = out.arrays.pop("t_ns").view(F8)
         out.derived = derived
