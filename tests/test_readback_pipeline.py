@@ -182,3 +182,41 @@ def test_damaged_chunks_are_still_reported(tmp_path, compression):
         else:
             _same(got, ref)
     assert "detected" in seen
+
+
+@pytest.mark.parametrize(
+    "field", [0, 1, 25, 37, 45]
+)  # opcode, length, uncompressed size, name length, records length
+def test_chunk_header_disagreeing_with_its_index(tmp_path, monkeypatch, field):
+    """The chunk headers are checked as the chunks are decompressed: with a sound summary (CRC) the
+    chunk is skipped and named as before; without a summary CRC the generic reader decides."""
+    import struct
+    import warnings
+
+    from mcap.reader import make_reader
+
+    from accellog.core.errors import DataIntegrityWarning
+
+    s = _session(6000, seed=10)
+    p = tmp_path / "ok.mcap"
+    _recorder(p, s, "lz4", vary=False, gap=False)
+    with open(p, "rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    at = chunks[len(chunks) // 2].chunk_start_offset
+    b = bytearray(p.read_bytes())
+    b[at + field] ^= 0x01
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataIntegrityWarning)
+        col = fastread.fast_collect(bad)
+        assert col is not None
+        assert [(d.offset, d.reason) for d in col.damaged] == [(at, "chunk header disagrees with its index")]
+        fast = read_session(bad)
+        assert fast.n < s.n and any(e.kind == "damaged" for e in fast.events)
+        b[-8 - 4 : -8] = struct.pack("<I", 0)  # no summary CRC: the index itself may be the damage
+        bad.write_bytes(b)
+        assert fastread.fast_collect(bad) is None
+        fast = read_session(bad)
+        monkeypatch.setattr(reader, "FAST_READ", False)
+        _same(fast, read_session(bad))

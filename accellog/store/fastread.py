@@ -49,6 +49,7 @@ from accellog.store.mcap_index import (
     channel_at,
     chunk_table,
     chunks_with,
+    header_agrees,
     read_footer,
     read_metadata,
     read_summary,
@@ -113,15 +114,11 @@ def _fast_walk(
     schemas, channels, chunk_index_at, chunk_index_len, metadata_at = read_summary(
         data, footer, summary_start
     )
-    tab = chunk_table(data, footer, verified, chunk_index_at, chunk_index_len)
-    sound, usize, crc = tab.sound, tab.usize, tab.crc
-    damaged = _header_damage(tab)
-    usize = np.where(sound, usize, 0)
-    crc = np.where(sound, crc, 0)
+    tab = chunk_table(data, footer, chunk_index_at, chunk_index_len)
+    usize, damaged = tab.usize, []
     release_pages(data, 0, summary_start)  # whatever the index pass touched: read again on demand
     keep = chunks_with(data, tab.ci, tab.map_len, channels, topics, stream)
     if keep is not None:  # only chunks that hold a wanted channel are decompressed
-        sound &= keep
         usize = np.where(keep, usize, 0)
     # the session metadata (LSB scales) first: a stream needs it before the first group
     meta_kv, meta_error = _session_metadata(data, metadata_at, stream)
@@ -134,23 +131,14 @@ def _fast_walk(
         made = None if accumulator is None else accumulator(channels[cid].topic, msg, meta_kv)
         return BatchAccumulator(msg) if made is None else made
 
-    name_at, name_len, rec_at, rec_end = (
-        (tab.c + 32).tolist(),
-        np.where(sound, tab.name_len, -1).tolist(),  # -1: skip (damaged header)
-        tab.rec_at.tolist(),
-        tab.rec_end.tolist(),
-    )
-    chunk_info = (tab.chunk_at.tolist(), tab.t_first.tolist(), tab.t_last.tolist(), crc.tolist())
-    chunks = _Decompressor(data, chunk_info, damaged)
-    usize_list = usize.tolist()
+    chunks = _Decompressor(data, tab, keep, verified, damaged)
+    rec_at, rec_end = tab.rec_at.tolist(), tab.rec_end.tolist()
     done = (np.cumsum(usize) / max(1, int(usize.sum()))).tolist()  # fraction read after each chunk
     groups = _groups(usize)
 
     def decompress(i: int) -> tuple[bytearray, int, list[int]]:
         g0, g1 = groups[i]
-        out = chunks.records(
-            g0, name_at[g0:g1], name_len[g0:g1], rec_at[g0:g1], rec_end[g0:g1], usize_list[g0:g1], i % 2
-        )
+        out = chunks.records(g0, g1, i % 2)
         release_pages(data, min(rec_at[g0:g1]), max(rec_end[g0:g1]))  # read once: drop them
         return out
 
@@ -178,13 +166,6 @@ def _fast_walk(
     if outside is not None and not damaged:
         damaged.append(outside)
     return _finish(sink, schemas, channels, message_of, parts, meta_kv, meta_error, outside, damaged)
-
-
-def _header_damage(tab) -> list[Damage]:
-    """A Damage for every chunk whose header disagrees with its chunk index."""
-    why = "chunk header disagrees with its index"
-    bad = np.flatnonzero(~tab.sound).tolist()
-    return [Damage(int(tab.chunk_at[k]), int(tab.t_first[k]), int(tab.t_last[k]), why) for k in bad]
 
 
 def _session_metadata(data: Bytes, at_list: list[int], stream: str | None):
@@ -293,9 +274,11 @@ def _groups(usize: np.ndarray) -> list[tuple[int, int]]:
 
 class _Decompressor:
     """Decompresses runs of chunks into one reused buffer (fresh memory per group would cost page faults);
-    a chunk that does not decompress, has the wrong size or fails its CRC is left out and noted."""
+    a chunk whose header disagrees with its index, that does not decompress, has the wrong size or
+    fails its CRC is left out and noted (a disagreeing header without a summary CRC: NotFast, the
+    index itself may be the damage)."""
 
-    def __init__(self, data: Bytes, chunk_info: tuple[list, list, list, list], damaged: list[Damage]) -> None:
+    def __init__(self, data: Bytes, tab, keep, verified: bool | None, damaged: list[Damage]) -> None:
         import lz4.frame
         import zstandard
 
@@ -303,7 +286,13 @@ class _Decompressor:
         self.zstd = zstandard.ZstdDecompressor()
         self.lz4 = lz4.frame.decompress
         self.bufs = [bytearray(), bytearray()]
-        self.at, self.t0, self.t1, self.crc = chunk_info
+        self.verified = verified
+        self.at, self.t0, self.t1 = tab.chunk_at.tolist(), tab.t_first.tolist(), tab.t_last.tolist()
+        self.index = list(  # what each chunk header must say (header_agrees)
+            zip(*(a.tolist() for a in (tab.chunk_at, tab.chunk_len, tab.usize, tab.csize, tab.name_at)),
+                tab.name_len.tolist(), strict=True)
+        )  # fmt: skip
+        self.keep = [True] * len(self.at) if keep is None else keep.tolist()
         self.damaged = damaged  # appended to (list.append is atomic)
 
     def _into(self, comp: bytes, raw, dst: memoryview) -> str | None:
@@ -331,36 +320,34 @@ class _Decompressor:
             return f"does not decompress ({type(exc).__name__})"
         return None if got == u else f"decompresses to {got} bytes, not {u}"
 
-    def records(
-        self,
-        first: int,
-        name_at: list[int],
-        name_len: list[int],
-        at: list[int],
-        end: list[int],
-        usize: list[int],
-        slot: int = 0,
-    ) -> tuple[bytearray, int, list[int]]:
-        """(buffer, n, sizes): the sound chunks' records back to back in buffer[:n], then _PAD zero
-        bytes; sizes[k] is what chunk first + k contributed (0: damaged, skipped).
+    def records(self, g0: int, g1: int, slot: int = 0) -> tuple[bytearray, int, list[int]]:
+        """(buffer, n, sizes): the sound records of chunks g0..g1 back to back in buffer[:n], then
+        _PAD zero bytes; sizes[k] is what chunk g0 + k contributed (0: damaged or not wanted).
 
         Two buffers (slot 0 or 1): one is filled while the other is decoded."""
-        total = sum(usize)
+        total = sum(self.index[j][2] for j in range(g0, g1) if self.keep[j])
         if len(self.bufs[slot]) < total + _PAD:
             self.bufs[slot] = bytearray(total + _PAD)
         buf, data, mv = self.bufs[slot], self.data, memoryview(self.data)  # released on return
         out = memoryview(buf)
         pos = 0
         sizes = []
-        for k, (na, nl, a, b, u) in enumerate(zip(name_at, name_len, at, end, usize, strict=True)):
-            if nl < 0:  # header already found damaged
+        for j in range(g0, g1):
+            if not self.keep[j]:
                 sizes.append(0)
                 continue
-            dst = out[pos : pos + u]
-            why = self._into(data[na : na + nl], mv[a:b], dst)
-            j = first + k
-            if why is None and self.crc[j] and crc32(dst) != self.crc[j]:
-                why = "CRC mismatch"
+            at, _, u, csize, _, nl = self.index[j]
+            crc = header_agrees(data, *self.index[j])
+            if crc is None:
+                why = "chunk header disagrees with its index"
+                if not self.verified:
+                    raise NotFast(why)
+            else:
+                rec = at + 49 + nl
+                dst = out[pos : pos + u]
+                why = self._into(data[at + 41 : at + 41 + nl], mv[rec : rec + csize], dst)
+                if why is None and crc and crc32(dst) != crc:
+                    why = "CRC mismatch"
             if why is not None:
                 self.damaged.append(Damage(self.at[j], self.t0[j], self.t1[j], why))
                 sizes.append(0)

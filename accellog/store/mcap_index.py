@@ -15,7 +15,7 @@ import numpy as np
 from mcap.records import Channel, Schema
 
 from accellog.store.batch_decode import read_le
-from accellog.store.collect import crc32, release_pages
+from accellog.store.collect import crc32
 from accellog.store.layout import MCAP_MAGIC
 
 REC = struct.Struct("<BQ")  # record prefix: opcode u8, content length u64
@@ -33,7 +33,6 @@ SUMMARY_OPS = {
 }  # schema, channel, chunk/attachment/metadata index, ...
 FOOTER_SIZE = 9 + 20
 MESSAGE_HEADER = 2 + 4 + 8 + 8  # channel_id u16, sequence u32, log_time u64, publish_time u64
-HEADER = 56  # bytes of a chunk header the index pass reads: opcode .. records length (name <= 4)
 Bytes = bytes | mmap.mmap  # the file: mapped read-only (no copy) by fast_collect
 
 
@@ -144,79 +143,64 @@ def read_summary(data: Bytes, footer: int, summary_start: int):
 
 @dataclass
 class ChunkTable:
-    """Per chunk (summary order, arrays): chunk index offset ci and its message-index map length,
-    chunk offset, time range, header content offset c, uncompressed size, CRC, compression name
-    length, records range, and whether the header agrees with the index (sound)."""
+    """Per chunk (summary order, arrays, from the chunk indexes alone): chunk index offset ci and
+    its message-index map length, chunk offset and length, time range, uncompressed and compressed
+    (records) sizes, compression name offset (in the index) and length, records range. The chunk
+    headers are checked against these as the chunks are decompressed (``header_agrees``)."""
 
     ci: np.ndarray
     map_len: np.ndarray
     chunk_at: np.ndarray
+    chunk_len: np.ndarray
     t_first: np.ndarray
     t_last: np.ndarray
-    c: np.ndarray
     usize: np.ndarray
-    crc: np.ndarray
+    csize: np.ndarray
+    name_at: np.ndarray
     name_len: np.ndarray
     rec_at: np.ndarray
     rec_end: np.ndarray
-    sound: np.ndarray
 
 
-def chunk_headers(data: Bytes, buf: np.ndarray, chunk_at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The first HEADER bytes of every chunk copied into one array (flat, and each chunk's start
-    in it), a few hundred chunks at a time with their mapped pages dropped after each batch: reading
-    them in place faults in ~64 KiB of the file around every header (~30 % of a long file)."""
-    out = np.zeros((chunk_at.shape[0], HEADER), np.uint8)
-    span = np.arange(HEADER)
-    for lo in range(0, chunk_at.shape[0], 256):
-        at = chunk_at[lo : lo + 256]
-        out[lo : lo + 256] = buf[np.minimum(at[:, None] + span, buf.shape[0] - 1)]
-        release_pages(data, int(at.min()), int(at.max()) + HEADER)
-    return out.ravel(), np.arange(chunk_at.shape[0], dtype=np.int64) * HEADER
-
-
-def chunk_table(data: Bytes, footer: int, verified: bool | None, chunk_index_at: list[int],
-                 chunk_index_len: list[int]) -> ChunkTable:  # fmt: skip
-    """Every chunk index and chunk header read at once (numpy), checked against each other."""
-    # chunk indexes (vectorised): start offset of each chunk, in summary order
+def chunk_table(
+    data: Bytes, footer: int, chunk_index_at: list[int], chunk_index_len: list[int]
+) -> ChunkTable:
+    """Every chunk index read at once (numpy); each must point at a chunk inside the data section."""
     buf = np.frombuffer(data, np.uint8)
     ci = np.asarray(chunk_index_at, dtype=np.int64)
     map_len = read_le(buf, ci + 32, "<u4").astype(np.int64)
     comp_len = read_le(buf, ci + 44 + map_len, "<u4").astype(np.int64)
     if np.any(32 + 4 + map_len + 8 + 4 + comp_len + 16 != np.asarray(chunk_index_len)):
         raise NotFast("chunk index length")
+    if np.any(comp_len > 4):  # a compression other than zstd / lz4 / none: the generic reader decides
+        raise NotFast("compression")
     t_first = read_le(buf, ci, "<u8").astype(np.int64)
     t_last = read_le(buf, ci + 8, "<u8").astype(np.int64)
     chunk_at = read_le(buf, ci + 16, "<u8").astype(np.int64)
     chunk_len = read_le(buf, ci + 24, "<u8").astype(np.int64)
-    idx_csize = read_le(buf, ci + 48 + map_len + comp_len, "<u8").astype(np.int64)
-    idx_usize = read_le(buf, ci + 56 + map_len + comp_len, "<u8").astype(np.int64)
-    if np.any(chunk_at > footer - 49) or np.any(chunk_at + chunk_len > footer):
+    csize = read_le(buf, ci + 48 + map_len + comp_len, "<u8").astype(np.int64)
+    usize = read_le(buf, ci + 56 + map_len + comp_len, "<u8").astype(np.int64)
+    if np.any(chunk_at > footer - 49) or np.any(chunk_at + chunk_len > footer) or np.any(chunk_len < 49):
         raise NotFast("chunk index does not point at a chunk")
-    # chunk: start, end u64, uncompressed_size u64, crc u32, compression string, records (u64 length)
-    c = chunk_at + 9
-    hb, h = chunk_headers(data, buf, chunk_at)  # header bytes of chunk k at hb[h[k]:], copied
-    usize = read_le(hb, h + 25, "<u8").astype(np.int64)
-    crc = read_le(hb, h + 33, "<u4").astype(np.int64)
-    if np.any(comp_len > 4):  # a compression other than zstd / lz4 / none: the generic reader decides
-        raise NotFast("compression")
-    name_len = np.minimum(read_le(hb, h + 37, "<u4").astype(np.int64), 4)  # > 4 only if damaged
-    rec_len = read_le(hb, h + 41 + name_len, "<u8").astype(np.int64)
-    rec_at = c + 40 + name_len
-    rec_end = rec_at + np.clip(rec_len, 0, footer)
-    # the header of every chunk must agree with its index (opcode, lengths, sizes, compression)
-    sound = (hb[h] == OP_CHUNK) & (read_le(hb, h + 1, "<u8").astype(np.int64) == chunk_len - 9)
-    sound &= (usize == idx_usize) & (rec_len == idx_csize) & (40 + name_len + rec_len == chunk_len - 9)
-    sound &= (name_len == comp_len) & (rec_end <= footer)
-    for k in np.flatnonzero(sound).tolist():
-        if (
-            data[ci[k] + 48 + map_len[k] : ci[k] + 48 + map_len[k] + comp_len[k]]
-            != hb[h[k] + 41 : h[k] + 41 + name_len[k]].tobytes()
-        ):
-            sound[k] = False
-    if not sound.all() and not verified:  # without a summary CRC the index itself may be the damage
-        raise NotFast("chunk header disagrees with its index")
-    return ChunkTable(ci, map_len, chunk_at, t_first, t_last, c, usize, crc, name_len, rec_at, rec_end, sound)
+    # chunk: opcode, length, start, end u64, uncompressed size u64, crc u32, compression, records (u64 length)
+    rec_at = chunk_at + 9 + 40 + comp_len
+    return ChunkTable(ci, map_len, chunk_at, chunk_len, t_first, t_last, usize, csize, ci + 48 + map_len,
+                      comp_len, rec_at, chunk_at + chunk_len)  # fmt: skip
+
+
+CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, length, start, end, uncompressed size, crc, name length
+
+
+def header_agrees(data: Bytes, at: int, chunk_len: int, usize: int, csize: int, name_at: int, name_len: int):
+    """The uncompressed CRC of the chunk at byte ``at`` if its header agrees with its chunk index
+    (opcode, lengths, sizes, compression), else None."""
+    op, ln, _, _, u, crc, nl = CHUNK_HEAD.unpack_from(data, at)
+    if op != OP_CHUNK or ln != chunk_len - 9 or u != usize or nl != name_len:
+        return None
+    q = at + CHUNK_HEAD.size + nl
+    if U64.unpack_from(data, q)[0] != csize or data[q - nl : q] != data[name_at : name_at + nl]:
+        return None
+    return crc if 40 + nl + csize == ln else None
 
 
 def chunks_with(
