@@ -98,18 +98,22 @@ class ImuAccumulator(BatchAccumulator):
             self._per_message(part, n_per, done)
 
     def _per_message(self, part: DecodedBatch, n_per: np.ndarray, done: float) -> None:
-        """host_time_s and sample_index of the part's samples, as read_session computes them for all."""
+        """host_time_s and sample_index of the part's samples, as read_session computes them for all:
+        message k's samples get host_time_ns[k] / 1e9 and first_sample_index[k] + 0, 1, ..."""
         k = int(n_per.sum())
         s0 = self._derived._used.get("sample_index", 0)  # samples before this part
-        host = np.asarray(part.scalars["host_time_ns"], dtype=np.int64)
-        self._derived.reserve("host_time_s", F8, k, done)[...] = np.repeat(host / NS_PER_S, n_per)
+        host_s = np.asarray(part.scalars["host_time_ns"], dtype=np.int64) / NS_PER_S
         first = np.asarray(part.scalars["first_sample_index"], dtype=np.int64)
-        offset = first - (s0 + np.cumsum(n_per) - n_per)  # sample_index[i] = offset[k] + i
+        host = self._derived.reserve("host_time_s", F8, k, done)
         idx = self._derived.reserve("sample_index", np.dtype(np.int64), k, done)
-        if np.all(offset == offset[0]):
-            idx[...] = np.arange(offset[0] + s0, offset[0] + s0 + k, dtype=np.int64)
-        else:
-            idx[...] = np.repeat(offset, n_per) + np.arange(s0, s0 + k, dtype=np.int64)
+        m = int(n_per[0])
+        if m and np.all(n_per == m):  # equal reads (the usual case): written in place, no temporaries
+            host.reshape(-1, m)[...] = host_s[:, None]
+            np.add(first[:, None], np.arange(m, dtype=np.int64), out=idx.reshape(-1, m))
+            return
+        host[...] = np.repeat(host_s, n_per)
+        offset = first - (s0 + np.cumsum(n_per) - n_per)  # sample_index[i] = offset[k] + i
+        idx[...] = np.repeat(offset, n_per) + np.arange(s0, s0 + k, dtype=np.int64)
 
     def finish(self) -> DecodedBatch:
         self._wait()
