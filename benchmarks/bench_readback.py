@@ -17,8 +17,10 @@ accel/gyro counts i4 (n,3), temp counts i4, host time ns i8 per sample):
   counts -> g, deg/s, degC);
 - raw .npy: one np.load per array (for reference).
 Floors: mapping the MCAP file and decompressing its chunks (no parsing, no decoding): the part of
-read_session no decoder can avoid. 'generic' rows are the reader before the vectorised path (mcap's
-reader + per-message BatchDecoder; accellog.store.reader.FAST_READ = False), timed once.
+read_session no decoder can avoid. 'streamed' rows: the same file through iter_imu (blocks of
+one chunk group, the same samples, checked once), every block handed out and dropped. 'generic'
+rows are the reader before the vectorised path (mcap's reader + per-message BatchDecoder;
+accellog.store.reader.FAST_READ = False), timed once.
 Every file is read once before timing (page cache warm); each figure is the best of --repeat runs,
 interleaved round-robin so that load from other processes hits all variants alike. Each row shows its
 wall time and CPU time (user + sys of every thread: read_session decompresses on a second thread and
@@ -47,6 +49,7 @@ from accellog.core.session import Session, SessionMeta
 from accellog.core.units import temp_counts_to_degC
 from accellog.store import reader
 from accellog.store.reader import read_session
+from accellog.store.stream import iter_imu
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, write_session
 
 NS = 1_000_000_000
@@ -205,6 +208,12 @@ def load() -> str:
     return "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
+def stream_all(path: Path) -> int:
+    """The streamed reader (iter_imu) over the whole file: every block handed out (the samples
+    read_session returns, in blocks of one chunk group), nothing kept."""
+    return sum(b.n for b in iter_imu(path))
+
+
 def generic_read(path: Path) -> Session:
     reader.FAST_READ = False
     try:
@@ -250,6 +259,10 @@ def main() -> None:
                 writer(p)
             files[key] = (p, time.perf_counter() - t0 if fresh else float("nan"))
             r = read_session(p)
+            blocks = list(iter_imu(p))  # the streamed reader hands out the same samples
+            for name in ("t_s", "sample_index", "accel_g", "gyro_dps", "temp_degC", "host_time_s"):
+                assert np.array_equal(np.concatenate([getattr(b, name) for b in blocks]), getattr(r, name))
+            del blocks
             for name, a in raw_arrays(r).items():
                 want = arrays[name]
                 if key.startswith("rec") and name == "host_time_ns":  # one host time per read
@@ -276,6 +289,9 @@ def main() -> None:
         }
         for key, (p, tw) in files.items():
             rows.append((labels[key] + ": read_session", lambda p=p: read_session(p), p, tw))
+            rows.append(
+                (f"  streamed ({key}): iter_imu, every block", lambda p=p: stream_all(p), p, float("nan"))
+            )
             rows.append(
                 (f"  floor ({key}): map file + decompress only", decompress_floor(p), p, float("nan"))
             )
@@ -309,6 +325,9 @@ def main() -> None:
     t_rawc = best["raw binary + the same conversions"]
     floor_of = {
         labels[key] + ": read_session": f"  floor ({key}): map file + decompress only" for key in files
+    } | {
+        f"  streamed ({key}): iter_imu, every block": f"  floor ({key}): map file + decompress only"
+        for key in files
     }
     print(
         f"read-back of {args.minutes:g} min at 1 kHz = {n:,} samples (accel+gyro+temp counts, t_ns, "

@@ -37,6 +37,20 @@ def lsb_scales(meta_kv: dict[str, str]) -> tuple[float | None, float | None]:
     return num("accel_lsb_per_g"), num("gyro_lsb_per_dps")
 
 
+def per_sample(first: np.ndarray, host_s: np.ndarray, n_per: np.ndarray, idx: np.ndarray, host: np.ndarray):
+    """Fill idx and host for the samples of messages with first sample index ``first``, host time
+    ``host_s`` (s) and ``n_per`` samples each: message k's samples get first[k] + 0, 1, ... and
+    host_s[k] (as read_session computes them for the whole session)."""
+    m = int(n_per[0]) if n_per.shape[0] else 0
+    if m and np.all(n_per == m):  # equal reads (the usual case): written in place, no temporaries
+        host.reshape(-1, m)[...] = host_s[:, None]
+        np.add(first[:, None], np.arange(m, dtype=np.int64), out=idx.reshape(-1, m))
+        return
+    host[...] = np.repeat(host_s, n_per)
+    offset = first - (np.cumsum(n_per) - n_per)  # sample_index[i] = offset[k] + i
+    idx[...] = np.repeat(offset, n_per) + np.arange(idx.shape[0], dtype=np.int64)
+
+
 class ImuAccumulator(BatchAccumulator):
     """ImuBatch parts joined as by BatchAccumulator, each part's samples converted as it is added
     (see module doc) on a worker thread while the next group is decoded here (numpy releases the
@@ -98,22 +112,15 @@ class ImuAccumulator(BatchAccumulator):
             self._per_message(part, n_per, done)
 
     def _per_message(self, part: DecodedBatch, n_per: np.ndarray, done: float) -> None:
-        """host_time_s and sample_index of the part's samples, as read_session computes them for all:
-        message k's samples get host_time_ns[k] / 1e9 and first_sample_index[k] + 0, 1, ..."""
+        """host_time_s and sample_index of the part's samples (per_sample)."""
         k = int(n_per.sum())
-        s0 = self._derived._used.get("sample_index", 0)  # samples before this part
-        host_s = np.asarray(part.scalars["host_time_ns"], dtype=np.int64) / NS_PER_S
-        first = np.asarray(part.scalars["first_sample_index"], dtype=np.int64)
-        host = self._derived.reserve("host_time_s", F8, k, done)
-        idx = self._derived.reserve("sample_index", np.dtype(np.int64), k, done)
-        m = int(n_per[0])
-        if m and np.all(n_per == m):  # equal reads (the usual case): written in place, no temporaries
-            host.reshape(-1, m)[...] = host_s[:, None]
-            np.add(first[:, None], np.arange(m, dtype=np.int64), out=idx.reshape(-1, m))
-            return
-        host[...] = np.repeat(host_s, n_per)
-        offset = first - (s0 + np.cumsum(n_per) - n_per)  # sample_index[i] = offset[k] + i
-        idx[...] = np.repeat(offset, n_per) + np.arange(s0, s0 + k, dtype=np.int64)
+        per_sample(
+            np.asarray(part.scalars["first_sample_index"], dtype=np.int64),
+            np.asarray(part.scalars["host_time_ns"], dtype=np.int64) / NS_PER_S,
+            n_per,
+            self._derived.reserve("sample_index", np.dtype(np.int64), k, done),
+            self._derived.reserve("host_time_s", F8, k, done),
+        )
 
     def finish(self) -> DecodedBatch:
         self._wait()

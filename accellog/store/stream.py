@@ -28,6 +28,7 @@ from accellog.core.session import Event, PoseLabel, SessionMeta
 from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
 from accellog.store.batch_decode import DecodedBatch
 from accellog.store.collect import check_file
+from accellog.store.imu_arrays import per_sample
 from accellog.store.layout import NS_PER_S, TOPIC_EVENTS, TOPIC_IMU, TOPIC_POSES, metadata_to_meta
 
 
@@ -110,10 +111,13 @@ def _block(dec: DecodedBatch, meta: SessionMeta, where: str) -> ImuBlock:
     n_per = counts["t_ns"]
     n = int(n_per.sum())
     first = np.asarray(scalars["first_sample_index"], dtype=np.int64)
-    starts = np.cumsum(n_per) - n_per
-    sample_index = np.repeat(first - starts, n_per) + np.arange(n, dtype=np.int64)
-    if np.any(np.diff(sample_index) < 0):
+    full = n_per > 0  # samples out of order <=> a message starts below the previous one's last index
+    if np.any(first[full][1:] < (first + n_per - 1)[full][:-1]):
         raise InputError("IMU batches out of order: read it whole with read_session", where=where)
+    sample_index, host_s = np.empty(n, np.int64), np.empty(n)
+    per_sample(
+        first, np.asarray(scalars["host_time_ns"], dtype=np.int64) / NS_PER_S, n_per, sample_index, host_s
+    )
 
     def vec(name: str, width: int) -> np.ndarray | None:
         a = arrays[name]
@@ -138,7 +142,6 @@ def _block(dec: DecodedBatch, meta: SessionMeta, where: str) -> ImuBlock:
     if temp_degC is None and tc is not None:
         temp_degC = tc / TEMP_LSB_PER_DEGC
         temp_degC += TEMP_OFFSET_DEGC
-    host_s = np.repeat(np.asarray(scalars["host_time_ns"], dtype=np.int64) / NS_PER_S, n_per)
     return ImuBlock(meta, arrays["t_ns"] / NS_PER_S, sample_index, accel_g, gyro_dps, temp_degC, host_s)
 
 
