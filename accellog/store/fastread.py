@@ -4,14 +4,15 @@ The file is mapped, footer and summary parsed with struct, chunks decompressed ~
 reused buffers (the next group on a worker thread while this one is decoded), records walked by checked
 guesses (runs of equal-length messages) or, in groups of many small chunks, all chunks side by side,
 and every channel's payloads decoded at once by ``batch_decode.decode_batch`` straight into arrays
-sized once. Anything unexpected raises ``NotFast``
-and the generic reader decides.
+sized once (zstd chunks straight into the group buffer; a channel's accumulator may convert each group
+as it comes: store.imu_arrays). Anything unexpected raises ``NotFast`` and the generic reader decides.
 
 Integrity (see accellog.store.collect): the summary CRC is checked first (a damaged summary is not
 trusted: the file is scanned instead); with a sound summary each chunk header must agree with its
-chunk index, decompress to the indexed size and match its uncompressed CRC, else the chunk is
-skipped and named (Damage); the data section CRC, computed on a worker thread, catches damage
-anywhere else.
+chunk index (checked on the decompression thread as the chunk is read; without a summary CRC a
+disagreement is NotFast), decompress to the indexed size and match its uncompressed CRC, else the
+chunk is skipped and named (Damage); the data section CRC, computed on a worker thread, catches
+damage anywhere else.
 """
 
 from __future__ import annotations
