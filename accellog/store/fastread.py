@@ -135,7 +135,7 @@ def _fast_walk(
     chunks = _Decompressor(data, tab, keep, verified, damaged)
     rec_at, rec_end = tab.rec_at.tolist(), tab.rec_end.tolist()
     done = (np.cumsum(usize) / max(1, int(usize.sum()))).tolist()  # fraction read after each chunk
-    groups = _groups(usize)
+    groups = _groups(usize, stream is None)
 
     def decompress(i: int) -> tuple[bytearray, int, list[int]]:
         g0, g1 = groups[i]
@@ -260,16 +260,26 @@ def _decode_group(
         acc.add(dec, frac)
 
 
-def _groups(usize: np.ndarray) -> list[tuple[int, int]]:
-    """Consecutive runs of chunks holding about _GROUP_BYTES of records each (at least one chunk)."""
-    bounds = [0]
-    total = 0
-    for i, u in enumerate(usize.tolist()):
-        if total and total + u > _GROUP_BYTES:
+def _groups(usize: np.ndarray, ends_small: bool = True) -> list[tuple[int, int]]:
+    """Consecutive runs of chunks holding about _GROUP_BYTES of records each (at least one chunk);
+    ends_small: the first and the last about _GROUP_BYTES / 8, so that the pipeline (decompress |
+    decode | convert) fills and drains sooner, with less work on one thread while the others wait
+    (a stream keeps even blocks)."""
+    sizes = usize.tolist()
+    small = _GROUP_BYTES // 8 if ends_small else _GROUP_BYTES
+    bounds, total, cap = [0], 0, small
+    for i, u in enumerate(sizes):
+        if total and total + u > cap:
             bounds.append(i)
-            total = 0
+            total, cap = 0, _GROUP_BYTES
         total += u
-    bounds.append(usize.shape[0])
+    last, total = len(sizes), 0  # split the tail off the last group
+    while ends_small and last - 1 > bounds[-1] and total + sizes[last - 1] <= small:
+        last -= 1
+        total += sizes[last]
+    if bounds[-1] < last < len(sizes):
+        bounds.append(last)
+    bounds.append(len(sizes))
     return list(itertools.pairwise(bounds))
 
 
