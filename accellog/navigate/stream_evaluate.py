@@ -8,8 +8,8 @@ pass's own, and returns None for damaged chunks); each block is cut (until_s, ma
 checked (finite), calibrated (``evaluate.block_residual``, per calibration) and folded into
 ``stream_sums.ResidualSums``, the same running sums the whole-session ``evaluate`` feeds with one
 block, so both give the same Evaluation up to rounding (tests: JSON within 1e-9 relative). The
-motion check runs on the 0.5 s windows of the raw reading (``segment.moving_check``, the same
-verdict as ``check_static``). Not streamed: models that read dT/dt (a 5 s centred slope needs
+motion check runs on the 0.5 s windows of the raw reading (``stream_motion.MotionCheck``: the
+windows spilled to a temporary file, the same verdict as ``check_static``). Not streamed: models that read dT/dt (a 5 s centred slope needs
 samples on both sides of a block boundary): ``stream_evaluate`` returns None and the caller reads
 the whole session.
 """
@@ -25,7 +25,6 @@ from typing import TypeVar
 import numpy as np
 
 from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.segment import _window_stats, moving_check
 from accellog.calibrate.stream_segment import TimestampCheck
 from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.session import PoseLabel, Session, SessionMeta
@@ -40,7 +39,8 @@ from accellog.navigate.evaluate import (
     infer_up,
 )
 from accellog.navigate.integrate import DEFAULT_TIMES_S
-from accellog.navigate.stream_sums import ResidualSums, WindowCarry
+from accellog.navigate.stream_motion import MotionCheck
+from accellog.navigate.stream_sums import ResidualSums
 from accellog.store.stream import ImuBlock, iter_imu
 
 STREAM_BLIND_DRIVERS = ("dtemp_degC_per_s",)
@@ -162,31 +162,6 @@ def _up(
     return infer_up(_mean_reading(path, source), notes)
 
 
-class _Motion:
-    """check_static's 0.5 s windows of the raw reading, gathered block by block."""
-
-    def __init__(self) -> None:
-        self.cut = WindowCarry(0.5)
-        self.parts: list[tuple] = []
-
-    def add(self, t: np.ndarray, acc: np.ndarray) -> None:
-        self._take(self.cut.push(t, acc))
-
-    def _take(self, out) -> None:
-        if out is None:
-            return
-        t, (acc,), starts = out
-        mean, std, n = _window_stats(acc, starts)
-        ends = np.append(starts[1:] - 1, t.shape[0] - 1)
-        self.parts.append((t[starts], t[ends], mean, std, n))
-
-    def check(self, up: np.ndarray, quantum: float, where: str) -> None:
-        self._take(self.cut.flush())
-        cols = [np.concatenate([p[i] for p in self.parts]) for i in range(5)]
-        label = PoseLabel("static test", float(cols[0][0]), float(cols[1][-1]) + 1e-9, tuple(up))
-        moving_check([(label, *cols)], quantum, where)
-
-
 def stream_evaluate(
     path: str | Path,
     meta: SessionMeta,
@@ -239,7 +214,7 @@ def _evaluate(
         ctxs.append(eval_context(where, meta, c, up, list(notes), label=labels[i] if labels else None))
     sums = [ResidualSums(times_s, window_s, drift=x.drift) for x in ctxs]
     drv: list[dict[str, float]] = [{} for _ in ctxs]
-    motion = _Motion() if check_moving else None
+    motion = MotionCheck() if check_moving else None
     n, read_sum = 0, np.zeros(3)
     for b, block in checked_blocks(path, meta, poses, until_s, max_samples, source):
         n += b.n
@@ -256,7 +231,7 @@ def _evaluate(
         raise InputError(f"static session has {n} samples (need >= 10)", where=where)
     check_norm(read_sum / n, where)
     if motion is not None:
-        motion.check(up, 1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0, where)
+        motion.check(1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0, where)
     stats = [acc.finish() for acc in sums]
     if sums_out is not None:
         sums_out.extend(zip(sums, stats, strict=True))

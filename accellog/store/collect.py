@@ -99,13 +99,24 @@ def data_section_damage(data, summary_start: int) -> Damage | None:
     return None if got == want else Damage(at, -1, -1, "data section CRC mismatch", chunk=False)
 
 
+FAULT_AROUND = 64 << 10
+"""Bytes the kernel maps around a page fault of a file mapping (Linux fault_around_bytes: a window of
+that size holding the faulting page, aligned on the virtual address, not on the file offset)."""
+
+
 def release_pages(data, lo: int, hi: int) -> None:
     """Tell the kernel the mapped file bytes [lo, hi) are not needed any more (MADV_DONTNEED), so a
-    pass over a long file keeps its resident memory bounded; a no-op for bytes objects."""
+    pass over a long file keeps its resident memory bounded; a no-op for bytes objects.
+
+    The range is widened by FAULT_AROUND on both sides: a read near an end of [lo, hi) also maps the
+    cached pages of its fault-around window outside it (a chunk header, the message indexes between
+    two chunk groups), which no later release covered (~20 MB resident after a 24 h pass)."""
     import mmap
 
     if isinstance(data, mmap.mmap) and hasattr(mmap, "MADV_DONTNEED"):
+        lo = max(lo - FAULT_AROUND, 0)
         lo -= lo % mmap.PAGESIZE
+        hi = min(hi + FAULT_AROUND, len(data))
         if hi > lo:
             data.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
 

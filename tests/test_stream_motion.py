@@ -1,0 +1,113 @@
+"""The streamed motion check (windows spilled to a file, exact medians by radix selection) against
+np.median and segment.moving_check on the whole window table; the reader's page release."""
+
+from __future__ import annotations
+
+import itertools
+import mmap
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from accellog.calibrate.segment import _window_stats, moving_check
+from accellog.core.errors import InputError
+from accellog.core.session import PoseLabel
+from accellog.navigate.stream_motion import MotionCheck, kth_smallest, median
+from accellog.navigate.stream_sums import WindowCarry
+from accellog.store.collect import FAULT_AROUND, release_pages
+
+
+def _pieces(x: np.ndarray, rng: np.random.Generator):
+    cuts = np.sort(rng.integers(0, x.size, size=5))
+
+    def values():
+        yield from np.split(x, cuts)
+
+    return values
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000, 1001])
+@pytest.mark.parametrize("kind", ["normal", "ties", "signs", "binades"])
+def test_median_in_pieces_is_np_median_bit_for_bit(n, kind):
+    rng = np.random.default_rng(n)
+    x = {
+        "normal": rng.normal(0.002, 1e-4, n),
+        "ties": rng.choice([0.5, 0.25, -0.0, 0.0, 3.0], n),  # one bucket holds most values
+        "signs": rng.normal(0.0, 1.0, n) * 10.0 ** rng.integers(-300, 300, n),
+        "binades": np.repeat(rng.normal(size=n // 10 + 1), 10)[:n],
+    }[kind]
+    got, want = median(_pieces(x, rng), n), np.median(x)
+    assert got == want and (want == 0 or np.float64(got).tobytes() == want.tobytes())  # +-0: equal
+    for cap in (1, 3, 1 << 16):  # small caps refine to the last 16 bits
+        k = int(rng.integers(0, n))
+        assert kth_smallest(_pieces(x, rng), k, cap=cap) == np.partition(x, k)[k]
+
+
+def _session(rng, n=40_000, bump=None):
+    t = np.cumsum(rng.uniform(0.0009, 0.0011, n))
+    acc = rng.normal(0.0, 0.002, (n, 3)) + np.array([0.01, -0.02, 1.0])
+    if bump == "std":
+        acc[25_000:25_300] += rng.normal(0.0, 0.05, (300, 3))
+    elif bump == "mean":
+        acc[30_000:31_000, 0] += 0.08
+    return t, acc
+
+
+def _whole_verdict(t, acc, quantum):
+    cut = WindowCarry(0.5)
+    parts = [cut.push(t, acc), cut.flush()]
+    cols = []
+    for tt, (a,), starts in parts:
+        mean, std, n = _window_stats(a, starts)
+        ends = np.append(starts[1:] - 1, tt.shape[0] - 1)
+        cols.append((tt[starts], tt[ends], mean, std, n))
+    cols = [np.concatenate([c[i] for c in cols]) for i in range(5)]
+    label = PoseLabel("static test", float(cols[0][0]), float(cols[1][-1]) + 1e-9, (0.0, 0.0, 1.0))
+    try:
+        moving_check([(label, *cols)], quantum, "w")
+    except InputError as e:
+        return str(e)
+    return None
+
+
+@pytest.mark.parametrize("bump", [None, "std", "mean"])
+@pytest.mark.parametrize("quantum", [0.0, 1 / 16384])
+def test_motion_check_in_blocks_equals_moving_check(bump, quantum):
+    rng = np.random.default_rng(11)
+    t, acc = _session(rng, bump=bump)
+    want = _whole_verdict(t, acc, quantum)
+    assert (want is None) == (bump is None)
+    m = MotionCheck()
+    edges = np.r_[0, np.sort(rng.integers(1, t.size, 12)), t.size]  # 13 blocks (some empty)
+    for a, b in itertools.pairwise(edges.tolist()):
+        m.add(t[a:b], acc[a:b])
+    try:
+        m.check(quantum, "w")
+        got = None
+    except InputError as e:
+        got = str(e)
+    assert got == want
+    assert m.spill.f.closed
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/self/smaps")
+def test_release_pages_drops_the_fault_around_window(tmp_path):
+    """A read at the end of a released range maps the cached pages after it (fault-around): they must
+    go too, or a long pass keeps ~64 KiB per chunk group resident."""
+    p = tmp_path / "f.bin"
+    p.write_bytes(np.random.default_rng(0).bytes(8 * FAULT_AROUND))  # in the page cache
+    with open(p, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        lo, hi = FAULT_AROUND + 4096, 2 * FAULT_AROUND + 100
+        assert data[hi - 1] is not None and data[lo] is not None  # faults around both ends
+        release_pages(data, lo, hi)
+        assert _mapped_kb(p) == 0
+
+
+def _mapped_kb(path) -> int:
+    lines = Path("/proc/self/smaps").read_text().splitlines()
+    for i, line in enumerate(lines):
+        if line.endswith(str(path)):
+            return next(int(x.split()[1]) for x in lines[i + 1 :] if x.startswith("Rss:"))
+    raise AssertionError("mapping not found")
