@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,17 +27,14 @@ from accellog.core.timeseries import cumtrapz
 from accellog.flows.stages import load_input, run_evaluate
 from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_pose_obs
-from accellog.navigate.handheld_evaluate import (
-    CANNOT_JUDGE,
-    HandheldEvaluation,
-    detect_intervals,
-    evaluate_handheld,
-)
 from accellog.navigate.stream_evaluate import can_stream_cals, stream_evaluate
 from accellog.present import tables, views
 from accellog.present.residual_views import log_panels, log_residuals_vs_drivers, panels
 from accellog.present.rrd.recording import RunRecording
 from accellog.store.atomic import atomic_output, write_text_atomic
+
+if TYPE_CHECKING:  # the hand-held path (scipy.stats, ~60 MB and ~0.9 s of imports) loads when used
+    from accellog.navigate.handheld_evaluate import HandheldEvaluation
 
 
 def _session_input(path: str | os.PathLike, what: str) -> Session:
@@ -95,6 +93,8 @@ class EvaluationReport(JsonResult):
 
     def to_dict(self) -> dict:
         if self.handheld:
+            from accellog.navigate.handheld_evaluate import CANNOT_JUDGE
+
             return {
                 "kind": "handheld",
                 "raw": self.handheld[0].to_dict(),
@@ -128,6 +128,8 @@ class EvaluationReport(JsonResult):
                 fits = {p.label: _WindowResiduals(p.window_resid_g) for p in self.poses}
                 log_residuals_vs_drivers(rec, self.obs, fits)
             elif self.handheld:
+                from accellog.navigate.handheld_evaluate import CANNOT_JUDGE
+
                 md = "\n".join(views.table_markdown(tables.handheld_eval_table(h)) for h in self.handheld)
                 rec.log_document("results/handheld", md + "\n\n" + CANNOT_JUDGE)
                 fits = {h.label: _WindowResiduals(h.resid_g[:, None]) for h in self.handheld}
@@ -173,6 +175,8 @@ def _handheld_report(
     judged on its detected static intervals with the gravity-norm residual
     (navigate.handheld_evaluate). `refused` (the single-hold error) is raised again when the session
     is labelled or fewer than 2 distinct static orientations are found."""
+    from accellog.navigate.handheld_evaluate import detect_intervals, evaluate_handheld
+
     try:
         data = load_input(test)
         if not isinstance(data, Session) or data.poses:
