@@ -220,3 +220,34 @@ def test_chunk_header_disagreeing_with_its_index(tmp_path, monkeypatch, field):
         fast = read_session(bad)
         monkeypatch.setattr(reader, "FAST_READ", False)
         _same(fast, read_session(bad))
+
+
+@pytest.mark.parametrize(
+    ("first", "ok"),
+    [(2**63 + 5, False), (2**64 - 1, False), (2**63 - 10, False), (2**63 - 36 * 3, True)],
+)
+def test_first_sample_index_near_int64(tmp_path, monkeypatch, first, ok):
+    """first_sample_index is a uint64: indexes beyond int64 are one InputError line in every reader
+    (not an OverflowError traceback, not wrapped-around indexes); the last representable one reads."""
+    from accellog.core.errors import InputError
+    from accellog.store.stream import iter_imu
+
+    s = _session(36 * 3, seed=11)
+    p = tmp_path / "big.mcap"
+    with SessionWriter(p, s.meta, compression="zstd") as w:
+        for k in range(3):
+            sl = slice(36 * k, 36 * (k + 1))
+            t = np.round(s.t_s[sl] * NS).astype(np.int64)
+            w.write_imu(first + 36 * k, t, s.accel_counts[sl], s.gyro_counts[sl], s.temp_counts[sl], k + 1)
+    for fast in (True, False):
+        monkeypatch.setattr(reader, "FAST_READ", fast)
+        if ok:
+            got = read_session(p)
+            assert got.sample_index[0] == first and got.sample_index[-1] == 2**63 - 1
+            assert [int(b.sample_index[-1]) for b in iter_imu(p)] == [2**63 - 1]
+            continue
+        with pytest.raises(InputError, match="beyond int64") as err:
+            read_session(p)
+        assert "\n" not in str(err.value) and str(p) in str(err.value)
+        with pytest.raises(InputError, match="beyond int64"):
+            list(iter_imu(p))

@@ -16,11 +16,25 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
+from accellog.core.errors import InputError
 from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
 from accellog.store.batch_decode import BatchAccumulator, DecodedBatch
 from accellog.store.layout import NS_PER_S
 
 F8 = np.dtype(np.float64)
+INT64_MAX = np.iinfo(np.int64).max
+
+
+def first_indexes(first, n_per: np.ndarray, where: str) -> np.ndarray:
+    """Each message's first_sample_index (a proto uint64: list or array) as int64; InputError (one
+    line) if a message's samples would go beyond int64 (the sample indexes are int64)."""
+    a = np.asarray(first)
+    if a.dtype.kind in "uO" and a.size and int(a.max()) > INT64_MAX:
+        raise InputError(f"first_sample_index {int(a.max())} is beyond int64", where=where)
+    a = a.astype(np.int64, copy=False)
+    if np.any(a - 1 > INT64_MAX - n_per):  # a + n_per - 1 without overflow (a >= 0)
+        raise InputError("IMU sample indexes beyond int64 (first_sample_index near 2**63)", where=where)
+    return a
 
 
 def lsb_scales(meta_kv: dict[str, str]) -> tuple[float | None, float | None]:
@@ -135,9 +149,6 @@ class ImuAccumulator(BatchAccumulator):
                 out.scalars[name] = [
                     x for v in parts for x in (v.tolist() if isinstance(v, np.ndarray) else v)
                 ]
-        first = out.scalars.get("first_sample_index")
-        if isinstance(first, np.ndarray) and first.dtype == np.uint64 and np.any(first >> np.uint64(63)):
-            out.scalars["first_sample_index"] = first.tolist()  # beyond int64: read_session refuses it
         derived = self._derived.finish().arrays
         derived["t_s"] = out.arrays.pop("t_ns").view(F8)
         out.derived = derived

@@ -23,7 +23,7 @@ from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
 from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
 from accellog.store.collect import Collected, Damage, Decoder, check_file, generic_collect, recover
 from accellog.store.fastread import fast_collect
-from accellog.store.imu_arrays import ImuAccumulator, lsb_scales
+from accellog.store.imu_arrays import ImuAccumulator, first_indexes, lsb_scales
 from accellog.store.layout import (
     DERIVED_PREFIX,
     NS_PER_S,
@@ -104,7 +104,7 @@ def read_session(path: str | Path) -> Session:
     derived = getattr(dec, "derived", None) or {}  # converted group by group while reading
     if derived and lsb_scales(col.metadata) != (meta.accel_lsb_per_g or None, meta.gyro_lsb_per_dps or None):
         derived = {k: v for k, v in derived.items() if k not in ("accel_g", "gyro_dps")}  # other scales
-    first = np.asarray(scalars["first_sample_index"], dtype=np.int64)
+    first = first_indexes(scalars["first_sample_index"], n_per, where)
     sample_index, in_order = _sample_index(first, n_per, n, derived.get("sample_index"))
     host = np.asarray(scalars["host_time_ns"], dtype=np.int64)
     cols = _sample_arrays(arrays, n, meta, where, derived)

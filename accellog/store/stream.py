@@ -28,7 +28,7 @@ from accellog.core.session import Event, PoseLabel, SessionMeta
 from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
 from accellog.store.batch_decode import DecodedBatch
 from accellog.store.collect import check_file
-from accellog.store.imu_arrays import per_sample
+from accellog.store.imu_arrays import first_indexes, per_sample
 from accellog.store.layout import NS_PER_S, TOPIC_EVENTS, TOPIC_IMU, TOPIC_POSES, metadata_to_meta
 
 
@@ -110,7 +110,7 @@ def _block(dec: DecodedBatch, meta: SessionMeta, where: str) -> ImuBlock:
     arrays, scalars, counts = dec.result()
     n_per = counts["t_ns"]
     n = int(n_per.sum())
-    first = np.asarray(scalars["first_sample_index"], dtype=np.int64)
+    first = first_indexes(scalars["first_sample_index"], n_per, where)
     full = n_per > 0  # samples out of order <=> a message starts below the previous one's last index
     if np.any(first[full][1:] < (first + n_per - 1)[full][:-1]):
         raise InputError("IMU batches out of order: read it whole with read_session", where=where)
