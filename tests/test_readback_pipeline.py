@@ -251,3 +251,32 @@ def test_first_sample_index_near_int64(tmp_path, monkeypatch, first, ok):
         assert "\n" not in str(err.value) and str(p) in str(err.value)
         with pytest.raises(InputError, match="beyond int64"):
             list(iter_imu(p))
+
+
+def test_conversion_error_on_the_worker_falls_back(tmp_path, monkeypatch):
+    """An exception in a group's conversion (worker thread) surfaces on the reading thread: the fast
+    reader declines, the generic reader gives the session, and no worker thread is left behind."""
+    import threading
+
+    s = _session(20_000, seed=12)
+    p = tmp_path / "b.mcap"
+    _recorder(p, s, "zstd", vary=True, gap=False)
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 64 << 10)
+    calls = []
+    convert = imu_arrays.ImuAccumulator._convert
+
+    def failing(self, *args):
+        calls.append(1)
+        if len(calls) == 3:
+            raise MemoryError("worker")
+        return convert(self, *args)
+
+    monkeypatch.setattr(imu_arrays.ImuAccumulator, "_convert", failing)
+    threads = threading.active_count()
+    dec = reader._collect(p, accumulator=reader._imu_accumulator).decoders["/imu"]
+    assert getattr(dec, "derived", None) is None
+    assert len(calls) == 3  # it failed mid-file, then the generic reader decided
+    got = read_session(p)
+    assert threading.active_count() == threads
+    monkeypatch.setattr(reader, "FAST_READ", False)
+    _same(got, read_session(p))
