@@ -280,3 +280,36 @@ def test_conversion_error_on_the_worker_falls_back(tmp_path, monkeypatch):
     assert threading.active_count() == threads
     monkeypatch.setattr(reader, "FAST_READ", False)
     _same(got, read_session(p))
+
+
+def test_message_that_does_not_decode_leaves_nothing_behind(tmp_path, monkeypatch):
+    """A damaged message in a file without CRCs (uncompressed chunks) ends the salvage there: the
+    session is the messages before it, none of the broken message's samples (its t_ns used to be
+    kept without its other fields: a traceback, or samples from a message that does not decode)."""
+    from mcap.writer import Writer
+
+    from accellog.store import writer
+
+    monkeypatch.setattr(writer, "Writer", lambda f, **kw: Writer(f, **{**kw, "enable_crcs": False}))
+    s = _session(36 * 30, seed=13)
+    p = tmp_path / "nocrc.mcap"
+    with SessionWriter(p, s.meta, compression="none", chunk_size=4096) as w:
+        for k in range(30):
+            sl = slice(36 * k, 36 * (k + 1))
+            t = np.round(s.t_s[sl] * NS).astype(np.int64)
+            w.write_imu(36 * k, t, s.accel_counts[sl], s.gyro_counts[sl], s.temp_counts[sl], k + 1)
+    b = bytearray(p.read_bytes())
+    sl = slice(36 * 20, 36 * 21)
+    t = np.round(s.t_s[sl] * NS).astype(np.int64)
+    payload = encode("ImuBatch", first_sample_index=36 * 20, t_ns=t, accel_counts=s.accel_counts[sl],
+                     gyro_counts=s.gyro_counts[sl], temp_counts=s.temp_counts[sl], host_time_ns=21)  # fmt: skip
+    at = bytes(b).index(payload)
+    b[at] = 2 << 3 | 2  # t_ns first, its length running past the message: t_ns parsed, then truncated
+    b[at + 1] = 0x7F
+    p.write_bytes(b)
+    for fast in (True, False):
+        monkeypatch.setattr(reader, "FAST_READ", fast)
+        got = read_session(p)
+        assert got.n == 36 * 20 and np.array_equal(got.accel_counts, s.accel_counts[: 36 * 20])
+        (ev,) = [e for e in got.events if e.kind == "recovered"]
+        assert "salvaged 20 messages" in ev.detail

@@ -205,6 +205,7 @@ class BatchDecoder:
         fields, packed, owner = self._fields, self._packed, self._owner
         k = self.n_messages
         row: dict = {}
+        got: list = []  # (name, packed bytes) kept only if the whole message parses
         mv = memoryview(data)
         pos, end = 0, len(data)
         while pos < end:
@@ -223,8 +224,7 @@ class BatchDecoder:
                     ln, pos = _read_varint(data, pos)
                 if f is not None:
                     if f[0]:
-                        packed[f[1]].append(mv[pos : pos + ln])
-                        owner[f[1]].append(k)
+                        got.append((f[1], mv[pos : pos + ln]))
                     else:
                         row[f[1]] = _scalar(f[2], data, (pos, ln))
                 pos += ln
@@ -242,6 +242,9 @@ class BatchDecoder:
                 raise ValueError(f"{self.message}: unsupported wire type {wire} at byte {pos}")
         if pos != end:
             raise ValueError(f"{self.message}: truncated message")
+        for name, part in got:  # a message that fails above leaves nothing behind (salvage goes on)
+            packed[name].append(part)
+            owner[name].append(k)
         self._rows.append(row)
         self.n_messages += 1
 

@@ -156,16 +156,20 @@ class _Sink:
         return msg if msg in MESSAGE_DEFS else None
 
     def add(self, schema: Schema | None, channel: Channel, data: bytes) -> None:
+        """Decode one message (a message that does not decode raises and is not counted)."""
+        if self.want is None or channel.topic in self.want:
+            dec = self._decoder(schema, channel)
+            if dec is not None:
+                dec.add(data)
         self.n_messages += 1
-        if self.want is not None and channel.topic not in self.want:
-            return
+
+    def _decoder(self, schema: Schema | None, channel: Channel) -> BatchDecoder | None:
         dec = self.decoders.get(channel.topic)
         if dec is None:
             msg = self.channel(schema, channel)
-            if msg is None:
-                return
-            dec = self.decoders[channel.topic] = BatchDecoder(msg)
-        dec.add(data)
+            if msg is not None:
+                dec = self.decoders[channel.topic] = BatchDecoder(msg)
+        return dec
 
 
 def file_damage(path: Path) -> tuple[Exception | None, Damage | None]:
