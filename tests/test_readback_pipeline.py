@@ -313,3 +313,31 @@ def test_message_that_does_not_decode_leaves_nothing_behind(tmp_path, monkeypatc
         assert got.n == 36 * 20 and np.array_equal(got.accel_counts, s.accel_counts[: 36 * 20])
         (ev,) = [e for e in got.events if e.kind == "recovered"]
         assert "salvaged 20 messages" in ev.detail
+
+
+def test_worker_thread_stopped_when_the_fast_reader_declines_mid_file(tmp_path, monkeypatch):
+    """A surprise mid-file (here: a group that is not canonical protobuf) stops the conversion
+    thread at once, not when the garbage collector finds the abandoned accumulator."""
+    import gc
+    import threading
+
+    s = _session(20_000, seed=14)
+    p = tmp_path / "b.mcap"
+    _recorder(p, s, "lz4", vary=True, gap=False)
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 64 << 10)
+    calls = []
+
+    def decode(*args):
+        calls.append(1)
+        return None if len(calls) == 5 else decode_batch(*args)
+
+    monkeypatch.setattr(fastread, "decode_batch", decode)
+    threads = threading.active_count()
+    gc.disable()
+    try:
+        for _ in range(3):
+            calls.clear()
+            assert fastread.fast_collect(p, None, reader._imu_accumulator) is None
+            assert threading.active_count() == threads
+    finally:
+        gc.enable()

@@ -151,6 +151,9 @@ class BatchAccumulator:
         for name, v in part.scalars.items():
             self._scalars.setdefault(name, []).extend(v)
 
+    def close(self) -> None:
+        """Stop any worker thread of a subclass (after an error; ``finish`` does it otherwise)."""
+
     def finish(self) -> DecodedBatch:
         arrays = {}
         for name, dtype in self._dtypes.items():

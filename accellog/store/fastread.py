@@ -17,6 +17,7 @@ damage anywhere else.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import mmap
 from collections.abc import Callable, Iterable
@@ -145,7 +146,7 @@ def _fast_walk(
 
     # group i + 1 is decompressed in a thread (lz4/zstd release the GIL) while group i is decoded;
     # leaving the with-block (also on an exception) waits for it, before the file is unmapped
-    with ThreadPoolExecutor(1) as pool, ThreadPoolExecutor(1) as crc_pool:
+    with ThreadPoolExecutor(1) as pool, ThreadPoolExecutor(1) as crc_pool, _closed_on_error(parts):
         pending = pool.submit(decompress, 0)
         # the data section CRC (crc32 releases the GIL); a read of some chunks only (labels) skips it
         # unless the metadata needs its verdict
@@ -167,6 +168,18 @@ def _fast_walk(
     if outside is not None and not damaged:
         damaged.append(outside)
     return _finish(sink, schemas, channels, message_of, parts, meta_kv, meta_error, outside, damaged)
+
+
+@contextlib.contextmanager
+def _closed_on_error(parts: dict[int, BatchAccumulator]):
+    """If the walk fails (or a stream is closed early), the accumulators' worker threads are stopped
+    at once (finish() stops them otherwise), not left to the garbage collector."""
+    try:
+        yield
+    except BaseException:
+        for part in parts.values():
+            part.close()
+        raise
 
 
 def _session_metadata(data: Bytes, at_list: list[int], stream: str | None):

@@ -136,11 +136,14 @@ class ImuAccumulator(BatchAccumulator):
             self._derived.reserve("host_time_s", F8, k, done),
         )
 
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool, self._pending = None, None
+
     def finish(self) -> DecodedBatch:
         self._wait()
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
+        self.close()
         out = super().finish()
         for name, parts in self._scalar_parts.items():
             if all(isinstance(v, np.ndarray) for v in parts):
