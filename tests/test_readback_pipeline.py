@@ -222,6 +222,7 @@ def test_chunk_header_disagreeing_with_its_index(tmp_path, monkeypatch, field):
         _same(fast, read_session(bad))
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # no int64 overflow on the way
 @pytest.mark.parametrize(
     ("first", "ok"),
     [(2**63 + 5, False), (2**64 - 1, False), (2**63 - 10, False), (2**63 - 36 * 3, True)],

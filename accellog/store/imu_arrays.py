@@ -28,10 +28,10 @@ INT64_MAX = np.iinfo(np.int64).max
 def first_indexes(first, n_per: np.ndarray, where: str) -> np.ndarray:
     """Each message's first_sample_index (a proto uint64: list or array) as int64; InputError (one
     line) if a message's samples would go beyond int64 (the sample indexes are int64)."""
-    a = np.asarray(first)
-    if a.dtype.kind in "uO" and a.size and int(a.max()) > INT64_MAX:
-        raise InputError(f"first_sample_index {int(a.max())} is beyond int64", where=where)
-    a = a.astype(np.int64, copy=False)
+    top = 0 if not len(first) else int(first.max() if isinstance(first, np.ndarray) else max(first))
+    if top > INT64_MAX:  # (checked first: asarray of a list mixing int64 and uint64 values is float)
+        raise InputError(f"first_sample_index {top} is beyond int64", where=where)
+    a = np.asarray(first, dtype=np.int64)
     if np.any(a - 1 > INT64_MAX - n_per):  # a + n_per - 1 without overflow (a >= 0)
         raise InputError("IMU sample indexes beyond int64 (first_sample_index near 2**63)", where=where)
     return a

@@ -154,8 +154,9 @@ def _sample_index(
     offset = first - starts  # sample_index[i] = offset[k] + i for the samples i of message k
     if done is not None:
         sample_index = done
-    elif np.all(offset == offset[0]):  # no gap anywhere: one arange
-        sample_index = np.arange(offset[0], offset[0] + n, dtype=np.int64)
+    elif np.all(offset == offset[0]):  # no gap anywhere: one arange (shifted: no stop past int64)
+        sample_index = np.arange(n, dtype=np.int64)
+        sample_index += offset[0]
     else:
         sample_index = np.repeat(offset, n_per) + np.arange(n, dtype=np.int64)
     full = n_per > 0  # samples out of order <=> a message starts below the previous one's last index
