@@ -32,9 +32,16 @@ MAG_UT_PER_LSB_16BIT = 0.15
 MAG_UT_PER_LSB_14BIT = 0.6
 
 
-def temp_counts_to_degC(counts):
-    """Die temperature (degC) from TEMP_OUT counts."""
-    return counts / TEMP_LSB_PER_DEGC + TEMP_OFFSET_DEGC
+def temp_counts_to_degC(counts, out=None):
+    """Die temperature (degC) = counts / TEMP_LSB_PER_DEGC + TEMP_OFFSET_DEGC from TEMP_OUT counts;
+    with ``out`` (float64 array) the same two operations in place, no temporaries."""
+    if out is None:
+        return counts / TEMP_LSB_PER_DEGC + TEMP_OFFSET_DEGC
+    import numpy as np  # the in-place form only (this module stays importable without numpy)
+
+    np.divide(counts, TEMP_LSB_PER_DEGC, out=out)
+    np.add(out, TEMP_OFFSET_DEGC, out=out)
+    return out
 
 
 def degC_to_temp_counts(deg_c):

@@ -17,7 +17,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from accellog.core.errors import InputError
-from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
+from accellog.core.units import TEMP_LSB_PER_DEGC, temp_counts_to_degC
 from accellog.store.batch_decode import BatchAccumulator, DecodedBatch
 from accellog.store.layout import NS_PER_S
 
@@ -118,9 +118,10 @@ class ImuAccumulator(BatchAccumulator):
             np.divide(t, NS_PER_S, out=t.view(F8))
         for name, counts in views.items():
             out = self._derived.reserve(self._phys[name], F8, counts.shape[0], done)
-            np.divide(counts, self._lsb[name], out=out)
-            if name == "temp_counts":  # temp_counts_to_degC: the same two operations
-                np.add(out, TEMP_OFFSET_DEGC, out=out)
+            if name == "temp_counts":
+                temp_counts_to_degC(counts, out=out)
+            else:
+                np.divide(counts, self._lsb[name], out=out)
         n_per = part.counts.get("t_ns")
         if n_per is not None and n_per.shape[0]:
             self._per_message(part, n_per, done)

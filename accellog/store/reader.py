@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 
 from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
-from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
+from accellog.core.units import temp_counts_to_degC
 from accellog.store.collect import Collected, Damage, Decoder, check_file, generic_collect, recover
 from accellog.store.fastread import fast_collect
 from accellog.store.imu_arrays import ImuAccumulator, first_indexes, lsb_scales
@@ -210,9 +210,7 @@ def _sample_arrays(arrays: dict, n: int, meta: SessionMeta, where: str, derived:
         if lsb_g is not None:
             np.divide(gyro_counts[lo:hi], lsb_g, out=gyro_dps[lo:hi])
         if temp_c is not None:
-            out = temp_degC[lo:hi]  # temp_counts_to_degC: counts / 333.87 + 21, the same two operations
-            np.divide(temp_c[lo:hi], TEMP_LSB_PER_DEGC, out=out)
-            np.add(out, TEMP_OFFSET_DEGC, out=out)
+            temp_counts_to_degC(temp_c[lo:hi], out=temp_degC[lo:hi])
 
     if t_ns is not None or lsb_a is not None or lsb_g is not None or temp_c is not None:
         _split_run(convert, n)

@@ -25,7 +25,7 @@ import numpy as np
 
 from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.session import Event, PoseLabel, SessionMeta
-from accellog.core.units import TEMP_LSB_PER_DEGC, TEMP_OFFSET_DEGC
+from accellog.core.units import temp_counts_to_degC
 from accellog.store.batch_decode import DecodedBatch
 from accellog.store.collect import check_file
 from accellog.store.imu_arrays import first_indexes, per_sample
@@ -140,8 +140,7 @@ def _block(dec: DecodedBatch, meta: SessionMeta, where: str) -> ImuBlock:
     temp_degC = vec("temp_degC", 1)
     tc = vec("temp_counts", 1)
     if temp_degC is None and tc is not None:
-        temp_degC = tc / TEMP_LSB_PER_DEGC
-        temp_degC += TEMP_OFFSET_DEGC
+        temp_degC = temp_counts_to_degC(tc)
     return ImuBlock(meta, arrays["t_ns"] / NS_PER_S, sample_index, accel_g, gyro_dps, temp_degC, host_s)
 
 
