@@ -31,6 +31,7 @@ from accellog.calibrate.cross_validation import _cv_compare, cv_scores
 from accellog.calibrate.driver_signals import ALPHA, driver_signals
 from accellog.calibrate.effects import all_effects
 from accellog.calibrate.fit import FitResult, fit_model, obs_drivers
+from accellog.calibrate.heap import trim_heap
 from accellog.calibrate.identifiability import effect_requirement
 from accellog.calibrate.model import Model
 from accellog.core.errors import InputError, ModelError
@@ -135,6 +136,7 @@ def diagnose(
     m_eq = base.residual_g.size
     floor = float(np.sqrt(np.mean(sig**2)))
     cv_b_all = cv_scores(base, obs)
+    base.release_jacobian()  # every fit's Jacobian is remade when read: memory of one, not of all
     cands = list(candidates) if candidates is not None else default_candidates(model)
     lib = all_effects(model.effects_file)
     unknown = [c for c in cands if c not in lib]
@@ -199,6 +201,8 @@ def _candidate_rows(cands, obs, model, base, cv_b_all, drv, fit_kw, host_time, n
             continue
         fits[name] = cr
         row.update(_candidate_stats(name, cm, cr, model, base, obs, cv_b_all, n_tests))
+        cr.release_jacobian()
+        trim_heap()  # the fit's temporaries (~3 Jacobians) are freed: give their pages back
     return rows, fits, clock
 
 

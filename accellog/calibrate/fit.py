@@ -20,7 +20,7 @@ that are missing.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -87,6 +87,14 @@ class FitResult:
     between_hold_g: list[float] | None = None
     """Estimated between-hold standard deviation (g) along gravity and across it, when a hold-scatter
     method was used."""
+    _recompute: Callable[[], np.ndarray] | None = field(default=None, init=False, repr=False, compare=False)
+
+    def release_jacobian(self) -> None:
+        """Free the stored Jacobian (3 n_obs x n_params floats: ~20 MB at 24 h of windows); reading
+        `jacobian` then recomputes it, bit for bit, from the fit (fits made by fit_model and
+        fit_orientation_free; others keep theirs)."""
+        if self._recompute is not None:
+            self.__dict__["_jacobian"] = None
 
     def params(self) -> dict[str, float]:
         return self.model.params_dict(self.theta)
@@ -115,6 +123,18 @@ class FitResult:
             "uncertainty": self.uncertainty,
             "between_hold_g": self.between_hold_g,
         }
+
+
+def _get_jacobian(self: FitResult) -> np.ndarray | None:
+    j = self.__dict__.get("_jacobian")
+    return self._recompute() if j is None and self._recompute is not None else j
+
+
+def _set_jacobian(self: FitResult, value: np.ndarray | None) -> None:
+    self.__dict__["_jacobian"] = value
+
+
+FitResult.jacobian = property(_get_jacobian, _set_jacobian)  # type: ignore[assignment]
 
 
 def _f(x: float) -> float | None:
@@ -146,14 +166,17 @@ def _checked(
 
 
 def _numjac(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    cols = []
+    """Central-difference Jacobian, written column by column into one array (no column list)."""
+    out = None
     for k in range(theta.size):
         tp = theta.copy()
         tm = theta.copy()
         tp[k] += steps[k]
         tm[k] -= steps[k]
-        cols.append((fun(tp) - fun(tm)) / (2.0 * steps[k]))
-    return np.stack(cols, axis=1) if cols else np.zeros((fun(theta).size, 0))
+        col = (fun(tp) - fun(tm)) / (2.0 * steps[k])
+        out = np.empty((col.size, theta.size)) if out is None else out
+        out[:, k] = col
+    return out if out is not None else np.zeros((fun(theta).size, 0))
 
 
 @dataclass
@@ -297,7 +320,7 @@ def _result(prob: _Problem, theta: np.ndarray, weighted: bool, sig_ok: bool, met
     scale = max(1.0, chi2_dof) if weighted and np.isfinite(chi2_dof) else 1.0
     S, b = model.S_b(theta)
     warns = _acceptance(model, S, b, chi2_dof, p, sigma, weighted, dof)
-    return FitResult(
+    out = FitResult(
         model=model,
         theta=theta,
         cov=cov,
@@ -322,6 +345,19 @@ def _result(prob: _Problem, theta: np.ndarray, weighted: bool, sig_ok: bool, met
         warnings=warns,
         jacobian=J,
     )
+    out._recompute = _jacobian_of(prob, theta, weighted)
+    return out
+
+
+def _jacobian_of(prob: _Problem, theta: np.ndarray, weighted: bool) -> Callable[[], np.ndarray]:
+    """_result's Jacobian, made again from the fit's inputs (the weights too: no array is held)."""
+    model, obs, drv, g, q, theta = prob.model, prob.obs, prob.drivers, prob.gravity_g, prob.q, theta.copy()
+
+    def jac() -> np.ndarray:
+        w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(np.asarray(obs.meas_g, float))
+        return _numjac(_Problem(model, obs, drv, w, g, q).resid, theta, _steps(model, theta))
+
+    return jac
 
 
 def _acceptance(

@@ -39,6 +39,7 @@ from accellog.calibrate.gyro import (
     _pose_times,
 )
 from accellog.calibrate.gyro_rotation import _coarse_plan, _fine_pieces
+from accellog.calibrate.heap import trim_heap
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
 from accellog.store.stream import iter_imu
@@ -67,6 +68,7 @@ def stream_calibrate_gyro(
     win_times = _bias_window_times(iv, window_s, trim_s)
     pose_t = _pose_times(known) if known else (np.zeros(0),) * 3
     found = _first_pass(path, win_times, np.concatenate(pose_t))
+    trim_heap()  # the pass's block arrays are freed: give their pages back (calibrate.heap)
     if found is None:
         return None
     sums, has_temp, (counts, n_total, first_at) = found
@@ -90,6 +92,7 @@ def stream_calibrate_gyro(
         use_temp = has_temp and bool(np.any(cal.temp_bias_dps_per_degC != 0))
         blocks = _CoarseBlocks(at, n_fine, cal, use_temp)
         _integrate_pass(path, mids[0], _fine_pieces(t_mid, mids, _BLOCK_S), blocks)
+        trim_heap()
         phi, c = blocks.phi, blocks.c
     return _fit_matrix(phi, c, np.searchsorted(coarse, mids), known, cal, model, 0.05, reference)
 

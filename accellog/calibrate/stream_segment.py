@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from accellog.calibrate.heap import trim_heap
 from accellog.calibrate.segment import (
     PoseStats,
     checked_labels,
@@ -71,7 +72,7 @@ def stream_observations(
                                          check_units=check_units, check_moving=False))  # fmt: skip
         if check_moving:
             moving.append((p, *static_windows(mini.t_s, mini.accel_g)))
-        _trim_heap()
+        trim_heap()  # a hold's arrays are freed: give their pages back (module heap)
 
     for block in iter_imu(path):
         if on_block is not None:
@@ -83,28 +84,11 @@ def stream_observations(
     if check_moving:
         q = 1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0
         moving_check(moving, q, where)
-    return _joined(tables, where)
-
-
-def _trim_heap() -> None:
-    """Give the heap's free pages back after each hold (glibc malloc_trim; a no-op elsewhere).
-
-    A hold's arrays are freed when it is reduced, but glibc raises its mmap threshold after freeing
-    a large block, so later holds are served from the heap and its free pages stay resident: peak
-    memory grew with the number of holds (24 h: 305 MB against 157 MB with a fixed threshold)."""
-    global _LIBC
-    if _LIBC is None:
-        import ctypes
-        import ctypes.util
-
-        name = ctypes.util.find_library("c")
-        lib = ctypes.CDLL(name) if name else None
-        _LIBC = lib if lib is not None and hasattr(lib, "malloc_trim") else False
-    if _LIBC:
-        _LIBC.malloc_trim(0)
-
-
-_LIBC = None
+    out = _joined(tables, where)
+    tables.clear()
+    moving.clear()
+    trim_heap()
+    return out
 
 
 class _HoldGatherer:

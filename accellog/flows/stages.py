@@ -28,6 +28,7 @@ from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.fit import fit_model, fit_orientation_free
 from accellog.calibrate.gyro import GyroCalibration, calibrate_gyro
+from accellog.calibrate.heap import trim_heap
 from accellog.calibrate.label_check import relabel_holds
 from accellog.calibrate.magnetometer import MagCalibration
 from accellog.calibrate.model import build_model
@@ -177,6 +178,8 @@ def run_fit(
         # and the rotations between them (imu_tk style), not skipped
         cal.gyro = _gyro_calibration(with_labels(data, detected) if detected else data)
     elif gyro and isinstance(data, StreamedSession):
+        fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
+        trim_heap()
         cal.gyro = data.gyro_calibration()  # the holds and moves, streamed from the file again
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
