@@ -119,3 +119,33 @@ def test_labels_read_only_the_chunks_that_hold_them(recorded, tmp_path):
     assert len(poses) == 6 and all(isinstance(p, PoseLabel) for p in poses)
     whole = fast_collect(bad)
     assert [d.offset for d in whole.damaged] == [mid.chunk_start_offset]
+
+
+def test_stream_observations_refuse_a_moving_hold_as_observations(recorded):
+    """A hold whose label runs into the next rotation: the streamed motion check (window shifts
+    taken as each hold passes, one window table) names the same pose, time and reason."""
+    import dataclasses
+
+    from accellog.calibrate.segment import observations
+    from accellog.calibrate.stream_segment import stream_observations
+    from accellog.core.errors import InputError
+
+    meta, poses, events = read_labels(recorded)
+    poses = sorted(poses, key=lambda p: p.start_s)
+    poses[2] = dataclasses.replace(poses[2], end_s=poses[3].start_s - 0.05)  # into the move
+    with pytest.raises(InputError) as whole:
+        observations(dataclasses.replace(read_session(recorded), poses=poses), check_units=False)
+    with pytest.raises(InputError) as streamed:
+        stream_observations(recorded, labels=(meta, poses, events), check_units=False)
+    assert "labelled static but moves" in str(whole.value)
+    assert str(streamed.value) == str(whole.value)
+
+
+def test_rows_grow_past_their_capacity():
+    from accellog.calibrate.stream_segment import _Rows
+
+    rows, parts = _Rows(3), [np.arange(k * 2.0).reshape(k, 2) for k in (2, 4, 1)]
+    for x in parts:
+        rows.add({"x": x, "i": np.arange(len(x))})
+    assert rows.cap >= 7 and np.array_equal(rows.col("x"), np.concatenate(parts))
+    assert np.array_equal(rows.col("i"), np.concatenate([np.arange(len(x)) for x in parts]))

@@ -220,14 +220,34 @@ def moving_check(
 ) -> None:
     """check_static's verdict from every hold's static_windows (label first): the noise reference
     is the median window std over the whole session."""
-    all_std = np.concatenate([h[4][h[5] > 2] for h in per_hold]) if per_hold else np.zeros((0, 3))
+    shifted = [(p, t0, t1, mean_shift(mean), std, n) for p, t0, t1, mean, std, n in per_hold]
+    moving_verdict(shifted, quantum, where, std_factor, mean_shift_g)
+
+
+def mean_shift(mean: np.ndarray) -> np.ndarray:
+    """|window mean - the hold's median window mean| (g) per window of one hold."""
+    return np.linalg.norm(mean - np.median(mean, axis=0), axis=1)
+
+
+def moving_verdict(
+    per_hold: list[tuple],
+    quantum: float,
+    where: str,
+    std_factor: float = MOVING_STD_FACTOR,
+    mean_shift_g: float = MOVING_MEAN_SHIFT_G,
+    all_std: np.ndarray | None = None,
+) -> None:
+    """moving_check on (label, t_start, t_end, mean_shift, std, n) per hold (the shift taken when the
+    hold passed: no window means kept); all_std: the std of every window of n > 2 in hold order,
+    when the caller holds them in one array already."""
+    if all_std is None:
+        all_std = np.concatenate([h[4][h[5] > 2] for h in per_hold]) if per_hold else np.zeros((0, 3))
     if all_std.shape[0] == 0:
         return
     ref = float(np.linalg.norm(np.median(all_std, axis=0)))
     limit = max(std_factor * ref, 4.0 * quantum)
-    for p, t_start, t_end, mean, std, n in per_hold:
+    for p, t_start, t_end, shift, std, n in per_hold:
         snorm = np.linalg.norm(std, axis=1)
-        shift = np.linalg.norm(mean - np.median(mean, axis=0), axis=1)
         bad_std = (snorm > limit) & (n > 2)
         bad_mean = shift > mean_shift_g
         bad = bad_std | bad_mean

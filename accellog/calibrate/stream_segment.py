@@ -22,7 +22,8 @@ from accellog.calibrate.heap import trim_heap
 from accellog.calibrate.segment import (
     PoseStats,
     checked_labels,
-    moving_check,
+    mean_shift,
+    moving_verdict,
     observations,
     pose_stats,
     static_windows,
@@ -54,8 +55,10 @@ def stream_observations(
     meta, poses, _events = labels if labels is not None else read_labels(path)
     labels = checked_labels(poses, where)
     gather = _HoldGatherer(labels, trim_s)
-    tables: list[ObsTable] = []
-    moving: list[tuple] = []
+    rows = _Rows(sum(_most_windows(p, trim_s, window_s) for p in labels))  # the observation rows
+    wins = _Rows(sum(_most_windows(p, trim_s, 0.5) for p in labels) if check_moving else 0)
+    names: list[str] = []
+    moving: list[tuple] = []  # (label, first, end) of its 0.5 s windows in wins
 
     def reduce(p: PoseLabel, parts: list[tuple]) -> None:
         mini = _hold_session(meta, p, parts, where)
@@ -65,14 +68,20 @@ def stream_observations(
                 f"{trim_s} s at each end (need >= {min_samples}): hold longer or lower --trim",
                 where=where,
             )
-        tables.append(observations(mini, window_s, trim_s, min_samples=min_samples,
-                                   check_units=check_units, check_moving=False))  # fmt: skip
+        tb = observations(mini, window_s, trim_s, min_samples=min_samples,
+                          check_units=check_units, check_moving=False)  # fmt: skip
+        if p.name not in names:
+            names.append(p.name)
+        rows.add(_table_columns(tb, names.index(p.name)))
         if stats_out is not None:
             stats_out.extend(pose_stats(mini, trim_s=trim_s, min_samples=min_samples,
                                          check_units=check_units, check_moving=False))  # fmt: skip
         if check_moving:
-            moving.append((p, *static_windows(mini.t_s, mini.accel_g)))
-        trim_heap()  # a hold's arrays are freed: give their pages back (module heap)
+            t0, t1, mean, std, n = static_windows(mini.t_s, mini.accel_g)
+            k = wins.n
+            wins.add({"t0": t0, "t1": t1, "shift": mean_shift(mean), "std": std, "n": n, "ok": n > 2})
+            moving.append((p, k, wins.n))
+        trim_heap()  # a hold's arrays are freed: give their pages back (calibrate.heap)
 
     for block in iter_imu(path):
         if on_block is not None:
@@ -81,14 +90,47 @@ def stream_observations(
             reduce(p, parts)
     for p, parts in gather.finish():
         reduce(p, parts)
-    if check_moving:
+    if check_moving and moving:
         q = 1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0
-        moving_check(moving, q, where)
-    out = _joined(tables, where)
-    tables.clear()
-    moving.clear()
+        c = {k: wins.col(k) for k in ("t0", "t1", "shift", "std", "n")}
+        per_hold = [(p, *(c[k][a:b] for k in ("t0", "t1", "shift", "std", "n"))) for p, a, b in moving]
+        moving_verdict(per_hold, q, where, all_std=c["std"][wins.col("ok")])
+    wins.cols.clear()  # the window table is judged: free it before the heap is trimmed
+    out = _table(rows, names, where)
     trim_heap()
     return out
+
+
+def _most_windows(p: PoseLabel, trim_s: float, window_s: float) -> int:
+    """An upper bound on the windows of window_s in the trimmed hold (rows of observations, or of
+    static_windows for 0.5 s): its samples span less than the trimmed label."""
+    return int(np.floor(max(p.end_s - p.start_s - 2.0 * trim_s, 0.0) / window_s + 1e-9)) + 2
+
+
+class _Rows:
+    """Columns of a table filled hold by hold in arrays allocated once (capacity: an upper bound on
+    the rows; doubled should a hold exceed it), not a list of small per-hold arrays joined at the
+    end: no second copy of the table and no heap fragments left by hundreds of small arrays."""
+
+    def __init__(self, capacity: int) -> None:
+        self.cap, self.n, self.cols = max(int(capacity), 1), 0, {}
+
+    def add(self, cols: dict[str, np.ndarray]) -> None:
+        k = len(next(iter(cols.values())))
+        if self.n + k > self.cap:
+            self.cap = max(2 * self.cap, self.n + k)
+            for name, a in self.cols.items():
+                grown = np.empty((self.cap, *a.shape[1:]), a.dtype)
+                grown[: self.n] = a[: self.n]
+                self.cols[name] = grown
+        for name, v in cols.items():
+            if name not in self.cols:
+                self.cols[name] = np.empty((self.cap, *np.shape(v)[1:]), np.asarray(v).dtype)
+            self.cols[name][self.n : self.n + k] = v
+        self.n += k
+
+    def col(self, name: str) -> np.ndarray:
+        return self.cols[name][: self.n]
 
 
 class _HoldGatherer:
@@ -137,25 +179,26 @@ def _hold_session(meta: SessionMeta, p: PoseLabel, parts: list[tuple], where: st
     return Session(meta=meta, t_s=t, sample_index=si, accel_g=acc, temp_degC=temp, poses=[p], path=where)
 
 
-def _joined(tables: list[ObsTable], where: str) -> ObsTable:
-    """One ObsTable from per-hold tables, pose ids by first appearance (as observations does)."""
-    names: list[str] = []
-    for tb in tables:
-        if tb.pose_names[0] not in names:
-            names.append(tb.pose_names[0])
+def _table_columns(tb: ObsTable, pose_id: int) -> dict[str, np.ndarray]:
+    """One hold's ObsTable as columns for _Rows (pose ids by first appearance, as observations)."""
+    out = {"pose_id": np.full(tb.n, pose_id)}
+    for f in dataclasses.fields(ObsTable):
+        v = getattr(tb, f.name)
+        if f.name != "pose_id" and isinstance(v, np.ndarray):
+            out[f.name] = v
+    return out
+
+
+def _table(rows: _Rows, names: list[str], where: str) -> ObsTable:
+    """The ObsTable of every hold's rows (columns no hold has are None)."""
     out = {}
     for f in dataclasses.fields(ObsTable):
-        vals = [getattr(tb, f.name) for tb in tables]
-        if f.name == "pose_id":
-            out[f.name] = np.concatenate([np.full(tb.n, names.index(tb.pose_names[0])) for tb in tables])
-        elif f.name == "pose_names":
+        if f.name == "pose_names":
             out[f.name] = names
         elif f.name == "session":
             out[f.name] = where
-        elif isinstance(vals[0], np.ndarray):
-            out[f.name] = np.concatenate(vals)
         else:
-            out[f.name] = None
+            out[f.name] = rows.col(f.name) if f.name in rows.cols else None
     out["pose_id"] = out["pose_id"].astype(int)
     return ObsTable(**out)
 
