@@ -14,6 +14,7 @@ cross-validation, which all take the ObsTable.
 from __future__ import annotations
 
 import dataclasses
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -56,9 +57,8 @@ def stream_observations(
     labels = checked_labels(poses, where)
     gather = _HoldGatherer(labels, trim_s)
     rows = _Rows(sum(_most_windows(p, trim_s, window_s) for p in labels))  # the observation rows
-    wins = _Rows(sum(_most_windows(p, trim_s, 0.5) for p in labels) if check_moving else 0)
+    wins = _WindowSpill() if check_moving else None
     names: list[str] = []
-    moving: list[tuple] = []  # (label, first, end) of its 0.5 s windows in wins
 
     def reduce(p: PoseLabel, parts: list[tuple]) -> None:
         mini = _hold_session(meta, p, parts, where)
@@ -76,26 +76,23 @@ def stream_observations(
         if stats_out is not None:
             stats_out.extend(pose_stats(mini, trim_s=trim_s, min_samples=min_samples,
                                          check_units=check_units, check_moving=False))  # fmt: skip
-        if check_moving:
-            t0, t1, mean, std, n = static_windows(mini.t_s, mini.accel_g)
-            k = wins.n
-            wins.add({"t0": t0, "t1": t1, "shift": mean_shift(mean), "std": std, "n": n, "ok": n > 2})
-            moving.append((p, k, wins.n))
+        if wins is not None:
+            wins.add(p, *static_windows(mini.t_s, mini.accel_g))
         trim_heap()  # a hold's arrays are freed: give their pages back (calibrate.heap)
 
-    for block in iter_imu(path):
-        if on_block is not None:
-            on_block(block)
-        for p, parts in gather.add(block):
+    try:
+        for block in iter_imu(path):
+            if on_block is not None:
+                on_block(block)
+            for p, parts in gather.add(block):
+                reduce(p, parts)
+        for p, parts in gather.finish():
             reduce(p, parts)
-    for p, parts in gather.finish():
-        reduce(p, parts)
-    if check_moving and moving:
-        q = 1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0
-        c = {k: wins.col(k) for k in ("t0", "t1", "shift", "std", "n")}
-        per_hold = [(p, *(c[k][a:b] for k in ("t0", "t1", "shift", "std", "n"))) for p, a, b in moving]
-        moving_verdict(per_hold, q, where, all_std=c["std"][wins.col("ok")])
-    wins.cols.clear()  # the window table is judged: free it before the heap is trimmed
+        if wins is not None:
+            wins.judge(1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0, where)
+    finally:
+        if wins is not None:
+            wins.close()
     out = _table(rows, names, where)
     trim_heap()
     return out
@@ -105,6 +102,56 @@ def _most_windows(p: PoseLabel, trim_s: float, window_s: float) -> int:
     """An upper bound on the windows of window_s in the trimmed hold (rows of observations, or of
     static_windows for 0.5 s): its samples span less than the trimmed label."""
     return int(np.floor(max(p.end_s - p.start_s - 2.0 * trim_s, 0.0) / window_s + 1e-9)) + 2
+
+
+_WINDOW = np.dtype([("t0", "f8"), ("t1", "f8"), ("shift", "f8"), ("std", "f8", (3,)), ("n", "i8")])
+"""One 0.5 s window of the motion check: start and end time (s), mean shift (g), std (g), samples."""
+
+
+class _WindowSpill:
+    """The motion check's 0.5 s windows of every hold (segment.static_windows, the mean reduced to
+    its shift from the hold's median as the hold passes), written to an unnamed temporary file
+    and read back hold by hold for the verdict: 56 bytes a window (~170 k windows at 24 h) kept by
+    the page cache, not the process; in memory at the end only the std of the windows of n > 2
+    (the session's noise reference is their exact median)."""
+
+    def __init__(self) -> None:
+        self.file = tempfile.TemporaryFile()  # noqa: SIM115 (closed by stream_observations)
+        self.holds: list[tuple[PoseLabel, int]] = []  # (label, windows)
+        self.n_ok = 0
+
+    def add(self, p: PoseLabel, t0, t1, mean, std, n) -> None:
+        rec = np.empty(len(t0), _WINDOW)
+        rec["t0"], rec["t1"], rec["shift"], rec["std"], rec["n"] = t0, t1, mean_shift(mean), std, n
+        self.file.write(rec.tobytes())
+        self.holds.append((p, rec.size))
+        self.n_ok += int(np.count_nonzero(n > 2))
+
+    def _read(self):
+        self.file.seek(0)
+        for p, k in self.holds:
+            rec = np.frombuffer(self.file.read(k * _WINDOW.itemsize), _WINDOW)
+            yield (
+                p,
+                rec["t0"].copy(),
+                rec["t1"].copy(),
+                rec["shift"].copy(),
+                rec["std"].copy(),
+                rec["n"].copy(),
+            )
+
+    def judge(self, quantum: float, where: str) -> None:
+        """segment.moving_check's verdict on the windows written (InputError naming the window)."""
+        if not self.holds:
+            return
+        all_std, i = np.empty((self.n_ok, 3)), 0
+        for _p, _t0, _t1, _shift, std, n in self._read():
+            ok = std[n > 2]
+            all_std[i : i + ok.shape[0]], i = ok, i + ok.shape[0]
+        moving_verdict(self._read(), quantum, where, all_std=all_std)
+
+    def close(self) -> None:
+        self.file.close()
 
 
 class _Rows:
