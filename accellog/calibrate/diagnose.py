@@ -132,6 +132,7 @@ def diagnose(
         raise InputError("diagnose needs a noise estimate: finite positive sigma_g for every observation")
     drv = obs_drivers(obs, drivers)
     fit_kw = {"weighted": weighted, "gravity_g": gravity_g, "drivers": drivers}
+    trim_heap()  # pages the caller freed (e.g. its own fit) are not carried through the candidates
     base = fit_model(obs, model, **fit_kw)
     m_eq = base.residual_g.size
     floor = float(np.sqrt(np.mean(sig**2)))
@@ -156,6 +157,7 @@ def diagnose(
     if choice is not None:
         best = choice.chosen
     verdict, advice = _verdict(model, base, floor, missing, sig_cands, signals, rows, clock)
+    trim_heap()
     if choice is not None:
         verdict, advice = _with_choice(verdict, advice, choice, sig_cands)
     return Diagnosis(

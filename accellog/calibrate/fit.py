@@ -287,7 +287,7 @@ def fit_model(
         # at theta0 a nonlinear parameter (tau of a zero warm-up amplitude) has no effect at all.
         probe = model.initial_theta()
         probe = np.where(probe == 0.0, 0.5 * model.param_typical, probe)
-        rank_check(_numjac(prob.resid, probe, _steps(model, probe)), model, obs, drv)
+        rank_check(_numjac(prob.resid, probe, _steps(model, probe)), model, obs, drv, overwrite=True)
     if "tau_warmup_s" in model.index and theta0 is None:
         th0 = _warmup_init(prob, th0, prob.resid)
     theta = _solve(prob.resid, th0, model)

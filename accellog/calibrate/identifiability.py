@@ -170,16 +170,19 @@ def _param_hint(pname: str, model: Model, obs: ObsTable, drivers: Mapping[str, n
     return reason or f"{e.name}: {e.reveal}"
 
 
-def rank_check(J: np.ndarray, model: Model, obs: ObsTable, drivers: Mapping[str, np.ndarray]) -> float:
+def rank_check(
+    J: np.ndarray, model: Model, obs: ObsTable, drivers: Mapping[str, np.ndarray], *, overwrite: bool = False
+) -> float:
     """Raise ModelError if the column-normalised Jacobian is rank deficient, naming the
-    parameters in its null space and what data would determine them; return its condition number."""
+    parameters in its null space and what data would determine them; return its condition number.
+    overwrite: normalise J in place (the caller's temporary: one Jacobian less in memory)."""
     norms = np.linalg.norm(J, axis=0)
     names = model.param_names
     zero = [names[k] for k in range(len(names)) if norms[k] == 0 or not np.isfinite(norms[k])]
     bad: list[str] = list(zero)
     cond = np.inf
     if not zero and J.shape[1]:
-        Jn = J / norms
+        Jn = np.divide(J, norms, out=J if overwrite else None)
         _, s, vt = np.linalg.svd(Jn, full_matrices=False)
         cond = float(s[0] / s[-1]) if s[-1] > 0 else np.inf
         null = vt[s < RANK_TOL * s[0]]
