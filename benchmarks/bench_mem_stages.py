@@ -1,0 +1,84 @@
+"""Peak memory per stage of the fit side on one session file (where the peak is, 4 h vs 24 h).
+
+    python benchmarks/bench_mem_stages.py MODE SESSION.mcap
+
+MODE: `observe` (stream_observations alone), `stream` (stream_observations, fit model3, diagnose:
+bench_scale's `stream`) or `fit` (the fit command's stages: open_streamed, the model3 fit, the gyro
+calibration). After each stage: the peak resident size of that stage (VmHWM, reset between stages
+through /proc/self/clear_refs), the resident size held after it (VmRSS; RssAnon / RssFile: the
+heap and the mapped file) and its CPU time. BLAS on one thread. Linux only (/proc).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy  # noqa: F401  (first: threadpoolctl limits only the BLAS libraries already loaded)
+from threadpoolctl import threadpool_limits
+
+threadpool_limits(1, "blas")
+
+
+def _status() -> dict[str, float]:
+    out = {}
+    with open("/proc/self/status") as f:
+        for line in f:
+            key, val = line.split(":", 1)
+            if key in ("VmHWM", "VmRSS", "RssAnon", "RssFile"):
+                out[key] = int(val.split()[0]) / 1024
+    return out
+
+
+class _Stages:
+    def __init__(self) -> None:
+        self.t0 = time.process_time()
+
+    def mark(self, name: str) -> None:
+        s, cpu = _status(), time.process_time() - self.t0
+        print(
+            f"{name:>14}: peak {s['VmHWM']:6.0f} MB  held {s['VmRSS']:6.0f} MB (heap {s['RssAnon']:.0f}, "
+            f"file {s['RssFile']:.0f})  CPU {cpu:6.2f} s",
+            flush=True,
+        )
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")  # reset VmHWM: the next mark is that stage's own peak
+        self.t0 = time.process_time()
+
+
+def main(mode: str, path: str) -> None:
+    from accellog.calibrate.model import build_model
+    from accellog.calibrate.stream_segment import stream_observations
+
+    st = _Stages()
+    if mode == "fit":
+        from accellog.flows import stages
+
+        st.mark("imports")
+        s = stages.open_streamed(path)
+        st.mark("open_streamed")
+        stages.open_streamed = lambda *a, **k: s  # the fit below reuses the table just read
+        out = stages.run_fit(path, gyro=False)
+        out.fit.release_jacobian()  # as run_fit does before the gyro passes
+        st.mark("fit model3")
+        s.gyro_calibration()
+        st.mark("gyro")
+        return
+    from accellog.calibrate.diagnose import diagnose
+    from accellog.calibrate.fit import fit_model
+
+    st.mark("imports")
+    obs = stream_observations(path)
+    st.mark("observations")
+    if mode == "stream":
+        fit_model(obs, build_model("model3"))
+        st.mark("fit model3")
+        diagnose(obs, build_model("model3"))
+        st.mark("diagnose")
+    print(f"{obs.n} observation rows")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 3 or sys.argv[1] not in ("observe", "stream", "fit"):
+        raise SystemExit(__doc__.strip().splitlines()[2].strip())
+    main(sys.argv[1], sys.argv[2])
