@@ -253,16 +253,26 @@ def moving_verdict(
         bad = bad_std | bad_mean
         if bad.any():
             j = int(np.argmax(bad))
-            why = (
-                f"accel std {snorm[j]:.4g} g is {snorm[j] / max(ref, 1e-12):.0f}x the session noise {ref:.3g} g"
-                if bad_std[j]
-                else f"mean moved {shift[j]:.3g} g from the hold's median"
+            raise moving_error(
+                p.name, t_start[j], t_end[j], snorm[j] if bad_std[j] else None, shift[j], ref, where
             )
-            raise InputError(
-                f"pose {p.name!r} is labelled static but moves at t = {t_start[j]:.2f}-{t_end[j]:.2f} s: "
-                f"{why}; relabel or trim the hold",
-                where=where,
-            )
+
+
+def moving_error(
+    name: str, t_start: float, t_end: float, std_g: float | None, shift_g: float, ref: float, where: str
+) -> InputError:
+    """The motion check's refusal of the window t_start..t_end (s) of hold ``name``: its std norm
+    std_g (g) against the session noise ref (g), or (std_g None) its mean shift_g (g)."""
+    why = (
+        f"accel std {std_g:.4g} g is {std_g / max(ref, 1e-12):.0f}x the session noise {ref:.3g} g"
+        if std_g is not None
+        else f"mean moved {shift_g:.3g} g from the hold's median"
+    )
+    return InputError(
+        f"pose {name!r} is labelled static but moves at t = {t_start:.2f}-{t_end:.2f} s: "
+        f"{why}; relabel or trim the hold",
+        where=where,
+    )
 
 
 def _checked_holds(

@@ -20,8 +20,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from accellog.calibrate.segment import MOVING_MEAN_SHIFT_G, MOVING_STD_FACTOR, _window_stats
-from accellog.core.errors import InputError
+from accellog.calibrate.segment import MOVING_MEAN_SHIFT_G, MOVING_STD_FACTOR, _window_stats, moving_error
 from accellog.navigate.stream_sums import WindowCarry
 
 COLS = 9
@@ -153,13 +152,6 @@ class MotionCheck:
             bad = bad_std | (shift > MOVING_MEAN_SHIFT_G)
             if bad.any():
                 j = int(np.argmax(bad))
-                why = (
-                    f"accel std {snorm[j]:.4g} g is {snorm[j] / max(ref, 1e-12):.0f}x the session noise {ref:.3g} g"
-                    if bad_std[j]
-                    else f"mean moved {shift[j]:.3g} g from the hold's median"
-                )
-                raise InputError(
-                    f"pose {name!r} is labelled static but moves at t = {p[j, 0]:.2f}-{p[j, 1]:.2f} s: "
-                    f"{why}; relabel or trim the hold",
-                    where=where,
+                raise moving_error(
+                    name, p[j, 0], p[j, 1], snorm[j] if bad_std[j] else None, shift[j], ref, where
                 )
