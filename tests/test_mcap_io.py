@@ -632,3 +632,34 @@ def test_message_starts_runs_and_steps(per_chunk):
     for walk in (fastread._message_starts, fastread._chunkwise_starts):
         with pytest.raises(fastread.NotFast):
             walk(records, bad)
+
+
+def test_equal_records_guess_checks_every_record():
+    """The all-chunks guess (each chunk: Messages of its first record's length) keeps only chunks
+    whose every guessed record it checked: a chunk whose size is a multiple of the guessed stride
+    but whose records differ, one that starts with another record, and one that does not divide
+    evenly are left to the walk; the offsets kept are those of the walk."""
+    from accellog.store.mcap_index import equal_records
+
+    def rec(op: int, ln: int) -> bytes:
+        return bytes([op]) + ln.to_bytes(8, "little") + bytes([5]) * ln  # payload bytes look like opcodes
+
+    chunks = [
+        [(5, 40)] * 5,
+        [(5, 40), (5, 31), (5, 49)],
+        [(0x0A, 40), (5, 40)],
+        [(5, 60)] * 3,
+        [(5, 40), (5, 41)],
+    ]
+    bodies = [b"".join(rec(*r) for r in c) for c in chunks]
+    assert len(bodies[1]) == 3 * 49  # a multiple of the first record's stride
+    sizes = np.array([len(b) for b in bodies], dtype=np.int64)
+    end = np.cumsum(sizes)
+    rb = np.frombuffer(bytearray(b"".join(bodies) + bytes(16)), np.uint8)
+    found, left = equal_records(rb, end - sizes, end)
+    assert left.tolist() == [False, True, True, False, True]
+    first, fourth = int(end[0] - sizes[0]), int(end[3] - sizes[3])
+    assert found[0].tolist() == [first + 49 * k for k in range(5)] + [fourth + 69 * k for k in range(3)]
+    records = bytearray(rb.tobytes())
+    walked = fastread._chunkwise_starts(records, sizes.tolist())
+    assert walked is not None and set(found[0].tolist()) <= set(walked.tolist())

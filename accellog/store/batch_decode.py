@@ -27,6 +27,13 @@ def byte_window(buf: np.ndarray, width: int) -> np.ndarray:
     return np.lib.stride_tricks.as_strided(buf, shape=(buf.shape[0] - width + 1, width), strides=(1, 1))
 
 
+def void_window(buf: np.ndarray, width: int) -> np.ndarray:
+    """Overlapping (len(buf) - width + 1,) view of uint8 ``buf`` as ``width``-byte void items: item i is
+    buf[i : i + width]. Fancy-indexing it copies each record with one memcpy (``byte_window`` rows are
+    copied byte by byte: ~1.7x slower for message-sized records)."""
+    return np.ndarray((buf.shape[0] - width + 1,), np.dtype(f"V{width}"), buf, 0, (1,))
+
+
 def read_le(buf: np.ndarray, offsets: np.ndarray, dtype: str | np.dtype) -> np.ndarray:
     """Little-endian values of ``dtype`` (e.g. '<u8') stored at the byte ``offsets`` of uint8 ``buf``."""
     dt = np.dtype(dtype)
@@ -67,14 +74,14 @@ def gather_bytes(
             )
             out.reshape(-1, size)[...] = rows
         else:
-            out.reshape(-1, size)[...] = byte_window(buf, size)[offsets]
+            np.ndarray(offsets.shape, np.dtype(f"V{size}"), out)[...] = void_window(buf, size)[offsets]
         return out
     sizes = np.unique(lengths)
     out_start = np.cumsum(lengths) - lengths
     if sizes.shape[0] <= _MAX_LENGTH_GROUPS:
         for size in sizes.tolist():
             k = np.flatnonzero(lengths == size)
-            byte_window(out, size)[out_start[k]] = byte_window(buf, size)[offsets[k]]
+            void_window(out, size)[out_start[k]] = void_window(buf, size)[offsets[k]]
         return out
     items = np.repeat(offsets - out_start, lengths // unit) + np.arange(0, total, unit)
     out.reshape(-1, unit)[...] = byte_window(buf, unit)[items]

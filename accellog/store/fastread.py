@@ -51,6 +51,7 @@ from accellog.store.mcap_index import (
     channel_at,
     chunk_table,
     chunks_with,
+    equal_records,
     header_agrees,
     read_footer,
     read_metadata,
@@ -396,7 +397,8 @@ def _chunkwise_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarra
     end = np.cumsum(size)
     pos, end = (end - size)[size > 0], end[size > 0]
     rb = np.frombuffer(records, np.uint8)
-    found = []
+    found, left = equal_records(rb, pos, end)
+    pos, end = pos[left], end[left]
     for _ in range(_MAX_STEPS):
         if not pos.shape[0]:
             return np.sort(np.concatenate(found)) if found else np.zeros(0, np.int64)

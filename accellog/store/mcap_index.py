@@ -237,3 +237,26 @@ def read_metadata(data: Bytes, at: int) -> tuple[str, dict[str, str]]:
     if q != end or end != at + 9 + ln:
         raise NotFast("metadata record length")
     return name, kv
+
+
+def equal_records(rb: np.ndarray, pos: np.ndarray, end: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """``fastread._chunkwise_starts``' guess for all chunks at once: each chunk (records rb[pos[k]:end[k]])
+    holds Message records of the length of its first one only (recorder files: equal FIFO reads).
+    Every guessed record's opcode and length are checked, so a chunk that passes is exactly that
+    chain. ([Message offsets of the chunks that pass], mask of the chunks left to walk)."""
+    room = end - pos - 9
+    if not pos.shape[0] or np.any(room < 0):
+        return [], np.ones(pos.shape[0], bool)
+    ln = read_le(rb, pos + 1, "<u8")
+    fits = (rb[pos] == OP_MESSAGE) & (ln <= room.astype(np.uint64))
+    stride = np.where(fits, ln.astype(np.int64) + 9, 1)
+    fits &= (end - pos) % stride == 0
+    k = np.where(fits, (end - pos) // stride, 0)
+    if not k.any():
+        return [], np.ones(pos.shape[0], bool)
+    first = np.cumsum(k) - k  # each chunk's first guess in the flat list
+    chunk = np.repeat(np.arange(pos.shape[0]), k)
+    guess = pos[chunk] + (np.arange(chunk.shape[0]) - first[chunk]) * stride[chunk]
+    bad = (rb[guess] != OP_MESSAGE) | (read_le(rb, guess + 1, "<u8") != ln[chunk])
+    fits[chunk[bad]] = False
+    return [guess[fits[chunk]]], ~fits
