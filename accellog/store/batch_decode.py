@@ -7,15 +7,13 @@ with strided views straight into preallocated accumulators.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from accellog.store.codec import DOUBLE, FieldCodec, codecs_of
-
-# ---------------------------------------------------------------------------------------------
-# vectorised decoding of many messages at once (fast MCAP read-back)
 
 
 def byte_window(buf: np.ndarray, width: int) -> np.ndarray:
@@ -28,9 +26,8 @@ def byte_window(buf: np.ndarray, width: int) -> np.ndarray:
 
 
 def void_window(buf: np.ndarray, width: int) -> np.ndarray:
-    """Overlapping (len(buf) - width + 1,) view of uint8 ``buf`` as ``width``-byte void items: item i is
-    buf[i : i + width]. Fancy-indexing it copies each record with one memcpy (``byte_window`` rows are
-    copied byte by byte: ~1.7x slower for message-sized records)."""
+    """``byte_window`` as ``width``-byte void items: fancy-indexing it copies each record with one
+    memcpy (byte_window rows are copied byte by byte: ~1.7x slower for message-sized records)."""
     return np.ndarray((buf.shape[0] - width + 1,), np.dtype(f"V{width}"), buf, 0, (1,))
 
 
@@ -45,15 +42,32 @@ def read_le(buf: np.ndarray, offsets: np.ndarray, dtype: str | np.dtype) -> np.n
 _MAX_LENGTH_GROUPS = 64  # gather_bytes: message-sized copies per distinct length up to this many lengths
 
 
+def length_classes(counts: np.ndarray) -> tuple[np.ndarray, list[int]] | None:
+    """Messages grouped by ``counts`` (e.g. items per message) once, for ``gather_bytes`` of every
+    field: (message order, stable by count; class bounds in it). None if there are too many classes."""
+    order = np.argsort(counts, kind="stable")
+    s = counts[order]
+    cut = np.flatnonzero(s[1:] != s[:-1]) + 1
+    if cut.shape[0] >= _MAX_LENGTH_GROUPS:
+        return None
+    return order, [0, *cut.tolist(), int(s.shape[0])]
+
+
 def gather_bytes(
-    buf: np.ndarray, offsets: np.ndarray, lengths: np.ndarray, unit: int = 1, out: np.ndarray | None = None
+    buf: np.ndarray,
+    offsets: np.ndarray,
+    lengths: np.ndarray,
+    unit: int = 1,
+    out: np.ndarray | None = None,
+    classes: tuple[np.ndarray, list[int]] | None = None,
 ) -> np.ndarray:
     """Concatenation of buf[offsets[k] : offsets[k] + lengths[k]] over k (uint8 array).
 
     Written into ``out`` (contiguous uint8, lengths.sum() bytes) if given, else into a new array.
-    Messages of equal length are copied as whole rows (one fancy-indexing pass per distinct length);
-    with more than a few distinct lengths, ``unit``-byte items (every length a multiple of unit) are
-    gathered instead.
+    Messages of equal length are copied as whole records (one fancy-indexing pass per distinct
+    length; ``classes``: ``length_classes`` of something proportional to the lengths, shared by
+    fields); with more than a few distinct lengths, ``unit``-byte items (every length a multiple of
+    unit) are gathered instead.
     """
     total = int(lengths.sum())
     if out is None:
@@ -61,6 +75,15 @@ def gather_bytes(
     elif out.shape != (total,):
         raise ValueError(f"gather_bytes: out has {out.shape} bytes, expected {total}")
     if total == 0:
+        return out
+    if classes is not None and len(classes[1]) > 2:
+        out_start = np.cumsum(lengths) - lengths
+        order, bounds = classes
+        dst, src, ln = out_start[order], offsets[order], lengths[order]
+        for a, b in itertools.pairwise(bounds):
+            size = int(ln[a])
+            if size:
+                void_window(out, size)[dst[a:b]] = void_window(buf, size)[src[a:b]]
         return out
     keep = lengths > 0
     if not keep.all():
@@ -418,6 +441,15 @@ def _general_walk(
     return True
 
 
+def _classes_of(items: np.ndarray, shared: list):
+    """length_classes of a packed field's items per message, once for all fields alike (ImuBatch's)."""
+    if items.shape[0] < 2 or np.all(items == items[0]):
+        return None
+    if shared[0] is None or not np.array_equal(shared[0], items):
+        shared[:] = [items, length_classes(items)]
+    return shared[1]
+
+
 def _assemble(
     message: str,
     n: int,
@@ -433,17 +465,19 @@ def _assemble(
     given), strings decoded, scalars as lists; None if a packed length or a string is invalid."""
     arrays, scalars, counts = {}, {}, {}
     placed: list[str] = []
+    shared: list = [None, None]  # (items per message, their length_classes) of the last packed field
     for c in codecs:
         if c.kind == "packed":
             size = c.dtype.itemsize
             ln = lens[c.name]
             if np.any(ln % size):
                 return None
+            classes = _classes_of(ln // size, shared)
             if reserve is None:
-                arrays[c.name] = gather_bytes(buf, offs[c.name], ln, size).view(c.dtype)
+                arrays[c.name] = gather_bytes(buf, offs[c.name], ln, size, classes=classes).view(c.dtype)
             else:
                 dst = reserve(c.name, c.dtype, int(ln.sum()) // size)
-                gather_bytes(buf, offs[c.name], ln, size, out=dst.view(np.uint8))
+                gather_bytes(buf, offs[c.name], ln, size, out=dst.view(np.uint8), classes=classes)
                 arrays[c.name] = dst
                 placed.append(c.name)
             counts[c.name] = ln // size
