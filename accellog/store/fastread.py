@@ -392,7 +392,8 @@ def _chunkwise_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarra
     chunk): the record chains of all chunks walked side by side, one record of every chunk per numpy
     step, so the steps are the records of the longest chunk whatever their lengths; the same checks
     (no record across its chunk end; schema and channel records fill their length). None if a chunk
-    holds more than _MAX_STEPS records (then the guessing walk does better)."""
+    holds more than _MAX_STEPS records (then the guessing walk does better). Chunks of equal-length
+    Messages only (mcap_index.equal_records, all checked at once) are not walked."""
     size = np.asarray(usize, dtype=np.int64)
     end = np.cumsum(size)
     pos, end = (end - size)[size > 0], end[size > 0]
