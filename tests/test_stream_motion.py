@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from accellog.calibrate.segment import _window_stats, moving_check
+from accellog.calibrate.window_spill import WindowSpill, kth_smallest, median
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
-from accellog.navigate.stream_motion import MotionCheck, kth_smallest, median
+from accellog.navigate.stream_motion import MotionCheck
 from accellog.navigate.stream_sums import WindowCarry
 from accellog.store.collect import FAULT_AROUND, release_pages
 
@@ -43,6 +44,27 @@ def test_median_in_pieces_is_np_median_bit_for_bit(n, kind):
     for cap in (1, 3, 1 << 16):  # small caps refine to the last 16 bits
         k = int(rng.integers(0, n))
         assert kth_smallest(_pieces(x, rng), k, cap=cap) == np.partition(x, k)[k]
+
+
+def test_median_with_a_nan_is_nan_as_np_median():
+    x = np.array([0.3, np.nan, 0.1, 0.2])
+    assert np.isnan(median(_pieces(x, np.random.default_rng(0)), x.size)) and np.isnan(np.median(x))
+
+
+def test_window_spill_reads_back_rows_in_pieces_runs_and_columns():
+    rng = np.random.default_rng(3)
+    rows = rng.normal(size=(1000, 7))
+    spill = WindowSpill(7)
+    for part in np.split(rows, [10, 400, 401]):
+        spill.append(part)
+    assert spill.n == 1000
+    assert np.array_equal(np.concatenate(list(spill.pieces(rows=33))), rows)
+    runs = list(spill.runs([10, 390, 0, 600]))
+    assert [r.shape[0] for r in runs] == [10, 390, 0, 600] and np.array_equal(np.concatenate(runs), rows)
+    keep = rows[:, 6] > 0
+    assert np.array_equal(np.concatenate(list(spill.column(2, lambda p: p[:, 6] > 0)())), rows[keep, 2])
+    assert median(spill.column(3), spill.n) == np.median(rows[:, 3])
+    spill.close()
 
 
 def _session(rng, n=40_000, bump=None):

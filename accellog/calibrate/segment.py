@@ -235,16 +235,16 @@ def moving_verdict(
     where: str,
     std_factor: float = MOVING_STD_FACTOR,
     mean_shift_g: float = MOVING_MEAN_SHIFT_G,
-    all_std: np.ndarray | None = None,
+    ref: float | None = None,
 ) -> None:
     """moving_check on (label, t_start, t_end, mean_shift, std, n) per hold (the shift taken when the
-    hold passed: no window means kept); all_std: the std of every window of n > 2 in hold order,
-    when the caller holds them in one array already."""
-    if all_std is None:
+    hold passed: no window means kept); ref: the session noise reference (g, the norm of the median
+    std per axis of the windows of n > 2) when the caller has it (then there is such a window)."""
+    if ref is None:
         all_std = np.concatenate([h[4][h[5] > 2] for h in per_hold]) if per_hold else np.zeros((0, 3))
-    if all_std.shape[0] == 0:
-        return
-    ref = float(np.linalg.norm(np.median(all_std, axis=0)))
+        if all_std.shape[0] == 0:
+            return
+        ref = float(np.linalg.norm(np.median(all_std, axis=0)))
     limit = max(std_factor * ref, 4.0 * quantum)
     for p, t_start, t_end, shift, std, n in per_hold:
         snorm = np.linalg.norm(std, axis=1)

@@ -14,7 +14,6 @@ cross-validation, which all take the ObsTable.
 from __future__ import annotations
 
 import dataclasses
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +28,7 @@ from accellog.calibrate.segment import (
     pose_stats,
     static_windows,
 )
+from accellog.calibrate.window_spill import WindowSpill, median
 from accellog.core.errors import InputError
 from accellog.core.session import ObsTable, PoseLabel, Session, SessionMeta
 from accellog.store.stream import iter_imu, read_labels
@@ -57,7 +57,7 @@ def stream_observations(
     labels = checked_labels(poses, where)
     gather = _HoldGatherer(labels, trim_s)
     rows = _Rows(sum(_most_windows(p, trim_s, window_s) for p in labels))  # the observation rows
-    wins = _WindowSpill() if check_moving else None
+    wins = _HoldWindows() if check_moving else None
     names: list[str] = []
 
     def reduce(p: PoseLabel, parts: list[tuple]) -> None:
@@ -104,54 +104,50 @@ def _most_windows(p: PoseLabel, trim_s: float, window_s: float) -> int:
     return int(np.floor(max(p.end_s - p.start_s - 2.0 * trim_s, 0.0) / window_s + 1e-9)) + 2
 
 
-_WINDOW = np.dtype([("t0", "f8"), ("t1", "f8"), ("shift", "f8"), ("std", "f8", (3,)), ("n", "i8")])
-"""One 0.5 s window of the motion check: start and end time (s), mean shift (g), std (g), samples."""
-
-
-class _WindowSpill:
+class _HoldWindows:
     """The motion check's 0.5 s windows of every hold (segment.static_windows, the mean reduced to
-    its shift from the hold's median as the hold passes), written to an unnamed temporary file
-    and read back hold by hold for the verdict: 56 bytes a window (~170 k windows at 24 h) kept by
-    the page cache, not the process; in memory at the end only the std of the windows of n > 2
-    (the session's noise reference is their exact median)."""
+    its shift from the hold's median as the hold passes) spilled to an unnamed temporary file
+    (calibrate.window_spill: 56 bytes a window, ~170 k windows at 24 h, kept by the page cache, not
+    the process) and read back hold by hold for the verdict; the session's noise reference (the
+    median std per axis of the windows of n > 2) is selected exactly from the file."""
 
     def __init__(self) -> None:
-        self.file = tempfile.TemporaryFile()  # noqa: SIM115 (closed by stream_observations)
-        self.holds: list[tuple[PoseLabel, int]] = []  # (label, windows)
+        self.spill = WindowSpill(7)  # start s, end s, mean shift g, std x/y/z g, samples
+        self.holds: list[PoseLabel] = []
+        self.sizes: list[int] = []
         self.n_ok = 0
 
     def add(self, p: PoseLabel, t0, t1, mean, std, n) -> None:
-        rec = np.empty(len(t0), _WINDOW)
-        rec["t0"], rec["t1"], rec["shift"], rec["std"], rec["n"] = t0, t1, mean_shift(mean), std, n
-        self.file.write(rec.tobytes())
-        self.holds.append((p, rec.size))
+        self.spill.append(np.column_stack([t0, t1, mean_shift(mean), std, n]))
+        self.holds.append(p)
+        self.sizes.append(len(t0))
         self.n_ok += int(np.count_nonzero(n > 2))
 
-    def _read(self):
-        self.file.seek(0)
-        for p, k in self.holds:
-            rec = np.frombuffer(self.file.read(k * _WINDOW.itemsize), _WINDOW)
+    def _per_hold(self):
+        for p, w in zip(self.holds, self.spill.runs(self.sizes), strict=True):
             yield (
                 p,
-                rec["t0"].copy(),
-                rec["t1"].copy(),
-                rec["shift"].copy(),
-                rec["std"].copy(),
-                rec["n"].copy(),
+                w[:, 0].copy(),
+                w[:, 1].copy(),
+                w[:, 2].copy(),
+                w[:, 3:6].copy(),
+                w[:, 6].astype(np.int64),
             )
 
     def judge(self, quantum: float, where: str) -> None:
         """segment.moving_check's verdict on the windows written (InputError naming the window)."""
-        if not self.holds:
+        if self.n_ok == 0:  # no window of n > 2: no noise reference, no verdict
             return
-        all_std, i = np.empty((self.n_ok, 3)), 0
-        for _p, _t0, _t1, _shift, std, n in self._read():
-            ok = std[n > 2]
-            all_std[i : i + ok.shape[0]], i = ok, i + ok.shape[0]
-        moving_verdict(self._read(), quantum, where, all_std=all_std)
+        med = [median(self.spill.column(j, _quiet), self.n_ok) for j in (3, 4, 5)]
+        moving_verdict(self._per_hold(), quantum, where, ref=float(np.linalg.norm(np.array(med))))
 
     def close(self) -> None:
-        self.file.close()
+        self.spill.close()
+
+
+def _quiet(w: np.ndarray) -> np.ndarray:
+    """The windows of > 2 samples of a piece of spilled rows."""
+    return w[:, 6] > 2
 
 
 class _Rows:
