@@ -91,7 +91,7 @@ def data_section_damage(data, summary_start: int) -> Damage | None:
     want = int.from_bytes(data[at + 9 : at + 13], "little")
     if want == 0:
         return None
-    got, mv, step = 0, memoryview(data), 16 << 20
+    got, mv, step = 0, memoryview(data), 4 << 20
     for lo in range(0, at, step):  # in pieces, dropping each piece's mapped pages behind us
         got = crc32(mv[lo : min(lo + step, at)], got)
         release_pages(data, lo, min(lo + step, at))
