@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
-from scipy import stats
+from scipy import linalg, stats
 
 from accellog.calibrate.effects import AXES
 from accellog.calibrate.fit import FitResult
@@ -73,6 +73,19 @@ def driver_signal_table(
     return sig
 
 
+def _orthonormal_basis(J: np.ndarray) -> np.ndarray:
+    """Q with orthonormal columns spanning J's (columns with |R_kk| <= 1e-12 max |R_kk| dropped).
+
+    Householder QR of one Fortran copy of J, overwritten by Q (LAPACK geqrf + orgqr in place):
+    memory of one Jacobian more, where np.linalg.qr needs four (J is 3 n_obs x n_params)."""
+    if not J.shape[1]:
+        return np.zeros((J.shape[0], 0))
+    Q, R = linalg.qr(np.array(J, order="F"), mode="economic", overwrite_a=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    keep = d > 1e-12 * max(d.max(), 1e-300)
+    return Q if keep.all() else Q[:, keep]
+
+
 def driver_signals(res: FitResult, obs: ObsTable, drivers: Mapping[str, np.ndarray]) -> list[dict]:
     """Residuals against every driver signal: correlation, partial R^2 and the chi2 drop if the
     signal were added as one more additive term on that axis (after projecting out the model)."""
@@ -81,10 +94,8 @@ def driver_signals(res: FitResult, obs: ObsTable, drivers: Mapping[str, np.ndarr
     rw = res.residual_g / sig
     r = rw.ravel()
     chi2 = float(r @ r)
-    Q, Rr = np.linalg.qr(J) if J.shape[1] else (np.zeros((r.size, 0)), None)
-    if J.shape[1]:
-        keep = np.abs(np.diag(Rr)) > 1e-12 * max(np.abs(np.diag(Rr)).max(), 1e-300)
-        Q = Q[:, keep]
+    Q = _orthonormal_basis(J)
+    del J  # a recomputed Jacobian is freed here: Q took its place
     dof = max(res.dof - 1, 1)
     rows = []
     table = driver_signal_table(obs, drivers, res.gravity_g)

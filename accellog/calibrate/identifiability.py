@@ -183,9 +183,12 @@ def rank_check(
     cond = np.inf
     if not zero and J.shape[1]:
         Jn = np.divide(J, norms, out=J if overwrite else None)
-        _, s, vt = np.linalg.svd(Jn, full_matrices=False)
+        s = np.linalg.svd(Jn, compute_uv=False)  # no U (3 n_obs x n_params): one Jacobian less
         cond = float(s[0] / s[-1]) if s[-1] > 0 else np.inf
-        null = vt[s < RANK_TOL * s[0]]
+        null = []
+        if s[-1] < RANK_TOL * s[0]:  # rank deficient: the null vectors name the parameters
+            _, s, vt = np.linalg.svd(Jn, full_matrices=False)
+            null = vt[s < RANK_TOL * s[0]]
         for v in null:
             bad += [names[k] for k in np.flatnonzero(np.abs(v) > 0.2) if names[k] not in bad]
     if J.shape[0] < J.shape[1]:
