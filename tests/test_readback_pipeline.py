@@ -90,7 +90,10 @@ def test_group_conversions_equal_generic_reader(tmp_path, monkeypatch, layout, c
     else:
         write_session(p, s, compression=compression, chunk_size=64 * 1024)
     monkeypatch.setattr(fastread, "_GROUP_BYTES", 96 << 10)  # many groups: boundaries inside runs
+    ahead, real = [], fastread._ahead
+    monkeypatch.setattr(fastread, "_ahead", lambda *a: ahead.append(real(*a)) or ahead[-1])
     col = reader._collect(p, accumulator=reader._imu_accumulator)
+    assert ahead == [2 if compression == "zstd" else 1]  # small zstd chunks (both layouts here): 2 threads
     assert col.recovered is None and set(col.decoders["/imu"].derived) == {
         "t_s", "accel_g", "gyro_dps", "temp_degC", "host_time_s", "sample_index"
     }  # fmt: skip
