@@ -119,9 +119,10 @@ def _fast_walk(
         data, footer, summary_start
     )
     tab = chunk_table(data, footer, chunk_index_at, chunk_index_len)
+    del chunk_index_at, chunk_index_len  # in tab: not held for the whole walk
     usize, damaged = tab.usize, []
-    release_pages(data, 0, summary_start)  # whatever the index pass touched: read again on demand
     keep = chunks_with(data, tab.ci, tab.map_len, channels, topics, stream)
+    release_pages(data, 0, len(data))  # what the index pass touched (the summary: ~14 MB at 24 h)
     if keep is not None:  # only chunks that hold a wanted channel are decompressed
         usize = np.where(keep, usize, 0)
     # the session metadata (LSB scales) first: a stream needs it before the first group
@@ -137,14 +138,14 @@ def _fast_walk(
 
     ahead = _ahead(data, tab, usize)
     chunks = _Decompressor(data, tab, keep, verified, damaged, ahead + 1)
-    rec_at, rec_end = tab.rec_at.tolist(), tab.rec_end.tolist()
-    done = (np.cumsum(usize) / max(1, int(usize.sum()))).tolist()  # fraction read after each chunk
+    # per-chunk state in numpy, lists made per group (whole-file lists: ~3 MB per hour of recorder file)
+    done = np.cumsum(usize) / max(1, int(usize.sum()))  # fraction read after each chunk
     groups = _groups(usize, stream is None)
 
     def decompress(i: int) -> tuple[bytearray, int, list[int]]:
         g0, g1 = groups[i]
         out = chunks.records(g0, g1, i % (ahead + 1))
-        release_pages(data, min(rec_at[g0:g1]), max(rec_end[g0:g1]))  # read once: drop them
+        release_pages(data, int(tab.rec_at[g0:g1].min()), int(tab.rec_end[g0:g1].max()))  # read once: drop
         return out
 
     # the next `ahead` groups are decompressed, each on its own thread (lz4/zstd release the GIL),
@@ -159,7 +160,7 @@ def _fast_walk(
             records, used, sizes = pending.pop(0).result()
             if i + ahead < len(groups):  # into the slot of group i - 1, decoded by now
                 pending.append(pool.submit(decompress, i + ahead))
-            frac = 1.0 if stream else done[groups[i][1] - 1]
+            frac = 1.0 if stream else float(done[groups[i][1] - 1])
             _decode_group(records, used, sizes, frac, channels, schemas, sink, message_of, parts, new_part)
             if stream is not None:
                 part = next(
@@ -328,12 +329,8 @@ class _Decompressor:
         self.lz4 = lz4.frame.decompress
         self.bufs = [bytearray() for _ in range(slots)]
         self.verified = verified
-        self.at, self.t0, self.t1 = tab.chunk_at.tolist(), tab.t_first.tolist(), tab.t_last.tolist()
-        self.index = list(  # what each chunk header must say (header_agrees)
-            zip(*(a.tolist() for a in (tab.chunk_at, tab.chunk_len, tab.usize, tab.csize, tab.name_at)),
-                tab.name_len.tolist(), strict=True)
-        )  # fmt: skip
-        self.keep = [True] * len(self.at) if keep is None else keep.tolist()
+        self.tab = tab
+        self.keep = np.ones(tab.usize.shape[0], bool) if keep is None else keep
         self.damaged = damaged  # appended to (list.append is atomic)
 
     def _into(self, comp: bytes, raw, dst: memoryview, slot: int) -> str | None:
@@ -366,19 +363,22 @@ class _Decompressor:
         _PAD zero bytes; sizes[k] is what chunk g0 + k contributed (0: damaged or not wanted).
 
         One buffer per slot: the others are filled (each on its thread) while one is decoded."""
-        total = sum(self.index[j][2] for j in range(g0, g1) if self.keep[j])
+        tab, keep = self.tab, self.keep[g0:g1].tolist()
+        cols = (tab.chunk_at, tab.chunk_len, tab.usize, tab.csize, tab.name_at, tab.name_len)
+        index = list(zip(*(a[g0:g1].tolist() for a in cols), strict=True))  # what headers must say
+        total = sum(ix[2] for ix, k in zip(index, keep, strict=True) if k)
         if len(self.bufs[slot]) < total + _PAD:
             self.bufs[slot] = bytearray(total + _PAD)
         buf, data, mv = self.bufs[slot], self.data, memoryview(self.data)  # released on return
         out = memoryview(buf)
         pos = 0
         sizes = []
-        for j in range(g0, g1):
-            if not self.keep[j]:
+        for j, ix, wanted in zip(range(g0, g1), index, keep, strict=True):
+            if not wanted:
                 sizes.append(0)
                 continue
-            at, _, u, csize, _, nl = self.index[j]
-            crc = header_agrees(data, *self.index[j])
+            at, _, u, csize, _, nl = ix
+            crc = header_agrees(data, *ix)
             if crc is None:
                 why = "chunk header disagrees with its index"
                 if not self.verified:
@@ -390,7 +390,7 @@ class _Decompressor:
                 if why is None and crc and crc32(dst) != crc:
                     why = "CRC mismatch"
             if why is not None:
-                self.damaged.append(Damage(self.at[j], self.t0[j], self.t1[j], why))
+                self.damaged.append(Damage(at, int(tab.t_first[j]), int(tab.t_last[j]), why))
                 sizes.append(0)
                 continue
             pos += u

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import mmap
 import struct
+from array import array
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,8 +108,7 @@ def read_summary(data: Bytes, footer: int, summary_start: int):
     (every record parsed must fill its declared length exactly)."""
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    chunk_index_at: list[int] = []
-    chunk_index_len: list[int] = []
+    chunk_index_at, chunk_index_len = array("q"), array("q")  # 8 bytes a chunk, not two int objects
     metadata_at: list[int] = []
     pos = summary_start
     while pos < footer:
@@ -138,7 +138,13 @@ def read_summary(data: Bytes, footer: int, summary_start: int):
         raise NotFast("summary without chunk indexes")
     if len({ch.topic for ch in channels.values()}) != len(channels):
         raise NotFast("topic on several channels")
-    return schemas, channels, chunk_index_at, chunk_index_len, metadata_at
+    return (
+        schemas,
+        channels,
+        np.frombuffer(chunk_index_at, np.int64),
+        np.frombuffer(chunk_index_len, np.int64),
+        metadata_at,
+    )
 
 
 @dataclass
@@ -163,7 +169,7 @@ class ChunkTable:
 
 
 def chunk_table(
-    data: Bytes, footer: int, chunk_index_at: list[int], chunk_index_len: list[int]
+    data: Bytes, footer: int, chunk_index_at: np.ndarray, chunk_index_len: np.ndarray
 ) -> ChunkTable:
     """Every chunk index read at once (numpy); each must point at a chunk inside the data section."""
     buf = np.frombuffer(data, np.uint8)
