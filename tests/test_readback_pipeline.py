@@ -13,7 +13,7 @@ import pytest
 
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import temp_counts_to_degC
-from accellog.store import fastread, imu_arrays, reader
+from accellog.store import fastread, imu_arrays, mcap_index, reader
 from accellog.store.batch_decode import decode_batch
 from accellog.store.codec import encode
 from accellog.store.reader import read_session
@@ -90,6 +90,7 @@ def test_group_conversions_equal_generic_reader(tmp_path, monkeypatch, layout, c
     else:
         write_session(p, s, compression=compression, chunk_size=64 * 1024)
     monkeypatch.setattr(fastread, "_GROUP_BYTES", 96 << 10)  # many groups: boundaries inside runs
+    monkeypatch.setattr(mcap_index, "_INDEX_WINDOW", 7)  # the chunk indexes checked 7 at a time
     ahead, real = [], fastread._ahead
     monkeypatch.setattr(fastread, "_ahead", lambda *a: ahead.append(real(*a)) or ahead[-1])
     col = reader._collect(p, accumulator=reader._imu_accumulator)

@@ -49,7 +49,7 @@ from accellog.store.mcap_index import (
     Refuse,
     SummaryDamaged,
     channel_at,
-    chunk_table,
+    chunk_index,
     chunks_with,
     equal_records,
     header_agrees,
@@ -118,10 +118,9 @@ def _fast_walk(
     schemas, channels, chunk_index_at, chunk_index_len, metadata_at = read_summary(
         data, footer, summary_start
     )
-    tab = chunk_table(data, footer, chunk_index_at, chunk_index_len)
-    del chunk_index_at, chunk_index_len  # in tab: not held for the whole walk
-    usize, damaged = tab.usize, []
-    keep = chunks_with(data, tab.ci, tab.map_len, channels, topics, stream)
+    idx = chunk_index(data, footer, chunk_index_at, chunk_index_len)
+    usize, damaged = idx.usize, []
+    keep = chunks_with(data, idx.ci, channels, topics, stream)
     release_pages(data, 0, len(data))  # what the index pass touched (the summary: ~14 MB at 24 h)
     if keep is not None:  # only chunks that hold a wanted channel are decompressed
         usize = np.where(keep, usize, 0)
@@ -136,17 +135,14 @@ def _fast_walk(
         made = None if accumulator is None else accumulator(channels[cid].topic, msg, meta_kv)
         return BatchAccumulator(msg) if made is None else made
 
-    ahead = _ahead(data, tab, usize)
-    chunks = _Decompressor(data, tab, keep, verified, damaged, ahead + 1)
-    # per-chunk state in numpy, lists made per group (whole-file lists: ~3 MB per hour of recorder file)
+    ahead = _ahead(data, idx, usize)
+    chunks = _Decompressor(data, idx, keep, verified, damaged, ahead + 1)
+    # per-chunk state: 24 B in idx, the rest read again per group (whole-file lists: ~3 MB per hour)
     done = np.cumsum(usize) / max(1, int(usize.sum()))  # fraction read after each chunk
     groups = _groups(usize, stream is None)
 
     def decompress(i: int) -> tuple[bytearray, int, list[int]]:
-        g0, g1 = groups[i]
-        out = chunks.records(g0, g1, i % (ahead + 1))
-        release_pages(data, int(tab.rec_at[g0:g1].min()), int(tab.rec_end[g0:g1].max()))  # read once: drop
-        return out
+        return chunks.records(*groups[i], i % (ahead + 1))
 
     # the next `ahead` groups are decompressed, each on its own thread (lz4/zstd release the GIL),
     # while group i is decoded; leaving the with-block (also on an exception) waits for them, before
@@ -278,15 +274,16 @@ def _decode_group(
         acc.add(dec, frac)
 
 
-def _ahead(data: Bytes, tab, usize: np.ndarray) -> int:
+def _ahead(data: Bytes, idx, usize: np.ndarray) -> int:
     """Groups decompressed ahead of the decoder, each on its own thread: 2 for zstd chunks under
     _SMALL_CHUNK (recorder: ~18 kB / 0.5 s), whose Python work per chunk holds a thread (1 h file:
     0.32 -> 0.27 s); else 1 (lz4, large chunks: a second thread takes the decoder's core)."""
     sound = np.flatnonzero(usize)
     if not sound.shape[0] or np.median(usize[sound]) >= _SMALL_CHUNK:
         return 1
-    at = int(tab.name_at[sound[0]])
-    return 2 if bytes(data[at : at + int(tab.name_len[sound[0]])]) == b"zstd" else 1
+    tab = idx.rows(data, int(sound[0]), int(sound[0]) + 1)
+    at = int(tab.name_at[0])
+    return 2 if bytes(data[at : at + int(tab.name_len[0])]) == b"zstd" else 1
 
 
 def _groups(usize: np.ndarray, ends_small: bool = True) -> list[tuple[int, int]]:
@@ -319,7 +316,7 @@ class _Decompressor:
     index itself may be the damage)."""
 
     def __init__(
-        self, data: Bytes, tab, keep, verified: bool | None, damaged: list[Damage], slots: int
+        self, data: Bytes, idx, keep, verified: bool | None, damaged: list[Damage], slots: int
     ) -> None:
         import lz4.frame
         import zstandard
@@ -329,8 +326,8 @@ class _Decompressor:
         self.lz4 = lz4.frame.decompress
         self.bufs = [bytearray() for _ in range(slots)]
         self.verified = verified
-        self.tab = tab
-        self.keep = np.ones(tab.usize.shape[0], bool) if keep is None else keep
+        self.idx = idx
+        self.keep = np.ones(idx.usize.shape[0], bool) if keep is None else keep
         self.damaged = damaged  # appended to (list.append is atomic)
 
     def _into(self, comp: bytes, raw, dst: memoryview, slot: int) -> str | None:
@@ -362,18 +359,19 @@ class _Decompressor:
         """(buffer, n, sizes): the sound records of chunks g0..g1 back to back in buffer[:n], then
         _PAD zero bytes; sizes[k] is what chunk g0 + k contributed (0: damaged or not wanted).
 
-        One buffer per slot: the others are filled (each on its thread) while one is decoded."""
-        tab, keep = self.tab, self.keep[g0:g1].tolist()
+        One buffer per slot: the others are filled (each on its thread) while one is decoded; the
+        mapped pages of the group are dropped after (read once)."""
+        tab, keep = self.idx.rows(self.data, g0, g1), self.keep[g0:g1].tolist()
         cols = (tab.chunk_at, tab.chunk_len, tab.usize, tab.csize, tab.name_at, tab.name_len)
-        index = list(zip(*(a[g0:g1].tolist() for a in cols), strict=True))  # what headers must say
+        index = list(zip(*(a.tolist() for a in cols), strict=True))  # what the headers must say
         total = sum(ix[2] for ix, k in zip(index, keep, strict=True) if k)
         if len(self.bufs[slot]) < total + _PAD:
-            self.bufs[slot] = bytearray(total + _PAD)
+            self.bufs[slot] = bytearray((total + _PAD) * 5 // 4)
         buf, data, mv = self.bufs[slot], self.data, memoryview(self.data)  # released on return
         out = memoryview(buf)
         pos = 0
         sizes = []
-        for j, ix, wanted in zip(range(g0, g1), index, keep, strict=True):
+        for j, ix, wanted in zip(range(g1 - g0), index, keep, strict=True):
             if not wanted:
                 sizes.append(0)
                 continue
@@ -396,6 +394,8 @@ class _Decompressor:
             pos += u
             sizes.append(u)
         buf[pos : pos + _PAD] = bytes(_PAD)
+        release_pages(data, int(tab.rec_at.min()), int(tab.rec_end.max()))
+        release_pages(data, int(tab.ci[0]), int(tab.ci[-1] + self.idx.ci_len[g1 - 1]))  # their indexes too
         return buf, pos, sizes
 
 
