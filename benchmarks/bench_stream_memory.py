@@ -1,4 +1,4 @@
-"""Peak memory of a streamed pass over recorder-layout sessions of 1 h / 4 h / 24 h (#11).
+"""Peak memory of streamed passes over recorder-layout sessions of 1 h / 4 h / 24 h (#11).
 
     python benchmarks/bench_stream_memory.py [--hours 1 4 24] [--dir /tmp/streammem] [--baseline DIR]
 
@@ -7,9 +7,10 @@ The live recorder writes one message per FIFO read (30-42 samples here, seeded) 
 writes ~120 per hour. Whatever the reader keeps per chunk therefore grows with the session here and
 hides there. Each file is written once hour by hour (``SessionWriter``, lz4, as the recorder; ~4 s
 per hour) and reused from --dir. Each figure is a fresh process (ru_maxrss, wall and CPU time) of
-``iter_imu`` over every block, the pass every streamed stage makes; the load average is printed with
-it. --baseline DIR: the same pass with PYTHONPATH=DIR, e.g. an export of an earlier commit
-(``git archive COMMIT accellog | tar -x -C DIR``).
+what every streamed stage does first (``can_stream`` + ``read_labels``: "labels") and of ``iter_imu``
+over every block, the pass it makes ("pass"); the load average is printed with it. --baseline DIR:
+the same with PYTHONPATH=DIR, e.g. an export of an earlier commit (``git archive COMMIT accellog |
+tar -x -C DIR``).
 """
 
 from __future__ import annotations
@@ -32,10 +33,14 @@ HOUR = 3_600_000  # samples at 1 kHz
 
 _CHILD = """
 import resource, sys, time
-from accellog.store.stream import iter_imu
+from accellog.store.stream import iter_imu, read_labels
+from accellog.flows.stream_input import can_stream
 t0, c0, n = time.perf_counter(), time.process_time(), 0
-for block in iter_imu(sys.argv[1]):
-    n += block.n
+if sys.argv[2] == "pass":
+    for block in iter_imu(sys.argv[1]):
+        n += block.n
+else:  # what every streamed stage does first
+    can_stream(sys.argv[1]), read_labels(sys.argv[1])
 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 print(n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, wall, cpu)
 """
@@ -55,12 +60,12 @@ def write_recorder_session(path: Path, hours: int) -> None:
                             s.temp_counts[i:j], int(host[j - 1]))  # fmt: skip
 
 
-def measure(path: Path, pythonpath: str | None) -> tuple[int, float, float, float]:
+def measure(path: Path, pythonpath: str | None, what: str) -> tuple[int, float, float, float]:
     env = dict(os.environ)
     if pythonpath:
         env["PYTHONPATH"] = pythonpath
     out = subprocess.run(  # cwd /: "python -c" puts the cwd first on sys.path, before PYTHONPATH
-        [sys.executable, "-c", _CHILD, str(path)], capture_output=True, text=True, env=env, cwd="/"
+        [sys.executable, "-c", _CHILD, str(path), what], capture_output=True, text=True, env=env, cwd="/"
     )
     if out.returncode:
         sys.exit(out.stderr)
@@ -76,20 +81,22 @@ def main() -> None:
     args = ap.parse_args()
     args.dir.mkdir(parents=True, exist_ok=True)
     runs = [("now", None)] + ([("baseline", args.baseline)] if args.baseline else [])
-    print(f"{'session':>8} {'~chunks':>8} {'file MB':>8} {'code':>9} {'wall s':>7} {'CPU s':>6} "
+    print(f"{'session':>8} {'~chunks':>8} {'file MB':>8} {'step':>7} {'code':>9} {'wall s':>7} {'CPU s':>6} "
           f"{'peak MB':>8} {'vs first':>8}  load average")  # fmt: skip
-    first: dict[str, float] = {}
+    first: dict[tuple[str, str], float] = {}
     for hours in args.hours:
         path = args.dir / f"rec_{hours}h.mcap"
         if not path.exists():
             write_recorder_session(path, hours)
-        for name, pp in runs:
-            n, peak, wall, cpu = measure(path, pp)
-            assert n == hours * HOUR, (path, n)
-            first.setdefault(name, peak)
-            load = " ".join(f"{x:.1f}" for x in os.getloadavg())
-            print(f"{hours:>6} h {hours * 7200:>8} {path.stat().st_size / 1e6:>8.0f} {name:>9} {wall:>7.2f} "
-                  f"{cpu:>6.2f} {peak:>8.0f} {peak / first[name]:>7.2f}x  {load}", flush=True)  # fmt: skip
+        for what in ("labels", "pass"):  # labels: can_stream + read_labels; pass: iter_imu
+            for name, pp in runs:
+                n, peak, wall, cpu = measure(path, pp, what)
+                assert what == "labels" or n == hours * HOUR, (path, n)
+                first.setdefault((what, name), peak)
+                load = " ".join(f"{x:.1f}" for x in os.getloadavg())
+                print(f"{hours:>6} h {hours * 7200:>8} {path.stat().st_size / 1e6:>8.0f} {what:>7} {name:>9} "
+                      f"{wall:>7.2f} {cpu:>6.2f} {peak:>8.0f} {peak / first[what, name]:>7.2f}x  {load}",
+                      flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -281,7 +281,7 @@ def _ahead(data: Bytes, idx, usize: np.ndarray) -> int:
     sound = np.flatnonzero(usize)
     if not sound.shape[0] or np.median(usize[sound]) >= _SMALL_CHUNK:
         return 1
-    tab = idx.rows(data, int(sound[0]), int(sound[0]) + 1)
+    tab = idx.rows(data, sound[:1])
     at = int(tab.name_at[0])
     return 2 if bytes(data[at : at + int(tab.name_len[0])]) == b"zstd" else 1
 
@@ -361,20 +361,18 @@ class _Decompressor:
 
         One buffer per slot: the others are filled (each on its thread) while one is decoded; the
         mapped pages of the group are dropped after (read once)."""
-        tab, keep = self.idx.rows(self.data, g0, g1), self.keep[g0:g1].tolist()
+        sel = g0 + np.flatnonzero(self.keep[g0:g1])  # the wanted chunks (labels: a few of a group)
+        tab = self.idx.rows(self.data, sel)
         cols = (tab.chunk_at, tab.chunk_len, tab.usize, tab.csize, tab.name_at, tab.name_len)
         index = list(zip(*(a.tolist() for a in cols), strict=True))  # what the headers must say
-        total = sum(ix[2] for ix, k in zip(index, keep, strict=True) if k)
+        total = sum(ix[2] for ix in index)
         if len(self.bufs[slot]) < total + _PAD:
             self.bufs[slot] = bytearray((total + _PAD) * 5 // 4)
         buf, data, mv = self.bufs[slot], self.data, memoryview(self.data)  # released on return
         out = memoryview(buf)
         pos = 0
-        sizes = []
-        for j, ix, wanted in zip(range(g1 - g0), index, keep, strict=True):
-            if not wanted:
-                sizes.append(0)
-                continue
+        sizes = [0] * (g1 - g0)
+        for k, (j, ix) in enumerate(zip((sel - g0).tolist(), index, strict=True)):
             at, _, u, csize, _, nl = ix
             crc = header_agrees(data, *ix)
             if crc is None:
@@ -388,14 +386,14 @@ class _Decompressor:
                 if why is None and crc and crc32(dst) != crc:
                     why = "CRC mismatch"
             if why is not None:
-                self.damaged.append(Damage(at, int(tab.t_first[j]), int(tab.t_last[j]), why))
-                sizes.append(0)
+                self.damaged.append(Damage(at, int(tab.t_first[k]), int(tab.t_last[k]), why))
                 continue
             pos += u
-            sizes.append(u)
+            sizes[j] = u
         buf[pos : pos + _PAD] = bytes(_PAD)
-        release_pages(data, int(tab.rec_at.min()), int(tab.rec_end.max()))
-        release_pages(data, int(tab.ci[0]), int(tab.ci[-1] + self.idx.ci_len[g1 - 1]))  # their indexes too
+        if sel.shape[0]:  # the pages read: the records and the chunk indexes (summary)
+            release_pages(data, int(tab.rec_at.min()), int(tab.rec_end.max()))
+            release_pages(data, int(tab.ci.min()), int(tab.ci.max() + self.idx.ci_len[sel].max()))
         return buf, pos, sizes
 
 

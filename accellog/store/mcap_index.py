@@ -198,15 +198,16 @@ def chunk_table(
 class ChunkIndex:
     """What a walk keeps of every chunk, 24 bytes a chunk (a day of 0.5 s recorder chunks: ~4 MB, where
     the whole ChunkTable is ~17 MB): its chunk index record's offset and length in the summary and its
-    uncompressed size. ``rows`` reads the ChunkTable of a run of chunks again when it is needed."""
+    uncompressed size. ``rows`` reads the ChunkTable of some chunks again when it is needed."""
 
     footer: int
     ci: np.ndarray
     ci_len: np.ndarray
     usize: np.ndarray
 
-    def rows(self, data: Bytes, g0: int, g1: int) -> ChunkTable:
-        return chunk_table(data, self.footer, self.ci[g0:g1], self.ci_len[g0:g1])
+    def rows(self, data: Bytes, which: np.ndarray) -> ChunkTable:
+        """The ChunkTable of the chunks `which` (indexes into the summary order)."""
+        return chunk_table(data, self.footer, self.ci[which], self.ci_len[which])
 
 
 _INDEX_WINDOW = 1 << 15  # chunk_index: chunks checked at a time (bounded temporaries)
@@ -250,11 +251,13 @@ def chunks_with(data: Bytes, ci: np.ndarray, channels, topics, stream) -> np.nda
     wanted = {cid for cid, ch in channels.items() if ch.topic in set(topics)}
     if len(wanted) == len(channels):
         return None
-    ids = {struct.pack("<H", cid) for cid in wanted}
+    # every map entry at once: chunk k's entries at ci[k] + 36 + 10 j, j < map_len[k] / 10
+    count = map_len // 10
+    chunk = np.repeat(np.arange(ci.shape[0]), count)
+    j = np.arange(chunk.shape[0]) - np.repeat(np.cumsum(count) - count, count)
+    ids = read_le(np.frombuffer(data, np.uint8), ci[chunk] + 36 + 10 * j, "<u2")
     keep = np.zeros(ci.shape[0], bool)
-    for k, (at, n) in enumerate(zip((ci + 36).tolist(), map_len.tolist(), strict=True)):
-        entries = data[at : at + n]
-        keep[k] = any(entries[j : j + 2] in ids for j in range(0, n, 10))
+    keep[chunk[np.isin(ids, np.fromiter(wanted, np.int64, len(wanted)))]] = True
     return keep
 
 
