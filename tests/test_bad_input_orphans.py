@@ -129,7 +129,8 @@ def test_chromium_leaves_no_orphan(how):
     pytest.importorskip("websockets")
     code = (
         "import time; from accellog.present.viewer import Chromium\n"
-        "c = Chromium(size=(400, 300))\nprint('chromium', c.proc.pid, flush=True)\ntime.sleep(120)\n"
+        "c = Chromium(size=(400, 300))\nprint('chromium', c.proc.pid, c._profile, flush=True)\n"
+        "time.sleep(120)\n"
     )
     proc = subprocess.Popen(
         [sys.executable, "-c", code],
@@ -140,9 +141,12 @@ def test_chromium_leaves_no_orphan(how):
         cwd=tempfile.gettempdir(),
     )
     try:
-        pid = int(_wait_line(proc, "chromium", 60).split()[1])
+        _, pid, profile = _wait_line(proc, "chromium", 60).split()
+        pid = int(pid)
         assert len(_group_alive(pid)) >= 2  # the browser and its helpers share its group
+        assert Path(profile).is_dir()
         _stop_and_check(proc, how, [pid])
+        assert not Path(profile).exists(), f"the browser profile was left after {how}"
     finally:
         if proc.poll() is None:
             proc.kill()

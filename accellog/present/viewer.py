@@ -102,17 +102,26 @@ def rerun_env() -> dict[str, str]:
 # normal return and exceptions (context managers), SIGTERM/SIGHUP (handlers installed with the first
 # child turn the signal into SystemExit after ending the children) and interpreter exit (atexit).
 _CHILDREN: set[subprocess.Popen] = set()
+_FOLDERS: dict[int, str] = {}  # child pid -> its throw-away folder, removed when the child is stopped
 _HANDLED = (signal.SIGTERM, signal.SIGHUP)
 _installed = False
 
 
-def start_child(cmd: list[str], **kw) -> subprocess.Popen:
-    """Popen in a new process group (stdout/stderr discarded), ended on every exit path."""
+def start_child(cmd: list[str], *, folder: str | None = None, **kw) -> subprocess.Popen:
+    """Popen in a new process group (stdout/stderr discarded), ended on every exit path; folder
+    (e.g. a browser profile) is removed whenever the child is stopped, signals included."""
     _install_exit_guards()
-    proc = subprocess.Popen(
-        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, **kw
-    )
+    try:
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, **kw
+        )
+    except BaseException:
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)
+        raise
     _CHILDREN.add(proc)
+    if folder is not None:
+        _FOLDERS[proc.pid] = folder
     return proc
 
 
@@ -142,20 +151,29 @@ def _install_exit_guards() -> None:
 
 
 def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
-    """Terminate a process we started (its own process group), then kill it if it lingers."""
+    """Terminate a process we started (its own process group), then kill it if it lingers; kill the
+    helpers left in its group and remove its folder."""
     _CHILDREN.discard(proc)
-    if proc.poll() is not None:
+    if proc.poll() is None:
         with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)  # helpers left in its group
-        return
+            os.killpg(proc.pid, signal.SIGTERM)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout_s)
     with contextlib.suppress(ProcessLookupError):
-        os.killpg(proc.pid, signal.SIGTERM)
-    try:
-        proc.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+        os.killpg(proc.pid, signal.SIGKILL)  # the process if it lingers, and helpers left in its group
+    proc.wait()
+    folder = _FOLDERS.pop(proc.pid, None)
+    if folder is not None:
+        _remove_folder(folder)
+
+
+def _remove_folder(folder: str, timeout_s: float = 2.0) -> None:
+    """rmtree, again while helpers that were just killed may still have been writing into it."""
+    end = time.monotonic() + timeout_s
+    shutil.rmtree(folder, ignore_errors=True)
+    while os.path.exists(folder) and time.monotonic() < end:
+        time.sleep(0.05)
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 @dataclass
@@ -217,7 +235,7 @@ class Chromium:
             raise InputError("chromium not found: apt-get install chromium (or set ACCELLOG_CHROMIUM)")
         self.size = size
         self.timeout_s = timeout_s
-        self._profile = tempfile.mkdtemp(prefix="accellog-chromium-")
+        self._profile = tempfile.mkdtemp(prefix="accellog-chromium-")  # removed by stop_process
         self.port = free_port()
         cmd = [
             self.exe,
@@ -242,7 +260,7 @@ class Chromium:
         ]
         # Chromium's own temporary files go to the profile folder, removed on close.
         env = {**os.environ, "TMPDIR": self._profile}
-        self.proc = start_child(cmd, env=env)
+        self.proc = start_child(cmd, folder=self._profile, env=env)
         self._ws = None
         self._id = 0
         self._events: set[str] = set()
@@ -323,7 +341,6 @@ class Chromium:
                 self._stack.close()
             self._ws = None
         stop_process(self.proc)
-        shutil.rmtree(self._profile, ignore_errors=True)
 
     def __enter__(self) -> Chromium:
         return self
