@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from accellog.core.errors import DataIntegrityWarning, InputError
+from accellog.core.heap import HeapTrim
 from accellog.core.session import Event, PoseLabel, SessionMeta
 from accellog.core.units import temp_counts_to_degC
 from accellog.store.batch_decode import DecodedBatch
@@ -90,7 +91,9 @@ def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
 def _walked(walk, where: str, n_done: list[int]) -> Iterator[ImuBlock]:
     """The blocks of a _fast_walk stream (n_done[0] counts the samples handed out)."""
     meta = None
+    trim = HeapTrim()
     while True:
+        trim()  # the consumer is done with the previous block
         try:
             kv, dec = next(walk)
         except StopIteration as end:
