@@ -138,8 +138,9 @@ def _fast_walk(
     ahead = _ahead(data, idx, usize)
     chunks = _Decompressor(data, idx, keep, verified, damaged, ahead + 1)
     # per-chunk state: 24 B in idx, the rest read again per group (whole-file lists: ~3 MB per hour)
-    done = np.cumsum(usize) / max(1, int(usize.sum()))  # fraction read after each chunk
     groups = _groups(usize, stream is None)
+    read = np.concatenate([[0], np.cumsum(usize)])
+    done = read[[e for _b, e in groups]] / max(1, int(read[-1]))  # fraction read after group i
 
     def decompress(i: int) -> tuple[bytearray, int, list[int]]:
         return chunks.records(*groups[i], i % (ahead + 1))
@@ -156,7 +157,7 @@ def _fast_walk(
             records, used, sizes = pending.pop(0).result()
             if i + ahead < len(groups):  # into the slot of group i - 1, decoded by now
                 pending.append(pool.submit(decompress, i + ahead))
-            frac = 1.0 if stream else float(done[groups[i][1] - 1])
+            frac = 1.0 if stream else float(done[i])
             _decode_group(records, used, sizes, frac, channels, schemas, sink, message_of, parts, new_part)
             if stream is not None:
                 part = next(
@@ -287,25 +288,26 @@ def _ahead(data: Bytes, idx, usize: np.ndarray) -> int:
 
 
 def _groups(usize: np.ndarray, ends_small: bool = True) -> list[tuple[int, int]]:
-    """Consecutive runs of chunks holding about _GROUP_BYTES of records each (at least one chunk);
-    ends_small: the first and the last about _GROUP_BYTES / 8, so that the pipeline (decompress |
-    decode | convert) fills and drains sooner, with less work on one thread while the others wait
-    (a stream keeps even blocks)."""
-    sizes = usize.tolist()
+    """Runs of chunks of about _GROUP_BYTES of records: a run ends before the chunk that would take it
+    past the cap, once it holds bytes; ends_small: the first and last ~1/8 of it, so the pipeline
+    (decompress | decode | convert) fills and drains sooner (a stream keeps even blocks)."""
+    n = usize.shape[0]
+    if n == 0:
+        return [(0, 0)]
+    cs = np.zeros(n + 1, np.int64)
+    np.cumsum(usize, out=cs[1:])
     small = _GROUP_BYTES // 8 if ends_small else _GROUP_BYTES
-    bounds, total, cap = [0], 0, small
-    for i, u in enumerate(sizes):
-        if total and total + u > cap:
-            bounds.append(i)
-            total, cap = 0, _GROUP_BYTES
-        total += u
-    last, total = len(sizes), 0  # split the tail off the last group
-    while ends_small and last - 1 > bounds[-1] and total + sizes[last - 1] <= small:
-        last -= 1
-        total += sizes[last]
-    if bounds[-1] < last < len(sizes):
-        bounds.append(last)
-    bounds.append(len(sizes))
+    bounds, cap = [0], small
+    while bounds[-1] < n:
+        b = bounds[-1]
+        fits = int(np.searchsorted(cs, cs[b] + cap, "right")) - 1  # chunks [b, fits) within the cap
+        first_bytes = int(np.searchsorted(cs, cs[b], "right"))  # [b, first_bytes) holds some bytes
+        bounds.append(min(n, max(fits, first_bytes)))
+        cap = _GROUP_BYTES
+    if ends_small:  # split the tail off the last group
+        last = max(bounds[-2] + 1, int(np.searchsorted(cs, cs[n] - small, "left")))
+        if last < n:
+            bounds.insert(-1, last)
     return list(itertools.pairwise(bounds))
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from mcap.records import Channel, Schema
 
 from accellog.store.batch_decode import read_le
-from accellog.store.collect import crc32
+from accellog.store.collect import crc32, release_pages
 from accellog.store.layout import MCAP_MAGIC
 
 REC = struct.Struct("<BQ")  # record prefix: opcode u8, content length u64
@@ -49,12 +49,20 @@ class SummaryDamaged(Exception):
     """The summary section fails its CRC: its offsets cannot be trusted; scan the file instead."""
 
 
+_PAGES_AT_ONCE = 1 << 20  # bytes of summary mapped at a time by the index pass (then released)
+
+
 def summary_sound(data: Bytes, footer: int, summary_start: int) -> bool | None:
     """Footer summary CRC check: True/False, None when the writer stored none (0)."""
     want = U32.unpack_from(data, footer + 25)[0]
     if want == 0:
         return None
-    return crc32(data[footer : footer + 25], crc32(memoryview(data)[summary_start:footer])) == want
+    crc, view = 0, memoryview(data)
+    for lo in range(summary_start, footer, _PAGES_AT_ONCE):  # a day's summary is ~14 MB: a MB at a time
+        hi = min(lo + _PAGES_AT_ONCE, footer)
+        crc = crc32(view[lo:hi], crc)
+        release_pages(data, lo, hi)
+    return crc32(data[footer : footer + 25], crc) == want
 
 
 def str_at(data: Bytes, pos: int) -> tuple[str, int]:
@@ -110,8 +118,11 @@ def read_summary(data: Bytes, footer: int, summary_start: int):
     channels: dict[int, Channel] = {}
     chunk_index_at, chunk_index_len = array("q"), array("q")  # 8 bytes a chunk, not two int objects
     metadata_at: list[int] = []
-    pos = summary_start
+    pos = released = summary_start
     while pos < footer:
+        if pos - released > _PAGES_AT_ONCE:
+            release_pages(data, released, pos)
+            released = pos
         op, ln = REC.unpack_from(data, pos)
         c, e = pos + 9, pos + 9 + ln
         if op not in SUMMARY_OPS or e > footer:
@@ -221,7 +232,14 @@ def chunk_index(
     for lo in range(0, usize.shape[0], _INDEX_WINDOW):
         hi = lo + _INDEX_WINDOW
         usize[lo:hi] = chunk_table(data, footer, chunk_index_at[lo:hi], chunk_index_len[lo:hi]).usize
+        _release_indexes(data, chunk_index_at[lo:hi], chunk_index_len[lo:hi])
     return ChunkIndex(footer, chunk_index_at, chunk_index_len, usize)
+
+
+def _release_indexes(data: Bytes, at: np.ndarray, ln: np.ndarray) -> None:
+    """Release the summary pages of these chunk index records (read; ~14 MB a day in all)."""
+    if at.shape[0]:
+        release_pages(data, int(at.min()), int((at + ln).max()))
 
 
 CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, length, start, end, uncompressed size, crc, name length
@@ -245,19 +263,24 @@ def chunks_with(data: Bytes, ci: np.ndarray, channels, topics, stream) -> np.nda
     index without that map: the writer stored no message indexes)."""
     if topics is None or stream is not None:
         return None
-    map_len = read_le(np.frombuffer(data, np.uint8), ci + 32, "<u4").astype(np.int64)
-    if np.any(map_len <= 0) or np.any(map_len % 10):
-        return None
     wanted = {cid for cid, ch in channels.items() if ch.topic in set(topics)}
     if len(wanted) == len(channels):
         return None
-    # every map entry at once: chunk k's entries at ci[k] + 36 + 10 j, j < map_len[k] / 10
-    count = map_len // 10
-    chunk = np.repeat(np.arange(ci.shape[0]), count)
-    j = np.arange(chunk.shape[0]) - np.repeat(np.cumsum(count) - count, count)
-    ids = read_le(np.frombuffer(data, np.uint8), ci[chunk] + 36 + 10 * j, "<u2")
+    wanted_ids = np.fromiter(wanted, np.int64, len(wanted))
+    buf = np.frombuffer(data, np.uint8)
     keep = np.zeros(ci.shape[0], bool)
-    keep[chunk[np.isin(ids, np.fromiter(wanted, np.int64, len(wanted)))]] = True
+    for lo in range(0, ci.shape[0], _INDEX_WINDOW):  # bounded temporaries and mapped pages
+        at = ci[lo : lo + _INDEX_WINDOW]
+        map_len = read_le(buf, at + 32, "<u4").astype(np.int64)
+        if np.any(map_len <= 0) or np.any(map_len % 10):
+            return None
+        # every map entry at once: chunk k's entries at at[k] + 36 + 10 j, j < map_len[k] / 10
+        count = map_len // 10
+        chunk = np.repeat(np.arange(at.shape[0]), count)
+        j = np.arange(chunk.shape[0]) - np.repeat(np.cumsum(count) - count, count)
+        ids = read_le(buf, at[chunk] + 36 + 10 * j, "<u2")
+        keep[lo + chunk[np.isin(ids, wanted_ids)]] = True
+        _release_indexes(data, at, 36 + map_len)
     return keep
 
 
