@@ -118,8 +118,8 @@ def _fast_walk(
     schemas, channels, chunk_index_at, chunk_index_len, metadata_at = read_summary(
         data, footer, summary_start
     )
-    idx = chunk_index(data, footer, chunk_index_at, chunk_index_len)
-    usize, damaged = idx.usize, []
+    (idx, usize), damaged = chunk_index(data, footer, chunk_index_at, chunk_index_len), []
+    del chunk_index_at, chunk_index_len  # idx keeps 8 B a chunk: a day of recorder chunks, 1.4 MB
     keep = chunks_with(data, idx.ci, channels, topics, stream)
     release_pages(data, 0, len(data))  # what the index pass touched (the summary: ~14 MB at 24 h)
     if keep is not None:  # only chunks that hold a wanted channel are decompressed
@@ -137,10 +137,10 @@ def _fast_walk(
 
     ahead = _ahead(data, idx, usize)
     chunks = _Decompressor(data, idx, keep, verified, damaged, ahead + 1)
-    # per-chunk state: 24 B in idx, the rest read again per group (whole-file lists: ~3 MB per hour)
     groups = _groups(usize, stream is None)
     read = np.concatenate([[0], np.cumsum(usize)])
     done = read[[e for _b, e in groups]] / max(1, int(read[-1]))  # fraction read after group i
+    del usize, read  # per chunk only idx is kept; the rest is read again per group
 
     def decompress(i: int) -> tuple[bytearray, int, list[int]]:
         return chunks.records(*groups[i], i % (ahead + 1))
@@ -329,7 +329,7 @@ class _Decompressor:
         self.bufs = [bytearray() for _ in range(slots)]
         self.verified = verified
         self.idx = idx
-        self.keep = np.ones(idx.usize.shape[0], bool) if keep is None else keep
+        self.keep = np.ones(idx.ci.shape[0], bool) if keep is None else keep
         self.damaged = damaged  # appended to (list.append is atomic)
 
     def _into(self, comp: bytes, raw, dst: memoryview, slot: int) -> str | None:
@@ -395,7 +395,7 @@ class _Decompressor:
         buf[pos : pos + _PAD] = bytes(_PAD)
         if sel.shape[0]:  # the pages read: the records and the chunk indexes (summary)
             release_pages(data, int(tab.rec_at.min()), int(tab.rec_end.max()))
-            release_pages(data, int(tab.ci.min()), int(tab.ci.max() + self.idx.ci_len[sel].max()))
+            release_pages(data, int(tab.ci.min()), int((tab.ci + 64 + tab.map_len + tab.name_len).max()))
         return buf, pos, sizes
 
 
