@@ -49,7 +49,7 @@ class SummaryDamaged(Exception):
     """The summary section fails its CRC: its offsets cannot be trusted; scan the file instead."""
 
 
-_PAGES_AT_ONCE = 1 << 20  # bytes of summary mapped at a time by the index pass (then released)
+PAGES_AT_ONCE = 1 << 20  # bytes of summary mapped at a time by the index pass (then released)
 
 
 def summary_sound(data: Bytes, footer: int, summary_start: int) -> bool | None:
@@ -58,8 +58,8 @@ def summary_sound(data: Bytes, footer: int, summary_start: int) -> bool | None:
     if want == 0:
         return None
     crc, view = 0, memoryview(data)
-    for lo in range(summary_start, footer, _PAGES_AT_ONCE):  # a day's summary is ~14 MB: a MB at a time
-        hi = min(lo + _PAGES_AT_ONCE, footer)
+    for lo in range(summary_start, footer, PAGES_AT_ONCE):  # a day's summary is ~14 MB: a MB at a time
+        hi = min(lo + PAGES_AT_ONCE, footer)
         crc = crc32(view[lo:hi], crc)
         release_pages(data, lo, hi)
     return crc32(data[footer : footer + 25], crc) == want
@@ -120,7 +120,7 @@ def read_summary(data: Bytes, footer: int, summary_start: int):
     metadata_at: list[int] = []
     pos = released = summary_start
     while pos < footer:
-        if pos - released > _PAGES_AT_ONCE:
+        if pos - released > PAGES_AT_ONCE:
             release_pages(data, released, pos)
             released = pos
         op, ln = REC.unpack_from(data, pos)

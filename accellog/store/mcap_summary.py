@@ -19,7 +19,8 @@ from pathlib import Path
 from mcap.data_stream import ReadDataStream
 from mcap.records import Attachment, AttachmentIndex, Channel, Schema, Statistics
 
-from accellog.store.mcap_index import REC, read_footer, read_metadata, read_summary
+from accellog.store.collect import release_pages
+from accellog.store.mcap_index import PAGES_AT_ONCE, REC, read_footer, read_metadata, read_summary
 
 OP_ATTACHMENT, OP_ATTACHMENT_INDEX, OP_STATISTICS = 0x09, 0x0A, 0x0B
 
@@ -43,8 +44,11 @@ def summary_of(path: str | Path) -> SummaryFacts:
     with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
         footer, start, _verified = read_footer(data)
         schemas, channels, _at, _len, metadata_at = read_summary(data, footer, start)
-        stats, attach, pos = None, [], start
+        stats, attach, pos, released = None, [], start, start
         while pos < footer:
+            if pos - released > PAGES_AT_ONCE:  # a day's summary is ~14 MB: drop what was read
+                release_pages(data, released, pos)
+                released = pos
             op, ln = REC.unpack_from(data, pos)
             if op == OP_STATISTICS:
                 stats = _record(data, pos, ln, Statistics)
