@@ -20,7 +20,7 @@ from mcap.writer import Writer
 
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
-from accellog.store import batch_decode, fastread, reader
+from accellog.store import batch_decode, fastread, reader, record_starts
 from accellog.store.codec import encode
 from accellog.store.layout import meta_to_metadata
 from accellog.store.reader import read_attachments, read_session, read_vector3, session_summary
@@ -610,7 +610,7 @@ def test_fast_reader_equals_generic_steady_recorder_stream(tmp_path, monkeypatch
 def test_message_starts_runs_and_steps(per_chunk):
     """The record walks find every Message record, in order, whether lengths repeat (guessed runs),
     vary from record to record (stepped in Python) or alternate between the two, across chunk ends;
-    many small chunks are walked side by side (_chunkwise_starts), a long chunk makes it give up."""
+    many small chunks are walked side by side (chunkwise_starts), a long chunk makes it give up."""
     rng = np.random.default_rng(11)
     lengths = [40] * 300 + [int(x) for x in rng.integers(22, 90, 700)] + [50] * 100 + [60, 61] * 200
     lengths += [int(x) for x in rng.integers(22, 25, 500)] + [70] * 2000
@@ -624,12 +624,12 @@ def test_message_starts_runs_and_steps(per_chunk):
         pos += len(body)
     records = bytearray(b"".join(chunks) + bytes(16))
     sizes = [len(c) for c in chunks]
-    assert fastread._message_starts(records, sizes).tolist() == starts
-    chunkwise = fastread._chunkwise_starts(records, sizes)
-    assert (chunkwise is None) == (per_chunk > fastread._MAX_STEPS)
+    assert record_starts.message_starts(records, sizes).tolist() == starts
+    chunkwise = record_starts.chunkwise_starts(records, sizes)
+    assert (chunkwise is None) == (per_chunk > record_starts.MAX_STEPS)
     assert chunkwise is None or chunkwise.tolist() == starts
     bad = [sizes[0] - 1, sizes[1] + 1, *sizes[2:]]  # a record across a chunk end
-    for walk in (fastread._message_starts, fastread._chunkwise_starts):
+    for walk in (record_starts.message_starts, record_starts.chunkwise_starts):
         with pytest.raises(fastread.NotFast):
             walk(records, bad)
 
@@ -661,5 +661,5 @@ def test_equal_records_guess_checks_every_record():
     first, fourth = int(end[0] - sizes[0]), int(end[3] - sizes[3])
     assert found[0].tolist() == [first + 49 * k for k in range(5)] + [fourth + 69 * k for k in range(3)]
     records = bytearray(rb.tobytes())
-    walked = fastread._chunkwise_starts(records, sizes.tolist())
+    walked = record_starts.chunkwise_starts(records, sizes.tolist())
     assert walked is not None and set(found[0].tolist()) <= set(walked.tolist())

@@ -2,8 +2,8 @@
 
 The file is mapped, footer and summary parsed with struct, chunks decompressed ~4 MiB at a time into two
 reused buffers (the next group on a worker thread while this one is decoded), records walked by checked
-guesses (runs of equal-length messages) or, in groups of many small chunks, all chunks side by side,
-and every channel's payloads decoded at once by ``batch_decode.decode_batch`` straight into arrays
+guesses (runs of equal-length messages) or, in groups of many small chunks, all chunks side by side
+(store.record_starts), and every channel's payloads decoded at once by ``batch_decode.decode_batch`` straight into arrays
 sized once (zstd chunks straight into the group buffer; a channel's accumulator may convert each group
 as it comes: store.imu_arrays). Anything unexpected raises ``NotFast`` and the generic reader decides.
 
@@ -40,24 +40,18 @@ from accellog.store.collect import (
 )
 from accellog.store.mcap_index import (
     MESSAGE_HEADER,
-    OP_CHANNEL,
-    OP_MESSAGE,
-    OP_SCHEMA,
-    REC,
     Bytes,
     NotFast,
     Refuse,
     SummaryDamaged,
-    channel_at,
     chunk_index,
     chunks_with,
-    equal_records,
     header_agrees,
     read_footer,
     read_metadata,
     read_summary,
-    schema_at,
 )
+from accellog.store.record_starts import MANY_CHUNKS, chunkwise_starts, message_starts
 
 # ---------------------------------------------------------------------------------------------
 # fast path: walk the MCAP file with struct/numpy, decode every batch channel at once
@@ -236,9 +230,9 @@ def _decode_group(
 ) -> None:
     """Decode the messages of one group of decompressed chunks into the channels' accumulators
     (new_part(channel id, message type) makes one)."""
-    messages = _chunkwise_starts(records, usize) if len(usize) >= _MANY_CHUNKS else None
+    messages = chunkwise_starts(records, usize) if len(usize) >= MANY_CHUNKS else None
     if messages is None:
-        messages = _message_starts(records, usize)
+        messages = message_starts(records, usize)
     if not messages.shape[0]:
         return
     rb = np.frombuffer(records, np.uint8, used + _PAD)
@@ -397,104 +391,3 @@ class _Decompressor:
             release_pages(data, int(tab.rec_at.min()), int(tab.rec_end.max()))
             release_pages(data, int(tab.ci.min()), int((tab.ci + 64 + tab.map_len + tab.name_len).max()))
         return buf, pos, sizes
-
-
-_MANY_CHUNKS = 32  # chunks in a group from which _chunkwise_starts walks them side by side
-_MAX_STEPS = 64  # _chunkwise_starts gives up after this many records in one chunk
-
-
-def _chunkwise_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray | None:
-    """``_message_starts`` for groups of many small chunks (recorder files: ~15 records per 0.5 s
-    chunk): the record chains of all chunks walked side by side, one record of every chunk per numpy
-    step, so the steps are the records of the longest chunk whatever their lengths; the same checks
-    (no record across its chunk end; schema and channel records fill their length). None if a chunk
-    holds more than _MAX_STEPS records (then the guessing walk does better). Chunks of equal-length
-    Messages only (mcap_index.equal_records, all checked at once) are not walked."""
-    size = np.asarray(usize, dtype=np.int64)
-    end = np.cumsum(size)
-    pos, end = (end - size)[size > 0], end[size > 0]
-    rb = np.frombuffer(records, np.uint8)
-    found, left = equal_records(rb, pos, end)
-    pos, end = pos[left], end[left]
-    for _ in range(_MAX_STEPS):
-        if not pos.shape[0]:
-            return np.sort(np.concatenate(found)) if found else np.zeros(0, np.int64)
-        op = rb[pos]
-        room = end - pos - 9
-        ln = read_le(rb, pos + 1, "<u8")
-        if np.any(room < 0) or np.any(ln > room.astype(np.uint64)):
-            raise NotFast("record across a chunk boundary")
-        nxt = pos + 9 + ln.astype(np.int64)
-        found.append(pos[op == OP_MESSAGE])
-        for j in np.flatnonzero((op == OP_SCHEMA) | (op == OP_CHANNEL)).tolist():
-            at = int(pos[j])  # read by content in mcap: length must agree
-            if (schema_at if op[j] == OP_SCHEMA else channel_at)(records, at + 9)[1] != int(nxt[j]):
-                raise NotFast("schema/channel record length in a chunk")
-        more = nxt < end
-        pos, end = nxt[more], end[more]
-    return None
-
-
-_STEP = 64  # _message_starts: records walked one by one in Python after a short run of equal lengths
-_SHORT = 32  # a run shorter than this did not pay for its numpy guess (~40 Python steps)
-
-
-def _message_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray:
-    """Offsets of the Message records in the concatenated chunk records (each chunk must be whole).
-
-    Walks the record chain; at a Message record of length L it guesses that the records that follow
-    are Messages of the same length (the usual case: same fields, same varint sizes) and checks all
-    those guesses at once with numpy (opcode, length, no record across a chunk end), keeping the run
-    up to the first miss, so the Python walk only steps where the record layout changes. At most
-    about twice the last run is guessed at a time, so short runs do not cost a scan to the end of the
-    group each (linear in the records, not quadratic). After a short run (lengths that vary, as in
-    recorder files with FIFO reads of varying size) the next _STEP records are stepped in Python, a
-    fraction of a guess's cost each, until _SHORT/2 equal lengths in a row make guessing pay again.
-    """
-    unpack = REC.unpack_from
-    ends = list(itertools.accumulate(usize))
-    total = ends[-1] if ends else 0
-    ends_arr = np.asarray(ends, dtype=np.int64)
-    rb = np.frombuffer(records, np.uint8)
-    runs: list[np.ndarray] = []
-    single: list[int] = []  # messages stepped one by one since the last run (in order)
-    pos, k, span = 0, 0, 64  # span: guesses checked at once, doubled while runs fill it (linear time)
-    step, same, last = 0, 0, -1  # records left to step; equal lengths in a row while stepping
-    while pos < total:
-        while pos >= ends[k]:  # next chunk (a record never crosses a chunk end)
-            k += 1
-        op, ln = unpack(records, pos)
-        nxt = pos + 9 + ln
-        if nxt > ends[k]:
-            raise NotFast("record across a chunk boundary")
-        if op == OP_MESSAGE and step:
-            single.append(pos)
-            same = same + 1 if ln == last else 0
-            step, last = (0 if same >= _SHORT // 2 else step - 1), ln
-            pos = nxt
-            continue
-        if op == OP_MESSAGE:
-            stride = 9 + ln
-            stop = min(total - stride + 1, pos + stride * span)
-            guess = np.arange(pos, stop, stride, dtype=np.int64)  # guess[0] == pos: checked
-            ok = (rb[guess] == OP_MESSAGE) & (read_le(rb, guess + 1, "<u8") == ln)
-            ok &= np.searchsorted(ends_arr, guess, "right") == np.searchsorted(
-                ends_arr, guess + (stride - 1), "right"
-            )
-            m = guess.shape[0] if ok.all() else int(np.argmin(ok))
-            if single:
-                runs.append(np.asarray(single, dtype=np.int64))
-                single = []
-            runs.append(guess[:m])
-            pos = int(guess[m - 1]) + stride
-            span = 2 * m if m == guess.shape[0] else max(64, 2 * m)
-            step, same, last = (_STEP if m < _SHORT else 0), 0, -1
-            continue
-        if op in (OP_SCHEMA, OP_CHANNEL):  # read by content in mcap: length must agree
-            q = (schema_at if op == OP_SCHEMA else channel_at)(records, pos + 9)[1]
-            if q != nxt:
-                raise NotFast("schema/channel record length in a chunk")
-        pos = nxt
-    if single:
-        runs.append(np.asarray(single, dtype=np.int64))
-    return np.concatenate(runs) if runs else np.zeros(0, np.int64)

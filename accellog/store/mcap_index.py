@@ -303,7 +303,7 @@ def read_metadata(data: Bytes, at: int) -> tuple[str, dict[str, str]]:
 
 
 def equal_records(rb: np.ndarray, pos: np.ndarray, end: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-    """``fastread._chunkwise_starts``' guess for all chunks at once: each chunk (records rb[pos[k]:end[k]])
+    """``record_starts.chunkwise_starts``' guess for all chunks at once: each chunk (records rb[pos[k]:end[k]])
     holds Message records of the length of its first one only (recorder files: equal FIFO reads).
     Every guessed record's opcode and length are checked, so a chunk that passes is exactly that
     chain. ([Message offsets of the chunks that pass], mask of the chunks left to walk)."""
