@@ -6,7 +6,7 @@ Data: a seeded logger CSV (t in s with 6 decimals; ax..az in g, gx..gz in deg/s,
 written once with pyarrow in slices. Each variant runs in its own fresh Python process, so its peak
 RSS (``resource.getrusage(RUSAGE_SELF).ru_maxrss``) is its own; the page cache is warmed first.
 Variants:
-- accellog: ``import_csv_to_mcap`` (block parse + checks + conversion + MCAP write, lz4);
+- accellog: ``import_csv_to_mcap`` (block parse + checks + conversion + MCAP write, zstd: the default);
 - accellog (parse only): the same blocks and checks without writing (``CsvImport.chunks``);
 - pyarrow read_csv: one whole-file parse to a table, then numpy columns (memory grows with the file);
 - pyarrow open_csv: streaming batches (the parse floor in bounded memory).

@@ -5,10 +5,10 @@ Usage: python benchmarks/bench_readback.py [--minutes 60] [--repeat 5] [--no-gen
 Data: a simulated static recording (seeded): accel/gyro/temp counts with noise, one host time per
 36-sample FIFO read. MCAP layouts (same format, same schema, one message per batch):
 - recorder: 36-sample messages (one FIFO read each) written by SessionWriter with its defaults
-  (chunk ended and flushed every 0.5 s: crash-safe), lz4 (default) or zstd;
+  (chunk ended and flushed every 0.5 s: crash-safe), zstd (default) or lz4;
 - recorder, varying reads: the same with FIFO reads of 30-42 samples (seeded), as a live recorder
-  polling a FIFO writes them: message lengths change from one message to the next, lz4;
-- write_session: whole-session writer (imports, simulations), 1 MiB chunks, lz4 (default) or zstd
+  polling a FIFO writes them: message lengths change from one message to the next, zstd or lz4;
+- write_session: whole-session writer (imports, simulations), 1 MiB chunks, zstd (default) or lz4
   (messages are still split wherever host time changes, i.e. every 36 samples here).
 Baselines, holding exactly the arrays a Session gets (same dtypes; t_ns i8, sample_index i8,
 accel/gyro counts i4 (n,3), temp counts i4, host time ns i8 per sample):
@@ -249,6 +249,7 @@ def main() -> None:
             ("rec", lambda p: write_recorder_layout(p, s, "lz4")),
             ("rec_zstd", lambda p: write_recorder_layout(p, s, "zstd")),
             ("rec_vary", lambda p: write_recorder_layout(p, s, "lz4", vary=True)),
+            ("rec_vary_zstd", lambda p: write_recorder_layout(p, s, "zstd", vary=True)),
             ("ws", lambda p: write_session(p, s, compression="lz4")),
             ("ws_zstd", lambda p: write_session(p, s, compression="zstd")),
         ):
@@ -266,7 +267,7 @@ def main() -> None:
             for name, a in raw_arrays(r).items():
                 want = arrays[name]
                 if key.startswith("rec") and name == "host_time_ns":  # one host time per read
-                    want = stored_host_ns(s, key == "rec_vary")
+                    want = stored_host_ns(s, key.startswith("rec_vary"))
                 assert np.array_equal(a, want), (key, name)
             del r
 
@@ -280,12 +281,14 @@ def main() -> None:
             ),
             ("raw .npy (np.load per array)", lambda: [np.load(p) for p in npys], npys, float("nan")),
         ]
+        mark = {c: " (default)" if c == DEFAULT_COMPRESSION else "" for c in ("lz4", "zstd")}
         labels = {
-            "rec": "MCAP recorder 36/msg, lz4 (default)",
-            "rec_zstd": "MCAP recorder 36/msg, zstd",
-            "rec_vary": "MCAP recorder 30-42/msg (varying reads), lz4",
-            "ws": "MCAP write_session, 1 MiB lz4 chunks (default)",
-            "ws_zstd": "MCAP write_session, 1 MiB zstd chunks",
+            "rec": f"MCAP recorder 36/msg, lz4{mark['lz4']}",
+            "rec_zstd": f"MCAP recorder 36/msg, zstd{mark['zstd']}",
+            "rec_vary": f"MCAP recorder 30-42/msg (varying reads), lz4{mark['lz4']}",
+            "rec_vary_zstd": f"MCAP recorder 30-42/msg (varying reads), zstd{mark['zstd']}",
+            "ws": f"MCAP write_session, 1 MiB lz4 chunks{mark['lz4']}",
+            "ws_zstd": f"MCAP write_session, 1 MiB zstd chunks{mark['zstd']}",
         }
         for key, (p, tw) in files.items():
             rows.append((labels[key] + ": read_session", lambda p=p: read_session(p), p, tw))

@@ -5,7 +5,7 @@
 The live recorder writes one message per FIFO read (30-42 samples here, seeded) into 0.5 s chunks:
 ~7,000 chunks per hour, ~170 k in a day, where ``write_session`` (the sessions of bench_scale.py)
 writes ~120 per hour. Whatever the reader keeps per chunk therefore grows with the session here and
-hides there. Each file is written once hour by hour (``SessionWriter``, lz4, as the recorder; ~4 s
+hides there. Each file is written once hour by hour (``SessionWriter`` with its defaults, as the recorder: zstd; ~4 s
 per hour) and reused from --dir. Each figure is a fresh process (ru_maxrss, wall and CPU time) of
 what every streamed stage does first (``can_stream`` + ``read_labels``: "labels") and of ``iter_imu``
 over every block, the pass it makes ("pass"); the load average is printed with it. --baseline DIR:

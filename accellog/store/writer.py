@@ -35,10 +35,12 @@ from accellog.store.layout import (
 )
 from accellog.store.schema import SCHEMA_VERSION, file_descriptor_set_bytes, full_name
 
-# Chunk compression written by default. lz4 decompresses ~2x faster than zstd (read_session of a 1 kHz
-# hour: ~0.3 s instead of ~0.4 s, benchmarks/bench_readback.py) and costs the recorder less CPU; its files
-# are ~1.65x larger (~100 MB/h instead of ~60 MB/h at 1 kHz). Both are standard MCAP; readers take either.
-DEFAULT_COMPRESSION = "lz4"
+# Chunk compression written by default: zstd (level 3), the MCAP tools' default. Its files are 32-39 %
+# smaller than lz4's (1 kHz hour: 54-60 MB instead of 79-99 MB), so a session read from storage (SD card,
+# disk, network share) is read 25-43 % faster (benchmarks/bench_compression.py); from the page cache
+# lz4 reads are 0-25 % faster (~0.03 s an hour) and writes take 5-25 % less CPU. "lz4" and "none" stay
+# available; readers take any of them.
+DEFAULT_COMPRESSION = "zstd"
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 # ---------------------------------------------------------------------------------------------
 # writer
