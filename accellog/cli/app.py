@@ -1,6 +1,9 @@
-"""The typer application object shared by every command module in accellog.cli."""
+"""The typer application object shared by every command module in accellog.cli, and the options
+several commands share."""
 
 from __future__ import annotations
+
+from typing import Annotated
 
 import typer
 
@@ -13,3 +16,12 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
+
+CompressionOpt = Annotated[
+    str,
+    typer.Option(
+        "--compression",
+        help="MCAP chunk compression: zstd (smaller files, faster from disk), lz4 (faster from the page "
+        "cache) or none.",
+    ),
+]

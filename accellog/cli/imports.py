@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import app
+from accellog.cli.app import CompressionOpt, app
 
 if TYPE_CHECKING:
     from accellog.core.session import Session
@@ -51,19 +51,20 @@ def _facts(session: Session, src: Path, out: Path) -> dict:
     }
 
 
-def _check_out(out: Path, src: Path) -> None:
-    """Refuse an output that is a directory, in a missing folder, or the input itself
-    (accellog.store.atomic.check_output: same file by samefile or resolved path)."""
+def _check_out(out: Path, src: Path, compression: str) -> None:
+    """Refuse an unknown compression, and an output that is a directory, in a missing folder, or the
+    input itself (accellog.store.atomic.check_output: same file by samefile or resolved path)."""
     from accellog.store.atomic import check_output
+    from accellog.store.writer import check_compression
 
+    check_compression(compression)
     check_output(out, [src])
 
 
-def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: int) -> None:
+def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: int, compression: str) -> None:
     from accellog.store.writer import write_session
 
-    _check_out(out, src)
-    write_session(out, session, batch_size=batch_size)
+    write_session(out, session, batch_size=batch_size, compression=compression)
     _present(_facts(session, src, out), src, out, as_json)
 
 
@@ -91,11 +92,13 @@ def import_capstone_cmd(
     out: OutOpt,
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
+    compression: CompressionOpt = "zstd",
 ) -> None:
     """Capstone static test file (t in s; x, y, z in g) -> MCAP with one '+z' hold; counts at 16384 LSB/g."""
     from accellog.store.importers import import_capstone
 
-    _write(import_capstone(file), file, out, as_json, batch_size)
+    _check_out(out, file, compression)
+    _write(import_capstone(file), file, out, as_json, batch_size, compression)
 
 
 @import_app.command("imucal")
@@ -113,11 +116,14 @@ def import_imucal_cmd(
     ] = None,
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
+    compression: CompressionOpt = "zstd",
 ) -> None:
     """imucal Ferraris recording -> MCAP (x_p..z_a -> poses +x..-z; x_rot.. -> motion_segment events)."""
     from accellog.store.importers import import_imucal
 
-    _write(import_imucal(file, sections, sample_rate_hz=rate_hz), file, out, as_json, batch_size)
+    _check_out(out, file, compression)
+    session = import_imucal(file, sections, sample_rate_hz=rate_hz)
+    _write(session, file, out, as_json, batch_size, compression)
 
 
 @import_app.command("csv")
@@ -157,6 +163,7 @@ def import_csv_cmd(
     comment: Annotated[str, typer.Option("--comment", help="Lines starting with this are skipped.")] = "#",
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
+    compression: CompressionOpt = "zstd",
 ) -> None:
     """Any logger's CSV -> MCAP, streamed in blocks (memory independent of the file's length).
 
@@ -178,8 +185,8 @@ def import_csv_cmd(
         delimiter=delimiter,
         comment=comment,
     )
-    _check_out(out, file)
-    result = import_csv_to_mcap(file, out, opts, batch_size=batch_size)
+    _check_out(out, file, compression)
+    result = import_csv_to_mcap(file, out, opts, batch_size=batch_size, compression=compression)
     _present(result.to_dict(), file, out, as_json)
 
 
@@ -201,6 +208,7 @@ def import_ros2_cmd(
     ] = False,
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
+    compression: CompressionOpt = "zstd",
 ) -> None:
     """ROS 2 bag -> MCAP session: header stamps, m/s^2 -> g, rad/s -> deg/s, T -> uT; provenance kept.
 
@@ -223,7 +231,8 @@ def import_ros2_cmd(
             table.add_row(t.topic, t.msgtype, str(t.count))
         Console().print(table)
         return
+    _check_out(out, bag, compression)
     session = import_ros2(bag, topic=topic, temperature_topic=temperature_topic, mag_topic=mag_topic)
     if detect_holds:
         session = label_detected_holds(session)
-    _write(session, bag, out, as_json, batch_size)
+    _write(session, bag, out, as_json, batch_size, compression)

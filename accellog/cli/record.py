@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import app
+from accellog.cli.app import CompressionOpt, app
 from accellog.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -83,6 +83,7 @@ def record(
         str | None, typer.Option(help="Live view: 'spawn', 'connect URL' or 'save FILE.rrd'.")
     ] = None,
     force: ForceOpt = False,
+    compression: CompressionOpt = "zstd",
 ) -> None:
     """Record a guided calibration session: the operator is told each pose, the hold is labelled."""
     from accellog.flows.record import RecordOptions, record_session
@@ -105,6 +106,7 @@ def record(
         rerun=rerun,
         serial=serial,
         force=force,
+        compression=compression,
     )
     # Ctrl-C / SIGTERM only set a flag; the recorder stops at its next FIFO read and the writer's
     # context finishes the file (an exception raised inside the MCAP writer could corrupt it).

@@ -39,7 +39,7 @@ from accellog.present.rrd.live import LiveView
 from accellog.present.tables import params_table
 from accellog.present.views import table_markdown
 from accellog.store.atomic import check_output
-from accellog.store.writer import SessionWriter
+from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
 WAIT_MODES = ("auto", "enter")
 
@@ -67,6 +67,8 @@ class RecordOptions:
     """The user's serial/name of this sensor (part of the device key)."""
     force: bool = False
     """Replace an existing output file (else an existing session is never overwritten)."""
+    compression: str = DEFAULT_COMPRESSION
+    """MCAP chunk compression: 'zstd', 'lz4' or 'none' (store.writer.DEFAULT_COMPRESSION)."""
 
     @property
     def use_sim(self) -> bool:
@@ -82,6 +84,7 @@ class RecordOptions:
         sample_rate_div(self.rate_hz)
         parse_address(self.address)
         check_serial(self.serial)
+        check_compression(self.compression)
         check_output(self.out, overwrite=self.force)
 
 
@@ -193,7 +196,9 @@ def record_session(
         if opts.rerun:
             live = LiveView.from_option(opts.rerun)
             ui = live.wrap_ui(ui)
-        with SessionWriter(opts.out, meta, exclusive=True, overwrite=opts.force) as writer:
+        with SessionWriter(
+            opts.out, meta, exclusive=True, overwrite=opts.force, compression=opts.compression
+        ) as writer:
             dev.driver.start()
             rec = Recorder(
                 dev.driver,

@@ -42,6 +42,16 @@ from accellog.store.schema import SCHEMA_VERSION, file_descriptor_set_bytes, ful
 # available; readers take any of them.
 DEFAULT_COMPRESSION = "zstd"
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+COMPRESSIONS = tuple(_COMPRESSION)
+
+
+def check_compression(name: str) -> str:
+    """``name`` if it is a chunk compression the writer knows, else InputError (one line)."""
+    if name not in _COMPRESSION:
+        raise InputError(f"compression {name!r}: use " + ", ".join(repr(c) for c in COMPRESSIONS))
+    return name
+
+
 # ---------------------------------------------------------------------------------------------
 # writer
 
@@ -68,8 +78,7 @@ class SessionWriter:
     ) -> None:
         """exclusive=True (live recording): the file is created new under an exclusive output lock
         (accellog.store.atomic), an existing file is refused unless overwrite=True (``--force``)."""
-        if compression not in _COMPRESSION:
-            raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
+        check_compression(compression)
         self.path = Path(path)
         self.meta = meta
         self._flush_s = float(flush_interval_s)

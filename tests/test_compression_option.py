@@ -1,0 +1,62 @@
+"""--compression of the commands that write sessions: the chunks are compressed as asked (zstd by
+default, the writer's default), the samples read back the same, an unknown name is one line and
+no file."""
+
+from __future__ import annotations
+
+import numpy as np
+from mcap.reader import make_reader
+
+from accellog.cli import main
+from accellog.store.reader import read_session
+from accellog.store.writer import DEFAULT_COMPRESSION
+
+
+def _chunk_compressions(path) -> set[str]:
+    with open(path, "rb") as f:
+        return {ci.compression for ci in make_reader(f).get_summary().chunk_indexes}
+
+
+def _csv(path, n: int = 2000) -> None:
+    rng = np.random.default_rng(5)
+    acc = np.array([0.01, -0.02, 1.0]) + rng.normal(0, 0.003, (n, 3))
+    rows = [f"{i / 1000:.3f},{a[0]:.6f},{a[1]:.6f},{a[2]:.6f}" for i, a in enumerate(acc)]
+    path.write_text("t,ax,ay,az\n" + "\n".join(rows) + "\n")
+
+
+def test_import_writes_the_compression_asked_for(tmp_path, capsys):
+    src = tmp_path / "log.csv"
+    _csv(src)
+    read = {}
+    for comp in (None, "lz4", "none"):
+        out = tmp_path / f"{comp}.mcap"
+        argv = ["import", "csv", str(src), "-o", str(out)] + ([] if comp is None else ["--compression", comp])
+        assert main(argv) == 0, capsys.readouterr().err
+        want = DEFAULT_COMPRESSION if comp is None else "" if comp == "none" else comp
+        assert _chunk_compressions(out) == {want}
+        read[comp] = read_session(out)
+    assert DEFAULT_COMPRESSION == "zstd"
+    for comp in ("lz4", "none"):
+        assert np.array_equal(read[comp].accel_g, read[None].accel_g)
+        assert np.array_equal(read[comp].t_s, read[None].t_s)
+
+
+def test_unknown_compression_is_one_line_and_no_file(tmp_path, capsys):
+    src, out = tmp_path / "log.csv", tmp_path / "o.mcap"
+    _csv(src, 50)
+    assert main(["import", "csv", str(src), "-o", str(out), "--compression", "brotli"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "'brotli'" in err and "lz4" in err and "Traceback" not in err
+    assert not out.exists()
+    assert main(["record", "--sim", "--fast", "-o", str(out), "--compression", "gzip"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "'gzip'" in err
+    assert not out.exists()
+
+
+def test_record_writes_the_compression_asked_for(tmp_path, capsys):
+    out = tmp_path / "r.mcap"
+    argv = ["record", "--sim", "--fast", "--protocol", "+z", "--hold", "1", "--no-mag", "-o", str(out)]
+    assert main([*argv, "--compression", "lz4"]) == 0, capsys.readouterr().err
+    assert _chunk_compressions(out) == {"lz4"}
+    assert read_session(out).n > 900
