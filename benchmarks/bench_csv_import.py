@@ -4,7 +4,8 @@ Usage: python benchmarks/bench_csv_import.py [--minutes 240] [--rate 1000] [--ke
 
 Data: a seeded logger CSV (t in s with 6 decimals; ax..az in g, gx..gz in deg/s, temp in degC),
 written once with pyarrow in slices. Each variant runs in its own fresh Python process, so its peak
-RSS (``resource.getrusage(RUSAGE_SELF).ru_maxrss``) is its own; the page cache is warmed first.
+RSS (VmHWM of /proc/self/status; ru_maxrss would also count this process's memory when it spawned
+the child) is its own; the page cache is warmed first.
 Variants:
 - accellog: ``import_csv_to_mcap`` (block parse + checks + conversion + MCAP write, zstd: the default);
 - accellog (parse only): the same blocks and checks without writing (``CsvImport.chunks``);
@@ -82,7 +83,8 @@ elif variant == "pyarrow_open_csv":
         n += b.num_rows
 wall = time.perf_counter() - t0
 ru = resource.getrusage(resource.RUSAGE_SELF)
-print(json.dumps({"wall_s": wall, "cpu_s": ru.ru_utime + ru.ru_stime, "peak_mb": ru.ru_maxrss / 1024, "n": n}))
+peak_kb = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM"))
+print(json.dumps({"wall_s": wall, "cpu_s": ru.ru_utime + ru.ru_stime, "peak_mb": peak_kb / 1024, "n": n}))
 """
 
 

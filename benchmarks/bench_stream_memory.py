@@ -5,9 +5,10 @@
 The live recorder writes one message per FIFO read (30-42 samples here, seeded) into 0.5 s chunks:
 ~7,000 chunks per hour, ~170 k in a day, where ``write_session`` (the sessions of bench_scale.py)
 writes ~120 per hour. Whatever the reader keeps per chunk therefore grows with the session here and
-hides there. Each file is written once hour by hour (``SessionWriter`` with its defaults, as the recorder: zstd; ~4 s
-per hour) and reused from --dir. Each figure is a fresh process (ru_maxrss, wall and CPU time) of
-what every streamed stage does first (``can_stream`` + ``read_labels``: "labels") and of ``iter_imu``
+hides there. Each file is written once hour by hour (``SessionWriter`` with its defaults, as the
+recorder: zstd; ~4 s per hour) and reused from --dir. Each figure is a fresh process (its own peak
+RSS, VmHWM: ru_maxrss would count this process's memory when it spawned the child; wall and CPU
+time) of what every streamed stage does first (``can_stream`` + ``read_labels``: "labels") and of ``iter_imu``
 over every block, the pass it makes ("pass"); the load average is printed with it. --baseline DIR:
 the same with PYTHONPATH=DIR, e.g. an export of an earlier commit (``git archive COMMIT accellog |
 tar -x -C DIR``).
@@ -32,7 +33,7 @@ from accellog.store.writer import SessionWriter
 HOUR = 3_600_000  # samples at 1 kHz
 
 _CHILD = """
-import resource, sys, time
+import sys, time
 from accellog.store.stream import iter_imu, read_labels
 from accellog.flows.stream_input import can_stream
 t0, c0, n = time.perf_counter(), time.process_time(), 0
@@ -42,7 +43,8 @@ if sys.argv[2] == "pass":
 else:  # what every streamed stage does first
     can_stream(sys.argv[1]), read_labels(sys.argv[1])
 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-print(n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, wall, cpu)
+peak_kb = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM"))
+print(n, peak_kb / 1024, wall, cpu)
 """
 
 
