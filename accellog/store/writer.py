@@ -37,9 +37,9 @@ from accellog.store.schema import SCHEMA_VERSION, file_descriptor_set_bytes, ful
 
 # Chunk compression written by default: zstd (level 3), the MCAP tools' default. Its files are 32-39 %
 # smaller than lz4's (1 kHz hour: 54-60 MB instead of 79-99 MB), so a session read from storage (SD card,
-# disk, network share) is read 25-43 % faster (benchmarks/bench_compression.py); from the page cache
-# lz4 reads are 0-25 % faster (~0.03 s an hour) and writes take 5-25 % less CPU. "lz4" and "none" stay
-# available; readers take any of them.
+# disk, network share) is read 25-42 % faster; from the page cache lz4 reads are faster (a streamed
+# pass 7-22 %, read_session up to 59 %: at most 0.16 s an hour) and its writes take 10-30 % less CPU
+# (benchmarks/bench_compression.py). "lz4" and "none" stay available; readers take any of them.
 DEFAULT_COMPRESSION = "zstd"
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 COMPRESSIONS = tuple(_COMPRESSION)
