@@ -1,6 +1,6 @@
-"""--compression of the commands that write sessions: the chunks are compressed as asked (zstd by
-default, the writer's default), the samples read back the same, an unknown name is one line and
-no file."""
+"""--compression of the commands that write sessions (record, simulate, import, apply): the chunks
+are compressed as asked (zstd by default, the writer's default), the samples read back the same, an
+unknown name is one line and no file."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import numpy as np
 from mcap.reader import make_reader
 
 from accellog.cli import main
+from accellog.flows.stages import run_fit
 from accellog.store.reader import read_session
 from accellog.store.writer import DEFAULT_COMPRESSION
 
@@ -60,3 +61,23 @@ def test_record_writes_the_compression_asked_for(tmp_path, capsys):
     assert main([*argv, "--compression", "lz4"]) == 0, capsys.readouterr().err
     assert _chunk_compressions(out) == {"lz4"}
     assert read_session(out).n > 900
+
+
+def test_simulate_and_apply_write_the_compression_asked_for(tmp_path, capsys):
+    sim, out, cal = tmp_path / "sim.mcap", tmp_path / "applied.mcap", tmp_path / "cal.json"
+    assert main(["simulate", "--protocol", "six", "--hold", "2", "-o", str(sim), "--compression", "lz4"]) == 0
+    assert _chunk_compressions(sim) == {"lz4"}
+    run_fit(sim).cal.save(cal)
+    assert main(["apply", str(sim), "--cal", str(cal), "-o", str(out), "--compression", "none"]) == 0
+    assert _chunk_compressions(out) == {""}
+    assert np.array_equal(read_session(out).accel_g, read_session(sim).accel_g)
+    capsys.readouterr()
+    bad = tmp_path / "bad.mcap"
+    for argv in (
+        ["apply", str(sim), "--cal", str(cal), "-o", str(bad), "--compression", "zip"],
+        ["simulate", "--protocol", "six", "-o", str(bad), "--compression", "zip"],
+    ):
+        assert main(argv) != 0
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "'zip'" in err, err
+        assert not bad.exists()

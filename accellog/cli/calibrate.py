@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import app
+from accellog.cli.app import CompressionOpt, app
 from accellog.core.errors import InputError
 
 _console = Console()
@@ -236,6 +236,7 @@ def apply(
         str,
         typer.Option(help="A calibration of another device (device keys differ): 'refuse' or 'warn'."),
     ] = "refuse",
+    compression: CompressionOpt = "zstd",
 ) -> None:
     """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
     import warnings
@@ -246,7 +247,7 @@ def apply(
     check_outputs([output, ros2], [session, cal])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OtherDeviceWarning)
-        p = run_apply(session, cal, output, ros2=ros2, other_device=other_device)
+        p = run_apply(session, cal, output, ros2=ros2, other_device=other_device, compression=compression)
     for w in caught:
         if issubclass(w.category, OtherDeviceWarning):
             _console.print(f"[yellow]warning: {w.message}[/]")

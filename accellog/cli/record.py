@@ -174,6 +174,7 @@ def simulate(
         ),
     ] = None,
     force: ForceOpt = False,
+    compression: CompressionOpt = "zstd",
 ) -> None:
     """Write a whole simulated session (emulated chip, simulated clock) without waiting.
 
@@ -200,7 +201,7 @@ def simulate(
         temperature=temperature,
         faults=fault,
     )
-    summary = run_simulation(sc, out, force=force)
+    summary = run_simulation(sc, out, force=force, compression=compression)
     console.print(
         f"wrote {out}: {summary.samples} samples, {summary.duration_s:.1f} s simulated, "
         f"{len(summary.poses)} poses, {summary.lost_samples} lost samples"

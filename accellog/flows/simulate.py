@@ -63,7 +63,7 @@ from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.atomic import AtomicOutput, check_output
-from accellog.store.writer import SessionWriter
+from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
 _SMPLRT_DIV_BASE_HZ = 1000.0
 
@@ -282,6 +282,7 @@ def simulate(
     serial: str = "",
     start_time_unix_ns: int | None = None,
     force: bool = False,
+    compression: str = DEFAULT_COMPRESSION,
 ):
     """Write the scenario's session to ``out`` (MCAP) on a simulated clock; return RecordSummary.
 
@@ -289,9 +290,11 @@ def simulate(
     device's user serial (identity); start_time_unix_ns: the session's wall-clock start (a
     simulated date; default: the writer's clock). An existing ``out`` is refused unless
     force=True; the file appears (atomically) only when complete. Faults of the scenario
-    (accellog.acquire.emulator.faults) act on the bus and the host's sleep.
+    (accellog.acquire.emulator.faults) act on the bus and the host's sleep. compression: of the
+    MCAP chunks ('zstd', 'lz4' or 'none').
     """
 
+    check_compression(compression)
     check_output(out, overwrite=force)
     model, motion = build_sensor_model(sc)
     plan = sc.fault_plan()
@@ -326,7 +329,7 @@ def simulate(
     ao = AtomicOutput(out, overwrite=force)
     tmp = ao.begin()
     try:
-        with SessionWriter(tmp, meta) as writer:
+        with SessionWriter(tmp, meta, compression=compression) as writer:
             driver.start()
             rec = Recorder(driver, writer, sleep=sleep, poll_s=poll_s, read_mag=dev.read_mag)
             rec.run_for(total_s)

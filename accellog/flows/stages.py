@@ -48,7 +48,7 @@ from accellog.present.rrd.recording import RunRecording
 from accellog.store.atomic import AtomicOutput
 from accellog.store.layout import NS_PER_S
 from accellog.store.reader import read_session
-from accellog.store.writer import SessionWriter
+from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
 GRAVITY_CONVENTIONS = ("seed", "local")
 """'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
@@ -406,14 +406,16 @@ def run_apply(
     *,
     ros2: str | os.PathLike | None = None,
     other_device: str = "refuse",
+    compression: str = DEFAULT_COMPRESSION,
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
     /derived/accel_calibrated_mps2 (and /derived/mag_calibrated, uT, when the calibration has a magnetometer
     section and the session magnetometer samples), and attaching the calibration JSON. Atomic (temp + rename).
     ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2).
     A calibration of another device (device keys differ) is refused, or warned about with
-    other_device='warn' (see check_device)."""
+    other_device='warn' (see check_device). compression: of the copy's MCAP chunks."""
 
+    check_compression(compression)
     src = Path(session_path)
     if src.suffix.lower() != ".mcap":
         raise InputError(
@@ -431,7 +433,7 @@ def run_apply(
     cuts = np.flatnonzero(np.diff(si) != 1) + 1
     bounds = np.unique(np.concatenate([[0], cuts, np.arange(0, s.n, 500), [s.n]]))
     try:
-        with SessionWriter(tmp, s.meta) as w:
+        with SessionWriter(tmp, s.meta, compression=compression) as w:
             for a, b in itertools.pairwise(bounds):  # batches of <= 500 samples
                 w.write_imu(
                     int(si[a]),
