@@ -10,11 +10,12 @@ import pytest
 from accellog.store import fastread
 
 
-def _greedy(sizes: list[int], ends_small: bool) -> list[tuple[int, int]]:
+def _greedy(sizes: list[int], whole: bool) -> list[tuple[int, int]]:
     """The rule one chunk at a time: a run ends before the chunk that takes it past the cap once
-    it holds bytes; with ends_small the first cap is 1/8 and the tail (<= 1/8) is split off."""
-    big = fastread._GROUP_BYTES
-    small = big // 8 if ends_small else big
+    it holds bytes; a whole read's cap is _WHOLE_GROUPS times larger, its first cap is 1/8 and the
+    tail (<= 1/8) is split off."""
+    big = fastread._GROUP_BYTES * (fastread._WHOLE_GROUPS if whole else 1)
+    small = big // 8 if whole else big
     bounds, total, cap = [0], 0, small
     for i, u in enumerate(sizes):
         if total and total + u > cap:
@@ -22,7 +23,7 @@ def _greedy(sizes: list[int], ends_small: bool) -> list[tuple[int, int]]:
             total, cap = 0, big
         total += u
     last, total = len(sizes), 0
-    while ends_small and last - 1 > bounds[-1] and total + sizes[last - 1] <= small:
+    while whole and last - 1 > bounds[-1] and total + sizes[last - 1] <= small:
         last -= 1
         total += sizes[last]
     if bounds[-1] < last < len(sizes):
@@ -31,8 +32,8 @@ def _greedy(sizes: list[int], ends_small: bool) -> list[tuple[int, int]]:
     return list(itertools.pairwise(bounds))
 
 
-@pytest.mark.parametrize("ends_small", [True, False])
-def test_groups_equal_the_greedy_rule(ends_small):
+@pytest.mark.parametrize("whole", [True, False])
+def test_groups_equal_the_greedy_rule(whole):
     rng = np.random.default_rng(11)
     big = fastread._GROUP_BYTES
     for t in range(3000):
@@ -41,4 +42,4 @@ def test_groups_equal_the_greedy_rule(ends_small):
         usize = rng.integers(0, high, n).astype(np.int64)
         if t % 4 == 2:
             usize[rng.random(n) < 0.5] = 0  # chunks left out of a read
-        assert fastread._groups(usize, ends_small) == _greedy(usize.tolist(), ends_small), usize.tolist()
+        assert fastread._groups(usize, whole) == _greedy(usize.tolist(), whole), usize.tolist()
