@@ -20,7 +20,7 @@ from mcap.writer import Writer
 
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
-from accellog.store import batch_decode, fastread, reader, record_starts
+from accellog.store import fastread, field_walk, reader, record_starts
 from accellog.store.codec import encode
 from accellog.store.layout import meta_to_metadata
 from accellog.store.reader import read_attachments, read_session, read_vector3, session_summary
@@ -591,8 +591,8 @@ def test_fast_reader_equals_generic_steady_recorder_stream(tmp_path, monkeypatch
             idx = np.arange(i, j)
             w.write_imu(i, idx * 1_000_000, ac[i:j], ac[i:j, ::-1], idx % 3000, host_time_ns=(1 << 40) + j)
     uniform = []
-    real = batch_decode._uniform_layout
-    monkeypatch.setattr(batch_decode, "_uniform_layout", lambda *a: uniform.append(real(*a)) or uniform[-1])
+    real = field_walk._uniform_layout
+    monkeypatch.setattr(field_walk, "_uniform_layout", lambda *a: uniform.append(real(*a)) or uniform[-1])
     monkeypatch.setattr(fastread, "_GROUP_BYTES", 16 << 10)
     monkeypatch.setattr(reader, "_SPLIT_MIN", 1000)
     fast, generic = _read_both(p, monkeypatch)

@@ -217,7 +217,7 @@ def test_decode_batch_equals_batch_decoder(message, sizes):
 def test_decode_batch_uniform_layout(message, spacing, monkeypatch):
     """Messages of one layout (same fields, lengths and varint sizes; values vary) take the uniform
     walk, read as one strided view when evenly spaced and gathered by offset otherwise: same result."""
-    import accellog.store.batch_decode as bd
+    import accellog.store.field_walk as fw
 
     rng = np.random.default_rng(sum(map(ord, message + spacing)))
     fields = MESSAGE_DEFS[message].fields
@@ -248,8 +248,8 @@ def test_decode_batch_uniform_layout(message, spacing, monkeypatch):
         starts = ends - len(msgs[0])
         buf = np.frombuffer(raw, np.uint8)
     taken = []
-    real = bd._uniform_layout
-    monkeypatch.setattr(bd, "_uniform_layout", lambda *a: taken.append(real(*a)) or taken[-1])
+    real = fw._uniform_layout
+    monkeypatch.setattr(fw, "_uniform_layout", lambda *a: taken.append(real(*a)) or taken[-1])
     got = decode_batch(message, buf, starts, ends)
     assert got is not None and taken == [True]
     _assert_results_equal(got.result(), _reference(message, msgs))

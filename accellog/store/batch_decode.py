@@ -1,8 +1,8 @@
 """Vectorised decoding of many messages at once (the fast MCAP read-back).
 
 Payloads of one channel are gathered into one uint8 buffer; field offsets are found for all messages at
-once (``_uniform_layout``: checked guesses for runs of equal-layout messages) and packed arrays are read
-with strided views straight into preallocated accumulators.
+once (``field_walk``) and packed arrays are read with strided views straight into preallocated
+accumulators.
 """
 
 from __future__ import annotations
@@ -13,31 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from accellog.store.byte_views import byte_window, void_window
 from accellog.store.codec import DOUBLE, FieldCodec, codecs_of
-
-
-def byte_window(buf: np.ndarray, width: int) -> np.ndarray:
-    """Overlapping (len(buf) - width + 1, width) uint8 view of ``buf``: row i is buf[i : i + width].
-
-    Fancy-indexing its rows with byte offsets gathers ``width``-byte records at arbitrary (unaligned)
-    offsets in one C loop, without copying ``buf``.
-    """
-    return np.lib.stride_tricks.as_strided(buf, shape=(buf.shape[0] - width + 1, width), strides=(1, 1))
-
-
-def void_window(buf: np.ndarray, width: int) -> np.ndarray:
-    """``byte_window`` as ``width``-byte void items: fancy-indexing it copies each record with one
-    memcpy (byte_window rows are copied byte by byte: ~1.7x slower for message-sized records)."""
-    return np.ndarray((buf.shape[0] - width + 1,), np.dtype(f"V{width}"), buf, 0, (1,))
-
-
-def read_le(buf: np.ndarray, offsets: np.ndarray, dtype: str | np.dtype) -> np.ndarray:
-    """Little-endian values of ``dtype`` (e.g. '<u8') stored at the byte ``offsets`` of uint8 ``buf``."""
-    dt = np.dtype(dtype)
-    if offsets.shape[0] == 0:
-        return np.empty(0, dt)
-    return byte_window(buf, dt.itemsize)[offsets].view(dt)[:, 0]
-
+from accellog.store.field_walk import WIRE, walk_fields
 
 _MAX_LENGTH_GROUPS = 64  # gather_bytes: message-sized copies per distinct length up to this many lengths
 
@@ -197,152 +175,6 @@ class BatchAccumulator:
         return DecodedBatch(self.message, self.n_messages, arrays, self._scalars, counts)
 
 
-_WIRE = {"packed": 2, "string": 2, "bytes": 2, "varint_u": 0, "varint_s": 0, "double": 1}
-
-
-def _varints(buf: np.ndarray, pos: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Vectorised base-128 varints at byte offsets ``pos``: (values uint64, offsets after them).
-
-    Byte k of all varints still running is read in one numpy pass (so a few passes in all). None if
-    one runs past ``end`` (its message's end) or does not fit in 64 bits.
-    """
-    top = buf.shape[0] - 1
-    b = buf[np.minimum(pos, top)]
-    val = b.astype(np.uint64)
-    run = np.flatnonzero(b >= 0x80)
-    after = pos + 1
-    if run.shape[0]:
-        val[run] &= np.uint64(0x7F)
-        shift = 7
-        while run.shape[0]:
-            if shift > 63:
-                return None
-            b = buf[np.minimum(after[run], top)]
-            if shift == 63 and np.any(b > 1):
-                return None
-            val[run] |= (b & 0x7F).astype(np.uint64) << np.uint64(shift)
-            after[run] += 1
-            run = run[b >= 0x80]
-            shift += 7
-    if np.any(after > end):
-        return None
-    return val, after
-
-
-def _first_layout(
-    t: bytes, key_to_field: np.ndarray, numbers: np.ndarray, field_codecs: list[FieldCodec], offs
-):
-    """The first message's layout under the canonical rules, for ``_uniform_layout``: (offsets of the
-    key and length bytes, varints (field, offset, bytes), doubles (field, offset), packed spans (field,
-    data offset, length)); None if it breaks a rule the vectorised check relies on."""
-    size = len(t)
-    fixed: list[int] = []  # offsets of bytes every message must share (keys, lengths)
-    varint_at: list[tuple[str, int, int]] = []  # (field, offset, bytes)
-    double_at: list[tuple[str, int]] = []
-    span_at: list[tuple[str, int, int]] = []  # (field, data offset, length)
-    p, last = 0, 0
-    while p < size:
-        f = int(key_to_field[t[p]])
-        if f < 0 or int(numbers[f]) <= last:
-            return None
-        last = int(numbers[f])
-        c = field_codecs[f]
-        fixed.append(p)
-        p += 1
-        if c.kind == "double":
-            if p + 8 > size:
-                return None
-            double_at.append((c.name, p))
-            p += 8
-            continue
-        q = p
-        while q < size and t[q] >= 0x80:
-            q += 1
-        if q >= size or q - p >= 9:  # runs past the message, or over 63 bits: the general walk decides
-            return None
-        if c.name in offs:
-            if c.kind != "packed":  # strings need a UTF-8 check per message
-                return None
-            ln = sum((t[p + j] & 0x7F) << (7 * j) for j in range(q + 1 - p))
-            fixed += range(p, q + 1)
-            p = q + 1
-            if p + ln > size:
-                return None
-            span_at.append((c.name, p, ln))
-            p += ln
-        else:
-            varint_at.append((c.name, p, q + 1 - p))
-            p = q + 1
-    return fixed, varint_at, double_at, span_at
-
-
-def _rows(buf: np.ndarray, pos: np.ndarray, size: int) -> Callable[[np.ndarray | slice], np.ndarray]:
-    """cols -> (n, ...) uint8 array of the bytes at columns ``cols`` of every message buf[pos[k]:][:size].
-
-    Evenly spaced messages (the usual case: equal records back to back) are one strided (n, size) view,
-    read by column without an index array per byte; others are gathered by offset."""
-    step = int(pos[1] - pos[0]) if pos.shape[0] > 1 else size
-    if step >= size and np.all(np.diff(pos) == step):
-        view = np.lib.stride_tricks.as_strided(
-            buf[int(pos[0]) :], shape=(pos.shape[0], size), strides=(step, 1)
-        )
-        return lambda cols: view[:, cols]
-    offsets = pos[:, None]
-    return lambda cols: buf[offsets + (np.arange(cols.start, cols.stop) if isinstance(cols, slice) else cols)]
-
-
-def _uniform_layout(
-    buf: np.ndarray,
-    pos: np.ndarray,
-    end: np.ndarray,
-    key_to_field: np.ndarray,
-    numbers: np.ndarray,
-    field_codecs: list[FieldCodec],
-    offs: dict[str, np.ndarray],
-    lens: dict[str, np.ndarray],
-    vals: dict[str, np.ndarray],
-) -> bool:
-    """``decode_batch``'s field walk when every message has the layout of the first one (the usual case).
-
-    The first message is walked in Python under the canonical rules; then every message is checked to
-    have the same length, the same key and length bytes at the same places, and varints of the same byte
-    count (continuation bits) there, with a few vectorised column reads. Fills offs/lens/vals as the
-    general walk would and returns True; False (nothing filled) if any of this does not hold.
-    """
-    n = pos.shape[0]
-    if n < 2:
-        return False
-    size = int(end[0] - pos[0])
-    if size <= 0 or np.any(end - pos != size):
-        return False
-    t = bytes(buf[int(pos[0]) : int(pos[0]) + size])
-    layout = _first_layout(t, key_to_field, numbers, field_codecs, offs)
-    if layout is None:
-        return False
-    fixed, varint_at, double_at, span_at = layout
-    rel = np.asarray(fixed, dtype=np.int64)
-    rows = _rows(buf, pos, size)
-    if np.any(rows(rel) != np.frombuffer(t, np.uint8)[rel]):
-        return False
-    columns = {}
-    for name, o, k in varint_at:
-        cols = rows(slice(o, o + k))
-        if np.any(cols[:, :-1] < 0x80) or np.any(cols[:, -1] >= 0x80):
-            return False
-        columns[name] = cols
-    for name, cols in columns.items():
-        v = np.zeros(n, np.uint64)
-        for j in range(cols.shape[1]):
-            v |= (cols[:, j] & 0x7F).astype(np.uint64) << np.uint64(7 * j)
-        vals[name][:] = v
-    for name, o in double_at:
-        vals[name][:] = np.ascontiguousarray(rows(slice(o, o + 8))).view("<u8")[:, 0]
-    for name, o, ln in span_at:
-        offs[name][:] = pos + o
-        lens[name][:] = ln
-    return True
-
-
 def decode_batch(
     message: str,
     buf: np.ndarray,
@@ -373,72 +205,15 @@ def decode_batch(
     key_to_field = np.full(256, -1, np.int64)
     numbers = np.zeros(len(codecs), np.int64)
     for i, (num, c) in enumerate(by_number.items()):
-        key_to_field[(num << 3) | _WIRE[c.kind]] = i
+        key_to_field[(num << 3) | WIRE[c.kind]] = i
         numbers[i] = num
     field_codecs = list(by_number.values())
     offs = {c.name: np.zeros(n, np.int64) for c in codecs if c.kind in ("packed", "string", "bytes")}
     lens = {name: np.zeros(n, np.int64) for name in offs}
     vals = {c.name: np.zeros(n, np.uint64) for c in codecs if c.kind not in offs}
-    walk = (buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals)
-    if not (_uniform_layout(*walk) or _general_walk(*walk)):
+    if not walk_fields(buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals):
         return None
     return _assemble(message, n, codecs, buf, offs, lens, vals, reserve, scalar_arrays)
-
-
-def _general_walk(
-    buf: np.ndarray,
-    pos: np.ndarray,
-    end: np.ndarray,
-    key_to_field: np.ndarray,
-    numbers: np.ndarray,
-    field_codecs: list[FieldCodec],
-    offs: dict[str, np.ndarray],
-    lens: dict[str, np.ndarray],
-    vals: dict[str, np.ndarray],
-) -> bool:
-    """``decode_batch``'s field walk for any layouts: one field of every unfinished message per step
-    (grouped by field), filling offs/lens/vals; False at the first break of the canonical rules."""
-    last = np.zeros(pos.shape[0], np.int64)  # field number read last in each message
-    active = np.flatnonzero(pos < end)
-    while active.shape[0]:
-        p = pos[active]
-        field = key_to_field[buf[p]]
-        if np.any(field < 0):
-            return False  # unknown field, wrong wire type or multi-byte key
-        num = numbers[field]
-        if np.any(num <= last[active]):
-            return False  # out of order or repeated
-        last[active] = num
-        present = np.flatnonzero(np.bincount(field, minlength=len(field_codecs)))
-        for f in present.tolist():
-            c = field_codecs[f]
-            if present.shape[0] == 1:
-                idx, q = active, p + 1
-            else:
-                sel = field == f
-                idx, q = active[sel], p[sel] + 1
-            e = end[idx]
-            if c.kind == "double":
-                after = q + 8
-                if np.any(after > e):
-                    return False
-                vals[c.name][idx] = read_le(buf, q, "<u8")
-            else:
-                got = _varints(buf, q, e)
-                if got is None:
-                    return False
-                v, after = got
-                if c.name in offs:
-                    ln = v.astype(np.int64)
-                    if np.any((v > np.uint64(1 << 62)) | (after + ln > e)):
-                        return False
-                    offs[c.name][idx], lens[c.name][idx] = after, ln
-                    after = after + ln
-                else:
-                    vals[c.name][idx] = v
-            pos[idx] = after
-        active = active[pos[active] < end[active]]
-    return True
 
 
 def _classes_of(items: np.ndarray, shared: list):

@@ -30,7 +30,8 @@ import numpy as np
 from mcap.records import Channel, Schema
 
 from accellog.core.errors import InputError
-from accellog.store.batch_decode import BatchAccumulator, decode_batch, read_le
+from accellog.store.batch_decode import BatchAccumulator, decode_batch
+from accellog.store.byte_views import read_le
 from accellog.store.collect import (
     Collected,
     Damage,

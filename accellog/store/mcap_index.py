@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from mcap.records import Channel, Schema
 
-from accellog.store.batch_decode import read_le
+from accellog.store.byte_views import read_le
 from accellog.store.collect import crc32, release_pages
 from accellog.store.layout import MCAP_MAGIC
 

@@ -12,7 +12,7 @@ import itertools
 
 import numpy as np
 
-from accellog.store.batch_decode import read_le
+from accellog.store.byte_views import read_le
 from accellog.store.mcap_index import (
     OP_CHANNEL,
     OP_MESSAGE,
