@@ -217,10 +217,13 @@ def decode_batch(
 
 
 def _classes_of(items: np.ndarray, shared: list):
-    """length_classes of a packed field's items per message, once for all fields alike (ImuBatch's)."""
+    """length_classes of a packed field's items per message, once for all fields whose items are
+    proportional (ImuBatch: k, 3k, 3k, k samples a message: equal k, equal 3k)."""
     if items.shape[0] < 2 or np.all(items == items[0]):
         return None
-    if shared[0] is None or not np.array_equal(shared[0], items):
+    s = shared[0]
+    a, b = (0, 0) if s is None or s.shape != items.shape else (int(s[0]), int(items[0]))
+    if not (a and b and np.array_equal(items * a, s * b)):
         shared[:] = [items, length_classes(items)]
     return shared[1]
 

@@ -1,7 +1,9 @@
 """Where every field of many protobuf messages is, found at once with numpy (``decode_batch``'s walk).
 
 ``walk_fields`` tries, in order: ``_uniform_layout`` (every message laid out as the first: a few column
-checks), ``_general_walk`` (any layout: one field of every unfinished message per step). Each fills
+checks), ``_sequence_walk`` (every message with the first one's keys in its order, lengths free: one
+field of all messages per step), ``_general_walk`` (any layout: one field of every unfinished message
+per step). Each fills
 offsets/lengths of the length-delimited fields and the values of the others, or returns False at the
 first break of the canonical rules (the caller then decodes message by message).
 """
@@ -25,23 +27,31 @@ def _varints(buf: np.ndarray, pos: np.ndarray, end: np.ndarray) -> tuple[np.ndar
     one runs past ``end`` (its message's end) or does not fit in 64 bits.
     """
     top = buf.shape[0] - 1
-    b = buf[np.minimum(pos, top)]
-    val = b.astype(np.uint64)
-    run = np.flatnonzero(b >= 0x80)
-    after = pos + 1
-    if run.shape[0]:
-        val[run] &= np.uint64(0x7F)
-        shift = 7
-        while run.shape[0]:
-            if shift > 63:
-                return None
-            b = buf[np.minimum(after[run], top)]
-            if shift == 63 and np.any(b > 1):
-                return None
-            val[run] |= (b & 0x7F).astype(np.uint64) << np.uint64(shift)
+    val = np.zeros(pos.shape[0], np.uint64)
+    after = pos.copy()
+    run = None  # the varints still running; None: all of them (slices, no index arrays)
+    shift = 0
+    while True:
+        if shift > 63:
+            return None
+        b = buf[np.minimum(after if run is None else after[run], top)]
+        if shift == 63 and np.any(b > 1):
+            return None
+        bits = (b & 0x7F).astype(np.uint64) << np.uint64(shift)
+        more = b >= 0x80
+        if run is None:
+            val |= bits
+            after += 1
+        else:
+            val[run] |= bits
             after[run] += 1
-            run = run[b >= 0x80]
-            shift += 7
+        if not more.any():
+            break
+        if run is not None:
+            run = run[more]
+        elif not more.all():
+            run = np.flatnonzero(more)
+        shift += 7
     if np.any(after > end):
         return None
     return val, after
@@ -175,7 +185,80 @@ def walk_fields(
     """Fill offs/lens (length-delimited fields) and vals (the others) of the messages buf[pos[k] :
     end[k]]; False if one breaks the canonical rules (see module doc). pos is consumed."""
     walk = (buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals)
-    return _uniform_layout(*walk) or _general_walk(*walk)
+    return _uniform_layout(*walk) or _sequence_walk(*walk) or _general_walk(*walk)
+
+
+def _key_sequence(t: bytes, key_to_field: np.ndarray, numbers: np.ndarray, field_codecs: list[FieldCodec]):
+    """The keys of message t with their field index, [(key byte, field)], read in Python under the
+    canonical rules; None if t breaks one (the general walk then says where)."""
+    keys, p, last = [], 0, 0
+    while p < len(t):
+        f = int(key_to_field[t[p]])
+        if f < 0 or int(numbers[f]) <= last:
+            return None
+        last, kind = int(numbers[f]), field_codecs[f].kind
+        keys.append((t[p], f))
+        p += 1
+        if kind == "double":
+            p += 8
+            continue
+        v, shift = 0, 0
+        while p < len(t) and t[p] >= 0x80:
+            v, shift, p = v | (t[p] & 0x7F) << shift, shift + 7, p + 1
+        if p >= len(t):
+            return None
+        v, p = v | t[p] << shift, p + 1
+        if kind in ("packed", "string", "bytes"):
+            p += v
+    return keys if p == len(t) else None
+
+
+def _sequence_walk(
+    buf: np.ndarray,
+    pos: np.ndarray,
+    end: np.ndarray,
+    key_to_field: np.ndarray,
+    numbers: np.ndarray,
+    field_codecs: list[FieldCodec],
+    offs: dict[str, np.ndarray],
+    lens: dict[str, np.ndarray],
+    vals: dict[str, np.ndarray],
+) -> bool:
+    """``walk_fields`` when every message has the first one's keys in its order, whatever the lengths
+    (recorder batches of varying FIFO reads): one field of all messages per step, its key checked at
+    once, each message ending after its last. False if any message differs; what was filled by then
+    is what the general walk fills (a field is filled only once every message holds it there)."""
+    if pos.shape[0] < 2:
+        return False
+    keys = _key_sequence(bytes(buf[int(pos[0]) : int(end[0])]), key_to_field, numbers, field_codecs)
+    p = pos
+    for key, f in keys or ():
+        c = field_codecs[f]
+        if np.any(p >= end) or np.any(buf[p] != key):
+            break
+        if c.kind == "double":
+            after = p + 9
+            if np.any(after > end):
+                break
+            vals[c.name][:] = read_le(buf, p + 1, "<u8")
+            p = after
+            continue
+        got = _varints(buf, p + 1, end)
+        if got is None:
+            break
+        v, after = got
+        if c.name in offs:
+            ln = v.astype(np.int64)
+            if np.any((v > np.uint64(1 << 62)) | (after + ln > end)):
+                break
+            offs[c.name][:], lens[c.name][:] = after, ln
+            p = after + ln
+        else:
+            vals[c.name][:] = v
+            p = after
+    else:
+        return bool(keys) and np.array_equal(p, end)
+    return False
 
 
 def _general_walk(
