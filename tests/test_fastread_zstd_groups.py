@@ -14,7 +14,7 @@ from mcap.reader import make_reader
 
 from accellog.core.errors import DataIntegrityWarning
 from accellog.flows.simulate import Scenario, simulate
-from accellog.store import fastread
+from accellog.store import group_decompress
 from accellog.store.collect import crc32_holding_gil
 from accellog.store.reader import read_session
 
@@ -30,7 +30,7 @@ def recorded(tmp_path_factory) -> Path:
 
 
 def _chunk_by_chunk_only(monkeypatch) -> None:
-    monkeypatch.setattr(fastread._Decompressor, "_zstd_group", lambda *a: None)
+    monkeypatch.setattr(group_decompress.GroupDecompressor, "_zstd_group", lambda *a: None)
 
 
 def test_groups_of_chunks_read_as_chunk_by_chunk(recorded, monkeypatch):
@@ -38,9 +38,9 @@ def test_groups_of_chunks_read_as_chunk_by_chunk(recorded, monkeypatch):
         chunks = make_reader(f).get_summary().chunk_indexes
     assert len(chunks) > 20 and {c.compression for c in chunks} == {"zstd"}
     calls = []
-    by_chunk = fastread._Decompressor._chunk_by_chunk
+    by_chunk = group_decompress.GroupDecompressor._chunk_by_chunk
     monkeypatch.setattr(
-        fastread._Decompressor, "_chunk_by_chunk", lambda self, *a: calls.append(1) or by_chunk(self, *a)
+        group_decompress.GroupDecompressor, "_chunk_by_chunk", lambda self, *a: calls.append(1) or by_chunk(self, *a)
     )
     grouped = read_session(recorded)
     assert not calls  # a sound file: every group in one call
