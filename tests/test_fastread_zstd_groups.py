@@ -16,6 +16,7 @@ from accellog.core.errors import DataIntegrityWarning
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store import group_decompress
 from accellog.store.collect import crc32_holding_gil
+from accellog.store.mcap_index import read_footer
 from accellog.store.reader import read_session
 
 COLUMNS = ("t_s", "sample_index", "accel_counts", "gyro_counts", "temp_counts", "accel_g", "host_time_s")
@@ -40,7 +41,9 @@ def test_groups_of_chunks_read_as_chunk_by_chunk(recorded, monkeypatch):
     calls = []
     by_chunk = group_decompress.GroupDecompressor._chunk_by_chunk
     monkeypatch.setattr(
-        group_decompress.GroupDecompressor, "_chunk_by_chunk", lambda self, *a: calls.append(1) or by_chunk(self, *a)
+        group_decompress.GroupDecompressor,
+        "_chunk_by_chunk",
+        lambda self, *a: calls.append(1) or by_chunk(self, *a),
     )
     grouped = read_session(recorded)
     assert not calls  # a sound file: every group in one call
@@ -95,3 +98,32 @@ def test_crc32_holding_gil_is_zlibs(size):
     b = np.random.default_rng(size).integers(0, 256, size, dtype=np.uint8).tobytes()
     assert crc32_holding_gil(memoryview(b)) == zlib.crc32(b)
     assert crc32_holding_gil(memoryview(b)[size // 3 :], zlib.crc32(b[: size // 3])) == zlib.crc32(b)
+
+
+def _count_crcs(monkeypatch) -> list[int]:
+    calls: list[int] = []
+    real = group_decompress.crc32_holding_gil
+    monkeypatch.setattr(group_decompress, "crc32_holding_gil", lambda *a: calls.append(1) or real(*a))
+    return calls
+
+
+def test_a_whole_read_trusts_the_data_section_crc_a_stream_does_not(recorded, monkeypatch):
+    """The data section CRC covers every chunk byte and is checked before read_session returns, so a
+    whole read skips the chunks' own CRCs; a stream hands blocks out before that verdict: it checks
+    every chunk. A file without a data section CRC: every chunk checked."""
+    from accellog.store.stream import iter_imu
+
+    calls = _count_crcs(monkeypatch)
+    read_session(recorded)
+    assert calls == []
+    list(iter_imu(recorded))
+    assert len(calls) > 20
+    calls.clear()
+    b = bytearray(recorded.read_bytes())
+    at = read_footer(bytes(b))[1] - 13  # the DataEnd record: opcode 0x0F, length 4, CRC
+    assert b[at] == 0x0F and int.from_bytes(b[at + 9 : at + 13], "little") != 0
+    b[at + 9 : at + 13] = bytes(4)  # "no data section CRC stored"
+    no_crc = recorded.parent / "no_data_crc.mcap"
+    no_crc.write_bytes(b)
+    s = read_session(no_crc)
+    assert len(calls) > 20 and not [e for e in s.events if e.kind == "damaged"]

@@ -94,12 +94,18 @@ def chunk_records(chunk: Chunk, offset: int) -> list | Damage:
         return Damage(offset, int(chunk.message_start_time), int(chunk.message_end_time), reason)
 
 
-def data_section_damage(data, summary_start: int) -> Damage | None:
-    """Check the DataEnd CRC (every byte from the magic to the DataEnd record) when it was stored."""
+def stored_data_crc(data, summary_start: int) -> int:
+    """The DataEnd record's CRC of the data section (every byte from the magic to that record); 0 if
+    the writer stored none."""
     at = summary_start - 13  # DataEnd: opcode 0x0F, length 4, crc u32
     if at < 8 or data[at] != 0x0F or int.from_bytes(data[at + 1 : at + 9], "little") != 4:
-        return None
-    want = int.from_bytes(data[at + 9 : at + 13], "little")
+        return 0
+    return int.from_bytes(data[at + 9 : at + 13], "little")
+
+
+def data_section_damage(data, summary_start: int) -> Damage | None:
+    """Check the DataEnd CRC (every byte from the magic to the DataEnd record) when it was stored."""
+    at, want = summary_start - 13, stored_data_crc(data, summary_start)
     if want == 0:
         return None
     got, mv, step = 0, memoryview(data), 4 << 20

@@ -20,11 +20,18 @@ PAD = 16  # zero bytes after the decompressed records (vectorised reads may look
 class GroupDecompressor:
     """Decompresses runs of chunks into one reused buffer (fresh memory per group would cost page faults);
     a chunk whose header disagrees with its index, that does not decompress, has the wrong size or
-    fails its CRC is left out and noted (a disagreeing header without a summary CRC: NotFast, the
-    index itself may be the damage)."""
+    fails its CRC (check_crcs) is left out and noted (a disagreeing header without a summary CRC:
+    NotFast, the index itself may be the damage)."""
 
     def __init__(
-        self, data: Bytes, idx, keep, verified: bool | None, damaged: list[Damage], slots: int
+        self,
+        data: Bytes,
+        idx,
+        keep,
+        verified: bool | None,
+        damaged: list[Damage],
+        slots: int,
+        check_crcs: bool = True,
     ) -> None:
         import lz4.frame
         import zstandard
@@ -38,6 +45,7 @@ class GroupDecompressor:
         self.idx = idx
         self.keep = np.ones(idx.ci.shape[0], bool) if keep is None else keep
         self.damaged = damaged  # appended to (list.append is atomic)
+        self.check_crcs = check_crcs  # False: the data section CRC vouches for the chunks (fastread)
 
     def _into(self, comp: bytes, raw, dst: memoryview, slot: int) -> str | None:
         """Decompress one chunk's records into dst (zstd straight into it, no copy); None if they
@@ -127,7 +135,7 @@ class GroupDecompressor:
                 return None
             dst = out[pos : pos + u]
             dst[:] = part
-            if crc and crc32_holding_gil(dst) != crc:
+            if crc and self.check_crcs and crc32_holding_gil(dst) != crc:
                 return None
             pos += u
         return pos
@@ -148,7 +156,7 @@ class GroupDecompressor:
                 rec = at + 49 + nl
                 dst = out[pos : pos + u]
                 why = self._into(data[at + 41 : at + 41 + nl], mv[rec : rec + csize], dst, slot)
-                if why is None and crc and crc32_holding_gil(dst) != crc:
+                if why is None and crc and self.check_crcs and crc32_holding_gil(dst) != crc:
                     why = "CRC mismatch"
             if why is not None:
                 self.damaged.append(Damage(at, int(tab.t_first[k]), int(tab.t_last[k]), why))
