@@ -1,6 +1,6 @@
 """Fast path of the MCAP reader: walk a finished file with struct/numpy, decode every batch channel at once.
 
-The file is mapped, footer and summary parsed with struct, chunks decompressed ~4 MiB at a time into
+The file is mapped, footer and summary parsed with struct, chunks decompressed 4-8 MiB at a time into
 reused buffers (store.group_decompress; the next groups on worker threads while this one is decoded),
 records walked by checked guesses (runs of equal-length messages) or, in groups of many small chunks,
 all chunks side by side (store.record_starts), and every channel's payloads decoded at once by

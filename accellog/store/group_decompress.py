@@ -8,7 +8,9 @@ left out and named (``Damage``).
 
 from __future__ import annotations
 
+import lz4.frame
 import numpy as np
+import zstandard
 
 from accellog.store.collect import Damage, crc32_holding_gil, release_pages
 from accellog.store.mcap_index import Bytes, NotFast, header_agrees
@@ -33,9 +35,6 @@ class GroupDecompressor:
         slots: int,
         check_crcs: bool = True,
     ) -> None:
-        import lz4.frame
-        import zstandard
-
         self.data = data
         self.zstd = [zstandard.ZstdDecompressor() for _ in range(slots)]  # one per slot: not thread-safe
         self.group_zstd = "multi_decompress_to_buffer" in zstandard.backend_features  # C backend
@@ -103,9 +102,9 @@ class GroupDecompressor:
     def _zstd_group(self, index: list[tuple[int, ...]], out: memoryview, slot: int) -> int | None:
         """Bytes written to out if every chunk of the group is sound zstd, decompressed by one call that
         keeps the GIL released throughout (a call per chunk hands it back and forth with the decoder:
-        ~200 round trips a group of recorder chunks, each up to the 5 ms switch interval); None if the
-        chunks are large (mean of SMALL_CHUNK or more), or any chunk is not zstd,
-        disagrees with its index, fails or has the wrong size or CRC (chunk by chunk then says which)."""
+        ~200 round trips a group of recorder chunks, each up to the 5 ms switch interval). None if the
+        chunks are large (a mean of SMALL_CHUNK or more), or if any chunk is not zstd, disagrees with
+        its index, fails or has the wrong size or CRC: chunk by chunk then says which."""
         data = self.data
         if not self.group_zstd or not index or sum(ix[2] for ix in index) >= SMALL_CHUNK * len(index):
             return None  # large chunks (write_session's 1 MiB) go straight into out, a few calls a group
@@ -115,8 +114,6 @@ class GroupDecompressor:
             crcs.append(header_agrees(data, *ix))
             if crcs[-1] is None or data[at + 41 : at + 41 + nl] != b"zstd":
                 return None
-        import zstandard
-
         frames = np.array([(at + 49 + nl, csize) for at, _, _, csize, _, nl in index], np.uint64)
         usize = np.array([ix[2] for ix in index], np.uint64)
         try:
