@@ -15,7 +15,7 @@ import numpy as np
 
 from accellog.store.byte_views import byte_window, void_window
 from accellog.store.codec import DOUBLE, FieldCodec, codecs_of
-from accellog.store.field_walk import WIRE, walk_fields
+from accellog.store.field_walk import WIRE, Walk, walk_fields
 
 _MAX_LENGTH_GROUPS = 64  # gather_bytes: message-sized copies per distinct length up to this many lengths
 
@@ -211,7 +211,7 @@ def decode_batch(
     offs = {c.name: np.zeros(n, np.int64) for c in codecs if c.kind in ("packed", "string", "bytes")}
     lens = {name: np.zeros(n, np.int64) for name in offs}
     vals = {c.name: np.zeros(n, np.uint64) for c in codecs if c.kind not in offs}
-    if not walk_fields(buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals):
+    if not walk_fields(Walk(buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals)):
         return None
     return _assemble(message, n, codecs, buf, offs, lens, vals, reserve, scalar_arrays)
 

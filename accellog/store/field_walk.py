@@ -11,6 +11,7 @@ first break of the canonical rules (the caller then decodes message by message).
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
@@ -18,6 +19,22 @@ from accellog.store.byte_views import read_le
 from accellog.store.codec import FieldCodec
 
 WIRE = {"packed": 2, "string": 2, "bytes": 2, "varint_u": 0, "varint_s": 0, "double": 1}
+
+
+class Walk(NamedTuple):
+    """The messages buf[pos[k] : end[k]] of one type (key byte -> field index, field numbers, codecs)
+    and what a walk fills: offs/lens of the length-delimited fields, vals of the others (zeros:
+    absent)."""
+
+    buf: np.ndarray
+    pos: np.ndarray
+    end: np.ndarray
+    key_to_field: np.ndarray
+    numbers: np.ndarray
+    field_codecs: list[FieldCodec]
+    offs: dict[str, np.ndarray]
+    lens: dict[str, np.ndarray]
+    vals: dict[str, np.ndarray]
 
 
 def _varints(buf: np.ndarray, pos: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -119,17 +136,7 @@ def _rows(buf: np.ndarray, pos: np.ndarray, size: int) -> Callable[[np.ndarray |
     return lambda cols: buf[offsets + (np.arange(cols.start, cols.stop) if isinstance(cols, slice) else cols)]
 
 
-def _uniform_layout(
-    buf: np.ndarray,
-    pos: np.ndarray,
-    end: np.ndarray,
-    key_to_field: np.ndarray,
-    numbers: np.ndarray,
-    field_codecs: list[FieldCodec],
-    offs: dict[str, np.ndarray],
-    lens: dict[str, np.ndarray],
-    vals: dict[str, np.ndarray],
-) -> bool:
+def _uniform_layout(w: Walk) -> bool:
     """``decode_batch``'s field walk when every message has the layout of the first one (the usual case).
 
     The first message is walked in Python under the canonical rules; then every message is checked to
@@ -137,6 +144,7 @@ def _uniform_layout(
     count (continuation bits) there, with a few vectorised column reads. Fills offs/lens/vals as the
     general walk would and returns True; False (nothing filled) if any of this does not hold.
     """
+    buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals = w
     n = pos.shape[0]
     if n < 2:
         return False
@@ -171,21 +179,10 @@ def _uniform_layout(
     return True
 
 
-def walk_fields(
-    buf: np.ndarray,
-    pos: np.ndarray,
-    end: np.ndarray,
-    key_to_field: np.ndarray,
-    numbers: np.ndarray,
-    field_codecs: list[FieldCodec],
-    offs: dict[str, np.ndarray],
-    lens: dict[str, np.ndarray],
-    vals: dict[str, np.ndarray],
-) -> bool:
-    """Fill offs/lens (length-delimited fields) and vals (the others) of the messages buf[pos[k] :
-    end[k]]; False if one breaks the canonical rules (see module doc). pos is consumed."""
-    walk = (buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals)
-    return _uniform_layout(*walk) or _sequence_walk(*walk) or _general_walk(*walk)
+def walk_fields(w: Walk) -> bool:
+    """Fill w's offs/lens (length-delimited fields) and vals (the others); False if a message breaks
+    the canonical rules (see module doc). w.pos is consumed."""
+    return _uniform_layout(w) or _sequence_walk(w) or _general_walk(w)
 
 
 def _key_sequence(t: bytes, key_to_field: np.ndarray, numbers: np.ndarray, field_codecs: list[FieldCodec]):
@@ -213,21 +210,12 @@ def _key_sequence(t: bytes, key_to_field: np.ndarray, numbers: np.ndarray, field
     return keys if p == len(t) else None
 
 
-def _sequence_walk(
-    buf: np.ndarray,
-    pos: np.ndarray,
-    end: np.ndarray,
-    key_to_field: np.ndarray,
-    numbers: np.ndarray,
-    field_codecs: list[FieldCodec],
-    offs: dict[str, np.ndarray],
-    lens: dict[str, np.ndarray],
-    vals: dict[str, np.ndarray],
-) -> bool:
+def _sequence_walk(w: Walk) -> bool:
     """``walk_fields`` when every message has the first one's keys in its order, whatever the lengths
     (recorder batches of varying FIFO reads): one field of all messages per step, its key checked at
     once, each message ending after its last. False if any message differs; what was filled by then
     is what the general walk fills (a field is filled only once every message holds it there)."""
+    buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals = w
     if pos.shape[0] < 2:
         return False
     keys = _key_sequence(bytes(buf[int(pos[0]) : int(end[0])]), key_to_field, numbers, field_codecs)
@@ -261,19 +249,10 @@ def _sequence_walk(
     return False
 
 
-def _general_walk(
-    buf: np.ndarray,
-    pos: np.ndarray,
-    end: np.ndarray,
-    key_to_field: np.ndarray,
-    numbers: np.ndarray,
-    field_codecs: list[FieldCodec],
-    offs: dict[str, np.ndarray],
-    lens: dict[str, np.ndarray],
-    vals: dict[str, np.ndarray],
-) -> bool:
+def _general_walk(w: Walk) -> bool:
     """``decode_batch``'s field walk for any layouts: one field of every unfinished message per step
     (grouped by field), filling offs/lens/vals; False at the first break of the canonical rules."""
+    buf, pos, end, key_to_field, numbers, field_codecs, offs, lens, vals = w
     last = np.zeros(pos.shape[0], np.int64)  # field number read last in each message
     active = np.flatnonzero(pos < end)
     while active.shape[0]:
