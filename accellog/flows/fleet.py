@@ -19,7 +19,6 @@ workers under the same names (shared filesystem). Dask is imported only here.
 
 from __future__ import annotations
 
-import glob
 import hashlib
 import json
 import os
@@ -34,22 +33,24 @@ import numpy as np
 from accellog.calibrate.calibration import sha256_file, write_json_atomic
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.version import __version__
+from accellog.flows.fleet_inputs import find_sessions, safe_part
 from accellog.flows.fleet_table import TABLE_NAME, read_table, write_table
 
-__all__ = ["CAL_DIR", "TABLE_NAME", "FleetRunResult", "read_table", "run_fleet", "session_task"]
+__all__ = [
+    "CAL_DIR",
+    "TABLE_NAME",
+    "FleetRunResult",
+    "find_sessions",
+    "read_table",
+    "run_fleet",
+    "session_task",
+]
 
 CAL_DIR = "cal"
 
 
 # ------------------------------------------------------------------------------------------ inputs
-
-
-def find_sessions(pattern: str) -> list[str]:
-    """Sorted files matching a glob ('**' recursive); InputError when none match."""
-    files = sorted(p for p in glob.glob(os.path.expanduser(pattern), recursive=True) if os.path.isfile(p))
-    if not files:
-        raise InputError("no session file matches", where=pattern)
-    return files
+# (session globs and safe path parts: accellog.flows.fleet_inputs)
 
 
 def pipeline_hash(spec: dict) -> str:
@@ -408,16 +409,12 @@ def _store_results(out: Path, results: list[dict]) -> list[dict]:
             if cal is not None:
                 rel = (
                     Path(CAL_DIR)
-                    / _safe(row["device"])
-                    / (f"{_safe(row['session_name'])}_{row['content_sha256'][:8]}_{_safe(row['model'])}.json")
+                    / safe_part(row["device"])
+                    / (
+                        f"{safe_part(row['session_name'])}_{row['content_sha256'][:8]}_{safe_part(row['model'])}.json"
+                    )
                 )
                 write_json_atomic(out / rel, cal)
                 row["calibration"] = str(rel)
             rows.append(row)
     return rows
-
-
-def _safe(name: str) -> str:
-    import re
-
-    return re.sub(r"[^A-Za-z0-9_.:-]+", "_", name or "unknown")
