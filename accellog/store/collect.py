@@ -27,6 +27,7 @@ from accellog.core.errors import InputError
 from accellog.store.batch_decode import DecodedBatch
 from accellog.store.codec import BatchDecoder
 from accellog.store.layout import MCAP_MAGIC
+from accellog.store.mcap_records import scanned_metadata
 
 try:  # ISA-L's CRC-32: the same polynomial and values as zlib.crc32, ~7x faster (PCLMUL); optional
     from isal.isal_zlib import crc32
@@ -222,7 +223,9 @@ def generic_collect(path: Path, topics: Iterable[str] | None = None) -> Collecte
                 raise McapError("no summary section")
             for sch, ch, msg in reader.iter_messages(topics=topics, log_time_order=False):
                 sink.add(sch, ch, msg.data)
-            for md in reader.iter_metadata():
+            # a summary without metadata index (another writer's choice): the records between chunks
+            metas = reader.iter_metadata() if summary.metadata_indexes else scanned_metadata(path)
+            for md in metas:
                 if md.name == "session":
                     sink.metadata = dict(md.metadata)
             for ch in summary.channels.values():

@@ -53,6 +53,7 @@ from accellog.store.mcap_index import (
     read_metadata,
     read_summary,
 )
+from accellog.store.mcap_records import metadata_between_chunks
 from accellog.store.record_starts import MANY_CHUNKS, chunkwise_starts, message_starts
 
 # ---------------------------------------------------------------------------------------------
@@ -135,7 +136,10 @@ def _fast_walk(
     release_pages(data, 0, len(data))  # what the index pass touched (the summary: ~14 MB at 24 h)
     if keep is not None:  # only chunks that hold a wanted channel are decompressed
         usize = np.where(keep, usize, 0)
-    # the session metadata (LSB scales) first: a stream needs it before the first group
+    # the session metadata (LSB scales) first: a stream needs it before the first group; without
+    # a metadata index (another writer's choice) the records between the chunks are walked
+    if not metadata_at:
+        metadata_at = metadata_between_chunks(data, summary_start)
     meta_kv, meta_error = _session_metadata(data, metadata_at, stream)
     # chunks in groups of a few MiB decompressed: each group is decoded while in the CPU cache
     sink = _Sink(topics)

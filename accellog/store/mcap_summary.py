@@ -21,6 +21,7 @@ from mcap.records import Attachment, AttachmentIndex, Channel, Schema, Statistic
 
 from accellog.store.collect import release_pages
 from accellog.store.mcap_index import PAGES_AT_ONCE, REC, read_footer, read_metadata, read_summary
+from accellog.store.mcap_records import metadata_between_chunks
 
 OP_ATTACHMENT, OP_ATTACHMENT_INDEX, OP_STATISTICS = 0x09, 0x0A, 0x0B
 
@@ -55,6 +56,8 @@ def summary_of(path: str | Path) -> SummaryFacts:
             elif op == OP_ATTACHMENT_INDEX:
                 attach.append(_record(data, pos, ln, AttachmentIndex))
             pos += 9 + ln
+        if not metadata_at:  # written without a metadata index: walk the records between chunks
+            metadata_at = metadata_between_chunks(data, start)
         metadata = dict(read_metadata(data, at) for at in metadata_at)
     return SummaryFacts(schemas, channels, stats, attach, metadata)
 

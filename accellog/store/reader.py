@@ -34,6 +34,7 @@ from accellog.store.layout import (
     TOPIC_TRUTH,
     metadata_to_meta,
 )
+from accellog.store.mcap_records import scanned_metadata
 from accellog.store.mcap_summary import SummaryFacts, attachments_of, summary_of
 from accellog.store.schema import full_name
 
@@ -440,7 +441,8 @@ def session_summary(path: str | Path) -> dict:
                 metadata={},
                 attachments=[(a.name, a.media_type, a.data_size) for a in summ.attachment_indexes],
             )
-            for md in reader.iter_metadata():
+            metas = reader.iter_metadata() if summ.metadata_indexes else scanned_metadata(path)
+            for md in metas:
                 if md.name == "session":
                     out["metadata"] = dict(md.metadata)
         return out
