@@ -397,11 +397,9 @@ def heldout_residual(
 
 
 def heldout_stats(res: FitResult, heldout: ObsTable) -> dict[str, float]:
-    """Held-out residual RMS (g), held-out noise floor RMS(sigma_g) (g) and mean (r / sigma_g)^2."""
-    r = heldout_residual(res, heldout)
-    sig = np.asarray(heldout.sigma_g, float)
-    return {
-        "heldout_rms_g": float(np.sqrt(np.mean(r**2))),
-        "heldout_noise_g": float(np.sqrt(np.mean(sig**2))),
-        "heldout_chi2_dof": float(np.mean((r / sig) ** 2)),
-    }
+    """Held-out residual RMS (g), noise floor RMS(sigma_g) (g), heldout_chi2_dof with the predictive
+    covariance (window noise + the calibration's parameter covariance + its between-hold scatter:
+    calibrate.transfer.predictive_chi2) and heldout_chi2_dof_noise = mean (r / sigma_g)^2."""
+    from accellog.calibrate.transfer import predictive_stats
+
+    return predictive_stats(res, heldout, norm=False)

@@ -11,15 +11,16 @@ Covariance convention:
 - unweighted: cov = s^2 (J^T J)^-1 with s^2 = sum e^2 / dof (residual variance).
 chi2/dof is always computed against the noise estimate sigma_g (when it is finite and positive).
 
-Solver: MINPACK's Levenberg-Marquardt (scipy.optimize.leastsq) with a central-difference Jacobian scaled
-by each parameter's typical magnitude, then Gauss-Newton polishing; linear models converge in one
-step. Before fitting, a rank check on the column-normalised Jacobian (accellog.calibrate.identifiability)
-refuses (ModelError) models the data cannot determine, naming the parameters and the poses or signals
-that are missing.
+Solver: MINPACK's Levenberg-Marquardt (scipy.optimize.least_squares via core.numeric, tolerances
+1e-12) with a central-difference Jacobian, each parameter scaled by its typical magnitude; a fit that
+does not converge is a ModelError naming it. Before fitting, a rank check on the column-normalised
+Jacobian (accellog.calibrate.identifiability) refuses (ModelError) models the data cannot determine,
+naming the parameters and the poses or signals that are missing.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
@@ -29,7 +30,7 @@ from accellog.calibrate.effects import AXES
 from accellog.calibrate.identifiability import GEOMETRY_EFFECTS, _q_or_none, effect_requirement, rank_check
 from accellog.calibrate.model import Model
 from accellog.core.errors import InputError, ModelError
-from accellog.core.numeric import chi2_sf
+from accellog.core.numeric import chi2_sf, least_squares
 from accellog.core.session import ObsTable
 
 
@@ -85,8 +86,12 @@ class FitResult:
     """How cov/sigma were obtained: 'noise' (window noise only), 'between_hold' (plus a between-hold
     variance component) or 'jackknife' (leave one hold out); see accellog.calibrate.variance."""
     between_hold_g: list[float] | None = None
-    """Estimated between-hold standard deviation (g) along gravity and across it, when a hold-scatter
-    method was used."""
+    """Estimated between-hold standard deviation (g) along gravity and across it ([along] for the
+    gravity norm), when a hold-scatter method was used."""
+    uncertainty_note: str = ""
+    """Which 1-sigma cov/sigma are, in words (set by accellog.calibrate.variance.with_uncertainty)."""
+    obs: ObsTable | None = field(default=None, repr=False, compare=False)
+    """The observations fitted (held-out scores take the session's between-hold scatter from them)."""
     _recompute: Callable[[], np.ndarray] | None = field(default=None, init=False, repr=False, compare=False)
 
     def release_jacobian(self) -> None:
@@ -122,6 +127,7 @@ class FitResult:
             "warnings": list(self.warnings),
             "uncertainty": self.uncertainty,
             "between_hold_g": self.between_hold_g,
+            "uncertainty_note": self.uncertainty_note,
         }
 
 
@@ -197,47 +203,20 @@ class _Problem:
 
 
 def _chi2_sf(chi2: float, dof: int) -> float:
-    """P(X > chi2) for X ~ chi2(dof) (NaN for dof <= 0), as scipy.stats.chi2.sf to ~1e-14 relative
-    (core.numeric.chi2_sf: the fit command imports no scipy, ~0.3 s of its start-up)."""
-    return chi2_sf(float(chi2), dof) if dof > 0 else np.nan
+    """P(X > chi2) for X ~ chi2(dof) (NaN for dof <= 0): scipy.special.chdtrc (core.numeric.chi2_sf)."""
+    return chi2_sf(float(chi2), dof)
 
 
 def _steps(model: Model, theta: np.ndarray) -> np.ndarray:
     return np.maximum(1e-4 * model.param_typical, 1e-7 * np.abs(theta))
 
 
-def _solve(fun, theta0: np.ndarray, model: Model, linear: bool | None = None) -> np.ndarray:
-    """LM from theta0 (skipped for linear problems), then Gauss-Newton polishing."""
-    steps = lambda th: _steps(model, th)  # noqa: E731
-    jac = lambda th: _numjac(fun, th, steps(th))  # noqa: E731
-    theta = theta0.copy()
-    if not (model.is_linear if linear is None else linear):
-        from scipy import optimize
-
-        # MINPACK's lmder as least_squares(method="lm", x_scale=...) calls it (same iterates), without
-        # its wrapper, which keeps ~3 more Jacobians alive (initial, cached, final): 2.5x the memory.
-        theta, *_ = optimize.leastsq(
-            fun, theta, Dfun=jac, full_output=True, ftol=1e-12, xtol=1e-12, gtol=1e-12,
-            maxfev=100 * theta.size, factor=100.0, diag=1.0 / model.param_typical,
-        )  # fmt: skip
-    r = fun(theta)
-    cost = float(r @ r)
-    for _ in range(6):
-        J = jac(theta)
-        step, *_ = np.linalg.lstsq(J, -r, rcond=None)
-        for lam in (1.0, 0.5, 0.25):
-            cand = theta + lam * step
-            rc = fun(cand)
-            c = float(rc @ rc)
-            if np.isfinite(c) and c <= cost:
-                break
-        else:
-            break
-        converged = np.all(np.abs(cand - theta) <= 1e-13 * np.maximum(1.0, np.abs(theta)))
-        theta, r, cost = cand, rc, c
-        if converged:
-            break
-    return theta
+def _solve(fun, theta0: np.ndarray, model: Model, what: str) -> np.ndarray:
+    """min sum fun(theta)^2 from theta0: scipy's Levenberg-Marquardt (core.numeric.least_squares) with
+    the central-difference Jacobian, parameters scaled by their typical size; ModelError naming
+    `what` if it does not converge."""
+    jac = lambda th: _numjac(fun, th, _steps(model, th))  # noqa: E731
+    return least_squares(fun, theta0, what=what, jac=jac, x_scale=model.param_typical).x
 
 
 def _warmup_init(problem: _Problem, theta0: np.ndarray, wfun) -> np.ndarray:
@@ -292,7 +271,7 @@ def fit_model(
         rank_check(_numjac(prob.resid, probe, _steps(model, probe)), model, obs, drv, overwrite=True)
     if "tau_warmup_s" in model.index and theta0 is None:
         th0 = _warmup_init(prob, th0, prob.resid)
-    theta = _solve(prob.resid, th0, model)
+    theta = _solve(prob.resid, th0, model, f"fit of {model.name}")
     return _result(prob, theta, weighted, sig_ok, method="labelled")
 
 
@@ -348,6 +327,7 @@ def _result(prob: _Problem, theta: np.ndarray, weighted: bool, sig_ok: bool, met
         jacobian=J,
     )
     out._recompute = _jacobian_of(prob, theta, weighted)
+    out.obs = obs
     return out
 
 
@@ -371,8 +351,10 @@ def _acceptance(
     sigma: np.ndarray,
     weighted: bool,
     dof: int,
+    noise_only: bool = True,
 ) -> list[str]:
-    """ArduPilot-like acceptance checks as warnings (scale 0.8-1.2, |offset| < 1 g, residual vs noise)."""
+    """ArduPilot-like acceptance checks as warnings (scale 0.8-1.2, |offset| < 1 g, residual vs noise;
+    noise_only: sigma is the noise-only bound, and the warning says so)."""
     w: list[str] = []
     d = np.diag(S)
     for i, a in enumerate(AXES):
@@ -386,7 +368,7 @@ def _acceptance(
         w.append(
             f"residuals are {np.sqrt(chi2_dof):.1f}x the noise floor (chi2/dof = {chi2_dof:.3g}): the model "
             "misses an effect (run `accellog diagnose`)"
-            + ("; parameter sigmas are the noise-only bound, see sigma_scaled" if weighted else "")
+            + ("; parameter sigmas are the noise-only bound, see sigma_scaled" if weighted and noise_only else "")
         )
     for n, s, t in zip(model.param_names, sigma, model.param_typical, strict=True):
         if np.isfinite(s) and s > t:
@@ -429,7 +411,7 @@ def fit_orientation_free(
 
     th0 = model.initial_theta()
     _norm_rank_check(fun, th0, model, obs)
-    theta = _solve(fun, th0, model, linear=False)
+    theta = _solve(fun, th0, model, f"orientation-free fit of {model.name}")
     w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(meas)
     prob = _Problem(model, _implied_truth(obs, model, theta, drv, gravity_g), drv, w, float(gravity_g), None)
     out = _result(prob, theta, weighted, sig_ok, method="orientation_free")
@@ -458,23 +440,8 @@ def _norm_rank_check(fun, th0: np.ndarray, model: Model, obs: ObsTable) -> None:
 def _implied_truth(obs: ObsTable, model: Model, theta: np.ndarray, drv, gravity_g: float) -> ObsTable:
     """obs with the truth implied by the fit: up = the corrected direction (f scaled to gravity)."""
     f = model.correct(theta, np.asarray(obs.meas_g, float), drv)
-    f_true = gravity_g * f / np.linalg.norm(f, axis=1, keepdims=True)
-    up = f_true / gravity_g
-    return ObsTable(
-        meas_g=obs.meas_g,
-        sigma_g=obs.sigma_g,
-        up_sensor=up,
-        pose_id=obs.pose_id,
-        pose_names=obs.pose_names,
-        t_s=obs.t_s,
-        t_in_pose_s=obs.t_in_pose_s,
-        n_samples=obs.n_samples,
-        std_g=obs.std_g,
-        temp_degC=obs.temp_degC,
-        dtemp_degC_per_s=obs.dtemp_degC_per_s,
-        q_sensor_to_world=None,
-        session=obs.session,
-    )
+    up = f / np.linalg.norm(f, axis=1, keepdims=True)
+    return dataclasses.replace(obs, up_sensor=up, q_sensor_to_world=None)
 
 
 def _norm_statistics(out: FitResult, fun, theta, weighted: bool, sig_ok: bool, wn, sig_n) -> None:

@@ -21,7 +21,13 @@ import numpy as np
 
 from accellog.calibrate.fit import FitResult, obs_drivers
 from accellog.calibrate.model import Model
-from accellog.calibrate.transfer import Score, added_columns_correlation, blocked_scores, loo_chi2
+from accellog.calibrate.transfer import (
+    Score,
+    added_columns_correlation,
+    blocked_scores,
+    loo_chi2,
+    predictive_stats,
+)
 from accellog.core.session import ObsTable
 
 
@@ -51,14 +57,12 @@ def norm_heldout_score(res: FitResult, heldout: Sequence[ObsTable], kind: str = 
 
 
 def norm_heldout_stats(res: FitResult, heldout: Sequence[ObsTable]) -> dict[str, float]:
-    """Held-out norm residual RMS (g), RMS of its projected noise (g) and mean (e / sigma_n)^2,
-    each averaged over the held-out sessions (the keys of calibrate.diagnose.heldout_stats)."""
-    stats = []
-    for h in heldout:
-        e, s = norm_residual(res, h)
-        stats.append((np.sqrt(np.mean(e**2)), np.sqrt(np.mean(s**2)), np.mean((e / s) ** 2)))
-    rms, noise, chi2 = (float(np.mean(v)) for v in zip(*stats, strict=True))
-    return {"heldout_rms_g": rms, "heldout_noise_g": noise, "heldout_chi2_dof": chi2}
+    """Held-out norm residual RMS (g), RMS of its projected noise (g), heldout_chi2_dof with the
+    predictive covariance (calibrate.transfer.predictive_chi2 on the norm) and
+    heldout_chi2_dof_noise = mean (e / sigma_n)^2, each averaged over the held-out sessions (the
+    keys of calibrate.diagnose.heldout_stats)."""
+    stats = [predictive_stats(res, h, norm=True) for h in heldout]
+    return {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
 
 
 def _norm_jacobian(res: FitResult, obs: ObsTable) -> np.ndarray:

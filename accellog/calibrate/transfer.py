@@ -64,13 +64,15 @@ def _f(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def predict_residual(res: FitResult, obs: ObsTable) -> np.ndarray:
-    """Residual (n,3) g of a fitted model on other observations (same pose labelling)."""
+def predict_residual(res: FitResult, obs: ObsTable, theta: np.ndarray | None = None) -> np.ndarray:
+    """Residual (n,3) g of a fitted model (at theta, default res.theta) on other observations (same
+    pose labelling)."""
     m = res.model
+    th = res.theta if theta is None else theta
     drv = obs_drivers(obs)
     q = None if obs.q_sensor_to_world is None else np.asarray(obs.q_sensor_to_world, float)
-    f = m.truth_g(res.theta, obs.up_sensor, q, res.gravity_g)
-    return np.asarray(obs.meas_g, float) - m.predict(res.theta, f, drv)
+    f = m.truth_g(th, obs.up_sensor, q, res.gravity_g)
+    return np.asarray(obs.meas_g, float) - m.predict(th, f, drv)
 
 
 def heldout_score(res: FitResult, heldout: Sequence[ObsTable]) -> Score:
@@ -83,6 +85,121 @@ def heldout_score(res: FitResult, heldout: Sequence[ObsTable]) -> Score:
         m += z.size
         parts.append(c / max(z.size, 1))
     return Score("heldout", chi2 / max(m, 1), m, parts)
+
+
+# ---------------------------------------------------------------------------------------------
+# predictive held-out score: the calibration's own uncertainty counted
+
+
+def predictive_chi2(
+    res: FitResult, heldout: ObsTable, *, norm: bool | None = None
+) -> tuple[float, float, int]:
+    """(predictive chi2, noise-only chi2, m equations) of `res` predicting another session.
+
+    Residual r (per axis, or the gravity norm |correct(theta; a)| - g when norm; default: norm for
+    orientation-free fits), covariance
+
+        C = D + P Sigma P^T + sum_h U_h T_h U_h^T
+
+    D = window noise (diagonal), P = dr/dtheta on the held-out windows, Sigma = the calibration's
+    parameter covariance with its between-hold component (variance.component_cov on res.obs), T_h =
+    the between-hold covariance the calibration session showed, placed on each held-out hold (U_h
+    sums a hold's windows). chi2 = r^T C^-1 r by Woodbury (per hold, then over the k parameters):
+    O(m k^2). A correct model scores chi2 / m ~ 1 on a second session of the same sensor. Without
+    res.obs (a loaded calibration) Sigma = res.cov and T_h = 0."""
+    from accellog.calibrate.variance import (
+        central_jacobian,
+        component_cov,
+        estimate_scatter,
+        fitted_system,
+        hold_covariances,
+        hold_groups,
+        norm_system,
+    )
+
+    norm = res.method == "orientation_free" if norm is None else norm
+    sigma_theta, sc = np.asarray(res.cov, float), None
+    if res.obs is not None:
+        cal = fitted_system(res, res.obs)
+        sc = estimate_scatter(res, res.obs, cal)
+        sigma_theta = component_cov(res, res.obs, sc, cal)
+    if norm:
+        h = norm_system(res, heldout, weighted=True)
+        z, sig, Pw = h.e_g / h.sigma_g, h.sigma_g, h.J
+    else:
+        sig = np.asarray(heldout.sigma_g, float)
+        z = predict_residual(res, heldout) / sig
+        fun = lambda th: (predict_residual(res, heldout, th) / sig).ravel()  # noqa: E731
+        Pw = central_jacobian(fun, np.asarray(res.theta, float), res.model.param_typical)
+    groups = hold_groups(heldout)
+    up = h.up if norm else np.asarray(heldout.up_sensor, float)
+    Ts = (
+        hold_covariances(up, z.shape[1], groups, sc)
+        if sc is not None
+        else [0 * np.eye(z.shape[1])] * len(groups)
+    )
+    return _woodbury_chi2(z, 1.0 / sig, Pw, sigma_theta, groups, Ts), float(np.sum(z**2)), z.size
+
+
+def _woodbury_chi2(z, w, Pw, Sigma, groups, Ts) -> float:
+    """z^T C^-1 z, C = I + Pw Sigma Pw^T + sum_h U_h T_h U_h^T (whitened; U_h rows w of hold h)."""
+    n, per = z.shape
+
+    def binv(X: np.ndarray) -> np.ndarray:  # B^-1 X per hold: I - U T (I + N T)^-1 U^T
+        Y = X.reshape(n, per, -1).copy()
+        for g, T in zip(groups, Ts, strict=True):
+            if not np.any(T):
+                continue
+            wg = w[g][:, :, None]
+            utx = np.sum(wg * Y[g], axis=0)  # (per, k)
+            N = np.diag(np.sum(w[g] ** 2, axis=0))
+            Y[g] -= wg * (T @ np.linalg.solve(np.eye(per) + N @ T, utx))[None]
+        return Y.reshape(n * per, -1)
+
+    zz = z.reshape(-1, 1)
+    bz = binv(zz)
+    chi2 = float(zz[:, 0] @ bz[:, 0])
+    if Pw.shape[1] == 0:
+        return chi2
+    y = Pw.T @ bz[:, 0]
+    M = Pw.T @ binv(Pw)
+    return chi2 - float(y @ (Sigma @ np.linalg.solve(np.eye(M.shape[0]) + M @ Sigma, y)))
+
+
+def predictive_heldout_score(
+    res: FitResult, heldout: Sequence[ObsTable], *, norm: bool | None = None, kind: str = "heldout"
+) -> Score:
+    """Held-out chi2 per equation with the predictive covariance (predictive_chi2), pooled over the
+    held-out sessions and per session (per_part): ~1 when the model transfers; how far above 1 says
+    by how much it does not (compare Score.se)."""
+    chi2, m, parts = 0.0, 0, []
+    for h in heldout:
+        c, _, k = predictive_chi2(res, h, norm=norm)
+        chi2 += c
+        m += k
+        parts.append(c / max(k, 1))
+    return Score(kind, chi2 / max(m, 1), m, parts)
+
+
+def predictive_stats(res: FitResult, heldout: ObsTable, *, norm: bool | None = None) -> dict[str, float]:
+    """Held-out statistics of one session: heldout_chi2_dof (predictive, predictive_chi2),
+    heldout_chi2_dof_noise (window noise only), heldout_rms_g (residual RMS, g) and
+    heldout_noise_g (RMS of the window noise, g)."""
+    from accellog.calibrate.variance import norm_system
+
+    norm = res.method == "orientation_free" if norm is None else norm
+    c, c0, m = predictive_chi2(res, heldout, norm=norm)
+    if norm:
+        h = norm_system(res, heldout, weighted=True)
+        e, sig = h.e_g, h.sigma_g
+    else:
+        e, sig = predict_residual(res, heldout), np.asarray(heldout.sigma_g, float)
+    return {
+        "heldout_rms_g": float(np.sqrt(np.mean(e**2))),
+        "heldout_noise_g": float(np.sqrt(np.mean(sig**2))),
+        "heldout_chi2_dof": c / max(m, 1),
+        "heldout_chi2_dof_noise": c0 / max(m, 1),
+    }
 
 
 def block_groups(x: np.ndarray, k: int = N_BLOCKS) -> list[np.ndarray]:
