@@ -15,6 +15,9 @@ from __future__ import annotations
 STANDARD_GRAVITY_MPS2 = 9.80665
 """Conventional standard gravity g0 (m/s^2); the chip's LSB/g scale refers to it."""
 
+EARTH_GRAVITY_RANGE_MPS2 = (9.7, 9.9)
+"""Local gravity anywhere on Earth's surface (m/s^2): poles 9.83, equator 9.78, altitude lowers it."""
+
 SEED_LOCAL_GRAVITY_MPS2 = 9.797
 """Local gravity used by the capstone study (Conway, Arkansas), m/s^2."""
 

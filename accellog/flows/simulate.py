@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -61,7 +62,7 @@ from accellog.acquire.recorder import Recorder, session_meta
 from accellog.core.errors import InputError
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
-from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.core.units import EARTH_GRAVITY_RANGE_MPS2, STANDARD_GRAVITY_MPS2
 from accellog.store.atomic import AtomicOutput, check_output
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
@@ -125,6 +126,9 @@ class Scenario:
         return sc
 
     def validate(self, where: str = "scenario") -> None:
+        """InputError naming the first field that is not finite or outside its physical range (the
+        one check of a scenario, from a TOML file or from options); see _check_numbers."""
+        _check_numbers(self, where)
         rate = self.sample_rate_hz
         div = _SMPLRT_DIV_BASE_HZ / rate - 1.0 if rate > 0 and np.isfinite(rate) else -1.0
         if rate <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
@@ -135,9 +139,17 @@ class Scenario:
             raise InputError(f"errors={self.errors!r}: use 'datasheet' or 'perfect'", where=where)
         if self.motion not in ("poses", "robot"):
             raise InputError(f"motion={self.motion!r}: use 'poses' or 'robot'", where=where)
-        if not self.hold_s > 0 or not self.move_s >= 0:
+        if not 0 < self.hold_s <= MAX_SESSION_S or not 0 <= self.move_s <= MAX_SESSION_S:
             raise InputError(
-                f"hold_s={self.hold_s:g} must be > 0 and move_s={self.move_s:g} >= 0 (s)", where=where
+                f"hold_s={self.hold_s:g} must be > 0 and move_s={self.move_s:g} >= 0 (s), "
+                f"both at most {MAX_SESSION_S:g} s",
+                where=where,
+            )
+        if not 0 <= self.label_margin_s < self.hold_s / 2:
+            raise InputError(
+                f"label_margin_s={self.label_margin_s:g} must be >= 0 and shorter than half the hold "
+                f"(hold_s={self.hold_s:g} s): the labels would end before they start",
+                where=where,
             )
         if self.accel_range_g not in (2, 4, 8, 16):
             raise InputError(f"accel_range_g={self.accel_range_g}: use 2, 4, 8 or 16", where=where)
@@ -199,6 +211,63 @@ def _check_type(key: str, value: Any, where: str) -> None:
         and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
     ):
         raise bad("two numbers [about x, about y] in degrees")
+
+
+MAX_SESSION_S = 86400.0
+"""Longest simulated session (s): one day (a longer one is a typo, not a plan)."""
+OPERATING_RANGE_DEGC = (-40.0, 85.0)
+"""The MPU-9250's operating temperature range (PS section 3.1, degC)."""
+
+
+def _finite_numbers(value: Any) -> bool:
+    """True when every number in value (a number, or nested lists / tables of them) is finite."""
+    if isinstance(value, dict):
+        return all(_finite_numbers(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return all(_finite_numbers(v) for v in value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return math.isfinite(value)
+    return True
+
+
+def _check_numbers(sc: Scenario, where: str) -> None:
+    """InputError naming the first non-finite number of the scenario (NaN or inf anywhere: a field,
+    an error override, the temperature or magnetometer table), a negative seed or a local gravity
+    that is not on Earth (EARTH_GRAVITY_RANGE_MPS2)."""
+    for f in dataclasses.fields(sc):
+        value = getattr(sc, f.name)
+        if not _finite_numbers(value):
+            raise InputError(f"{f.name}={value!r} must be finite (no NaN or inf)", where=where)
+    for key in ("seed", "chip_seed"):
+        if getattr(sc, key) < 0:
+            raise InputError(f"{key}={getattr(sc, key)} must be >= 0", where=where)
+    lo, hi = EARTH_GRAVITY_RANGE_MPS2
+    if not lo <= sc.local_gravity_mps2 <= hi:
+        raise InputError(
+            f"local_gravity_mps2={sc.local_gravity_mps2:g} is not a gravity on Earth ({lo}-{hi} m/s^2)",
+            where=where,
+        )
+
+
+def check_session_runs(sc: Scenario, temperature: Any, session_s: float) -> None:
+    """InputError unless a session of session_s (s) can be simulated: at most MAX_SESSION_S, a die
+    temperature inside the chip's operating range all along, no disconnect longer than the session."""
+    if not 0 < session_s <= MAX_SESSION_S:
+        raise InputError(
+            f"the session would last {session_s:g} s; at most {MAX_SESSION_S:g} s", where="scenario"
+        )
+    t = np.linspace(0.0, session_s, 2001)
+    temp_degC = temperature.degC(t)
+    lo, hi = OPERATING_RANGE_DEGC
+    bad = ~((temp_degC >= lo) & (temp_degC <= hi))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(
+            f"temperature {temperature.description} reaches {temp_degC[k]:.4g} degC at t = {t[k]:.4g} s, outside "
+            f"the MPU-9250's operating range {lo:g}..{hi:g} degC",
+            where="scenario",
+        )
+    sc.fault_plan().check_session(session_s)
 
 
 def build_sensor_model(sc: Scenario):
@@ -297,6 +366,8 @@ def simulate(
     check_compression(compression)
     check_output(out, overwrite=force)
     model, motion = build_sensor_model(sc)
+    total_s = motion.duration_s if duration_s is None else duration_s
+    check_session_runs(sc, model.temperature, total_s)
     plan = sc.fault_plan()
     clock = SimClock()
     chip = EmulatedMpu9250(model, clock, seed=sc.seed, i2c_error_rate=plan.i2c_error_rate)
@@ -325,7 +396,6 @@ def simulate(
     )
     if start_time_unix_ns is not None:
         meta = meta.replace(start_time_unix_ns=int(start_time_unix_ns))
-    total_s = motion.duration_s if duration_s is None else duration_s
     ao = AtomicOutput(out, overwrite=force)
     tmp = ao.begin()
     try:
@@ -390,6 +460,8 @@ def scenario_from_options(
             raise InputError(f"--fault {item!r}: use KEY=NUMBER, e.g. --fault i2c_error_rate=0.01")
         FaultPlan.from_mapping({key.strip(): value}, where="--fault")
         setattr(sc, key.strip(), value)
+    if faults:
+        sc.fault_plan(where="--fault")
     sc.validate()
     return sc
 

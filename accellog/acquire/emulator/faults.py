@@ -2,13 +2,17 @@
 
 A ``FaultPlan`` holds the scenario keys (all off by default):
 
-    i2c_error_rate      probability per I2C transaction of errno 121 (NAK) or 5 (EIO)   [0, 1]
-    fifo_glitch_rate    probability per FIFO drain that one byte was lost since the last   [0, 1]
+    i2c_error_rate      probability per I2C transaction of errno 121 (NAK) or 5 (EIO)   [0, 1)
+    fifo_glitch_rate    probability per FIFO drain that one byte was lost since the last   [0, 1)
                         (a spurious read: the packets are misaligned until the FIFO is reset)
     host_stall_s        the host stops for this long (s) ...                               >= 0
     host_stall_every_s  ... every this many seconds of host time (0: never)                >= 0
     disconnect_at_s     the bus is cut at this host time (s after the chip powers up) ...  >= 0
     disconnect_s        ... for this long (s): every transaction NAKs (errno 121)          >= 0
+
+A plan that could never finish is refused up front (InputError naming the key): a rate of 1 (every
+read fails, the recorder retries forever), a stall as long as its period (the host never runs) and,
+once the session's length is known (``check_session``), a disconnect longer than the session.
 
 ``FaultyBus`` wraps an emulated chip (the smbus2 method surface) and applies glitches and the
 disconnect window; ``stalling_sleep`` wraps the host's sleep with the stalls; the chip itself
@@ -30,9 +34,9 @@ from accellog.acquire import registers as R
 from accellog.core.errors import InputError
 
 FAULT_HELP = {
-    "i2c_error_rate": "probability per I2C transaction of errno 121/5, 0..1",
-    "fifo_glitch_rate": "probability per FIFO read of losing one byte (misaligned packets), 0..1",
-    "host_stall_s": "host pause (s), every host_stall_every_s",
+    "i2c_error_rate": "probability per I2C transaction of errno 121/5, 0 <= p < 1",
+    "fifo_glitch_rate": "probability per FIFO read of losing one byte (misaligned packets), 0 <= p < 1",
+    "host_stall_s": "host pause (s), every host_stall_every_s (shorter than that period)",
     "host_stall_every_s": "seconds of host time between stalls (0: none)",
     "disconnect_at_s": "host time (s) at which the bus is cut",
     "disconnect_s": "how long the bus stays cut (s; 0: no disconnect)",
@@ -57,19 +61,43 @@ class FaultPlan:
     @classmethod
     def from_mapping(cls, values: dict[str, Any], where: str = "scenario") -> FaultPlan:
         """FaultPlan from {key: number}; InputError naming the key for unknown keys, non-numbers,
-        rates outside 0..1 or negative times."""
+        rates outside [0, 1), negative times or a stall as long as its period (see check_plan)."""
         kw: dict[str, float] = {}
         for key, v in values.items():
             if key not in cls.names():
                 raise InputError(f"unknown fault key {key!r}; known: {', '.join(cls.names())}", where=where)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise InputError(f"fault key {key!r} must be a finite number, got {v!r}", where=where)
-            if key.endswith("_rate") and not 0.0 <= v <= 1.0:
-                raise InputError(f"fault key {key!r} = {v:g} must be a probability in 0..1", where=where)
+            if key.endswith("_rate") and not 0.0 <= v < 1.0:
+                raise InputError(
+                    f"fault key {key!r} = {v:g} must be a probability in 0 <= p < 1 "
+                    "(at 1 every read fails and the recording never ends)",
+                    where=where,
+                )
             if v < 0:
                 raise InputError(f"fault key {key!r} = {v:g} must be >= 0 (s)", where=where)
             kw[key] = float(v)
-        return cls(**kw)
+        plan = cls(**kw)
+        plan.check_plan(where)
+        return plan
+
+    def check_plan(self, where: str = "scenario") -> None:
+        """InputError when the stalls leave the host no time to run: host_stall_s >= host_stall_every_s."""
+        if self.host_stall_every_s > 0 and self.host_stall_s >= self.host_stall_every_s:
+            raise InputError(
+                f"fault key 'host_stall_s' = {self.host_stall_s:g} s must be shorter than "
+                f"'host_stall_every_s' = {self.host_stall_every_s:g} s (else the host never runs)",
+                where=where,
+            )
+
+    def check_session(self, session_s: float, where: str = "scenario") -> None:
+        """InputError when the disconnect outlasts a session of session_s (s): disconnect_s > session_s."""
+        if self.disconnect_s > session_s:
+            raise InputError(
+                f"fault key 'disconnect_s' = {self.disconnect_s:g} s is longer than the session "
+                f"({session_s:g} s): the recording would never end",
+                where=where,
+            )
 
     @property
     def active(self) -> bool:
