@@ -15,6 +15,9 @@ bias, matrix), covariance = noise (same estimator) + bias variance (+ temperatur
 times (T - T_ref)^2); without cal.gyro the raw gyro with its noise only. orientation_covariance[0]
 = -1 (no orientation estimate). Temperature is written at <= 10 Hz, magnetometer at its own rate
 (tesla; covariance zero = unknown).
+
+Topics and frame_id: those of the bag the session came from (``accellog import ros2`` keeps them in
+meta.extra), so a calibrated bag replaces the raw one in a launch file; --topic / --frame-id override.
 """
 
 from __future__ import annotations
@@ -35,6 +38,8 @@ class Ros2Export:
     """What was written; covariances are the medians over the session (per-sample ones are in the bag)."""
 
     path: str
+    topic: str
+    frame_id: str
     imu_messages: int
     temperature_messages: int
     mag_messages: int
@@ -84,10 +89,40 @@ def _gyro(cal: Calibration, s: Session):
     return w, var, True
 
 
-def write_ros2(s: Session, cal: Calibration, out: str | Path, *, frame_id: str = "imu_link") -> Ros2Export:
-    """Write the calibrated session as a ROS 2 bag (see the module docstring); returns a summary."""
-    from accellog.calibrate.calibration import session_drivers
+def ros2_names(
+    s: Session, topic: str | None = None, frame_id: str | None = None
+) -> tuple[str, str, str, str]:
+    """(IMU topic, temperature topic, magnetometer topic, frame_id): the given ones, else those of the
+    bag the session was imported from (meta.extra ros2_*), else /imu/data, <namespace>/temperature,
+    <namespace>/mag and imu_link."""
+    from accellog.store.ros2_writer import IMU_TOPIC
+
+    ex = s.meta.extra
+    frames = [f for f in str(ex.get("ros2_frame_id", "")).split(",") if f]
+    frame_id = frame_id or (frames[0] if len(frames) == 1 else "imu_link")
+    kept = topic is None or topic == ex.get("ros2_topic")
+    topic = topic or ex.get("ros2_topic") or IMU_TOPIC
+    ns = topic.rsplit("/", 1)[0] if topic.count("/") > 1 else topic
+    temp = (ex.get("ros2_temperature_topic") if kept else None) or f"{ns}/temperature"
+    mag = (ex.get("ros2_mag_topic") if kept else None) or f"{ns}/mag"
+    return topic, temp, mag, frame_id
+
+
+def write_ros2(
+    s: Session,
+    cal: Calibration,
+    out: str | Path,
+    *,
+    topic: str | None = None,
+    frame_id: str | None = None,
+    progress=None,
+) -> Ros2Export:
+    """Write the calibrated session as a ROS 2 bag (see the module docstring); returns a summary.
+    topic, frame_id: default the input bag's (``ros2_names``); progress(done, total): called per chunk."""
+    from accellog.calibrate.session_drivers import session_drivers
     from accellog.store.ros2_writer import Ros2BagWriter
+
+    topic, temp_topic, mag_topic, frame_id = ros2_names(s, topic, frame_id)
 
     f_mps2 = cal.correct_mps2(s)
     drivers = dict(session_drivers(s, cal.model.required_drivers))
@@ -110,19 +145,24 @@ def write_ros2(s: Session, cal: Calibration, out: str | Path, *, frame_id: str =
             ca[:, [0, 1, 2], [0, 1, 2]] += noise_a
             cg = np.zeros((b - a, 3, 3))
             cg[:, [0, 1, 2], [0, 1, 2]] = np.deg2rad(1.0) ** 2 * wvar_dps[a:b] + noise_g
-            w.write_imu(stamp[a:b], f_mps2[a:b], np.deg2rad(w_dps[a:b]), ca.reshape(-1, 9), cg.reshape(-1, 9))
+            w.write_imu(stamp[a:b], f_mps2[a:b], np.deg2rad(w_dps[a:b]), ca.reshape(-1, 9), cg.reshape(-1, 9),
+                        topic=topic)  # fmt: skip
+            if progress is not None:
+                progress(b, s.n)
         n_temp = n_mag = 0
         if s.temp_degC is not None:
             dt = float(np.median(np.diff(s.t_s))) if s.n > 1 else 0.1
             step = max(1, round(0.1 / dt)) if dt > 0 else 1
-            w.write_temperature(stamp[::step], s.temp_degC[::step])
+            w.write_temperature(stamp[::step], s.temp_degC[::step], topic=temp_topic)
             n_temp = len(stamp[::step])
         if s.mag_t_s is not None and s.mag_uT is not None and s.mag_t_s.shape[0]:
             mstamp = int(s.meta.start_time_unix_ns) + np.round(s.mag_t_s * 1e9).astype(np.int64)
-            w.write_mag(mstamp, s.mag_uT * 1e-6)
+            w.write_mag(mstamp, s.mag_uT * 1e-6, topic=mag_topic)
             n_mag = int(mstamp.shape[0])
     return Ros2Export(
         path=str(out),
+        topic=topic,
+        frame_id=frame_id,
         imu_messages=s.n,
         temperature_messages=n_temp,
         mag_messages=n_mag,

@@ -48,6 +48,7 @@ from accellog.present.rrd.recording import RunRecording
 from accellog.store.atomic import AtomicOutput
 from accellog.store.layout import NS_PER_S
 from accellog.store.reader import read_session
+from accellog.store.stream import read_labels
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
 GRAVITY_CONVENTIONS = ("seed", "local")
@@ -161,6 +162,8 @@ def run_fit(
 
     data, src, obs = _fit_input(data, obs, relabel or orientation_free, relabel, window_s, trim_s, n_per_pose)
     m = build_model(model, add=list(add), effects_file=effects_file)
+    if not orientation_free and obs is None and isinstance(data, Session) and not data.poses:
+        orientation_free, m = True, _orientation_free_model(m, effects_file, _name(data))
     if local_gravity_mps2 is None:
         local_gravity_mps2 = (
             data.meta.local_gravity_mps2
@@ -184,12 +187,21 @@ def run_fit(
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
 
+def _orientation_free_model(m, effects_file, where: str):
+    """An unlabelled (hand-held) session is fitted orientation-free, said in a note; cross_axis (3 of its
+    6 terms are a frame rotation, unobservable without labels) becomes misalignment_tri."""
+    terms = ["misalignment_tri" if t == "cross_axis" else t for t in m.terms]
+    swap = " with misalignment_tri for cross_axis" if terms != list(m.terms) else ""
+    note(f"{where}: no pose labels: fitted orientation-free (|f| = g on the detected still intervals){swap}")
+    return build_model("+".join(dict.fromkeys(terms)), effects_file=effects_file) if swap else m
+
+
 def _fit_input(data, obs, whole: bool, relabel: bool, window_s: float, trim_s: float, n_per_pose):
     """(data, source path or None, obs): a file path opened streamed (bounded memory) unless the
     whole session is needed (whole: relabelling, orientation-free) or obs are given, else loaded;
     hold labels that contradict gravity replaced when relabel (a note each)."""
     src = str(data) if isinstance(data, (str, os.PathLike)) else None
-    if src is not None and obs is None and not whole and can_stream(src):
+    if src is not None and obs is None and not whole and can_stream(src) and read_labels(src)[1]:
         data = open_streamed(src, window_s=window_s, trim_s=trim_s)  # bounded memory
         obs = None if data is None else data.obs
     if src is not None and not isinstance(data, StreamedSession):
@@ -407,11 +419,15 @@ def run_apply(
     ros2: str | os.PathLike | None = None,
     other_device: str = "refuse",
     compression: str = DEFAULT_COMPRESSION,
+    ros2_topic: str | None = None,
+    ros2_frame_id: str | None = None,
+    progress=None,
 ) -> Path:
     """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
     /derived/accel_calibrated_mps2 (and /derived/mag_calibrated, uT, when the calibration has a magnetometer
     section and the session magnetometer samples), and attaching the calibration JSON. Atomic (temp + rename).
-    ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2).
+    ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2) on
+    ros2_topic with ros2_frame_id (default: the input bag's); progress(done, total) per ROS 2 chunk.
     A calibration of another device (device keys differ) is refused, or warned about with
     other_device='warn' (see check_device). compression: of the copy's MCAP chunks."""
 
@@ -472,5 +488,5 @@ def run_apply(
     if ros2 is not None:
         from accellog.flows.ros2_out import write_ros2
 
-        write_ros2(s, c, ros2)
+        write_ros2(s, c, ros2, topic=ros2_topic, frame_id=ros2_frame_id, progress=progress)
     return out

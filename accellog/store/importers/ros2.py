@@ -223,8 +223,26 @@ def _stamp_report(stamp: np.ndarray, log: np.ndarray) -> dict[str, str]:
     return out
 
 
+def _namespace(topic: str) -> str:
+    """'/imu/data' -> '/imu'; '/imu' -> '/'."""
+    return topic.rsplit("/", 1)[0] or "/"
+
+
+def companion(conns, imu_topic: str, msgtype: str) -> list:
+    """The connections of the bag's ``msgtype`` topic that goes with ``imu_topic``: the only topic of that
+    type, or the only one in the IMU topic's namespace (or the IMU topic's own name as a namespace:
+    /imu with /imu/temperature); none when that is ambiguous."""
+    of_type = [c for c in conns if c.msgtype == msgtype]
+    names = sorted({c.topic for c in of_type})
+    if len(names) == 1:
+        return of_type
+    near = [n for n in names if _namespace(n) in (_namespace(imu_topic), imu_topic)]
+    return [c for c in of_type if c.topic == near[0]] if len(near) == 1 else []
+
+
 def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs):
-    """IMU arrays (+ temperature and magnetometer messages) of the chosen topics."""
+    """IMU arrays (+ temperature and magnetometer messages) of the chosen topics; without a
+    temperature or magnetometer topic, the one that goes with the IMU topic (``companion``)."""
     import multiprocessing
 
     reader = _open(path)
@@ -233,6 +251,8 @@ def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs):
         imu = _pick(conns, topic, IMU_TYPE, path, "--topic", True)
         tc = _pick(conns, temperature_topic, TEMP_TYPE, path, "--temperature-topic", False)
         mc = _pick(conns, mag_topic, MAG_TYPE, path, "--mag-topic", False)
+        tc = tc if temperature_topic else companion(conns, imu[0].topic, TEMP_TYPE)
+        mc = mc if mag_topic else companion(conns, imu[0].topic, MAG_TYPE)
         n_msg = sum(int(c.msgcount) for c in imu)
         if jobs is None:
             jobs = min(os.cpu_count() or 1, 4) if n_msg > PARALLEL_MIN_MESSAGES else 1
@@ -292,7 +312,8 @@ def import_ros2(
     """A rosbag2 IMU topic (plus optional Temperature and MagneticField topics) -> Session.
 
     Without ``topic`` the bag's only sensor_msgs/msg/Imu topic is used; with several, the error
-    lists them. Provenance (bag, topic, frame_id, stamp/log-time agreement, the bag's covariances)
+    lists them. Without ``temperature_topic`` / ``mag_topic`` the bag's topic of that type that goes
+    with the IMU topic is read (the only one, or the only one in its namespace; ``companion``). Provenance (bag, topic, frame_id, stamp/log-time agreement, the bag's covariances)
     goes to meta.extra. jobs: decoding processes (default: the CPU count, up to 4, for bags with more
     than PARALLEL_MIN_MESSAGES IMU messages; 1 otherwise).
     """
@@ -309,10 +330,12 @@ def import_ros2(
     if temp is not None and temp[1].size:
         temp_degC = np.interp(stamp.astype(np.float64), temp[1].astype(np.float64), temp[2])
         extra["temperature"] = f"{temp[0]}: {temp[1].size} messages, interpolated onto the IMU stamps"
+        extra["ros2_temperature_topic"] = temp[0]
     mag_t = mag_uT = None
     if mag is not None and mag[1].size:
         mag_t, mag_uT = (mag[1] - t0) / 1e9, mag[2] * 1e6
         extra["magnetometer"] = f"{mag[0]}: tesla -> uT (x 1e6)"
+        extra["ros2_mag_topic"] = mag[0]
     med = float(np.median(np.diff(t_s)))
     meta = SessionMeta(
         source="import:ros2",
