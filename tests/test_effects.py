@@ -114,7 +114,9 @@ def test_user_effect_file_round_trip(tmp_path):
     assert m.param_names[-3:] == ["hb_x", "hb_y", "hb_z"] and m.param_units[-1] == "g/%RH"
     spec = json.loads(json.dumps(m.to_spec()))
     assert spec["effects_file_sha256"] and spec["terms"][-1] == "humidity_bias"
-    m2 = model_from_spec(spec)
+    with pytest.raises(ModelError, match=r"--effects-file.*"):
+        model_from_spec(spec)  # the spec names a file: never imported on its own
+    m2 = model_from_spec(spec, EXAMPLES / "effects_humidity.py")
     assert m2.param_names == m.param_names
     th = true_theta(m, {"hb_x": 2e-4, "hb_y": -1e-4, "hb_z": 3e-4}, seed=2)
     f = np.tile([0.0, 0.0, 1.0], (5, 1))
@@ -123,13 +125,13 @@ def test_user_effect_file_round_trip(tmp_path):
     np.testing.assert_allclose(m2.correct(th, a, drv), f, atol=1e-12)
     with pytest.raises(ModelError, match="humidity_pct"):
         m2.predict(th, f, {})
-    # the file changed since the model was fitted
+    # the file changed since the model was fitted: refused before it runs
     copy = tmp_path / "h.py"
     copy.write_text((EXAMPLES / "effects_humidity.py").read_text())
     spec2 = build_model("model1", add=["humidity_bias"], effects_file=copy).to_spec()
     copy.write_text(copy.read_text() + "\n# edited\n")
-    with pytest.raises(ModelError, match="changed"):
-        model_from_spec(spec2)
+    with pytest.raises(InputError, match="sha256"):
+        model_from_spec(spec2, copy)
 
 
 def test_bad_effects_files(tmp_path):

@@ -49,10 +49,12 @@ from accellog.calibrate.cal_sections import (
     object_section,
 )
 from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.effects import LIBRARY
 from accellog.calibrate.gyro import GyroCalibration
 from accellog.calibrate.magnetometer import MagCalibration
 from accellog.calibrate.model import model_from_spec
 from accellog.calibrate.noise_section import NoiseSection
+from accellog.calibrate.session_drivers import session_drivers
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult, dumps
@@ -81,55 +83,6 @@ def sha256_file(path: str | os.PathLike) -> str | None:
 def source_entry(path: str | None, kind: str = "") -> SourceFile:
     """Path, SHA-256 (None when unreadable) and kind of an input file."""
     return SourceFile(path=path, sha256=sha256_file(path) if path else None, kind=kind)
-
-
-def rate_of_change(t_s: np.ndarray, y: np.ndarray, span_s: float = 5.0) -> np.ndarray:
-    """Local least-squares slope dy/dt over a centred window of span_s (unit of y per s), vectorised
-    with cumulative sums; suits quantised signals such as TEMP_OUT."""
-    t = np.asarray(t_s, float)
-    y = np.asarray(y, float)
-    n = t.size
-    if n < 2:
-        return np.zeros(n)
-    lo = np.searchsorted(t, t - span_s / 2, side="left")
-    hi = np.searchsorted(t, t + span_s / 2, side="right")
-    tc = t - t.mean()
-    yc = y - y.mean()
-
-    def csum(x: np.ndarray) -> np.ndarray:
-        return np.concatenate([[0.0], np.cumsum(x)])
-
-    c1, ct, cy, ctt, cty = csum(np.ones(n)), csum(tc), csum(yc), csum(tc * tc), csum(tc * yc)
-    k = c1[hi] - c1[lo]
-    st, sy, stt, sty = ct[hi] - ct[lo], cy[hi] - cy[lo], ctt[hi] - ctt[lo], cty[hi] - cty[lo]
-    den = k * stt - st * st
-    with np.errstate(invalid="ignore", divide="ignore"):
-        slope = np.where(den > 1e-12 * np.maximum(k * stt, 1e-300), (k * sty - st * sy) / den, 0.0)
-    return slope
-
-
-def session_drivers(session: Session, needed: list[str] | None = None) -> dict[str, np.ndarray]:
-    """Per-sample driver signals of a session: t_s, temp_degC, dtemp_degC_per_s (5 s local slope),
-    t_in_pose_s (time since the start of the latest pose label at or before each sample; t_s when
-    the session has no labels). Only `needed` drivers are computed when given."""
-    want = set(needed) if needed is not None else {"t_s", "temp_degC", "dtemp_degC_per_s", "t_in_pose_s"}
-    d: dict[str, np.ndarray] = {}
-    t = session.t_s
-    if "t_s" in want:
-        d["t_s"] = t
-    if session.temp_degC is not None:
-        if "temp_degC" in want:
-            d["temp_degC"] = session.temp_degC
-        if "dtemp_degC_per_s" in want:
-            d["dtemp_degC_per_s"] = rate_of_change(t, session.temp_degC)
-    if "t_in_pose_s" in want:
-        if session.poses:
-            starts = np.sort(np.array([p.start_s for p in session.poses]))
-            k = np.searchsorted(starts, t, side="right") - 1
-            d["t_in_pose_s"] = np.where(k >= 0, t - starts[np.maximum(k, 0)], t)
-        else:
-            d["t_in_pose_s"] = t
-    return d
 
 
 @dataclass
@@ -168,6 +121,11 @@ class Calibration(JsonResult):
     """The `gyro` section as read from the file (written back unchanged while `gyro` equals it)."""
     magnetometer_source: dict | None = field(default=None, repr=False, compare=False)
     """The `magnetometer` section as read (as gyro_source)."""
+    effects_file: Any = field(default=None, repr=False, compare=False)
+    """The user's effects (an EffectsFile, or the path the user named with --effects-file) for a
+    model with user effects; never taken from the file itself (a data file carries no code)."""
+    stored_S_b: tuple | None = field(default=None, repr=False, compare=False)
+    """S and b_g as read from the file (written back when the model needs code not given)."""
 
     def __post_init__(self) -> None:
         # sections given as their JSON dicts (older callers) become the typed sections
@@ -204,7 +162,7 @@ class Calibration(JsonResult):
         """The accellog.calibrate.model.Model of this calibration, built from the spec once (a user effects
         file is imported and its SHA-256 checked on first use, not on every correct())."""
 
-        return model_from_spec(self.model_spec)
+        return model_from_spec(self.model_spec, self.effects_file)
 
     @property
     def terms(self) -> list[str]:
@@ -216,8 +174,16 @@ class Calibration(JsonResult):
         return self.device.key.conflicts(key)
 
     def S_b(self) -> tuple[np.ndarray, np.ndarray]:
-        """Linear part at reference conditions: S (3,3), b (3,) g."""
+        """Linear part at reference conditions: S (3,3), b (3,) g (as stored in the file when its
+        model needs a user effects file that was not given)."""
+        if self.stored_S_b is not None and self.needs_user_code:
+            return self.stored_S_b
         return self.model.S_b(self.theta)
+
+    @property
+    def needs_user_code(self) -> bool:
+        """True when the model has user effects and no effects file was given to run them."""
+        return self.effects_file is None and any(t not in LIBRARY for t in self.terms)
 
     # ------------------------------------------------------------------ apply
     def correct(
@@ -266,6 +232,7 @@ class Calibration(JsonResult):
                 max_degC=float(np.max(obs.temp_degC)),
             )
         return cls(
+            effects_file=fit.model.effects_file,
             model_spec=fit.model.to_spec(),
             param_names=list(fit.param_names),
             param_units=list(fit.param_units),
@@ -355,8 +322,9 @@ def read_json(path: str | os.PathLike) -> Any:
         ) from None
 
 
-def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
-    """Validate and build a Calibration from its JSON dict (InputError on a bad or foreign file)."""
+def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = None) -> Calibration:
+    """Validate and build a Calibration from its JSON dict (InputError on a bad or foreign file).
+    User effects run only from `effects_file` (see load_calibration)."""
     if not isinstance(d, dict):
         raise InputError("not an accellog calibration file (top level is not an object)", where=where)
     if d.get("format") != FORMAT:
@@ -420,7 +388,11 @@ def calibration_from_dict(d: Any, where: str | None = None) -> Calibration:
         noise=None if d.get("noise") is None else NoiseSection.from_dict(d["noise"], where),
         magnetometer=mag_from_dict(d.get("magnetometer"), where),
         magnetometer_source=d.get("magnetometer"),
+        effects_file=effects_file,
     )
+    if cal.needs_user_code:
+        cal.stored_S_b = _stored_S_b(d, where)
+        return cal
     try:
         model = cal.model
     except ModelError as exc:
@@ -485,8 +457,28 @@ def check_values(
         raise InputError(f"gravity truth_g = {truth_g:g} outside {lo}-{hi}", where=where)
 
 
-def load_calibration(path: str | os.PathLike) -> Calibration:
-    """Read a calibration JSON file; one-line InputError on missing, malformed or foreign files."""
-    cal = calibration_from_dict(read_json(path), where=str(path))
+def _stored_S_b(d: dict, where: str | None) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        S, b = np.asarray(d["S"], float), np.asarray(d["b_g"], float)
+    except (KeyError, TypeError, ValueError):
+        raise InputError("calibration file has no valid 'S' / 'b_g'", where=where) from None
+    if S.shape != (3, 3) or b.shape != (3,) or not (np.isfinite(S).all() and np.isfinite(b).all()):
+        raise InputError("calibration 'S' must be 3x3 and 'b_g' 3 finite numbers", where=where)
+    return S, b
+
+
+def load_calibration(path: str | os.PathLike, effects_file: Any = None) -> Calibration:
+    """Read a calibration JSON file; one-line InputError on missing, malformed or foreign files.
+
+    A model with user effects is rebuilt only from `effects_file`, the Python file the user named
+    (--effects-file), hash-checked before it runs; nothing named inside the calibration is ever
+    imported. Without it the calibration still loads and keeps its stored S and b_g, and
+    `cal.model` (anything that applies it) raises one ModelError saying what to pass."""
+    cal = calibration_from_dict(read_json(path), where=str(path), effects_file=effects_file)
     cal.path = str(path)
     return cal
+
+
+def as_calibration(x: Calibration | str | os.PathLike, effects_file: Any = None) -> Calibration:
+    """A Calibration as given, or loaded from its file (with the user's effects file, if any)."""
+    return x if isinstance(x, Calibration) else load_calibration(x, effects_file)

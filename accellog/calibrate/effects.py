@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import importlib.util
+import os
+import types
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -205,7 +206,9 @@ LIBRARY: dict[str, Effect] = {
         ),
         _B(
             "warmup",
-            (*per_axis("w", "g", 0.0, 3e-3), Param("tau_warmup_s", "s", 100.0, 100.0)),
+            # starts at a warm-up of typical size (3 mg, 100 s): at w = 0 the time constant has no
+            # effect, its Jacobian column is zero and no fit can start there
+            (*per_axis("w", "g", 3e-3, 3e-3), Param("tau_warmup_s", "s", 100.0, 100.0)),
             drivers=("t_s",),
             meaning="bias settling after power-up (self-heating, charge settling), one time constant",
             equation="w_i (1 - exp(-t / tau_warmup_s))",
@@ -253,25 +256,36 @@ class EffectsFile:
     effects: dict[str, Effect] = field(default_factory=dict)
 
 
-def load_effects_file(path: str | Path) -> EffectsFile:
-    """Import a Python file and collect its effects: a module-level list ``EFFECTS`` if present,
-    else every module-level `Effect` instance. Each must define `contribution`."""
+MAX_EFFECTS_FILE_BYTES = 1 << 20
+"""An effects file is source code: one over 1 MiB is refused before it is read whole."""
+
+
+def load_effects_file(path: str | Path, *, expect_sha256: str | None = None) -> EffectsFile:
+    """Run a user's Python file and collect its effects: a module-level list ``EFFECTS`` if
+    present, else every module-level `Effect` instance. Each must define `contribution`.
+
+    This executes the file with the user's rights: call it only for a file the user named on the
+    command line (never for a path read from a calibration, session or pipeline file). The bytes
+    are read once; with `expect_sha256` (the hash a calibration recorded) they are hashed and
+    compared *before* anything is executed, and the same bytes are what runs."""
     p = Path(path)
     if not p.is_file():
         raise InputError("effects file not found", where=str(p))
+    if p.stat().st_size > MAX_EFFECTS_FILE_BYTES:
+        raise InputError(
+            f"effects file is {p.stat().st_size:,} bytes; over the {MAX_EFFECTS_FILE_BYTES:,}-byte limit "
+            "for Python source",
+            where=str(p),
+        )
     data = p.read_bytes()
-    spec = importlib.util.spec_from_file_location(f"accellog_user_effects_{p.stem}", p)
-    if spec is None or spec.loader is None:
-        raise InputError("cannot import effects file (not a .py file?)", where=str(p))
-    mod = importlib.util.module_from_spec(spec)
-    try:
-        spec.loader.exec_module(mod)
-    except KeyboardInterrupt:
-        raise
-    except BaseException as exc:  # user code (SystemExit too): one line, with the line in the file
-        line = getattr(exc, "lineno", None) if isinstance(exc, SyntaxError) else _user_line(exc, p)
-        where = f"{p}:{line}" if line else str(p)
-        raise InputError(f"effects file failed to load: {_exc_text(exc)}", where=where) from None
+    sha = hashlib.sha256(data).hexdigest()
+    if expect_sha256 is not None and sha != expect_sha256:
+        raise InputError(
+            f"effects file has sha256 {sha[:16]}…, the calibration was fitted with {expect_sha256[:16]}…: "
+            "not run; pass the file the calibration was fitted with, or refit",
+            where=str(p),
+        )
+    mod = _exec_user_module(data, p)
     found = getattr(mod, "EFFECTS", None)
     if found is None:
         found = [v for v in vars(mod).values() if isinstance(v, Effect)]
@@ -285,16 +299,55 @@ def load_effects_file(path: str | Path) -> EffectsFile:
             raise InputError(f"effect {e.name!r} has no callable contribution(p, f_g, drivers)", where=str(p))
         if e.name in LIBRARY or e.name in PRESETS:
             raise InputError(f"effect name {e.name!r} clashes with a built-in effect", where=str(p))
-        sandboxed = _sandboxed(e.contribution, p, e.name)
-        out[e.name] = Effect(**{**e.__dict__, "contribution": sandboxed, "source": str(p), "builtin": False})
+        guarded = _guarded(e.contribution, p, e.name)
+        out[e.name] = Effect(**{**e.__dict__, "contribution": guarded, "source": str(p), "builtin": False})
     if not out:
         raise InputError("no effects found: define Effect objects (or a list EFFECTS)", where=str(p))
-    return EffectsFile(str(p), hashlib.sha256(data).hexdigest(), out)
+    return EffectsFile(str(p), sha, out)
+
+
+def _exec_user_module(data: bytes, p: Path) -> types.ModuleType:
+    """Execute source bytes as a module named after the file; any failure (SystemExit and
+    os._exit included) becomes one InputError with the line in the file."""
+    mod = types.ModuleType(f"accellog_user_effects_{p.stem}")
+    mod.__file__ = str(p)
+    try:
+        code = compile(data, str(p), "exec")
+        with _no_process_exit():
+            exec(code, mod.__dict__)
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # user code (SystemExit too): one line, with the line in the file
+        line = getattr(exc, "lineno", None) if isinstance(exc, SyntaxError) else _user_line(exc, p)
+        where = f"{p}:{line}" if line else str(p)
+        raise InputError(f"effects file failed to load: {_exc_text(exc)}", where=where) from None
+    return mod
+
+
+class _ProcessExit(BaseException):
+    """os._exit called by user code (turned into an error instead of ending the process silently)."""
+
+
+@contextlib.contextmanager
+def _no_process_exit():
+    """While user code runs, os._exit raises instead of killing the process with no output."""
+    real = os._exit
+
+    def refuse(code: int) -> None:
+        raise _ProcessExit(f"it called os._exit({code!r})")
+
+    os._exit = refuse
+    try:
+        yield
+    finally:
+        os._exit = real
 
 
 def _exc_text(exc: BaseException) -> str:
     if isinstance(exc, SystemExit):
         return f"it called sys.exit({exc.code!r})"
+    if isinstance(exc, _ProcessExit):
+        return str(exc)
     text = " ".join(str(exc).split())
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
@@ -312,7 +365,7 @@ def _user_line(exc: BaseException, path: Path) -> int | None:
     return line
 
 
-def _sandboxed(fn: Contribution, path: Path, name: str) -> Contribution:
+def _guarded(fn: Contribution, path: Path, name: str) -> Contribution:
     """The user's contribution h(p, f_g, drivers), with any exception (SystemExit included) or a
     result that is not a finite (n, 3) array in g turned into one InputError naming file, effect
     and line."""
@@ -320,7 +373,8 @@ def _sandboxed(fn: Contribution, path: Path, name: str) -> Contribution:
     def call(p: Mapping[str, float], f_g: np.ndarray, drivers: Mapping[str, np.ndarray]) -> np.ndarray:
         out = None
         try:
-            out = fn(p, f_g, drivers)
+            with _no_process_exit():
+                out = fn(p, f_g, drivers)
             arr = np.broadcast_to(np.asarray(out, dtype=float), np.shape(f_g))
         except KeyboardInterrupt:
             raise

@@ -118,7 +118,8 @@ class Model:
         return term in self.slices
 
     def initial_theta(self) -> np.ndarray:
-        """Initial values: S_ii = 1, everything else 0, tau_warmup_s = 100 s."""
+        """Initial values (the documented starting point of every fit): S_ii = 1, a warm-up of typical
+        size (w_i = 3 mg, tau_warmup_s = 100 s), everything else 0."""
         return np.array([p.initial for p in self.params], float)
 
     def params_dict(self, theta: np.ndarray) -> dict[str, float]:
@@ -379,21 +380,44 @@ def build_model(
     return Model(terms, effects_file=ef, t_ref_degC=t_ref_degC, name=name)
 
 
-def model_from_spec(spec: Mapping) -> Model:
-    """Inverse of Model.to_spec; reloads the effects file and checks its SHA-256."""
-    ef = None
-    if spec.get("effects_file"):
-        ef = load_effects_file(spec["effects_file"])
-        want = spec.get("effects_file_sha256")
-        if want and want != ef.sha256:
-            raise ModelError(
-                f"effects file {spec['effects_file']} changed since the model was fitted "
-                f"(sha256 {ef.sha256[:12]} != {want[:12]}): refit, or restore the file"
-            )
+def model_from_spec(spec: Mapping, effects_file: str | Path | EffectsFile | None = None) -> Model:
+    """Inverse of Model.to_spec. A spec that needs user effects never loads code by itself: the
+    effects file comes from the caller (the user's --effects-file); its SHA-256 is checked against
+    the one the spec recorded before the file is executed."""
     try:
         terms = list(spec["terms"])
     except (KeyError, TypeError) as exc:
         raise ModelError("model spec has no 'terms' list") from exc
-    return Model(
-        terms, effects_file=ef, t_ref_degC=float(spec.get("t_ref_degC", 25.0)), name=spec.get("name")
-    )
+    if not all(isinstance(t, str) for t in terms):
+        raise ModelError("model spec 'terms' must be effect names (strings)")
+    user_terms = [t for t in terms if t not in LIBRARY]
+    recorded = spec.get("effects_file")
+    want = spec.get("effects_file_sha256")
+    ef = None
+    if user_terms:  # a recorded file whose effects the model does not use needs no code
+        ef = _user_effects(user_terms, recorded, want, effects_file)
+    try:
+        t_ref = float(spec.get("t_ref_degC", 25.0))
+    except (TypeError, ValueError):
+        raise ModelError(f"model spec t_ref_degC = {spec.get('t_ref_degC')!r} is not a number") from None
+    return Model(terms, effects_file=ef, t_ref_degC=t_ref, name=spec.get("name"))
+
+
+def _user_effects(user_terms, recorded, want, given) -> EffectsFile:
+    """The user's effects file for a spec with user terms: given by the user, hash-checked first."""
+    names = ", ".join(repr(t) for t in user_terms) or "(none named)"
+    h = f"sha256 {want[:16]}…" if isinstance(want, str) and want else "no recorded sha256"
+    if given is None:
+        raise ModelError(
+            f"this calibration's model uses user effect(s) {names} from an effects file "
+            f"(recorded as {Path(str(recorded)).name!r}, {h}); accellog never runs code named inside a "
+            "data file: pass --effects-file F.py to run that file"
+        )
+    if isinstance(given, EffectsFile):
+        if want and given.sha256 != want:
+            raise ModelError(
+                f"effects file {given.path} has sha256 {given.sha256[:16]}…, the calibration was fitted "
+                f"with {want[:16]}…: pass the file it was fitted with, or refit"
+            )
+        return given
+    return load_effects_file(given, expect_sha256=want if isinstance(want, str) and want else None)

@@ -3,6 +3,7 @@ several commands share."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -23,5 +24,15 @@ CompressionOpt = Annotated[
         "--compression",
         help="MCAP chunk compression: zstd (smaller files, faster from disk), lz4 (faster from the page "
         "cache) or none.",
+    ),
+]
+
+EffectsOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--effects-file",
+        help="Python file of user effects, run with your rights: needed for a calibration whose model has "
+        "user effects (its sha256 must match the one the calibration recorded; nothing named inside a "
+        "calibration is ever run).",
     ),
 ]

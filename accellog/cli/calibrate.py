@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import CompressionOpt, app
+from accellog.cli.app import CompressionOpt, EffectsOpt, app
 from accellog.core.errors import InputError
 
 _console = Console()
@@ -149,16 +149,23 @@ def evaluate_cmd(
     at_s: Annotated[float, typer.Option(help="Displacement table time (s).")] = 60.0,
     json_out: JsonOpt = False,
     rrd: RrdOpt = None,
+    effects_file: EffectsOpt = None,
 ) -> None:
     """Residual of calibrated static data vs gravity (mean +- sem, chi2 vs noise) and displacement.
 
     A session with several labelled holds is evaluated window by window (per-hold mean residual,
     RMS, chi2 vs the noise estimate, displacement at --at-s extrapolated per hold from rest)."""
+    from accellog.calibrate.calibration import load_calibration
     from accellog.flows.static_stages import run_evaluate_report
     from accellog.present import tables as report
 
     rep = run_evaluate_report(
-        test, cal, until_s=until_s, max_samples=max_samples, at_s=at_s, stream=rrd is None
+        test,
+        [load_calibration(c, effects_file) for c in cal],
+        until_s=until_s,
+        max_samples=max_samples,
+        at_s=at_s,
+        stream=rrd is None,
     )
     if rrd is not None:
         rep.write_rrd(rrd)
@@ -201,15 +208,18 @@ def drift(
     max_samples: Annotated[int | None, typer.Option(help="Fit on the first N samples.")] = None,
     json_out: JsonOpt = False,
     rrd: RrdOpt = None,
+    effects_file: EffectsOpt = None,
 ) -> None:
     """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
+    from accellog.calibrate.calibration import load_calibration
     from accellog.flows.stages import load_input, run_drift
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 
-    check_outputs([output, rrd], [static, cal], mkdir=True)
+    check_outputs([output, rrd], [static, cal, effects_file], mkdir=True)
+    c = load_calibration(cal, effects_file)
     data = load_input(static) if rrd is not None else static  # an MCAP file streams (no series to draw)
-    out = run_drift(data, cal, until_s=until_s, max_samples=max_samples)
+    out = run_drift(data, c, until_s=until_s, max_samples=max_samples)
     if _save_outcome(out, data, output, rrd, json_out, inputs=(static, cal)):
         return
     rows = [("calibrated", out.fit_eval.disp_end_m)]
@@ -237,17 +247,20 @@ def apply(
         typer.Option(help="A calibration of another device (device keys differ): 'refuse' or 'warn'."),
     ] = "refuse",
     compression: CompressionOpt = "zstd",
+    effects_file: EffectsOpt = None,
 ) -> None:
     """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
     import warnings
 
+    from accellog.calibrate.calibration import load_calibration
     from accellog.flows.stages import OtherDeviceWarning, run_apply
     from accellog.store.atomic import check_outputs
 
-    check_outputs([output, ros2], [session, cal])
+    check_outputs([output, ros2], [session, cal, effects_file])
+    c = load_calibration(cal, effects_file)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OtherDeviceWarning)
-        p = run_apply(session, cal, output, ros2=ros2, other_device=other_device, compression=compression)
+        p = run_apply(session, c, output, ros2=ros2, other_device=other_device, compression=compression)
     for w in caught:
         if issubclass(w.category, OtherDeviceWarning):
             _console.print(f"[yellow]warning: {w.message}[/]")
@@ -265,16 +278,17 @@ def run(
     ] = None,
     json_out: JsonOpt = False,
     rrd: RrdOpt = None,
+    effects_file: EffectsOpt = None,
 ) -> None:
     """Run a pipeline file (segment -> fit -> evaluate -> drift -> report)."""
     from accellog.flows.pipeline import run_pipeline
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 
-    check_outputs([rrd], [pipeline, *sessions], mkdir=True)
+    check_outputs([rrd], [pipeline, *sessions, effects_file], mkdir=True)
     if output_dir is not None and output_dir.exists() and not output_dir.is_dir():
         raise InputError("--output-dir is an existing file, not a folder", where=str(output_dir))
-    res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir)
+    res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir, effects_file=effects_file)
     if rrd is not None:
         res.write_rrd(rrd)
     if json_out:
@@ -296,15 +310,18 @@ def integrate(
     ] = None,
     until_s: Annotated[float | None, typer.Option(help="Use samples with t <= until_s only.")] = None,
     json_out: JsonOpt = False,
+    effects_file: EffectsOpt = None,
 ) -> None:
     """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
     local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
+    from accellog.calibrate.calibration import load_calibration
     from accellog.flows.static_stages import run_integrate
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 
-    check_outputs([output], [session, cal])
-    res = run_integrate(session, cal, until_s=until_s, output=output)
+    check_outputs([output], [session, cal, effects_file])
+    c = load_calibration(cal, effects_file) if cal is not None else None
+    res = run_integrate(session, c, until_s=until_s, output=output)
     if json_out:
         _echo_json(res.to_dict(str(output)))
         return

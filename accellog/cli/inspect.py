@@ -16,7 +16,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import app
+from accellog.cli.app import EffectsOpt, app
 from accellog.core.errors import InputError
 
 _console = Console()
@@ -38,6 +38,13 @@ FullOpt = Annotated[
         help="Log every sample to the recording (default: long series as min/max display envelopes).",
     ),
 ]
+
+
+def _cals(paths: list[Path] | None, effects_file: Path | None) -> list:
+    """The --cal files loaded (a model with user effects runs only the user's --effects-file)."""
+    from accellog.calibrate.calibration import load_calibration
+
+    return [load_calibration(p, effects_file) for p in paths or []]
 
 
 def _print_result(res, title: str, json_out: bool) -> None:
@@ -71,6 +78,7 @@ def replay(
     raw: Annotated[bool, typer.Option("--raw/--no-raw", help="Also integrate the raw reading.")] = True,
     json_out: JsonOpt = False,
     rrd_full: FullOpt = False,
+    effects_file: EffectsOpt = None,
 ) -> None:
     """Feed a session through online correction + integration in sensor time, logging raw and
     calibrated accel and displacement tracks to a live viewer or an .rrd."""
@@ -80,7 +88,15 @@ def replay(
     parse_speed(speed)  # fail early on a bad value
     sink = sink_option(rrd, rerun)
     res = run_replay(
-        session, cal, sink, speed=speed, up=up, raw=raw, label=label, compare_mode=False, full_rate=rrd_full
+        session,
+        _cals(cal, effects_file),
+        sink,
+        speed=speed,
+        up=up,
+        raw=raw,
+        label=label,
+        compare_mode=False,
+        full_rate=rrd_full,
     )
     title = f"{session.name}: {res.n} samples, {res.duration_s:.1f} s replayed in {res.wall_s:.1f} s"
     _print_result(res, title, json_out)
@@ -96,6 +112,7 @@ def compare(
     raw: Annotated[bool, typer.Option("--raw/--no-raw", help="Include the uncalibrated track.")] = True,
     json_out: JsonOpt = False,
     rrd_full: FullOpt = False,
+    effects_file: EffectsOpt = None,
 ) -> None:
     """Displacement tracks of several calibrations of one test session side by side, with their
     final drift (terminal table, --json, and a document in the .rrd)."""
@@ -105,7 +122,7 @@ def compare(
         raise InputError("compare needs at least one --cal calibration.json")
     res = run_replay(
         test,
-        cal,
+        _cals(cal, effects_file),
         sink_option(rrd, None),
         speed="max",
         up=up,

@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import app
+from accellog.cli.app import EffectsOpt, app
 
 
 @app.command("export", rich_help_panel="2. Calibrate")
@@ -30,6 +30,7 @@ def export_cmd(
     as_json: Annotated[
         bool, typer.Option("--json", help="Values, units and what the target cannot hold.")
     ] = False,
+    effects_file: EffectsOpt = None,
 ) -> None:
     """Write a calibration in another tool's format and say which terms that format cannot hold."""
     from accellog.calibrate.calibration import load_calibration
@@ -40,7 +41,7 @@ def export_cmd(
 
     check_outputs([output], [cal, noise_from])
 
-    c = load_calibration(cal)
+    c = load_calibration(cal, effects_file)
     if noise_from is not None:
         noise = NoiseCharacterisation.from_model(characterise_noise(noise_from))
     else:

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import app
+from accellog.cli.app import EffectsOpt, app
 
 
 @app.command("track", rich_help_panel="5. Move")
@@ -28,14 +28,17 @@ def track_cmd(
         Path | None,
         typer.Option("--rrd", help="Also write a Rerun recording: tracks vs truth, errors, stops."),
     ] = None,
+    effects_file: EffectsOpt = None,
 ) -> None:
     """Integrate the session (gyro attitude + accel) per calibration; print the final and RMS
     position error against the truth (simulations) or the loop-closure error (real runs)."""
+    from accellog.calibrate.calibration import load_calibration
     from accellog.core.jsonio import dumps
     from accellog.flows.track import track_session
     from accellog.present.tables import track_table
 
-    rep = track_session(session_path, cal, zupt=zupt)
+    cals = [load_calibration(c, effects_file) for c in cal or []]
+    rep = track_session(session_path, cals, zupt=zupt)
     if rrd is not None:
         rep.write_rrd(rrd)
     if as_json:

@@ -49,7 +49,7 @@ def sink_option(rrd: Path | None, rerun: str | None) -> str | None:
 
 def run_replay(
     session: Path,
-    cal: list[Path] | None,
+    cal: list | None,  # calibration files or Calibration objects
     sink: str | None,
     *,
     speed: str | None,

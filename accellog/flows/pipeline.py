@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import tomllib
 
 from accellog.calibrate.calibration import read_text, source_entry, write_json_atomic
+from accellog.calibrate.effects import load_effects_file
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
@@ -51,7 +52,6 @@ _SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
         "gravity": str,
         "local_gravity_mps2": (int, float),
         "orientation_free": bool,
-        "effects_file": str,
     },
     "evaluate": {
         "input": str,
@@ -123,6 +123,12 @@ def _check_schema(spec: dict, text: str, p: Path) -> None:
                 f"'{table}' must be a table [{table}]", where=f"{p}:{_line_of(text, table, None) or 1}"
             )
         for key, val in body.items():
+            if key == "effects_file":
+                raise InputError(
+                    f"'{table}.effects_file': a pipeline file names no code to run; remove the key and "
+                    "pass --effects-file F.py on the command line",
+                    where=f"{p}:{_line_of(text, table, key) or 1}",
+                )
             if key not in _SCHEMA[table]:
                 raise InputError(
                     f"unknown key '{table}.{key}' (known: {', '.join(_SCHEMA[table])})",
@@ -293,11 +299,9 @@ class _Inputs:
         return as_session(self.get(role), what)
 
 
-def _fit_models(spec: dict, inp: _Inputs, res: PipelineResult) -> None:
-    """[fit]: every model on the same observations (segmented once)."""
+def _fit_models(spec: dict, inp: _Inputs, res: PipelineResult, ef) -> None:
+    """[fit]: every model on the same observations (segmented once); `ef` the user's effects file."""
     fs, seg = spec["fit"], spec.get("segment", {})
-    ef = fs.get("effects_file")
-    ef = str((inp.base / ef).resolve()) if ef else None
     data = inp.get(fs["input"])
     obs = None
     for mname in fs["models"]:
@@ -381,17 +385,19 @@ def run_pipeline(
     *,
     output_dir: str | os.PathLike | None = None,
     preloaded: dict[str, Session | ObsTable] | None = None,
+    effects_file: str | os.PathLike | None = None,
 ) -> PipelineResult:
     """Run a pipeline file on input files given in the order of pipeline.inputs.
 
-    preloaded: inputs already read, by file name (str), so that they are not read again."""
+    preloaded: inputs already read, by file name (str), so that they are not read again.
+    effects_file: the Python file of user effects named by the user (a pipeline file names none)."""
     spec = pipeline if isinstance(pipeline, dict) else load_pipeline(pipeline)
     inp = _Inputs(spec, inputs, preloaded)
     report = spec.get("report", {})
     res = PipelineResult(
         name=spec["pipeline"]["name"], inputs=inp.files, at_s=float(report.get("at_s", 60.0))
     )
-    _fit_models(spec, inp, res)
+    _fit_models(spec, inp, res, load_effects_file(effects_file) if effects_file else None)
     _evaluate(spec, inp, res)
     if "drift" in spec:
         _drift(spec, inp, res)

@@ -76,7 +76,7 @@ class ReplayInput:
 
     def drivers(self, b: ImuBlock, i0: int, needed: Sequence[str]) -> dict[str, np.ndarray]:
         """The needed driver signals of batch b (whose first sample is sample i0 of the replay)."""
-        from accellog.calibrate.calibration import session_drivers
+        from accellog.calibrate.session_drivers import session_drivers
 
         if not needed:
             return {}

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration, load_calibration
+from accellog.calibrate.calibration import Calibration, as_calibration
 from accellog.calibrate.obs_file import obs_to_dict
 from accellog.calibrate.segment import PoseStats, observations, pose_stats
 from accellog.calibrate.stream_segment import stream_observations
@@ -147,7 +147,7 @@ class _WindowResiduals:
 
 def run_evaluate_report(
     test: str | os.PathLike,
-    cal_paths: list[Path],
+    cal_paths: list,  # calibration files or Calibration objects
     *,
     until_s: float | None = None,
     max_samples: int | None = None,
@@ -158,9 +158,11 @@ def run_evaluate_report(
 
     An MCAP session streams chunk by chunk when `stream` (memory independent of its length; the
     .rrd of a run needs the samples: stream=False); other inputs are read whole."""
-    cals = [load_calibration(c) for c in cal_paths]
+    cals = [as_calibration(c) for c in cal_paths]
     names = [c.model_spec.get("name", "") for c in cals]
-    labels = [p.stem for p in cal_paths] if len(set(names)) < len(names) else None  # same-model files apart
+    labels = (
+        [Path(c.path or f"cal{i}").stem for i, c in enumerate(cals)] if len(set(names)) < len(names) else None
+    )  # same-model files apart
     try:
         return _labelled_or_static(test, cals, labels, until_s=until_s, max_samples=max_samples, at_s=at_s,
                                    stream=stream)  # fmt: skip
@@ -304,7 +306,7 @@ CSV_HEADER = "t_s,vx_mps,vy_mps,vz_mps,x_m,y_m,z_m\n"
 
 def run_integrate(
     path: str | os.PathLike,
-    cal_path: Path | None = None,
+    cal_path: Calibration | Path | None = None,
     *,
     until_s: float | None = None,
     output: Path | None = None,
@@ -314,8 +316,8 @@ def run_integrate(
     local gravity: a = f g_local - up g_local (m/s^2); v, d by cumulative trapezoid. With output,
     the CSV (CSV_HEADER, one row per sample) is written atomically; an MCAP session then streams
     chunk by chunk (rows written as they are integrated, memory independent of the length)."""
-    c = load_calibration(cal_path) if cal_path is not None else None
-    cp = str(cal_path) if cal_path else None
+    c = as_calibration(cal_path) if cal_path is not None else None
+    cp = c.path if c is not None else None
     if output is not None and stream and can_stream(path):
         res = _stream_integrate(path, c, cp, until_s=until_s, output=output)
         if res is not None:

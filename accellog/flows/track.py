@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calibration import as_calibration
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import Session
@@ -51,7 +51,7 @@ class TrackReport(JsonResult):
 
 
 def track_session(
-    session_path: str | Path, cal_paths: list[Path] | None = None, *, zupt: bool = True
+    session_path: str | Path, cal_paths: list | None = None, *, zupt: bool = True
 ) -> TrackReport:
     """Read the session and the calibrations (named by file stem, made unique) and integrate each track."""
     session_path = Path(session_path)
@@ -60,8 +60,9 @@ def track_session(
     session = read_session(session_path)
     cals: dict[str, object] = {}
     for p in cal_paths or []:
-        name = p.stem
+        c = as_calibration(p)
+        name = Path(c.path or "cal").stem
         while name in cals or name == "raw":
             name += "'"
-        cals[name] = load_calibration(p)
+        cals[name] = c
     return TrackReport(str(session_path), session, run_session_tracks(session, cals, use_zupt=zupt), zupt)

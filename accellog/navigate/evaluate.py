@@ -24,10 +24,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration, session_drivers
+from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.noise_model import sem_with_noise_floor
 from accellog.calibrate.segment import check_static
+from accellog.calibrate.session_drivers import session_drivers
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import PoseLabel, Session

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.calibration import session_drivers
+from accellog.calibrate.session_drivers import session_drivers
 from accellog.calibrate.gyro import GyroCalibration
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
