@@ -782,7 +782,7 @@ for _name, _opts, _needles in (
     ("model", ("--model", "model9"), ("model9",)),
     ("add", ("--add", "gremlin"), ("gremlin",)),
     ("gravity", ("--gravity", "moon"), ("moon",)),
-    ("window-0", ("--window-s", "0"), ("window_s",)),
+    ("window-0", ("--window-s", "0"), ("--window-s",)),
     ("trim-huge", ("--trim-s", "100"), ("samples after trimming",)),
     ("effects-file-dir", ("--effects-file", "."), ("effects file",)),
 ):

@@ -86,6 +86,7 @@ def test_a_command_loads_only_its_module():
     assert cli == {
         "accellog.cli.app",
         "accellog.cli.commands_table",
+        "accellog.cli.option_checks",
         "accellog.cli.registry",
         "accellog.cli.workbench",
     }

@@ -170,6 +170,22 @@ def _check_units(session: Session, holds: list[tuple[PoseLabel, slice]]) -> None
             )
 
 
+MIN_WINDOW_SAMPLES = 10
+"""A window must hold this many samples (its mean and std mean nothing with fewer)."""
+
+
+def check_window(window_s: float, rate_hz: float, where: str | None = None) -> None:
+    """InputError unless window_s (s) holds >= MIN_WINDOW_SAMPLES samples at rate_hz (Hz; 0 or
+    unknown: the chip's highest rate, 4 kHz)."""
+    rate = rate_hz if np.isfinite(rate_hz) and rate_hz > 0 else 4000.0
+    if not window_s * rate >= MIN_WINDOW_SAMPLES:
+        raise InputError(
+            f"window_s = {window_s:g} s holds {window_s * rate:.3g} samples at {rate:g} Hz; a window "
+            f"needs >= {MIN_WINDOW_SAMPLES} (--window-s >= {MIN_WINDOW_SAMPLES / rate:g} s)",
+            where=where,
+        )
+
+
 def _window_stats(x: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean, std (ddof=1), n) of x (n,k) over windows beginning at indices `starts` (sorted)."""
     ref = x.mean(axis=0)
@@ -351,8 +367,7 @@ def observations(
     temp_degC = window mean, dtemp_degC_per_s = slope of the window means within the hold (the
     in-window slope for a single-window hold), q = the label's nominal orientation (NaN if unknown).
     """
-    if not window_s > 0:
-        raise InputError(f"window_s must be > 0 s, got {window_s}")
+    check_window(window_s, session.meta.sample_rate_hz, session_where(session))
     holds = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
     quantum = quantum_g(session)
     names: list[str] = []

@@ -21,6 +21,7 @@ import numpy as np
 from accellog.calibrate.heap import trim_heap
 from accellog.calibrate.segment import (
     PoseStats,
+    check_window,
     checked_labels,
     mean_shift,
     moving_verdict,
@@ -50,10 +51,10 @@ def stream_observations(
     stats_out (a list), when given, receives pose_stats(read_session(path), trim_s, ...) as well;
     labels: read_labels(path) when the caller has it already; on_block(block), when given, is
     called with every block of the pass (e.g. feeding a TimestampCheck)."""
-    if not window_s > 0:
-        raise InputError(f"window_s must be > 0 s, got {window_s}")
     where = str(path)
+    check_window(window_s, 0.0, where)  # before reading: at most the chip's highest rate
     meta, poses, _events = labels if labels is not None else read_labels(path)
+    check_window(window_s, meta.sample_rate_hz, where)
     labels = checked_labels(poses, where)
     gather = _HoldGatherer(labels, trim_s)
     rows = _Rows(sum(_most_windows(p, trim_s, window_s) for p in labels))  # the observation rows

@@ -18,7 +18,7 @@ from accellog.cli.commands_table import COMMANDS
 # Command modules are imported in this order for full registration: the help lists the panels in
 # this order (the story: record, calibrate, discover, inspect, move), then any others by name.
 ORDER = ["demo", "record", "imports", "calibrate", "report", "workbench", "inspect", "move"]
-NOT_COMMAND_MODULES = {"app", "commands_table", "registry", "tophelp"}
+NOT_COMMAND_MODULES = {"app", "commands_table", "option_checks", "registry", "tophelp"}
 MODULE_OF = {name: module for name, module, _panel, _help in COMMANDS}
 
 
@@ -62,6 +62,8 @@ def command_group(name: str | None):
     command, so that click's messages ("No such command 'fitt'. Did you mean 'fit'?") are unchanged."""
     import typer.main
 
+    from accellog.cli.option_checks import guard_options
+
     module = MODULE_OF.get(name or "")
     if module is not None:
         importlib.import_module(f"accellog.cli.{module}")
@@ -75,8 +77,8 @@ def command_group(name: str | None):
         ]
         one.registered_groups = [g for g in app.registered_groups if g.name == name]
         if one.registered_commands or one.registered_groups:
-            return typer.main.get_group(one)
-    return typer.main.get_group(register_all())
+            return guard_options(typer.main.get_group(one))
+    return guard_options(typer.main.get_group(register_all()))
 
 
 def _paragraphs(text: str) -> tuple[str, str]:
