@@ -1,8 +1,9 @@
 """accellog: record, calibrate and inspect cheap MEMS IMUs (MPU-9250).
 
 Data flows one way (docs/architecture.md): device -> recorder -> MCAP -> stages -> calibration ->
-reports / .rrd. The public API below is what a notebook needs; names load on first use, so
-``import accellog`` stays fast::
+reports / .rrd. The public API below is what a notebook needs. Names load on first use, so
+``import accellog`` (and every command's start-up) stays fast; type checkers read the same names
+from the ``TYPE_CHECKING`` imports below, so they see the real types::
 
     import accellog as al
     s = al.read_session("cal.mcap")                       # Session: t_s, accel_g, gyro_dps, temp_degC, poses
@@ -16,9 +17,29 @@ reports / .rrd. The public API below is what a notebook needs; names load on fir
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from accellog.core.version import __version__
+
+if TYPE_CHECKING:  # the same names as _API, for type checkers (tests/test_public_api.py checks both)
+    from accellog.calibrate.calibration import Calibration, load_calibration
+    from accellog.calibrate.detect import detect_static
+    from accellog.calibrate.diagnose import diagnose
+    from accellog.calibrate.fit import fit_model, fit_orientation_free
+    from accellog.calibrate.model import build_model
+    from accellog.calibrate.segment import observations
+    from accellog.core.errors import AccellogError, DeviceError, InputError, ModelError
+    from accellog.core.session import ObsTable, PoseLabel, Session, SessionMeta
+    from accellog.flows.pipeline import run_pipeline
+    from accellog.flows.simulate import Scenario, simulate
+    from accellog.flows.stages import run_fit
+    from accellog.flows.workbench import discover
+    from accellog.navigate.evaluate import evaluate, evaluate_poses
+    from accellog.navigate.strapdown import strapdown
+    from accellog.present.rrd.recording import RunRecording
+    from accellog.store.importers import import_capstone, import_csv, import_imucal
+    from accellog.store.reader import read_session
+    from accellog.store.writer import SessionWriter, write_session
 
 _API = {
     # core types
@@ -28,6 +49,8 @@ _API = {
     "ObsTable": "accellog.core.session",
     "AccellogError": "accellog.core.errors",
     "InputError": "accellog.core.errors",
+    "ModelError": "accellog.core.errors",
+    "DeviceError": "accellog.core.errors",
     # store
     "read_session": "accellog.store.reader",
     "SessionWriter": "accellog.store.writer",
@@ -58,7 +81,40 @@ _API = {
     "RunRecording": "accellog.present.rrd.recording",
 }
 
-__all__ = ["__version__", *sorted(_API)]
+__all__ = [
+    "AccellogError",
+    "Calibration",
+    "DeviceError",
+    "InputError",
+    "ModelError",
+    "ObsTable",
+    "PoseLabel",
+    "RunRecording",
+    "Scenario",
+    "Session",
+    "SessionMeta",
+    "SessionWriter",
+    "__version__",
+    "build_model",
+    "detect_static",
+    "diagnose",
+    "discover",
+    "evaluate",
+    "evaluate_poses",
+    "fit_model",
+    "fit_orientation_free",
+    "import_capstone",
+    "import_csv",
+    "import_imucal",
+    "load_calibration",
+    "observations",
+    "read_session",
+    "run_fit",
+    "run_pipeline",
+    "simulate",
+    "strapdown",
+    "write_session",
+]  # literal, so that tools read it; equal to _API's names (tests)
 
 
 def __getattr__(name: str) -> Any:

@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 import accellog as al
 from accellog.core.jsonio import JsonResult
@@ -63,3 +64,37 @@ def test_typed_results_serialise_to_strict_json(tmp_path):
             return {"chi2_dof": float("nan"), "b_g": np.array([1.0, np.inf, 2.0])}
 
     assert json.loads(Nan().to_json()) == {"chi2_dof": None, "b_g": [1.0, None, 2.0]}
+
+
+def test_type_checkers_see_the_real_public_types(tmp_path):
+    """The TYPE_CHECKING imports give the same names as the lazy table, and mypy reads real types
+    (not Any) through them."""
+    import ast
+    from pathlib import Path
+
+    src = Path(al.__file__).read_text()
+    tree = ast.parse(src)
+    typed = {
+        a.asname or a.name
+        for node in ast.walk(tree)
+        if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING"
+        for imp in node.body
+        if isinstance(imp, ast.ImportFrom)
+        for a in imp.names
+    }
+    assert typed == set(al._API) and set(al.__all__) == {"__version__", *al._API}
+    api = pytest.importorskip("mypy.api")
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        "import accellog as al\n"
+        "reveal_type(al.read_session)\n"
+        "reveal_type(al.load_calibration)\n"
+        "reveal_type(al.ModelError)\n"
+    )
+    out, err, _code = api.run(
+        [str(probe), "--follow-imports=silent", "--ignore-missing-imports", "--no-error-summary"]
+    )
+    revealed = [ln for ln in out.splitlines() if "Revealed type" in ln]
+    assert len(revealed) == 3, out + err
+    assert "Session" in revealed[0] and "Calibration" in revealed[1] and "ModelError" in revealed[2], out
+    assert not any(ln.rsplit('"', 2)[-2] == "Any" for ln in revealed), out
