@@ -145,7 +145,7 @@ def choose_effect(
         r = rho(fits[best], fits[other])
         if r < COLLINEAR_RHO:
             continue
-        collinear.append(Collinear(best, other, r, separating_recording(best, other, model)))
+        collinear.append(Collinear(best, other, r, new_recording(best, other, model, obs)))
         # a tie with an alternative that is no more complex: the data cannot choose
         tie = other in tied_best and rows[other]["n_params"] <= rows[best]["n_params"]
         # within one session, blocks cannot break a confound of two drivers that move together
@@ -167,3 +167,27 @@ def choose_effect(
     if undecided:
         reason += f"; cannot tell it from {', '.join(undecided)} on this data"
     return StepChoice(model.name, evidence, base, sc, best, reason, undecided, collinear)
+
+
+def heats_and_cools(obs: ObsTable, min_degC: float = 1.0) -> bool:
+    """The session's die temperature both rose and fell by >= min_degC (heat then cool, or the reverse)."""
+    T = obs.temp_degC
+    if T is None or not np.all(np.isfinite(T)) or len(T) < 3:
+        return False
+    T = np.asarray(T, float)[np.argsort(np.asarray(obs.t_s, float), kind="stable")]
+    rise = T - np.minimum.accumulate(T)
+    fall = np.maximum.accumulate(T) - T
+    return bool(rise.max() >= min_degC and fall.max() >= min_degC)
+
+
+def new_recording(a: str, b: str, model, obs: ObsTable) -> str:
+    """What to record so that a and b stop looking alike (transfer.separating_recording), never a
+    recording like the one they were confused on: a session that already heated and cooled is
+    told to record another session on another temperature path instead."""
+    text = separating_recording(a, b, model)
+    if "heat then cool" in text and heats_and_cools(obs):
+        text = (
+            "this session already heated and cooled: a second session of the sensor on another "
+            "temperature path (other soak temperatures, another rate; use it as --heldout)"
+        )
+    return text

@@ -32,7 +32,7 @@ from accellog.calibrate.driver_signals import ALPHA, driver_signals
 from accellog.calibrate.effects import all_effects
 from accellog.calibrate.fit import FitResult, fit_model, obs_drivers
 from accellog.calibrate.heap import trim_heap
-from accellog.calibrate.identifiability import effect_requirement
+from accellog.calibrate.identifiability import checked_advice, effect_requirement
 from accellog.calibrate.model import Model
 from accellog.core.errors import InputError, ModelError
 from accellog.core.session import ObsTable
@@ -192,8 +192,8 @@ def _candidate_rows(cands, obs, model, base, cv_b_all, drv, fit_kw, host_time, n
             row.update(_clock_row(clock))
             continue
         reason = effect_requirement(name, obs, drv, model)
-        if reason is not None:
-            row["reason"] = reason
+        if reason is not None:  # a recording is recommended only if it would identify the effect
+            row["reason"] = checked_advice(model, name, reason) if lib[name].static else reason
             continue
         cm = model.with_terms([name])
         try:

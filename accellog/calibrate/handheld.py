@@ -23,7 +23,7 @@ from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.diagnose import ALPHA, DBIC_MIN, Diagnosis, default_candidates
 from accellog.calibrate.effects import all_effects
 from accellog.calibrate.fit import fit_orientation_free, obs_drivers
-from accellog.calibrate.identifiability import effect_requirement
+from accellog.calibrate.identifiability import effect_requirement, norm_blind_reason
 from accellog.calibrate.model import Model
 from accellog.calibrate.segment import observations
 from accellog.core.errors import InputError, ModelError
@@ -107,7 +107,11 @@ def diagnose_handheld(obs: ObsTable, model: Model, *, candidates: Sequence[str] 
     for name in cands:
         row: dict = {"effect": name, "n_params": len(lib[name].params), "identifiable": False}
         rows.append(row)
-        why = NORM_BLIND.get(name) or effect_requirement(name, obs, drv, model)
+        why = (
+            NORM_BLIND.get(name)
+            or norm_blind_reason(model, name)
+            or effect_requirement(name, obs, drv, model)
+        )
         if why is None:
             try:
                 cr = fit_orientation_free(obs, model.with_terms([name]))

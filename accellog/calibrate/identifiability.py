@@ -8,6 +8,7 @@ space (|v_k| > 0.2) and the poses or signals that would determine them.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 
 import numpy as np
@@ -204,3 +205,141 @@ def rank_check(
             f"identifiable ({'; '.join(hints)}); faces present: {', '.join(pose_faces(obs))}"
         )
     return cond
+
+
+# ---------------------------------------------------------------------------------------------
+# can the recommended recording identify it?  A synthetic design of the best protocol we advise
+
+NORM_RANK_TOL = 1e-7
+"""Relative singular value below which a direction of the gravity-norm Jacobian is unidentifiable."""
+
+
+def design_obs(rounds: int = 3, windows: int = 1, hold_s: float = 20.0) -> ObsTable:
+    """The richest recording the advice recommends, as observations: the 26 cube directions (6
+    faces, 12 edges, 8 corners), `rounds` rounds each at another rotation about the vertical (0, 90,
+    180 deg), `windows` windows per hold, from power-up (first window at 1 s), the die temperature
+    heating 20 -> 40 degC and cooling back to 28 degC (temperature does not follow time)."""
+    from accellog.core.rotations import quat_between, quat_from_axis_angle, quat_multiply
+
+    dirs = np.array([v for v in np.ndindex(3, 3, 3) if v != (1, 1, 1)], float) - 1.0
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    up, q, pid, tin = [], [], [], []
+    for r in range(rounds):
+        qy = quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), np.pi / 2 * r)
+        for k, u in enumerate(dirs):
+            qk = quat_multiply(qy, quat_between(u, np.array([0.0, 0.0, 1.0])))
+            for w in range(windows):
+                up.append(u)
+                q.append(qk)
+                pid.append(r * len(dirs) + k)
+                tin.append((w + 0.5) * hold_s / windows)
+    n = len(up)
+    t = 1.0 + np.arange(n) * (hold_s / windows) + np.repeat(np.arange(n // windows), windows) * 2.0
+    x = t / t[-1]
+    T = np.where(x < 0.6, 20.0 + 20.0 * x / 0.6, 40.0 - 12.0 * (x - 0.6) / 0.4)
+    up_a = np.array(up)
+    return ObsTable(
+        meas_g=up_a.copy(),
+        sigma_g=np.full((n, 3), 1e-4),
+        up_sensor=up_a,
+        pose_id=np.array(pid),
+        pose_names=[f"d{i}" for i in range(rounds * len(dirs))],
+        t_s=t,
+        t_in_pose_s=np.array(tin),
+        n_samples=np.full(n, 100),
+        std_g=np.full((n, 3), 1e-3),
+        temp_degC=T,
+        dtemp_degC_per_s=np.gradient(T, t),
+        q_sensor_to_world=np.array(q),
+    )
+
+
+def _null_params(J: np.ndarray, names: list[str], tol: float) -> list[str]:
+    """Parameters in the near-null space of the column-normalised J (|v_k| > 0.2), zero columns too."""
+    norms = np.linalg.norm(J, axis=0)
+    zero = [names[k] for k in np.flatnonzero(~(norms > 0))]
+    if zero:
+        return zero
+    _, s, vt = np.linalg.svd(J / norms, full_matrices=False)
+    bad: list[str] = []
+    for v in vt[s < tol * s[0]]:
+        bad += [names[k] for k in np.flatnonzero(np.abs(v) > 0.2) if names[k] not in bad]
+    return bad
+
+
+def design_null(model: Model, kind: str = "labelled", obs: ObsTable | None = None) -> list[str]:
+    """Parameters of `model` that even the design (design_obs, or obs) cannot determine by a
+    'labelled' fit (known poses) or a 'norm' fit (orientation-free: |correct(a')| = g), from the
+    rank of the column-normalised Jacobian at the documented starting point (Model.initial_theta,
+    where every fit starts); [] when all can be."""
+    o = design_obs() if obs is None else obs
+    drv = {"t_s": o.t_s, "t_in_pose_s": o.t_in_pose_s, "temp_degC": o.temp_degC}
+    drv["dtemp_degC_per_s"] = o.dtemp_degC_per_s
+    th = model.initial_theta()
+    steps = np.maximum(1e-4 * model.param_typical, 1e-7 * np.abs(th))
+    if kind == "norm":
+        meas = model.predict(th, o.up_sensor, drv)
+
+        def fun(x):
+            return np.linalg.norm(model.correct(x, meas, drv), axis=1) - 1.0
+
+        tol = NORM_RANK_TOL
+    else:
+
+        def fun(x):
+            return (model.predict(x, model.truth_g(x, o.up_sensor, o.q_sensor_to_world), drv)).ravel()
+
+        tol = RANK_TOL
+    J = np.empty((fun(th).size, th.size))
+    for k in range(th.size):
+        e = np.zeros_like(th)
+        e[k] = steps[k]
+        J[:, k] = (fun(th + e) - fun(th - e)) / (2.0 * steps[k])
+    return _null_params(J, model.param_names, tol)
+
+
+NORM_ONLY_LABELLED = "cannot be identified from a gravity-norm fit; record labelled poses"
+
+
+def norm_blind_reason(model: Model, effect: str) -> str | None:
+    """Why `effect` cannot be identified on top of `model` by a gravity-norm fit with any
+    orientations (None if a good recording could identify it): the parameters that enter |f| alike."""
+    try:
+        m = model.with_terms([effect])
+    except ModelError:
+        return None
+    null = list(_norm_null(tuple(m.term_names))) if m.effects_file is None else design_null(m, "norm")
+    if not null:
+        return None
+    return f"{', '.join(null)} {NORM_ONLY_LABELLED} (they enter |f| alike even with every orientation)"
+
+
+@functools.lru_cache(maxsize=256)
+def _norm_null(terms: tuple[str, ...]) -> tuple[str, ...]:
+    """design_null(Model(terms), 'norm') for library models (cached: the same for every session)."""
+    return tuple(design_null(Model(list(terms)), "norm"))
+
+
+@functools.lru_cache(maxsize=256)
+def _labelled_null(terms: tuple[str, ...]) -> tuple[str, ...]:
+    return tuple(design_null(Model(list(terms)), "labelled"))
+
+
+def checked_advice(model: Model, effect: str, reason: str) -> str:
+    """A recording recommended for `effect` (reason, from effect_requirement), kept only when the
+    design of the recommended protocol (design_obs) identifies model + effect by a labelled fit;
+    otherwise what no static recording can determine."""
+    try:
+        m = model.with_terms([effect])
+    except ModelError as exc:
+        return str(exc)
+    if not m.required_drivers or set(m.required_drivers) <= {
+        "t_s",
+        "t_in_pose_s",
+        "temp_degC",
+        "dtemp_degC_per_s",
+    }:
+        null = _labelled_null(tuple(m.term_names)) if m.effects_file is None else design_null(m)
+        if null:
+            return f"{effect}: {', '.join(null)} cannot be determined by any static recording of known poses"
+    return reason

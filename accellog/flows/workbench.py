@@ -46,6 +46,9 @@ class Discovery:
     advice: list[str] = field(default_factory=list)
     undecided: list[list[str]] = field(default_factory=list)
     """Groups of effects the data cannot tell apart (first: the one added)."""
+    dropped: list[dict] = field(default_factory=list)
+    """Effects added and then dropped: {effect, why} (a backward step, or a proxy that did not
+    make the model transfer: accellog.flows.workbench_prune)."""
     loso: list[dict | None] | None = None
     """With several calibration sessions: the final model's held-out statistics per left-out session."""
 
@@ -78,6 +81,7 @@ class Discovery:
             "verdicts": [d.verdict for d in self.diagnoses],
             "steps": [c.to_dict() for c in self.choices],
             "advice": list(self.advice),
+            "dropped": [dict(d) for d in self.dropped],
             **({} if self.loso is None else {"heldout_per_session": self.loso}),
         }
 
@@ -113,22 +117,26 @@ def small_problem_threads():
 
 def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step, parts=None) -> Discovery:
     from accellog.calibrate.choose import choose_effect
-    from accellog.calibrate.diagnose import diagnose, heldout_stats
+    from accellog.calibrate.diagnose import default_candidates, diagnose, heldout_stats
     from accellog.calibrate.fit import fit_model
     from accellog.calibrate.loso import loso_score, loso_stats, mean_stats
     from accellog.calibrate.model import build_model
     from accellog.calibrate.transfer import heldout_score
+    from accellog.flows.workbench_prune import backward_step, proxy_stats, scorer
 
     held = [heldout] if isinstance(heldout, ObsTable) else list(heldout or [])
     parts = list(parts or [])
     model = build_model(start, effects_file=effects_file)
     out = Discovery(start=start)
+    scores = scorer(obs, held, parts)
 
     def loso_scores(fits):
         return {n: loso_score(parts, r.model, fit_model, heldout_score) for n, r in fits.items()}
 
-    for _ in range(max_steps + 1):
-        d = diagnose(obs, model, host_time=host_time, heldout=held)
+    gone: set[str] = set()
+    for _ in range(max_steps + len(out.dropped) + 1):
+        cands = [c for c in default_candidates(model) if c not in gone]
+        d = diagnose(obs, model, candidates=cands, host_time=host_time, heldout=held)
         if len(parts) > 1:
             d.choice = choose_effect(d.fit, d.candidates, d.fits, obs, scores=loso_scores)
         out.diagnoses.append(d)
@@ -143,28 +151,47 @@ def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step, 
             out.undecided.append([ch.chosen, *ch.undecided])
         out.added.append(ch.chosen)
         model = model.with_terms([ch.chosen])
+        full = d.fits.get(ch.chosen)
+        while (drop := backward_step(out.added, start, effects_file, obs, scores, full)) is not None:
+            out.added.remove(drop[0])
+            out.dropped.append({"effect": drop[0], "why": drop[1]})
+            gone.add(drop[0])
+            model, full = build_model(start, add=out.added, effects_file=effects_file), None
     # a tie is resolved when every alternative ended up in the model too
-    out.undecided = [
-        g for g in ([g[0], *[e for e in g[1:] if e not in out.added]] for g in out.undecided) if len(g) > 1
-    ]
-    if len(parts) > 1:
-        out.loso = loso_stats(parts, model, fit_model, heldout_stats)
-        out.heldout = mean_stats(out.loso)
-    elif held:
-        final = fit_model(obs, model)
+
+    def stats_of(name: str) -> dict | None:
+        m = build_model(name, effects_file=effects_file)
+        if len(parts) > 1:
+            out.loso = loso_stats(parts, m, fit_model, heldout_stats)
+            return mean_stats(out.loso)
+        if not held:
+            return None
+        final = fit_model(obs, m)
         stats = [heldout_stats(final, h) for h in held]
-        out.heldout = {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
+        return {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
+
+    out.heldout = stats_of(out.final_model)
+    proxies = proxy_stats(out, stats_of)
+    out.dropped += [{"effect": e, "why": why, "proxy": True} for e, why in proxies]
+    # a tie is resolved when every alternative ended up in the model too (or its choice was dropped)
+    out.undecided = [
+        g
+        for g in ([g[0], *[e for e in g[1:] if e not in out.added]] for g in out.undecided)
+        if len(g) > 1 and g[0] in out.added
+    ]
     out.verdict, out.advice = final_verdict(out)
     return out
 
 
 def final_verdict(found: Discovery) -> tuple[str, list[str]]:
     """One verdict from all the evidence: the last diagnosis, the held-out session, the ties."""
-    d = found.diagnoses[-1]
+    proxies = [x["effect"] for x in getattr(found, "dropped", []) if x.get("proxy")]
+    # with proxies dropped the final model is the start model: its diagnosis is the first
+    d = found.diagnoses[0] if proxies else found.diagnoses[-1]
     where = "the calibration session" + ("s" if getattr(found, "loso", None) else "")
     fit = f"{d.model.name}: chi2/dof {d.fit.chi2_dof:.3g} on {where}"
-    parts, extra, held_ok = evidence_parts(found, norm="")
-    advice = list(d.advice) + extra
+    parts, extra, held_ok = evidence_parts(found, norm="", diagnosis=d)
+    advice = [a for a in d.advice if not any(e in a for e in proxies)] + extra
     if not parts and not d.missing:
         return f"{fit}: the model fits to the noise floor; nothing is missing{held_ok}.", advice
     if not parts:
@@ -172,10 +199,16 @@ def final_verdict(found: Discovery) -> tuple[str, list[str]]:
     return f"{fit}; " + "; ".join(parts) + held_ok + ".", advice
 
 
-def evidence_parts(found, norm: str) -> tuple[list[str], list[str], str]:
-    """(verdict parts, advice, held-out suffix) of a discovery's ties, refusals and held-out result,
-    shared by the labelled and hand-held workbenches (norm = "norm " names the gravity-norm residual)."""
-    parts, advice = [], []
+def evidence_parts(found, norm: str, diagnosis=None) -> tuple[list[str], list[str], str]:
+    """(verdict parts, advice, held-out suffix) of a discovery's ties, refusals, dropped effects and
+    held-out result, shared by the labelled and hand-held workbenches (norm = "norm " names the
+    gravity-norm residual; diagnosis: that of the final model, default the last)."""
+    from accellog.flows.workbench_prune import no_library_effect
+
+    d = diagnosis if diagnosis is not None else found.diagnoses[-1]
+    dropped = list(getattr(found, "dropped", []))
+    proxies = [x["effect"] for x in dropped if x.get("proxy")]
+    parts, advice = [], [f"{x['effect']}: {x['why']}" for x in dropped]
     tied = {e for group in found.undecided for e in group}
     advice += [col.text() for c in found.choices for col in c.collinear if col.b in tied]
     if found.undecided:
@@ -189,14 +222,21 @@ def evidence_parts(found, norm: str) -> tuple[list[str], list[str], str]:
         parts.append(last.reason)
     h = found.heldout
     if h is not None and not found.transfers:
+        fits = "fits here but " if not d.missing else ""
         parts.append(
-            f"the model fits here but does not transfer: held-out {norm}chi2/dof {h['heldout_chi2_dof']:.3g} "
+            f"the model {fits}does not transfer: held-out {norm}chi2/dof {h['heldout_chi2_dof']:.3g} "
             f"(residual {h['heldout_rms_g'] * 1e3:.3g} mg vs noise {h['heldout_noise_g'] * 1e3:.3g} mg)"
         )
         advice.append(
             "what is missing shows only on the held-out session: run diagnose on it, or record a "
             "session whose drivers (temperature, time, orientation) vary independently"
+            if not d.missing
+            else "no library effect transfers: describe the missing term as a user effect (docs/effects.md)"
         )
+    # still missing, and no library effect was taken at the last step (or none transfers)
+    stuck = last is None or last.chosen is None or found.transfers is False
+    if proxies or (d.missing and stuck and found.transfers is not True):
+        parts.append(no_library_effect(d, proxies, norm))
     held_ok = (
         f" (held-out {norm}chi2/dof {h['heldout_chi2_dof']:.3g}: it transfers)" if found.transfers else ""
     )

@@ -175,12 +175,42 @@ def _labelled(
     )
     ladder_loso = _loso_rows(rows, parts) if len(parts) > 1 else []
     if output is not None:
-        rows[-1].fit.cal.save(output)
+        with_notes(rows[-1].fit.cal, found).save(output)
     if rrd is not None:
         _write_rrd(rrd, data, found, rows, obs)
     return WorkbenchOutcome(
         str(session), found, rows, None if output is None else str(output), ladder_loso=ladder_loso
     )
+
+
+def with_notes(cal, found):
+    """The calibration with the workbench's reservations in fit.warnings: a tied choice (which
+    effects the data could not tell apart, what was written, what would separate them) and the
+    effects dropped as proxies."""
+    import dataclasses
+
+    notes = []
+    for group in found.undecided:
+        notes.append(
+            f"workbench: {group[0]} was written but this data cannot tell it from "
+            f"{', '.join(group[1:])} (a tied choice, possibly a proxy that will not transfer)"
+        )
+    tied = {e for g in found.undecided for e in g}
+    notes += [
+        f"workbench: what separates them: {c.separate_by}"
+        for ch in found.choices
+        for c in ch.collinear
+        if c.a in tied and c.b in tied
+    ]
+    notes += [
+        f"workbench: {d['effect']} not written: {d['why']}"
+        for d in getattr(found, "dropped", [])
+        if d.get("proxy")
+    ]
+    if not notes:
+        return cal
+    cal.fit = dataclasses.replace(cal.fit, warnings=(*(cal.fit.warnings or ()), *dict.fromkeys(notes)))
+    return cal
 
 
 def _loso_rows(rows, parts) -> list[list[dict | None]]:
@@ -241,9 +271,10 @@ def _handheld(
         # the full orientation-free fit: gyro from the detected intervals and the rotations between them
         # several sessions: the windows of all of them (the gyro: the first session's)
         pooled = found.obs if len(datas) > 1 else None
-        run_fit(
+        cal = run_fit(
             data, found.start, add=found.added, effects_file=effects_file, orientation_free=True, obs=pooled
-        ).cal.save(output)
+        ).cal
+        with_notes(cal, found).save(output)
     if rrd is not None:
         from accellog.present.detection_views import log_detection
         from accellog.present.residual_views import log_workbench_residuals

@@ -95,6 +95,13 @@ class AccelErrors:
     warmup_g: np.ndarray = field(default_factory=_zeros3)
     """w (g): bias change after power-on, b += w (1 - exp(-t / warmup_tau_s))."""
     warmup_tau_s: float = 60.0
+    temp_rate_bias_g_per_degC_per_s: np.ndarray = field(default_factory=_zeros3)
+    """r (g/(degC/s)): bias following the rate of the die temperature, b += r dT/dt (not in the library)."""
+    temp_hysteresis_g: np.ndarray = field(default_factory=_zeros3)
+    """h (g): thermal hysteresis, b += h s(t), s = (P(T) - T) / (w / 2) in [-1, 1], P the play
+    (backlash) operator of width w = temp_hysteresis_width_degC: -1 while heating, +1 while
+    cooling (not in the library)."""
+    temp_hysteresis_width_degC: float = 2.0
     noise_density_g_per_rtHz: np.ndarray = field(default_factory=_zeros3)
     bias_instability_g: np.ndarray = field(default_factory=_zeros3)
     """B (g): flicker bias noise, Allan deviation floor 0.664 B (emulator.slow_noise)."""
@@ -109,7 +116,7 @@ class AccelErrors:
             v = getattr(self, f.name)
             if f.name in ("cross_axis", "g_cross_per_g"):
                 setattr(self, f.name, _as33(f.name, v, zero_diagonal=f.name == "cross_axis"))
-            elif f.name in ("warmup_tau_s", "clock_error", "t_ref_degC"):
+            elif f.name in ("warmup_tau_s", "clock_error", "t_ref_degC", "temp_hysteresis_width_degC"):
                 setattr(self, f.name, float(v))
             else:
                 setattr(self, f.name, _as3(f.name, v))
@@ -412,6 +419,8 @@ class SensorModel:
         k = self._kin(t)
         T = self.temperature.degC(t)
         a = self.accel.apply(k.specific_force_g, T, t)
+        if np.any(self.accel.temp_rate_bias_g_per_degC_per_s) or np.any(self.accel.temp_hysteresis_g):
+            a = a + self._path_bias(t)
         dens_a = self.accel.noise_density_g_per_rtHz
         if np.any(dens_a):
             sigma = dens_a * np.sqrt(0.5 * np.pi * accel_bandwidth_hz)
@@ -439,6 +448,14 @@ class SensorModel:
             temp_counts=_to_int16(temp),
             gyro_counts=_to_int16(w * gyro_lsb_per_dps),
         )
+
+    def _path_bias(self, t: np.ndarray) -> np.ndarray:
+        """Bias terms that need the temperature's history (n,3) g: r dT/dt + h s(t) (AccelErrors)."""
+        e, path = self.accel, self.temperature
+        rate = path.rate_degC_per_s(t)[:, None]
+        play = path.play_degC(t, e.temp_hysteresis_width_degC, self.motion.duration_s)
+        s = (play - path.degC(t)) / (0.5 * e.temp_hysteresis_width_degC)
+        return e.temp_rate_bias_g_per_degC_per_s * rate + e.temp_hysteresis_g * s[:, None]
 
     def mag_field_sensor_uT(self, t_s: np.ndarray) -> np.ndarray:
         """Noise-free field (n,3, uT) in AK8963 axes (x_m = y_s, y_m = x_s, z_m = -z_s), soft and hard iron."""

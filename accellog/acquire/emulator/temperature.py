@@ -26,6 +26,32 @@ class TemperaturePath:
         t = np.asarray(t_s, dtype=float)
         return np.broadcast_to(self._fn(t), t.shape).astype(float)
 
+    def rate_degC_per_s(self, t_s: np.ndarray, dt_s: float = 0.05) -> np.ndarray:
+        """dT/dt (degC/s) at t_s by a central difference over +-dt_s (exact for the piecewise paths
+        away from their corners)."""
+        t = np.asarray(t_s, dtype=float)
+        return (self.degC(t + dt_s) - self.degC(t - dt_s)) / (2.0 * dt_s)
+
+    def play_degC(self, t_s: np.ndarray, width_degC: float, end_s: float, step_s: float = 0.05) -> np.ndarray:
+        """Play (backlash) operator of T(t) of width w (degC) at t_s: P starts at T(0) and follows T
+        only when |T - P| would exceed w/2, so P = T - w/2 while heating, T + w/2 while cooling.
+        Evaluated on a fixed grid from 0 to end_s (step_s), so any split of t_s gives the same values."""
+        if not width_degC > 0:
+            raise InputError(f"hysteresis width {width_degC:g} degC must be > 0")
+        key = (float(width_degC), float(end_s), float(step_s))
+        cache = self.__dict__.setdefault("_play", {})
+        if key not in cache:
+            grid = np.arange(0.0, float(end_s) + 2 * step_s, step_s)
+            T = self.degC(grid)
+            P = np.empty_like(T)
+            p, h = float(T[0]), 0.5 * float(width_degC)
+            for k, Tk in enumerate(T.tolist()):  # sequential by nature: y_k = clip(y_k-1, T_k - h, T_k + h)
+                p = min(max(p, Tk - h), Tk + h)
+                P[k] = p
+            cache[key] = (grid, P)
+        grid, P = cache[key]
+        return np.interp(np.asarray(t_s, dtype=float), grid, P)
+
     def __repr__(self) -> str:
         return f"TemperaturePath({self.description})"
 

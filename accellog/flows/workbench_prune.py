@@ -1,0 +1,129 @@
+"""The workbench keeps only effects that earn their place out of sample.
+
+Two checks on the effects the forward loop (accellog.flows.workbench.discover) added, judged with
+the loop's own evidence (held-out sessions, leave one session out, or blocks of one session):
+
+- backward step, after each addition: every earlier effect e is refitted away; e is dropped when
+
+      s(model - e) - s(model) <= Z_IMPROVE se(model)
+
+  (s: out-of-sample chi2 per equation; the forward step's own margin), i.e. a later effect has made
+  it redundant, or it was a proxy for what the later one explains;
+- proxies, at the end: with evidence from other sessions, a final model that still does not transfer
+  (held-out chi2/dof > HELDOUT_OK) has not found the physics: its added effects only bend what is
+  missing onto library shapes. They are dropped (the calibration keeps the start model's terms) and
+  the verdict says that no library effect explains what is left, names the driver the residual
+  follows (accellog.calibrate.driver_signals) and points to writing a user effect (docs/effects.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from accellog.calibrate.choose import Z_IMPROVE
+from accellog.calibrate.fit import FitResult, fit_model
+from accellog.calibrate.model import build_model
+from accellog.calibrate.transfer import Score, blocked_scores, heldout_score
+from accellog.core.errors import ModelError
+from accellog.core.session import ObsTable
+
+ScoreFn = Callable[[dict[str, FitResult]], dict[str, Score]]
+
+
+def scorer(obs: ObsTable, held: Sequence[ObsTable], parts: Sequence[ObsTable]) -> ScoreFn:
+    """Out-of-sample scores of fits by name, with the evidence the loop uses: leave one session
+    out (several calibration sessions), held-out sessions, else blocks of obs."""
+    from accellog.calibrate.loso import loso_score
+
+    def scores(fits: dict[str, FitResult]) -> dict[str, Score]:
+        if len(parts) > 1:
+            return {n: loso_score(parts, r.model, fit_model, heldout_score) for n, r in fits.items()}
+        if held:
+            return {n: heldout_score(r, held) for n, r in fits.items()}
+        return blocked_scores(fits, obs)
+
+    return scores
+
+
+def backward_step(
+    added: list[str],
+    start: str,
+    effects_file,
+    obs: ObsTable,
+    scores: ScoreFn,
+    full: FitResult | None = None,
+) -> tuple[str, str] | None:
+    """(effect, why) for the earlier added effect whose removal costs least out of sample, when it
+    costs no more than Z_IMPROVE standard errors (module doc); None when every one earns its place.
+    full: the fit of start + added (refitted when not given)."""
+    if len(added) < 2:
+        return None
+    fits = {
+        "": full
+        if full is not None
+        else fit_model(obs, build_model(start, add=added, effects_file=effects_file))
+    }
+    for e in added[:-1]:
+        try:
+            fits[e] = fit_model(
+                obs, build_model(start, add=[a for a in added if a != e], effects_file=effects_file)
+            )
+        except ModelError:
+            continue
+    sc = scores(fits)
+    s_full = sc.pop("")
+    if not sc:
+        return None
+    e = min(sc, key=lambda n: sc[n].chi2_per_eq if np.isfinite(sc[n].chi2_per_eq) else np.inf)
+    cost = sc[e].chi2_per_eq - s_full.chi2_per_eq
+    if not cost <= Z_IMPROVE * s_full.se:
+        return None
+    why = (
+        f"dropped after {added[-1]} was added: without it the out-of-sample chi2/eq is "
+        f"{sc[e].chi2_per_eq:.3g} vs {s_full.chi2_per_eq:.3g} with it (se {s_full.se:.2g}), "
+        "so it no longer earns its place"
+    )
+    return e, why
+
+
+def residual_driver(diagnosis) -> str:
+    """'<signal> on axis <a> (partial R^2 = ..)' for the strongest significant driver signal of a
+    diagnosis's residual (or its strongest signal), '' when it has none (hand-held)."""
+    sigs = getattr(diagnosis, "driver_signals", None) or []
+    top = next((s for s in sigs if s.get("significant")), sigs[0] if sigs else None)
+    if top is None:
+        return ""
+    return f"{top['signal']} on axis {top['axis']} (partial R^2 = {top['partial_r2']:.2f})"
+
+
+def no_library_effect(diagnosis, proxies: Sequence[str] = (), norm: str = "") -> str:
+    """The verdict part that says no library effect explains what is left (module doc)."""
+    drv = residual_driver(diagnosis)
+    text = "no library effect explains what is left"
+    if proxies:
+        text += f" ({', '.join(proxies)} fitted here but did not make the {norm}model transfer: dropped as proxies)"
+    if drv:
+        text += f"; the residual follows {drv}"
+    return text + "; write a user effect for it (docs/effects.md) and load it with --effects-file"
+
+
+def proxy_stats(found, stats_of: Callable[[str], dict | None]) -> list[tuple[str, str]]:
+    """Drop the added effects of a discovery whose final model does not transfer (module doc):
+    found.added is emptied, found.heldout becomes the start model's (stats_of(model name)); returns
+    (effect, why) per dropped effect. Nothing happens without out-of-session evidence or when the
+    final model transfers."""
+    if not found.added or found.heldout is None or found.transfers is not False:
+        return []
+    before = found.heldout["heldout_chi2_dof"]
+    start_stats = stats_of(found.start)
+    after = np.nan if start_stats is None else start_stats["heldout_chi2_dof"]
+    why = (
+        f"a proxy: with it the model still does not transfer (held-out chi2/dof {before:.3g}; "
+        f"{found.start} alone {after:.3g})"
+    )
+    out = [(e, why) for e in found.added]
+    found.added = []
+    found.heldout = start_stats
+    return out

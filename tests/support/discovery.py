@@ -1,0 +1,85 @@
+"""Emulated calibration sessions for the workbench's discovery loop (tests and
+benchmarks/bench_discovery.py): a chip with model3's terms plus hidden effects, recorded through the
+real path (emulator -> driver -> recorder -> MCAP) and cut into windows.
+
+Scenarios (name -> chip error fields besides model3's and the temperature paths):
+
+- ``rate``: a bias following the rate of the die temperature, b += r dT/dt (outside the library);
+- ``hysteresis``: a thermal hysteresis, b += h s(t), s = -1 heating / +1 cooling (outside the library);
+- ``two``: two library effects at once, temp_bias and time_drift;
+- ``single``: one library effect, temp_bias (the succeeding search the failing ones are timed against).
+
+Calibration and held-out sessions of one scenario share the chip and differ in noise seed and
+temperature path (a warm-up of another amplitude and time constant, or heat/cool in another order).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from accellog.calibrate.segment import observations
+from accellog.core.session import ObsTable
+from accellog.flows.simulate import Scenario, simulate
+from accellog.store.reader import read_session
+
+MODEL3_CHIP: dict[str, Any] = {
+    "bias_g": [0.030, -0.020, 0.050],
+    "scale": [0.010, -0.020, 0.015],
+    "cross_axis": [[0.0, 0.005, -0.004], [0.003, 0.0, 0.006], [-0.005, 0.002, 0.0]],
+    "noise_density_g_per_rtHz": [300e-6] * 3,
+}
+SIX = "+z,-z,+y,-y,+x,-x"
+
+HIDDEN: dict[str, dict[str, Any]] = {
+    "rate": {"temp_rate_bias_g_per_degC_per_s": [0.04, -0.03, 0.05]},
+    "hysteresis": {"temp_hysteresis_g": [2.0e-3, -1.5e-3, 2.5e-3], "temp_hysteresis_width_degC": 3.0},
+    "two": {
+        "temp_bias_g_per_degC": [1.0e-3, -0.8e-3, 1.2e-3],
+        "time_drift_g_per_s": [1.5e-5, -1.0e-5, 1.2e-5],
+    },
+    "single": {"temp_bias_g_per_degC": [1.0e-3, -0.8e-3, 1.2e-3]},
+}
+"""Hidden chip error fields (accellog.acquire.emulator.sensor_model.AccelErrors) per scenario."""
+
+
+def _temperature(name: str, held: bool, duration_s: float) -> dict[str, Any]:
+    """Warm-ups (calibration 24 -> 40 degC, tau 0.3 duration; held-out 22 -> 34, tau 0.15) or, for
+    hysteresis, heat then cool (calibration) / cool, heat, cool (held-out) as piecewise-linear paths."""
+    if name == "hysteresis":
+        d = duration_s
+        if held:
+            return {"kind": "points", "t_s": [0, 0.3 * d, 0.65 * d, d], "T": [34.0, 24.0, 38.0, 28.0]}
+        return {"kind": "points", "t_s": [0, 0.5 * d, d], "T": [24.0, 40.0, 26.0]}
+    if held:
+        return {"kind": "warmup", "T_start": 22.0, "T_end": 34.0, "tau_s": 0.15 * duration_s}
+    return {"kind": "warmup", "T_start": 24.0, "T_end": 40.0, "tau_s": 0.3 * duration_s}
+
+
+def scenario(name: str, seed: int, held: bool = False, *, rounds: int = 3, hold_s: float = 10.0) -> Scenario:
+    """The scenario's calibration (or held-out) session: `rounds` rounds of the six faces and a
+    final +z, holds of hold_s s, 2 s moves, 200 Hz."""
+    protocol = ",".join([SIX] * rounds + ["+z"])
+    duration = (6 * rounds + 1) * (hold_s + 2.0) + 1.0
+    return Scenario(
+        protocol=protocol,
+        hold_s=hold_s,
+        move_s=2.0,
+        sample_rate_hz=200.0,
+        errors="perfect",
+        gyro_errors="perfect",
+        set={**MODEL3_CHIP, **HIDDEN[name]},
+        seed=seed,
+        temperature=_temperature(name, held, duration),
+    )
+
+
+def session_obs(root: Path, name: str, seed: int, held: bool = False, **kw: Any) -> ObsTable:
+    """Windows (2 s) of the scenario's session, simulated into root once (MCAP) and read back."""
+    p = (
+        Path(root)
+        / f"{name}_{seed}_{'held' if held else 'cal'}_{kw.get('rounds', 3)}_{kw.get('hold_s', 10.0):g}.mcap"
+    )
+    if not p.exists():
+        simulate(scenario(name, seed, held, **kw), p)
+    return observations(read_session(p), window_s=2.0)
