@@ -223,8 +223,13 @@ def serve_rrd(
         stop_process(proc)
 
 
+class DevToolsTimeout(InputError):
+    """Chromium did not answer a DevTools command in time (the page may still be busy drawing)."""
+
+
 class Chromium:
-    """Headless Chromium driven over the DevTools protocol (127.0.0.1, throw-away profile)."""
+    """Headless Chromium driven over the DevTools protocol (127.0.0.1, throw-away profile);
+    timeout_s bounds the start and each command unless the command gives its own."""
 
     def __init__(
         self, *, size: tuple[int, int] = (1400, 900), exe: str | None = None, timeout_s: float = 30.0
@@ -292,21 +297,24 @@ class Chromium:
         self.call("Page.enable")
         self.call("Runtime.enable")
 
-    def call(self, method: str, **params) -> dict:
-        """Send one DevTools command and return its result (events in between are skipped)."""
+    def call(self, method: str, *, timeout_s: float | None = None, **params) -> dict:
+        """Send one DevTools command and return its result (events in between are skipped); waits
+        at most timeout_s (default: the browser's timeout_s), else DevToolsTimeout. A late answer
+        to a command given up on is skipped by the next call (answers carry their command's id)."""
         assert self._ws is not None
         self._id += 1
         my_id = self._id
+        wait = self.timeout_s if timeout_s is None else max(float(timeout_s), 0.01)
         self._ws.send(json.dumps({"id": my_id, "method": method, "params": params}))
-        end = time.monotonic() + self.timeout_s
+        end = time.monotonic() + wait
         while True:
             left = end - time.monotonic()
             if left <= 0:
-                raise InputError(f"chromium did not answer {method} within {self.timeout_s:g} s")
+                raise DevToolsTimeout(f"chromium did not answer {method} within {wait:g} s")
             try:
                 msg = json.loads(self._ws.recv(timeout=left))
             except TimeoutError:
-                raise InputError(f"chromium did not answer {method} within {self.timeout_s:g} s") from None
+                raise DevToolsTimeout(f"chromium did not answer {method} within {wait:g} s") from None
             self._handle(msg)
             if msg.get("id") == my_id:
                 if "error" in msg:
@@ -326,9 +334,9 @@ class Chromium:
         if "method" in msg:
             self._events.add(msg["method"])
 
-    def screenshot_png(self) -> bytes:
-        """PNG of the current viewport (bytes)."""
-        res = self.call("Page.captureScreenshot", format="png", fromSurface=True)
+    def screenshot_png(self, timeout_s: float | None = None) -> bytes:
+        """PNG of the current viewport (bytes); waits at most timeout_s (default: the browser's)."""
+        res = self.call("Page.captureScreenshot", timeout_s=timeout_s, format="png", fromSurface=True)
         return base64.b64decode(res["data"])
 
     def evaluate(self, expression: str):
@@ -392,37 +400,62 @@ def screenshot_url(
     min_wait_s: float = 6.0,
     settle_s: float = 2.0,
 ) -> PixelStats:
-    """Open url in headless Chromium, wait (real time) until the page looks rendered and stable
-    for settle_s (at least min_wait_s, at most wait_s), save the PNG; returns its PixelStats."""
+    """Open url in headless Chromium, wait (real time) until the page looks rendered and stable for
+    settle_s (at least min_wait_s after loading), save the PNG atomically; returns its PixelStats.
+
+    wait_s bounds everything end to end: the browser's start, the page load and every capture (a
+    capture answered late on a loaded machine may take the time left, not a fixed timeout). Nothing
+    is written unless a rendered, stable picture was taken: InputError otherwise (no partial PNG)."""
+    deadline = time.monotonic() + wait_s
     out = Path(png_path)
     if not out.parent.is_dir():
         raise InputError("folder does not exist", where=str(out.parent))
     _require("PIL", "pillow")
-    with Chromium(size=size) as ch:
-        ch.navigate(url)
-        start = time.monotonic()
-        png, stats, stable_since = b"", None, None
-        while True:
-            time.sleep(1.0)
-            png = ch.screenshot_png()
-            new = pixel_stats(png)
-            now = time.monotonic() - start
-            if (
-                stats is not None
-                and new.looks_rendered()
-                and abs(new.colors - stats.colors) <= 0.1 * stats.colors
-            ):
-                stable_since = stable_since if stable_since is not None else now
-            else:
-                stable_since = None
-            stats = new
-            if now >= min_wait_s and stable_since is not None and now - stable_since >= settle_s:
-                break
-            if now >= wait_s:
-                break
-    write_bytes_atomic(out, png)
-    assert stats is not None
-    return stats
+    with Chromium(size=size, timeout_s=max(deadline - time.monotonic(), 1.0)) as ch:
+        ch.navigate(url, load_timeout_s=max(min(20.0, deadline - time.monotonic()), 0.1))
+        shot = _settled_capture(ch, deadline, min_wait_s, settle_s)
+    if shot is None:
+        raise InputError(
+            f"the viewer did not draw a stable picture within {wait_s:g} s; nothing written "
+            "(a longer --wait-s helps on a loaded machine)",
+            where=str(out),
+        )
+    write_bytes_atomic(out, shot[0])
+    return shot[1]
+
+
+def _settled_capture(
+    ch: Chromium, deadline: float, min_wait_s: float, settle_s: float, poll_s: float = 1.0
+) -> tuple[bytes, PixelStats] | None:
+    """Capture until two successive pictures look rendered and alike (colour counts within 10 %)
+    for settle_s, at least min_wait_s after the start; at the deadline the last such picture, if the
+    last two captures were alike, else None. Captures are spaced by at least the time the last one
+    took, so a slow browser is not kept busy by them."""
+    start = time.monotonic()
+    prev: PixelStats | None = None
+    good: tuple[bytes, PixelStats] | None = None
+    stable_since: float | None = None
+    gap_s = poll_s
+    while True:
+        time.sleep(max(0.0, min(gap_s, deadline - time.monotonic())))
+        t0 = time.monotonic()
+        if t0 >= deadline:
+            return good
+        try:
+            png = ch.screenshot_png(timeout_s=deadline - t0)
+        except DevToolsTimeout:
+            return good
+        now = time.monotonic()
+        gap_s = max(poll_s, now - t0)
+        new = pixel_stats(png)
+        if prev is not None and new.looks_rendered() and abs(new.colors - prev.colors) <= 0.1 * prev.colors:
+            stable_since = now if stable_since is None else stable_since
+            good = (png, new)
+        else:
+            stable_since, good = None, None
+        prev = new
+        if good is not None and now - start >= min_wait_s and now - stable_since >= settle_s:
+            return good
 
 
 def screenshot_rrd(
@@ -436,11 +469,19 @@ def screenshot_rrd(
 ) -> PixelStats:
     """Serve rrd_path on 127.0.0.1, open it in the web viewer in headless Chromium, wait until it has
     rendered, save a PNG screenshot of size (width, height) pixels to png_path. tab: the display name
-    of the blueprint tab to show (accellog.present.rrd.tabs)."""
+    of the blueprint tab to show (accellog.present.rrd.tabs). wait_s bounds the whole call (picking
+    the tab, starting the server and the browser, drawing); see screenshot_url."""
+    deadline = time.monotonic() + wait_s
     with tempfile.TemporaryDirectory(prefix="accellog-tab-") as tmp:
         extra: list[Path] = []
         if tab is not None:
             rrd_path, rbl = tab_view_files(rrd_path, tab, tmp)
             extra.append(rbl)
-        with serve_rrd(rrd_path, extra=extra) as viewer:
-            return screenshot_url(viewer.url, png_path, size=size, wait_s=wait_s, min_wait_s=min_wait_s)
+        with serve_rrd(rrd_path, extra=extra, timeout_s=max(deadline - time.monotonic(), 1.0)) as viewer:
+            return screenshot_url(
+                viewer.url,
+                png_path,
+                size=size,
+                wait_s=max(deadline - time.monotonic(), 1.0),
+                min_wait_s=min_wait_s,
+            )
