@@ -26,13 +26,35 @@ def export_cmd(
         ),
     ] = None,
     topic: Annotated[str, typer.Option("--topic", help="IMU topic (Kalibr rostopic).")] = "/imu/data",
-    frame_id: Annotated[str, typer.Option("--frame-id", help="frame_id (ros).")] = "imu_link",
+    rotation: Annotated[
+        str,
+        typer.Option(
+            "--rotation",
+            help="px4/ardupilot: the driver's chip rotation applied before the offsets, by the targets' "
+            "name or number (ROTATION_NONE, ROTATION_YAW_90, ROTATION_ROLL_180_YAW_270, ...).",
+        ),
+    ] = "ROTATION_NONE",
+    device_id: Annotated[
+        int | None,
+        typer.Option(
+            "--device-id",
+            min=0,
+            help="px4/ardupilot: the sensor's device id as the autopilot shows it (CAL_ACC0_ID / "
+            "INS_ACC_ID); default: computed from the calibration's I2C bus and address when known.",
+        ),
+    ] = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Values, units and what the target cannot hold.")
     ] = False,
     effects_file: EffectsOpt = None,
 ) -> None:
-    """Write a calibration in another tool's format and say which terms that format cannot hold."""
+    """Write a calibration in another tool's format; the header says what that format cannot hold and
+    how large the loss is on this calibration.
+
+    Examples: `accellog export cal.json --to ros -o imu_calib.yaml` (imu_calib's SM/bias);
+    `accellog export cal.json --to ardupilot --rotation ROTATION_YAW_270 -o cal.parm`;
+    `accellog export cal.json --to kalibr --noise-from still.mcap -o imu.yaml`.
+    """
     from accellog.calibrate.calibration import load_calibration
     from accellog.calibrate.imu_noise import NoiseCharacterisation
     from accellog.flows.characterise import characterise_noise
@@ -46,7 +68,7 @@ def export_cmd(
         noise = NoiseCharacterisation.from_model(characterise_noise(noise_from))
     else:
         noise = NoiseCharacterisation.from_section(c.noise) if c.noise else None
-    ex = export_calibration(c, to, noise=noise, topic=topic, frame_id=frame_id)
+    ex = export_calibration(c, to, noise=noise, topic=topic, rotation=rotation, device_id=device_id)
     if output is not None:
         write_text_atomic(output, ex.text, inputs=(cal, noise_from))
     if as_json:
@@ -58,4 +80,4 @@ def export_cmd(
     console = Console(stderr=True)
     console.print(f"wrote {output} ({to})")
     for x in ex.cannot_hold:
-        console.print(f"[yellow]cannot hold:[/] {x}")
+        console.print(f"[yellow]cannot hold:[/] {x}", soft_wrap=True)

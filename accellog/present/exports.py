@@ -1,16 +1,18 @@
-"""A calibration in the forms other tools load: Kalibr imu.yaml, a ROS 2 parameter file, PX4 and
-ArduPilot parameter files, plain YAML. Each export states what its target cannot hold.
+"""A calibration in the forms other tools load: Kalibr imu.yaml, imu_calib's accel_calib YAML (ROS),
+PX4 and ArduPilot parameter files, accellog's own YAML. Every export states in its header what it
+cannot hold and how large that loss is on this calibration (accellog.present.export_frames).
 
 accellog's model (accellog.calibrate.calibration): reading a' = S u + b (g) at reference conditions,
 u = S^-1 (a' - b) in calibrated units, a = u * mps2_per_unit (m/s^2). With g0 = 9.80665:
 
     a = K (a'_mps2 - o),   K = (mps2_per_unit / g0) S^-1,   o = g0 b          (m/s^2)
 
-PX4 (``Correct()``: (data - offset) .* scale) and ArduPilot (``_rotate_and_correct_accel``:
-(accel - offset) .* scale) hold o and diag(K) only: the off-diagonal of K (cross-axis and
-misalignment), temperature and any other model term are dropped, and the export reports the largest
-error that causes at 1 g. Gyro: offsets = cal.gyro bias (rad/s); PX4/ArduPilot hold no gyro scale.
-Kalibr's imu.yaml holds noise only (``accellog.calibrate.imu_noise``), not the calibration.
+imu_calib (dpkoch/imu_calib, ``AccelCalib::applyCalib``): corrected = SM raw - bias (m/s^2), so
+SM = K and bias = K o: the linear model exactly; it estimates its own gyro bias at start-up.
+PX4 (``Correct()``: rotation ((data - offset) .* scale)) and ArduPilot (``_rotate_and_correct_accel``:
+rotate to the board, (accel - offset) .* scale, rotate to the vehicle) hold o and diag(K) in the axes
+after the driver's rotation (``--rotation``, default none): the off-diagonal of K, temperature and the
+gyro matrix are dropped. Kalibr's imu.yaml holds noise only (``accellog.calibrate.imu_noise``).
 Sources and units: docs/interop.md.
 """
 
@@ -25,103 +27,114 @@ from accellog.calibrate.calibration import Calibration
 from accellog.calibrate.imu_noise import NoiseCharacterisation
 from accellog.core.errors import InputError
 from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
+from accellog.present.export_frames import (
+    diagonal_loss_mps2,
+    directions_26,
+    gyro_losses,
+    linear_form,
+    nonlinear_loss,
+    rotation,
+    sensor_ids,
+)
 
 TARGETS = ("kalibr", "ros", "px4", "ardupilot", "yaml")
 SUFFIX = {"kalibr": ".yaml", "ros": ".yaml", "px4": ".params", "ardupilot": ".parm", "yaml": ".yaml"}
+__all__ = ["TARGETS", "Export", "export_calibration", "linear_form"]
 
 
 @dataclass
 class Export:
-    """Text for one target, what it holds (with units) and what it cannot hold."""
+    """Text for one target, what it holds (with units) and what it cannot hold (with the size)."""
 
     target: str
     text: str
     values: dict
     units: dict
     cannot_hold: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def linear_form(cal: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """K (3,3) and o (3,) m/s^2 with a = K (a'_mps2 - o) (module docstring)."""
-    S, b = cal.S_b()
-    return (cal.mps2_per_unit / G0) * np.linalg.inv(S), G0 * np.asarray(b, float)
+def _header(title: str, lost: list[str], notes: list[str] = ()) -> list[str]:
+    lines = [f"# {title}", *(f"# {n}" for n in notes)]
+    return lines + ([f"# cannot hold: {x}" for x in lost] or ["# cannot hold: nothing of this calibration"])
 
 
-def _dropped_terms(cal: Calibration) -> list[str]:
-    return [t for t in cal.terms if t not in ("bias", "scale", "cross_axis", "misalignment_tri")]
+def _nonlinear(cal: Calibration, target: str) -> list[str]:
+    nl = nonlinear_loss(cal)
+    if nl is None:
+        return []
+    size, what = nl
+    amount = "size unknown" if math.isnan(size) else f"up to {size:.3g} m/s^2 ({size / G0 * 1e3:.3g} mg)"
+    return [f"non-linear model terms dropped ({what}): {amount}"]
 
 
-def _gyro_bias_radps(cal: Calibration) -> np.ndarray | None:
-    if cal.gyro is None:
-        return None
-    return np.deg2rad(np.asarray(cal.gyro.bias_dps, float))
-
-
-def _diag_only(cal: Calibration, target: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def _autopilot(cal: Calibration, target: str, rot: str, device_id: int | None):
+    """Board-frame offsets o_R and scales diag(K_R), what is lost, notes, sensor ids."""
+    name, num, R = rotation(rot)
     K, o = linear_form(cal)
-    off = K - np.diag(np.diag(K))
+    K_R, o_R = R @ K @ R.T, R @ o
     lost = []
-    worst = float(np.max(np.abs(off).sum(axis=1))) * G0
-    if worst > 0:
-        lost.append(
-            f"cross-axis/misalignment (off-diagonal of K): up to {worst:.4g} m/s^2 at 1 g is lost in {target}"
-        )
-    lost += [f"model term {t!r} (not a {target} parameter)" for t in _dropped_terms(cal)]
-    g = cal.gyro
-    if g is not None and not np.allclose(np.asarray(g.matrix, float), np.eye(3), equal_nan=False):
-        lost.append(f"gyro scale/misalignment matrix ({target} holds gyro offsets only)")
-    if g is not None and np.any(np.nan_to_num(np.asarray(g.temp_bias_dps_per_degC, float)) != 0):
-        lost.append("gyro temperature bias")
-    return np.diag(K), o, lost
+    worst = diagonal_loss_mps2(K_R)
+    if worst > 1e-12:
+        lost.append(f"cross-axis/misalignment (off-diagonal of K) dropped: up to {worst:.3g} m/s^2 "
+                    f"({worst / G0 * 1e3:.3g} mg) at 1 g")  # fmt: skip
+    lost += _nonlinear(cal, target) + gyro_losses(cal)
+    notes = [f"axes: the chip's, rotated by {name} ({num}), the rotation {target}'s driver applies before "
+             "the offsets (--rotation; the board/vehicle rotation after them is unchanged)"]  # fmt: skip
+    acc_id, gyr_id, how = sensor_ids(cal, target, device_id)
+    id_names = {"px4": "CAL_ACC0_ID", "ardupilot": "INS_ACC_ID"}
+    if acc_id is None:
+        lost.append(f"{id_names[target]} not written: {how}; give --device-id (the value your autopilot "
+                    f"shows), without it {target} treats the sensor as uncalibrated")  # fmt: skip
+    else:
+        notes.append(f"{id_names[target]} {how}")
+    gb = None if cal.gyro is None else R @ np.deg2rad(np.asarray(cal.gyro.bias_dps, float))
+    return np.diag(K_R), o_R, gb, lost, notes, (acc_id, gyr_id)
 
 
-def _params_px4(cal: Calibration) -> Export:
-    scale, o, lost = _diag_only(cal, "PX4")
-    vals = {}
+def _params_px4(cal: Calibration, rot: str, device_id: int | None) -> Export:
+    scale, o, gb, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "px4", rot, device_id)
+    vals: dict = {} if acc_id is None else {"CAL_ACC0_ID": acc_id}
     for i, ax in enumerate("XYZ"):
         vals[f"CAL_ACC0_{ax}OFF"] = float(o[i])
         vals[f"CAL_ACC0_{ax}SCALE"] = float(scale[i])
-    gb = _gyro_bias_radps(cal)
     if gb is not None:
+        if gyr_id is not None:
+            vals["CAL_GYRO0_ID"] = gyr_id
         vals.update({f"CAL_GYRO0_{ax}OFF": float(gb[i]) for i, ax in enumerate("XYZ")})
     lines = [
-        "# Onboard parameters for Vehicle 1 (accellog export; QGroundControl .params format)",
-        "# Set CAL_ACC0_ID / CAL_GYRO0_ID to your sensor's device id before loading.",
-        *(f"# cannot hold: {x}" for x in lost),
+        *_header("Onboard parameters for Vehicle 1 (accellog export; QGroundControl .params format)", lost, notes),
         "#",
         "# Vehicle-Id Component-Id Name Value Type",
-        *(f"1\t1\t{k}\t{v:.9g}\t9" for k, v in vals.items()),
-    ]
-    units = {
-        k: ("m/s^2" if k.endswith("OFF") and "ACC" in k else "rad/s" if k.endswith("OFF") else "1")
-        for k in vals
-    }
-    return Export("px4", "\n".join(lines) + "\n", vals, units, lost)
+        *(f"1\t1\t{k}\t{v}\t6" if isinstance(v, int) else f"1\t1\t{k}\t{v:.9g}\t9" for k, v in vals.items()),
+    ]  # fmt: skip
+    units = {k: "id" if k.endswith("_ID") else "m/s^2" if "ACC" in k and k.endswith("OFF")
+             else "rad/s" if k.endswith("OFF") else "1" for k in vals}  # fmt: skip
+    return Export("px4", "\n".join(lines) + "\n", vals, units, lost, notes)
 
 
-def _params_ardupilot(cal: Calibration) -> Export:
-    scale, o, lost = _diag_only(cal, "ArduPilot")
-    vals = {}
-    for i, ax in enumerate("XYZ"):
-        vals[f"INS_ACCOFFS_{ax}"] = float(o[i])
-    for i, ax in enumerate("XYZ"):
-        vals[f"INS_ACCSCAL_{ax}"] = float(scale[i])
-    gb = _gyro_bias_radps(cal)
+def _params_ardupilot(cal: Calibration, rot: str, device_id: int | None) -> Export:
+    scale, o, gb, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "ardupilot", rot, device_id)
+    vals: dict = {} if acc_id is None else {"INS_ACC_ID": acc_id}
+    vals.update({f"INS_ACCOFFS_{ax}": float(o[i]) for i, ax in enumerate("XYZ")})
+    vals.update({f"INS_ACCSCAL_{ax}": float(scale[i]) for i, ax in enumerate("XYZ")})
     if gb is not None:
+        if gyr_id is not None:
+            vals["INS_GYR_ID"] = gyr_id
         vals.update({f"INS_GYROFFS_{ax}": float(gb[i]) for i, ax in enumerate("XYZ")})
     bad = [k for k, v in vals.items() if k.startswith("INS_ACCSCAL") and not 0.8 <= v <= 1.2]
     if bad:
         lost.append(f"{', '.join(bad)} outside ArduPilot's accepted 0.8..1.2")
     lines = [
-        "# ArduPilot parameters (accellog export; Mission Planner / MAVProxy NAME,VALUE format)",
-        *(f"# cannot hold: {x}" for x in lost),
-        *(f"{k},{v:.9g}" for k, v in vals.items()),
-    ]
-    units = {k: ("m/s/s" if "ACCOFFS" in k else "rad/s" if "GYROFFS" in k else "1") for k in vals}
-    return Export("ardupilot", "\n".join(lines) + "\n", vals, units, lost)
+        *_header("ArduPilot parameters (accellog export; Mission Planner / MAVProxy NAME,VALUE format)", lost, notes),
+        *(f"{k},{v}" if isinstance(v, int) else f"{k},{v:.9g}" for k, v in vals.items()),
+    ]  # fmt: skip
+    units = {k: "id" if k.endswith("_ID") else "m/s/s" if "ACCOFFS" in k else "rad/s" if "GYROFFS" in k
+             else "1" for k in vals}  # fmt: skip
+    return Export("ardupilot", "\n".join(lines) + "\n", vals, units, lost, notes)
 
 
 def _yaml_value(v) -> str:
@@ -146,6 +159,13 @@ def _yaml(d: dict, indent: int = 0, comments: dict | None = None) -> list[str]:
         else:
             out.append(" " * indent + f"{k}: {_yaml_value(v)}{note}")
     return out
+
+
+def _raw_error_mps2(cal: Calibration) -> float:
+    """Largest |raw reading - true| (m/s^2) at 1 g over the 26 face/edge/corner directions (linear model)."""
+    S, b = cal.S_b()
+    u = directions_26()
+    return float(np.max(np.linalg.norm(G0 * (u @ np.asarray(S).T + b) - cal.mps2_per_unit * u, axis=1)))
 
 
 def _kalibr(cal: Calibration, noise: NoiseCharacterisation | None, topic: str) -> Export:
@@ -177,43 +197,36 @@ def _kalibr(cal: Calibration, noise: NoiseCharacterisation | None, topic: str) -
         else ""
     )
     comments = {k: units[k] + (bound if "random_walk" in k else "") for k in units}
-    lost = ["the calibration itself (bias, scale, misalignment): Kalibr's imu.yaml holds noise only"]
-    head = [
-        f"# Kalibr IMU configuration (accellog export), noise from {noise.source} ({noise.duration_s:.0f} s)"
-    ]
-    return Export("kalibr", "\n".join(head + _yaml(vals, 0, comments)) + "\n", vals, units, lost)
+    lost = [f"the calibration itself (imu.yaml holds noise only): uncorrected readings are off by up to "
+            f"{_raw_error_mps2(cal):.3g} m/s^2 at 1 g; feed Kalibr calibrated data (apply --ros2)"]  # fmt: skip
+    lost += gyro_losses(cal, keeps_bias=False)
+    title = (
+        f"Kalibr IMU configuration (accellog export), noise from {noise.source} ({noise.duration_s:.0f} s)"
+    )
+    return Export(
+        "kalibr", "\n".join(_header(title, lost) + _yaml(vals, 0, comments)) + "\n", vals, units, lost
+    )
 
 
-def _ros(cal: Calibration, noise: NoiseCharacterisation | None, node: str, frame_id: str) -> Export:
+def _imu_calib(cal: Calibration) -> Export:
+    """imu_calib's accel_calib file: corrected = SM raw - bias (m/s^2), SM = K, bias = K o."""
     K, o = linear_form(cal)
-    gb = _gyro_bias_radps(cal)
-    p = {
-        "frame_id": frame_id,
-        "accel_offset_mps2": o.tolist(),
-        "accel_correction_matrix": K.ravel().tolist(),
-        "gyro_bias_radps": None if gb is None else gb.tolist(),
-    }
-    units = {"accel_offset_mps2": "m/s^2", "accel_correction_matrix": "1 (row-major; a = K (a_raw - o))",
-             "gyro_bias_radps": "rad/s"}  # fmt: skip
-    lost = [f"model term {t!r}" for t in _dropped_terms(cal)]
-    if noise is not None:
-        dt = 1.0 / noise.sample_rate_hz
-        va = (noise.accelerometer_noise_density**2) / dt
-        p["linear_acceleration_covariance"] = np.diag([va] * 3).ravel().tolist()
-        units["linear_acceleration_covariance"] = "(m/s^2)^2 (discrete: density^2 / dt)"
-        if noise.gyroscope_noise_density is not None:
-            vg = (noise.gyroscope_noise_density**2) / dt
-            p["angular_velocity_covariance"] = np.diag([vg] * 3).ravel().tolist()
-            units["angular_velocity_covariance"] = "(rad/s)^2 (discrete: density^2 / dt)"
-    else:
-        lost.append("sensor_msgs/Imu covariances (give --noise-from STILL.mcap)")
-    text = "# ROS 2 parameter file (accellog export): ros2 run ... --ros-args --params-file THIS\n"
-    text += "\n".join(_yaml({node: {"ros__parameters": p}}, 0, units)) + "\n"
-    return Export("ros", text, p, units, lost)
+    vals = {"SM": K.ravel().tolist(), "bias": (K @ o).tolist()}
+    units = {"SM": "1 (row-major 3x3)", "bias": "m/s^2"}
+    lost = _nonlinear(cal, "imu_calib") + gyro_losses(cal, keeps_bias=False)
+    lost += ["sensor_msgs/Imu covariances (apply_calib copies the raw message's)"]
+    notes = ["apply_calib: corrected = SM * raw - bias (m/s^2, raw linear_acceleration); "
+             "rosrun imu_calib apply_calib _calib_file:=THIS",
+             "apply_calib measures its own gyro bias at start-up (calibrate_gyros, default true: keep the IMU still)"]  # fmt: skip
+    text = "\n".join(
+        _header("imu_calib accelerometer calibration (accellog export)", lost, notes) + _yaml(vals)
+    )
+    return Export("ros", text + "\n", vals, units, lost, notes)
 
 
 def _plain(cal: Calibration, noise: NoiseCharacterisation | None) -> Export:
     S, b = cal.S_b()
+    K, o = linear_form(cal)
     d = {
         "format": "accellog.calibration.yaml",
         "equation": "reading_g = S u + b_g; u = S^-1 (reading_g - b_g); a_mps2 = u * mps2_per_unit",
@@ -221,14 +234,23 @@ def _plain(cal: Calibration, noise: NoiseCharacterisation | None) -> Export:
         "S": np.asarray(S).ravel().tolist(),
         "b_g": list(b),
         "mps2_per_unit": cal.mps2_per_unit,
+        "K": K.ravel().tolist(),
+        "o_mps2": o.tolist(),
         "params": {n: {"value": float(v), "sigma": float(s), "unit": u}
                    for n, v, s, u in zip(cal.param_names, cal.theta, cal.sigma, cal.param_units, strict=True)},
         "gyro": {} if cal.gyro is None else cal.gyro.to_dict(),
     }  # fmt: skip
     if noise is not None:
         d["noise"] = noise.to_dict()
-    text = "# accellog calibration as plain YAML (S row-major)\n" + "\n".join(_yaml(d)) + "\n"
-    return Export("yaml", text, d, {"S": "1", "b_g": "g", "mps2_per_unit": "m/s^2 per unit"}, [])
+    lost = []
+    if cal.needs_user_code:
+        lost.append(
+            "the code of the user effects (the file keeps their parameters; apply needs --effects-file)"
+        )
+    head = _header("accellog calibration as plain YAML (S, K row-major; a_mps2 = K (reading_mps2 - o_mps2) "
+                   "for the linear part)", lost)  # fmt: skip
+    units = {"S": "1", "b_g": "g", "mps2_per_unit": "m/s^2 per unit", "K": "1", "o_mps2": "m/s^2"}
+    return Export("yaml", "\n".join(head + _yaml(d)) + "\n", d, units, lost)
 
 
 def export_calibration(
@@ -237,18 +259,19 @@ def export_calibration(
     *,
     noise: NoiseCharacterisation | None = None,
     topic: str = "/imu/data",
-    node: str = "imu_calibration",
-    frame_id: str = "imu_link",
+    rotation: str = "ROTATION_NONE",
+    device_id: int | None = None,
 ) -> Export:
-    """The calibration (and noise, where the target holds it) as ``target`` text; see module docstring."""
+    """The calibration (and noise, where the target holds it) as ``target`` text; see module docstring.
+    rotation, device_id: PX4 / ArduPilot only (export_frames.rotation, export_frames.sensor_ids)."""
     if target not in TARGETS:
         raise InputError(f"unknown export target {target!r}: use one of {', '.join(TARGETS)}")
     if target == "kalibr":
         return _kalibr(cal, noise, topic)
     if target == "ros":
-        return _ros(cal, noise, node, frame_id)
+        return _imu_calib(cal)
     if target == "px4":
-        return _params_px4(cal)
+        return _params_px4(cal, rotation, device_id)
     if target == "ardupilot":
-        return _params_ardupilot(cal)
+        return _params_ardupilot(cal, rotation, device_id)
     return _plain(cal, noise)
