@@ -138,11 +138,21 @@ def import_csv_cmd(
     ] = None,
     count_offset: Annotated[
         float,
-        typer.Option("--count-offset", help="Subtracted from counts (32768 for offset-binary/unsigned)."),
+        typer.Option(
+            "--count-offset",
+            help="Subtracted from every counts column: ax,ay,az with --unit counts, gx,gy,gz with "
+            "--gyro-unit counts (32768 for offset-binary/unsigned).",
+        ),
     ] = 0.0,
+    gyro_count_offset: Annotated[
+        float | None,
+        typer.Option(
+            "--gyro-count-offset", help="Subtracted from the gyro counts instead of --count-offset."
+        ),
+    ] = None,
     gyro_unit: Annotated[
-        str, typer.Option("--gyro-unit", help="Gyro unit: deg/s, rad/s or counts.")
-    ] = "deg/s",
+        str | None, typer.Option("--gyro-unit", help="Gyro unit: deg/s (default), rad/s or counts.")
+    ] = None,
     gyro_lsb_per_dps: Annotated[
         float | None,
         typer.Option("--gyro-lsb-per-dps", help="Gyro counts per deg/s (with --gyro-unit counts)."),
@@ -177,6 +187,7 @@ def import_csv_cmd(
         unit=unit,
         lsb_per_g=lsb_per_g,
         count_offset=count_offset,
+        gyro_count_offset=gyro_count_offset,
         gyro_unit=gyro_unit,
         gyro_lsb_per_dps=gyro_lsb_per_dps,
         columns=columns,

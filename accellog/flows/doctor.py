@@ -13,6 +13,7 @@ overflows, I2C errors) are counted by kind. Still intervals come from
 
 from __future__ import annotations
 
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -20,6 +21,14 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.jsonio import dumps
+from accellog.core.plausible import (
+    TIME_UNIT_NAME,
+    TIME_UNIT_S,
+    accel_unit_guess,
+    gyro_counts_evidence,
+    likely_time_unit,
+    rate_ok,
+)
 from accellog.core.session import Session
 
 GAP_FACTOR = 1.5
@@ -151,6 +160,46 @@ def clipping(s: Session) -> list[Finding]:
     return out
 
 
+def units(s: Session, rate_hz: float) -> list[Finding]:
+    """Implausible rate or units (thresholds: accellog.core.plausible): a rate outside 1 Hz .. 100 kHz
+    (with the time unit that would fix it), a median |accel| far from 1 g (and the unit it looks
+    like), gyro values stored as deg/s that only make sense as raw counts."""
+    out: list[Finding] = []
+    if rate_hz > 0 and not rate_ok(rate_hz):
+        m = re.search(r" in (s|ms|us|ns)$", s.meta.extra.get("time_source", ""))
+        declared = m.group(1) if m else "s"
+        u = likely_time_unit(1.0 / rate_hz / TIME_UNIT_S[declared], declared)
+        fix = (
+            f"the stamps look like {TIME_UNIT_NAME[u]} read as {TIME_UNIT_NAME[declared]}: "
+            f"re-import with --time-unit {u}"
+            if u not in (None, declared)
+            else "check the time stamps"
+        )
+        out.append(
+            Finding("rate", f"sample rate {rate_hz:.3g} Hz is not an IMU rate (1 Hz .. 100 kHz): {fix}", 1)
+        )
+    step = max(1, s.n // 200_000)
+    if s.n:
+        med = float(np.median(np.linalg.norm(s.accel_g[::step], axis=1)))
+        if not 0.5 <= med <= 2.0:
+            guess = accel_unit_guess(med)
+            looks = (
+                "no unit makes it ~1 g"
+                if guess is None
+                else f"the values look like {guess[0]} stored as g: re-import with --unit {guess[0]}"
+                + (f" --lsb-per-g {guess[1]:g}" if guess[1] else "")
+            )
+            out.append(
+                Finding("unit", f"accel: median |a| {med:.4g} g (a recording reads ~1 g at rest): {looks}", 1)
+            )
+    if s.n and s.gyro_dps is not None and s.gyro_counts is None:
+        why = gyro_counts_evidence(s.gyro_dps[::step], s.accel_counts is not None)
+        if why:
+            out.append(Finding("unit", f"gyro: values stored as deg/s {why}: they look like raw counts: "
+                               "re-import with --gyro-unit counts --gyro-lsb-per-dps LSB", 1))  # fmt: skip
+    return out
+
+
 def _distinct(up: np.ndarray, angle_deg: float = 10.0) -> int:
     reps: list[np.ndarray] = []
     lim = np.cos(np.deg2rad(angle_deg))
@@ -201,6 +250,7 @@ def examine(s: Session) -> DoctorReport:
     """The doctor's report on a loaded session."""
     t = s.t_s
     stats, findings, _ = timing(t)
+    findings += units(s, 1e3 / stats["median"] if stats.get("median") else 0.0)
     findings += clipping(s)
     ev: dict[str, int] = {}
     lost = 0
@@ -240,6 +290,7 @@ def examine(s: Session) -> DoctorReport:
 def load_any(path: str | Path) -> Session:
     """Any input accellog reads as a Session: accellog MCAP, ROS 2 bag (.mcap dir/.db3), CSVs."""
     from accellog.flows.stages import load_input
+    from accellog.store.importers.csv_checks import UnitsError
     from accellog.store.importers.ros2 import import_ros2
 
     p = Path(path)
@@ -250,7 +301,9 @@ def load_any(path: str | Path) -> Session:
     except InputError as exc:
         if p.suffix == ".mcap" and _is_ros2(p):
             return import_ros2(p)
-        if p.suffix.lower() == ".csv" and ("duplicated timestamp" in str(exc) or "backwards" in str(exc)):
+        if p.suffix.lower() == ".csv" and (
+            isinstance(exc, UnitsError) or "duplicated timestamp" in str(exc) or "backwards" in str(exc)
+        ):
             return _lenient_csv(p)  # the doctor's job is to report these, not to refuse them
         raise
     if not isinstance(s, Session):
@@ -261,7 +314,7 @@ def load_any(path: str | Path) -> Session:
 def _lenient_csv(p: Path) -> Session:
     from accellog.store.importers.csv import CsvOptions, import_csv
 
-    return import_csv(p, CsvOptions(strict_time=False))
+    return import_csv(p, CsvOptions(strict_time=False, check_units=False))
 
 
 def _is_ros2(p: Path) -> bool:

@@ -21,7 +21,8 @@ def tables(r) -> list[Table]:
     s.add_row("device", DeviceKey.from_dict(r.device).describe())
     s.add_row("samples", f"{r.samples} over {r.duration_s:.6g} s")
     iv = r.interval_ms
-    s.add_row("rate", f"{r.rate_hz:.6g} Hz (interval median {iv.get('median', 0):.4g} ms, "
+    odd = " [red](not an IMU rate: see findings)[/]" if any(x.kind == "rate" for x in r.findings) else ""
+    s.add_row("rate", f"{r.rate_hz:.6g} Hz{odd} (interval median {iv.get('median', 0):.4g} ms, "
               f"p01 {iv.get('p01', 0):.4g} ms, p99 {iv.get('p99', 0):.4g} ms, max {iv.get('max', 0):.4g} ms)")  # fmt: skip
     s.add_row("jitter", f"{100 * r.jitter_rel:.3g} % of the interval (robust)")
     t = r.temperature_degC

@@ -19,9 +19,16 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
-from accellog.core.units import ACCEL_LSB_PER_G, STANDARD_GRAVITY_MPS2
+from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.atomic import AtomicOutput
 from accellog.store.importers.csv_blocks import BLOCK_BYTES, Block, BlockReader, read_header
+from accellog.store.importers.csv_checks import (
+    check_accel,
+    check_gyro,
+    check_offsets,
+    check_rate,
+    check_time_range,
+)
 from accellog.store.importers.csv_options import FIELDS, GROUPS, TIME_UNITS, CsvOptions
 from accellog.store.importers.csv_poses import PoseRuns
 
@@ -124,11 +131,13 @@ class CsvImport:
             t_s, t0 = self._time(block, t0)
             if self.opts.strict_time and (t_prev is not None or block.n > 1):
                 self._check_time(block, t_s, t_prev)
+            if "t" in self.cols:
+                check_time_range(self.path, block.cols["t"], t_s, block.line_of)
             if self.meta is None:
-                self._check_units(block)
                 t_first_s = float(t_s[0])
                 head = t_s[:_HEAD_ROWS]
                 dt_s = float(np.median(np.diff(head))) if head.shape[0] > 1 else 0.0
+                self._check_units(block, dt_s)
                 self.meta = self._meta(t0, dt_s)
             if runs is not None:
                 true = _stack(block, ("true_x", "true_y", "true_z"))
@@ -174,21 +183,22 @@ class CsvImport:
             raise InputError(f"duplicated timestamp ({before:.9g} s, as on the line before)", where=where)
         raise InputError(f"time goes backwards ({before:.9g} s -> {t_s[i]:.9g} s)", where=where)
 
-    def _check_units(self, block: Block) -> None:
-        """Units judged on the first rows (up to _HEAD_ROWS) of the file."""
+    def _check_units(self, block: Block, dt_s: float) -> None:
+        """Units and rate judged on the first rows (up to _HEAD_ROWS) of the file (csv_checks)."""
+        o = self.opts
+        if not o.check_units:
+            return
+        column = self.cols.get("t")
+        check_rate(
+            self.path, dt_s * _T_DIV[o.time_unit], o, column, None if o.rate_hz else self.header.rate_hz
+        )
         raw = _stack(block, ("ax", "ay", "az"))[:_HEAD_ROWS]
-        _unit_check(self.path, raw, self.opts)
-        if "gx" in self.cols and self.opts.gyro_unit != "counts":
-            w = _stack(block, ("gx", "gy", "gz"))[:_HEAD_ROWS]
-            med = float(np.median(np.abs(w)))
-            if med > (35.0 if self.opts.gyro_unit == "rad/s" else 2000.0):
-                off = "" if self.opts.count_offset else _offset_hint(w)
-                raise InputError(
-                    f"gyro values declared as {self.opts.gyro_unit} have a median magnitude of {med:.4g}, "
-                    f"beyond any MEMS range: they look like raw counts: use --gyro-unit counts "
-                    f"--gyro-lsb-per-dps LSB{off}",
-                    where=str(self.path),
-                )
+        w = _stack(block, ("gx", "gy", "gz"))
+        w = None if w is None else w[:_HEAD_ROWS]
+        check_offsets(self.path, raw, w, o)
+        check_accel(self.path, raw, o)
+        if w is not None:
+            check_gyro(self.path, w, o)
 
     def _meta(self, t0, dt_s: float) -> SessionMeta:
         o = self.opts
@@ -209,12 +219,14 @@ class CsvImport:
             if o.gyro_unit == "rad/s":
                 extra["gyro_conversion"] = "gyro_dps = w_radps * 180 / pi"
             elif o.gyro_unit == "counts":
-                off = f" - {o.count_offset:g})" if o.count_offset else ")"
+                off = f" - {o.gyro_offset:g})" if o.gyro_offset else ")"
                 extra["gyro_conversion"] = (
                     f"gyro_counts = (raw{off}; gyro_dps = gyro_counts / {o.gyro_lsb_per_dps:g}"
                 )
         if o.count_offset:
             extra["count_offset"] = f"{o.count_offset:g}"
+        if o.count_offset or o.gyro_offset:
+            extra["count_offset_columns"] = o.offset_columns()
         start_ns = 0
         if self.rate_hz is not None:
             src = "--rate" if o.rate_hz else f"header line: {self.header.rate_hz:g} Hz"
@@ -253,7 +265,7 @@ class CsvImport:
         if "gx" in self.cols:
             w = _stack(block, ("gx", "gy", "gz"))
             if o.gyro_unit == "counts":
-                ch.gyro_counts = _counts(self.path, block, w, o.count_offset, "gx,gy,gz")
+                ch.gyro_counts = _counts(self.path, block, w, o.gyro_offset, "gx,gy,gz")
                 ch.gyro_dps = ch.gyro_counts / o.gyro_lsb_per_dps
             else:
                 ch.gyro_dps = np.rad2deg(w) if o.gyro_unit == "rad/s" else w
@@ -276,49 +288,6 @@ def _counts(path: Path, block: Block, raw: np.ndarray, offset: float, what: str)
             f"counts expected but {what} are not integers", where=f"{path}:{block.line_of(int(frac[0]))}"
         )
     return c.astype(np.int32)
-
-
-def _offset_hint(raw: np.ndarray) -> str:
-    """' --count-offset 32768' when the values sit around 32768 (offset-binary 16-bit counts)."""
-    return " --count-offset 32768" if abs(float(np.median(raw)) - 32768) < 8192 else ""
-
-
-def _unit_check(path: Path, raw: np.ndarray, o: CsvOptions) -> None:
-    """Reject accelerations whose median |a| is not ~1 g in the declared unit; the hint names flags
-    the user has not given yet (it never loops back to the options already in use)."""
-    m = float(np.median(np.linalg.norm(raw - (o.count_offset if o.unit == "counts" else 0.0), axis=1)))
-    to_g = {"g": 1.0, "m/s^2": 1.0 / STANDARD_GRAVITY_MPS2, "counts": 1.0 / (o.lsb_per_g or 1.0)}[o.unit]
-    if 0.5 <= m * to_g <= 2.0:
-        return
-    offset = "" if o.count_offset else _offset_hint(raw)
-    if offset:
-        centred = float(np.median(np.linalg.norm(raw - 32768, axis=1)))
-        lsb = min(ACCEL_LSB_PER_G.values(), key=lambda v: abs(math.log(max(centred, 1e-9) / v)))
-        why = "they look like offset-binary counts centred on 32768"
-        flags = ["--unit counts", "--count-offset 32768", f"--lsb-per-g {o.lsb_per_g or lsb:g}"]
-    elif 0.5 <= m <= 2.0:
-        why, flags = "they look like g", ["--unit g"]
-    elif 4.9 <= m <= 19.6:
-        why, flags = "they look like m/s^2", ["--unit m/s^2"]
-    elif m >= 500:
-        lsb = min(ACCEL_LSB_PER_G.values(), key=lambda v: abs(math.log(m / v)))
-        why = "they look like raw counts"
-        if o.unit == "counts":
-            why = f"with --lsb-per-g {o.lsb_per_g:g} that is {m * to_g:.3g} g"
-        flags = ["--unit counts", f"--lsb-per-g {lsb:g}"]
-    else:
-        why, flags = "", []
-    new = [f for f in flags if f not in o.given_flags()]
-    if new:
-        hint = f"{why}: use {' '.join(flags)}"
-    else:  # every flag the evidence points to is already given: never loop back to them
-        hint = "no unit or scale makes this ~1 g at rest: check --columns and the file's units"
-    raise InputError(
-        f"accelerometer values declared as {o.unit} have a median magnitude of {m:.4g} "
-        f"{o.unit}{' (after the offset)' if o.unit == 'counts' and o.count_offset else ''} "
-        f"(a recording should read ~1 g at rest): {hint}",
-        where=str(path),
-    )
 
 
 def _options(opts: CsvOptions | None, kw: dict) -> CsvOptions:

@@ -3,17 +3,22 @@
 Conversions (applied by ``accellog.store.importers.csv``, recorded in the session's meta.extra):
 
     accel_g   = a_g                 | a_mps2 / 9.80665         | (raw - count_offset) / lsb_per_g
-    gyro_dps  = w_dps               | w_radps * 180 / pi       | (raw - count_offset) / gyro_lsb_per_dps
+    gyro_dps  = w_dps               | w_radps * 180 / pi       | (raw - gyro_offset) / gyro_lsb_per_dps
     t_s       = t * {s: 1, ms: 1e-3, us: 1e-6, ns: 1e-9}       | row / rate_hz (no time column)
 
 Offset-binary ("unsigned") counts are centred on 32768: ``count_offset = 32768`` gives signed counts.
+``count_offset`` is subtracted from every counts column (ax,ay,az with unit counts, gx,gy,gz with
+gyro_unit counts); ``gyro_count_offset`` (when given) replaces it for the gyro columns:
+gyro_offset = gyro_count_offset if given else count_offset.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from accellog.core.errors import InputError
+from accellog.core.plausible import RATE_MAX_HZ, RATE_MIN_HZ, rate_ok
 
 ACCEL_UNITS = ("g", "m/s^2", "counts")
 GYRO_UNITS = ("deg/s", "rad/s", "counts")
@@ -87,6 +92,9 @@ class CsvOptions:
     lsb_per_g: float | None = None
     count_offset: float = 0.0
     gyro_unit: str = "deg/s"
+    gyro_unit_given: bool = False
+    """True when the user named the gyro unit (then whole-number deg/s are taken as they are)."""
+    gyro_count_offset: float | None = None
     gyro_lsb_per_dps: float | None = None
     time_unit: str = "s"
     rate_hz: float | None = None
@@ -95,12 +103,15 @@ class CsvOptions:
     comment: str = "#"
     strict_time: bool = True
     """Refuse duplicated / backward stamps (False: keep them as they are, for ``accellog doctor``)."""
+    check_units: bool = True
+    """Refuse implausible units and rates (False: read as declared, for ``accellog doctor``)."""
 
     @classmethod
     def make(cls, *, columns: str | dict | None = None, **kw) -> CsvOptions:
         """Validated options (unit aliases such as 'dps', 'mps2', 'raw' accepted); raises InputError."""
         cols = parse_columns(columns) if isinstance(columns, str) or columns is None else dict(columns)
         unit = _unit("unit", kw.pop("unit", "g") or "g", ACCEL_UNITS)
+        gyro_given = kw.get("gyro_unit") is not None
         gyro = _unit("gyro unit", kw.pop("gyro_unit", "deg/s") or "deg/s", GYRO_UNITS)
         tu = _unit("time unit", kw.pop("time_unit", "s") or "s", tuple(TIME_UNITS))
         delim = kw.pop("delimiter", ",") or ","
@@ -110,6 +121,7 @@ class CsvOptions:
         comment = kw.pop("comment", "#") or ""
         if len(comment) > 1:
             raise InputError(f"--comment must be one character, got {comment!r}")
+        kw.setdefault("gyro_unit_given", gyro_given)
         opts = cls(
             unit=unit, gyro_unit=gyro, time_unit=tu, columns=cols, delimiter=delim, comment=comment, **kw
         )
@@ -119,16 +131,44 @@ class CsvOptions:
     def check(self) -> None:
         if self.unit == "counts" and not self.lsb_per_g:
             raise InputError("--unit counts needs --lsb-per-g (e.g. 16384 for +-2 g)")
-        if self.lsb_per_g is not None and self.lsb_per_g <= 0:
-            raise InputError(f"--lsb-per-g must be positive, got {self.lsb_per_g:g}")
+        if self.lsb_per_g is not None and not 0 < self.lsb_per_g < math.inf:
+            raise InputError(f"--lsb-per-g must be a positive number, got {self.lsb_per_g:g}")
         if self.gyro_unit == "counts" and not self.gyro_lsb_per_dps:
             raise InputError("--gyro-unit counts needs --gyro-lsb-per-dps (e.g. 131 for +-250 deg/s)")
-        if self.gyro_lsb_per_dps is not None and self.gyro_lsb_per_dps <= 0:
-            raise InputError(f"--gyro-lsb-per-dps must be positive, got {self.gyro_lsb_per_dps:g}")
+        if self.gyro_lsb_per_dps is not None and not 0 < self.gyro_lsb_per_dps < math.inf:
+            raise InputError(f"--gyro-lsb-per-dps must be a positive number, got {self.gyro_lsb_per_dps:g}")
+        for name, v in (
+            ("--count-offset", self.count_offset),
+            ("--gyro-count-offset", self.gyro_count_offset),
+        ):
+            if v is not None and not math.isfinite(v):
+                raise InputError(f"{name} must be a finite number, got {v:g}")
         if self.count_offset and "counts" not in (self.unit, self.gyro_unit):
             raise InputError("--count-offset applies to counts: give --unit counts and/or --gyro-unit counts")
+        if self.gyro_count_offset is not None and self.gyro_unit != "counts":
+            raise InputError(
+                "--gyro-count-offset applies to the gyro counts (gx,gy,gz): give --gyro-unit counts"
+            )
         if self.rate_hz is not None and not self.rate_hz > 0:
             raise InputError(f"--rate must be positive, got {self.rate_hz:g}")
+        if self.rate_hz is not None and not rate_ok(self.rate_hz):
+            raise InputError(
+                f"--rate {self.rate_hz:g} Hz is not an IMU sample rate ({RATE_MIN_HZ:g} Hz .. {RATE_MAX_HZ:g} Hz)"
+            )
+
+    @property
+    def gyro_offset(self) -> float:
+        """Subtracted from gyro counts: gyro_count_offset when given, else count_offset."""
+        return self.count_offset if self.gyro_count_offset is None else self.gyro_count_offset
+
+    def offset_columns(self) -> str:
+        """Which columns the count offsets are subtracted from, e.g. 'ax,ay,az - 32768; gx,gy,gz - 0'."""
+        parts = []
+        if self.unit == "counts":
+            parts.append(f"ax,ay,az - {self.count_offset:g}")
+        if self.gyro_unit == "counts":
+            parts.append(f"gx,gy,gz - {self.gyro_offset:g}")
+        return "; ".join(parts)
 
     def column(self, name: str) -> str:
         """The file's column holding accellog's ``name``."""
@@ -139,6 +179,8 @@ class CsvOptions:
         flags = {f"--unit {self.unit}", f"--gyro-unit {self.gyro_unit}"}
         if self.count_offset:
             flags.add(f"--count-offset {self.count_offset:g}")
+        if self.gyro_count_offset is not None:
+            flags.add(f"--gyro-count-offset {self.gyro_count_offset:g}")
         if self.lsb_per_g:
             flags.add(f"--lsb-per-g {self.lsb_per_g:g}")
         return flags
