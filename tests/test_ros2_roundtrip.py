@@ -14,7 +14,6 @@ from support.ros2_bags import START_NS, decode, handheld_session, session_to_bag
 from accellog.calibrate.calibration import load_calibration
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
-from accellog.flows.stages import run_apply
 from accellog.store.reader import read_session
 
 
@@ -78,9 +77,9 @@ def test_apply_topic_and_frame_override(handheld_bag, tmp_path, capsys):
     assert _run(["import", "ros2", bag, "-o", ses], capsys)[0] == 0
     assert _run(["fit", ses, "-o", cal], capsys)[0] == 0
     back = tmp_path / "b.mcap"
-    run_apply(
-        ses, cal, tmp_path / "c.mcap", ros2=back, ros2_topic="/robot/imu/data", ros2_frame_id="base_imu"
-    )
+    argv = ["apply", ses, "--cal", cal, "-o", tmp_path / "c.mcap", "--ros2", back]
+    rc, _, err = _run([*argv, "--topic", "/robot/imu/data", "--frame-id", "base_imu"], capsys)
+    assert rc == 0, err
     msgs = decode(back)
     assert set(msgs) == {"/robot/imu/data", "/robot/imu/temperature"}
     assert {m.header.frame_id for m in msgs["/robot/imu/data"]} == {"base_imu"}

@@ -135,6 +135,8 @@ def fit(
     if _save_outcome(out, data, output, rrd, json_out, inputs=(session, effects_file)):
         return
     _console.print(report.params_table(out.cal))
+    if out.fit.uncertainty_note:
+        _console.print(f"1σ: {out.fit.uncertainty_note}")
     for w in out.fit.warnings:
         _console.print(f"[yellow]warning:[/] {w}")
     _console.print(f"wrote {output}")
@@ -248,19 +250,38 @@ def apply(
     ] = "refuse",
     compression: CompressionOpt = "zstd",
     effects_file: EffectsOpt = None,
+    topic: Annotated[
+        str | None,
+        typer.Option("--topic", help="--ros2 IMU topic (default: the input bag's, else /imu/data)."),
+    ] = None,
+    frame_id: Annotated[
+        str | None,
+        typer.Option("--frame-id", help="--ros2 header frame_id (default: the input bag's, else imu_link)."),
+    ] = None,
 ) -> None:
-    """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2."""
+    """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2.
+
+    Example: `accellog apply s.mcap --cal cal.json -o s_cal.mcap --ros2 s_cal_ros2.mcap` (a session
+    imported from a ROS 2 bag keeps the bag's topic and frame_id).
+    """
     import warnings
 
     from accellog.calibrate.calibration import load_calibration
+    from accellog.cli.progress import progress_bar
     from accellog.flows.stages import OtherDeviceWarning, run_apply
     from accellog.store.atomic import check_outputs
 
     check_outputs([output, ros2], [session, cal, effects_file])
     c = load_calibration(cal, effects_file)
-    with warnings.catch_warnings(record=True) as caught:
+    with (
+        warnings.catch_warnings(record=True) as caught,
+        progress_bar("ROS 2 bag", show=None if ros2 else False) as bar,
+    ):
         warnings.simplefilter("always", OtherDeviceWarning)
-        p = run_apply(session, c, output, ros2=ros2, other_device=other_device, compression=compression)
+        p = run_apply(
+            session, c, output, ros2=ros2, other_device=other_device, compression=compression,
+            ros2_topic=topic, ros2_frame_id=frame_id, progress=bar,
+        )  # fmt: skip
     for w in caught:
         if issubclass(w.category, OtherDeviceWarning):
             _console.print(f"[yellow]warning: {w.message}[/]")

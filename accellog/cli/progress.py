@@ -1,0 +1,54 @@
+"""Progress bars for commands that can run longer than ~2 s (rich.progress): description, bar,
+done/total, elapsed and time left. Drawn on stderr, and only when both stdout and stderr are
+terminals and --json was not given, so piped or machine-read output stays clean."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+Update = Callable[..., None]
+"""update(done, total=None): the work done so far (and the total, when it became known)."""
+
+
+def wanted(json_out: bool = False) -> bool:
+    """True when a bar should be drawn: a terminal on stdout and stderr, and no --json."""
+    return not json_out and sys.stdout.isatty() and sys.stderr.isatty()
+
+
+@contextmanager
+def progress_bar(
+    description: str, total: float | None = None, *, show: bool | None = None
+) -> Iterator[Update]:
+    """A context giving update(done, total=None); a no-op when not ``show`` (default: ``wanted()``)."""
+    if not (wanted() if show is None else show):
+        yield lambda done, total=None: None
+        return
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    columns = (
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("left"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task(description, total=total)
+
+        def update(done: float, total: float | None = None) -> None:
+            if total is not None:
+                bar.update(task, total=total)
+            bar.update(task, completed=done)
+
+        yield update
