@@ -225,3 +225,19 @@ def _doctor(path, capsys) -> str:
     cap = capsys.readouterr()
     assert rc == 0, cap.err
     return cap.out
+
+
+def test_imucal_raw_counts_gyro_is_not_taken_for_deg_per_s(shared_data, tmp_path, capsys):
+    """imucal's annotated_session.csv (raw counts, +-16 g / +-2000 deg/s): with --unit counts alone
+    the gyro counts used to be stored as deg/s; now refused, then imported exactly with the fix."""
+    src = shared_data / "imucal" / "annotated_session.csv"
+    cols = ["--columns", "ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z", "--rate", "204.8"]
+    args = [*cols, "--unit", "counts", "--lsb-per-g", "2048"]
+    assert "--gyro-unit counts" in _refused(tmp_path, capsys, src, *args)
+    rc, _, err, out = _import(
+        tmp_path, capsys, src, *args, "--gyro-unit", "counts", "--gyro-lsb-per-dps", "16.384"
+    )
+    assert rc == 0, err
+    raw = np.loadtxt(src, delimiter=",", skiprows=1, usecols=(5, 6, 7))
+    s = read_session(out)
+    assert s.n == 9414 and np.array_equal(s.gyro_counts, raw) and np.array_equal(s.gyro_dps, raw / 16.384)
