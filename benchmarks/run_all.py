@@ -1,0 +1,350 @@
+"""The commands users run, timed end to end beside their baselines in the same run -> benchmarks/RESULTS.md.
+
+Every figure is a fresh process started from files on disk: the `accellog` CLI (the script installed
+beside this interpreter, else `python -m accellog`) or a baseline script doing the same job with
+plain libraries (numpy, pyarrow, rosbags, allantools). Each runs --repeat times, the commands and
+their baselines interleaved (a change of load hits both alike); reported: median wall time, median
+CPU time (user + sys of the process and its threads), median peak RSS (the child's own ru_maxrss
+from wait4; this parent imports only the standard library, so a child inherits no large address
+space). Ratios are end-to-end wall / baseline wall in the same run.
+
+Inputs are generated once into --dir (default /tmp/accellog_bench) and reused by later runs:
+benchmarks/synth_long.py (1 kHz calibration sessions: 12 holds, accel + gyro + temperature),
+synth_static.py (static sessions for `noise`), bench_replay.py (static session + a model3
+calibration), bench_csv_import.py (logger CSV), bench_ros2_import.py (rosbag2 MCAP bag).
+
+    python benchmarks/run_all.py            # 1 h rows, 4 h CSV / noise, 60 min bag, 3 runs each
+    python benchmarks/run_all.py --quick    # smaller inputs, 1 run: a check that every row runs
+    python benchmarks/run_all.py --full     # + fit 24 h; 5 runs
+    python benchmarks/run_all.py --rows fit diagnose --no-write   # some rows, RESULTS.md untouched
+
+The console shows the load average once per run (figures on a loaded machine are inflated: compare
+the ratios); RESULTS.md holds the figures only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import statistics
+import subprocess
+import sys
+import sysconfig
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+BENCH = Path(__file__).resolve().parent
+ROOT = BENCH.parent
+ENV = {**os.environ, "RERUN_ANALYTICS": "0", "PYTHONPATH": os.pathsep.join([str(BENCH), str(ROOT)])}
+
+
+@dataclass
+class Fig:
+    """Median wall and CPU time (s) and peak RSS (MB) of one command over its runs."""
+
+    wall_s: float
+    cpu_s: float
+    peak_mb: float
+
+
+@dataclass
+class Row:
+    """One line of RESULTS.md: a user command, its baseline and the goal they are judged by."""
+
+    key: str
+    what: str
+    goal: str
+    cmd: list[str]
+    base_name: str
+    base: list[str] | None
+    judge: Callable[[Fig, Fig | None], tuple[str, bool]]
+    shown: str = ""  # the command as RESULTS.md prints it
+    figs: dict[str, list] = field(default_factory=lambda: {"cmd": [], "base": []})
+
+
+# --- baselines: the same job with plain libraries, each a whole fresh process ---------------------
+
+LSTSQ = """
+import sys, numpy as np
+from accellog.store.reader import read_session
+s = read_session(sys.argv[1])
+mask, up = np.zeros(s.n, bool), np.zeros((s.n, 3))
+for p in s.poses:
+    sl = s.slice_time(p.start_s + 0.5, p.end_s - 0.5)
+    mask[sl] = True
+    up[sl] = p.up_sensor
+f, a, g, dT = up[mask], s.accel_g[mask], s.gyro_dps[mask], s.temp_degC[mask] - 25.0
+A = np.column_stack([f, np.ones(f.shape[0])])
+for i in range(3):
+    np.linalg.lstsq(A, a[:, i], rcond=None)
+np.linalg.lstsq(np.column_stack([np.ones(dT.shape[0]), dT]), g, rcond=None)
+"""
+PYARROW_CSV = """
+import sys, pyarrow.csv as pacsv
+n = 0
+for b in pacsv.open_csv(sys.argv[1], read_options=pacsv.ReadOptions(block_size=16 << 20)):
+    cols = [c.to_numpy() for c in b.columns]
+    n += b.num_rows
+"""
+ROSBAGS_READ = """
+import sys
+from pathlib import Path
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+with AnyReader([Path(sys.argv[1])], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as r:
+    conns = [c for c in r.connections if c.msgtype == "sensor_msgs/msg/Imu"]
+    n = sum(1 for _ in r.messages(connections=conns))
+"""
+ALLANTOOLS = """
+import sys, numpy as np, allantools
+from accellog.store.reader import read_session
+s = read_session(sys.argv[1])
+y = np.concatenate([s.accel_g * 9.80665, np.deg2rad(s.gyro_dps)], axis=1)
+for k in range(6):
+    allantools.oadev(y[:, k], rate=s.meta.sample_rate_hz, data_type="freq", taus="octave")
+"""
+
+# --- inputs: generated once into --dir, each in a subprocess (this parent stays small) ------------
+
+GEN = {
+    "fit": "from synth_long import write_long; write_long(OUT, {sec}, seed=1)",
+    "still": "from synth_static import write_static; write_static(OUT, {sec}, seed=2)",
+    "csv": "from bench_csv_import import write_csv; write_csv(OUT, round({sec} * 1000), 1000.0)",
+    "bag": "from bench_ros2_import import write_bag; write_bag(OUT, round({sec} * 1000), 1000.0)",
+    "replay": "from bench_replay import write_static; write_static(OUT, {sec} / 60)",
+}
+
+
+def made(d: Path, kind: str, sec: float) -> Path:
+    """The input file of `kind` and length `sec` in d, generated the first time (via a temporary
+    name, so an interrupted generation is never taken for a cached input)."""
+    ext = "csv" if kind == "csv" else "mcap"
+    path = d / f"{kind}_{sec:g}s.{ext}"
+    if path.exists():
+        return path
+    part = d / f"{kind}_{sec:g}s.part.{ext}"
+    part.unlink(missing_ok=True)
+    t0 = time.perf_counter()
+    code = f"OUT = {str(part)!r}\n" + GEN[kind].format(sec=float(sec))
+    subprocess.run([sys.executable, "-c", code], env=ENV, cwd=BENCH, check=True)
+    os.replace(part, path)
+    print(f"  made {path.name} ({path.stat().st_size / 1e6:.0f} MB) in {time.perf_counter() - t0:.0f} s",
+          flush=True)  # fmt: skip
+    return path
+
+
+def calibration(d: Path) -> Path:
+    """model3 calibration of bench_replay's synthetic chip (its own six-pose session), made once."""
+    path = d / "model3.json"
+    if not path.exists():
+        code = (
+            "from pathlib import Path; from bench_replay import write_calibration; write_calibration(Path(D))"
+        )
+        subprocess.run([sys.executable, "-c", f"D = {str(d)!r}\n{code}"], env=ENV, cwd=BENCH, check=True)
+    return path
+
+
+# --- measuring --------------------------------------------------------------------------------------
+
+
+def accellog(*args: object) -> list[str]:
+    script = Path(sysconfig.get_path("scripts")) / "accellog"
+    head = [str(script)] if script.is_file() else [sys.executable, "-m", "accellog"]
+    return head + [str(a) for a in args]
+
+
+def python(code: str, *args: object) -> list[str]:
+    return [sys.executable, "-c", code] + [str(a) for a in args]
+
+
+def run_once(cmd: list[str], cwd: Path) -> tuple[float, float, float]:
+    """Wall s, CPU s (user + sys) and peak RSS MB of one fresh process; its output is discarded."""
+    t0 = time.perf_counter()
+    child = subprocess.Popen(cmd, cwd=cwd, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    err = child.stderr.read() if child.stderr else b""
+    _, status, use = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - t0
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode:
+        tail = err.decode(errors="replace").strip().splitlines()[-1:] or ["(no message)"]
+        raise SystemExit(f"{shlex.join(cmd)[:200]}: exit {child.returncode}: {tail[0]}")
+    return wall, use.ru_utime + use.ru_stime, use.ru_maxrss / 1024  # KiB on Linux
+
+
+def median(runs: list[tuple[float, float, float]]) -> Fig:
+    return Fig(*(statistics.median(r[i] for r in runs) for i in range(3)))
+
+
+# --- the rows ---------------------------------------------------------------------------------------
+
+
+def _below(limit_s: float) -> Callable[[Fig, Fig | None], tuple[str, bool]]:
+    def judge(f: Fig, b: Fig | None) -> tuple[str, bool]:
+        return (f"{f.wall_s / b.wall_s:.2f}x" if b else "-"), f.wall_s < limit_s
+
+    return judge
+
+
+def _ratio(at_most: float, also_s: float = float("inf")) -> Callable[[Fig, Fig | None], tuple[str, bool]]:
+    def judge(f: Fig, b: Fig | None) -> tuple[str, bool]:
+        r = f.wall_s / b.wall_s if b else float("nan")
+        return f"{r:.2f}x", r <= at_most and f.wall_s < also_s
+
+    return judge
+
+
+def _ros2(sec: float) -> Callable[[Fig, Fig | None], tuple[str, bool]]:
+    def judge(f: Fig, b: Fig | None) -> tuple[str, bool]:
+        rt = sec / f.wall_s
+        return f"{f.wall_s / b.wall_s:.2f}x; {rt:.0f}x real time", rt >= 100 and f.peak_mb <= 300
+
+    return judge
+
+
+def _flat(f1h: Callable[[], Fig | None]) -> Callable[[Fig, Fig | None], tuple[str, bool]]:
+    def judge(f: Fig, b: Fig | None) -> tuple[str, bool]:
+        ref = f1h()
+        if ref is None:
+            return "-", True
+        m = f.peak_mb / ref.peak_mb
+        return f"memory {m:.2f}x, time {f.wall_s / ref.wall_s:.2f}x", m <= 1.25
+
+    return judge
+
+
+def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
+    """The rows of this run (mode: quick / default / full); inputs are made only for chosen rows."""
+    quick, full = mode == "quick", mode == "full"
+    want = lambda key: only is None or key in only or (key == "fit" and "scale" in only)  # noqa: E731
+    out: list[Row] = []
+    pass_ = python("pass")
+    if want("fit") or want("diagnose") or want("scale"):
+        f1h = made(d, "fit", 3600)
+    if want("fit"):
+        out.append(Row("fit", "`fit` 1 h at 1 kHz (model3 + gyro)", "< 3 s and <= 0.75x baseline",
+                       accellog("fit", f1h, "-o", d / "cal_fit.json"), "read_session + np.linalg.lstsq",
+                       python(LSTSQ, f1h), _ratio(0.75, 3.0)))  # fmt: skip
+    if want("diagnose"):
+        out.append(Row("diagnose", "`diagnose` 1 h at 1 kHz", "< 1.5 s", accellog("diagnose", f1h, "--json"),
+                       "read_session + np.linalg.lstsq", python(LSTSQ, f1h), _below(1.5)))  # fmt: skip
+    if want("csv"):
+        sec = 3600 if quick else 14400
+        csv = made(d, "csv", sec)
+        out.append(Row("csv", f"`import csv` {sec // 3600} h at 1 kHz", "<= 1.5x baseline",
+                       accellog("import", "csv", csv, "-o", d / "csv_out.mcap"), "pyarrow open_csv (streamed) + to_numpy",
+                       python(PYARROW_CSV, csv), _ratio(1.5)))  # fmt: skip
+    if want("replay"):
+        sec = 600 if quick else 3600
+        rp, cal = made(d, "replay", sec), calibration(d)
+        plain = accellog("replay", rp, "--cal", cal, "--speed", "max", "--up", "+z")
+        out.append(Row("replay", f"`replay --rrd` {sec // 60} min at 1 kHz", "< 1.25x baseline",
+                       [*plain, "--rrd", d / "replay.rrd"], "the same replay without --rrd", plain,
+                       _ratio(1.25)))  # fmt: skip
+    if want("ros2"):
+        sec = 600 if quick else 3600
+        bag = made(d, "bag", sec)
+        out.append(Row("ros2", f"`import ros2` {sec // 60} min bag at 1 kHz", ">= 100x real time in <= 300 MB",
+                       accellog("import", "ros2", bag, "-o", d / "ros2_out.mcap"), "rosbags AnyReader, raw messages",
+                       python(ROSBAGS_READ, bag), _ros2(sec)))  # fmt: skip
+    if want("startup"):
+        for args, goal in ((["effects"], 0.5), (["--help"], 0.3), (["fit", "--help"], 0.5)):
+            out.append(Row("startup", f"`{' '.join(args)}` start-up", f"< {goal:g} s", accellog(*args),
+                           "python -c pass", pass_, _below(goal)))  # fmt: skip
+    if want("noise"):
+        sec = 3600 if quick else 14400
+        still = made(d, "still", sec)
+        out.append(Row("noise", f"`noise` {sec // 3600} h at 1 kHz", "< 60 s and < 500 MB",
+                       accellog("noise", still, "--json"), "read_session + allantools.oadev (6 columns)",
+                       python(ALLANTOOLS, still),
+                       lambda f, b: (f"{f.wall_s / b.wall_s:.2f}x", f.wall_s < 60 and f.peak_mb < 500)))  # fmt: skip
+    if want("scale"):
+        ref = lambda: next((median(r.figs["cmd"]) for r in out if r.key == "fit" and r.figs["cmd"]), None)  # noqa: E731
+        for sec in [60] + ([] if quick else [14400]) + ([86400] if full else []):
+            path = made(d, "fit", sec)
+            name = f"{sec // 60} min" if sec < 3600 else f"{sec // 3600} h"
+            out.append(Row("scale", f"`fit` {name} (memory flat in the length)", "peak <= 1.25x the 1 h fit",
+                           accellog("fit", path, "-o", d / "cal_scale.json"), "`fit` 1 h (row above)", None,
+                           _flat(ref)))  # fmt: skip
+    head = len(accellog())
+    for r in out:  # as RESULTS.md shows it: the CLI as `accellog`, the input directory as D
+        r.shown = shlex.join(["accellog"] + [a.replace(str(d), "D") for a in r.cmd[head:]])
+    return out
+
+
+# --- output -----------------------------------------------------------------------------------------
+
+
+def fmt(f: Fig) -> str:
+    return f"{f.wall_s:.2f} s (CPU {f.cpu_s:.2f} s, {f.peak_mb:.0f} MB)"
+
+
+def results_md(done: list[Row], mode: str, repeat: int) -> str:
+    lines = [
+        "# Benchmark results",
+        "",
+        "Generated by `python benchmarks/run_all.py" + ("" if mode == "default" else f" --{mode}") + "`: "
+        "each command is run end to end from the CLI in a fresh process, from files on disk, beside its "
+        f"baseline in the same run; figures are medians of {repeat} run(s): wall time (CPU time = user + "
+        "sys, peak resident memory). The ratio is wall / baseline wall. `D` is the input directory "
+        "(`--dir`, default /tmp/accellog_bench) where the script generates the sessions. Inner-function "
+        "figures of the individual `bench_*.py` scripts are described in benchmarks/README.md.",
+        "",
+        "| what | goal | end to end | baseline (same run) | ratio | goal met | command |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in done:
+        f = median(r.figs["cmd"])
+        b = median(r.figs["base"]) if r.figs["base"] else None
+        ratio, ok = r.judge(f, b)
+        base = f"{r.base_name}: {fmt(b)}" if b else r.base_name
+        lines.append(f"| {r.what} | {r.goal} | {fmt(f)} | {base} | {ratio} | {'yes' if ok else '**no**'} "
+                     f"| `{r.shown}` |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    g = ap.add_mutually_exclusive_group()
+    g.add_argument("--quick", action="store_true", help="smaller inputs, one run each")
+    g.add_argument("--full", action="store_true", help="all rows, incl. fit on 24 h")
+    ap.add_argument("--repeat", type=int, help="runs per command (default 3; --quick 1, --full 5)")
+    ap.add_argument("--dir", type=Path, default=Path("/tmp/accellog_bench"), help="inputs, generated once")
+    ap.add_argument(
+        "--rows", nargs="+", help="only these rows: fit diagnose csv replay ros2 startup noise scale"
+    )
+    ap.add_argument("--no-write", action="store_true", help="print only; leave RESULTS.md as it is")
+    a = ap.parse_args()
+    mode = "quick" if a.quick else "full" if a.full else "default"
+    repeat = a.repeat or {"quick": 1, "default": 3, "full": 5}[mode]
+    a.dir.mkdir(parents=True, exist_ok=True)
+    load = os.getloadavg()
+    print(
+        f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores; inputs in {a.dir}"
+    )
+    todo = rows(a.dir, mode, set(a.rows) if a.rows else None)
+    for k in range(repeat):  # interleaved: each round runs every command once, then its baseline
+        for r in todo:
+            r.figs["cmd"].append(run_once(r.cmd, a.dir))
+            if r.base is not None:
+                r.figs["base"].append(run_once(r.base, a.dir))
+        print(f"  round {k + 1}/{repeat} done, load {os.getloadavg()[0]:.2f}", flush=True)
+    print(
+        f"\n{'what':<46} {'wall s':>7} {'CPU s':>7} {'MB':>5} | {'base wall':>9} {'CPU s':>7} {'MB':>5} | ratio"
+    )
+    for r in todo:
+        f, b = median(r.figs["cmd"]), median(r.figs["base"]) if r.figs["base"] else None
+        ratio, ok = r.judge(f, b)
+        bs = f"{b.wall_s:9.2f} {b.cpu_s:7.2f} {b.peak_mb:5.0f}" if b else f"{'-':>9} {'-':>7} {'-':>5}"
+        cpu_r = f" (CPU {f.cpu_s / b.cpu_s:.2f}x)" if b else ""
+        print(f"{r.what:<46} {f.wall_s:7.2f} {f.cpu_s:7.2f} {f.peak_mb:5.0f} | {bs} | {ratio}{cpu_r} "
+              f"{'ok' if ok else 'GOAL MISSED: ' + r.goal}")  # fmt: skip
+    if not a.no_write:
+        (BENCH / "RESULTS.md").write_text(results_md(todo, mode, repeat))
+        print(f"\nwrote {BENCH / 'RESULTS.md'}")
+
+
+if __name__ == "__main__":
+    main()
