@@ -11,8 +11,8 @@ Covariance convention:
 - unweighted: cov = s^2 (J^T J)^-1 with s^2 = sum e^2 / dof (residual variance).
 chi2/dof is always computed against the noise estimate sigma_g (when it is finite and positive).
 
-Solver: MINPACK's Levenberg-Marquardt (scipy.optimize.least_squares via core.numeric, tolerances
-1e-12) with a central-difference Jacobian, each parameter scaled by its typical magnitude; a fit that
+Solver: MINPACK's Levenberg-Marquardt (scipy's, via core.numeric.least_squares, tolerances 1e-12)
+with a central-difference Jacobian, each parameter scaled by its typical magnitude; a fit that
 does not converge is a ModelError naming it. Before fitting, a rank check on the column-normalised
 Jacobian (accellog.calibrate.identifiability) refuses (ModelError) models the data cannot determine,
 naming the parameters and the poses or signals that are missing.

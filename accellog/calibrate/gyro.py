@@ -18,8 +18,8 @@ to the middle of b (accellog.calibrate.gyro_rotation, as accellog.navigate.strap
 what gravity can check: the up vector of a, carried through dq_int, must land on the up vector of b (residual dq_int^-1 up_a - up_b, deg;
 yaw about the vertical is free, so a hand-held operator's turns do no harm). With
 reference='orientation' (known headings: a fixture, a vehicle) the whole nominal change
-dq_nom = q_a^-1 q_b is compared instead: residual = rotation vector of dq_nom^-1 dq_int (deg). M is found by nonlinear least squares (core.numeric.least_squares: Levenberg-Marquardt with the exact
-complex-step Jacobian, iterated to the optimum itself); parameters the rotations do
+dq_nom = q_a^-1 q_b is compared instead: residual = rotation vector of dq_nom^-1 dq_int (deg). M is found by nonlinear least squares (core.numeric.least_squares: scipy's Levenberg-Marquardt with the
+exact complex-step Jacobian; a fit that does not converge is a ModelError); parameters the rotations do
 not excite (e.g. x/y scale when the robot only turns about z) are held at the identity and
 reported as undetermined (sigma NaN). Covariance = s^2 (J^T J)^-1, s^2 = max(RSS/dof, s_min^2).
 """
@@ -328,9 +328,8 @@ def _fit_matrix(phi, c, at, known, base: GyroCalibration, model: str, floor_deg:
     undetermined = [PARAM_NAMES[f] for f in free_all if f not in free]
     if not free:
         raise ModelError("the rotations between labelled poses are too small to determine any gyro scale")
-    j0 = j_init[:, [free_all.index(f) for f in free]]  # the Jacobian at M = I of the free entries
     fun, jac = lambda p: forward(matrix(p, free)), lambda p: jacobian(p, free)
-    sol = least_squares(fun, jac, np.eye(3).ravel()[free], x_scale=0.01, jac0=j0)
+    sol = least_squares(fun, np.eye(3).ravel()[free], what=f"gyro {model} fit", jac=jac, x_scale=0.01)
     r = sol.fun
     dof = r.size - len(free)
     s2 = max(float(r @ r) / dof, floor_deg**2) if dof > 0 else floor_deg**2

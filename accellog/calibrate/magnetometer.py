@@ -11,7 +11,8 @@ ellipsoid, 9). A is normalised to det(A) = 1 (volume preserving), so F = det(M)^
 strength the data show; an overall sensitivity error of the sensor is indistinguishable from a different
 field, which is why F is compared with the expected local field.
 
-Fit: algebraic least squares for the start, then Gauss-Newton (scipy ``least_squares``) on the geometric
+Fit: algebraic least squares for the start, then Levenberg-Marquardt (core.numeric.least_squares: scipy's;
+not converged is a ModelError) on the geometric
 residual r_k = F (sqrt((m_k - h)^T M (m_k - h)) - 1) (uT); covariance s^2 (J^T J)^-1 with s^2 the residual
 variance, propagated to h, A and F by the delta method. The residual is compared with the noise from second
 differences (1.4826 MAD(d2) / sqrt(6)), and regressed on each driver x (time, die temperature, rotation
@@ -27,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from accellog.core.errors import InputError, ModelError
+from accellog.core.numeric import least_squares
 
 FORMS = ("eye", "diag", "sym")
 MAG_SECTION_VERSION = 1
@@ -244,8 +246,6 @@ def fit_magnetometer(
     drivers: dict[str, tuple[np.ndarray, str]] | None = None,
 ) -> MagCalibration:
     """Ellipsoid fit of the readings (n,3, uT); drivers: {name: (values (n,), unit)} for the diagnosis."""
-    from scipy.optimize import least_squares
-
     if form not in FORMS:
         raise InputError(f"magnetometer fit form {form!r}: use one of {', '.join(FORMS)}")
     m = np.asarray(mag_uT, float)
@@ -266,7 +266,7 @@ def fit_magnetometer(
         val = np.einsum("ij,jk,ik->i", d, M, d)
         return np.sqrt(np.maximum(val, 0.0)) - 1.0
 
-    sol = least_squares(resid, p0, method="lm", x_scale="jac")
+    sol = least_squares(resid, p0, what=f"magnetometer '{form}' ellipsoid fit", x_scale="jac")
     p = sol.x
     F = _derived(form, p)[-1]
     r = sol.fun * F  # uT

@@ -1,11 +1,10 @@
-"""Small numerical kernels in numpy and math, so that the fit command does not import scipy
-(scipy.optimize and scipy.special cost ~0.5-1 s of its start-up):
+"""The one nonlinear least-squares solver of the fits, and the chi-square survival function, from scipy.
 
-- ``least_squares``: Gauss-Newton / Levenberg-Marquardt with an exact Jacobian for problems of a few
-  parameters, iterated to the optimum itself (until the Gauss-Newton step is at the rounding of the
-  residuals), so the result does not depend on the path the iterations took;
-- ``chi2_sf``: the chi-square survival function P(X > x), the regularised upper incomplete gamma
-  function Q(k/2, x/2) (series / continued fraction, ~1e-14 relative).
+``least_squares`` is ``scipy.optimize.least_squares`` (MINPACK's Levenberg-Marquardt, ``method="lm"``)
+with tight tolerances and its convergence verdict kept: a solve that stops without meeting a
+tolerance (evaluation budget spent, improper input, non-finite residuals) is a one-line ModelError
+naming the fit, never a silent result. ``chi2_sf`` is ``scipy.special.chdtrc``. scipy is imported
+inside the functions, when a fit runs, not when the command line starts.
 """
 
 from __future__ import annotations
@@ -16,107 +15,66 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from accellog.core.errors import ModelError
+
+TOL = 1e-12
+"""ftol = xtol = gtol of every fit: relative change of the cost, of the scaled parameters, and the
+scaled gradient at which MINPACK stops (the fits' tolerance since they used MINPACK; scipy's default is 1e-8).
+Tighter tolerances do not move the fits: MINPACK then stops where the cost no longer changes in the
+last digits, ~1e-10 (relative) of the parameters from where the gradient vanishes."""
+
 
 @dataclass
 class LsqResult:
-    """Solution x, residuals fun = f(x) and Jacobian jac = J(x) at it, iterations taken."""
+    """Solution x, residuals fun = f(x) and Jacobian jac = J(x) at it, function evaluations nfev,
+    and scipy's status and message (status 1-4: a tolerance was met)."""
 
     x: np.ndarray
     fun: np.ndarray
     jac: np.ndarray
-    nit: int
+    nfev: int
+    status: int
+    message: str
+
+    @property
+    def converged(self) -> bool:
+        return self.status > 0
 
 
 def least_squares(
     fun: Callable[[np.ndarray], np.ndarray],
-    jac: Callable[[np.ndarray], np.ndarray],
     x0: np.ndarray,
-    x_scale: float | np.ndarray = 1.0,
     *,
-    rtol: float = 1e-12,
-    max_iter: int = 100,
-    jac0: np.ndarray | None = None,
+    what: str,
+    jac: Callable[[np.ndarray], np.ndarray] | str = "2-point",
+    x_scale: float | np.ndarray | str = 1.0,
+    tol: float = TOL,
+    max_nfev: int | None = None,
 ) -> LsqResult:
-    """min_x |fun(x)|^2 by Gauss-Newton steps, damped Levenberg-Marquardt style when a step raises
-    the cost by more than rounding (lam * diag(1/x_scale^2), x 10 per try; steps by lstsq on the
-    augmented Jacobian). Stops at the optimum to rounding: when the Gauss-Newton step is below
-    rtol * max(|x|, x_scale) in every parameter, or is below 1e-9 of that and no longer shrinks
-    (the rounding of the residuals), or no damped step lowers the cost. jac0: jac(x0) when known."""
-    x = np.array(x0, float)
-    scale = np.broadcast_to(np.asarray(x_scale, float), x.shape)
-    r = np.asarray(fun(x), float)
-    cost = float(r @ r)
-    J = np.asarray(jac(x) if jac0 is None else jac0, float)
-    nit, prev = 0, np.inf
-    while nit < max_iter:
-        nit += 1
-        step = np.linalg.lstsq(J, -r, rcond=None)[0]
-        size = float(np.max(np.abs(step) / np.maximum(np.abs(x), scale)))
-        if size <= rtol or (size < 1e-9 and size > 0.5 * prev):
-            break
-        prev, lam, zeros = size, 0.0, np.zeros(x.size)
-        while True:
-            cand = x + step
-            rc = np.asarray(fun(cand), float)
-            cc = float(rc @ rc)
-            if np.isfinite(cc) and cc <= cost * (1.0 + 1e-12):  # lower, or higher by rounding only
-                break
-            lam = 1e-6 if lam == 0.0 else lam * 10.0
-            if lam > 1e16:
-                return LsqResult(x, r, J, nit)
-            damp = np.diag(np.sqrt(lam) / scale)
-            step = np.linalg.lstsq(np.vstack([J, damp]), np.concatenate([-r, zeros]), rcond=None)[0]
-        x, r, cost = cand, rc, cc
-        J = np.asarray(jac(x), float)
-    return LsqResult(x, r, J, nit)
+    """min_x sum fun(x)^2 by scipy.optimize.least_squares(method="lm") from x0 (x_scale: each
+    parameter's typical size, or "jac"; max_nfev: scipy's default 100 n with a callable jac).
+    Raises ModelError("<what> did not converge: ...") unless a tolerance was met with finite
+    residuals."""
+    from scipy.optimize import least_squares as scipy_least_squares
 
-
-_STIRLING = (1.0 / 12.0, -1.0 / 360.0, 1.0 / 1260.0, -1.0 / 1680.0, 1.0 / 1188.0, -691.0 / 360360.0)
-
-
-def _log_prefactor(a: float, x: float) -> float:
-    """log(x^a e^-x / Gamma(a)), formed without cancelling large terms for large a and x ~ a."""
-    if a < 20.0:
-        return a * math.log(x) - x - math.lgamma(a)
-    # lgamma(a) = (a - 1/2) log a - a + log(2 pi)/2 + stirling(a); a log(x/a) + a - x = -a (d - log1p d)
-    d = (x - a) / a
-    stirling = sum(c / a ** (2 * k + 1) for k, c in enumerate(_STIRLING))
-    return -a * (d - math.log1p(d)) + 0.5 * math.log(a / (2.0 * math.pi)) - stirling
+    try:
+        sol = scipy_least_squares(
+            fun, np.asarray(x0, float), jac=jac, method="lm", x_scale=x_scale,
+            ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev,
+        )  # fmt: skip
+    except (ValueError, np.linalg.LinAlgError) as exc:  # e.g. non-finite residuals at x0
+        raise ModelError(f"{what} did not converge: {exc}") from None
+    out = LsqResult(sol.x, sol.fun, sol.jac, int(sol.nfev), int(sol.status), str(sol.message))
+    if not out.converged or not np.all(np.isfinite(out.fun)):
+        why = out.message if not out.converged else "non-finite residuals at the solution"
+        raise ModelError(f"{what} did not converge ({out.nfev} evaluations): {why}")
+    return out
 
 
 def chi2_sf(x: float, k: float) -> float:
-    """P(X > x) for X ~ chi-square with k > 0 degrees of freedom: Q(k/2, x/2) (module doc)."""
-    a, z = 0.5 * float(k), 0.5 * float(x)
-    if not (a > 0.0) or math.isnan(z):
+    """P(X > x) for X ~ chi-square with k > 0 degrees of freedom (scipy.special.chdtrc); NaN for k <= 0."""
+    if not k > 0:
         return math.nan
-    if z <= 0.0:
-        return 1.0
-    if math.isinf(z):
-        return 0.0
-    pre = _log_prefactor(a, z)
-    if z < a + 1.0:  # P by its series, Q = 1 - P
-        term = total = 1.0 / a
-        n = a
-        while abs(term) > 1e-17 * abs(total):
-            n += 1.0
-            term *= z / n
-            total += term
-        return max(0.0, 1.0 - math.exp(pre) * total)
-    # Q by its continued fraction (modified Lentz)
-    tiny = 1e-300
-    b = z + 1.0 - a
-    c, d = 1.0 / tiny, 1.0 / b
-    h = d
-    for i in range(1, 100000):
-        an = -i * (i - a)
-        b += 2.0
-        d = an * d + b
-        d = tiny if abs(d) < tiny else d
-        c = b + an / c
-        c = tiny if abs(c) < tiny else c
-        d = 1.0 / d
-        delta = d * c
-        h *= delta
-        if abs(delta - 1.0) < 1e-16:
-            break
-    return math.exp(pre) * h
+    from scipy.special import chdtrc
+
+    return float(chdtrc(float(k), float(x)))
