@@ -205,6 +205,13 @@ def test_fresh_fit_writes_the_keys_main_wrote(tmp_path):
             return [shape(v) for v in x[:1]]
         return type(x).__name__
 
+    def same(a, b) -> bool:  # an empty list matches any list (a fit may have no warnings)
+        if isinstance(a, list) and isinstance(b, list):
+            return not a or not b or same(a[0], b[0])
+        if isinstance(a, dict) and isinstance(b, dict):
+            return list(a) == list(b) and all(same(a[k], b[k]) for k in a)
+        return a == b
+
     for sec in ("temperature", "fit", "sensor", "device", "gyro"):
-        assert list(got[sec]) == list(ref[sec]) and shape(got[sec]) == shape(ref[sec]), sec
+        assert list(got[sec]) == list(ref[sec]) and same(shape(got[sec]), shape(ref[sec])), sec
     assert list(got) == [k for k in ref if k != "noise"]

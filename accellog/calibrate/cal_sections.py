@@ -214,7 +214,8 @@ class FitInfo(Section):
     uncertainty: str | None = json_field("str")
     """Uncertainty method: 'noise', 'between_hold' or 'jackknife' (accellog.calibrate.variance)."""
     between_hold_g: tuple[float, ...] | None = json_field("nums")
-    """Between-hold scatter [tau_along, tau_across] (g) of the 'between_hold' method."""
+    """Between-hold scatter [tau_along, tau_across] (g) of the 'between_hold' method ([tau_along]
+    for an orientation-free fit: the gravity norm sees only the along-gravity part)."""
     warnings: tuple[str, ...] | None = json_field("strs")
     sigma_scaled: tuple[float | None, ...] | None = json_field("nums")
     detected_intervals: tuple[DetectedInterval, ...] | None = json_field(

@@ -35,10 +35,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, stats
 
 from accellog.calibrate.fit import FitResult, _acceptance, obs_drivers
 from accellog.core.errors import AccellogError, ModelError
+from accellog.core.numeric import chi2_sf
 from accellog.core.session import ObsTable
 
 METHODS = ("noise", "between_hold", "jackknife")
@@ -137,16 +137,21 @@ def norm_system(res: FitResult, obs: ObsTable, weighted: bool | None = None) -> 
     return FittedSystem(J, e, sig, w, f / np.linalg.norm(f, axis=1, keepdims=True))
 
 
-def fitted_system(res: FitResult, obs: ObsTable) -> FittedSystem:
-    """The residual `res` minimised on `obs` (labelled: per axis; orientation-free: gravity norm)."""
+def fitted_system(res: FitResult, obs: ObsTable, jacobian: bool = True) -> FittedSystem:
+    """The residual `res` minimised on `obs` (labelled: per axis; orientation-free: gravity norm);
+    jacobian=False: J left empty (labelled fits then do not remake a released Jacobian)."""
     if res.method == "orientation_free":
         return norm_system(res, obs)
-    if res.jacobian is None:
+    if not jacobian:
+        J = np.zeros((0, res.model.n_params))
+    elif res.jacobian is None:
         raise ModelError("the fit has no Jacobian: between-hold uncertainties need a least-squares fit")
+    else:
+        J = res.jacobian
     sig = np.asarray(obs.sigma_g, float)
     w = 1.0 / sig if res.weighted else np.ones_like(sig)
     up = np.asarray(obs.up_sensor, float)
-    return FittedSystem(res.jacobian, np.asarray(res.residual_g, float), sig, w, up)
+    return FittedSystem(J, np.asarray(res.residual_g, float), sig, w, up)
 
 
 def _hold_means(sysm: FittedSystem, obs: ObsTable) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -169,6 +174,8 @@ def _paule_mandel(m2: np.ndarray, v: np.ndarray, dof: float) -> float:
 
     if q(0.0) <= dof:
         return 0.0
+    from scipy import optimize  # only when the holds scatter: `fit` starts without scipy
+
     return float(optimize.brentq(lambda t2: q(t2) - dof, 0.0, float(np.sum(m2)) + 1e-30))
 
 
@@ -206,13 +213,13 @@ def estimate_scatter(res: FitResult, obs: ObsTable, sysm: FittedSystem | None = 
 def hold_birge(res: FitResult, obs: ObsTable, sysm: FittedSystem | None = None) -> tuple[float, float, int]:
     """(Q0 / dof, p-value, dof) of the hold means against the window noise: Q0 = sum_h rbar_h^2 / v_h
     over every component, dof = c H - k (NaN when dof < 1)."""
-    sysm = sysm or fitted_system(res, obs)
+    sysm = sysm or fitted_system(res, obs, jacobian=False)
     frames = _hold_means(sysm, obs)
     dof = sysm.per * len(frames) - res.model.n_params
     if dof < 1:
         return np.nan, np.nan, dof
     q0 = float(sum(np.sum(m**2 / v) for _, m, v in frames))
-    return q0 / dof, float(stats.chi2.sf(q0, dof)), dof
+    return q0 / dof, float(chi2_sf(q0, dof)), dof
 
 
 def hold_covariances(
@@ -320,7 +327,7 @@ def with_uncertainty(res: FitResult, obs: ObsTable, method: str = "between_hold"
         out.cov = component_cov(res, obs, sc, sysm)
         out.chi2 = sc.chi2
         out.chi2_dof = sc.chi2 / sc.dof if sc.dof > 0 else np.nan
-        out.p_value = float(stats.chi2.sf(sc.chi2, sc.dof)) if sc.dof > 0 else np.nan
+        out.p_value = float(chi2_sf(sc.chi2, sc.dof)) if sc.dof > 0 else np.nan
         taus = "/".join(f"{t * 1e3:.3g}" for t in sc.taus)
         out.uncertainty_note = (
             f"window noise plus a between-hold variance component ({taus} mg"
@@ -351,6 +358,9 @@ def _noise(out: FitResult, res: FitResult, obs: ObsTable, kind: str) -> None:
         f"(chi2/dof {ratio:.3g} over {dof} dof; {kind} residual)"
     )
     _finish(out, noise_only=False)
+    out.warnings.append(
+        f"1-sigma = {out.uncertainty_note}; --uncertainty between_hold or jackknife model the scatter"
+    )
 
 
 def _finish(out: FitResult, noise_only: bool) -> None:

@@ -155,8 +155,9 @@ def run_fit(
     |correct(reading)| = truth_g without pose labels; unlabelled sessions are segmented by
     detect_static (threshold sweep scored by the orientation-free residual). gyro: also
     calibrate the gyro from the session's holds and the moves between them (stored in cal.gyro).
-    uncertainty: 'noise' (window noise only), 'between_hold' (plus the between-hold variance
-    component) or 'jackknife' (leave one hold out); accellog.calibrate.variance. relabel: replace
+    uncertainty: 'noise' (window noise; scaled by the hold means' Birge ratio when they reject it),
+    'between_hold' (plus the between-hold variance component) or 'jackknife' (leave one hold out);
+    accellog.calibrate.variance (fit.uncertainty_note says which). relabel: replace
     hold labels that contradict the measured gravity direction (each change is a note on stderr).
     """
 
@@ -237,11 +238,9 @@ def _fit_obs(obs, m, data, orientation_free: bool, weighted: bool, truth: float,
             obs, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=_name(data)
         )
         fit = fit_model(obs, m, weighted=weighted, gravity_g=truth)
-    if uncertainty != "noise":
-        from accellog.calibrate.variance import with_uncertainty
+    from accellog.calibrate.variance import with_uncertainty
 
-        fit = with_uncertainty(fit, obs, uncertainty)
-    return fit
+    return with_uncertainty(fit, obs, uncertainty)  # 'noise' too: scaled when the holds reject it
 
 
 def _calibration(fit, obs, data, src, gravity: str, local_gravity_mps2: float, detected) -> Calibration:
