@@ -72,7 +72,7 @@ def _fails(capsys, argv: list[str], *needles: str) -> str:
         (["--errors", "bogus"], "errors='bogus'"),
         (["--motion", "fly"], "motion='fly'"),
         (["--protocol", "+q,-z"], "unknown pose name '+q'"),
-        (["--hold", "0"], "hold_s=0"),
+        (["--hold", "0"], "--hold: 0 is out of range"),
         (["--set", "bias_g"], "FIELD=VALUE"),
         (["--set", "bias_g=a,b,c"], "not a number"),
         (["--set", "no_such_field=1"], "no_such_field"),

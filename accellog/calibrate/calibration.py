@@ -29,11 +29,9 @@ from __future__ import annotations
 import datetime as _dt
 import functools
 import hashlib
-import json
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -55,6 +53,7 @@ from accellog.calibrate.magnetometer import MagCalibration
 from accellog.calibrate.model import model_from_spec
 from accellog.calibrate.noise_section import NoiseSection
 from accellog.calibrate.session_drivers import session_drivers
+from accellog.core import textin
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult, dumps
@@ -287,9 +286,12 @@ class Calibration(JsonResult):
 
     def save(self, path: str | os.PathLike, *, inputs: tuple = ()) -> None:
         """Write the JSON file atomically (accellog.store.atomic); refused when `path` is one of the
-        source files, this calibration's own file or `inputs`."""
+        source files, this calibration's own file or `inputs`. What would be written is first
+        checked by the reader's own validation (calibration_from_dict): no file no loader reads."""
         srcs = [x.path for x in self.sources]
-        write_json_atomic(path, self.to_dict(), inputs=(*srcs, self.path, *inputs))
+        d = self.to_dict()
+        calibration_from_dict(textin.parse_json(dumps(d), str(path)), str(path), self.effects_file)
+        write_json_atomic(path, d, inputs=(*srcs, self.path, *inputs))
         self.path = str(path)
 
 
@@ -299,27 +301,16 @@ def write_json_atomic(path: str | os.PathLike, data: Any, *, inputs: tuple = ())
     write_text_atomic(path, dumps(data) + "\n", inputs=inputs, mkdir=True)
 
 
-def read_text(path: str | os.PathLike, what: str = "file") -> str:
-    """The text of a file, or InputError naming it when it is missing or not text."""
-    p = Path(path)
-    try:
-        return p.read_text()
-    except FileNotFoundError:
-        raise InputError(f"no such {what}", where=str(p)) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as text: {exc.__class__.__name__}", where=str(p)) from None
+def read_text(path: str | os.PathLike, what: str = "file", kind: str | None = None) -> str:
+    """The text of a file, or InputError naming it when it is missing, not text or (with `kind`,
+    'JSON' or 'TOML') over its size limit (accellog.core.textin)."""
+    return textin.read_text(path, what, kind)
 
 
 def read_json(path: str | os.PathLike) -> Any:
-    """Parsed JSON, or InputError naming the file (and line) when missing or malformed."""
-    p = Path(path)
-    text = read_text(p)
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(
-            f"not valid JSON: {exc.msg} (column {exc.colno})", where=f"{p}:{exc.lineno}"
-        ) from None
+    """Parsed strict JSON of at most 64 MiB, nested <= 64 levels, or InputError naming the file
+    (and line) when missing, too large or malformed (accellog.core.textin)."""
+    return textin.read_json(path)
 
 
 def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = None) -> Calibration:

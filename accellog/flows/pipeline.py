@@ -22,6 +22,7 @@ from accellog.calibrate.effects import load_effects_file
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
+from accellog.core.textin import toml_loads
 from accellog.flows.stages import (
     GRAVITY_CONVENTIONS,
     DriftOutcome,
@@ -97,9 +98,9 @@ def _line_of(text: str, table: str, key: str | None = None) -> int:
 def load_pipeline(path: str | os.PathLike) -> dict:
     """Parse and validate a pipeline TOML file; InputError naming the file:line and key."""
     p = Path(path)
-    text = read_text(p, "pipeline file")
+    text = read_text(p, "pipeline file", kind="TOML")
     try:
-        spec = tomllib.loads(text)
+        spec = toml_loads(text, str(p))
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"line (\d+)", str(exc))
         line = m.group(1) if m else str(max(len(text.splitlines()), 1))  # 'at end of document'

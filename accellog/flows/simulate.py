@@ -62,6 +62,7 @@ from accellog.acquire.recorder import Recorder, session_meta
 from accellog.core.errors import InputError
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
+from accellog.core.textin import read_text, toml_loads
 from accellog.core.units import EARTH_GRAVITY_RANGE_MPS2, STANDARD_GRAVITY_MPS2
 from accellog.store.atomic import AtomicOutput, check_output
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
@@ -105,10 +106,10 @@ class Scenario:
     @classmethod
     def from_toml(cls, path: str | Path) -> Scenario:
         p = Path(path)
+        if not p.exists():
+            raise InputError("scenario file not found", where=str(p))
         try:
-            data = tomllib.loads(p.read_text())
-        except FileNotFoundError:
-            raise InputError("scenario file not found", where=str(p)) from None
+            data = toml_loads(read_text(p, "scenario file", kind="TOML"), str(p))
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"not valid TOML ({exc})", where=str(p)) from None
         return cls.from_dict(data, where=str(p))

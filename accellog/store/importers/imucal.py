@@ -11,6 +11,7 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.session import Event, Session, SessionMeta
+from accellog.core.textin import read_json
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.importers.text import (
     check_time,
@@ -42,12 +43,7 @@ def _imucal_sections(path: Path, sections: Path | None, n: int) -> dict[str, tup
             f"an imucal Ferraris session needs its section list (start/end rows per label): {sections} not found",
             where=str(path),
         )
-    try:
-        raw = json.loads(sections.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(
-            f"invalid JSON: {exc.msg if hasattr(exc, 'msg') else exc}", where=str(sections)
-        ) from None
+    raw = read_json(sections, "section list")
     if not isinstance(raw, dict):
         raise InputError("section list must be an object {label: {start, end}}", where=str(sections))
     out = {}

@@ -1,0 +1,485 @@
+"""Validation at the door and bounded work on hostile input (issue 27, items 2, 3 and 7).
+
+Each failing case of the issue's corpus is a case here, run through the CLI in-process: a non-zero
+exit, one stderr line ``accellog: error: ...`` naming the option, key or file, no traceback, and the
+folder exactly as before (no output, no temporary or lock file, inputs intact). Property tests
+(hypothesis) check the option door and the calibration validator on arbitrary values.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_segment import synth_session
+
+from accellog.calibrate.calibration import calibration_from_dict, load_calibration
+from accellog.calibrate.gyro import GyroCalibration
+from accellog.cli import main
+from accellog.cli.option_checks import OPTION_RANGES, check_option
+from accellog.core.errors import InputError
+from accellog.core.textin import MAX_BYTES, nesting_depth
+from accellog.store.writer import write_session
+
+SIM = ["simulate", "--hold", "2", "--protocol", "+z"]
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("door_good")
+    s = synth_session(seed=3, hold_s=5.0, move_s=1.0, rate_hz=100.0)
+    mcap = write_session(d / "six.mcap", s, chunk_size=8 * 1024)
+    cal = d / "cal.json"
+    assert main(["fit", str(mcap), "--model", "model3", "-o", str(cal)]) == 0
+    return {"mcap": mcap, "cal": cal}
+
+
+def _snapshot(d: Path) -> dict[str, tuple]:
+    """Name -> (size, mtime_ns, first 64 KiB) of every entry (big sparse inputs are not read whole)."""
+    out = {}
+    for p in sorted(d.rglob("*")):
+        st_ = p.lstat()
+        head = p.open("rb").read(65536) if p.is_file() else None
+        out[str(p.relative_to(d))] = (st_.st_size, st_.st_mtime_ns, head)
+    return out
+
+
+def _cal(good: dict, d: Path, edit: Callable[[dict], object], name: str = "badcal.json") -> Path:
+    c = json.loads(good["cal"].read_text())
+    r = edit(c)
+    p = d / name
+    p.write_text(r if isinstance(r, str) else json.dumps(c))
+    return p
+
+
+def _gyro_section(bias=(0.1, -0.2, 0.3), **kw) -> dict:
+    g = GyroCalibration(bias_dps=np.array(bias, float), bias_sigma_dps=np.full(3, 0.01), **kw).to_dict()
+    return g
+
+
+def _set_gyro(section: dict | str) -> Callable[[dict], object]:
+    def edit(c):
+        if isinstance(section, str):  # raw JSON text for the section (NaN literal)
+            c["gyro"] = "@GYRO@"
+            return json.dumps(c).replace('"@GYRO@"', section)
+        c["gyro"] = section
+        return None
+
+    return edit
+
+
+def _scenario(text: str) -> Callable[[Path, dict], list[str]]:
+    def build(d, g):
+        (d / "sc.toml").write_text(text)
+        return ["simulate", "--scenario", str(d / "sc.toml"), "-o", str(d / "s.mcap")]
+
+    return build
+
+
+def _sparse(path: Path, size: int, head: bytes = b"") -> Path:
+    with path.open("wb") as f:
+        f.write(head)
+        f.truncate(size)  # no blocks on disk: a "2 GB file" costs nothing here
+    return path
+
+
+def _deep(n: int) -> str:
+    return "[" * n + "]" * n
+
+
+CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
+    # options: finite numbers and physical ranges
+    "sim-temperature-nan": (
+        lambda d, g: [*SIM, "--temperature", "constant:nan", "-o", str(d / "s.mcap")],
+        ("temperature", "finite"),
+    ),
+    "sim-set-bias-nan": (
+        lambda d, g: [*SIM, "--set", "bias_g=nan,0,0", "-o", str(d / "s.mcap")],
+        ("set", "bias_g", "finite"),
+    ),
+    "sim-ramp-1e6": (
+        lambda d, g: [*SIM, "--temperature", "ramp:25:1e6", "-o", str(d / "s.mcap")],
+        ("ramp", "operating range"),
+    ),
+    "sim-seed-negative": (lambda d, g: [*SIM, "--seed", "-1", "-o", str(d / "s.mcap")], ("--seed", ">= 0")),
+    "sim-chip-seed-negative": (
+        lambda d, g: [*SIM, "--chip-seed", "-5", "-o", str(d / "s.mcap")],
+        ("--chip-seed",),
+    ),
+    "sim-hold-inf": (
+        lambda d, g: ["simulate", "--hold", "inf", "--protocol", "+z", "-o", str(d / "s.mcap")],
+        ("--hold", "finite"),
+    ),
+    "sim-hold-nan": (
+        lambda d, g: ["simulate", "--hold", "nan", "--protocol", "+z", "-o", str(d / "s.mcap")],
+        ("--hold", "finite"),
+    ),
+    "sim-hold-1e9": (
+        lambda d, g: ["simulate", "--hold", "1e9", "--protocol", "+z", "-o", str(d / "s.mcap")],
+        ("--hold", "86400"),
+    ),
+    "fit-trim-nan": (
+        lambda d, g: ["fit", str(g["mcap"]), "--trim-s", "nan", "-o", str(d / "c.json")],
+        ("--trim-s", "finite"),
+    ),
+    "fit-trim-negative": (
+        lambda d, g: ["fit", str(g["mcap"]), "--trim-s", "-1", "-o", str(d / "c.json")],
+        ("--trim-s",),
+    ),
+    "fit-window-1e-9": (
+        lambda d, g: ["fit", str(g["mcap"]), "--window-s", "1e-9", "-o", str(d / "c.json")],
+        ("six.mcap", "window_s", "needs >= 10"),
+    ),
+    "fit-window-0.0005": (
+        lambda d, g: ["fit", str(g["mcap"]), "--window-s", "0.0005", "-o", str(d / "c.json")],
+        ("six.mcap", "window_s", "needs >= 10"),
+    ),
+    "fit-window-5-samples": (  # 0.05 s at 100 Hz: 5 samples, refused at the file's own rate
+        lambda d, g: ["fit", str(g["mcap"]), "--window-s", "0.05", "-o", str(d / "c.json")],
+        ("six.mcap", "100 Hz", "needs >= 10"),
+    ),
+    "segment-window-inf": (
+        lambda d, g: ["segment", str(g["mcap"]), "--window-s", "inf", "-o", str(d / "o.json")],
+        ("--window-s", "finite"),
+    ),
+    "fit-local-gravity-1000": (
+        lambda d, g: ["fit", str(g["mcap"]), "--local-gravity", "1000", "-o", str(d / "c.json")],
+        ("--local-gravity", "9.7", "9.9"),
+    ),
+    "fit-local-gravity-moon": (
+        lambda d, g: ["fit", str(g["mcap"]), "--local-gravity", "1.62", "-o", str(d / "c.json")],
+        ("--local-gravity",),
+    ),
+    "evaluate-until-nan": (
+        lambda d, g: ["evaluate", str(g["mcap"]), "--cal", str(g["cal"]), "--until-s", "nan"],
+        ("--until-s",),
+    ),
+    "diagnose-gravity-g-5": (lambda d, g: ["diagnose", str(g["mcap"]), "--gravity-g", "5"], ("--gravity-g",)),
+    # faults that could never finish
+    "fault-fifo-rate-1": (
+        lambda d, g: [*SIM, "--fault", "fifo_glitch_rate=1.0", "-o", str(d / "s.mcap")],
+        ("fifo_glitch_rate", "0 <= p < 1"),
+    ),
+    "fault-i2c-rate-1": (
+        lambda d, g: [*SIM, "--fault", "i2c_error_rate=1", "-o", str(d / "s.mcap")],
+        ("i2c_error_rate",),
+    ),
+    "fault-stall-ge-period": (
+        lambda d, g: [
+            *SIM,
+            *("--fault", "host_stall_s=2", "--fault", "host_stall_every_s=1"),
+            *("-o", str(d / "s.mcap")),
+        ],
+        ("--fault", "host_stall_s", "shorter than"),
+    ),
+    "fault-disconnect-1e9": (
+        lambda d, g: [
+            *SIM,
+            *("--fault", "disconnect_at_s=1", "--fault", "disconnect_s=1e9"),
+            *("-o", str(d / "s.mcap")),
+        ],
+        ("disconnect_s", "longer than the session"),
+    ),
+    "fault-nan": (
+        lambda d, g: [*SIM, "--fault", "host_stall_s=nan", "-o", str(d / "s.mcap")],
+        ("host_stall_s", "finite"),
+    ),
+    # scenario fields
+    "scenario-label-margin-5": (
+        _scenario("hold_s = 3.0\nlabel_margin_s = 5.0\n"),
+        ("sc.toml", "label_margin_s"),
+    ),
+    "scenario-label-margin-negative": (_scenario("label_margin_s = -0.1\n"), ("sc.toml", "label_margin_s")),
+    "scenario-hold-inf": (_scenario("hold_s = inf\n"), ("sc.toml", "hold_s", "finite")),
+    "scenario-move-nan": (_scenario("move_s = nan\n"), ("sc.toml", "move_s", "finite")),
+    "scenario-set-nan": (_scenario("[set]\nbias_g = [nan, 0.0, 0.0]\n"), ("sc.toml", "set", "finite")),
+    "scenario-seed-negative": (_scenario("seed = -1\n"), ("sc.toml", "seed")),
+    "scenario-gravity-moon": (_scenario("local_gravity_mps2 = 1.62\n"), ("sc.toml", "local_gravity_mps2")),
+    "scenario-tilt-inf": (_scenario("fixture_tilt_deg = [inf, 0.0]\n"), ("sc.toml", "fixture_tilt_deg")),
+    "scenario-warmup-200C": (
+        _scenario('[temperature]\nkind = "warmup"\nT_start = 25.0\nT_end = 200.0\ntau_s = 1.0\n'),
+        ("warmup", "operating range"),
+    ),
+    "scenario-stall-rate": (
+        _scenario("host_stall_s = 1.0\nhost_stall_every_s = 0.5\n"),
+        ("sc.toml", "host_stall_s"),
+    ),
+    "scenario-deep-toml": (
+        _scenario("hold_s = " + _deep(5000) + "\n"),
+        ("sc.toml", "nested deeper"),
+    ),
+    "scenario-2MiB": (
+        lambda d, g: (
+            [*_scenario("")(d, g)[:2], str(_sparse(d / "big.toml", 2 * 1024 * 1024)), "-o", str(d / "s.mcap")]
+        ),
+        ("big.toml", "at most 1 MiB"),
+    ),
+    "scenario-2GB": (
+        lambda d, g: (
+            [*_scenario("")(d, g)[:2], str(_sparse(d / "huge.toml", 2 * 1024**3)), "-o", str(d / "s.mcap")]
+        ),
+        ("huge.toml", "at most 1 MiB"),
+    ),
+    "pipeline-deep-toml": (
+        lambda d, g: [
+            "run",
+            str(_write(d / "p.toml", "[pipeline]\nx = " + _deep(5000) + "\n")),
+            str(g["mcap"]),
+        ],
+        ("p.toml", "nested deeper"),
+    ),
+    "pipeline-2GB": (
+        lambda d, g: ["run", str(_sparse(d / "p.toml", 2 * 1024**3)), str(g["mcap"])],
+        ("p.toml", "at most 1 MiB"),
+    ),
+    # calibration fields (one validator, when read)
+    "cal-t-ref-string": (
+        lambda d, g: [
+            "evaluate",
+            str(g["mcap"]),
+            "--cal",
+            str(_cal(g, d, lambda c: c["temperature"].__setitem__("t_ref_degC", "twenty-five"))),
+        ],
+        ("badcal.json", "t_ref_degC"),
+    ),
+    "cal-model-t-ref-string-apply": (
+        lambda d, g: [
+            "apply",
+            str(g["mcap"]),
+            "--cal",
+            str(_cal(g, d, lambda c: c["model"].__setitem__("t_ref_degC", "twenty-five"))),
+            "-o",
+            str(d / "o.mcap"),
+        ],
+        ("badcal.json", "t_ref_degC"),
+    ),
+    "cal-gyro-bias-null-apply": (
+        lambda d, g: [
+            "apply",
+            str(g["mcap"]),
+            "--cal",
+            str(_cal(g, d, _set_gyro(_gyro_section(bias=(np.nan, 0.0, 0.0))))),
+            "-o",
+            str(d / "o.mcap"),
+        ],
+        ("badcal.json", "gyro", "bias_dps", "finite"),
+    ),
+    "cal-gyro-bias-NaN-literal": (
+        lambda d, g: [
+            "evaluate",
+            str(g["mcap"]),
+            "--cal",
+            str(_cal(g, d, _set_gyro(json.dumps(_gyro_section()).replace("0.1", "NaN", 1)))),
+        ],
+        ("badcal.json", "NaN is not JSON"),
+    ),
+    "cal-gyro-matrix-inf": (
+        lambda d, g: [
+            "evaluate",
+            str(g["mcap"]),
+            "--cal",
+            str(_cal(g, d, _set_gyro(json.dumps(_gyro_section()).replace("1.0", "Infinity", 1)))),
+        ],
+        ("badcal.json", "Infinity is not JSON"),
+    ),
+    "cal-param-NaN-literal": (
+        lambda d, g: [
+            "evaluate",
+            str(g["mcap"]),
+            "--cal",
+            str(
+                _cal(
+                    g,
+                    d,
+                    lambda c: json.dumps(c).replace(
+                        '"value": ' + json.dumps(c["params"][0]["value"]), '"value": NaN', 1
+                    ),
+                )
+            ),
+        ],
+        ("badcal.json", "NaN is not JSON"),
+    ),
+    "cal-deep-json": (
+        lambda d, g: ["evaluate", str(g["mcap"]), "--cal", str(_write(d / "deep.json", _deep(200_000)))],
+        ("deep.json", "nested deeper"),
+    ),
+    "cal-deep-json-under-recursion-limit": (
+        lambda d, g: [
+            "evaluate",
+            str(g["mcap"]),
+            "--cal",
+            str(_write(d / "deep.json", '{"a": ' + _deep(500) + "}")),
+        ],
+        ("deep.json", "nested deeper than 64"),
+    ),
+    "cal-2GB": (
+        lambda d, g: ["evaluate", str(g["mcap"]), "--cal", str(_sparse(d / "big.json", 2 * 1024**3, b"{"))],
+        ("big.json", "at most 64 MiB"),
+    ),
+    "obs-65MiB": (
+        lambda d, g: [
+            "fit",
+            str(_sparse(d / "obs.json", MAX_BYTES["JSON"] + 1, b"{")),
+            "-o",
+            str(d / "c.json"),
+        ],
+        ("obs.json", "at most 64 MiB"),
+    ),
+}
+
+
+def _write(p: Path, text: str) -> Path:
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_refused_at_the_door(name, good, tmp_path, capsys):
+    build, needles = CASES[name]
+    d = tmp_path / "case"
+    d.mkdir()
+    argv = build(d, good)
+    before = _snapshot(d)
+    capsys.readouterr()
+    t0 = time.process_time()
+    rc = main(argv)
+    cpu_s = time.process_time() - t0
+    err = capsys.readouterr().err.strip()
+    assert rc != 0, f"exit 0: {err}"
+    assert "Traceback" not in err, err
+    assert err.startswith("accellog: error: ") and "\n" not in err, err
+    for n in needles:
+        assert n in err, (n, err)
+    assert _snapshot(d) == before, "files were written, changed or left behind"
+    assert cpu_s < 5.0, f"{cpu_s:.1f} s of CPU before the refusal"
+
+
+def test_a_valid_scenario_at_the_limits_still_runs(tmp_path):
+    """The door is not too tight: margin just under half a hold, a rate just under 1, a stall just
+    shorter than its period, the coldest and hottest operating temperatures."""
+    (tmp_path / "sc.toml").write_text(
+        "hold_s = 1.0\nmove_s = 0.5\nlabel_margin_s = 0.49\nprotocol = '+z'\nsample_rate_hz = 200.0\n"
+        "host_stall_s = 0.01\nhost_stall_every_s = 0.011\n"
+        "[temperature]\nkind = 'ramp'\nT0 = -40.0\nrate_degC_per_s = 60.0\n"
+    )
+    assert main(["simulate", "--scenario", str(tmp_path / "sc.toml"), "-o", str(tmp_path / "s.mcap")]) == 0
+
+
+def test_a_calibration_is_checked_by_the_reader_before_it_is_written(good, tmp_path):
+    """Calibration.save runs the reader's validation on what it would write: a NaN gyro bias or a
+    gravity no loader accepts is refused and nothing is written."""
+    cal = load_calibration(good["cal"])
+    cal.gyro = GyroCalibration(bias_dps=np.array([np.nan, 0.0, 0.0]), bias_sigma_dps=np.full(3, 0.01))
+    with pytest.raises(InputError, match="bias_dps"):
+        cal.save(tmp_path / "c.json")
+    cal = load_calibration(good["cal"])
+    cal.local_gravity_mps2 = 1000.0
+    with pytest.raises(InputError, match="local_gravity_mps2"):
+        cal.save(tmp_path / "c.json")
+    assert list(tmp_path.iterdir()) == []
+    load_calibration(good["cal"]).save(tmp_path / "ok.json")  # a good one is written
+    assert load_calibration(tmp_path / "ok.json").theta.size == cal.theta.size
+
+
+def test_nesting_depth_is_iterative():
+    deep: list = []
+    x = deep
+    for _ in range(100_000):
+        x.append([])
+        x = x[0]
+    assert nesting_depth(deep) == 65  # stops counting past the limit, no RecursionError
+    assert nesting_depth({"a": [1, {"b": 2}]}) == 3
+
+
+# -------------------------------------------------------------------------------- property tests
+
+_numbers = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(min_value=-(2**70), max_value=2**70),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(opt=st.sampled_from([*sorted(OPTION_RANGES), "--count-offset", "--not-ranged"]), value=_numbers)
+def test_option_door_property(opt, value):
+    """check_option refuses exactly the non-finite and out-of-range values, with one InputError
+    naming the option, and never raises anything else."""
+    finite = not isinstance(value, float) or math.isfinite(value)
+    if opt in OPTION_RANGES and finite:
+        lo, hi, lo_open, _unit = OPTION_RANGES[opt]
+        ok = (value > lo if lo_open else value >= lo) and value <= hi
+    else:
+        ok = finite
+    if ok:
+        check_option(opt, value)
+    else:
+        with pytest.raises(InputError) as exc:
+            check_option(opt, value)
+        assert str(exc.value).startswith(f"{opt}: ") and "\n" not in str(exc.value)
+
+
+_json_values = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.integers(min_value=-(10**30), max_value=10**30)
+    | st.text(max_size=8),
+    lambda kids: st.lists(kids, max_size=4) | st.dictionaries(st.text(max_size=6), kids, max_size=4),
+    max_leaves=12,
+)
+_CAL_PATHS = [
+    ("params", 0, "value"),
+    ("params", 4, "value"),
+    ("params", 8, "value"),
+    ("covariance", 0, 0),
+    ("covariance", 3),
+    ("gravity", "local_gravity_mps2"),
+    ("gravity", "truth_g"),
+    ("temperature", "t_ref_degC"),
+    ("model", "t_ref_degC"),
+    ("gyro",),
+    ("gyro", "bias_dps"),
+    ("gyro", "bias_dps", 1),
+    ("gyro", "matrix", 0, 0),
+    ("gyro", "t_ref_degC"),
+    ("sources",),
+    ("fit",),
+]
+
+
+@pytest.fixture(scope="module")
+def cal_dict(good) -> dict:
+    c = json.loads(good["cal"].read_text())
+    c["gyro"] = _gyro_section()
+    return c
+
+
+@settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(path=st.sampled_from(_CAL_PATHS), value=_json_values)
+def test_calibration_validator_property(cal_dict, path, value):
+    """Any value anywhere: the validator either builds a calibration whose numbers are all finite
+    and physical, or raises one InputError naming the file; never another exception."""
+    d = json.loads(json.dumps(cal_dict))
+    x = d
+    for k in path[:-1]:
+        x = x[k]
+    x[path[-1]] = value
+    try:
+        cal = calibration_from_dict(d, where="prop.json")
+    except InputError as exc:
+        assert str(exc).startswith("prop.json") and "\n" not in str(exc)
+        return
+    assert np.isfinite(cal.theta).all() and np.isfinite(cal.cov).all()
+    assert 9.7 <= cal.local_gravity_mps2 <= 9.9
+    if cal.gyro is not None:
+        assert np.isfinite(cal.gyro.bias_dps).all() and np.isfinite(cal.gyro.matrix).all()
+        assert math.isfinite(cal.gyro.t_ref_degC)
+    S, b = cal.S_b()
+    assert np.isfinite(S).all() and np.isfinite(b).all()
