@@ -25,6 +25,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
+import numpy as np
+
 from accellog.calibrate.gyro import GyroCalibration
 from accellog.calibrate.magnetometer import MagCalibration
 from accellog.core.device import DeviceKey
@@ -324,9 +326,17 @@ def gyro_from_dict(d: Any, where: str | None = None) -> GyroCalibration | None:
     if not isinstance(d, Mapping):
         raise InputError("calibration section 'gyro' is not an object", where=where)
     try:
-        return GyroCalibration.from_dict(dict(d))
+        g = GyroCalibration.from_dict(dict(d))
     except InputError as exc:
         raise InputError(str(exc), where=where) from None
+    for key in ("bias_dps", "temp_bias_dps_per_degC", "t_ref_degC", "matrix"):  # sigmas may be unknown
+        if not np.isfinite(np.asarray(getattr(g, key), float)).all():
+            raise InputError(
+                f"gyro calibration {key!r} must be finite numbers (no NaN, null or inf)", where=where
+            )
+    if abs(np.linalg.det(g.matrix)) < 1e-6:
+        raise InputError("gyro calibration 'matrix' is singular", where=where)
+    return g
 
 
 def mag_from_dict(d: Any, where: str | None = None) -> MagCalibration | None:
