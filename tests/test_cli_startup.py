@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TYPER_HELP = """
 import sys, typer.main
 from accellog.cli import registry, _exit_code
-group = typer.main.get_group(registry.register_all())
+group = typer.main.get_command(registry.register_all())
 try:
     rc = group(args=sys.argv[1:], prog_name="accellog", standalone_mode=False)
 except Exception as exc:
@@ -97,8 +97,9 @@ def test_unknown_command_and_single_command_modules(capsys):
     (magcal) still runs as a subcommand, not as the whole program."""
     assert main(["fitt"]) == 2
     err = capsys.readouterr().err
-    assert err == "accellog: error: accellog: No such command 'fitt'. Did you mean 'fit'? (see --help)\n"
+    assert err == "accellog: error: No such command 'fitt'. Did you mean 'fit'? (see accellog --help)\n"
     assert main(["magcal", "--help"]) == 0
     assert "Usage: accellog magcal [OPTIONS]" in capsys.readouterr().out
     assert main(["magcal"]) == 2
-    assert capsys.readouterr().err.startswith("accellog: error: accellog magcal: Missing argument")
+    err = capsys.readouterr().err
+    assert err.startswith("accellog: error: magcal: Missing argument") and err.count("accellog") == 2

@@ -46,15 +46,28 @@ def _one_blas_thread():
 
 
 def _usage_error_line(command_path: str | None, message: str) -> str:
-    """A click usage error on one line: the command, the message, where to look."""
-    where = f"{command_path}: " if command_path is not None else ""
-    return f"accellog: error: {where}{' '.join(message.split())} (see --help)"
+    """A click usage error on one line with the one prefix: 'accellog: error: fit: MESSAGE (see
+    accellog fit --help)'; the program name is not repeated."""
+    path = (command_path or "accellog").split()
+    sub = " ".join(path[1:]) if path[:1] == ["accellog"] else " ".join(path)
+    where = f"{sub}: " if sub else ""
+    text = " ".join(message.split()) or "no command given"
+    return f"accellog: error: {where}{text} (see {' '.join(['accellog', sub]).strip()} --help)"
 
 
 def _run(args: list[str]) -> int:
     """Parse and run one command line; the top-level help (`--help`, or nothing: then an error
     too, as click's no_args_is_help) without typer."""
-    if args in ([], ["--help"]) and "TYPER_USE_RICH" not in os.environ:
+    if args == ["--version"]:
+        from accellog.core.version import __version__
+
+        print(f"accellog {__version__}")
+        return 0
+    if (
+        args in ([], ["--help"])
+        and "TYPER_USE_RICH" not in os.environ
+        and "_ACCELLOG_COMPLETE" not in os.environ
+    ):
         from accellog.cli.tophelp import print_help
 
         print_help()

@@ -10,7 +10,19 @@ HELP = (
     "",
 )
 # long, short, secondary long, secondary short, type, help
-OPTIONS = (("--help", "", "", "", "<bool>", "Show this message and exit."),)
+OPTIONS = (
+    ("--version", "", "", "", "<bool>", "Print the version and exit."),
+    ("--install-completion", "", "", "", "<bool>", "Install completion for the current shell."),
+    (
+        "--show-completion",
+        "",
+        "",
+        "",
+        "<bool>",
+        "Show completion for the current shell, to copy it or customize the installation.",
+    ),
+    ("--help", "", "", "", "<bool>", "Show this message and exit."),
+)
 # name, MODULE, help panel, help (first paragraph, rich markup)
 COMMANDS = (
     (
@@ -126,7 +138,7 @@ COMMANDS = (
         "export",
         "interop",
         "2. Calibrate",
-        "Write a calibration in another tool's format and say which terms that format cannot hold.",
+        "Write a calibration in another tool's format; the header says what that format cannot hold and\nhow large the loss is on this calibration.",
     ),
     (
         "magcal",

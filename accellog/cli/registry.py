@@ -18,7 +18,7 @@ from accellog.cli.commands_table import COMMANDS
 # Command modules are imported in this order for full registration: the help lists the panels in
 # this order (the story: record, calibrate, discover, inspect, move), then any others by name.
 ORDER = ["demo", "record", "imports", "calibrate", "report", "workbench", "inspect", "move"]
-NOT_COMMAND_MODULES = {"app", "commands_table", "option_checks", "registry", "tophelp"}
+NOT_COMMAND_MODULES = {"app", "commands_table", "option_checks", "progress", "registry", "tophelp"}
 MODULE_OF = {name: module for name, module, _panel, _help in COMMANDS}
 
 
@@ -78,7 +78,7 @@ def command_group(name: str | None):
         one.registered_groups = [g for g in app.registered_groups if g.name == name]
         if one.registered_commands or one.registered_groups:
             return guard_options(typer.main.get_group(one))
-    return guard_options(typer.main.get_group(register_all()))
+    return guard_options(typer.main.get_command(register_all()))  # + --install/--show-completion
 
 
 def _paragraphs(text: str) -> tuple[str, str]:
@@ -119,7 +119,7 @@ def extract() -> dict:
     from typer import _click
 
     app = register_all()
-    group = typer.main.get_group(app)
+    group = typer.main.get_command(app)  # with typer's --install-completion / --show-completion
     ctx = _click.Context(group, info_name="accellog")
     commands = []
     for name in group.list_commands(ctx):

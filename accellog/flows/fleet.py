@@ -241,7 +241,7 @@ class FleetRunResult:
 
 
 Progress = Callable[[int, int, dict[str, Any]], None]
-"""on_progress(done, total, task_result) after each finished task."""
+"""on_progress(done, total, task_result): once before the first task (0, total, {}), then after each."""
 
 
 WORKER_CONFIG = {
@@ -357,6 +357,8 @@ def run_fleet(
         n_run=len(todo),
         n_skipped=len(files) - len(todo),
     )
+    if on_progress:
+        on_progress(0, len(todo), {})  # the total is known before the first task ends (no "0/?")
     t0 = time.perf_counter()
     if not todo:
         results: list[dict] = []

@@ -1,0 +1,111 @@
+"""A CLI that talks: --version, shell completion, one error prefix, progress bars only on a terminal."""
+
+from __future__ import annotations
+
+import os
+import pty
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from accellog import __version__
+from accellog.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _env(**extra: str) -> dict:
+    return {**os.environ, "PYTHONPATH": str(ROOT), **extra}
+
+
+def test_version(capsys):
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out == f"accellog {__version__}\n"
+    assert main(["fit", "--help"]) == 0  # the callback does not get in a command's way
+    capsys.readouterr()
+
+
+@pytest.mark.slow
+def test_shell_completion_completes_commands_and_options():
+    code = "import sys; from accellog.cli import main; sys.exit(main(sys.argv[1:]))"
+    got = subprocess.run([sys.executable, "-c", code, "--show-completion", "bash"], env=_env(),
+                         capture_output=True, text=True)  # fmt: skip
+    assert got.returncode == 0 and "_accellog_completion" in got.stdout
+    words = {"COMP_WORDS": "accellog fi", "COMP_CWORD": "1", "_ACCELLOG_COMPLETE": "complete_bash"}
+    got = subprocess.run([sys.executable, "-c", code], env=_env(**words), capture_output=True, text=True)
+    assert "fit" in got.stdout.split()
+    words = {"COMP_WORDS": "accellog export x --ro", "COMP_CWORD": "3", "_ACCELLOG_COMPLETE": "complete_bash"}
+    got = subprocess.run([sys.executable, "-c", code], env=_env(**words), capture_output=True, text=True)
+    assert "--rotation" in got.stdout.split()
+
+
+@pytest.mark.parametrize(
+    ("argv", "line"),
+    [
+        (["fitt"], "accellog: error: No such command 'fitt'. Did you mean 'fit'? (see accellog --help)"),
+        (["fit", "x.mcap"], "accellog: error: fit: Missing option '-o' / '--output'. (see accellog fit --help)"),
+        (["import", "ros2"], "accellog: error: import ros2: Missing argument 'bag'. (see accellog import ros2 --help)"),
+    ],
+)  # fmt: skip
+def test_one_error_prefix(argv, line, capsys):
+    assert main(argv) == 2
+    assert capsys.readouterr().err == line + "\n"
+
+
+def _in_pty(argv: list[str], cwd: Path) -> tuple[int, str]:
+    """Run `accellog ARGV` with stdout and stderr on a pseudo-terminal; (exit code, what was shown)."""
+    code = "import sys; from accellog.cli import main; sys.exit(main(sys.argv[1:]))"
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-c", code, *argv], stdout=follower, stderr=follower, cwd=cwd,
+                            env=_env(COLUMNS="120", TERM="xterm"))  # fmt: skip
+    os.close(follower)
+    chunks = []
+    while True:
+        try:
+            data = os.read(leader, 65536)
+        except OSError:
+            break
+        if not data:
+            break
+        chunks.append(data)
+    os.close(leader)
+    return proc.wait(), b"".join(chunks).decode(errors="replace")
+
+
+@pytest.mark.slow
+def test_progress_bar_on_a_terminal_only(tmp_path):
+    """apply --ros2 draws a bar (done/total, time left) on a terminal; piped, nothing of it is printed."""
+    from accellog.flows.simulate import Scenario, simulate
+
+    simulate(
+        Scenario(protocol="six", hold_s=4.0, move_s=1.0, sample_rate_hz=200.0, seed=3), tmp_path / "s.mcap"
+    )
+    assert main(["fit", str(tmp_path / "s.mcap"), "-o", str(tmp_path / "cal.json")]) == 0
+    argv = ["apply", "s.mcap", "--cal", "cal.json", "-o", "c1.mcap", "--ros2", "r1.mcap"]
+    rc, shown = _in_pty(argv, tmp_path)
+    assert rc == 0, shown
+    assert "ROS 2 bag" in shown and "left" in shown
+    assert any(f"/{n}" in shown for n in range(4000, 7000))  # done/total (samples) drawn
+    argv = [*argv[:4], "-o", "c2.mcap", "--ros2", "r2.mcap"]
+    piped = subprocess.run([sys.executable, "-m", "accellog", *argv], cwd=tmp_path, env=_env(),
+                           capture_output=True, text=True)  # fmt: skip
+    assert piped.returncode == 0, piped.stderr
+    assert "ROS 2 bag" not in piped.stdout + piped.stderr and "left" not in piped.stdout + piped.stderr
+
+
+@pytest.mark.slow
+def test_fleet_progress_knows_its_total_before_the_first_task(tmp_path):
+    """fleet run's bar reads 0/N from the start, never 0/? (run_fleet reports the total first)."""
+    from accellog.flows.fleet import run_fleet
+    from accellog.flows.simulate import Scenario, simulate
+
+    files = []
+    for k in range(2):
+        files.append(tmp_path / f"s{k}.mcap")
+        simulate(Scenario(protocol="six", hold_s=2.0, move_s=0.5, sample_rate_hz=100.0, seed=k), files[-1])
+    calls = []
+    run_fleet(ROOT / "pipelines" / "fleet.toml", [str(f) for f in files], tmp_path / "out", workers=0,
+              on_progress=lambda done, total, r: calls.append((done, total)))  # fmt: skip
+    assert calls == [(0, 2), (1, 2), (2, 2)]
