@@ -109,3 +109,24 @@ def test_fleet_progress_knows_its_total_before_the_first_task(tmp_path):
     run_fleet(ROOT / "pipelines" / "fleet.toml", [str(f) for f in files], tmp_path / "out", workers=0,
               on_progress=lambda done, total, r: calls.append((done, total)))  # fmt: skip
     assert calls == [(0, 2), (1, 2), (2, 2)]
+
+
+def test_spawn_without_a_display_says_so_at_once(monkeypatch):
+    """`--rerun spawn` on a headless Linux host: one line at once, not a 20 s wait or the viewer's log."""
+    import socket
+    import time
+
+    from accellog.core.errors import InputError
+    from accellog.present.rrd.sinks import spawn_viewer
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the display check is for Linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # free once closed: nothing listens there
+    t0 = time.monotonic()
+    with pytest.raises(InputError, match="no display"):
+        spawn_viewer(port)
+    assert time.monotonic() - t0 < 2.0

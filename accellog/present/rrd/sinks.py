@@ -42,19 +42,34 @@ class SinkWatch:
 
 def spawn_viewer(port: int, timeout_s: float = 20.0) -> None:
     """Start the native viewer listening on 127.0.0.1:port (``rr.spawn`` would bind 0.0.0.0), unless
-    a viewer already listens there; wait until it accepts connections."""
+    a viewer already listens there; wait until it accepts connections. Without a display (Linux:
+    neither $DISPLAY nor $WAYLAND_DISPLAY) or when the viewer exits at once, one line says so at
+    once; the viewer's own output (ANSI-coloured Rust log lines) never reaches the terminal."""
+    import os
     import subprocess
+    import sys
 
     from accellog.present.viewer import rerun_binary, rerun_env
 
     if wait_for_port("127.0.0.1", port, 0.0):
         return
+    if sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
+        raise InputError("no display ($DISPLAY and $WAYLAND_DISPLAY are unset): the native viewer cannot "
+                         "open; use --rerun save:FILE.rrd, then accellog view FILE.rrd --web")  # fmt: skip
     cmd = [rerun_binary(), "--bind", "127.0.0.1", "--port", str(port), "--expect-data-soon"]
-    subprocess.Popen(
+    proc = subprocess.Popen(
         cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=rerun_env(), start_new_session=True
     )
-    if not wait_for_port("127.0.0.1", port, timeout_s):
-        raise InputError(f"the spawned viewer does not listen on 127.0.0.1:{port} after {timeout_s:g} s")
+    end = time.monotonic() + timeout_s
+    while not wait_for_port("127.0.0.1", port, min(0.5, timeout_s)):
+        if proc.poll() is not None:
+            raise InputError(
+                f"the viewer exited at start (code {proc.returncode}): use --rerun save:FILE.rrd"
+            )
+        if time.monotonic() >= end:
+            raise InputError(f"the spawned viewer does not listen on 127.0.0.1:{port} after {timeout_s:g} s")
 
 
 def parse_sink(sink: str) -> tuple[str, str]:
