@@ -17,6 +17,7 @@ from accellog.core.errors import InputError
 from accellog.core.session import ObsTable, Session
 from accellog.store import importers
 from accellog.store.importers.ros2 import import_ros2, is_ros2_bag
+from accellog.store.importers.text import check_text_file
 from accellog.store.reader import read_session
 from accellog.store.recovery import announce
 
@@ -53,9 +54,10 @@ def _read_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Se
             where=str(p),
         )
     if suffix in (".csv", ".txt"):
+        check_text_file(p)  # not a CSV at all (binary, zero-filled): refused within the first KiB
         try:
             with open(p, encoding="utf-8", errors="replace") as f:
-                first = f.readline().replace(" ", "").lower()
+                first = f.readline(65536).replace(" ", "").lower()
         except OSError as exc:
             raise InputError(f"cannot read: {exc.strerror}", where=str(p)) from None
         if first.startswith("x_true"):

@@ -20,6 +20,7 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.store.importers.csv_options import OPTIONAL_VALUES, CsvOptions
+from accellog.store.importers.text import check_text_file
 
 BLOCK_BYTES = 16 * 1024 * 1024
 _HEAD_BYTES = 1 << 20
@@ -54,8 +55,7 @@ def _rate_in(lines: list[str]) -> float | None:
 
 def read_header(path: Path, opts: CsvOptions) -> Header:
     """Find the header row: the first line that is not blank, not a comment and has >= 3 fields."""
-    if not path.is_file():
-        raise InputError("no such file", where=str(path))
+    check_text_file(path)
     with open(path, "rb") as f:
         head = f.read(_HEAD_BYTES)
     bom = 3 if head.startswith(b"\xef\xbb\xbf") else 0

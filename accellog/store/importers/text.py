@@ -15,9 +15,41 @@ from accellog.core.session import PoseLabel
 # CSV helpers: fast parse with pyarrow, exact line diagnosis in Python only when something is wrong
 
 
-def read_lines(path: Path) -> list[str]:
+SNIFF_BYTES = 1024
+MAX_WHOLE_TEXT_BYTES = 512 * 1024 * 1024
+"""Largest text file read whole (capstone, imucal); any logger's CSV is streamed instead."""
+
+
+def check_text_file(path: Path) -> None:
+    """InputError within the first SNIFF_BYTES when `path` is not a text file at all: a NUL byte
+    (binary, zero-filled) or bytes that are not UTF-8 (a character cut at the end is allowed)."""
     if not path.is_file():
         raise InputError("no such file", where=str(path))
+    with open(path, "rb") as f:
+        head = f.read(SNIFF_BYTES)
+    nul = head.find(b"\0")
+    if nul >= 0:
+        raise InputError(
+            f"not a CSV (text) file: a NUL byte at offset {nul} (binary or zero-filled)", where=str(path)
+        )
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        if exc.start < len(head) - 3:
+            raise InputError(
+                f"not a CSV (text) file: bytes that are not UTF-8 at offset {exc.start}", where=str(path)
+            ) from None
+
+
+def read_lines(path: Path) -> list[str]:
+    check_text_file(path)
+    size = path.stat().st_size
+    if size > MAX_WHOLE_TEXT_BYTES:
+        raise InputError(
+            f"{size / 2**20:,.0f} MiB is too large for this importer (at most {MAX_WHOLE_TEXT_BYTES >> 20} MiB); "
+            "`accellog import csv` streams any size",
+            where=str(path),
+        )
     try:
         return path.read_text(encoding="utf-8-sig").splitlines()
     except UnicodeDecodeError:
