@@ -117,9 +117,11 @@ def test_rate_header_no_time_column_one_command(tmp_path, capsys):
     # the same file without the rate line needs --rate, and the error says so
     bare = tmp_path / "bare.csv"
     _mpu6050(bare, rate_line=False)
-    rc, _, err = _run(["import", "csv", str(bare), *argv[3:], "-o", str(out)], capsys)
+    rc, _, err = _run(["import", "csv", str(bare), *argv[3:], "-o", str(out), "--force"], capsys)
     assert rc != 0 and "--rate HZ" in err and "bare.csv:2" in err
-    rc, _, err = _run(["import", "csv", str(bare), *argv[3:], "--rate", "100", "-o", str(out)], capsys)
+    rc, _, err = _run(
+        ["import", "csv", str(bare), *argv[3:], "--rate", "100", "-o", str(out), "--force"], capsys
+    )
     assert rc == 0, err
     assert np.array_equal(read_session(out).t_s, s.t_s)
 

@@ -23,6 +23,7 @@ app.add_typer(import_app, name="import", rich_help_panel="1. Record")
 OutOpt = Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file (written atomically).")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 BatchOpt = Annotated[int, typer.Option("--batch-size", min=1, help="Samples per /imu message.")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
 
 
 def _facts(session: Session, src: Path, out: Path) -> dict:
@@ -51,20 +52,23 @@ def _facts(session: Session, src: Path, out: Path) -> dict:
     }
 
 
-def _check_out(out: Path, src: Path, compression: str) -> None:
-    """Refuse an unknown compression, and an output that is a directory, in a missing folder, or the
-    input itself (accellog.store.atomic.check_output: same file by samefile or resolved path)."""
+def _check_out(out: Path, src: Path, compression: str, force: bool) -> None:
+    """Refuse an unknown compression, and an output that is a directory, in a missing folder, the
+    input itself (accellog.store.atomic.check_output: same file by samefile or resolved path) or,
+    without --force, an existing file."""
     from accellog.store.atomic import check_output
     from accellog.store.writer import check_compression
 
     check_compression(compression)
-    check_output(out, [src])
+    check_output(out, [src], overwrite=force)
 
 
-def _write(session: Session, src: Path, out: Path, as_json: bool, batch_size: int, compression: str) -> None:
+def _write(
+    session: Session, src: Path, out: Path, as_json: bool, batch_size: int, compression: str, force: bool
+) -> None:
     from accellog.store.writer import write_session
 
-    write_session(out, session, batch_size=batch_size, compression=compression)
+    write_session(out, session, batch_size=batch_size, compression=compression, overwrite=force)
     _present(_facts(session, src, out), src, out, as_json)
 
 
@@ -93,12 +97,13 @@ def import_capstone_cmd(
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
     compression: CompressionOpt = "zstd",
+    force: ForceOpt = False,
 ) -> None:
     """Capstone static test file (t in s; x, y, z in g) -> MCAP with one '+z' hold; counts at 16384 LSB/g."""
     from accellog.store.importers import import_capstone
 
-    _check_out(out, file, compression)
-    _write(import_capstone(file), file, out, as_json, batch_size, compression)
+    _check_out(out, file, compression, force)
+    _write(import_capstone(file), file, out, as_json, batch_size, compression, force)
 
 
 @import_app.command("imucal")
@@ -117,13 +122,14 @@ def import_imucal_cmd(
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
     compression: CompressionOpt = "zstd",
+    force: ForceOpt = False,
 ) -> None:
     """imucal Ferraris recording -> MCAP (x_p..z_a -> poses +x..-z; x_rot.. -> motion_segment events)."""
     from accellog.store.importers import import_imucal
 
-    _check_out(out, file, compression)
+    _check_out(out, file, compression, force)
     session = import_imucal(file, sections, sample_rate_hz=rate_hz)
-    _write(session, file, out, as_json, batch_size, compression)
+    _write(session, file, out, as_json, batch_size, compression, force)
 
 
 @import_app.command("csv")
@@ -174,6 +180,7 @@ def import_csv_cmd(
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
     compression: CompressionOpt = "zstd",
+    force: ForceOpt = False,
 ) -> None:
     """Any logger's CSV -> MCAP, streamed in blocks (memory independent of the file's length).
 
@@ -196,8 +203,10 @@ def import_csv_cmd(
         delimiter=delimiter,
         comment=comment,
     )
-    _check_out(out, file, compression)
-    result = import_csv_to_mcap(file, out, opts, batch_size=batch_size, compression=compression)
+    _check_out(out, file, compression, force)
+    result = import_csv_to_mcap(
+        file, out, opts, batch_size=batch_size, compression=compression, overwrite=force
+    )
     _present(result.to_dict(), file, out, as_json)
 
 
@@ -220,6 +229,7 @@ def import_ros2_cmd(
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
     compression: CompressionOpt = "zstd",
+    force: ForceOpt = False,
 ) -> None:
     """ROS 2 bag -> MCAP session: header stamps, m/s^2 -> g, rad/s -> deg/s, T -> uT; provenance kept.
 
@@ -242,8 +252,8 @@ def import_ros2_cmd(
             table.add_row(t.topic, t.msgtype, str(t.count))
         Console().print(table)
         return
-    _check_out(out, bag, compression)
+    _check_out(out, bag, compression, force)
     session = import_ros2(bag, topic=topic, temperature_topic=temperature_topic, mag_topic=mag_topic)
     if detect_holds:
         session = label_detected_holds(session)
-    _write(session, bag, out, as_json, batch_size, compression)
+    _write(session, bag, out, as_json, batch_size, compression, force)

@@ -12,6 +12,13 @@ path gets a one-line error instead of a corrupt or lost file. Before anything is
   step then uses ``os.link`` so that even a foreign process creating the file meanwhile is not
   clobbered.
 
+After a kill: the lock file holds its writer's PID and the temporary file carries it in its name
+(``.NAME.PID.XXXX.tmp``). The next writer of the same output, once it holds the lock (so no live
+writer of that output exists), removes the temporary files of writers that are not running and says
+so in a note (``remove_stale``); a lock left by a killed writer is released by the kernel with its
+process and removed by the next writer. Outputs get the usual permissions (0666 less the umask,
+0644 by default), not the 0600 of a private temporary file.
+
 ``check_output``/``check_outputs`` run the checks alone (to validate every output of a command
 before computing); ``AtomicOutput`` (begin/commit/abort) and ``atomic_output`` (a context manager
 yielding the temporary path) write; ``write_bytes_atomic``/``write_text_atomic`` are the one-call
@@ -25,13 +32,61 @@ import contextlib
 import errno
 import fcntl
 import os
+import re
+import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from accellog.core import notices
 from accellog.core.errors import InputError
 
 PathLike = str | os.PathLike
+
+
+def pid_alive(pid: int) -> bool:
+    """True when process `pid` exists (signal 0; a process of another user counts as alive)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale(folder: Path, prefix: str, tail: str, what: str = "temporary file") -> list[str]:
+    """Remove the entries named `prefix` PID. `tail` (a regex; files or folders) in `folder` whose
+    PID is not a running process, with a note each; returns their names. An entry without the PID
+    (written before PIDs were recorded) is removed too. Call it only while no live writer of that
+    output can exist (holding its lock)."""
+    removed = []
+    pat = re.compile(re.escape(prefix) + r"(?:(\d+)\.)?" + tail + "$")
+    with contextlib.suppress(OSError):
+        for e in folder.iterdir():
+            m = pat.match(e.name)
+            pid = int(m.group(1)) if m is not None and m.group(1) else None
+            if m is None or (pid is not None and (pid == os.getpid() or pid_alive(pid))):
+                continue
+            with contextlib.suppress(OSError):
+                shutil.rmtree(e) if e.is_dir() and not e.is_symlink() else e.unlink()
+                who = f"process {pid}, which is not running" if pid else "an earlier run"
+                notices.note(f"removed {e}: a {what} left by {who} (killed?)")
+                removed.append(e.name)
+    return removed
+
+
+def _umask() -> int:
+    """The process umask (read without changing it where /proc says it)."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -110,6 +165,9 @@ class OutputLock:
                 same = False
             if same:
                 self._fd = fd
+                with contextlib.suppress(OSError):  # who holds it (for a human looking at the folder)
+                    os.ftruncate(fd, 0)
+                    os.write(fd, f"{os.getpid()}\n".encode())
                 return self
             os.close(fd)  # lost a race with a releasing writer: take the new lock file
         raise InputError("could not lock the output (lock file keeps changing)", where=str(self.path))
@@ -174,7 +232,9 @@ class AtomicOutput:
         self._lock = OutputLock(p).acquire()
         try:
             check_output(p, self.inputs, overwrite=self.overwrite, what=self.what)  # again, under the lock
-            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+            remove_stale(p.parent, f".{p.name}.", r"[A-Za-z0-9_]{8}\.tmp")
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.{os.getpid()}.", suffix=".tmp", dir=p.parent)
+            os.fchmod(fd, 0o666 & ~_umask())
         except OSError as exc:
             self._lock.release()
             raise InputError(f"cannot write here: {exc.strerror or exc}", where=str(p)) from None

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from accellog.core.errors import InputError
+from accellog.store.atomic import remove_stale
 
 IMU_TOPIC = "/imu/data"
 TEMP_TOPIC = "/imu/temperature"
@@ -52,12 +53,18 @@ class Ros2BagWriter:
         self.single = self.out.suffix == ".mcap"
         self._tmp = self.out.with_name(f".{self.out.stem}.{os.getpid()}.bagtmp")
         shutil.rmtree(self._tmp, ignore_errors=True)
+        # the temporary bags of killed writers of this output (their PID is not running)
+        remove_stale(self.out.parent, f".{self.out.stem}.", r"bagtmp", "temporary bag folder")
         self.ts = get_typestore(Stores.ROS2_HUMBLE)
         self.frame_id = frame_id
         self._w = Writer(self._tmp, version=9, storage_plugin=StoragePlugin.MCAP)
-        for k, v in (metadata or {}).items():
-            self._w.set_custom_data(k, str(v))
-        self._w.open()
+        try:
+            for k, v in (metadata or {}).items():
+                self._w.set_custom_data(k, str(v))
+            self._w.open()
+        except BaseException:  # no .bagtmp left when the writer cannot even start
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
         self._conns: dict[str, object] = {}
         self.counts: dict[str, int] = {}
         T = self.ts.types
@@ -156,6 +163,8 @@ class Ros2BagWriter:
     def abort(self) -> None:
         try:
             self._w.close()
+        except Exception:  # the bag is being thrown away: a writer that cannot close must not keep it
+            pass
         finally:
             shutil.rmtree(self._tmp, ignore_errors=True)
 

@@ -353,9 +353,11 @@ def import_csv_to_mcap(
     batch_size: int = 500,
     block_bytes: int = BLOCK_BYTES,
     compression: str | None = None,
+    overwrite: bool = True,
 ) -> CsvImportResult:
     """Stream a CSV into an accellog MCAP (accellog.store.atomic: locked temp file, fsync, rename;
-    nothing half-written on error, never over the CSV itself).
+    nothing half-written on error, never over the CSV itself, nor over an existing file with
+    overwrite=False).
 
     Memory: one block of text (``block_bytes``) and its columns, plus the MCAP chunk being built.
     """
@@ -363,7 +365,7 @@ def import_csv_to_mcap(
 
     path, out = Path(path), Path(out)
     imp = CsvImport(path, options or CsvOptions(), block_bytes)
-    ao = AtomicOutput(out, inputs=(path,), what="output session")
+    ao = AtomicOutput(out, inputs=(path,), what="output session", overwrite=overwrite)
     tmp = ao.begin()
     w = None
     t_first = t_last = 0.0
