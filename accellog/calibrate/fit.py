@@ -29,6 +29,7 @@ import numpy as np
 from accellog.calibrate.effects import AXES
 from accellog.calibrate.identifiability import GEOMETRY_EFFECTS, _q_or_none, effect_requirement, rank_check
 from accellog.calibrate.model import Model
+from accellog.calibrate.model_jacobian import norm_jacobian, numeric_columns, predict_jacobian
 from accellog.core.errors import InputError, ModelError
 from accellog.core.numeric import chi2_sf, least_squares
 from accellog.core.session import ObsTable
@@ -172,7 +173,19 @@ def _checked(
 
 
 def _numjac(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Central-difference Jacobian, written column by column into one array (no column list)."""
+    """Jacobian of fun: analytic where fun (or its _Problem) offers `analytic(theta) -> (J, columns
+    left to differences)` (calibrate.model_jacobian: the library effects), else central differences,
+    written column by column into one array (no column list)."""
+    analytic = getattr(fun, "analytic", None) or getattr(getattr(fun, "__self__", None), "analytic", None)
+    got = analytic(theta) if analytic is not None else None
+    if got is not None:
+        out, todo = got
+        for k in todo:
+            tp, tm = theta.copy(), theta.copy()
+            tp[k] += steps[k]
+            tm[k] -= steps[k]
+            out[:, k] = (fun(tp) - fun(tm)) / (2.0 * steps[k])
+        return out
     out = None
     for k in range(theta.size):
         tp = theta.copy()
@@ -200,6 +213,13 @@ class _Problem:
 
     def resid(self, theta: np.ndarray) -> np.ndarray:
         return ((self.obs.meas_g - self.predicted(theta)[0]) * self.w).ravel()
+
+    def analytic(self, theta: np.ndarray) -> tuple[np.ndarray, list[int]]:
+        """d resid / d theta: the library columns analytic, the rest (fixture_tilt, user) to differences."""
+        f = self.model.truth_g(theta, self.obs.up_sensor, self.q, self.gravity_g)
+        J = predict_jacobian(self.model, theta, f, self.drivers)
+        J *= -self.w[:, :, None]
+        return J.reshape(-1, theta.size), numeric_columns(self.model)
 
 
 def _chi2_sf(chi2: float, dof: int) -> float:
@@ -409,6 +429,11 @@ def fit_orientation_free(
         f = model.correct(theta, meas, drv)
         return (np.linalg.norm(f, axis=1) - gravity_g) * wn
 
+    def analytic(theta):
+        J = norm_jacobian(model, theta, meas, drv)
+        return None if J is None else (J * wn[:, None], numeric_columns(model))
+
+    fun.analytic = analytic
     th0 = model.initial_theta()
     _norm_rank_check(fun, th0, model, obs)
     theta = _solve(fun, th0, model, f"orientation-free fit of {model.name}")
