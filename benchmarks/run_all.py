@@ -234,20 +234,20 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
         sec = 3600 if quick else 14400
         csv = made(d, "csv", sec)
         out.append(Row("csv", f"`import csv` {sec // 3600} h at 1 kHz", "<= 1.5x baseline",
-                       accellog("import", "csv", csv, "-o", d / "csv_out.mcap"), "pyarrow open_csv (streamed) + to_numpy",
+                       accellog("import", "csv", csv, "-o", d / "csv_out.mcap", "--force"), "pyarrow open_csv (streamed) + to_numpy",
                        python(PYARROW_CSV, csv), _ratio(1.5)))  # fmt: skip
     if want("replay"):
         sec = 600 if quick else 3600
         rp, cal = made(d, "replay", sec), calibration(d)
         plain = accellog("replay", rp, "--cal", cal, "--speed", "max", "--up", "+z")
         out.append(Row("replay", f"`replay --rrd` {sec // 60} min at 1 kHz", "< 1.25x baseline",
-                       [*plain, "--rrd", d / "replay.rrd"], "the same replay without --rrd", plain,
+                       [*plain, "--rrd", str(d / "replay.rrd")], "the same replay without --rrd", plain,
                        _ratio(1.25)))  # fmt: skip
     if want("ros2"):
         sec = 600 if quick else 3600
         bag = made(d, "bag", sec)
         out.append(Row("ros2", f"`import ros2` {sec // 60} min bag at 1 kHz", ">= 100x real time in <= 300 MB",
-                       accellog("import", "ros2", bag, "-o", d / "ros2_out.mcap"), "rosbags AnyReader, raw messages",
+                       accellog("import", "ros2", bag, "-o", d / "ros2_out.mcap", "--force"), "rosbags AnyReader, raw messages",
                        python(ROSBAGS_READ, bag), _ros2(sec)))  # fmt: skip
     if want("startup"):
         for args, goal in ((["effects"], 0.5), (["--help"], 0.3), (["fit", "--help"], 0.5)):
@@ -270,7 +270,7 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
                            _flat(ref)))  # fmt: skip
     head = len(accellog())
     for r in out:  # as RESULTS.md shows it: the CLI as `accellog`, the input directory as D
-        r.shown = shlex.join(["accellog"] + [a.replace(str(d), "D") for a in r.cmd[head:]])
+        r.shown = shlex.join(["accellog"] + [str(a).replace(str(d), "D") for a in r.cmd[head:]])
     return out
 
 
