@@ -23,7 +23,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from accellog.calibrate.choose import StepChoice, choose_effect
 from accellog.calibrate.clock import clock_from_host_time
@@ -35,6 +34,7 @@ from accellog.calibrate.heap import trim_heap
 from accellog.calibrate.identifiability import checked_advice, effect_requirement
 from accellog.calibrate.model import Model
 from accellog.core.errors import InputError, ModelError
+from accellog.core.numeric import f_sf, normal_sf
 from accellog.core.session import ObsTable
 
 DBIC_MIN = -10.0
@@ -214,7 +214,7 @@ def _clock_row(clock: dict) -> dict:
     return dict(
         identifiable=True,
         significant=bool(z > 5 and abs(clock["eps_ppm"]) > 1.0),
-        p_value=float(2 * stats.norm.sf(z)),
+        p_value=2 * normal_sf(z),
         reason=f"from host time: eps_clock = {clock['eps_ppm']:.1f} +- {clock['sigma_ppm']:.1f} ppm "
         "(sample period is (1 + eps)/ODR; correct integration time, not static readings)",
     )
@@ -226,7 +226,7 @@ def _candidate_stats(name, cm, cr, model, base, obs, cv_b_all, n_tests) -> dict:
     dk = cm.n_params - model.n_params
     dchi2 = base.chi2 - cr.chi2
     F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
-    p = float(stats.f.sf(F, max(dk, 1), max(cr.dof, 1))) if cr.dof > 0 else np.nan
+    p = f_sf(F, max(dk, 1), max(cr.dof, 1)) if cr.dof > 0 else np.nan
     cv_c, cv_b, n_cv = _cv_compare(cv_scores(cr, obs), cv_b_all, obs)
     dbic = -dchi2 + dk * np.log(m_eq)
     daic = -dchi2 + 2 * dk
@@ -300,7 +300,7 @@ def _second_round(sig_cands: list[dict], obs, model, fit_kw, n_tests: int, m_eq:
             continue
         dk = r2.model.n_params - mb.n_params
         F = ((rb.chi2 - r2.chi2) / dk) / max(r2.chi2 / max(r2.dof, 1), 1e-300)
-        p2 = float(stats.f.sf(F, dk, max(r2.dof, 1)))
+        p2 = f_sf(F, dk, max(r2.dof, 1))
         r["p_value_given_best"] = p2
         r["given_best"] = (
             f"still significant on top of {sig_cands[0]['effect']} (p = {p2:.2g})"

@@ -12,10 +12,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
-from scipy import linalg, stats
+from scipy import linalg
 
 from accellog.calibrate.effects import AXES
 from accellog.calibrate.fit import FitResult
+from accellog.core.numeric import f_sf
 from accellog.core.rotations import quat_between, quat_conjugate, quat_multiply
 from accellog.core.session import ObsTable
 
@@ -115,7 +116,7 @@ def driver_signals(res: FitResult, obs: ObsTable, drivers: Mapping[str, np.ndarr
                 continue  # the model already contains this signal on this axis
             d = float(r @ cp) ** 2 / nc
             F = d / max((chi2 - d) / dof, 1e-300)
-            p = float(stats.f.sf(F, 1, dof))
+            p = f_sf(F, 1, dof)
             corr = float(np.corrcoef(rw[:, i], col)[0, 1]) if np.std(rw[:, i]) > 0 else 0.0
             rows.append(
                 {

@@ -78,3 +78,18 @@ def chi2_sf(x: float, k: float) -> float:
     from scipy.special import chdtrc
 
     return float(chdtrc(float(k), float(x)))
+
+
+def f_sf(x: float, d1: float, d2: float) -> float:
+    """P(X > x) for X ~ F(d1, d2) (scipy.special.fdtrc, as scipy.stats.f.sf: 1 for x <= 0, NaN for
+    d1 or d2 <= 0) without importing scipy.stats (~0.8 s of CPU at start-up)."""
+    from scipy.special import fdtrc
+
+    return float(fdtrc(float(d1), float(d2), np.maximum(float(x), 0.0)))
+
+
+def normal_sf(z: float) -> float:
+    """P(Z > z) for a standard normal Z (scipy.special.ndtr(-z), as scipy.stats.norm.sf)."""
+    from scipy.special import ndtr
+
+    return float(ndtr(-float(z)))

@@ -1,0 +1,48 @@
+"""What the long-running commands import, and the scipy.special forms that keep scipy.stats (~0.8 s of
+CPU at start-up) out of `diagnose`: equal to scipy.stats' own survival functions."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+from support.synthetic import synthetic_session, true_theta
+
+from accellog.calibrate.model import build_model
+from accellog.core.numeric import f_sf, normal_sf
+from accellog.store.writer import write_session
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("x", [-1.0, 0.0, 1e-300, 0.3, 3.2, 50.0, np.inf, np.nan])
+@pytest.mark.parametrize("d1,d2", [(1, 5), (2, 100), (4, 20), (0, 3), (3, 1e6)])
+def test_f_sf_is_scipy_stats(x, d1, d2):
+    np.testing.assert_equal(f_sf(x, d1, d2), float(stats.f.sf(x, d1, d2)))
+
+
+@pytest.mark.parametrize("z", [-3.0, 0.0, 1.5, 8.0, 40.0, np.inf, np.nan])
+def test_normal_sf_is_scipy_stats(z):
+    np.testing.assert_equal(normal_sf(z), float(stats.norm.sf(z)))
+
+
+def test_diagnose_loads_no_scipy_stats(tmp_path):
+    """`accellog diagnose` on a labelled session runs without importing scipy.stats (nor rerun,
+    pyarrow or dask): each would add to every run's start-up."""
+    model = build_model("model3")
+    s = synthetic_session(model, true_theta(model), hold_s=4.0, rate_hz=100.0, seed=3)
+    path = write_session(tmp_path / "s.mcap", s)
+    code = (
+        "import sys, io, contextlib\nfrom accellog.cli import main\n"
+        f"with contextlib.redirect_stdout(io.StringIO()): rc = main(['diagnose', {str(path)!r}, '--json'])\n"
+        "print(rc, ' '.join(m for m in ('scipy.stats', 'rerun', 'pyarrow', 'dask') if m in sys.modules))"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    rc, *loaded = out.stdout.split()
+    assert rc == "0" and loaded == []
