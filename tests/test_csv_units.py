@@ -53,7 +53,7 @@ def _mpu6050_counts(path, n=2000, seed=1, accel_offset=0, gyro_offset=0):
 
 def _import(tmp_path, capsys, src, *args, name="out.mcap"):
     out = tmp_path / name
-    rc = main(["import", "csv", str(src), "-o", str(out), "--json", *args])
+    rc = main(["import", "csv", str(src), "-o", str(out), "--json", "--force", *args])
     cap = capsys.readouterr()
     return rc, cap.out, cap.err.strip(), out
 
@@ -241,3 +241,14 @@ def test_imucal_raw_counts_gyro_is_not_taken_for_deg_per_s(shared_data, tmp_path
     raw = np.loadtxt(src, delimiter=",", skiprows=1, usecols=(5, 6, 7))
     s = read_session(out)
     assert s.n == 9414 and np.array_equal(s.gyro_counts, raw) and np.array_equal(s.gyro_dps, raw / 16.384)
+
+
+def test_fit_on_a_csv_points_to_import_csv_for_the_fix(tmp_path, capsys):
+    """Stages that read a CSV directly have no --time-unit: the one line says where the option goes."""
+    t, acc, gyr = _still(300)
+    src = _write(tmp_path / "us.csv", t * 1e6, acc, gyr, ("%.0f", "%.9g", "%.9g"))
+    out = tmp_path / "cal.json"
+    assert main(["fit", str(src), "-o", str(out)]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--time-unit us" in err and "accellog import csv" in err
+    assert not out.exists()

@@ -16,6 +16,7 @@ from accellog.calibrate.segment import obs_from_pose_means
 from accellog.core.errors import InputError
 from accellog.core.session import ObsTable, Session
 from accellog.store import importers
+from accellog.store.importers.csv_checks import UnitsError
 from accellog.store.importers.ros2 import import_ros2, is_ros2_bag
 from accellog.store.importers.text import check_text_file
 from accellog.store.reader import read_session
@@ -71,7 +72,12 @@ def _read_input(path: str | os.PathLike, *, n_per_pose: int | None = None) -> Se
             return importers.import_imucal(p)
         if "," not in first or first.startswith("acceleration") or not first[:1].isalpha():
             return importers.import_capstone(p)
-        return importers.import_csv(p)
+        try:
+            return importers.import_csv(p)
+        except UnitsError as exc:  # its fix names import csv's options: say where they go
+            raise UnitsError(
+                f"{exc} (an option of `accellog import csv FILE -o S.mcap`: import the file, then give S.mcap)"
+            ) from None
     raise InputError(
         f"unknown input type {suffix or '(no suffix)'!r}: give .mcap, .csv or observations .json",
         where=str(p),
