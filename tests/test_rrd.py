@@ -134,7 +134,9 @@ def test_full_recording_reads_back(tmp_path: Path) -> None:
         ("TimeSeries", "/accel/calibrated"),
         ("TimeSeries", "/tracks/model3"),
         ("3D", "/world"),
-        ("BarChart", "/residuals/model3"),
+        ("2D", "/charts/residuals/model3"),  # the residual bars, named by pose
+        ("2D", "/charts/ladder"),
+        ("TimeSeries", "/ladder/driver"),  # the driver on its own axis, not with the residuals (mg)
         ("TextDocument", "/docs/calibration/model3"),
         ("TextLog", "/"),
     ]:

@@ -51,7 +51,9 @@ def test_fit_rrd_has_raw_calibrated_holds_and_residuals(sessions, capsys):
     np.testing.assert_allclose(
         cal.theta, [p["value"] for p in fit["params"]] if "params" in fit else cal.theta
     )
-    assert any(v["class"] == "BarChart" for v in r.views())
+    # ... and drawn as bars named by pose (a 2D view: the bar chart view only numbers its bars)
+    assert any(v["class"] == "2D" and v["origin"] == "/charts/residuals/model3" for v in r.views())
+    assert r.static("/charts/residuals/model3/ticks", "Points2D:labels")[:6] == list(fo.obs.pose_names)
     assert any(e.startswith("/docs/parameters") for e in r.entities)
 
 
@@ -94,8 +96,8 @@ def test_demo_rrd_tells_the_whole_story(tmp_path):
     # every time-series view opens on its own data's time range (issue 10), e.g. the robot tab
     plots = [v for v in r.views() if v["class"] == "TimeSeries"]
     assert plots and all(v["axis_range"] and None not in v["time_range"] for v in plots)
-    robot_t = np.concatenate([r.series(e)[0] for e in ents if e.startswith("/tracks/robot/")])
-    robot = next(v for v in plots if v["name"] == "robot position per calibration (m)")
+    robot_t = r.series("/tracks/robot/Model_3")[0]
+    robot = next(v for v in plots if v["name"] == "Model 3: position (m)")
     np.testing.assert_allclose(robot["time_range"], (robot_t.min(), robot_t.max()), atol=1e-9)
     # the ladder's held-out RMS falls step by step to the final model
     heldout = [v for _, _, v in r.ladder_bars("log10_heldout_rms_mg")]  # log10 mg

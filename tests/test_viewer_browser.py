@@ -33,8 +33,8 @@ def chromium() -> str:
     return exe
 
 
-BAR_COLORS = [(244, 184, 94), (109, 192, 237)]
-"""The ladder's first two bars as drawn (track colours (240, 160, 40), (60, 170, 230) over white)."""
+BAR_COLORS = [(240, 160, 40), (60, 170, 230)]
+"""The ladder's first two steps' colours (its bars are drawn opaque in a 2D view)."""
 
 
 def _demo_rrd(path: Path) -> None:
@@ -69,7 +69,7 @@ def test_web_viewer_renders_demo_recording(chromium: str, tmp_path: Path) -> Non
         assert near.sum() > 300, f"{axis} series colour {rgb}: only {near.sum()} pixels"
     assert rrd.read_bytes() == before  # the viewer only reads the recording
 
-    # --tab picks the workbench tab: its log10 ladder bars (translucent track colours) fill large areas
+    # --tab picks the workbench tab: its log10 ladder bars (a colour per step) fill large areas
     png_tab = tmp_path / "workbench.png"
     assert (
         main(["view", str(rrd), "--screenshot", str(png_tab), "--tab", "3 workbench", "--wait-s", "240"]) == 0
@@ -78,7 +78,7 @@ def test_web_viewer_renders_demo_recording(chromium: str, tmp_path: Path) -> Non
     for rgb in BAR_COLORS:
         n_tab = (np.abs(tab - np.array(rgb)).sum(axis=2) < 30).sum()
         n_default = (np.abs(img - np.array(rgb)).sum(axis=2) < 30).sum()
-        assert n_tab > 20000 and n_tab > 5 * n_default, (rgb, n_tab, n_default)
+        assert n_tab > 3000 and n_tab > 5 * n_default, (rgb, n_tab, n_default)
     assert rrd.read_bytes() == before
 
 

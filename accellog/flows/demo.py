@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -29,19 +30,7 @@ from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import run_drift, run_evaluate, run_fit
 from accellog.flows.workbench import discover, ladder_rows, log_ladder, steps_for
 from accellog.navigate.track_eval import run_session_tracks
-from accellog.present.rrd.entities import (
-    DOCS,
-    LADDER,
-    LADDER_METRICS,
-    MAIN_TIMELINE,
-    POSES_ACTIVE,
-    RESIDUALS,
-    TEMPERATURE,
-    TRACKS,
-    WORLD_TRACKS,
-    slug_path,
-)
-from accellog.present.rrd.layout import ladder_bars_view, time_panel
+from accellog.present.rrd.demo_layout import DemoData, demo_blueprint
 from accellog.present.rrd.recording import RunRecording
 from accellog.present.tables import (
     displacement_table,
@@ -273,11 +262,10 @@ def _robot_table(runs, robot, note: str) -> Table:
 
 
 def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
-    """The demo's recording of res at path, opening on tab first_tab (see demo_blueprint)."""
+    """The demo's recording of res at path, opening on tab first_tab (see demo_layout)."""
 
     S, diags, obs = res.sessions, res.diagnoses, res.workbench_obs
-    labels = [e.label for e in res.evals] + ["Model 3 + drift model", "truth (at rest)"]
-    bp = demo_blueprint(labels, first=first_tab, n_diagnoses=len(diags))
+    bp = demo_blueprint(_layout_data(res), first=first_tab)
     with RunRecording(f"save:{path}", recording_id="accellog-demo", blueprint=bp) as rec:
         log_session(rec, S["calibration"], calibrations={"Model 3": res.fits["model3"].cal})
         for m, fo in res.fits.items():
@@ -295,129 +283,32 @@ def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
         log_track_runs(rec, res.tracks, S["robot"].truth)
 
 
-def _whole_range_plot(**kw):
-    """A time-series view that always shows its whole time range (the demo's sessions differ in
-    length and share the sensor_time timeline, so a cursor-relative window would hide data)."""
-    import rerun.blueprint as rrb
-
-    whole = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
-    return rrb.TimeSeriesView(
-        time_ranges=rrb.VisibleTimeRange(MAIN_TIMELINE, start=whole.start, end=whole.end),
-        axis_x=rrb.TimeAxis(link="Independent", view_range=whole),
-        **kw,
-    )
-
-
-def demo_blueprint(test_labels: list[str], first: int = 0, n_diagnoses: int = 3):
-    """The demo's layout: one tab per chapter of the story (static test, calibration, workbench,
-    robot); test_labels: the static test's tracks, one auto-scaled plot each (m); n_diagnoses: the
-    workbench steps logged at /docs/workbench/step_{i}, i = 1..n_diagnoses."""
-    import rerun.blueprint as rrb
-
-    return rrb.Blueprint(
-        rrb.Tabs(
-            _static_tab(test_labels),
-            _calibration_tab(),
-            _workbench_tab(n_diagnoses),
-            _robot_tab(),
-            active_tab=first,
-        ),
-        time_panel(),
-        collapse_panels=True,
-    )
-
-
-def _calibration_tab():
-    """The demo's tab: the calibration session: raw and calibrated accel, temperature, residuals per model."""
-    import rerun.blueprint as rrb
-
-    return rrb.Horizontal(
-        rrb.Vertical(
-            _whole_range_plot(
-                origin="/accel/raw",
-                contents=["$origin/**", f"/{POSES_ACTIVE}/**"],
-                name="raw accel (g) + holds",
-            ),
-            _whole_range_plot(origin="/accel/Model_3", name="calibrated accel, Model 3 (g)"),
-            _whole_range_plot(origin=f"/{TEMPERATURE}", name="temperature (degC)"),
-        ),
-        rrb.Vertical(
-            rrb.Tabs(
-                *[
-                    rrb.BarChartView(origin=f"/{RESIDUALS}/{m}", name=f"{m}: measured - predicted (mg)")
-                    for m in ("model1", "model2", "model3")
-                ]
-            ),
-            rrb.TextDocumentView(origin=f"/{DOCS}/parameters/model3", name="Model 3 parameters"),
-        ),
-        column_shares=[3, 2],
-        name="1 calibration session",
-    )
-
-
-def _static_tab(test_labels: list[str]):
-    """The demo's tab: the static test: integrated displacement per calibration (one plot each), 3D tracks, tables."""
-    import rerun.blueprint as rrb
-
-    return rrb.Horizontal(
-        rrb.Grid(
-            *[
-                _whole_range_plot(origin=f"/{TRACKS}/test/{slug_path(lab)}", name=f"{lab}: displacement (m)")
-                for lab in test_labels
-            ],
-            name="static test: integrated displacement per calibration",
-        ),
-        rrb.Vertical(
-            rrb.Spatial3DView(origin=f"/{WORLD_TRACKS}/test", name="static test tracks 3D (m)"),
-            rrb.Tabs(
-                rrb.TextDocumentView(origin=f"/{DOCS}/results/static_test", name="Tables 4 and 5"),
-                rrb.TextDocumentView(origin=f"/{DOCS}/results/drift_model", name="drift model"),
-            ),
-        ),
-        name="2 static test",
-    )
-
-
-def _workbench_tab(n_diagnoses: int):
-    """The demo's tab: the workbench: the ladder's bars and residuals, its table and each diagnosis."""
-    import rerun.blueprint as rrb
-
-    return rrb.Horizontal(
-        rrb.Vertical(
-            ladder_bars_view(list(LADDER_METRICS)),
-            _whole_range_plot(
-                origin=f"/{LADDER}/steps",
-                name="residuals (mg): Model 3 vs final model, and temperature (degC)",
-            ),
-        ),
-        rrb.Tabs(
-            rrb.TextDocumentView(origin=f"/{DOCS}/ladder", name="ladder"),
-            rrb.Tabs(
-                *[
-                    rrb.TextDocumentView(origin=f"/{DOCS}/workbench/step_{i}", name=f"diagnosis {i}")
-                    for i in range(1, n_diagnoses + 1)
-                ]
-            ),
-        ),
-        column_shares=[3, 2],
-        name="3 workbench",
-    )
-
-
-def _robot_tab():
-    """The demo's tab: the moving robot: tracks vs truth, position per calibration, errors and ZUPT stops."""
-    import rerun.blueprint as rrb
-
-    return rrb.Horizontal(
-        rrb.Spatial3DView(origin=f"/{WORLD_TRACKS}/robot", name="robot tracks vs truth (m)"),
-        rrb.Vertical(
-            _whole_range_plot(origin=f"/{TRACKS}/robot", name="robot position per calibration (m)"),
-            _whole_range_plot(
-                origin="/",
-                contents=["/errors/robot/**", "/zupt/robot/**"],
-                name="position error (m) and ZUPT stops",
-            ),
-            rrb.TextDocumentView(origin=f"/{DOCS}/results/robot_tracks", name="position errors"),
-        ),
-        name="4 moving robot",
-    )
+def _layout_data(res: DemoResult) -> DemoData:
+    """The series the demo's views are framed on (the same arrays write_rrd logs)."""
+    data = DemoData(n_diagnoses=len(res.diagnoses))
+    t_ref = None
+    for ev in res.evals:
+        if ev.t_s is not None and ev.disp_series_m is not None:
+            data.static_tracks[ev.label] = (ev.t_s, ev.disp_series_m)
+            t_ref = ev.t_s
+    m3d = res.drift_evals[-1]
+    data.static_tracks["Model 3 + drift model"] = (m3d.t_s, m3d.disp_drift_series_m)
+    if t_ref is not None:
+        data.static_tracks["truth (at rest)"] = (t_ref[[0, -1]], np.zeros((2, 3)))
+    truth = res.sessions["robot"].truth
+    if truth is not None:
+        data.robot_tracks["truth"] = (truth.t_s, truth.position_m)
+    for r in res.tracks:
+        t, p = r.track.t_s, r.track.position_m
+        data.robot_tracks[r.name] = (t, p)
+        if truth is not None:
+            ref = np.column_stack([np.interp(t, truth.t_s, truth.position_m[:, i]) for i in range(3)])
+            data.robot_errors[r.name] = (t, np.linalg.norm(p - ref, axis=1))
+    if res.workbench_obs is not None:
+        t = np.asarray(res.workbench_obs.t_s, dtype=np.float64)
+        data.workbench_residuals = [
+            (t, 1000.0 * np.asarray(r.residual_g)) for r in res.ladder if r.residual_g is not None
+        ]
+        if res.workbench_obs.temp_degC is not None:
+            data.workbench_driver = [(t, np.asarray(res.workbench_obs.temp_degC, dtype=np.float64))]
+    return data

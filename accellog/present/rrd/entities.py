@@ -13,6 +13,7 @@
 - ``/ladder/{metric}/{k:02d}_{model}`` BarChart of log10(metric) of ladder step k at abscissa k
   (metric in LADDER_METRICS; the entity name puts the model on its bar); ``/ladder/steps/...``
   residuals (mg) vs the driver
+- ``/charts/...``               the same residuals and ladder as 2D bar charts with named groups
 - ``/live/...``                 live recording panels (prompt, stillness, running calibration)
 """
 
@@ -47,6 +48,9 @@ LADDER_METRICS = {
     "log10_drift_m": "log10 static-test drift (m)",
 }
 LIVE = "live"
+CHARTS = "charts"
+"""Root of the named 2D bar charts (present.rrd.bars2d): ``/charts/residuals/{model}`` (residual per
+pose and axis, mg) and ``/charts/ladder`` (the ladder's metrics per step, log10)."""
 
 AXES = ("x", "y", "z")
 TRACK_3D_MAX_POINTS = 20_000

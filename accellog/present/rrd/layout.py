@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 
 from accellog.present.rrd.entities import (
+    CHARTS,
     DOCS,
     EVENTS_LOST,
     LADDER,
-    LADDER_METRICS,
     LIVE,
     MAIN_TIMELINE,
     POSES_ACTIVE,
@@ -88,12 +88,23 @@ def _chart_views(roles: Mapping[str, list[str]]) -> list:
         ]
         charts.append(rrb.Vertical(*views, name=f"residual vs {driver}"))
     for model in sorted({e.split("/")[1] for e in roles.get("residual_bar", [])}):
-        charts.append(rrb.BarChartView(origin=f"/{RESIDUALS}/{model}", name=f"residuals {model} (mg)"))
+        charts.append(residual_bars_view(model))
     if "ladder_bar" in roles:
-        charts.append(ladder_bars_view(sorted({e.split("/")[1] for e in roles["ladder_bar"]})))
+        charts.append(ladder_bars_view())
     if "ladder_step" in roles:
-        charts.append(rrb.TimeSeriesView(origin=f"/{LADDER}/steps", name="ladder residuals (mg) vs driver"))
+        steps = rrb.TimeSeriesView(origin=f"/{LADDER}/steps", name="ladder residuals (mg)")
+        driver = [
+            rrb.TimeSeriesView(origin=f"/{e}", name=e.split("/")[-1]) for e in roles.get("ladder_driver", [])
+        ]
+        charts.append(_group([steps, *driver]))
     return charts
+
+
+def residual_bars_view(model: str, name: str | None = None):
+    """The named bar chart (present.rrd.bars2d) of a model's residual per pose and axis (mg)."""
+    import rerun.blueprint as rrb
+
+    return rrb.Spatial2DView(origin=f"/{CHARTS}/{RESIDUALS}/{model}", name=name or f"residuals {model} (mg)")
 
 
 def _group(views, kind=None):
@@ -172,14 +183,9 @@ def live_blueprint():
     )
 
 
-def ladder_bars_view(metrics: Sequence[str]):
-    """The ladder's bar charts side by side, one per metric present (log10 values; the legend names
-    each bar's model)."""
+def ladder_bars_view(name: str = "model ladder: each step's fit, held-out and drift error (log scale)"):
+    """The ladder's named bar chart (present.rrd.bars2d): per metric one bar per step, coloured by
+    step (the legend names each step's model), on a log scale."""
     import rerun.blueprint as rrb
 
-    views = [
-        rrb.BarChartView(origin=f"/{LADDER}/{m}", name=LADDER_METRICS[m])
-        for m in LADDER_METRICS
-        if m in metrics
-    ]
-    return rrb.Horizontal(*views, name="model ladder (log10)")
+    return rrb.Spatial2DView(origin=f"/{CHARTS}/{LADDER}", name=name)

@@ -15,11 +15,13 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel
+from accellog.present.rrd.bars2d import log_bar_groups
 from accellog.present.rrd.entities import (
     _EVENT_LEVEL,
     _TRACK_COLORS,
     AXES,
     AXIS_COLORS,
+    CHARTS,
     DOCS,
     EVENTS,
     EVENTS_LOST,
@@ -44,13 +46,15 @@ if TYPE_CHECKING:
 
 class PipelineLogs:
     """Logging methods for pipeline results (mixed into RunRecording, which provides ``rec``,
-    ``_guarded``, ``_log_series``, ``_entities``, ``full_rate``, ``_n_tracks`` and ``_n_poses``)."""
+    ``_guarded``, ``_log_series``, ``_entities``, ``full_rate``, ``_n_tracks``, ``_n_poses`` and
+    ``_finals3d``: 3D final point entity -> (position m, label), decluttered on close)."""
 
     rec: Any
     full_rate: bool
     _entities: dict[str, str]
     _n_tracks: int
     _n_poses: int
+    _finals3d: dict[str, tuple[np.ndarray, str]]
 
     def log_poses(self, poses: Sequence[PoseLabel]) -> None:
         """Hold windows: a 0/1 step series per hold (named by its label) + a TextLog at each start.
@@ -159,6 +163,7 @@ class PipelineLogs:
                 static=True,
             )
         self.rec.log(base, rr.AnyValues(pose=list(pose_names)), static=True)
+        log_bar_groups(self, f"{CHARTS}/{base}", pose_names, list(AXES), AXIS_COLORS, res_mg, unit="mg")
         idx = [rr.TimeColumn(POSE_TIMELINE, sequence=np.arange(len(pose_names)))]
         for sub, arr, unit in (
             ("measured", meas, "g"),
@@ -233,17 +238,49 @@ class PipelineLogs:
         self._entities[ent] = "track3d"
         final = d[-1]
         label = str(label).rsplit("/", 1)[-1]
-        self.rec.log(ent, rr.LineStrips3D([d_strip], colors=[color], labels=[label]), static=True)
+        # the strip's label stays in the data but is not drawn: the final point carries the name
+        self.rec.log(
+            ent, rr.LineStrips3D([d_strip], colors=[color], labels=[label], show_labels=False), static=True
+        )
+        shown = np.where(np.abs(final) < 1e-9, 0.0, final)  # no '-4.5e-15' for an exact zero
+        text = f"{label}: ({shown[0]:+.3g}, {shown[1]:+.3g}, {shown[2]:+.3g}) m"
         self.rec.log(
             f"{ent}/final",
             rr.Points3D(
                 [final],
                 colors=[color],
                 radii=[-6.0],  # negative radius = screen-space points (ui points)
-                labels=[f"{label}: ({final[0]:+.3g}, {final[1]:+.3g}, {final[2]:+.3g}) m"],
+                labels=[text],
             ),
             static=True,
         )
+        self._finals3d[f"{ent}/final"] = (final, text)
+
+    def _declutter_3d_labels(self, near: float = 0.06) -> None:
+        """Final points of one 3D group (``/world/tracks/<group>/...``) closer than near x the group's
+        extent share one label (their labels one per line, on the farthest point from the origin);
+        the others hide theirs. Points and colours are left as logged."""
+        import rerun as rr
+
+        groups: dict[str, list[str]] = {}
+        for ent in self._finals3d:
+            groups.setdefault(ent.rsplit("/", 2)[0], []).append(ent)
+        for ents in groups.values():
+            pts = np.array([self._finals3d[e][0] for e in ents], dtype=np.float64)
+            scale = max(float(np.ptp(np.vstack([pts, np.zeros(3)]), axis=0).max()), 1e-9)
+            heads: list[list[int]] = []
+            for k in np.argsort(-np.linalg.norm(pts, axis=1), kind="stable"):
+                for h in heads:
+                    if np.linalg.norm(pts[k] - pts[h[0]]) < near * scale:
+                        h.append(int(k))
+                        break
+                else:
+                    heads.append([int(k)])
+            for h in (h for h in heads if len(h) > 1):
+                text = "\n".join(self._finals3d[ents[k]][1] for k in h)
+                self.rec.log(ents[h[0]], rr.Points3D.from_fields(labels=[text]), static=True)
+                for k in h[1:]:
+                    self.rec.log(ents[k], rr.Points3D.from_fields(show_labels=False), static=True)
 
     def log_document(self, path: str, markdown: str) -> None:
         """A markdown document (tables, parameters with uncertainties) at ``/docs/{path}``."""
@@ -290,38 +327,74 @@ class PipelineLogs:
                     continue
                 ent = f"{LADDER}/{metric}/{i:02d}_{slug(r.model)}"
                 self._entities[ent] = "ladder_bar"
-                color = _TRACK_COLORS[i % len(_TRACK_COLORS)]
+                color = step_color(i)
                 self.rec.log(ent, rr.BarChart([np.log10(v)], abscissa=[float(i)], color=color), static=True)
         self.rec.log(
             LADDER,
             rr.AnyValues(step=[r.model for r in rows], added=["+".join(r.added) for r in rows]),
             static=True,
         )
+        log_bar_groups(
+            self,
+            f"{CHARTS}/{LADDER}",
+            list(LADDER_BAR_GROUPS.values()),
+            ladder_step_names(rows),
+            [step_color(i) for i in range(len(rows))],
+            np.array([_ladder_values(r) for r in rows], dtype=np.float64).T,
+            log10=True,
+            width=720.0,
+        )
         if t_s is None:
             return
         t = np.asarray(t_s, dtype=np.float64)
+        short = ladder_step_names(rows)
         for i in sorted(residual_steps):
             r = rows[i]
             if r.residual_g is None:
                 continue
-            base = f"{LADDER}/steps/{i:02d}"
             res_mg = np.asarray(r.residual_g, dtype=np.float64).reshape(-1, 3) * 1000.0
-            names = [f"{i} {r.model} res {a} (mg)" for a in AXES]
+            names = [f"{short[i]} {a} (mg)" for a in AXES]
+            colors = axis_shades(step_color(i))  # the step's colour (as its bars), a shade per axis
+            ent = f"{LADDER}/steps/{i:02d}/residual_mg"
+            self._log_series(ent, t, res_mg, names, None, "ladder_step", colors, True, False)
+        if driver is not None:  # once, on its own axis (degC and mg do not share one)
+            d = np.asarray(driver, dtype=np.float64)
             self._log_series(
-                f"{base}/residual_mg", t, res_mg, names, None, "ladder_step", AXIS_COLORS, True, False
+                LADDER_DRIVER, t, d, [driver_name], None, "ladder_driver", [(120, 120, 120)], False, False
             )
-            if driver is not None:
-                self._log_series(
-                    f"{base}/driver",
-                    t,
-                    np.asarray(driver, dtype=np.float64),
-                    [f"driver {driver_name}"],
-                    None,
-                    "ladder_step",
-                    [(120, 120, 120)],
-                    False,
-                    False,
-                )
+
+
+LADDER_DRIVER = f"{LADDER}/driver"
+"""What the ladder's residuals are plotted against (e.g. temperature, degC), once."""
+LADDER_BAR_GROUPS = {
+    "log10_chi2_dof": "χ²/dof (fit)",
+    "log10_heldout_rms_mg": "held-out RMS (mg)",
+    "log10_drift_m": "static-test drift (m)",
+}
+"""Group names of the ladder's 2D bar chart (one group per metric of LADDER_METRICS)."""
+
+
+def step_color(i: int) -> tuple[int, int, int]:
+    """Colour of ladder step i (its bars and its residual series)."""
+    return _TRACK_COLORS[i % len(_TRACK_COLORS)]
+
+
+def axis_shades(rgb: tuple[int, int, int]) -> list[tuple[int, int, int]]:
+    """x, y, z shades of one colour (dark, as is, light): a model's three axes in one plot."""
+    c = np.asarray(rgb, dtype=np.float64)
+    return [tuple(int(v) for v in s) for s in (0.6 * c, c, c + 0.5 * (255.0 - c))]
+
+
+def ladder_step_names(rows: Sequence[LadderRow]) -> list[str]:
+    """Short names of the ladder's steps: 'k model' for a base model, 'k +effect' for a step that
+    adds an effect to the previous one."""
+    return [f"{i} +{r.added[-1]}" if r.added else f"{i} {r.model}" for i, r in enumerate(rows)]
+
+
+def _ladder_values(r: LadderRow) -> list[float]:
+    """chi2/dof, held-out RMS (mg), drift (m) of a ladder step (NaN where not measured)."""
+    held = None if r.heldout_rms_g is None else r.heldout_rms_g * 1000.0
+    return [np.nan if v is None else float(v) for v in (r.chi2_dof, held, r.drift_m)]
 
 
 def _ladder_markdown(rows: Sequence[LadderRow]) -> str:

@@ -101,6 +101,7 @@ class RunRecording(PipelineLogs):
         self._lock = threading.Lock()
         self._n_tracks = 0
         self._n_poses = 0  # holds logged so far: /poses/active/{k} numbers them across calls
+        self._finals3d: dict[str, tuple[np.ndarray, str]] = {}  # 3D final points (logs.py)
         self.rec = rr.RecordingStream(app_id, recording_id=recording_id, send_properties=False)
         with contextlib.suppress(AttributeError):
             self.rec.set_log_time_enabled(False)  # reproducible files: no wall-clock timeline
@@ -343,6 +344,7 @@ class RunRecording(PipelineLogs):
             self._watch.stop()
         try:
             self.end_batches()
+            self._guarded(self._declutter_3d_labels)
             if self.kind == "save" and self._blueprint is not None:
                 bp = build_blueprint(self._entities) if isinstance(self._blueprint, str) else self._blueprint
                 bp = with_time_ranges(bp, self._extents)
