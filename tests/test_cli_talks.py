@@ -130,3 +130,17 @@ def test_spawn_without_a_display_says_so_at_once(monkeypatch):
     with pytest.raises(InputError, match="no display"):
         spawn_viewer(port)
     assert time.monotonic() - t0 < 2.0
+
+
+def test_record_spawn_without_a_display_records_and_says_it_once(monkeypatch, tmp_path, capsys):
+    """The live view that cannot start is reported once and then not fed (no dropped-calls line)."""
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the display check is for Linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    out = tmp_path / "r.mcap"
+    argv = ["record", "--sim", "--fast", "--protocol", "+z", "--hold", "2", "--rate", "200", "-o", str(out)]
+    assert main([*argv, "--rerun", "spawn"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("no display") == 1 and "dropped" not in err and "\x1b[" not in err
+    assert out.exists()

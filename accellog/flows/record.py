@@ -195,7 +195,11 @@ def record_session(
         )
         if opts.rerun:
             live = LiveView.from_option(opts.rerun)
-            ui = live.wrap_ui(ui)
+            if live.failures:  # the viewer could not start (said once): record without feeding it
+                live.close()
+                live = None
+            else:
+                ui = live.wrap_ui(ui)
         with SessionWriter(
             opts.out, meta, exclusive=True, overwrite=opts.force, compression=opts.compression
         ) as writer:
