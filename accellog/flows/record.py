@@ -196,8 +196,7 @@ def record_session(
         if opts.rerun:
             live = LiveView.from_option(opts.rerun)
             if live.failures:  # the viewer could not start (said once): record without feeding it
-                live.close()
-                live = None
+                live = None  # (not closed: closing would repeat the failure as "1 logging call dropped")
             else:
                 ui = live.wrap_ui(ui)
         with SessionWriter(
