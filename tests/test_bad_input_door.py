@@ -461,7 +461,7 @@ def cal_dict(good) -> dict:
     return c
 
 
-@settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(path=st.sampled_from(_CAL_PATHS), value=_json_values)
 def test_calibration_validator_property(cal_dict, path, value):
     """Any value anywhere: the validator either builds a calibration whose numbers are all finite
@@ -483,3 +483,45 @@ def test_calibration_validator_property(cal_dict, path, value):
         assert math.isfinite(cal.gyro.t_ref_degC)
     S, b = cal.S_b()
     assert np.isfinite(S).all() and np.isfinite(b).all()
+
+
+# ------------------------------------------------------------------- truncated and zero-filled MCAP
+
+
+@pytest.fixture(scope="module")
+def cut_head(tmp_path_factory) -> bytes:
+    """The first 2/3 of a labelled session (the labels are written at the end: all lost)."""
+    d = tmp_path_factory.mktemp("cut")
+    s = synth_session(seed=3, hold_s=20.0, move_s=1.0, rate_hz=200.0)
+    data = write_session(d / "s.mcap", s, chunk_size=64 * 1024).read_bytes()
+    return data[: len(data) * 2 // 3]
+
+
+@pytest.mark.parametrize("tail", [0, 20 * 1024**2, 2 * 1024**3], ids=["cut", "zeros-20MiB", "zeros-2GB"])
+@pytest.mark.parametrize("cmd", ["segment", "fit"])
+def test_truncated_without_labels_says_truncated_and_zero_tails_cost_nothing(
+    cut_head, tmp_path, capsys, tail, cmd
+):
+    src = _sparse(tmp_path / "cut.mcap", len(cut_head) + tail, cut_head)
+    before = _snapshot(tmp_path)
+    capsys.readouterr()
+    t0 = time.process_time()
+    rc = main([cmd, str(src), "-o", str(tmp_path / "o.json")])
+    cpu_s = time.process_time() - t0
+    *warned, err = capsys.readouterr().err.strip().splitlines()  # a chunk cut by the zeros is named
+    assert all(w.startswith("accellog: warning: ") and "damaged chunk" in w for w in warned), warned
+    assert rc == 2 and err.startswith("accellog: error: "), err
+    assert "cut.mcap" in err and "truncated" in err, err
+    if tail and cmd == "segment":
+        assert "zero-filled space at byte" in err and "MiB not read" in err, err
+    assert _snapshot(tmp_path) == before
+    assert cpu_s < 5.0, f"{cpu_s:.1f} s of CPU"
+
+
+def test_apply_on_a_truncated_file_notes_what_was_recovered(cut_head, good, tmp_path, capsys):
+    src = tmp_path / "cut.mcap"
+    src.write_bytes(cut_head)
+    capsys.readouterr()
+    assert main(["apply", str(src), "--cal", str(good["cal"]), "-o", str(tmp_path / "o.mcap")]) == 0
+    err = capsys.readouterr().err
+    assert "accellog: note: " in err and "cut.mcap: truncated file recovered" in err, err

@@ -120,9 +120,11 @@ def detect_static(
         if best is None or score < best[0]:
             best = (score, labels, nd)
     if best is None:
+        cut = any(e.kind == "recovered" for e in session.events)
         raise InputError(
             f"found at most {max_found} distinct static orientations (need >= {min_poses} for an "
-            f"orientation-free fit): hold the sensor still for >= {min_interval_s:g} s in more orientations",
+            f"orientation-free fit): hold the sensor still for >= {min_interval_s:g} s in more orientations"
+            + ("; the file is truncated: any pose labels went with its end" if cut else ""),
             where=where,
         )
     return best[1]

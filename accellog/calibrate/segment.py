@@ -98,7 +98,7 @@ def _hold_slices(session: Session, trim_s: float, min_samples: int) -> list[tupl
     if session.n == 0 and session.poses:
         raise InputError("session has no samples", where=where)
     check_timestamps(session, where=where)
-    labels = checked_labels(session.poses, where)
+    labels = checked_labels(session.poses, where, session.events)
     out = []
     for p in labels:
         up = np.asarray(p.up_sensor, float)
@@ -126,12 +126,15 @@ def _hold_slices(session: Session, trim_s: float, min_samples: int) -> list[tupl
     return out
 
 
-def checked_labels(poses: Sequence[PoseLabel], where: str) -> list[PoseLabel]:
-    """The labels in time order after the label-level checks (none, twice, empty, overlapping)."""
+def checked_labels(poses: Sequence[PoseLabel], where: str, events: Sequence = ()) -> list[PoseLabel]:
+    """The labels in time order after the label-level checks (none, twice, empty, overlapping);
+    events: the session's (a 'recovered' one says that missing labels went with a truncated end)."""
     if not poses:
+        cut = next((f"the file is truncated: they went with its end ({e.detail})" for e in events
+                    if e.kind == "recovered"), "record it with a pose protocol")  # fmt: skip
         raise InputError(
-            "session has no pose labels: record it with a pose protocol, or use the orientation-free "
-            "fit (static intervals are then detected automatically)",
+            f"session has no pose labels: {cut}; or use the orientation-free fit (static intervals are then "
+            "detected automatically)",
             where=where,
         )
     labels = sorted(poses, key=lambda p: p.start_s)
