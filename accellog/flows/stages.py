@@ -48,6 +48,7 @@ from accellog.present.rrd.recording import RunRecording
 from accellog.store.atomic import AtomicOutput
 from accellog.store.layout import NS_PER_S
 from accellog.store.reader import read_session
+from accellog.store.recovery import announce
 from accellog.store.stream import read_labels
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
@@ -437,6 +438,7 @@ def run_apply(
             "apply copies an MCAP session: convert other files with `accellog import` first", where=str(src)
         )
     s = read_session(src)
+    announce(s)  # a truncated input: what was recovered (a note on stderr)
     c = _cal(cal)
     check_device(s, c, other_device, where=str(src))
     f = c.correct(s)
