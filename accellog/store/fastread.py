@@ -136,11 +136,8 @@ def _fast_walk(
     release_pages(data, 0, len(data))  # what the index pass touched (the summary: ~14 MB at 24 h)
     if keep is not None:  # only chunks that hold a wanted channel are decompressed
         usize = np.where(keep, usize, 0)
-    # the session metadata (LSB scales) first: a stream needs it before the first group; without
-    # a metadata index (another writer's choice) the records between the chunks are walked
-    if not metadata_at:
-        metadata_at = metadata_between_chunks(data, summary_start)
-    meta_kv, meta_error = _session_metadata(data, metadata_at, stream)
+    # the session metadata (LSB scales) first: a stream needs it before the first group
+    meta_kv, meta_error = _session_metadata(data, metadata_at, stream, summary_start)
     # chunks in groups of a few MiB decompressed: each group is decoded while in the CPU cache
     sink = _Sink(topics)
     message_of: dict[int, str | None] = {}  # channel id -> accellog message type (None: not decoded)
@@ -215,12 +212,14 @@ def _closed_on_error(parts: dict[int, BatchAccumulator]):
         raise
 
 
-def _session_metadata(data: Bytes, at_list: list[int], stream: str | None):
+def _session_metadata(data: Bytes, at_list: list[int], stream: str | None, summary_start: int):
     """(key-values of the 'session' metadata record, (byte, error) of a damaged one or None); a
-    stream cannot wait for the data section CRC's verdict, so damage there is NotFast at once."""
+    stream cannot wait for the data section CRC's verdict, so damage there is NotFast at once.
+    at_list: the metadata index's offsets; without a metadata index (another writer's choice) the
+    records between the chunks are walked (mcap_records.metadata_between_chunks)."""
     meta_kv: dict[str, str] = {}
     meta_error: tuple[int, str] | None = None
-    for at in at_list:
+    for at in at_list or metadata_between_chunks(data, summary_start):
         try:
             name, kv = read_metadata(data, at)
         except Exception as exc:
