@@ -250,12 +250,15 @@ class ZeroFilled(Exception):
 class _ZeroStop:
     """The file as the salvaging scan reads it, ending the scan at a record opcode 0 (O(1)):
     zero-filled space (a preallocated or crash-damaged tail) would otherwise be walked as empty
-    records of 9 bytes, ~1 s per MiB, and 2 GB of it for half an hour."""
+    records of 9 bytes, ~1 s per MiB, and 2 GB of it for half an hour. A read past the end of the
+    file (a damaged length) fails before allocating it."""
 
     def __init__(self, f, size: int) -> None:
         self._f, self._size = f, size
 
     def read(self, n: int = -1) -> bytes:
+        if n > self._size - self._f.tell():  # a length past the end: fail without reading (memory)
+            raise EOFError(f"a record at byte {self._f.tell()} claims {n} bytes, past the end of the file")
         data = self._f.read(n)
         if n == 1 and data == b"\0":  # only record opcodes (and summary group opcodes) are 1-byte reads
             raise ZeroFilled(self._f.tell() - 1, self._size)
