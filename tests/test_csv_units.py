@@ -252,3 +252,25 @@ def test_fit_on_a_csv_points_to_import_csv_for_the_fix(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--time-unit us" in err and "accellog import csv" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("block_bytes", [64, 1 << 20])
+def test_line_numbers_exact_with_crlf_blank_lines_and_hash_in_values(tmp_path, block_bytes):
+    """Blocks map rows to lines in O(1) only when every line became a row; CRLF line ends, blank
+    lines and a '#' inside a value (not a comment) keep the reported line exact."""
+    lines = ["t,ax,ay,az,note"]
+    for i in range(60):
+        lines.append(f"{i * 0.01:.2f},0.01,0.02,1.0,{'#1' if 10 <= i < 20 else ''}")
+        if i == 30:
+            lines.append("")
+    k = len(lines) - 5
+    lines[k] = lines[k - 1]  # a duplicated stamp after the blank line
+    src = tmp_path / "crlf.csv"
+    src.write_bytes(("\r\n".join(lines) + "\r\n").encode())
+    with pytest.raises(InputError, match="duplicated timestamp") as e:
+        import_csv(src, block_bytes=block_bytes)
+    assert e.value.where == f"{src}:{k + 1}"
+    lines[k] = f"{float(lines[k - 1].split(',')[0]) + 0.005:.4f},0.01,0.02,1.0,"  # repaired
+    src.write_bytes(("\r\n".join(lines) + "\r\n").encode())
+    s = import_csv(src, block_bytes=block_bytes)  # '#1' in the ignored 'note' column is no comment
+    assert s.n == 60 and s.meta.extra["ignored_columns"] == "note"

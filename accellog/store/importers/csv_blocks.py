@@ -9,7 +9,6 @@ the first bad line (``file:line``), so errors cost time only when there is an er
 
 from __future__ import annotations
 
-import io
 import math
 import re
 from collections.abc import Iterator
@@ -159,20 +158,23 @@ class BlockReader:
                         carry = data
                         continue
                     data, carry = data[:cut], data[cut:]
+                n_nl = data.count(b"\n")
                 if data and not data.isspace():
-                    yield self._parse(data, line)
-                line += data.count(b"\n")
+                    yield self._parse(data, line, n_nl + (not data.endswith(b"\n")))
+                line += n_nl
                 if not buf:
                     return
 
     # -- one block ---------------------------------------------------------------------------------
-    def _parse(self, data: bytes, first_line: int) -> Block:
+    def _parse(self, data: bytes, first_line: int, n_lines: int) -> Block:
+        """Parse one block of ``n_lines`` lines. Rows map to lines in O(1) ('clean') when pyarrow made
+        one row of every line (no comment, blank or multi-line row); the scans for comments test the
+        single comment byte first (memchr), since a two-byte search costs ~1 ns per byte."""
         import pyarrow as pa
         import pyarrow.csv as pacsv
 
         c = self._comment
-        has_comment = bool(c) and (data.lstrip().startswith(c) or b"\n" + c in data)
-        clean = not has_comment and b"\n\n" not in data and b"\n\r\n" not in data and data[:1] not in b"\r\n"
+        has_comment = bool(c) and c in data and (data.lstrip().startswith(c) or b"\n" + c in data)
         body = data
         if has_comment:
             body = b"\n".join(ln for ln in data.split(b"\n") if not ln.lstrip().startswith(c))
@@ -187,7 +189,7 @@ class BlockReader:
             )
         try:
             table = pacsv.read_csv(
-                io.BytesIO(body),
+                pa.BufferReader(body),
                 read_options=pacsv.ReadOptions(column_names=self.header.names, encoding="utf8"),
                 parse_options=pacsv.ParseOptions(delimiter=self.opts.delimiter),
                 convert_options=pacsv.ConvertOptions(
@@ -222,6 +224,7 @@ class BlockReader:
             cols[key] = values
         if bad:
             self._diagnose(data, first_line)
+        clean = not has_comment and table.num_rows == n_lines
         return Block(cols, table.num_rows, first_line, data, clean, c)
 
     def _diagnose(self, data: bytes, first_line: int) -> None:
