@@ -187,7 +187,8 @@ def test_malformed_section_is_one_line_naming_the_file(tmp_path, section, key, v
 def test_fresh_fit_writes_the_keys_main_wrote(tmp_path):
     """A calibration made now has the sections (keys, order, JSON types) of the one main wrote."""
     sim = tmp_path / "six.mcap"
-    sc = Scenario(protocol="six", hold_s=3.0, move_s=1.0, sample_rate_hz=200.0, seed=7)
+    # 2 s moves: 180 deg in 1 s would clip the gyro (337 deg/s at 250 full scale), leaving those moves out
+    sc = Scenario(protocol="six", hold_s=3.0, move_s=2.0, sample_rate_hz=200.0, seed=7)
     sc.temperature = {"kind": "ramp", "T0": 20.0, "rate_degC_per_s": 0.2}
     simulate(sc, sim)
     new = tmp_path / "cal.json"

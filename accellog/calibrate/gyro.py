@@ -26,6 +26,7 @@ reported as undetermined (sigma NaN). Covariance = s^2 (J^T J)^-1, s^2 = max(RSS
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -66,6 +67,10 @@ class GyroCalibration:
     n_holds: int = 0
     rotation_rms_deg: float = float("nan")
     """RMS of the rotation residuals after the scale/misalignment fit (deg)."""
+    clipped_moves: int = 0
+    """Moves between holds left out of the scale/misalignment fit: the rate reached CLIP_NEAR of the
+    gyro full scale on some axis in them (a clipped rate integrates to a wrong rotation). Not a key
+    of the file: `fit` states it as a warning of the fit."""
 
     def bias_at(self, temp_degC: np.ndarray | float | None = None) -> np.ndarray:
         """Bias (deg/s): b0 + b_T (T - T_ref); (3,) without temperature, (N,3) with an (N,) array."""
@@ -231,6 +236,46 @@ def _bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_sp
     return cal
 
 
+CLIP_NEAR = 0.98
+"""A rate at or above this fraction of the gyro full scale on any axis counts as clipped."""
+
+
+def gyro_full_scale_dps(meta) -> float | None:
+    """The configured gyro full scale (deg/s) of a SessionMeta: its range, else 32768 counts / LSB per
+    deg/s; None when neither is recorded."""
+    if meta.gyro_range_dps:
+        return float(meta.gyro_range_dps)
+    return 32768.0 / meta.gyro_lsb_per_dps if meta.gyro_lsb_per_dps else None
+
+
+def clipped_in_moves(t_s: np.ndarray, gyro_dps: np.ndarray, mid_t: np.ndarray, full_scale_dps) -> np.ndarray:
+    """Clipped samples (|rate| >= CLIP_NEAR full scale on some axis) in each move k, the span
+    [mid_t[k], mid_t[k+1]) the rotation from hold k to hold k+1 integrates: (K-1,) counts."""
+    n_moves = max(len(mid_t) - 1, 0)
+    if not full_scale_dps or not n_moves:
+        return np.zeros(n_moves, np.int64)
+    w, lim = np.asarray(gyro_dps), CLIP_NEAR * float(full_scale_dps)
+    hit = np.zeros(w.shape[0], bool)
+    for k in range(3):  # booleans only: no (N,3) temporary
+        hit |= (w[:, k] >= lim) | (w[:, k] <= -lim)
+    move = np.searchsorted(mid_t, np.asarray(t_s)[hit], side="right") - 1
+    return np.bincount(move[(move >= 0) & (move < n_moves)], minlength=n_moves)
+
+
+def warn_clipped_moves(fit, cal) -> None:
+    """When cal.gyro left moves out (clipped_moves), a warning of the fit `fit` (a FitResult: printed
+    by `fit`) and of the calibration `cal` (its fit section: written into the file)."""
+    g = cal.gyro
+    if g is None or not g.clipped_moves:
+        return
+    msg = (
+        f"gyro: {g.clipped_moves} of {max(g.n_holds - 1, g.clipped_moves)} moves between holds reach "
+        f"{CLIP_NEAR:.0%} of the gyro full scale (clipped): left out of the gyro scale/misalignment fit"
+    )
+    fit.warnings.append(msg)
+    cal.fit = dataclasses.replace(cal.fit, warnings=(*(cal.fit.warnings or ()), msg))
+
+
 def fit_gyro_matrix(
     t_s: np.ndarray,
     gyro_dps: np.ndarray,
@@ -241,6 +286,7 @@ def fit_gyro_matrix(
     model: str = "full",
     floor_deg: float = 0.05,
     reference: str = "gravity",
+    full_scale_dps: float | None = None,
 ) -> GyroCalibration:
     """Scale ('scale': diag M) or scale + cross-axis ('full': all of M) from rotations between
     consecutive labelled poses (see module doc). Returns a copy of base with matrix,
@@ -252,6 +298,8 @@ def fit_gyro_matrix(
     turns the sensor freely between holds does no harm); 'orientation' compares the whole
     nominal rotation q_a^-1 q_b (for fixtures or vehicles whose heading is known).
     floor_deg: smallest residual scatter assumed (deg, nominal pose orientation error).
+    full_scale_dps: the gyro full scale (gyro_full_scale_dps): moves whose rate clips are left out
+    (GyroCalibration.clipped_moves); None: every move is used.
     """
     known = _known_poses(poses, model, reference)
     t = np.asarray(t_s, float)
@@ -260,7 +308,8 @@ def fit_gyro_matrix(
     mids, ends, starts = idx(mid_t), idx(end_t), idx(start_t)
     temp = temp_degC if np.any(base.temp_bias_dps_per_degC != 0) else None
     phi, c, at = _block_increments(t, gyro_dps, temp, base, (mids, ends, starts), block_s=0.01)
-    return _fit_matrix(phi, c, at, known, base, model, floor_deg, reference)
+    clipped = clipped_in_moves(t, gyro_dps, mid_t, full_scale_dps) > 0
+    return _fit_matrix(phi, c, at, known, base, model, floor_deg, reference, clipped)
 
 
 def _known_poses(poses: Sequence[PoseLabel], model: str, reference: str) -> list[PoseLabel]:
@@ -284,27 +333,41 @@ def _pose_times(known: list[PoseLabel]) -> tuple[np.ndarray, np.ndarray, np.ndar
     )
 
 
-def _fit_matrix(phi, c, at, known, base: GyroCalibration, model: str, floor_deg: float, reference: str):
-    """fit_gyro_matrix from the block increments of _block_increments."""
+def _residuals(phi, c, at, known: list[PoseLabel], reference: str, rows: np.ndarray):
+    """forward(m): the residual rows `rows` (..., R) of the rotations between consecutive holds for
+    gyro matrices m ((3,3) or (P,3,3)); three rows a move (module doc)."""
     if reference == "orientation":
         qn = np.array([p.q_sensor_to_world for p in known], float)
         dq_nom_c = _qconj(quat_multiply(quat_conjugate(qn[:-1]), qn[1:]))
     else:
         up = np.array([p.up_sensor for p in known], float)
         up /= np.linalg.norm(up, axis=1, keepdims=True)
-    diag_idx = [0, 4, 8]
-    free_all = diag_idx if model == "scale" else list(range(9))
 
     def forward(m: np.ndarray) -> np.ndarray:
-        """Residuals (..., R) for gyro matrices m ((3,3) or (P,3,3))."""
         dq_int = _relative_rotations(phi, c, at, m)
         if reference == "orientation":
-            return _rotvec_deg(quat_multiply(dq_nom_c, dq_int)).reshape((*dq_int.shape[:-2], -1))
+            return _rotvec_deg(quat_multiply(dq_nom_c, dq_int)).reshape((*dq_int.shape[:-2], -1))[..., rows]
         # up_a (world-fixed) seen from the sensor at hold b: v_b = dq_int^-1 v_a; the difference of
         # unit vectors is the tilt error in rad for small errors (and, unlike a cross product,
         # it does not vanish for a vector pointing the opposite way)
         pred = _rotate_inverse(dq_int, up[:-1])
-        return ((pred - up[1:]) * _DEG).reshape((*dq_int.shape[:-2], -1))
+        return ((pred - up[1:]) * _DEG).reshape((*dq_int.shape[:-2], -1))[..., rows]
+
+    return forward
+
+
+def _fit_matrix(
+    phi, c, at, known, base: GyroCalibration, model: str, floor_deg: float, reference: str, clipped=None
+):
+    """fit_gyro_matrix from the block increments of _block_increments; clipped: (K-1,) moves left out."""
+    diag_idx = [0, 4, 8]
+    free_all = diag_idx if model == "scale" else list(range(9))
+    clipped = np.zeros(len(known) - 1, bool) if clipped is None else np.asarray(clipped, bool)
+    if clipped.any() and 3 * int((~clipped).sum()) < len(free_all):  # too few moves left: bias only
+        return dataclasses.replace(
+            base, undetermined=[PARAM_NAMES[f] for f in free_all], clipped_moves=int(clipped.sum())
+        )
+    forward = _residuals(phi, c, at, known, reference, np.flatnonzero(np.repeat(~clipped, 3)))
 
     def matrix(p: np.ndarray, free: list[int]) -> np.ndarray:
         m = np.eye(3).ravel()
@@ -328,6 +391,11 @@ def _fit_matrix(phi, c, at, known, base: GyroCalibration, model: str, floor_deg:
     undetermined = [PARAM_NAMES[f] for f in free_all if f not in free]
     if not free:
         raise ModelError("the rotations between labelled poses are too small to determine any gyro scale")
+    if j_init.shape[0] < len(free):
+        raise ModelError(
+            f"gyro {model} model is not determined by these rotations ({j_init.shape[0]} residuals for "
+            f"{len(free)} parameters)"
+        )
     fun, jac = lambda p: forward(matrix(p, free)), lambda p: jacobian(p, free)
     sol = least_squares(fun, np.eye(3).ravel()[free], what=f"gyro {model} fit", jac=jac, x_scale=0.01)
     r = sol.fun
@@ -357,6 +425,7 @@ def _fit_matrix(phi, c, at, known, base: GyroCalibration, model: str, floor_deg:
         undetermined=undetermined,
         n_holds=base.n_holds,
         rotation_rms_deg=float(np.sqrt(np.mean(r**2))),
+        clipped_moves=int(clipped.sum()),
     )
 
 
@@ -368,12 +437,15 @@ def calibrate_gyro(
     *,
     model: str = "full",
     reference: str = "gravity",
+    full_scale_dps: float | None = None,
     **bias_kw,
 ) -> GyroCalibration:
-    """fit_gyro_bias on the poses' holds, then fit_gyro_matrix (see there for reference) when
-    there are >= 2 holds to rotate between (with known orientations for reference='orientation')."""
+    """fit_gyro_bias on the poses' holds, then fit_gyro_matrix (see there for reference and
+    full_scale_dps) when there are >= 2 holds to rotate between (with known orientations for
+    reference='orientation')."""
     cal = fit_gyro_bias(t_s, gyro_dps, poses, temp_degC, **bias_kw)
     n_ref = len(poses) if reference == "gravity" else sum(p.q_sensor_to_world is not None for p in poses)
     if n_ref >= 2:
-        cal = fit_gyro_matrix(t_s, gyro_dps, poses, cal, temp_degC, model=model, reference=reference)
+        kw = {"model": model, "reference": reference, "full_scale_dps": full_scale_dps}
+        cal = fit_gyro_matrix(t_s, gyro_dps, poses, cal, temp_degC, **kw)
     return cal

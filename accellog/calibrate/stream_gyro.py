@@ -9,7 +9,8 @@ Two streaming passes over ``store.stream.iter_imu``:
    start/middle/end) is the count of samples before it, summed over blocks (``np.searchsorted`` on
    the whole time axis, block by block), plus the time of the first sample at or after each hold
    middle; each bias window's rate and temperature sums are taken as soon as its end is found
-   (``_first_pass``), and the bias model (``gyro._bias_fit``) is fitted from them;
+   (``_first_pass``), and the bias model (``gyro._bias_fit``) is fitted from them; the samples whose
+   rate clips are counted per move on the way (``gyro.clipped_in_moves``: those moves are left out);
 2. integrate: the trapezoid integrals of the rate (and temperature) over the 10 ms fine blocks
    between hold middles (a sample pair that straddles two groups is carried over), bias-corrected
    and reduced to their coarse blocks (phi, c) as each chunk group completes them
@@ -37,6 +38,7 @@ from accellog.calibrate.gyro import (
     _holds,
     _known_poses,
     _pose_times,
+    clipped_in_moves,
 )
 from accellog.calibrate.gyro_rotation import _coarse_plan, _fine_pieces
 from accellog.calibrate.heap import trim_heap
@@ -58,6 +60,7 @@ def stream_calibrate_gyro(
     window_s: float = 1.0,
     min_temp_span_degC: float = 2.0,
     trim_s: float = 0.2,
+    full_scale_dps: float | None = None,
 ) -> GyroCalibration | None:
     """calibrate_gyro on the session in path (module doc); None when it records no gyro rate."""
     iv = _holds(poses)
@@ -67,7 +70,8 @@ def stream_calibrate_gyro(
     known = _known_poses(poses, model, reference) if n_ref >= 2 else []
     win_times = _bias_window_times(iv, window_s, trim_s)
     pose_t = _pose_times(known) if known else (np.zeros(0),) * 3
-    found = _first_pass(path, win_times, np.concatenate(pose_t))
+    moves = _MoveClips(pose_t[0], full_scale_dps)
+    found = _first_pass(path, win_times, np.concatenate(pose_t), moves)
     trim_heap()  # the pass's block arrays are freed: give their pages back (calibrate.heap)
     if found is None:
         return None
@@ -94,10 +98,22 @@ def stream_calibrate_gyro(
         _integrate_pass(path, mids[0], _fine_pieces(t_mid, mids, _BLOCK_S), blocks)
         trim_heap()
         phi, c = blocks.phi, blocks.c
-    return _fit_matrix(phi, c, np.searchsorted(coarse, mids), known, cal, model, 0.05, reference)
+    at = np.searchsorted(coarse, mids)
+    return _fit_matrix(phi, c, at, known, cal, model, 0.05, reference, moves.counts > 0)
 
 
-def _first_pass(path, win_times: list[np.ndarray], pose_q: np.ndarray):
+class _MoveClips:
+    """Clipped samples per move (gyro.clipped_in_moves), summed block by block."""
+
+    def __init__(self, mid_t: np.ndarray, full_scale_dps: float | None) -> None:
+        self.mid_t, self.full_scale_dps = mid_t, full_scale_dps
+        self.counts = np.zeros(max(len(mid_t) - 1, 0), np.int64)
+
+    def add(self, t_s: np.ndarray, gyro_dps: np.ndarray) -> None:
+        self.counts += clipped_in_moves(t_s, gyro_dps, self.mid_t, self.full_scale_dps)
+
+
+def _first_pass(path, win_times: list[np.ndarray], pose_q: np.ndarray, moves: _MoveClips | None = None):
     """One pass: the rate and temperature sums over the bias windows (edge times win_times, one
     array per hold) and the locate of module doc step 1 for the pose times pose_q. Returns
     ((rate sums (W,3), temperature sums (W,), samples (W,)) of the windows of >= 2 samples,
@@ -122,6 +138,8 @@ def _first_pass(path, win_times: list[np.ndarray], pose_q: np.ndarray):
     for blk in iter_imu(path):
         if blk.gyro_dps is None:
             return None
+        if moves is not None:
+            moves.add(blk.t_s, blk.gyro_dps)
         loc.add(blk.t_s)
         has_temp = has_temp and blk.temp_degC is not None
         add = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)

@@ -27,13 +27,13 @@ from accellog.calibrate.calibration import Calibration, load_calibration, source
 from accellog.calibrate.detect import detect_static, with_labels
 from accellog.calibrate.drift_model import DriftModel
 from accellog.calibrate.fit import fit_model, fit_orientation_free
-from accellog.calibrate.gyro import GyroCalibration, calibrate_gyro
+from accellog.calibrate.gyro import GyroCalibration, calibrate_gyro, gyro_full_scale_dps, warn_clipped_moves
 from accellog.calibrate.heap import trim_heap
 from accellog.calibrate.label_check import relabel_holds
 from accellog.calibrate.magnetometer import MagCalibration
 from accellog.calibrate.model import build_model
 from accellog.calibrate.segment import check_coverage, observations
-from accellog.core.errors import AccellogError, InputError
+from accellog.core.errors import AccellogError, InputError, ModelError
 from accellog.core.jsonio import JsonResult, dumps
 from accellog.core.notices import note
 from accellog.core.session import ObsTable, Session
@@ -186,6 +186,7 @@ def run_fit(
         fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
         trim_heap()
         cal.gyro = data.gyro_calibration()  # the holds and moves, streamed from the file again
+    warn_clipped_moves(fit, cal)  # moves left out of the gyro fit: said, and in the file
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
 
@@ -281,7 +282,11 @@ def _gyro_calibration(session: Session) -> GyroCalibration | None:
     if session.gyro_dps is None or len(session.poses) < 2:
         return None
     try:
-        return calibrate_gyro(session.t_s, session.gyro_dps, session.poses, session.temp_degC)
+        s, fs = session, gyro_full_scale_dps(session.meta)
+        return calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC, full_scale_dps=fs)
+    except ModelError as exc:  # e.g. a scale fit that did not converge: said, not silent
+        note(f"gyro not calibrated: {exc}")
+        return None
     except AccellogError:
         return None
 

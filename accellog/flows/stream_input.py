@@ -14,11 +14,12 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-from accellog.calibrate.gyro import GyroCalibration
+from accellog.calibrate.gyro import GyroCalibration, gyro_full_scale_dps
 from accellog.calibrate.segment import PoseStats
 from accellog.calibrate.stream_gyro import stream_calibrate_gyro
 from accellog.calibrate.stream_segment import TimestampCheck, stream_check_timestamps, stream_observations
-from accellog.core.errors import AccellogError, DataIntegrityWarning, InputError
+from accellog.core.errors import AccellogError, DataIntegrityWarning, InputError, ModelError
+from accellog.core.notices import note
 from accellog.core.session import ObsTable, PoseLabel, SessionMeta
 from accellog.store.stream import read_host_clock, read_labels
 
@@ -44,7 +45,10 @@ class StreamedSession:
         if len(self.poses) < 2:
             return None
         try:
-            cal = stream_calibrate_gyro(self.path, self.poses)
+            cal = stream_calibrate_gyro(self.path, self.poses, full_scale_dps=gyro_full_scale_dps(self.meta))
+        except ModelError as exc:  # e.g. a scale fit that did not converge: said, not silent
+            note(f"gyro not calibrated: {exc}")
+            return None
         except AccellogError:
             return None
         return cal
