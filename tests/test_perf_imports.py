@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import stats
-from support.synthetic import synthetic_session, true_theta
+from support.synthetic import synthetic_obs, synthetic_session, true_theta
 
 from accellog.calibrate.model import build_model
 from accellog.core.numeric import f_sf, normal_sf
@@ -46,3 +46,20 @@ def test_diagnose_loads_no_scipy_stats(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
     rc, *loaded = out.stdout.split()
     assert rc == "0" and loaded == []
+
+
+def test_yaw_per_face_equals_per_row():
+    """driver_signals._yaw_deg forms the face rotation once per face: the same angles, bit for bit,
+    as one quat_between per row (24 poses: 6 faces x 4 yaw angles, 6 windows each)."""
+    from accellog.calibrate.driver_signals import _yaw_deg
+    from accellog.core.rotations import quat_between, quat_conjugate, quat_multiply
+
+    model = build_model("model3")
+    obs = synthetic_obs(model, true_theta(model), protocol="24", hold_s=12.0, seed=2)
+    z = np.array([0.0, 0.0, 1.0])
+    qf = np.stack([quat_between(u, z) for u in np.asarray(obs.up_sensor, float)])
+    qy = quat_multiply(np.asarray(obs.q_sensor_to_world, float), quat_conjugate(qf))
+    want = np.rad2deg(2.0 * np.arctan2(qy[:, 3], qy[:, 0]))
+    got = _yaw_deg(obs)
+    assert got is not None and np.array_equal(got, want)
+    assert np.unique(np.round(got)).size > 1  # the yaw really varies

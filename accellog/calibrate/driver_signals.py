@@ -31,7 +31,8 @@ def _yaw_deg(obs: ObsTable) -> np.ndarray | None:
         return None
     q = np.asarray(q, float)
     up = np.asarray(obs.up_sensor, float)
-    qf = np.stack([quat_between(u, np.array([0.0, 0.0, 1.0])) for u in up])
+    faces, row_face = np.unique(up, axis=0, return_inverse=True)  # a few faces, many rows
+    qf = np.stack([quat_between(u, np.array([0.0, 0.0, 1.0])) for u in faces])[row_face.reshape(-1)]
     qy = quat_multiply(q, quat_conjugate(qf))
     return np.rad2deg(2.0 * np.arctan2(qy[:, 3], qy[:, 0]))
 
