@@ -188,6 +188,7 @@ def import_csv_cmd(
     `--unit counts --lsb-per-g 16384 --count-offset 32768 --gyro-unit counts --gyro-lsb-per-dps 131`;
     no time column `--rate 100` (or a '# rate: 100 Hz' line above the header).
     """
+    from accellog.cli.progress import progress_bar, wanted
     from accellog.store.importers.csv import CsvOptions, import_csv_to_mcap
 
     opts = CsvOptions.make(
@@ -204,9 +205,10 @@ def import_csv_cmd(
         comment=comment,
     )
     _check_out(out, file, compression, force)
-    result = import_csv_to_mcap(
-        file, out, opts, batch_size=batch_size, compression=compression, overwrite=force
-    )
+    with progress_bar("import csv (MB)", show=wanted(as_json)) as bar:
+        result = import_csv_to_mcap(
+            file, out, opts, batch_size=batch_size, compression=compression, overwrite=force, progress=bar
+        )
     _present(result.to_dict(), file, out, as_json)
 
 
@@ -218,7 +220,12 @@ def import_ros2_cmd(
     ] = None,
     topic: Annotated[str | None, typer.Option("--topic", help="sensor_msgs/msg/Imu topic.")] = None,
     temperature_topic: Annotated[
-        str | None, typer.Option("--temperature-topic", help="sensor_msgs/msg/Temperature topic.")
+        str | None,
+        typer.Option(
+            "--temperature-topic",
+            help="sensor_msgs/msg/Temperature topic (default: the bag's only one, or the one in the IMU "
+            "topic's namespace).",
+        ),
     ] = None,
     mag_topic: Annotated[
         str | None, typer.Option("--mag-topic", help="sensor_msgs/msg/MagneticField topic.")
@@ -233,11 +240,14 @@ def import_ros2_cmd(
 ) -> None:
     """ROS 2 bag -> MCAP session: header stamps, m/s^2 -> g, rad/s -> deg/s, T -> uT; provenance kept.
 
-    Without -o, lists the bag's topics (IMU topics first) and exits.
+    Without -o, lists the bag's topics (IMU topics first) and exits. --detect-holds labels a six-face
+    table protocol; a hand-held bag stays unlabelled and `fit` fits it orientation-free.
+    Example: `accellog import ros2 examples/imu_bag.mcap --topic /imu/data --detect-holds -o s.mcap`.
     """
     from rich.table import Table
 
     from accellog.calibrate.detected_holds import label_detected_holds
+    from accellog.cli.progress import progress_bar, wanted
     from accellog.store.importers.ros2 import IMU_TYPE, import_ros2, list_topics
 
     if out is None:
@@ -253,7 +263,10 @@ def import_ros2_cmd(
         Console().print(table)
         return
     _check_out(out, bag, compression, force)
-    session = import_ros2(bag, topic=topic, temperature_topic=temperature_topic, mag_topic=mag_topic)
+    with progress_bar("import ros2 (messages)", show=wanted(as_json)) as bar:
+        session = import_ros2(
+            bag, topic=topic, temperature_topic=temperature_topic, mag_topic=mag_topic, progress=bar
+        )
     if detect_holds:
         session = label_detected_holds(session)
     _write(session, bag, out, as_json, batch_size, compression, force)

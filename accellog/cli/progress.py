@@ -5,6 +5,7 @@ terminals and --json was not given, so piped or machine-read output stays clean.
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -45,8 +46,13 @@ def progress_bar(
     )
     with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
         task = bar.add_task(description, total=total)
+        last = [0.0]
 
         def update(done: float, total: float | None = None) -> None:
+            now = time.monotonic()
+            if now - last[0] < 0.05 and not (total is not None and done >= total):
+                return  # callers may report thousands of times a second
+            last[0] = now
             if total is not None:
                 bar.update(task, total=total)
             bar.update(task, completed=done)

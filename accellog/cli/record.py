@@ -181,6 +181,7 @@ def simulate(
     Faults to rehearse a flaky setup (--fault KEY=VALUE or scenario keys): i2c_error_rate,
     fifo_glitch_rate, host_stall_s, host_stall_every_s, disconnect_at_s, disconnect_s; every lost
     sample is counted in the session's events."""
+    from accellog.cli.progress import progress_bar
     from accellog.flows.simulate import scenario_from_options
     from accellog.flows.simulate import simulate as run_simulation
 
@@ -201,7 +202,8 @@ def simulate(
         temperature=temperature,
         faults=fault,
     )
-    summary = run_simulation(sc, out, force=force, compression=compression)
+    with progress_bar("simulate (s)") as bar:
+        summary = run_simulation(sc, out, force=force, compression=compression, progress=bar)
     console.print(
         f"wrote {out}: {summary.samples} samples, {summary.duration_s:.1f} s simulated, "
         f"{len(summary.poses)} poses, {summary.lost_samples} lost samples"

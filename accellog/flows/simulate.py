@@ -353,8 +353,10 @@ def simulate(
     start_time_unix_ns: int | None = None,
     force: bool = False,
     compression: str = DEFAULT_COMPRESSION,
+    progress=None,
 ):
     """Write the scenario's session to ``out`` (MCAP) on a simulated clock; return RecordSummary.
+    progress(done_s, total_s): called after every FIFO batch with the simulated time so far.
 
     truth_step_s: spacing of the stored ground truth (s); it is for evaluation only. serial: the
     device's user serial (identity); start_time_unix_ns: the session's wall-clock start (a
@@ -403,6 +405,8 @@ def simulate(
         with SessionWriter(tmp, meta, compression=compression) as writer:
             driver.start()
             rec = Recorder(driver, writer, sleep=sleep, poll_s=poll_s, read_mag=dev.read_mag)
+            if progress is not None:
+                rec.on_batch = lambda _batch, _accel: progress(min(rec.t_s, total_s), total_s)
             rec.run_for(total_s)
             # Motion time starts when the chip is created, session time at the first FIFO sample:
             # map the scenario's holds and truth onto the session's time axis.

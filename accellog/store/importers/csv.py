@@ -354,12 +354,14 @@ def import_csv_to_mcap(
     block_bytes: int = BLOCK_BYTES,
     compression: str | None = None,
     overwrite: bool = True,
+    progress=None,
 ) -> CsvImportResult:
     """Stream a CSV into an accellog MCAP (accellog.store.atomic: locked temp file, fsync, rename;
     nothing half-written on error, never over the CSV itself, nor over an existing file with
     overwrite=False).
 
     Memory: one block of text (``block_bytes``) and its columns, plus the MCAP chunk being built.
+    progress(done_MB, total_MB): after every block (done counted in whole blocks read).
     """
     from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter
 
@@ -369,8 +371,11 @@ def import_csv_to_mcap(
     tmp = ao.begin()
     w = None
     t_first = t_last = 0.0
+    size_mb = path.stat().st_size / 1e6 if progress is not None else 0.0
     try:
-        for ch in imp.chunks():
+        for k, ch in enumerate(imp.chunks()):
+            if progress is not None:
+                progress(min((k + 1) * block_bytes / 1e6, size_mb), size_mb)
             if w is None:
                 w = SessionWriter(
                     tmp,

@@ -154,11 +154,12 @@ def _read_imu_parallel(reader, conns, path: Path, jobs: int):
     return (*cat, frames, first[5], first[6])
 
 
-def _read_imu(reader, conns, start=None, stop=None):
+def _read_imu(reader, conns, start=None, stop=None, progress=None):
     """Arrays of the IMU messages: stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, covariances.
 
     Rows are gathered in Python tuples and turned into arrays every _BLOCK messages (memory stays
-    one block of tuples plus the arrays)."""
+    one block of tuples plus the arrays); progress(done, total messages) after each block."""
+    total = sum(int(c.msgcount) for c in conns)
     des = reader.typestore.deserialize_cdr
     blocks: list[np.ndarray] = []
     rows: list[tuple] = []
@@ -174,6 +175,8 @@ def _read_imu(reader, conns, start=None, stop=None):
         if len(rows) == _BLOCK:
             blocks.append(_block(rows))
             rows = []
+            if progress is not None:
+                progress(len(blocks) * _BLOCK, total)
     if rows or not blocks:
         blocks.append(_block(rows))
     ints = np.concatenate([b[0] for b in blocks])
@@ -240,7 +243,7 @@ def companion(conns, imu_topic: str, msgtype: str) -> list:
     return [c for c in of_type if c.topic == near[0]] if len(near) == 1 else []
 
 
-def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs):
+def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs, progress=None):
     """IMU arrays (+ temperature and magnetometer messages) of the chosen topics; without a
     temperature or magnetometer topic, the one that goes with the IMU topic (``companion``)."""
     import multiprocessing
@@ -259,7 +262,7 @@ def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs):
         if jobs > 1 and len(imu) == 1 and "fork" in multiprocessing.get_all_start_methods():
             arrays = _read_imu_parallel(reader, imu, path, jobs)
         else:
-            arrays = _read_imu(reader, imu)
+            arrays = _read_imu(reader, imu, progress=progress)
         temp = (tc[0].topic, *_read_scalar(reader, tc, "temp")) if tc else None
         mag = (mc[0].topic, *_read_scalar(reader, mc, "mag")) if mc else None
     except InputError:
@@ -308,6 +311,7 @@ def import_ros2(
     temperature_topic: str | None = None,
     mag_topic: str | None = None,
     jobs: int | None = None,
+    progress=None,
 ) -> Session:
     """A rosbag2 IMU topic (plus optional Temperature and MagneticField topics) -> Session.
 
@@ -315,10 +319,13 @@ def import_ros2(
     lists them. Without ``temperature_topic`` / ``mag_topic`` the bag's topic of that type that goes
     with the IMU topic is read (the only one, or the only one in its namespace; ``companion``). Provenance (bag, topic, frame_id, stamp/log-time agreement, the bag's covariances)
     goes to meta.extra. jobs: decoding processes (default: the CPU count, up to 4, for bags with more
-    than PARALLEL_MIN_MESSAGES IMU messages; 1 otherwise).
+    than PARALLEL_MIN_MESSAGES IMU messages; 1 otherwise). progress(done, total): IMU messages decoded
+    (every 65536 in one process; at the end with several).
     """
     path = Path(path)
-    imu_topic, arrays, temp, mag = _read_bag(path, topic, temperature_topic, mag_topic, jobs)
+    imu_topic, arrays, temp, mag = _read_bag(path, topic, temperature_topic, mag_topic, jobs, progress)
+    if progress is not None:
+        progress(arrays[0].shape[0], arrays[0].shape[0])
     if arrays[0].shape[0] < 2:
         raise InputError(
             f"{imu_topic}: {arrays[0].shape[0]} IMU message(s); need at least two", where=str(path)
