@@ -82,7 +82,8 @@ def test_hidden_quadratic_temperature_bias_judged_on_heldout_norm(sessions, seed
     assert out["transfers"] and out["heldout"]["heldout_chi2_dof"] < 2.0, out["heldout"]
     assert "it transfers" in out["verdict"]
     lad = out["ladder"]  # the held-out norm falls with each step, to its noise floor
-    assert lad[0]["heldout_chi2_dof"] > 100 * lad[-1]["heldout_chi2_dof"]
+    assert lad[0]["heldout_chi2_dof_noise"] > 100 * lad[-1]["heldout_chi2_dof_noise"]
+    assert lad[0]["heldout_chi2_dof"] > 2.0 > lad[-1]["heldout_chi2_dof"]  # predictive: start does not transfer
     assert lad[-1]["heldout_rms_g"] < 1.5 * lad[-1]["heldout_noise_g"]
     # the calibration file's parameters match the truth within their reported 1-sigma
     c = load_calibration(cal)

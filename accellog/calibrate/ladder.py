@@ -20,7 +20,7 @@ from accellog.calibrate.model import Model
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable
 
-_HELD = ("heldout_rms_g", "heldout_noise_g", "heldout_chi2_dof")
+_HELD = ("heldout_rms_g", "heldout_noise_g", "heldout_chi2_dof", "heldout_chi2_dof_noise")
 
 
 def _num(v: Any) -> float | None:
@@ -37,7 +37,9 @@ class LadderRow(JsonResult):
 
     chi2_dof, rms_g: fit quality on the calibration windows (rms in g); heldout_rms_g /
     heldout_noise_g: RMS of the held-out residuals and RMS of their sigma_g (g); heldout_chi2_dof:
-    mean (r / sigma)^2 held out; drift_m: |displacement| (m) of the static test integrated with this
+    held-out chi2 per equation with the predictive covariance (calibrate.transfer.predictive_chi2:
+    ~1 when the model predicts the other session as well as it fits its own), heldout_chi2_dof_noise:
+    mean (r / sigma)^2 against the window noise alone (how far from the noise floor); drift_m: |displacement| (m) of the static test integrated with this
     model at drift_at_s (s). fit (FitOutcome or FitResult) and residual_g ((n,3) g on the calibration
     windows) are kept for plots and the calibration file, never serialised.
     """
@@ -51,6 +53,7 @@ class LadderRow(JsonResult):
     heldout_rms_g: float | None = None
     heldout_noise_g: float | None = None
     heldout_chi2_dof: float | None = None
+    heldout_chi2_dof_noise: float | None = None
     drift_m: float | None = None
     drift_at_s: float | None = None
     fit: Any = field(default=None, repr=False, compare=False)

@@ -103,6 +103,8 @@ def loso_stats(
 def mean_stats(per_session: Sequence[dict[str, float] | None]) -> dict[str, float]:
     """Mean of per-session statistics (inf when a session could not be predicted)."""
     keys = ("heldout_rms_g", "heldout_noise_g", "heldout_chi2_dof")
+    if all(s is not None and "heldout_chi2_dof_noise" in s for s in per_session):
+        keys += ("heldout_chi2_dof_noise",)
     if any(s is None for s in per_session):
         return dict.fromkeys(keys, float("inf"))
     return {k: float(np.mean([s[k] for s in per_session])) for k in keys}

@@ -106,23 +106,17 @@ def predictive_chi2(
     the between-hold covariance the calibration session showed, placed on each held-out hold (U_h
     sums a hold's windows). chi2 = r^T C^-1 r by Woodbury (per hold, then over the k parameters):
     O(m k^2). A correct model scores chi2 / m ~ 1 on a second session of the same sensor. Without
-    res.obs (a loaded calibration) Sigma = res.cov and T_h = 0."""
-    from accellog.calibrate.variance import (
-        central_jacobian,
-        component_cov,
-        estimate_scatter,
-        fitted_system,
-        hold_covariances,
-        hold_groups,
-        norm_system,
-    )
+    res.obs (a loaded calibration) Sigma = res.cov and T_h = 0.
+
+    The scatter T_h is that of the calibration session under res's model plus the full linear part
+    (bias, scale, cross-axis; misalignment_tri for the norm): a model that misses a scale factor
+    does not get its own misfit counted as scatter. An effect outside that reference (a warm-up,
+    a temperature term) still inflates it: read heldout_chi2_dof beside the calibration's own
+    chi2/dof (diagnose) and the noise-only value (predictive_stats)."""
+    from accellog.calibrate.variance import central_jacobian, hold_covariances, hold_groups, norm_system
 
     norm = res.method == "orientation_free" if norm is None else norm
-    sigma_theta, sc = np.asarray(res.cov, float), None
-    if res.obs is not None:
-        cal = fitted_system(res, res.obs)
-        sc = estimate_scatter(res, res.obs, cal)
-        sigma_theta = component_cov(res, res.obs, sc, cal)
+    sigma_theta, sc = _calibration_uncertainty(res)
     if norm:
         h = norm_system(res, heldout, weighted=True)
         z, sig, Pw = h.e_g / h.sigma_g, h.sigma_g, h.J
@@ -139,6 +133,40 @@ def predictive_chi2(
         else [0 * np.eye(z.shape[1])] * len(groups)
     )
     return _woodbury_chi2(z, 1.0 / sig, Pw, sigma_theta, groups, Ts), float(np.sum(z**2)), z.size
+
+
+def _calibration_uncertainty(res: FitResult):
+    """(parameter covariance with the between-hold component, HoldScatter or None) of res on its own
+    observations, the scatter from the reference fit (predictive_chi2); kept on res once made."""
+    from accellog.calibrate.variance import component_cov, estimate_scatter
+
+    if res.obs is None:
+        return np.asarray(res.cov, float), None
+    if "_predictive_cal" not in res.__dict__:
+        ref = _reference_fit(res)
+        sc = estimate_scatter(ref, res.obs)
+        res.__dict__["_predictive_cal"] = (component_cov(res, res.obs, sc), sc)
+    return res.__dict__["_predictive_cal"]
+
+
+def _reference_fit(res: FitResult) -> FitResult:
+    """res's model plus the linear terms it lacks, fitted as res was (res itself when it has them all
+    or the richer model cannot be fitted)."""
+    from accellog.calibrate.fit import fit_model, fit_orientation_free
+    from accellog.core.errors import AccellogError
+
+    norm = res.method == "orientation_free"
+    have = set(res.model.term_names)
+    cross = {"cross_axis", "misalignment_tri"}
+    add = [t for t in ("bias", "scale", "misalignment_tri" if norm else "cross_axis") if t not in have]
+    add = [t for t in add if t not in cross or not have & cross]
+    if not add:
+        return res
+    fit = fit_orientation_free if norm else fit_model
+    try:
+        return fit(res.obs, res.model.with_terms(add), weighted=res.weighted, gravity_g=res.gravity_g)
+    except AccellogError:
+        return res
 
 
 def _woodbury_chi2(z, w, Pw, Sigma, groups, Ts) -> float:
