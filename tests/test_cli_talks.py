@@ -144,3 +144,19 @@ def test_record_spawn_without_a_display_records_and_says_it_once(monkeypatch, tm
     err = capsys.readouterr().err
     assert err.count("no display") == 1 and "dropped" not in err and "\x1b[" not in err
     assert out.exists()
+
+
+def test_step_bar_opens_on_first_update_and_closes_when_done(capsys):
+    from accellog.cli.progress import StepBar
+
+    bar = StepBar("simulate sessions", show=True)
+    assert bar._ctx is None
+    bar(0, 3)
+    assert bar._ctx is not None
+    bar(3, 3)
+    assert bar._ctx is None  # gone before the flow prints its next lines
+    capsys.readouterr()
+    quiet = StepBar("x", show=False)
+    quiet(1, 2)
+    quiet.close()
+    assert capsys.readouterr().err == ""

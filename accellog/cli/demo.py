@@ -21,6 +21,11 @@ def demo(
 ) -> None:
     """Simulate calibration, static and moving sessions on the emulated MPU-9250; fit Models 1-3,
     print the seed's tables, find a hidden effect with the workbench, track a moving robot."""
+    from accellog.cli.progress import StepBar
     from accellog.flows.demo import run_demo
 
-    run_demo(out, rrd=None if no_rrd else (rrd or out / "demo.rrd"), quick=quick)
+    bar = StepBar("simulate sessions")
+    try:
+        run_demo(out, rrd=None if no_rrd else (rrd or out / "demo.rrd"), quick=quick, progress=bar)
+    finally:
+        bar.close()

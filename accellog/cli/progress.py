@@ -58,3 +58,26 @@ def progress_bar(
             bar.update(task, completed=done)
 
         yield update
+
+
+class StepBar:
+    """A bar that appears at the first update(done, total) and goes away once done >= total: for a
+    flow that prints its own lines between long silent steps (the bar is never up while they print)."""
+
+    def __init__(self, description: str, *, show: bool | None = None):
+        self.description, self.show = description, show
+        self._ctx = None
+        self._update: Update | None = None
+
+    def __call__(self, done: float, total: float) -> None:
+        if self._ctx is None:
+            self._ctx = progress_bar(self.description, total, show=self.show)
+            self._update = self._ctx.__enter__()
+        self._update(done, total)
+        if done >= total:
+            self.close()
+
+    def close(self) -> None:
+        if self._ctx is not None:
+            ctx, self._ctx = self._ctx, None
+            ctx.__exit__(None, None, None)

@@ -77,7 +77,8 @@ class DemoResult:
     """Observations (ObsTable) of the warm-up session the workbench diagnosed."""
 
 
-def _sessions(out: Path, quick: bool) -> dict[str, Path]:
+def _sessions(out: Path, quick: bool, progress=None) -> dict[str, Path]:
+    """The demo's sessions, simulated into out; progress(done, total sessions) after each."""
     hold = 15.0 if quick else 30.0
     # Heating then a fan: temperature goes up and down, so temperature effects are not confounded
     # with time (a single warm-up curve cannot tell temp_bias from warmup or time_drift).
@@ -115,10 +116,14 @@ def _sessions(out: Path, quick: bool) -> dict[str, Path]:
         ),
     }
     paths = {}
-    for name, sc in specs.items():
+    for k, (name, sc) in enumerate(specs.items()):
+        if progress is not None:
+            progress(k, len(specs))
         p = out / f"{name}.mcap"
         simulate(sc, p, force=True)  # the demo regenerates its own folder
         paths[name] = p
+    if progress is not None:
+        progress(len(specs), len(specs))
     return paths
 
 
@@ -129,18 +134,19 @@ def run_demo(
     quick: bool = False,
     console: Console | None = None,
     first_tab: int = 0,
+    progress=None,
 ) -> DemoResult:
     """Run the demo, print its tables, write sessions / calibrations / .rrd under out_dir.
 
     first_tab: the blueprint tab shown when the recording opens (0 static test, 1 calibration,
-    2 workbench, 3 robot)."""
+    2 workbench, 3 robot). progress(done, total): the sessions simulated by the first step."""
 
     con = console or Console(width=None if sys.stdout.isatty() else 120)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     res = DemoResult(out_dir=out, rrd=rrd)
     t0 = time.perf_counter()
-    _record_stage(res, out, quick, con, t0)
+    _record_stage(res, out, quick, con, t0, progress)
     _seed_stage(res, out, con)
     first = _robot_stage(res, con)
     _workbench_stage(res, first, con)
@@ -154,10 +160,10 @@ def run_demo(
     return res
 
 
-def _record_stage(res: DemoResult, out: Path, quick: bool, con: Console, t0: float) -> None:
+def _record_stage(res: DemoResult, out: Path, quick: bool, con: Console, t0: float, progress=None) -> None:
     """1. the demo's sessions from the emulated MPU-9250 (res.sessions)."""
     con.rule("[bold]1. record sessions from the emulated MPU-9250 (simulated clock)")
-    paths = _sessions(out, quick)
+    paths = _sessions(out, quick, progress)
     S = res.sessions = {k: read_session(p) for k, p in paths.items()}
     res.seconds["simulate"] = time.perf_counter() - t0
     for k, s in S.items():
