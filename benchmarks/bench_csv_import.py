@@ -11,8 +11,8 @@ Variants:
 - accellog (parse only): the same blocks and checks without writing (``CsvImport.chunks``);
 - pyarrow read_csv: one whole-file parse to a table, then numpy columns (memory grows with the file);
 - pyarrow open_csv: streaming batches (the parse floor in bounded memory).
-Ratios are wall-time ratios to the pyarrow baselines measured in the same run; the load average is
-printed with every figure (the machine is shared).
+Ratios are wall-time and CPU-time ratios to the pyarrow baselines measured in the same run; the load
+average is printed with every figure (the machine is shared: compare CPU time when it is loaded).
 """
 
 from __future__ import annotations
@@ -126,6 +126,13 @@ def main() -> None:
         print(f"{v:18s} wall {r['wall_s']:7.2f} s  CPU {r['cpu_s']:7.2f} s  peak RSS {r['peak_mb']:7.0f} MB  "
               f"rows {r['n']:,}  load avg {os.getloadavg()[0]:.2f}", flush=True)  # fmt: skip
     acc = res["accellog"]["wall_s"]
+    cpu = res["accellog"]["cpu_s"]
+    print(
+        f"\nCPU time (process, all threads; the figure a loaded machine does not inflate): accellog import "
+        f"{cpu:.2f} s = {cpu / res['pyarrow_open_csv']['cpu_s']:.2f}x open_csv, "
+        f"{cpu / res['pyarrow_read_csv']['cpu_s']:.2f}x read_csv; parse only "
+        f"{res['accellog_parse']['cpu_s'] / res['pyarrow_open_csv']['cpu_s']:.2f}x open_csv"
+    )
     print(
         f"\naccellog import / pyarrow open_csv (streaming parse): {acc / res['pyarrow_open_csv']['wall_s']:.2f}x"
     )
