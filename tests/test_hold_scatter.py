@@ -103,7 +103,7 @@ def test_fit_command_reports_and_stores_the_method(shared_data, tmp_path, capsys
         notes[m] = d["uncertainty_note"]
     # the holds scatter ~30x beyond the window noise: the default says so and scales the bound
     assert (
-        "the hold means scatter beyond the noise" in notes["noise"]
+        "the hold means scatter beyond it" in notes["noise"]
         and "jackknife over 6 holds" in notes["jackknife"]
     )
     for m in ("noise", "between_hold"):

@@ -341,20 +341,28 @@ def with_uncertainty(res: FitResult, obs: ObsTable, method: str = "between_hold"
 
 
 def _noise(out: FitResult, res: FitResult, obs: ObsTable, kind: str) -> None:
-    """'noise': the Cramer-Rao bound, scaled by the hold-mean Birge ratio when the holds reject it."""
-    out.uncertainty_note = f"window noise only (Cramer-Rao bound, {kind} residual)"
-    if not res.weighted:
-        out.uncertainty_note = f"residual scatter of the unweighted fit ({kind} residual)"
-        return
+    """'noise': the Cramer-Rao bound (unweighted: s^2 (J^T J)^-1, s^2 = the window residual
+    variance), scaled by the hold-mean Birge ratio when the holds reject it (unweighted: hold means
+    judged against s^2 / windows)."""
+    base = "window noise" if res.weighted else "window residual scatter"
+    out.uncertainty_note = (
+        f"window noise only (Cramer-Rao bound, {kind} residual)"
+        if res.weighted
+        else f"residual scatter of the unweighted fit, windows independent ({kind} residual)"
+    )
     try:
-        ratio, p, dof = hold_birge(res, obs)
+        sysm = fitted_system(res, obs, jacobian=False)
+        if not res.weighted:  # the unweighted fit's noise model: every residual has variance s^2
+            s2 = float(np.sum(sysm.e_g**2)) / max(sysm.e_g.size - res.model.n_params, 1)
+            sysm.sigma_g = np.full_like(sysm.e_g, np.sqrt(s2))
+        ratio, p, dof = hold_birge(res, obs, sysm)
     except ModelError:
         return
     if not (np.isfinite(p) and p < NOISE_ALPHA and ratio > 1.0):
         return
     out.cov = res.cov * ratio
     out.uncertainty_note = (
-        f"window noise x {np.sqrt(ratio):.3g}: the hold means scatter beyond the noise "
+        f"{base} x {np.sqrt(ratio):.3g}: the hold means scatter beyond it "
         f"(chi2/dof {ratio:.3g} over {dof} dof; {kind} residual)"
     )
     _finish(out, noise_only=False)
