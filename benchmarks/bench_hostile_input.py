@@ -1,7 +1,7 @@
 """Hostile inputs cost what a tiny valid input costs (issue 27, item 3): CPU time and peak memory.
 
 Each row runs one `accellog` command in a fresh process on a hostile input and reports its CPU
-time (user + sys) and peak RSS from the child's own rusage (os.wait4), beside the baseline of the
+time (user + sys, os.wait4) and peak RSS (the child's own VmHWM), beside the baseline of the
 same run: `accellog segment` on the 300 KB head of a recording cut short (read, salvage, refuse).
 The ratio is hostile / baseline CPU time; the goal is <= 2x (no per-byte scan, nothing read whole)
 and peak memory <= 500 MB. Big inputs are sparse files (zeros cost no disk).
@@ -58,14 +58,28 @@ def _write(p: Path, text: str) -> Path:
     return p
 
 
-def run(argv: list[str]) -> tuple[float, float, int]:
-    """(CPU s, peak RSS MB, exit code) of one accellog command in a fresh process."""
+_CHILD = (
+    "import atexit, sys\n"
+    "def hwm():\n"
+    "    kb = [l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM')][0]\n"
+    "    open(sys.argv[1], 'w').write(kb)\n"
+    "atexit.register(hwm)\n"
+    "from accellog.cli import main\n"
+    "sys.exit(main(sys.argv[2:]))\n"
+)
+
+
+def run(argv: list[str], hwm_file: Path) -> tuple[float, float, int]:
+    """(CPU s, peak RSS MB from the child's own VmHWM, exit code) of one accellog command in a
+    fresh process (rusage's ru_maxrss would count the parent's memory at fork)."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "accellog", *argv], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        [sys.executable, "-c", _CHILD, str(hwm_file), *argv],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
     )
     _pid, status, ru = os.wait4(proc.pid, 0)
     proc.returncode = os.waitstatus_to_exitcode(status)
-    return ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, proc.returncode
+    return ru.ru_utime + ru.ru_stime, int(hwm_file.read_text()) / 1024.0, proc.returncode
 
 
 def main() -> None:
@@ -97,7 +111,7 @@ def main() -> None:
     res: dict[str, list[tuple[float, float, int]]] = {k: [] for k in rows}
     for _ in range(a.repeat):  # interleaved: the load of the machine hits every row alike
         for name, argv in rows.items():
-            res[name].append(run(argv))
+            res[name].append(run(argv, a.dir / "hwm.txt"))
     base = statistics.median(r[0] for r in res[next(iter(rows))])
     print(f"{'command':40s} {'exit':>4s} {'CPU s':>7s} {'x base':>7s} {'peak MB':>8s}")
     table = []
