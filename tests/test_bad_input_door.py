@@ -525,3 +525,24 @@ def test_apply_on_a_truncated_file_notes_what_was_recovered(cut_head, good, tmp_
     assert main(["apply", str(src), "--cal", str(good["cal"]), "-o", str(tmp_path / "o.mcap")]) == 0
     err = capsys.readouterr().err
     assert "accellog: note: " in err and "cut.mcap: truncated file recovered" in err, err
+
+
+@pytest.mark.slow
+def test_door_in_a_real_process(good, tmp_path):
+    """The same promise from a shell: one line, exit 2, nothing written (no in-process catch helps)."""
+    import subprocess
+    import sys
+
+    cases = [
+        ["simulate", "--hold", "inf", "-o", str(tmp_path / "s.mcap")],
+        ["fit", str(_sparse(tmp_path / "nul.csv", 1 << 30)), "-o", str(tmp_path / "c.json")],
+        ["evaluate", str(good["mcap"]), "--cal", str(_write(tmp_path / "deep.json", _deep(100_000)))],
+    ]
+    for argv in cases:
+        before = _snapshot(tmp_path)
+        p = subprocess.run(
+            [sys.executable, "-m", "accellog", *argv], capture_output=True, text=True, timeout=60
+        )
+        err = p.stderr.strip()
+        assert p.returncode == 2 and err.startswith("accellog: error: ") and "\n" not in err, err
+        assert _snapshot(tmp_path) == before

@@ -66,7 +66,7 @@ def check_option(opt: str, value: Any) -> None:
     lo, hi, lo_open, unit = OPTION_RANGES[opt]
     if value < lo or (lo_open and value == lo) or value > hi:
         low = f"> {lo:g}" if lo_open else f">= {lo:g}"
-        high = "" if hi >= _BIG else f" and <= {hi:g}"
+        high = f" and <= {hi:g}"
         raise InputError(f"{value:g} is out of range: must be {low}{high} {unit}".rstrip(), where=opt)
 
 
