@@ -7,6 +7,8 @@ The seed-study picture is a real pipeline run on the capstone final trial (../sh
 six-position table (residuals per pose), the drift model fitted on the 60 s static test, and the
 test's displacement tracks of every calibration side by side (accellog.flows.replay.compare).
 
+The README's pictures (docs/images/demo.png, workbench.png, robot.png: the demo's static-test,
+workbench and robot tabs) come from here; each is re-saved with at most 256 colours to stay small.
 Needs chromium (apt) and websockets (pip). --native uses `rerun --headless --screenshot-to` instead
 (needs a Vulkan driver such as mesa-vulkan-drivers).
 """
@@ -86,8 +88,26 @@ def shoot(rrd: Path, png: Path, size: tuple[int, int], native: bool) -> None:
         return
     from accellog.present.viewer import screenshot_rrd
 
-    stats = screenshot_rrd(rrd, png, size=size, wait_s=120.0)
-    print(f"{png}: {stats.colors} colours, {100 * stats.non_background:.0f}% drawn")
+    stats = screenshot_rrd(rrd, png, size=size, wait_s=240.0)
+    kb = shrink_png(png)
+    print(f"{png}: {stats.colors} colours, {100 * stats.non_background:.0f}% drawn, {kb} KB")
+
+
+def shrink_png(png: Path) -> int:
+    """Re-save png with at most 256 colours (median cut, no dithering: flat UI colours and text stay
+    sharp), atomically; returns its size in KB. A screenshot of 1400x900 goes from ~250 to ~100 KB."""
+    from PIL import Image
+
+    from accellog.store.atomic import write_bytes_atomic
+
+    img = Image.open(png).convert("RGB")
+    buf = io.BytesIO()
+    img.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+        buf, "PNG", optimize=True
+    )
+    if buf.tell() < png.stat().st_size:
+        write_bytes_atomic(png, buf.getvalue())
+    return png.stat().st_size // 1024
 
 
 def main() -> None:

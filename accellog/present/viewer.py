@@ -232,7 +232,12 @@ class Chromium:
     timeout_s bounds the start and each command unless the command gives its own."""
 
     def __init__(
-        self, *, size: tuple[int, int] = (1400, 900), exe: str | None = None, timeout_s: float = 30.0
+        self,
+        *,
+        size: tuple[int, int] = (1400, 900),
+        exe: str | None = None,
+        timeout_s: float = 30.0,
+        args: Sequence[str] = (),
     ):
         _require("websockets", "websockets")
         self.exe = exe or find_chromium()
@@ -261,6 +266,7 @@ class Chromium:
             f"--remote-debugging-port={self.port}",
             f"--user-data-dir={self._profile}",
             f"--window-size={size[0]},{size[1]}",
+            *args,
             "about:blank",
         ]
         # Chromium's own temporary files go to the profile folder, removed on close.
@@ -399,14 +405,16 @@ def screenshot_url(
     wait_s: float = 60.0,
     min_wait_s: float = 6.0,
     settle_s: float = 2.0,
+    deadline: float | None = None,
 ) -> PixelStats:
     """Open url in headless Chromium, wait (real time) until the page looks rendered and stable for
     settle_s (at least min_wait_s after loading), save the PNG atomically; returns its PixelStats.
 
     wait_s bounds everything end to end: the browser's start, the page load and every capture (a
-    capture answered late on a loaded machine may take the time left, not a fixed timeout). Nothing
-    is written unless a rendered, stable picture was taken: InputError otherwise (no partial PNG)."""
-    deadline = time.monotonic() + wait_s
+    capture answered late on a loaded machine may take the time left, not a fixed timeout); deadline
+    (time.monotonic()) replaces now + wait_s when the caller's wait began earlier. Nothing is
+    written unless a rendered, stable picture was taken: InputError otherwise (no partial PNG)."""
+    deadline = time.monotonic() + wait_s if deadline is None else deadline
     out = Path(png_path)
     if not out.parent.is_dir():
         raise InputError("folder does not exist", where=str(out.parent))
@@ -416,7 +424,7 @@ def screenshot_url(
         shot = _settled_capture(ch, deadline, min_wait_s, settle_s)
     if shot is None:
         raise InputError(
-            f"the viewer did not draw a stable picture within {wait_s:g} s; nothing written "
+            f"the viewer did not draw a stable picture within {wait_s:.0f} s; nothing written "
             "(a longer --wait-s helps on a loaded machine)",
             where=str(out),
         )
@@ -479,9 +487,5 @@ def screenshot_rrd(
             extra.append(rbl)
         with serve_rrd(rrd_path, extra=extra, timeout_s=max(deadline - time.monotonic(), 1.0)) as viewer:
             return screenshot_url(
-                viewer.url,
-                png_path,
-                size=size,
-                wait_s=max(deadline - time.monotonic(), 1.0),
-                min_wait_s=min_wait_s,
+                viewer.url, png_path, size=size, wait_s=wait_s, min_wait_s=min_wait_s, deadline=deadline
             )

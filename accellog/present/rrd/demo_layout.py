@@ -142,7 +142,7 @@ def framed_eye(points_m: np.ndarray, face_on: bool = False):
     direction = direction / np.linalg.norm(direction)
     return rrb.EyeControls3D(
         kind=rrb.Eye3DKind.Orbital,
-        position=(centre + 1.3 * size * direction).tolist(),
+        position=(centre + 1.5 * size * direction).tolist(),
         look_target=centre.tolist(),
         eye_up=[0.0, 0.0, 1.0],
     )
