@@ -255,8 +255,8 @@ def _candidate_stats(name, cm, cr, model, base, obs, cv_b_all, n_tests) -> dict:
             for n, v, s in zip(cm.param_names[sl], cr.theta[sl], cr.sigma[sl], strict=True)
         },
         reason=(
-            f"chi2/dof {base.chi2_dof:.3g} -> {cr.chi2_dof:.3g}, dBIC {dbic:.1f}, "
-            f"CV chi2/eq {cv_b:.3g} -> {cv_c:.3g}"
+            f"chi2/dof {base.chi2_dof:.3g} -> {cr.chi2_dof:.3g}, dBIC {dbic:.1f}"
+            + (f", CV chi2/eq {cv_b:.3g} -> {cv_c:.3g}" if np.isfinite(cv_b) and np.isfinite(cv_c) else "")
             + (f"; weakly determined: {', '.join(weak)} 1-sigma above typical size" if weak else "")
         ),
     )
@@ -371,9 +371,11 @@ def _verdict(model, base, floor, missing, sig_cands, signals, rows, clock) -> tu
                 f"(partial R^2 = {top['partial_r2']:.2f}); write a user effect (docs/effects.md) and "
                 "load it with --effects-file"
             )
+    same: dict[str, list[str]] = {}  # one line per reason: temp_bias, temp_scale, ...: needs temp_degC
     for r in rows:
         if not r["identifiable"] and r.get("reason"):
-            advice.append(f"{r['effect']}: {r['reason']}")
+            same.setdefault(r["reason"], []).append(r["effect"])
+    advice += [f"{', '.join(names)}: {reason}" for reason, names in same.items()]
     if clock is not None and abs(clock["eps_ppm"]) > 5 * clock["sigma_ppm"]:
         advice.append(
             f"clock: sample clock off by {clock['eps_ppm']:.0f} ppm: integrate with host-corrected time"

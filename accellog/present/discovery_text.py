@@ -67,9 +67,13 @@ def candidates_table(candidates: Sequence[dict]) -> Table:
     """Candidate effects of a diagnosis, ranked."""
     t = Table(title="candidate effects (model + effect; OOS = held-out or blocked validation)")
     cols = ("#", "effect", "ident.", "signif.", "chi2/dof", "dBIC", "CV chi2/eq", "OOS chi2/eq", "p")
-    for c in (*cols, "reason / what to record"):
-        t.add_column(c, overflow="fold")
+    for c in cols:
+        t.add_column(c, no_wrap=True)  # a number is never split over two lines
+    t.add_column("reason / what to record", overflow="fold", ratio=1)
+    first_with: dict[str, str] = {}  # reason -> the first effect that gave it (said once)
     for c in candidates:
+        reason = c.get("reason", "")
+        said = first_with.setdefault(reason, c["effect"]) if reason else c["effect"]
         t.add_row(
             str(c["rank"]),
             c["effect"],
@@ -80,7 +84,7 @@ def candidates_table(candidates: Sequence[dict]) -> Table:
             _fmt(c.get("cv_chi2_per_eq")),
             _fmt(c.get("oos_chi2_per_eq")),
             _fmt(c.get("p_value"), ".2g"),
-            escape(c.get("reason", "")),
+            escape(reason if said == c["effect"] else f"as {said}"),
         )
     return t
 

@@ -60,7 +60,10 @@ def errors_table(errors: list[tuple[str, str]] | list[dict[str, str]]) -> Table:
 def devices_table(rep: Any) -> Table:
     t = Table(title=f"devices ({rep.model}; recalibrate when a change exceeds {rep.k_sigma:g} combined σ)")
     for c in ("device", "key", "sessions", "first", "last", "status", "largest change"):
-        t.add_column(c)
+        # the flag and the dates are never cut ("recalib…"): the key and the change wrap instead
+        t.add_column(
+            c, no_wrap=c in ("sessions", "first", "last", "status"), min_width=11 if c == "status" else None
+        )
     for h in rep.devices:
         first, last = h.sessions[0].get("start_time_unix_ns"), h.sessions[-1].get("start_time_unix_ns")
         status = "[bold red]recalibrate[/]" if h.recalibrate else "ok"

@@ -147,14 +147,18 @@ def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Tabl
     cols = ["model", "params", "χ²/dof (fit)", "RMS (mg)"]
     cols += ["held-out RMS (mg)", "noise floor (mg)"] if held else []
     cols += [f"{a:g} s drift (m)" for a in ats] + (["warnings"] if warn else [])
-    t = Table(title=title)
-    for c in cols:
-        t.add_column(c, justify="left" if c == "model" else "right", overflow="fold", no_wrap=c == "model")
+    body = []
     for r in rows:
         cells = [r.model, str(r.n_params), num(r.chi2_dof), mg(r.rms_g)]
         cells += [mg(r.heldout_rms_g), mg(r.heldout_noise_g)] if held else []
         cells += [num(r.drift_m) if r.drift_at_s == a else "-" for a in ats]
         cells += [str(len(r.warnings))] if warn else []
+        body.append(cells)
+    t = Table(title=title)
+    for k, c in enumerate(cols):  # headers may wrap; a number never is split (min_width = widest cell)
+        widest = max((len(b[k]) for b in body), default=1) if c != "model" else None
+        t.add_column(c, justify="left" if c == "model" else "right", min_width=widest, overflow="fold")
+    for cells in body:
         t.add_row(*cells)
     return t
 

@@ -1,0 +1,60 @@
+"""Tables that never split a number, at the widths people use; diagnose on the seed's six poses says
+each thing once and prints no 'nan -> nan'."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+from rich.console import Console
+
+from accellog.calibrate.ladder import LadderRow
+from accellog.cli import main
+from accellog.present.discovery_text import candidates_table
+from accellog.present.tables import ladder_table
+
+
+def _text(table, width: int) -> str:
+    con = Console(width=width, record=True, file=open("/dev/null", "w"))  # noqa: SIM115
+    con.print(table)
+    return con.export_text()
+
+
+@pytest.mark.parametrize("width", [80, 100])
+def test_ladder_numbers_are_never_split(width):
+    rows = [
+        LadderRow("model1", 3, 11634.2, 0.0123, heldout_rms_g=0.0456, heldout_noise_g=6.1e-5, drift_m=1234.5,
+                  drift_at_s=60.0),
+        LadderRow("model3+temp_bias+temp_scale", 15, 1.07, 6.4e-5, heldout_rms_g=7.1e-5, heldout_noise_g=6.2e-5,
+                  drift_m=0.0312, drift_at_s=60.0, warnings=["x"]),
+    ]  # fmt: skip
+    text = _text(ladder_table(rows, "watch the error fall"), width)
+    for number in ("1.16e+04", "12.3", "45.6", "1.23e+03", "0.064", "0.071", "0.062", "0.0312"):
+        assert number in text, (number, text)
+
+
+def test_candidate_numbers_whole_and_repeated_reasons_said_once():
+    reason = "needs driver 'temp_degC' (record the die temperature)"
+    cands = [
+        {"rank": 1, "effect": "nonlin2", "identifiable": True, "chi2_dof": 6789.1, "delta_bic": -2927.7,
+         "p_value": 0.93, "reason": "chi2/dof 3.88e+03 -> 6.79e+03"},
+        *({"rank": k, "effect": e, "identifiable": False, "reason": reason}
+          for k, e in enumerate(("temp_bias", "temp_scale"), 2)),
+    ]  # fmt: skip
+    text = _text(candidates_table(cands), 160)
+    assert "6.79e+03" in text and "-2927.7" in text
+    assert text.count("record the die") == 1 and "as temp_bias" in text
+    narrow = _text(candidates_table(cands), 100)
+    assert "6.79e+03" in narrow and "-2927.7" in narrow  # the reason column wraps instead
+
+
+def test_diagnose_on_the_seed_poses_says_each_thing_once(shared_data, capsys):
+    poses = shared_data / "capstone" / "final_trial" / "six_position_data.csv"
+    assert main(["diagnose", str(poses)]) == 0
+    out = capsys.readouterr().out
+    assert "nan" not in out
+    assert out.count("record the die temperature") == 2  # the table's first row and one advice line
+    assert main(["diagnose", str(poses), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert not any(re.search(r"\bnan\b", c.get("reason", "")) for c in d["candidates"])
