@@ -239,6 +239,22 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
         lambda d, g: ["run", str(_sparse(d / "p.toml", 2 * 1024**3)), str(g["mcap"])],
         ("p.toml", "at most 1 MiB"),
     ),
+    "pipeline-times-empty": (
+        lambda d, g: [
+            "run",
+            str(_write(d / "p.toml", _pipe(r"times_s = \[[^\]]*\]", "times_s = []"))),
+            str(g["mcap"]),
+        ],
+        ("p.toml", "evaluate.times_s", "non-empty"),
+    ),
+    "pipeline-trim-nan": (
+        lambda d, g: [
+            "run",
+            str(_write(d / "p.toml", _pipe(r"trim_s = [0-9.]+", "trim_s = nan"))),
+            str(g["mcap"]),
+        ],
+        ("p.toml", "trim_s", "finite"),
+    ),
     # calibration fields (one validator, when read)
     "cal-t-ref-string": (
         lambda d, g: [
@@ -333,6 +349,16 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
         ("obs.json", "at most 64 MiB"),
     ),
 }
+
+
+def _pipe(pattern: str, repl: str) -> str:
+    """The shipped six-position pipeline with one edit (the pattern must match)."""
+    import re
+
+    text = (Path(__file__).resolve().parents[1] / "pipelines" / "six_position.toml").read_text()
+    out, n = re.subn(pattern, repl, text, count=1)
+    assert n == 1, pattern
+    return out
 
 
 def _write(p: Path, text: str) -> Path:

@@ -8,6 +8,7 @@ inputs = roles of the SESSION arguments in order), [segment], [fit], [evaluate],
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 from collections.abc import Sequence
@@ -143,6 +144,14 @@ def _check_schema(spec: dict, text: str, p: Path) -> None:
                     f"'{table}.{key}' must be a {tn}, got {val!r}",
                     where=f"{p}:{_line_of(text, table, key) or 1}",
                 )
+            if any(
+                isinstance(v, float) and not math.isfinite(v)
+                for v in (val if isinstance(val, list) else [val])
+            ):
+                raise InputError(
+                    f"'{table}.{key}' = {val!r} must be finite (no nan or inf)",
+                    where=f"{p}:{_line_of(text, table, key) or 1}",
+                )
     for table, keys in _REQUIRED.items():
         for k in keys:
             if k not in spec.get(table, {}):
@@ -188,9 +197,11 @@ def _check_references(spec: dict, text: str, p: Path) -> None:
             f"'drift.model' = {dm!r} is not in fit.models", where=f"{p}:{_line_of(text, 'drift', 'model')}"
         )
     ts = spec.get("evaluate", {}).get("times_s")
-    if ts is not None and not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in ts):
+    if ts is not None and not (
+        ts and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in ts)
+    ):
         raise InputError(
-            f"'evaluate.times_s' must be a list of numbers (s), got {ts!r}",
+            f"'evaluate.times_s' must be a non-empty list of times > 0 (s), got {ts!r}",
             where=f"{p}:{_line_of(text, 'evaluate', 'times_s')}",
         )
     gv = spec["fit"].get("gravity", "local")
