@@ -63,3 +63,18 @@ def test_yaw_per_face_equals_per_row():
     got = _yaw_deg(obs)
     assert got is not None and np.array_equal(got, want)
     assert np.unique(np.round(got)).size > 1  # the yaw really varies
+
+
+def test_host_clock_taken_in_the_observation_pass(tmp_path):
+    """open_labelled(host=True) takes the host clock points in its observation pass: the same
+    points as a pass of their own (store.stream.read_host_clock)."""
+    from accellog.flows.stream_input import open_labelled
+    from accellog.store.stream import read_host_clock
+
+    model = build_model("model3")
+    s = synthetic_session(model, true_theta(model), hold_s=4.0, rate_hz=100.0, eps_clock=20e-6, seed=4)
+    path = write_session(tmp_path / "s.mcap", s)
+    want = read_host_clock(path)
+    got = open_labelled(path, host=True).host_clock
+    assert want is not None and want[0].size > 5
+    assert all(np.array_equal(w, g) for w, g in zip(want, got, strict=True))

@@ -21,7 +21,7 @@ from accellog.calibrate.stream_segment import TimestampCheck, stream_check_times
 from accellog.core.errors import AccellogError, DataIntegrityWarning, InputError, ModelError
 from accellog.core.notices import note
 from accellog.core.session import ObsTable, PoseLabel, SessionMeta
-from accellog.store.stream import read_host_clock, read_labels
+from accellog.store.stream import HostClock, read_host_clock, read_labels
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
@@ -54,19 +54,26 @@ class StreamedSession:
         return cal
 
 
-def _observe_checked(p: Path, window_s: float, trim_s: float, held: list | None):
+def _observe_checked(p: Path, window_s: float, trim_s: float, held: list | None, clock: HostClock | None):
     """(stream_observations, read_labels) of p with the time-stamp checks of load_input taken in the
     same pass (TimestampCheck): one decompression pass fewer for a good file (open_streamed redoes a
-    file that fails in two passes, so the refusals and their order are those of the two passes)."""
+    file that fails in two passes, so the refusals and their order are those of the two passes);
+    clock, when given, is fed every block too (read_host_clock in the same pass)."""
     check = TimestampCheck()
     labels = read_labels(p)
+
+    def on_block(b) -> None:
+        check.add(b.t_s)
+        if clock is not None:
+            clock.add(b)
+
     obs = stream_observations(
         p,
         window_s=window_s,
         trim_s=trim_s,
         stats_out=held,
         labels=labels,
-        on_block=lambda b: check.add(b.t_s),
+        on_block=on_block,
     )
     check.finish(p)
     return obs, labels
@@ -99,10 +106,7 @@ def open_labelled(
     _meta, poses, _events = read_labels(path)
     if not poses:
         return None
-    s = open_streamed(path, window_s=window_s)
-    if s is not None and host:
-        s.host_clock = read_host_clock(path)
-    return s
+    return open_streamed(path, window_s=window_s, host=host)
 
 
 def open_streamed(
@@ -113,13 +117,15 @@ def open_streamed(
     observe: bool = True,
     stats: bool = False,
     check_times: bool = True,
+    host: bool = False,
 ) -> StreamedSession | None:
     """The session's labels (after the time-stamp checks of load_input) and, when observe, its
     observation table (segment.observations' defaults) and, with stats, its per-hold statistics
     (segment.pose_stats); InputError as load_input/observations. None for a file with damaged
     chunks: the whole-session reader (load_input) says what it skipped and how many samples.
     check_times False: the labels only (the caller's pass makes the check: stream_evaluate's
-    check_times; None still when reading the labels meets a damaged chunk)."""
+    check_times; None still when reading the labels meets a damaged chunk). host: also the host
+    clock points (store.stream.read_host_clock), taken in the observation pass."""
     p = Path(path)
     if not p.exists():
         raise InputError("no such file", where=str(p))
@@ -128,16 +134,20 @@ def open_streamed(
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                obs, (meta, poses, _events) = _observe_checked(p, window_s, trim_s, held)
+                clock = HostClock() if host else None
+                obs, (meta, poses, _events) = _observe_checked(p, window_s, trim_s, held, clock)
                 ok = True
             except Exception:
                 ok = False
         if ok and not any(issubclass(w.category, DataIntegrityWarning) for w in caught):
             for w in caught:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-            return StreamedSession(meta, poses, obs, str(p), held)
+            return StreamedSession(meta, poses, obs, str(p), held, clock.result() if clock else None)
         held = [] if stats else None  # failed or damaged: the two passes say why, as before
-    return _open_two_passes(p, window_s, trim_s, observe, held, check_times)
+    s = _open_two_passes(p, window_s, trim_s, observe, held, check_times)
+    if s is not None and host:
+        s.host_clock = read_host_clock(p)
+    return s
 
 
 def _open_two_passes(

@@ -151,26 +151,42 @@ def read_host_clock(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
     """(sensor time, host time) (s) of the last sample of every run of equal host times, i.e. the
     points calibrate.diagnose.clock_from_host_time uses (one per read batch: memory ~ samples /
     batch size), streamed; None when the session stores no host time (as read_session's None)."""
-    ts_parts, th_parts, any_host, n = [], [], False, 0
-    carry = None  # (t, host) of the previous block's last sample: its run may go on
+    clock = HostClock()
     for b in iter_imu(path):
-        n += b.n
-        if b.host_time_s is None:
-            return None
+        clock.add(b)
+    return clock.result()
+
+
+class HostClock:
+    """read_host_clock fed block by block (add), e.g. from another pass over the file; result()."""
+
+    def __init__(self) -> None:
+        self.ts_parts: list[np.ndarray] = []
+        self.th_parts: list[np.ndarray] = []
+        self.any_host, self.n, self.missing = False, 0, False
+        self.carry: tuple | None = None  # (t, host) of the previous block's last sample: its run may go on
+
+    def add(self, b: ImuBlock) -> None:
+        self.n += b.n
+        if b.host_time_s is None or self.missing:
+            self.missing = True
+            return
         th, ts = b.host_time_s, b.t_s
-        any_host = any_host or bool(np.any(th != 0))
-        if carry is not None and th[0] != carry[1]:
-            ts_parts.append(np.array([carry[0]]))
-            th_parts.append(np.array([carry[1]]))
+        self.any_host = self.any_host or bool(np.any(th != 0))
+        if self.carry is not None and th[0] != self.carry[1]:
+            self.ts_parts.append(np.array([self.carry[0]]))
+            self.th_parts.append(np.array([self.carry[1]]))
         last = np.flatnonzero(np.diff(th) != 0)  # run ends inside the block (not its last sample)
-        ts_parts.append(ts[last])
-        th_parts.append(th[last])
-        carry = (ts[-1], th[-1])
-    if not any_host or n <= 2 or carry is None:
-        return None
-    ts_parts.append(np.array([carry[0]]))
-    th_parts.append(np.array([carry[1]]))
-    return np.concatenate(ts_parts), np.concatenate(th_parts)
+        self.ts_parts.append(ts[last])
+        self.th_parts.append(th[last])
+        self.carry = (ts[-1], th[-1])
+
+    def result(self) -> tuple[np.ndarray, np.ndarray] | None:
+        if self.missing or not self.any_host or self.n <= 2 or self.carry is None:
+            return None
+        ts = np.concatenate([*self.ts_parts, [self.carry[0]]])
+        th = np.concatenate([*self.th_parts, [self.carry[1]]])
+        return ts, th
 
 
 def read_labels(path: str | Path) -> tuple[SessionMeta, list[PoseLabel], list[Event]]:
