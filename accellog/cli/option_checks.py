@@ -27,7 +27,7 @@ OPTION_RANGES: dict[str, tuple[float, float, bool, str]] = {
     "--fleet": (1, 10_000, False, "devices"),
     "--fleet-sessions": (1, 1_000, False, "sessions"),
     "--jobs": (1, 256, False, "processes"),
-    "--workers": (1, 256, False, "processes"),
+    "--workers": (0, 256, False, "processes (0: the serial loop, no Dask)"),
     "--batch-size": (1, 1_000_000, False, "samples"),
     "--max-samples": (1, _BIG, False, "samples"),
     "--max-steps": (0, 100, False, "steps"),
