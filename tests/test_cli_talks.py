@@ -160,3 +160,15 @@ def test_step_bar_opens_on_first_update_and_closes_when_done(capsys):
     quiet(1, 2)
     quiet.close()
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize(
+    "cmd",
+    [["fit"], ["apply"], ["export"], ["simulate"], ["record"], ["diagnose"], ["evaluate"], ["workbench"],
+     ["import", "ros2"]],
+    ids=lambda c: " ".join(c),
+)  # fmt: skip
+def test_main_commands_show_examples(cmd, capsys):
+    assert main([*cmd, "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "Example" in out and f"accellog {cmd[0]}" in out

@@ -111,7 +111,12 @@ def fit(
         typer.Option("--relabel", help="Replace hold labels that contradict the measured gravity direction."),
     ] = False,
 ) -> None:
-    """Fit an error model to static poses and write a calibration (parameters with 1-sigma)."""
+    """Fit an error model to static poses and write a calibration (parameters with 1-sigma).
+
+    Examples: `accellog fit cal.mcap -o cal.json` (model3); `accellog fit cal.mcap -m model3 --add
+    temp_bias -o cal.json --rrd fit.rrd`; a session without pose labels (hand-held) is fitted
+    orientation-free: `accellog fit hand.mcap -o cal.json`.
+    """
     from accellog.flows.stages import load_input, run_fit
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
@@ -156,7 +161,10 @@ def evaluate_cmd(
     """Residual of calibrated static data vs gravity (mean +- sem, chi2 vs noise) and displacement.
 
     A session with several labelled holds is evaluated window by window (per-hold mean residual,
-    RMS, chi2 vs the noise estimate, displacement at --at-s extrapolated per hold from rest)."""
+    RMS, chi2 vs the noise estimate, displacement at --at-s extrapolated per hold from rest).
+
+    Example: `accellog evaluate static.mcap --cal model2.json --cal model3.json` (side by side).
+    """
     from accellog.calibrate.calibration import load_calibration
     from accellog.flows.static_stages import run_evaluate_report
     from accellog.present import tables as report

@@ -85,7 +85,11 @@ def record(
     force: ForceOpt = False,
     compression: CompressionOpt = "zstd",
 ) -> None:
-    """Record a guided calibration session: the operator is told each pose, the hold is labelled."""
+    """Record a guided calibration session: the operator is told each pose, the hold is labelled.
+
+    Examples: `accellog record --bus 1 --protocol 24 --hold 20 -o cal.mcap` (an MPU-9250 on
+    /dev/i2c-1); `accellog record --sim --fast --protocol six --hold 10 -o cal.mcap` (the emulated chip).
+    """
     from accellog.flows.record import RecordOptions, record_session
 
     opts = RecordOptions(
@@ -180,7 +184,11 @@ def simulate(
 
     Faults to rehearse a flaky setup (--fault KEY=VALUE or scenario keys): i2c_error_rate,
     fifo_glitch_rate, host_stall_s, host_stall_every_s, disconnect_at_s, disconnect_s; every lost
-    sample is counted in the session's events."""
+    sample is counted in the session's events.
+
+    Examples: `accellog simulate --protocol six --hold 10 -o cal.mcap`;
+    `accellog simulate --protocol +z --hold 120 -o still.mcap`; `accellog simulate --motion robot -o robot.mcap`.
+    """
     from accellog.cli.progress import progress_bar
     from accellog.flows.simulate import scenario_from_options
     from accellog.flows.simulate import simulate as run_simulation

@@ -87,7 +87,11 @@ def diagnose(
 ) -> None:
     """Fit a model, compare it with the noise floor and rank the effects that could be missing.
     A session without pose labels (hand-held) is diagnosed on its detected static intervals with
-    the orientation-free gravity-norm residual."""
+    the orientation-free gravity-norm residual.
+
+    Examples: `accellog diagnose cal.mcap`; `accellog diagnose cal.mcap --model model3+temp_bias
+    --heldout other.mcap`.
+    """
     from accellog.flows.diagnose_run import run_diagnose
     from accellog.present.discovery_text import print_diagnose_outcome
     from accellog.present.tables import json_text
@@ -150,7 +154,10 @@ def workbench_cmd(
     ] = None,
 ) -> None:
     """Diagnose, add the missing effect, refit - until the model fits to the noise; then the ladder
-    model1 -> model2 -> model3 -> + each found effect, judged on held-out data and a static test."""
+    model1 -> model2 -> model3 -> + each found effect, judged on held-out data and a static test.
+
+    Example: `accellog workbench warmup.mcap --heldout other.mcap --static static.mcap -o cal.json`.
+    """
     from rich.console import Console
 
     from accellog.flows.workbench_run import run_workbench
