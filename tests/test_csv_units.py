@@ -12,10 +12,12 @@ import shlex
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from accellog.cli import main
 from accellog.core.errors import InputError
-from accellog.core.plausible import gyro_counts_evidence, likely_time_unit
+from accellog.core.plausible import TIME_UNIT_S, gyro_counts_evidence, likely_time_unit, rate_ok
 from accellog.store.importers import CsvOptions, import_csv
 from accellog.store.reader import read_session
 from accellog.store.writer import write_session
@@ -274,3 +276,20 @@ def test_line_numbers_exact_with_crlf_blank_lines_and_hash_in_values(tmp_path, b
     src.write_bytes(("\r\n".join(lines) + "\r\n").encode())
     s = import_csv(src, block_bytes=block_bytes)  # '#1' in the ignored 'note' column is no comment
     assert s.n == 60 and s.meta.extra["ignored_columns"] == "note"
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    step=st.floats(min_value=1e-15, max_value=1e15, allow_nan=False),
+    declared=st.sampled_from(["s", "ms", "us", "ns"]),
+)
+def test_likely_time_unit_property(step, declared):
+    """The unit named is None or one whose rate is an IMU rate; the declared one when it already is."""
+    u = likely_time_unit(step, declared)
+    rate = {k: 1.0 / (step * f) for k, f in TIME_UNIT_S.items()}
+    if rate_ok(rate[declared]):
+        assert u == declared
+    elif u is None:
+        assert not any(rate_ok(r) for r in rate.values())
+    else:
+        assert rate_ok(rate[u])

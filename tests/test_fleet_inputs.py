@@ -9,6 +9,8 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from accellog.cli import main
 from accellog.core.errors import InputError
@@ -102,3 +104,13 @@ def test_fleet_run_with_serial_dot_dot_writes_inside_fleet_cal(tmp_path, capsys)
 
     rows = read_table(out / "fleet.parquet")
     assert len(rows) == 1 and rows[0]["device"] == ".." and not rows[0]["error"]  # the table keeps the name
+
+
+@settings(max_examples=300, deadline=None)
+@given(name=st.text(max_size=200))
+def test_safe_part_property_any_text(name):
+    """Whatever a file's metadata holds, its path part is one component that stays in its folder."""
+    part = safe_part(name)
+    assert part and part == safe_part(name) and len(part) <= MAX_PART
+    assert os.sep not in part and "\x00" not in part and not part.startswith(".")
+    assert os.path.normpath(os.path.join("FLEET", "cal", part)) == os.path.join("FLEET", "cal", part)
