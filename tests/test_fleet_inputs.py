@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from accellog.cli import main
 from accellog.core.errors import InputError
-from accellog.flows.fleet_inputs import MAX_PART, find_sessions, safe_part
+from accellog.flows.fleet_inputs import MAX_PART, find_sessions, safe_part, unique_files
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -54,6 +54,13 @@ def test_same_matches_as_glob_on_a_tree_without_links(tmp_path, monkeypatch, rel
     monkeypatch.chdir(root)  # a relative pattern gives relative paths, as glob does
     want_rel = sorted(p for p in glob.glob(rel, recursive=True) if os.path.isfile(p))
     assert find_sessions(rel) == want_rel
+
+
+def test_a_list_of_sessions_keeps_each_real_file_once(tmp_path):
+    files = _tree(tmp_path / "S")
+    (tmp_path / "link.mcap").symlink_to(files[1])
+    given = [files[2], tmp_path / "link.mcap", files[0], files[1], str(files[2])]
+    assert unique_files(given) == [str(files[2]), str(tmp_path / "link.mcap"), str(files[0])]
 
 
 def test_no_match_is_one_input_error(tmp_path):

@@ -33,7 +33,7 @@ import numpy as np
 from accellog.calibrate.calibration import sha256_file, write_json_atomic
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.version import __version__
-from accellog.flows.fleet_inputs import find_sessions, safe_part
+from accellog.flows.fleet_inputs import find_sessions, safe_part, unique_files
 from accellog.flows.fleet_table import TABLE_NAME, read_table, write_table
 
 __all__ = [
@@ -342,7 +342,7 @@ def run_fleet(
 
     spec = pipeline if isinstance(pipeline, dict) else load_pipeline(pipeline)
     ph = pipeline_hash(spec)
-    files = find_sessions(sessions) if isinstance(sessions, str) else [str(s) for s in sessions]
+    files = find_sessions(sessions) if isinstance(sessions, str) else unique_files(sessions)
     out = Path(out_dir)
     table_path = out / TABLE_NAME
     prev = read_table(table_path) if table_path.exists() else []

@@ -45,14 +45,20 @@ def find_sessions(pattern: str) -> list[str]:
         found = sorted(p for p in glob.glob(pattern) if os.path.isfile(p))
     else:
         found = _walk_glob(pattern)
+    files = unique_files(found)
+    if not files:
+        raise InputError("no session file matches", where=pattern)
+    return files
+
+
+def unique_files(paths) -> list[str]:
+    """``paths`` in their order, each real file (``os.path.realpath``) once, under its first name."""
     files, seen = [], set()
-    for p in found:
+    for p in map(str, paths):
         real = os.path.realpath(p)
         if real not in seen:
             seen.add(real)
             files.append(p)
-    if not files:
-        raise InputError("no session file matches", where=pattern)
     return files
 
 
