@@ -136,3 +136,13 @@ def test_remove_stale_keeps_live_and_foreign_entries(tmp_path):
     (tmp_path / f".x.{dead}.bagtmp.keep").write_text("")
     assert remove_stale(tmp_path, ".x.", "bagtmp") == [f".x.{dead}.bagtmp"]
     assert len(list(tmp_path.iterdir())) == 3
+
+
+def test_ros2_bag_folder_holds_plainly_named_files(tmp_path):
+    """A bag folder's files are named after the folder (not after the temporary name)."""
+    from accellog.store.ros2_writer import Ros2BagWriter
+
+    with Ros2BagWriter(tmp_path / "bag") as w:
+        w.write_temperature(np.array([1_000_000_000, 1_100_000_000]), np.array([25.0, 25.1]))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]
+    assert sorted(p.name for p in (tmp_path / "bag").iterdir()) == ["bag.mcap", "metadata.yaml"]

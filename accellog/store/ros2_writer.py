@@ -57,8 +57,10 @@ class Ros2BagWriter:
         remove_stale(self.out.parent, f".{self.out.stem}.", r"bagtmp", "temporary bag folder")
         self.ts = get_typestore(Stores.ROS2_HUMBLE)
         self.frame_id = frame_id
-        self._w = Writer(self._tmp, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._tmp.mkdir()
+        self._bag = self._tmp / self.out.stem  # the bag's files are named after its folder
         try:
+            self._w = Writer(self._bag, version=9, storage_plugin=StoragePlugin.MCAP)
             for k, v in (metadata or {}).items():
                 self._w.set_custom_data(k, str(v))
             self._w.open()
@@ -148,7 +150,7 @@ class Ros2BagWriter:
         """Finish the bag and move it into place; returns the output path."""
         self._w.close()
         if self.single:
-            (mcap,) = self._tmp.glob("*.mcap")
+            (mcap,) = self._bag.glob("*.mcap")
             os.replace(mcap, self.out)
             shutil.rmtree(self._tmp)
         else:
@@ -157,7 +159,8 @@ class Ros2BagWriter:
                 raise InputError(
                     "the ROS 2 bag folder already exists; choose another name", where=str(self.out)
                 )
-            os.replace(self._tmp, self.out)
+            os.replace(self._bag, self.out)
+            shutil.rmtree(self._tmp)
         return self.out
 
     def abort(self) -> None:
