@@ -5,8 +5,9 @@ README.md is read when the tests are collected, so the test follows whatever the
 How the blocks are run (README commands must be written so that they run under these rules):
 - In README order, each block as one bash script (``set -eo pipefail``: the first failing command
   fails the block), all in one scratch folder laid out like a checkout: SCRATCH/repo is the working
-  directory and holds links to the repository's examples/, pipelines/ and docs/; SCRATCH/shared links
-  to the checkout's ../shared when it exists. Commands therefore name their inputs examples/...,
+  directory and holds links to the repository's examples/, pipelines/ and docs/; SCRATCH/shared/data mirrors
+  the checkout's ../shared/data when it exists (its folders made anew, its files linked: a command that
+  writes there writes into SCRATCH, never into the shared data). Commands therefore name their inputs examples/...,
   pipelines/... (or files an earlier command wrote) and write their outputs in the working directory;
   a later block may use what an earlier block wrote.
 - ``accellog`` is this checkout's (``python -m accellog``), whatever is on PATH.
@@ -66,14 +67,19 @@ def runnable(line: str) -> str:
 
 @pytest.fixture(scope="module")
 def scratch(tmp_path_factory):
-    """SCRATCH/repo with links to examples/, pipelines/, docs/; SCRATCH/shared -> ../shared if any."""
+    """SCRATCH/repo with links to examples/, pipelines/, docs/; SCRATCH/shared/data mirroring ../shared/data."""
     top = tmp_path_factory.mktemp("readme")
     work = top / "repo"
     work.mkdir()
     for name in ("examples", "pipelines", "docs"):
         (work / name).symlink_to(ROOT / name)
-    if (ROOT.parent / "shared").is_dir():
-        (top / "shared").symlink_to(ROOT.parent / "shared")
+    shared = ROOT.parent / "shared" / "data"
+    if shared.is_dir():  # folders made here, files linked: what a command writes stays in SCRATCH
+        for f in shared.rglob("*"):
+            if f.is_file():
+                dest = top / "shared" / "data" / f.relative_to(shared)
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                dest.symlink_to(f)
     return work
 
 
