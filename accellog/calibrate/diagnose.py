@@ -295,8 +295,13 @@ def _second_round(sig_cands: list[dict], obs, model, fit_kw, n_tests: int, m_eq:
     for r in sig_cands[1:4]:
         try:
             r2 = fit_model(obs, mb.with_terms([r["effect"]]), **fit_kw)
-        except ModelError:
-            r["given_best"] = "not identifiable together with " + sig_cands[0]["effect"]
+        except ModelError as exc:  # not identifiable together, or the joint fit did not converge
+            why = str(exc)
+            r["given_best"] = (
+                f"joint fit with {sig_cands[0]['effect']} did not converge"
+                if "converge" in why
+                else "not identifiable together with " + sig_cands[0]["effect"]
+            )
             continue
         dk = r2.model.n_params - mb.n_params
         F = ((rb.chi2 - r2.chi2) / dk) / max(r2.chi2 / max(r2.dof, 1), 1e-300)

@@ -37,9 +37,6 @@ from accellog.core.rotations import quat_from_rotvec, rotate_inverse
 
 _ORDER = list(LIBRARY)
 _S_INDEX = {f"S_{a}{b}": (i, j) for i, a in enumerate(AXES) for j, b in enumerate(AXES)}
-_BILINEAR_INPUT = {"nonlin2", "nonlin3", "g_cross"}
-_MATRIX = {"scale", "cross_axis", "misalignment_tri", "temp_scale", "temp_scale2"}
-_NONLINEAR = {"warmup", "fixture_tilt"}
 
 
 def valid_names(effects_file: EffectsFile | None = None) -> list[str]:
@@ -97,10 +94,6 @@ class Model:
             self.slices[e.name] = slice(k, k + len(e.params))
             k += len(e.params)
         self.required_drivers: list[str] = sorted({d for e in self.effects for d in e.drivers})
-        t = set(self.term_names)
-        self.is_linear = not (
-            t & _NONLINEAR or user or (t & _BILINEAR_INPUT and t & _MATRIX)
-        )  # predict is affine in theta
 
     # ------------------------------------------------------------------ basics
     @property
