@@ -207,6 +207,19 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
         _scenario('[temperature]\nkind = "warmup"\nT_start = 25.0\nT_end = 200.0\ntau_s = 1.0\n'),
         ("warmup", "operating range"),
     ),
+    "scenario-temperature-text": (
+        _scenario('[temperature]\nkind = "constant"\nT = "hot"\n'),
+        ("sc.toml", "temperature", "must be numbers"),
+    ),
+    "scenario-points-text": (
+        _scenario('[temperature]\nkind = "points"\nt_s = [0.0, "a"]\nT = [25.0, 26.0]\n'),
+        ("sc.toml", "temperature", "must be numbers"),
+    ),
+    "scenario-magnetometer-text": (_scenario('[magnetometer]\nfield_uT = "x"\n'), ("magnetometer field_uT",)),
+    "scenario-magnetometer-noise-negative": (
+        _scenario("[magnetometer]\nnoise_uT = -1.0\n"),
+        ("noise_uT", ">= 0"),
+    ),
     "scenario-stall-rate": (
         _scenario("host_stall_s = 1.0\nhost_stall_every_s = 0.5\n"),
         ("sc.toml", "host_stall_s"),

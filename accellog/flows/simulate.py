@@ -311,7 +311,14 @@ def build_sensor_model(sc: Scenario):
         raise InputError(
             f"unknown magnetometer key(s) {sorted(set(sc.magnetometer) - known_mag)}; known: {sorted(known_mag)}"
         )
-    mag = {f"mag_{k}": v for k, v in sc.magnetometer.items()}
+    mag = {}
+    for k, v in sc.magnetometer.items():
+        try:
+            mag[f"mag_{k}"] = np.asarray(v, float) if k != "noise_uT" else float(v)
+        except (TypeError, ValueError):
+            raise InputError(f"magnetometer {k} = {v!r} is not a number or a list of numbers") from None
+    if mag.get("mag_noise_uT", 0.0) < 0:
+        raise InputError(f"magnetometer noise_uT = {mag['mag_noise_uT']:g} must be >= 0 (uT)")
     model = SensorModel(
         motion,
         accel=accel,
@@ -339,6 +346,10 @@ def temperature_path(spec: dict[str, Any]):
             return TemperaturePath.points(spec["t_s"], spec["T"])
     except KeyError as exc:
         raise InputError(f"temperature kind {kind!r} needs key {exc}") from None
+    except (TypeError, ValueError):
+        raise InputError(
+            f"temperature {spec!r}: values must be numbers (lists of numbers for points)"
+        ) from None
     raise InputError(f"unknown temperature kind {kind!r}: use constant, warmup, ramp or points")
 
 
