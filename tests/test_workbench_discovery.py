@@ -17,7 +17,7 @@ import json
 
 import numpy as np
 import pytest
-from support.discovery import session_obs
+from support.discovery import handheld_path, session_obs
 
 from accellog.calibrate.choose import heats_and_cools, new_recording
 from accellog.calibrate.fit import fit_model
@@ -92,3 +92,16 @@ def test_no_heat_then_cool_advice_on_a_session_that_heated_and_cooled(root):
     assert "heat then cool" in new_recording("temp_bias", "warmup", m3, warm)
     text = new_recording("temp_bias", "warmup", m3, hyst)
     assert "heat then cool" not in text and "another temperature path" in text
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["rate", "hysteresis"])
+def test_handheld_outside_the_library_keeps_the_start_model(root, name):
+    """The same on hand-held sessions (labels removed; gravity-norm residual): nothing is written
+    that does not transfer, and the verdict names the driver of the norm residual."""
+    cal = handheld_path(root, name, 1)
+    held = handheld_path(root, name, 101, held=True)
+    found = run_workbench(cal, heldout=[held]).found
+    assert found.added == [] and found.final_model == found.start, (found.added, found.verdict)
+    assert "no library effect explains what is left" in found.verdict, found.verdict
+    assert "the residual follows" in found.verdict and "nothing is missing" not in found.verdict

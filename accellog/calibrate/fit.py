@@ -173,9 +173,8 @@ def _checked(
 
 
 def _numjac(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Jacobian of fun: analytic where fun (or its _Problem) offers `analytic(theta) -> (J, columns
-    left to differences)` (calibrate.model_jacobian: the library effects), else central differences,
-    written column by column into one array (no column list)."""
+    """Jacobian of fun: `fun.analytic(theta) -> (J, columns left to differences)` when offered
+    (calibrate.model_jacobian), else central differences, column by column into one array."""
     analytic = getattr(fun, "analytic", None) or getattr(getattr(fun, "__self__", None), "analytic", None)
     got = analytic(theta) if analytic is not None else None
     if got is not None:
@@ -218,7 +217,7 @@ class _Problem:
         """d resid / d theta: the library columns analytic, the rest (fixture_tilt, user) to differences."""
         f = self.model.truth_g(theta, self.obs.up_sensor, self.q, self.gravity_g)
         J = predict_jacobian(self.model, theta, f, self.drivers)
-        J *= -self.w[:, :, None]
+        J *= -self.w[:, :, None]  # in place: one Jacobian in memory
         return J.reshape(-1, theta.size), numeric_columns(self.model)
 
 

@@ -51,6 +51,8 @@ class HandheldDiscovery(JsonResult):
     """Held-out norm statistics of the final model (heldout_rms_g, heldout_noise_g, heldout_chi2_dof)."""
     undecided: list[list[str]] = field(default_factory=list)
     """Groups of effects the data cannot tell apart (first: the one added)."""
+    dropped: list[dict] = field(default_factory=list)
+    """Effects added and then dropped: {effect, why} (accellog.flows.workbench_prune)."""
     verdict: str = ""
     advice: list[str] = field(default_factory=list)
     loso: list[dict | None] | None = None
@@ -60,7 +62,7 @@ class HandheldDiscovery(JsonResult):
 
     @property
     def final_model(self) -> str:
-        return self.diagnoses[-1].model.name
+        return "+".join([self.start, *self.added])
 
     @property
     def decided(self) -> bool:
@@ -91,6 +93,7 @@ class HandheldDiscovery(JsonResult):
             "heldout": self.heldout,
             "steps": [c.to_dict() for c in self.choices],
             "advice": list(self.advice),
+            "dropped": [dict(d) for d in self.dropped],
             **({} if self.loso is None else {"heldout_per_session": self.loso}),
             "cannot_identify": self.cannot_identify,
             "detected": self.detection.to_dict(),
@@ -149,15 +152,19 @@ def discover_handheld(
 
 
 def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file, parts: list) -> None:
+    from accellog.calibrate.diagnose import default_candidates
     from accellog.calibrate.fit import fit_orientation_free
     from accellog.calibrate.handheld import diagnose_handheld, norm_choice
     from accellog.calibrate.loso import loso_stats, mean_stats
     from accellog.calibrate.model import build_model
     from accellog.calibrate.norm_transfer import norm_heldout_stats
+    from accellog.flows.workbench_prune import backward_step, proxy_stats
 
+    gone: set[str] = set()
+    scores = _norm_scores(found.obs, held, parts)
     while True:
         m = build_model(found.start, add=found.added, effects_file=effects_file)
-        d = diagnose_handheld(found.obs, m)
+        d = diagnose_handheld(found.obs, m, candidates=[c for c in default_candidates(m) if c not in gone])
         found.diagnoses.append(d)
         if len(found.added) >= max_steps:
             break
@@ -169,17 +176,51 @@ def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file, pa
         if chosen is None or chosen in found.added:
             break
         found.added.append(chosen)
-    # a tie is resolved when every alternative ended up in the model too
+        full = d.fits.get(chosen)
+        while (
+            drop := backward_step(
+                found.added, found.start, effects_file, found.obs, scores, full, fit_orientation_free
+            )
+        ) is not None:
+            found.added.remove(drop[0])
+            found.dropped.append({"effect": drop[0], "why": drop[1]})
+            gone.add(drop[0])
+            full = None
+
+    def stats_of(name: str) -> dict | None:
+        model = build_model(name, effects_file=effects_file)
+        if len(parts) > 1:
+            found.loso = loso_stats(parts, model, fit_orientation_free, _stats1)
+            return mean_stats(found.loso)
+        return norm_heldout_stats(fit_orientation_free(found.obs, model), held) if held else None
+
+    found.heldout = stats_of(found.final_model)
+    found.dropped += [{"effect": e, "why": w, "proxy": True} for e, w in proxy_stats(found, stats_of)]
+    # a tie is resolved when every alternative ended up in the model too (or its choice was dropped)
     found.undecided = [
         g
         for g in ([g[0], *[e for e in g[1:] if e not in found.added]] for g in found.undecided)
-        if len(g) > 1
+        if len(g) > 1 and g[0] in found.added
     ]
-    if len(parts) > 1:
-        found.loso = loso_stats(parts, found.diagnoses[-1].model, fit_orientation_free, _stats1)
-        found.heldout = mean_stats(found.loso)
-    elif held:
-        found.heldout = norm_heldout_stats(found.diagnoses[-1].fit, held)
+
+
+def _norm_scores(obs, held, parts):
+    """Out-of-sample gravity-norm scores of fits by name, with norm_choice's evidence."""
+    from accellog.calibrate.fit import fit_orientation_free
+    from accellog.calibrate.loso import loso_score
+    from accellog.calibrate.norm_transfer import norm_blocked_scores, norm_heldout_score
+
+    def scores(fits):
+        if len(parts) > 1:
+            return {
+                n: loso_score(parts, r.model, fit_orientation_free, norm_heldout_score)
+                for n, r in fits.items()
+            }
+        if not held:
+            return norm_blocked_scores(fits, obs)
+        return {n: norm_heldout_score(r, held) for n, r in fits.items()}
+
+    return scores
 
 
 def _stats1(res, obs) -> dict[str, float]:
@@ -191,8 +232,9 @@ def _stats1(res, obs) -> dict[str, float]:
 def _final_verdict(found: HandheldDiscovery) -> tuple[str, list[str]]:
     """One verdict from the last diagnosis, the held-out norm and the ties (as the labelled
     workbench's flows.workbench.final_verdict)."""
-    d = found.diagnoses[-1]
-    parts, advice, held_ok = evidence_parts(found, norm="norm ")
+    proxies = [x["effect"] for x in found.dropped if x.get("proxy")]
+    d = found.diagnoses[0] if proxies else found.diagnoses[-1]  # proxies dropped: the start model
+    parts, advice, held_ok = evidence_parts(found, norm="norm ", diagnosis=d)
     if not parts:
         return d.verdict.rstrip(".") + held_ok + ".", advice
     head = f"{d.model.name}: norm chi2/dof {d.fit.chi2_dof:.3g} on the calibration session"

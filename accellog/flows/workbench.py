@@ -235,11 +235,13 @@ def evidence_parts(found, norm: str, diagnosis=None) -> tuple[list[str], list[st
         )
     # still missing, and no library effect was taken at the last step (or none transfers)
     stuck = last is None or last.chosen is None or found.transfers is False
-    if proxies or (d.missing and stuck and found.transfers is not True):
-        parts.append(no_library_effect(d, proxies, norm))
-    held_ok = (
-        f" (held-out {norm}chi2/dof {h['heldout_chi2_dof']:.3g}: it transfers)" if found.transfers else ""
-    )
+    if proxies or (d.missing and stuck):
+        parts.append(no_library_effect(d, proxies, norm, getattr(found, "obs", None)))
+    held_ok = ""
+    if found.transfers:  # a model that misses something transfers only within its own scatter
+        held_ok = f" (held-out {norm}chi2/dof {h['heldout_chi2_dof']:.3g}: " + (
+            "within the calibration's own scatter)" if d.missing else "it transfers)"
+        )
     return parts, advice, held_ok
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from accellog.calibrate.choose import Z_IMPROVE
 from accellog.calibrate.fit import FitResult, fit_model
-from accellog.calibrate.model import build_model
+from accellog.calibrate.model import Model, build_model
 from accellog.calibrate.transfer import Score, blocked_scores, heldout_score
 from accellog.core.errors import ModelError
 from accellog.core.session import ObsTable
@@ -54,22 +54,22 @@ def backward_step(
     obs: ObsTable,
     scores: ScoreFn,
     full: FitResult | None = None,
+    fit: Callable[[ObsTable, Model], FitResult] = fit_model,
 ) -> tuple[str, str] | None:
     """(effect, why) for the earlier added effect whose removal costs least out of sample, when it
     costs no more than Z_IMPROVE standard errors (module doc); None when every one earns its place.
-    full: the fit of start + added (refitted when not given)."""
+    full: the fit of start + added (refitted when not given); fit: fit_model, or
+    fit_orientation_free for hand-held sessions."""
     if len(added) < 2:
         return None
-    fits = {
-        "": full
-        if full is not None
-        else fit_model(obs, build_model(start, add=added, effects_file=effects_file))
-    }
+
+    def fit_of(effects: list[str]) -> FitResult:
+        return fit(obs, build_model(start, add=effects, effects_file=effects_file))
+
+    fits = {"": full if full is not None else fit_of(added)}
     for e in added[:-1]:
         try:
-            fits[e] = fit_model(
-                obs, build_model(start, add=[a for a in added if a != e], effects_file=effects_file)
-            )
+            fits[e] = fit_of([a for a in added if a != e])
         except ModelError:
             continue
     sc = scores(fits)
@@ -88,19 +88,41 @@ def backward_step(
     return e, why
 
 
-def residual_driver(diagnosis) -> str:
+def residual_driver(diagnosis, obs: ObsTable | None = None) -> str:
     """'<signal> on axis <a> (partial R^2 = ..)' for the strongest significant driver signal of a
-    diagnosis's residual (or its strongest signal), '' when it has none (hand-held)."""
+    diagnosis's residual (or its strongest signal); for a hand-held diagnosis (no signal table)
+    the driver that explains most of the gravity-norm residual (R^2 of a straight line; obs: its
+    windows); '' when there is none."""
     sigs = getattr(diagnosis, "driver_signals", None) or []
     top = next((s for s in sigs if s.get("significant")), sigs[0] if sigs else None)
-    if top is None:
+    if top is not None:
+        return f"{top['signal']} on axis {top['axis']} (partial R^2 = {top['partial_r2']:.2f})"
+    if obs is None:
         return ""
-    return f"{top['signal']} on axis {top['axis']} (partial R^2 = {top['partial_r2']:.2f})"
+    from accellog.calibrate.fit import obs_drivers
+
+    res = diagnosis.fit
+    drv = obs_drivers(obs)
+    f = res.model.correct(res.theta, np.asarray(obs.meas_g, float), drv)
+    fn = np.linalg.norm(f, axis=1)
+    e, fhat = fn - res.gravity_g, f / fn[:, None]
+    best, r2 = "", 0.0
+    for name in ("temp_degC", "dtemp_degC_per_s", "t_s", "t_in_pose_s"):
+        x = drv.get(name)
+        if x is None or np.ptp(x) == 0 or np.ptp(e) == 0:
+            continue
+        for i, a in enumerate("xyz"):  # a bias b_i(x) on axis i shows in the norm as fhat_i b_i(x)
+            c = float(np.corrcoef(fhat[:, i] * (x - np.mean(x)), e)[0, 1]) ** 2
+            if c > r2:
+                best, r2 = f"{name} on axis {a}", c
+    return f"{best} (R^2 = {r2:.2f} with the gravity-norm residual)" if best else ""
 
 
-def no_library_effect(diagnosis, proxies: Sequence[str] = (), norm: str = "") -> str:
+def no_library_effect(
+    diagnosis, proxies: Sequence[str] = (), norm: str = "", obs: ObsTable | None = None
+) -> str:
     """The verdict part that says no library effect explains what is left (module doc)."""
-    drv = residual_driver(diagnosis)
+    drv = residual_driver(diagnosis, obs)
     text = "no library effect explains what is left"
     if proxies:
         text += f" ({', '.join(proxies)} fitted here but did not make the {norm}model transfer: dropped as proxies)"

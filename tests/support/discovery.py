@@ -30,6 +30,7 @@ MODEL3_CHIP: dict[str, Any] = {
     "noise_density_g_per_rtHz": [300e-6] * 3,
 }
 SIX = "+z,-z,+y,-y,+x,-x"
+EDGES = SIX + ",+x+y,-x-y,+x-y,-x+y,+x+z,-x-z,+x-z,-x+z,+y+z,-y-z,+y-z,-y+z"
 
 HIDDEN: dict[str, dict[str, Any]] = {
     "rate": {"temp_rate_bias_g_per_degC_per_s": [0.04, -0.03, 0.05]},
@@ -56,11 +57,14 @@ def _temperature(name: str, held: bool, duration_s: float) -> dict[str, Any]:
     return {"kind": "warmup", "T_start": 24.0, "T_end": 40.0, "tau_s": 0.3 * duration_s}
 
 
-def scenario(name: str, seed: int, held: bool = False, *, rounds: int = 3, hold_s: float = 10.0) -> Scenario:
-    """The scenario's calibration (or held-out) session: `rounds` rounds of the six faces and a
-    final +z, holds of hold_s s, 2 s moves, 200 Hz."""
-    protocol = ",".join([SIX] * rounds + ["+z"])
-    duration = (6 * rounds + 1) * (hold_s + 2.0) + 1.0
+def scenario(
+    name: str, seed: int, held: bool = False, *, rounds: int = 3, hold_s: float = 10.0, poses: str = SIX
+) -> Scenario:
+    """The scenario's calibration (or held-out) session: `rounds` rounds of `poses` (the six faces;
+    EDGES for hand-held sessions, which need >= 9 orientations) and a final +z, holds of hold_s s,
+    2 s moves, 200 Hz."""
+    protocol = ",".join([poses] * rounds + ["+z"])
+    duration = (len(poses.split(",")) * rounds + 1) * (hold_s + 2.0) + 1.0
     return Scenario(
         protocol=protocol,
         hold_s=hold_s,
@@ -74,12 +78,32 @@ def scenario(name: str, seed: int, held: bool = False, *, rounds: int = 3, hold_
     )
 
 
-def session_obs(root: Path, name: str, seed: int, held: bool = False, **kw: Any) -> ObsTable:
-    """Windows (2 s) of the scenario's session, simulated into root once (MCAP) and read back."""
-    p = (
-        Path(root)
-        / f"{name}_{seed}_{'held' if held else 'cal'}_{kw.get('rounds', 3)}_{kw.get('hold_s', 10.0):g}.mcap"
-    )
+def session_path(root: Path, name: str, seed: int, held: bool = False, **kw: Any) -> Path:
+    """The scenario's session as an MCAP file in root (simulated on first use)."""
+    tag = "_edges" if kw.get("poses") == EDGES else ""
+    which = "held" if held else "cal"
+    p = Path(root) / f"{name}_{seed}_{which}_{kw.get('rounds', 3)}_{kw.get('hold_s', 10.0):g}{tag}.mcap"
     if not p.exists():
         simulate(scenario(name, seed, held, **kw), p)
-    return observations(read_session(p), window_s=2.0)
+    return p
+
+
+def session_obs(root: Path, name: str, seed: int, held: bool = False, **kw: Any) -> ObsTable:
+    """Windows (2 s) of the scenario's session (session_path) read back."""
+    return observations(read_session(session_path(root, name, seed, held, **kw)), window_s=2.0)
+
+
+def handheld_path(
+    root: Path, name: str, seed: int, held: bool = False, rounds: int = 1, hold_s: float = 8.0
+) -> Path:
+    """The scenario recorded over the six faces and 12 cube edges, written again without its pose
+    labels: a hand-held session."""
+    import dataclasses
+
+    from accellog.store.writer import write_session
+
+    p = session_path(root, name, seed, held, rounds=rounds, hold_s=hold_s, poses=EDGES)
+    q = p.with_name(p.stem + "_hand.mcap")
+    if not q.exists():
+        write_session(q, dataclasses.replace(read_session(p), poses=[]))
+    return q
