@@ -293,3 +293,19 @@ def test_likely_time_unit_property(step, declared):
         assert not any(rate_ok(r) for r in rate.values())
     else:
         assert rate_ok(rate[u])
+
+
+def test_millisecond_counter_at_1khz_is_not_taken_for_a_1hz_log(tmp_path, capsys):
+    """Whole-number stamps 1 apart read as s are 1 Hz, inside the range: a millisecond counter at 1 kHz
+    far more often. Refused with the fix; naming the unit keeps it as a 1 Hz log."""
+    _, acc, gyr = _still(500)
+    src = _write(tmp_path / "millis.csv", 100 + np.arange(500), acc, gyr, ("%d", "%.9g", "%.9g"))
+    err = _refused(tmp_path, capsys, src)
+    assert "time column looks like milliseconds: pass --time-unit ms" in err and "--time-unit s if" in err
+    rc, stdout, err, _ = _import(tmp_path, capsys, src, "--time-unit", "ms")
+    assert rc == 0 and json.loads(stdout)["sample_rate_hz"] == pytest.approx(1000.0), err
+    rc, stdout, err, _ = _import(tmp_path, capsys, src, "--time-unit", "s", name="slow.mcap")
+    assert rc == 0 and json.loads(stdout)["sample_rate_hz"] == pytest.approx(1.0), err
+    frac = _write(tmp_path / "frac.csv", 0.5 + np.arange(500), acc, gyr)  # not whole numbers: 1 Hz as given
+    rc, _, err, _ = _import(tmp_path, capsys, frac, name="frac.mcap")
+    assert rc == 0, err

@@ -171,8 +171,8 @@ def import_csv_cmd(
         float | None, typer.Option("--rate", help="Sample rate (Hz) when there is no time column.")
     ] = None,
     time_unit: Annotated[
-        str, typer.Option("--time-unit", help="Unit of the time column: s, ms, us, ns.")
-    ] = "s",
+        str | None, typer.Option("--time-unit", help="Unit of the time column: s (default), ms, us, ns.")
+    ] = None,
     delimiter: Annotated[
         str, typer.Option("--delimiter", help="Field separator (one character, or tab).")
     ] = ",",

@@ -40,15 +40,16 @@ def rate_ok(rate_hz: float) -> bool:
     return RATE_MIN_HZ <= rate_hz <= RATE_MAX_HZ
 
 
-def likely_time_unit(step: float, declared: str = "s") -> str | None:
+def likely_time_unit(step: float, declared: str = "s", keep_declared: bool = True) -> str | None:
     """The time unit that makes a median step of ``step`` (in the declared unit) a plausible rate
-    (the one closest to TYPICAL_RATE_HZ), None when no unit does; ``declared`` itself if it does."""
+    (the one closest to TYPICAL_RATE_HZ), None when no unit does; ``declared`` itself if it does
+    (unless keep_declared=False: then the best other unit)."""
     if not (step > 0 and math.isfinite(step)):
         return None
     rates = {u: 1.0 / (step * f) for u, f in TIME_UNIT_S.items()}
-    if rate_ok(rates[declared]):
+    if keep_declared and rate_ok(rates[declared]):
         return declared
-    ok = [u for u, r in rates.items() if rate_ok(r)]
+    ok = [u for u, r in rates.items() if rate_ok(r) and (keep_declared or u != declared)]
     return min(ok, key=lambda u: abs(math.log(rates[u] / TYPICAL_RATE_HZ))) if ok else None
 
 

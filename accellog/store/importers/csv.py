@@ -189,9 +189,10 @@ class CsvImport:
         if not o.check_units:
             return
         column = self.cols.get("t")
-        check_rate(
-            self.path, dt_s * _T_DIV[o.time_unit], o, column, None if o.rate_hz else self.header.rate_hz
-        )
+        t = block.cols.get("t")
+        whole = t is not None and bool(np.all(t[:_HEAD_ROWS] == np.round(t[:_HEAD_ROWS])))
+        header_rate = None if o.rate_hz else self.header.rate_hz
+        check_rate(self.path, dt_s * _T_DIV[o.time_unit], o, column, header_rate, whole)
         raw = _stack(block, ("ax", "ay", "az"))[:_HEAD_ROWS]
         w = _stack(block, ("gx", "gy", "gz"))
         w = None if w is None else w[:_HEAD_ROWS]

@@ -36,8 +36,12 @@ class UnitsError(InputError):
     ``accellog doctor`` reads such a file as declared and reports the defect instead."""
 
 
-def check_rate(path, step: float, o: CsvOptions, column: str | None, header_rate: float | None) -> None:
-    """Refuse a median time step (``step``, in the declared unit) or a stated rate outside 1 Hz .. 100 kHz."""
+def check_rate(
+    path, step: float, o: CsvOptions, column: str | None, header_rate: float | None, whole: bool = False
+) -> None:
+    """Refuse a median time step (``step``, in the declared unit) or a stated rate outside 1 Hz .. 100 kHz.
+    Whole-number stamps one unit apart (1 Hz in s: a millisecond clock at 1 kHz, most often) are
+    refused too unless the user named the time unit."""
     if column is None:  # rate from --rate (checked by CsvOptions) or the header line
         if header_rate and not rate_ok(header_rate):
             raise UnitsError(
@@ -47,9 +51,17 @@ def check_rate(path, step: float, o: CsvOptions, column: str | None, header_rate
             )
         return
     rate = 1.0 / (step * TIME_UNIT_S[o.time_unit]) if step > 0 else 0.0
-    if not step > 0 or rate_ok(rate):
+    edge = whole and not o.time_unit_given and rate <= RATE_MIN_HZ * (1 + 1e-9)
+    if not step > 0 or (rate_ok(rate) and not edge):
         return
-    u = likely_time_unit(step, o.time_unit)
+    u = likely_time_unit(step, o.time_unit, keep_declared=not edge)
+    if edge and u is not None:
+        raise UnitsError(
+            f"time column {column!r} holds whole numbers {step:g} apart: read in {o.time_unit} that is "
+            f"{rate:.3g} Hz, read in {u} {1.0 / (step * TIME_UNIT_S[u]):.3g} Hz: time column looks like "
+            f"{TIME_UNIT_NAME[u]}: pass --time-unit {u} (or --time-unit {o.time_unit} if it is a {rate:.3g} Hz log)",
+            where=str(path),
+        )
     fix = (
         f"time column looks like {TIME_UNIT_NAME[u]}: pass --time-unit {u}"
         if u is not None

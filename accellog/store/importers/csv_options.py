@@ -97,6 +97,8 @@ class CsvOptions:
     gyro_count_offset: float | None = None
     gyro_lsb_per_dps: float | None = None
     time_unit: str = "s"
+    time_unit_given: bool = False
+    """True when the user named the time unit (then whole-number stamps 1 s apart are taken as 1 Hz)."""
     rate_hz: float | None = None
     columns: dict[str, str] = field(default_factory=dict)
     delimiter: str = ","
@@ -112,6 +114,7 @@ class CsvOptions:
         cols = parse_columns(columns) if isinstance(columns, str) or columns is None else dict(columns)
         unit = _unit("unit", kw.pop("unit", "g") or "g", ACCEL_UNITS)
         gyro_given = kw.get("gyro_unit") is not None
+        time_given = kw.get("time_unit") is not None
         gyro = _unit("gyro unit", kw.pop("gyro_unit", "deg/s") or "deg/s", GYRO_UNITS)
         tu = _unit("time unit", kw.pop("time_unit", "s") or "s", tuple(TIME_UNITS))
         delim = kw.pop("delimiter", ",") or ","
@@ -122,6 +125,7 @@ class CsvOptions:
         if len(comment) > 1:
             raise InputError(f"--comment must be one character, got {comment!r}")
         kw.setdefault("gyro_unit_given", gyro_given)
+        kw.setdefault("time_unit_given", time_given)
         opts = cls(
             unit=unit, gyro_unit=gyro, time_unit=tu, columns=cols, delimiter=delim, comment=comment, **kw
         )
