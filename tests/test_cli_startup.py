@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TYPER_HELP = """
 import sys, typer.main
 from accellog.cli import registry, _exit_code
-group = typer.main.get_command(registry.register_all())
+group = registry.plain_flags(typer.main.get_command(registry.register_all()))
 try:
     rc = group(args=sys.argv[1:], prog_name="accellog", standalone_mode=False)
 except Exception as exc:

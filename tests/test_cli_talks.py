@@ -172,3 +172,9 @@ def test_main_commands_show_examples(cmd, capsys):
     assert main([*cmd, "--help"]) == 0
     out = capsys.readouterr().out
     assert "Example" in out and f"accellog {cmd[0]}" in out
+
+
+def test_flags_show_no_bool_placeholder(capsys):
+    for argv in (["--help"], ["fit", "--help"], ["import", "ros2", "--help"]):
+        assert main(argv) == 0
+        assert "<bool>" not in capsys.readouterr().out, argv

@@ -11,17 +11,17 @@ HELP = (
 )
 # long, short, secondary long, secondary short, type, help
 OPTIONS = (
-    ("--version", "", "", "", "<bool>", "Print the version and exit."),
-    ("--install-completion", "", "", "", "<bool>", "Install completion for the current shell."),
+    ("--version", "", "", "", "", "Print the version and exit."),
+    ("--install-completion", "", "", "", "", "Install completion for the current shell."),
     (
         "--show-completion",
         "",
         "",
         "",
-        "<bool>",
+        "",
         "Show completion for the current shell, to copy it or customize the installation.",
     ),
-    ("--help", "", "", "", "<bool>", "Show this message and exit."),
+    ("--help", "", "", "", "", "Show this message and exit."),
 )
 # name, MODULE, help panel, help (first paragraph, rich markup)
 COMMANDS = (

@@ -56,6 +56,20 @@ def register_all():
     return app
 
 
+def plain_flags(cmd):
+    """A click command (group: with its subcommands) whose on/off flags show no '<bool>' placeholder
+    in the help (typer's rich help prints the metavar; an empty one prints nothing)."""
+    from typer import _click
+
+    help_opt = cmd.get_help_option(_click.Context(cmd))  # cached by click: the one --help will show
+    for p in [*cmd.params, *([help_opt] if help_opt is not None else [])]:
+        if getattr(p, "is_flag", False) and p.metavar is None:
+            p.metavar = ""
+    for sub in getattr(cmd, "commands", {}).values():
+        plain_flags(sub)
+    return cmd
+
+
 def command_group(name: str | None):
     """The click group that runs `accellog NAME ...`: for a command in the table, only its module is
     imported and only it is built; for anything else (no name, an option, an unknown name) every
@@ -77,8 +91,8 @@ def command_group(name: str | None):
         ]
         one.registered_groups = [g for g in app.registered_groups if g.name == name]
         if one.registered_commands or one.registered_groups:
-            return guard_options(typer.main.get_group(one))
-    return guard_options(typer.main.get_command(register_all()))  # + --install/--show-completion
+            return guard_options(plain_flags(typer.main.get_group(one)))
+    return guard_options(plain_flags(typer.main.get_command(register_all())))  # + --install/--show-completion
 
 
 def _paragraphs(text: str) -> tuple[str, str]:
@@ -119,7 +133,7 @@ def extract() -> dict:
     from typer import _click
 
     app = register_all()
-    group = typer.main.get_command(app)  # with typer's --install-completion / --show-completion
+    group = plain_flags(typer.main.get_command(app))  # with typer's --install-completion / --show-completion
     ctx = _click.Context(group, info_name="accellog")
     commands = []
     for name in group.list_commands(ctx):
