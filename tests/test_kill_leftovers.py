@@ -146,3 +146,38 @@ def test_ros2_bag_folder_holds_plainly_named_files(tmp_path):
         w.write_temperature(np.array([1_000_000_000, 1_100_000_000]), np.array([25.0, 25.1]))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]
     assert sorted(p.name for p in (tmp_path / "bag").iterdir()) == ["bag.mcap", "metadata.yaml"]
+
+
+def test_a_killed_record_leaves_its_data_and_the_next_run_clears_the_lock(tmp_path, capsys):
+    """A live recording writes under its real name (a crash keeps the data); its lock file, left by
+    the kill, is removed by the next run, which still refuses the existing file without --force."""
+    out = tmp_path / "rec.mcap"
+    cmd = [
+        sys.executable,
+        "-m",
+        "accellog",
+        "record",
+        "--sim",
+        "--hold",
+        "30",
+        "--protocol",
+        "+z",
+        "-o",
+        str(out),
+    ]
+    proc = subprocess.Popen(cmd, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 20
+        while not (tmp_path / ".rec.mcap.lock").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.3)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert (tmp_path / ".rec.mcap.lock").read_text().strip() == str(proc.pid)
+    data = out.read_bytes()
+    capsys.readouterr()
+    assert main(["record", "--sim", "--fast", "--hold", "1", "--protocol", "+z", "-o", str(out)]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert out.read_bytes() == data  # the killed recording's data is kept
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.mcap"]

@@ -125,9 +125,34 @@ def check_output(
             raise InputError("folder does not exist", where=str(parent))
     elif not parent.is_dir():
         raise InputError("not a folder", where=str(parent))
+    _remove_stale_lock(p)
     if not overwrite and (p.exists() or p.is_symlink()):
         raise InputError("file exists; use --force to replace it", where=str(p))
     return p
+
+
+def _remove_stale_lock(p: Path) -> None:
+    """Remove `.NAME.lock` beside p when no process holds it (its writer was killed), with a note
+    naming the PID it recorded. A writer opening it meanwhile notices (OutputLock's inode check)."""
+    lock = p.with_name(f".{p.name}.lock")
+    try:
+        fd = os.open(lock, os.O_RDWR)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)  # held by a live writer (or by this process): not stale
+        return
+    try:
+        pid = os.pread(fd, 32, 0).decode(errors="replace").strip()
+        os.unlink(lock)
+        who = f"process {pid}, which is not running" if pid.isdigit() else "an earlier run"
+        notices.note(f"removed {lock}: a lock file left by {who} (killed?)")
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 class OutputLock:
