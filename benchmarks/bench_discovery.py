@@ -15,7 +15,10 @@ shared). Checks (issue 25): out of library -> "no library effect" and bias withi
 two effects -> held-out chi2/dof < 2 in >= 2/3 seeds; CPU of a failing search <= 2x a succeeding one
 (ratio of medians, same run).
 
-    python benchmarks/bench_discovery.py [--seeds 6] [--rounds 3] [--hold 10]
+With --numeric each loop runs again with central-difference Jacobians (the baseline of the
+analytic ones, calibrate.model_jacobian), same choices asserted.
+
+    python benchmarks/bench_discovery.py [--seeds 6] [--rounds 3] [--hold 10] [--numeric]
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ SCENARIOS = ("rate", "hysteresis", "two", "single")
 OUT_OF_LIBRARY = ("rate", "hysteresis")
 
 
-def run_one(root: Path, name: str, seed: int, rounds: int, hold_s: float) -> dict:
+def run_one(root: Path, name: str, seed: int, rounds: int, hold_s: float, numeric: bool = False) -> dict:
     """One workbench loop on a scenario's calibration session with its held-out session."""
     kw = {"rounds": rounds, "hold_s": hold_s}
     cal = session_obs(root, name, seed, **kw)
@@ -48,6 +51,18 @@ def run_one(root: Path, name: str, seed: int, rounds: int, hold_s: float) -> dic
     t0 = time.process_time()
     found = discover(cal, "model3", heldout=held)
     cpu = time.process_time() - t0
+    cpu_numeric = np.nan
+    if numeric:  # the same loop with central differences for every column (the baseline)
+        import accellog.calibrate.fit as fit_mod
+
+        analytic, fit_mod._Problem.analytic = fit_mod._Problem.analytic, None
+        try:
+            t0 = time.process_time()
+            again = discover(cal, "model3", heldout=held)
+            cpu_numeric = time.process_time() - t0
+        finally:
+            fit_mod._Problem.analytic = analytic
+        assert again.added == found.added, (again.added, found.added)
     m3 = fit_model(cal, build_model("model3"))
     fin = fit_model(cal, build_model(found.final_model))
     return {
@@ -59,6 +74,7 @@ def run_one(root: Path, name: str, seed: int, rounds: int, hold_s: float) -> dic
         "heldout_chi2_dof": found.heldout["heldout_chi2_dof"],
         "bias_z": float(np.max(np.abs((fin.b - m3.b) / m3.sigma[:3]))),
         "cpu_s": cpu,
+        "cpu_numeric_s": cpu_numeric,
     }
 
 
@@ -67,17 +83,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--rounds", type=int, default=3, help="rounds of the six faces per session")
     ap.add_argument("--hold", type=float, default=10.0, help="hold length (s)")
+    ap.add_argument("--numeric", action="store_true", help="also time each loop with difference Jacobians")
     a = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for seed in range(1, a.seeds + 1):
             for name in SCENARIOS:
-                r = run_one(Path(d), name, seed, a.rounds, a.hold)
+                r = run_one(Path(d), name, seed, a.rounds, a.hold, a.numeric)
                 rows.append(r)
                 print(
                     f"{name:10s} seed {seed:2d}: added {'+'.join(r['added']) or '-':22s} dropped "
                     f"{'+'.join(r['dropped']) or '-':16s} no-library {r['no_library']!s:5s} held-out "
-                    f"chi2/dof {r['heldout_chi2_dof']:8.3g}  |db|/sigma {r['bias_z']:8.3g}  cpu {r['cpu_s']:5.2f} s",
+                    f"chi2/dof {r['heldout_chi2_dof']:8.3g}  |db|/sigma {r['bias_z']:8.3g}  cpu {r['cpu_s']:5.2f} s"
+                    + (f" (differences {r['cpu_numeric_s']:5.2f} s)" if a.numeric else ""),
                     flush=True,
                 )
     by = {n: [r for r in rows if r["scenario"] == n] for n in SCENARIOS}
@@ -95,6 +113,11 @@ def main(argv: list[str] | None = None) -> None:
         f"CPU median: failing search {cpu_fail:.2f} s, succeeding (single) {cpu_ok:.2f} s, "
         f"ratio {cpu_fail / cpu_ok:.2f} (goal <= 2)"
     )
+    if a.numeric:
+        num, ana = sum(r["cpu_numeric_s"] for r in rows), sum(r["cpu_s"] for r in rows)
+        print(
+            f"CPU of all loops: difference Jacobians {num:.2f} s, analytic {ana:.2f} s, ratio {num / ana:.2f}"
+        )
 
 
 if __name__ == "__main__":
