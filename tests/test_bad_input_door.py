@@ -8,6 +8,7 @@ folder exactly as before (no output, no temporary or lock file, inputs intact). 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -26,6 +27,7 @@ from accellog.cli import main
 from accellog.cli.option_checks import OPTION_RANGES, check_option
 from accellog.core.errors import InputError
 from accellog.core.textin import MAX_BYTES, nesting_depth
+from accellog.flows.simulate import Scenario, build_sensor_model, check_session_runs
 from accellog.store.writer import write_session
 
 SIM = ["simulate", "--hold", "2", "--protocol", "+z"]
@@ -613,3 +615,40 @@ def test_door_in_a_real_process(good, tmp_path):
         err = p.stderr.strip()
         assert p.returncode == 2 and err.startswith("accellog: error: ") and "\n" not in err, err
         assert _snapshot(tmp_path) == before
+
+
+_SCENARIO_KEYS = sorted(f.name for f in dataclasses.fields(Scenario))
+_TABLE_KEYS = [
+    "kind",
+    "T",
+    "T0",
+    "rate_degC_per_s",
+    "t_s",
+    "T_start",
+    "T_end",
+    "tau_s",
+    "bias_g",
+    "field_uT",
+    "noise_uT",
+]
+_scenario_values = st.recursive(
+    st.none() | st.booleans() | st.floats() | st.integers(-(10**20), 10**20) | st.text(max_size=6),
+    lambda kids: st.lists(kids, max_size=4) | st.dictionaries(st.sampled_from(_TABLE_KEYS), kids, max_size=4),
+    max_leaves=10,
+)
+
+
+@settings(max_examples=120, deadline=None)
+@given(data=st.dictionaries(st.sampled_from(_SCENARIO_KEYS), _scenario_values, max_size=3))
+def test_scenario_door_property(data):
+    """Any scenario table: refused with one InputError, or a scenario whose numbers are all finite
+    and whose session can run (sensor model built, duration, temperature and faults checked)."""
+    try:
+        sc = Scenario.from_dict(data, where="prop.toml")
+        model, motion = build_sensor_model(sc)
+        check_session_runs(sc, model.temperature, motion.duration_s)
+    except InputError as exc:
+        assert "\n" not in str(exc)
+        return
+    assert all(math.isfinite(v) for v in (sc.hold_s, sc.move_s, sc.label_margin_s, sc.local_gravity_mps2))
+    assert 0 <= sc.label_margin_s < sc.hold_s / 2 and sc.seed >= 0 and sc.chip_seed >= 0
