@@ -78,3 +78,28 @@ def test_host_clock_taken_in_the_observation_pass(tmp_path):
     got = open_labelled(path, host=True).host_clock
     assert want is not None and want[0].size > 5
     assert all(np.array_equal(w, g) for w, g in zip(want, got, strict=True))
+
+
+def test_fit_takes_the_gyro_first_pass_in_the_observation_pass(tmp_path, monkeypatch):
+    """`fit` on a labelled MCAP file reads the samples twice (observations + the gyro's bias
+    windows, then the gyro's moves), not three times, and its gyro calibration is the one of
+    stream_calibrate_gyro's own passes, exactly (many small blocks: windows span them)."""
+    from accellog.calibrate import stream_gyro, stream_segment
+    from accellog.calibrate.gyro import gyro_full_scale_dps
+    from accellog.flows.simulate import Scenario, simulate
+    from accellog.flows.stages import run_fit
+    from accellog.store import fastread
+    from accellog.store.stream import read_labels
+
+    path = tmp_path / "six.mcap"
+    simulate(Scenario(protocol="six", hold_s=3.0, move_s=1.0, sample_rate_hz=500.0), path)
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 32 << 10)
+    meta, poses, _ = read_labels(path)
+    want = stream_gyro.stream_calibrate_gyro(path, poses, full_scale_dps=gyro_full_scale_dps(meta))
+    passes = []
+    for mod in (stream_segment, stream_gyro):
+        real = mod.iter_imu
+        monkeypatch.setattr(mod, "iter_imu", lambda p, real=real: passes.append(p) or real(p))
+    got = run_fit(str(path)).cal.gyro
+    assert len(passes) == 2
+    assert want is not None and got is not None and got.to_dict() == want.to_dict()

@@ -9,8 +9,10 @@ Two streaming passes over ``store.stream.iter_imu``:
    start/middle/end) is the count of samples before it, summed over blocks (``np.searchsorted`` on
    the whole time axis, block by block), plus the time of the first sample at or after each hold
    middle; each bias window's rate and temperature sums are taken as soon as its end is found
-   (``_first_pass``), and the bias model (``gyro._bias_fit``) is fitted from them; the samples whose
-   rate clips are counted per move on the way (``gyro.clipped_in_moves``: those moves are left out);
+   (``FirstPass``), and the bias model (``gyro._bias_fit``) is fitted from them; the samples whose
+   rate clips are counted per move on the way (``gyro.clipped_in_moves``: those moves are left out).
+   A caller that reads the file anyway (the fit's observation pass) feeds ``first_pass(...)`` its
+   blocks and hands it over: then this pass is not made again;
 2. integrate: the trapezoid integrals of the rate (and temperature) over the 10 ms fine blocks
    between hold middles (a sample pair that straddles two groups is carried over), bias-corrected
    and reduced to their coarse blocks (phi, c) as each chunk group completes them
@@ -61,18 +63,18 @@ def stream_calibrate_gyro(
     min_temp_span_degC: float = 2.0,
     trim_s: float = 0.2,
     full_scale_dps: float | None = None,
+    first: FirstPass | None = None,
 ) -> GyroCalibration | None:
-    """calibrate_gyro on the session in path (module doc); None when it records no gyro rate."""
-    iv = _holds(poses)
-    if iv.shape[0] == 0:
-        raise InputError("no static holds: the gyro bias cannot be estimated")
-    n_ref = len(poses) if reference == "gravity" else sum(p.q_sensor_to_world is not None for p in poses)
-    known = _known_poses(poses, model, reference) if n_ref >= 2 else []
-    win_times = _bias_window_times(iv, window_s, trim_s)
-    pose_t = _pose_times(known) if known else (np.zeros(0),) * 3
-    moves = _MoveClips(pose_t[0], full_scale_dps)
-    found = _first_pass(path, win_times, np.concatenate(pose_t), moves)
-    trim_heap()  # the pass's block arrays are freed: give their pages back (calibrate.heap)
+    """calibrate_gyro on the session in path (module doc); None when it records no gyro rate.
+    first: step 1 already fed every block of the file (first_pass with the same arguments)."""
+    iv, known, first_new = _plan(poses, model, reference, window_s, trim_s, full_scale_dps)
+    if first is None:
+        first = first_new
+        for blk in iter_imu(path):
+            if not first.add(blk):
+                break
+        trim_heap()  # the pass's block arrays are freed: give their pages back (calibrate.heap)
+    found, moves = first.result(), first.moves
     if found is None:
         return None
     sums, has_temp, (counts, n_total, first_at) = found
@@ -102,6 +104,32 @@ def stream_calibrate_gyro(
     return _fit_matrix(phi, c, at, known, cal, model, 0.05, reference, moves.counts > 0)
 
 
+def first_pass(
+    poses: Sequence[PoseLabel],
+    *,
+    model: str = "full",
+    reference: str = "gravity",
+    window_s: float = 1.0,
+    trim_s: float = 0.2,
+    full_scale_dps: float | None = None,
+) -> FirstPass:
+    """Step 1 of stream_calibrate_gyro with these arguments, to be fed a pass's blocks (add) and
+    handed to it as first; InputError as stream_calibrate_gyro (no static holds)."""
+    return _plan(poses, model, reference, window_s, trim_s, full_scale_dps)[2]
+
+
+def _plan(poses, model: str, reference: str, window_s: float, trim_s: float, full_scale_dps):
+    """(holds, known poses, an unfed FirstPass) of stream_calibrate_gyro's arguments."""
+    iv = _holds(poses)
+    if iv.shape[0] == 0:
+        raise InputError("no static holds: the gyro bias cannot be estimated")
+    n_ref = len(poses) if reference == "gravity" else sum(p.q_sensor_to_world is not None for p in poses)
+    known = _known_poses(poses, model, reference) if n_ref >= 2 else []
+    win_times = _bias_window_times(iv, window_s, trim_s)
+    pose_t = _pose_times(known) if known else (np.zeros(0),) * 3
+    return iv, known, FirstPass(win_times, np.concatenate(pose_t), _MoveClips(pose_t[0], full_scale_dps))
+
+
 class _MoveClips:
     """Clipped samples per move (gyro.clipped_in_moves), summed block by block."""
 
@@ -113,55 +141,67 @@ class _MoveClips:
         self.counts += clipped_in_moves(t_s, gyro_dps, self.mid_t, self.full_scale_dps)
 
 
-def _first_pass(path, win_times: list[np.ndarray], pose_q: np.ndarray, moves: _MoveClips | None = None):
-    """One pass: the rate and temperature sums over the bias windows (edge times win_times, one
-    array per hold) and the locate of module doc step 1 for the pose times pose_q. Returns
-    ((rate sums (W,3), temperature sums (W,), samples (W,)) of the windows of >= 2 samples,
-    has_temp, (samples before each pose time, samples in all, time of the first sample at or
-    after each (the last sample's time when none is))); None when the session has no gyro rate.
+class FirstPass:
+    """Module doc step 1 fed block by block: the rate and temperature sums over the bias windows
+    (edge times win_times, one array per hold) and the locate for the pose times pose_q; moves
+    counts the clipped samples per move. result(): ((rate sums (W,3), temperature sums (W,),
+    samples (W,)) of the windows of >= 2 samples, has_temp, (samples before each pose time,
+    samples in all, time of the first sample at or after each (the last sample's time when none
+    is))); None when the session has no gyro rate.
 
     A window's sample range [a, b) is the count of samples before its edge times; the count is
     final once a sample at or after the time has passed (times sorted), so each window is summed
     (_Segments, one np.add.reduceat over exactly its samples) as soon as its end is found, the
     samples from the first window still open kept over to the next block."""
-    nw = [len(q) for q in win_times]
-    queries = np.concatenate([*win_times, pose_q])
-    qlo = np.concatenate(
-        [s + np.arange(n - 1) for s, n in zip(np.cumsum([0, *nw]), nw, strict=False)] or [[]]
-    )
-    qlo = qlo.astype(np.int64)
-    loc = _Locator(queries)
-    end_t = np.maximum.accumulate(queries[qlo + 1]) if qlo.size else np.zeros(0)  # prefix max
-    nxt, has_temp = 0, True
-    out: list[tuple] = []
-    buf, buf0 = None, 0  # samples (w, temp) kept from global index buf0
-    for blk in iter_imu(path):
-        if blk.gyro_dps is None:
-            return None
-        if moves is not None:
-            moves.add(blk.t_s, blk.gyro_dps)
+
+    def __init__(self, win_times: list[np.ndarray], pose_q: np.ndarray, moves: _MoveClips) -> None:
+        nw = [len(q) for q in win_times]
+        queries = np.concatenate([*win_times, pose_q])
+        qlo = np.concatenate(
+            [s + np.arange(n - 1) for s, n in zip(np.cumsum([0, *nw]), nw, strict=False)] or [[]]
+        )
+        self.qlo, self.n_pose, self.moves = qlo.astype(np.int64), pose_q.size, moves
+        self.loc = _Locator(queries)
+        self.end_t = (
+            np.maximum.accumulate(queries[self.qlo + 1]) if self.qlo.size else np.zeros(0)
+        )  # prefix max
+        self.nxt, self.has_temp, self.no_gyro = 0, True, False
+        self.out: list[tuple] = []
+        self.buf, self.buf0 = None, 0  # samples (w, temp) kept from global index buf0
+
+    def add(self, blk) -> bool:
+        """The next block (store.stream.ImuBlock); False once the session shows no gyro rate."""
+        if self.no_gyro or blk.gyro_dps is None:
+            self.no_gyro = True
+            return False
+        loc, qlo, nxt = self.loc, self.qlo, self.nxt
+        self.moves.add(blk.t_s, blk.gyro_dps)
         loc.add(blk.t_s)
-        has_temp = has_temp and blk.temp_degC is not None
+        self.has_temp = has_temp = self.has_temp and blk.temp_degC is not None
         add = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)
-        buf = add if buf is None else tuple(_cat(o, n) for o, n in zip(buf, add, strict=True))
-        m = max(nxt, int(np.searchsorted(end_t, loc.t_last, side="right")))  # windows with a found end
-        out.append(_window_sums(loc.counts[qlo[nxt:m]], loc.counts[qlo[nxt:m] + 1], buf, buf0))
-        nxt = m
-        held = buf0 + buf[0].shape[0]
+        buf = add if self.buf is None else tuple(_cat(o, n) for o, n in zip(self.buf, add, strict=True))
+        m = max(nxt, int(np.searchsorted(self.end_t, loc.t_last, side="right")))  # windows with a found end
+        self.out.append(_window_sums(loc.counts[qlo[nxt:m]], loc.counts[qlo[nxt:m] + 1], buf, self.buf0))
+        self.nxt = nxt = m
+        held = self.buf0 + buf[0].shape[0]
         need = held if nxt == qlo.size else loc.count(qlo[nxt])
-        keep = min(need, held) - buf0
-        buf, buf0 = tuple(None if x is None else x[keep:] for x in buf), buf0 + keep
-    if loc.n == 0:
-        return None
-    counts, n_total, first_at = loc.finish()
-    if nxt < qlo.size:  # windows running to the end of the session
-        out.append(_window_sums(counts[qlo[nxt:]], counts[qlo[nxt:] + 1], buf, buf0))
-    sums = tuple(np.concatenate([o[i] for o in out]) for i in range(3))
-    return (
-        sums,
-        has_temp,
-        (counts[counts.size - pose_q.size :], n_total, first_at[first_at.size - pose_q.size :]),
-    )
+        keep = min(need, held) - self.buf0
+        self.buf, self.buf0 = tuple(None if x is None else x[keep:] for x in buf), self.buf0 + keep
+        return True
+
+    def result(self):
+        """The sums and locate of every block added (class doc); None without gyro rate."""
+        loc, qlo, nxt = self.loc, self.qlo, self.nxt
+        if self.no_gyro or loc.n == 0:
+            return None
+        counts, n_total, first_at = loc.finish()
+        if nxt < qlo.size:  # windows running to the end of the session
+            self.out.append(_window_sums(counts[qlo[nxt:]], counts[qlo[nxt:] + 1], self.buf, self.buf0))
+            self.nxt = qlo.size
+        self.buf = None
+        sums = tuple(np.concatenate([o[i] for o in self.out]) for i in range(3))
+        k = self.n_pose
+        return sums, self.has_temp, (counts[counts.size - k :], n_total, first_at[first_at.size - k :])
 
 
 class _Locator:

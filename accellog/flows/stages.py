@@ -162,7 +162,8 @@ def run_fit(
     hold labels that contradict the measured gravity direction (each change is a note on stderr).
     """
 
-    data, src, obs = _fit_input(data, obs, relabel or orientation_free, relabel, window_s, trim_s, n_per_pose)
+    whole = relabel or orientation_free
+    data, src, obs = _fit_input(data, obs, whole, relabel, window_s, trim_s, n_per_pose, gyro=gyro)
     m = build_model(model, add=list(add), effects_file=effects_file)
     if not orientation_free and obs is None and isinstance(data, Session) and not data.poses:
         orientation_free, m = True, _orientation_free_model(m, effects_file, _name(data))
@@ -185,7 +186,7 @@ def run_fit(
     elif gyro and isinstance(data, StreamedSession):
         fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
         trim_heap()
-        cal.gyro = data.gyro_calibration()  # the holds and moves, streamed from the file again
+        cal.gyro = data.gyro_calibration()  # the moves, streamed from the file again (holds: in the obs pass)
     warn_clipped_moves(fit, cal)  # moves left out of the gyro fit: said, and in the file
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
@@ -199,13 +200,13 @@ def _orientation_free_model(m, effects_file, where: str):
     return build_model("+".join(dict.fromkeys(terms)), effects_file=effects_file) if swap else m
 
 
-def _fit_input(data, obs, whole: bool, relabel: bool, window_s: float, trim_s: float, n_per_pose):
+def _fit_input(data, obs, whole: bool, relabel: bool, window_s: float, trim_s: float, n_per_pose, gyro=False):
     """(data, source path or None, obs): a file path opened streamed (bounded memory) unless the
     whole session is needed (whole: relabelling, orientation-free) or obs are given, else loaded;
-    hold labels that contradict gravity replaced when relabel (a note each)."""
+    hold labels that contradict gravity replaced when relabel (a note each); gyro: see open_streamed."""
     src = str(data) if isinstance(data, (str, os.PathLike)) else None
     if src is not None and obs is None and not whole and can_stream(src) and read_labels(src)[1]:
-        data = open_streamed(src, window_s=window_s, trim_s=trim_s)  # bounded memory
+        data = open_streamed(src, window_s=window_s, trim_s=trim_s, gyro=gyro)  # bounded memory
         obs = None if data is None else data.obs
     if src is not None and not isinstance(data, StreamedSession):
         data = load_input(src, n_per_pose=n_per_pose)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from accellog.calibrate.gyro import GyroCalibration, gyro_full_scale_dps
 from accellog.calibrate.segment import PoseStats
-from accellog.calibrate.stream_gyro import stream_calibrate_gyro
+from accellog.calibrate.stream_gyro import FirstPass, first_pass, stream_calibrate_gyro
 from accellog.calibrate.stream_segment import TimestampCheck, stream_check_timestamps, stream_observations
 from accellog.core.errors import AccellogError, DataIntegrityWarning, InputError, ModelError
 from accellog.core.notices import note
@@ -38,6 +38,8 @@ class StreamedSession:
     """Per-hold statistics (segment.pose_stats), when asked for."""
     host_clock: tuple | None = None
     """(sensor, host) times for calibrate.clock.clock_from_host_time (store.stream.read_host_clock)."""
+    gyro_first: FirstPass | None = None
+    """The gyro calibration's first pass, taken in the observation pass (open_streamed(gyro=True))."""
 
     def gyro_calibration(self) -> GyroCalibration | None:
         """Gyro calibration from the holds and the moves between them, as
@@ -45,7 +47,10 @@ class StreamedSession:
         if len(self.poses) < 2:
             return None
         try:
-            cal = stream_calibrate_gyro(self.path, self.poses, full_scale_dps=gyro_full_scale_dps(self.meta))
+            first, self.gyro_first = self.gyro_first, None
+            cal = stream_calibrate_gyro(
+                self.path, self.poses, full_scale_dps=gyro_full_scale_dps(self.meta), first=first
+            )
         except ModelError as exc:  # e.g. a scale fit that did not converge: said, not silent
             note(f"gyro not calibrated: {exc}")
             return None
@@ -54,18 +59,27 @@ class StreamedSession:
         return cal
 
 
-def _observe_checked(p: Path, window_s: float, trim_s: float, held: list | None, clock: HostClock | None):
-    """(stream_observations, read_labels) of p with the time-stamp checks of load_input taken in the
-    same pass (TimestampCheck): one decompression pass fewer for a good file (open_streamed redoes a
-    file that fails in two passes, so the refusals and their order are those of the two passes);
-    clock, when given, is fed every block too (read_host_clock in the same pass)."""
+def _observe_checked(p: Path, window_s: float, trim_s: float, held: list | None, clock: HostClock | None,
+                     gyro: bool = False):  # fmt: skip
+    """(stream_observations, read_labels, the gyro's first pass or None) of p with the time-stamp
+    checks of load_input taken in the same pass (TimestampCheck): one decompression pass fewer for a
+    good file (open_streamed redoes a file that fails in two passes, so the refusals and their order
+    are those of the two passes); clock, when given, is fed every block too (read_host_clock in the
+    same pass), and so is the gyro calibration's first pass when gyro (a pass fewer for the fit; any
+    error there drops it: the gyro calibration then makes that pass itself and says what it says)."""
     check = TimestampCheck()
     labels = read_labels(p)
+    first = [_gyro_first(labels) if gyro else None]
 
     def on_block(b) -> None:
         check.add(b.t_s)
         if clock is not None:
             clock.add(b)
+        if first[0] is not None:
+            try:
+                first[0].add(b)
+            except Exception:
+                first[0] = None
 
     obs = stream_observations(
         p,
@@ -76,7 +90,18 @@ def _observe_checked(p: Path, window_s: float, trim_s: float, held: list | None,
         on_block=on_block,
     )
     check.finish(p)
-    return obs, labels
+    return obs, labels, first[0]
+
+
+def _gyro_first(labels) -> FirstPass | None:
+    """An unfed first pass of StreamedSession.gyro_calibration's stream_calibrate_gyro, or None."""
+    meta, poses, _events = labels
+    if len(poses) < 2:
+        return None
+    try:
+        return first_pass(poses, full_scale_dps=gyro_full_scale_dps(meta))
+    except AccellogError:
+        return None
 
 
 def can_stream(path: str | os.PathLike) -> bool:
@@ -118,6 +143,7 @@ def open_streamed(
     stats: bool = False,
     check_times: bool = True,
     host: bool = False,
+    gyro: bool = False,
 ) -> StreamedSession | None:
     """The session's labels (after the time-stamp checks of load_input) and, when observe, its
     observation table (segment.observations' defaults) and, with stats, its per-hold statistics
@@ -125,7 +151,9 @@ def open_streamed(
     chunks: the whole-session reader (load_input) says what it skipped and how many samples.
     check_times False: the labels only (the caller's pass makes the check: stream_evaluate's
     check_times; None still when reading the labels meets a damaged chunk). host: also the host
-    clock points (store.stream.read_host_clock), taken in the observation pass."""
+    clock points (store.stream.read_host_clock), taken in the observation pass; gyro: the gyro
+    calibration's first pass too (StreamedSession.gyro_calibration then reads the file once more,
+    not twice)."""
     p = Path(path)
     if not p.exists():
         raise InputError("no such file", where=str(p))
@@ -135,14 +163,14 @@ def open_streamed(
             warnings.simplefilter("always")
             try:
                 clock = HostClock() if host else None
-                obs, (meta, poses, _events) = _observe_checked(p, window_s, trim_s, held, clock)
+                obs, (meta, poses, _events), first = _observe_checked(p, window_s, trim_s, held, clock, gyro)
                 ok = True
             except Exception:
                 ok = False
         if ok and not any(issubclass(w.category, DataIntegrityWarning) for w in caught):
             for w in caught:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-            return StreamedSession(meta, poses, obs, str(p), held, clock.result() if clock else None)
+            return StreamedSession(meta, poses, obs, str(p), held, clock.result() if clock else None, first)
         held = [] if stats else None  # failed or damaged: the two passes say why, as before
     s = _open_two_passes(p, window_s, trim_s, observe, held, check_times)
     if s is not None and host:
