@@ -92,6 +92,9 @@ def test_no_heat_then_cool_advice_on_a_session_that_heated_and_cooled(root):
     assert "heat then cool" in new_recording("temp_bias", "warmup", m3, warm)
     text = new_recording("temp_bias", "warmup", m3, hyst)
     assert "heat then cool" not in text and "another temperature path" in text
+    # three rounds of the six faces already repeat every pose over the session
+    assert "repeats a pose at the start" not in new_recording("time_drift", "warmup", m3, warm)
+    assert "more orientations" in new_recording("nonlin2", "scale", m3, warm)  # faces only: edges are new
 
 
 @pytest.mark.slow

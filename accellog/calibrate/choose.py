@@ -190,4 +190,24 @@ def new_recording(a: str, b: str, model, obs: ObsTable) -> str:
             "this session already heated and cooled: a second session of the sensor on another "
             "temperature path (other soak temperatures, another rate; use it as --heldout)"
         )
+    elif "repeats a pose" in text and repeats_a_pose(obs):
+        text = "this session already repeats a pose over its length: a second, longer session (--heldout)"
+    elif "cube edges" in text and _off_axis(obs):
+        text = "this session already has off-axis poses: a second session with other orientations (--heldout)"
     return text
+
+
+def repeats_a_pose(obs: ObsTable) -> bool:
+    """Some orientation is held in the first, the middle and the last third of the session."""
+    t = np.asarray(obs.t_s, float)
+    if t.size < 3 or np.ptp(t) <= 0:
+        return False
+    third = np.minimum(((t - t.min()) / np.ptp(t) * 3).astype(int), 2)
+    up = np.round(np.asarray(obs.up_sensor, float), 2)
+    sets = [{tuple(u) for u in up[third == k]} for k in range(3)]
+    return bool(sets[0] & sets[1] & sets[2])
+
+
+def _off_axis(obs: ObsTable) -> bool:
+    up = np.abs(np.asarray(obs.up_sensor, float))
+    return bool(np.any(up.max(axis=1) < 0.9))
