@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,7 +62,8 @@ from accellog.core.errors import InputError
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
 from accellog.core.textin import read_text, toml_loads
-from accellog.core.units import EARTH_GRAVITY_RANGE_MPS2, STANDARD_GRAVITY_MPS2
+from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.flows.scenario_checks import MAX_SESSION_S, check_numbers, check_session_runs
 from accellog.store.atomic import AtomicOutput, check_output
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
@@ -129,7 +129,7 @@ class Scenario:
     def validate(self, where: str = "scenario") -> None:
         """InputError naming the first field that is not finite or outside its physical range (the
         one check of a scenario, from a TOML file or from options); see _check_numbers."""
-        _check_numbers(self, where)
+        check_numbers(self, where)
         rate = self.sample_rate_hz
         div = _SMPLRT_DIV_BASE_HZ / rate - 1.0 if rate > 0 and np.isfinite(rate) else -1.0
         if rate <= 0 or abs(div - round(div)) > 1e-9 or not 0 <= round(div) <= 255:
@@ -212,63 +212,6 @@ def _check_type(key: str, value: Any, where: str) -> None:
         and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
     ):
         raise bad("two numbers [about x, about y] in degrees")
-
-
-MAX_SESSION_S = 86400.0
-"""Longest simulated session (s): one day (a longer one is a typo, not a plan)."""
-OPERATING_RANGE_DEGC = (-40.0, 85.0)
-"""The MPU-9250's operating temperature range (PS section 3.1, degC)."""
-
-
-def _finite_numbers(value: Any) -> bool:
-    """True when every number in value (a number, or nested lists / tables of them) is finite."""
-    if isinstance(value, dict):
-        return all(_finite_numbers(v) for v in value.values())
-    if isinstance(value, (list, tuple)):
-        return all(_finite_numbers(v) for v in value)
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return math.isfinite(value)
-    return True
-
-
-def _check_numbers(sc: Scenario, where: str) -> None:
-    """InputError naming the first non-finite number of the scenario (NaN or inf anywhere: a field,
-    an error override, the temperature or magnetometer table), a negative seed or a local gravity
-    that is not on Earth (EARTH_GRAVITY_RANGE_MPS2)."""
-    for f in dataclasses.fields(sc):
-        value = getattr(sc, f.name)
-        if not _finite_numbers(value):
-            raise InputError(f"{f.name}={value!r} must be finite (no NaN or inf)", where=where)
-    for key in ("seed", "chip_seed"):
-        if getattr(sc, key) < 0:
-            raise InputError(f"{key}={getattr(sc, key)} must be >= 0", where=where)
-    lo, hi = EARTH_GRAVITY_RANGE_MPS2
-    if not lo <= sc.local_gravity_mps2 <= hi:
-        raise InputError(
-            f"local_gravity_mps2={sc.local_gravity_mps2:g} is not a gravity on Earth ({lo}-{hi} m/s^2)",
-            where=where,
-        )
-
-
-def check_session_runs(sc: Scenario, temperature: Any, session_s: float) -> None:
-    """InputError unless a session of session_s (s) can be simulated: at most MAX_SESSION_S, a die
-    temperature inside the chip's operating range all along, no disconnect longer than the session."""
-    if not 0 < session_s <= MAX_SESSION_S:
-        raise InputError(
-            f"the session would last {session_s:g} s; at most {MAX_SESSION_S:g} s", where="scenario"
-        )
-    t = np.linspace(0.0, session_s, 2001)
-    temp_degC = temperature.degC(t)
-    lo, hi = OPERATING_RANGE_DEGC
-    bad = ~((temp_degC >= lo) & (temp_degC <= hi))
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError(
-            f"temperature {temperature.description} reaches {temp_degC[k]:.4g} degC at t = {t[k]:.4g} s, outside "
-            f"the MPU-9250's operating range {lo:g}..{hi:g} degC",
-            where="scenario",
-        )
-    sc.fault_plan().check_session(session_s)
 
 
 def build_sensor_model(sc: Scenario):
@@ -419,16 +362,7 @@ def simulate(
             if progress is not None:
                 rec.on_batch = lambda _batch, _accel: progress(min(rec.t_s, total_s), total_s)
             rec.run_for(total_s)
-            # Motion time starts when the chip is created, session time at the first FIFO sample:
-            # map the scenario's holds and truth onto the session's time axis.
-            m = sc.label_margin_s
-            for lab in motion.labels():
-                start_s, end_s = (float(v) for v in chip.session_time_s(np.array([lab.start_s, lab.end_s])))
-                if start_s < 0 or end_s > rec.t_s:
-                    continue
-                label = PoseLabel(
-                    lab.name, start_s + m, end_s - m, lab.up_sensor, lab.q_sensor_to_world, lab.hold_index
-                )
+            for label in _session_labels(motion, chip, rec.t_s, sc.label_margin_s):
                 writer.write_pose(label)
                 rec.summary.poses.append(label)
             writer.write_truth(chip.truth_for_session(np.arange(0.0, rec.t_s, truth_step_s)))
@@ -438,6 +372,22 @@ def simulate(
     ao.commit()
     rec.summary.duration_s = rec.t_s
     return rec.summary
+
+
+def _session_labels(motion, chip, end_s: float, margin_s: float) -> list[PoseLabel]:
+    """The motion's holds on the session's time axis (motion time starts when the chip is created,
+    session time at the first FIFO sample), margin_s (s) inside each end; holds not wholly in 0..end_s
+    are dropped."""
+    out = []
+    for lab in motion.labels():
+        a, b = (float(v) for v in chip.session_time_s(np.array([lab.start_s, lab.end_s])))
+        if a >= 0 and b <= end_s:
+            out.append(
+                PoseLabel(
+                    lab.name, a + margin_s, b - margin_s, lab.up_sensor, lab.q_sensor_to_world, lab.hold_index
+                )
+            )
+    return out
 
 
 def scenario_from_options(

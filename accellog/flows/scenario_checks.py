@@ -1,0 +1,71 @@
+"""The checks of a simulated scenario that come before any work (accellog.flows.simulate): every number
+finite, seeds >= 0, a local gravity on Earth, and a session that can run: at most MAX_SESSION_S long,
+its die temperature inside the MPU-9250's operating range all along, no disconnect longer than it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from accellog.core.errors import InputError
+from accellog.core.units import EARTH_GRAVITY_RANGE_MPS2
+
+MAX_SESSION_S = 86400.0
+"""Longest simulated session (s): one day (a longer one is a typo, not a plan)."""
+OPERATING_RANGE_DEGC = (-40.0, 85.0)
+"""The MPU-9250's operating temperature range (PS section 3.1, degC)."""
+
+
+def finite_numbers(value: Any) -> bool:
+    """True when every number in value (a number, or nested lists / tables of them) is finite."""
+    if isinstance(value, dict):
+        return all(finite_numbers(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return all(finite_numbers(v) for v in value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return math.isfinite(value)
+    return True
+
+
+def check_numbers(sc: Any, where: str) -> None:
+    """InputError naming the first non-finite number of the scenario (NaN or inf anywhere: a field,
+    an error override, the temperature or magnetometer table), a negative seed or a local gravity
+    that is not on Earth (EARTH_GRAVITY_RANGE_MPS2)."""
+    for f in dataclasses.fields(sc):
+        value = getattr(sc, f.name)
+        if not finite_numbers(value):
+            raise InputError(f"{f.name}={value!r} must be finite (no NaN or inf)", where=where)
+    for key in ("seed", "chip_seed"):
+        if getattr(sc, key) < 0:
+            raise InputError(f"{key}={getattr(sc, key)} must be >= 0", where=where)
+    lo, hi = EARTH_GRAVITY_RANGE_MPS2
+    if not lo <= sc.local_gravity_mps2 <= hi:
+        raise InputError(
+            f"local_gravity_mps2={sc.local_gravity_mps2:g} is not a gravity on Earth ({lo}-{hi} m/s^2)",
+            where=where,
+        )
+
+
+def check_session_runs(sc: Any, temperature: Any, session_s: float) -> None:
+    """InputError unless a session of session_s (s) can be simulated: at most MAX_SESSION_S, a die
+    temperature inside the chip's operating range all along, no disconnect longer than the session."""
+    if not 0 < session_s <= MAX_SESSION_S:
+        raise InputError(
+            f"the session would last {session_s:g} s; at most {MAX_SESSION_S:g} s", where="scenario"
+        )
+    t = np.linspace(0.0, session_s, 2001)
+    temp_degC = temperature.degC(t)
+    lo, hi = OPERATING_RANGE_DEGC
+    bad = ~((temp_degC >= lo) & (temp_degC <= hi))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(
+            f"temperature {temperature.description} reaches {temp_degC[k]:.4g} degC at t = {t[k]:.4g} s, outside "
+            f"the MPU-9250's operating range {lo:g}..{hi:g} degC",
+            where="scenario",
+        )
+    sc.fault_plan().check_session(session_s)
