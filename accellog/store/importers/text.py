@@ -16,7 +16,7 @@ from accellog.core.session import PoseLabel
 
 
 SNIFF_BYTES = 1024
-MAX_WHOLE_TEXT_BYTES = 512 * 1024 * 1024
+MAX_WHOLE_TEXT_BYTES = 16 * 1024 * 1024
 """Largest text file read whole (capstone, imucal); any logger's CSV is streamed instead."""
 
 
