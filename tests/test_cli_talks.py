@@ -178,3 +178,45 @@ def test_flags_show_no_bool_placeholder(capsys):
     for argv in (["--help"], ["fit", "--help"], ["import", "ros2", "--help"]):
         assert main(argv) == 0
         assert "<bool>" not in capsys.readouterr().out, argv
+
+
+def test_fleet_workers_pin_blas_wherever_they_were_started():
+    """A process started without accellog's one-thread environment (an external `dask worker`) runs
+    its tasks with BLAS on one thread after pin_blas (called by warm_worker and by every task)."""
+    code = (
+        "import json, numpy\n"
+        "from threadpoolctl import threadpool_info\n"
+        "from accellog.flows.fleet import pin_blas\n"
+        "before = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']\n"
+        "pin_blas()\n"
+        "after = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']\n"
+        "print(json.dumps([before, after]))\n"
+    )
+    env = {
+        k: v
+        for k, v in _env().items()
+        if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+    }
+    env["OPENBLAS_NUM_THREADS"] = "2"
+    got = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert got.returncode == 0, got.stderr
+    import json
+
+    before, after = json.loads(got.stdout)
+    assert before and max(before) == 2 and set(after) == {1}
+
+
+@pytest.mark.slow
+def test_fleet_run_ends_without_worker_tracebacks(tmp_path):
+    from accellog.flows.simulate import Scenario, simulate
+
+    for k in range(3):
+        simulate(Scenario(protocol="six", hold_s=2.0, move_s=0.5, sample_rate_hz=100.0, seed=k),
+                 tmp_path / f"s{k}.mcap")  # fmt: skip
+    argv = ["fleet", "run", str(ROOT / "pipelines" / "fleet.toml"), str(tmp_path / "*.mcap"), "-o",
+            str(tmp_path / "out"), "--workers", "3"]  # fmt: skip
+    got = subprocess.run(
+        [sys.executable, "-m", "accellog", *argv], env=_env(), capture_output=True, text=True
+    )
+    assert got.returncode == 0, got.stderr
+    assert "Traceback" not in got.stderr and "heartbeat" not in got.stderr, got.stderr[-2000:]

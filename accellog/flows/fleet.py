@@ -115,6 +115,7 @@ def session_task(path: str, content_sha256: str, spec: dict, pipe_sha256: str) -
     from accellog.flows.pipeline import run_pipeline
     from accellog.flows.stages import load_input
 
+    pin_blas()
     t0, c0 = time.perf_counter(), time.process_time()
     base = {
         "session": str(path),
@@ -278,8 +279,47 @@ def local_cluster(n_workers: int | None = None):
         )
 
 
+def _n_workers(dask_scheduler) -> int:
+    return len(dask_scheduler.workers)
+
+
+def _close_own(client) -> None:
+    """Close a client and the cluster accellog started for it, workers first: a worker whose
+    scheduler went first logged 'Failed to communicate with scheduler during heartbeat' with a
+    traceback on stderr after a successful run."""
+    cluster = client.cluster
+    if cluster is not None:
+        try:
+            cluster.scale(0)  # the nannies stop their workers while the scheduler still answers
+            end = time.monotonic() + 30.0
+            while client.run_on_scheduler(_n_workers) and time.monotonic() < end:
+                time.sleep(0.05)
+        except Exception:  # a cluster that is already going away: closing below is enough
+            pass
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+_PINNED = False
+
+
+def pin_blas() -> None:
+    """BLAS on one thread in this process, once, wherever the worker was started (a `dask worker` of an
+    external cluster does not get the OPENBLAS_NUM_THREADS=1 accellog gives the workers it starts:
+    each task's small matrices then cost 1.6x the CPU on threads fighting for the cores)."""
+    global _PINNED
+    if not _PINNED:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1, user_api="blas")  # kept for the life of the process
+        _PINNED = True
+
+
 def warm_worker() -> int:
-    """Import what a task needs (run once on each worker before timing); returns the pid."""
+    """Import what a task needs and pin BLAS to one thread (run once on each worker before timing);
+    returns the pid."""
+    pin_blas()
     import accellog.calibrate.diagnose
     import accellog.calibrate.fit
     import accellog.calibrate.gyro
@@ -377,10 +417,7 @@ def run_fleet(
             results = _run_dask(client, todo, hashes, spec, ph, on_progress)
         finally:
             if own is not None:
-                cluster = own.cluster
-                own.close()
-                if cluster is not None:
-                    cluster.close()
+                _close_own(own)
     else:
         res.scheduler, res.n_workers = "serial", 1
         warm_worker()
