@@ -122,6 +122,10 @@ class AccelErrors:
                 setattr(self, f.name, _as3(f.name, v))
         if self.warmup_tau_s <= 0:
             raise InputError(f"warmup_tau_s={self.warmup_tau_s:g} must be > 0 s")
+        if not self.temp_hysteresis_width_degC > 0:
+            raise InputError(
+                f"temp_hysteresis_width_degC={self.temp_hysteresis_width_degC:g} must be > 0 degC"
+            )
         if not -0.5 < self.clock_error < 0.5:
             raise InputError(f"clock_error={self.clock_error:g} is not a plausible fraction")
 
