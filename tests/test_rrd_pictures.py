@@ -97,6 +97,7 @@ def test_ladder_steps_own_colours_named_bars_and_separate_axes(tmp_path: Path) -
     assert ticks[:3] == ["+z", "-z", "+y"] and any(s.endswith(" mg") for s in ticks[3:])
     strips = r.static("/charts/residuals/model3/bars", "LineStrips2D:strips")
     radii = r.static("/charts/residuals/model3/bars", "LineStrips2D:radii")
+    assert all(np.ptp(np.asarray(s), axis=0).max() > 0 for s in strips)  # none of zero length (not drawn)
     lengths = [abs(s[-1][1] - s[0][1]) + 2 * rad for s, rad in zip(strips, radii, strict=True)]  # drawn
     assert len(strips) == 9  # 3 poses x 3 axes
     assert int(np.argmax(lengths)) == 3 * 1 + 1  # pose -z, axis y: the -20 mg residual
@@ -168,6 +169,18 @@ def test_y_range_ticks_and_legend_corner() -> None:
     assert corner in (rrb.components.Corner2D.LeftTop, rrb.components.Corner2D.RightBottom)
 
 
+def _latest(r, entity: str, component: str) -> list:
+    """A static component as the viewer shows it: the row written last (largest RowId), whatever
+    the order of the chunks in the file."""
+    tbl = r._table(entity, component)
+    rows = [
+        (bytes(rid), v)
+        for rid, v in zip(tbl["rerun.controls.RowId"].to_pylist(), tbl[component].to_pylist(), strict=True)
+        if v is not None
+    ]
+    return max(rows, key=lambda x: x[0])[1]
+
+
 def test_coinciding_3d_labels_are_merged(tmp_path: Path) -> None:
     t = np.linspace(0.0, 60.0, 50)
     far = np.column_stack([-5 * t, 4 * t, 0 * t])  # ends at (-300, 240, 0) m
@@ -178,13 +191,13 @@ def test_coinciding_3d_labels_are_merged(tmp_path: Path) -> None:
         for label, d in (("test/far", far), ("test/a", near_a), ("test/b", near_b)):
             rec.log_track(label, t, d)
     r = load_rrd(out)
-    lab = {k: r.static(f"/world/tracks/test/{k}/final", "Points3D:labels") for k in ("far", "a", "b")}
+    lab = {k: _latest(r, f"/world/tracks/test/{k}/final", "Points3D:labels") for k in ("far", "a", "b")}
     assert lab["far"] == [lab["far"][0]] and lab["far"][0].startswith("far:")
     merged = [k for k in ("a", "b") if "\n" in lab[k][0]]
     assert len(merged) == 1
     other = "a" if merged == ["b"] else "b"
     assert lab[other][0].split(":")[0] in lab[merged[0]][0]  # both names on one label
-    assert r.static(f"/world/tracks/test/{other}/final", "Points3D:show_labels") == [False]
+    assert _latest(r, f"/world/tracks/test/{other}/final", "Points3D:show_labels") == [False]
     # the points themselves are untouched
     np.testing.assert_allclose(
         np.asarray(r.static("/world/tracks/test/b/final", "Points3D:positions")).reshape(3), near_b[-1]

@@ -36,6 +36,21 @@ def nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
     return np.round(np.arange(first, last + 0.5 * step, step), 12)
 
 
+def _bar(x: float, y0: float, y1: float, r: float) -> tuple[list[list[float]], float]:
+    """A filled bar from y0 to y1 centred on x, r wide on each side, as one line strip and its
+    radius (2D boxes are drawn as outlines; a line of radius r is a bar with round caps, so the
+    strip is shortened by r at both ends). A bar shorter than 2 r lies flat: a horizontal strip of
+    radius half its height. A strip never has zero length (the viewer would not draw it)."""
+    h = abs(y1 - y0)
+    if h >= 2.0 * r:
+        s = 1.0 if y1 > y0 else -1.0
+        return [[x, y0 + s * r], [x, y1 - s * r]], r
+    rr = max(0.5 * h, 0.3)  # at least a hairline for a zero bar
+    yc = 0.5 * (y0 + y1)
+    half = max(r - rr, 0.1)
+    return [[x - half, yc], [x + half, yc]], rr
+
+
 def _tick_text(v: float, log10: bool, unit: str) -> str:
     txt = f"{10.0**v:g}" if log10 else f"{v:g}"
     return f"{txt} {unit}".strip()
@@ -74,14 +89,11 @@ def log_bar_groups(
     strips, radii, cols = [], [], []
     for g in range(len(groups)):
         for j in range(len(series)):
-            if ok[g, j]:  # a filled bar: a line as wide as the bar (2D boxes are drawn as outlines),
-                # shortened by its round caps so that it spans exactly 0..value
+            if ok[g, j]:
                 x = g * slot + 0.1 * slot + (j + 0.5) * bw
-                y0, y1 = float(sy(0.0)), float(sy(v[g, j]))
-                r = min(0.42 * bw, 0.5 * abs(y1 - y0))
-                s = np.sign(y1 - y0)
-                strips.append([[x, y0 + s * r], [x, y1 - s * r]])
-                radii.append(max(r, 0.3))
+                strip, r = _bar(x, float(sy(0.0)), float(sy(v[g, j])), 0.42 * bw)
+                strips.append(strip)
+                radii.append(r)
                 cols.append(colors[j])
     rec.log_static(
         f"{entity}/frame",
