@@ -455,9 +455,9 @@ def _norm_rank_check(fun, th0: np.ndarray, model: Model, obs: ObsTable) -> None:
     _, s, vt = np.linalg.svd(J0 / np.where(norms > 0, norms, 1.0), full_matrices=False)
     if np.any(norms == 0) or s[-1] < 1e-7 * s[0]:
         bad = [model.param_names[k] for k in np.flatnonzero((norms == 0) | (np.abs(vt[-1]) > 0.2))]
-        from accellog.calibrate.identifiability import NORM_ONLY_LABELLED, design_null
+        from accellog.calibrate.identifiability import NORM_ONLY_LABELLED, norm_blind_params
 
-        blind = design_null(model, "norm")  # more orientations would not help these
+        blind = norm_blind_params(model)  # more orientations would not help these
         raise ModelError(
             f"orientation-free fit cannot determine {', '.join(bad)}: "
             + (

@@ -15,7 +15,7 @@ import numpy as np
 
 from accellog.calibrate.effects import AXES, all_effects
 from accellog.calibrate.model import Model
-from accellog.core.errors import ModelError
+from accellog.core.errors import InputError, ModelError
 from accellog.core.session import ObsTable
 
 GEOMETRY_EFFECTS = {"fixture_tilt", "nonlin2", "nonlin3", "g_cross"}
@@ -299,6 +299,15 @@ def design_null(model: Model, kind: str = "labelled", obs: ObsTable | None = Non
 
 
 NORM_ONLY_LABELLED = "cannot be identified from a gravity-norm fit; record labelled poses"
+
+
+def norm_blind_params(model: Model) -> list[str]:
+    """design_null(model, 'norm'), or [] when the design cannot be evaluated (a user effect that
+    needs a driver signal of its own)."""
+    try:
+        return design_null(model, "norm")
+    except (ModelError, InputError):
+        return []
 
 
 def norm_blind_reason(model: Model, effect: str) -> str | None:
