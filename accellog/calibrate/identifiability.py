@@ -317,7 +317,7 @@ def norm_blind_reason(model: Model, effect: str) -> str | None:
         m = model.with_terms([effect])
     except ModelError:
         return None
-    null = list(_norm_null(tuple(m.term_names))) if m.effects_file is None else design_null(m, "norm")
+    null = list(_norm_null(tuple(m.term_names))) if m.effects_file is None else norm_blind_params(m)
     if not null:
         return None
     return f"{', '.join(null)} {NORM_ONLY_LABELLED} (they enter |f| alike even with every orientation)"
@@ -342,13 +342,10 @@ def checked_advice(model: Model, effect: str, reason: str) -> str:
         m = model.with_terms([effect])
     except ModelError as exc:
         return str(exc)
-    if not m.required_drivers or set(m.required_drivers) <= {
-        "t_s",
-        "t_in_pose_s",
-        "temp_degC",
-        "dtemp_degC_per_s",
-    }:
+    try:
         null = _labelled_null(tuple(m.term_names)) if m.effects_file is None else design_null(m)
-        if null:
-            return f"{effect}: {', '.join(null)} cannot be determined by any static recording of known poses"
+    except (ModelError, InputError):  # a user effect that needs a driver signal of its own
+        return reason
+    if null:
+        return f"{effect}: {', '.join(null)} cannot be determined by any static recording of known poses"
     return reason
