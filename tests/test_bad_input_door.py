@@ -380,7 +380,7 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
     ),
     "cal-2GB": (
         lambda d, g: ["evaluate", str(g["mcap"]), "--cal", str(_sparse(d / "big.json", 2 * 1024**3, b"{"))],
-        ("big.json", "at most 64 MiB"),
+        ("big.json", "at most 32 MiB"),
     ),
     "obs-65MiB": (
         lambda d, g: [
@@ -389,7 +389,7 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
             "-o",
             str(d / "c.json"),
         ],
-        ("obs.json", "at most 64 MiB"),
+        ("obs.json", "at most 32 MiB"),
     ),
 }
 
@@ -652,3 +652,11 @@ def test_scenario_door_property(data):
         return
     assert all(math.isfinite(v) for v in (sc.hold_s, sc.move_s, sc.label_margin_s, sc.local_gravity_mps2))
     assert 0 <= sc.label_margin_s < sc.hold_s / 2 and sc.seed >= 0 and sc.chip_seed >= 0
+
+
+def test_json_of_a_million_containers_is_refused_before_parsing(tmp_path):
+    from accellog.core.textin import read_json
+
+    p = _write(tmp_path / "lists.json", "[" + "[]," * 1_000_001 + "[]]")
+    with pytest.raises(InputError, match="lists.json: JSON with 1,000,003 arrays/objects"):
+        read_json(p)

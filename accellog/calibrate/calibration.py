@@ -308,7 +308,7 @@ def read_text(path: str | os.PathLike, what: str = "file", kind: str | None = No
 
 
 def read_json(path: str | os.PathLike) -> Any:
-    """Parsed strict JSON of at most 64 MiB, nested <= 64 levels, or InputError naming the file
+    """Parsed strict JSON of at most 32 MiB, nested <= 64 levels, or InputError naming the file
     (and line) when missing, too large or malformed (accellog.core.textin)."""
     return textin.read_json(path)
 

@@ -1,8 +1,10 @@
 """Small text inputs (JSON, TOML) read with bounded time and memory, every failure one InputError.
 
 - the file's size is checked against its kind's limit before a byte is read (``MAX_BYTES``: a
-  calibration, observation table or artifact is JSON of at most 64 MiB; a scenario or pipeline is
-  TOML of at most 1 MiB), so a 2 GB file is refused at once;
+  calibration, observation table or artifact is JSON of at most 32 MiB; a scenario or pipeline is
+  TOML of at most 1 MiB), so a 2 GB file is refused at once; JSON with more than MAX_CONTAINERS
+  arrays and objects is refused before parsing (``[[],[],...]`` would take ~60 bytes of memory per
+  2 bytes of text), so that the parsed value stays within a few hundred MB;
 - JSON is strict: NaN and Infinity are not JSON (the writers of accellog never produce them);
 - nesting deeper than ``MAX_DEPTH`` levels (no accellog file nests beyond ~6) is refused after
   parsing, and a parser's RecursionError on deeper input becomes the same one line.
@@ -20,8 +22,10 @@ import tomllib
 from accellog.core.errors import InputError
 
 MiB = 1024 * 1024
-MAX_BYTES = {"JSON": 64 * MiB, "TOML": 1 * MiB}
+MAX_BYTES = {"JSON": 32 * MiB, "TOML": 1 * MiB}
 MAX_DEPTH = 64
+MAX_CONTAINERS = 1_000_000
+"""Arrays + objects in one JSON text (an observation table of 24 h in 2 s windows has ~0.2 M)."""
 
 
 def check_size(path: str | os.PathLike, kind: str, what: str = "file") -> None:
@@ -57,14 +61,16 @@ def read_text(path: str | os.PathLike, what: str = "file", kind: str | None = No
 
 def nesting_depth(value: Any, limit: int = MAX_DEPTH) -> int:
     """Depth of nested lists / dicts in value (iterative; stops counting past `limit`)."""
+    if not isinstance(value, (dict, list)):
+        return 0
     deepest, stack = 0, [(value, 1)]
-    while stack:
+    while stack:  # only containers are stacked: a list of 8 M numbers costs nothing here
         v, d = stack.pop()
-        if isinstance(v, (dict, list)):
-            deepest = max(deepest, d)
-            if d > limit:
-                return d
-            stack.extend((e, d + 1) for e in (v.values() if isinstance(v, dict) else v))
+        deepest = max(deepest, d)
+        if d > limit:
+            return d
+        items = v.values() if isinstance(v, dict) else v
+        stack.extend((e, d + 1) for e in items if isinstance(e, (dict, list)))
     return deepest
 
 
@@ -80,6 +86,9 @@ def _no_constant(name: str) -> Any:
 
 def parse_json(text: str, where: str) -> Any:
     """Strict JSON (no NaN / Infinity, nesting <= MAX_DEPTH); InputError naming where (and line)."""
+    containers = text.count("[") + text.count("{")
+    if containers > MAX_CONTAINERS:
+        raise InputError(f"JSON with {containers:,} arrays/objects (at most {MAX_CONTAINERS:,})", where=where)
     try:
         value = json.loads(text, parse_constant=_no_constant)
     except json.JSONDecodeError as exc:
