@@ -15,7 +15,7 @@ calibration), bench_csv_import.py (logger CSV), bench_ros2_import.py (rosbag2 MC
 
     python benchmarks/run_all.py            # 1 h rows, 4 h CSV / noise, 60 min bag, 3 runs each
     python benchmarks/run_all.py --quick    # smaller inputs, 1 run: a check that every row runs
-    python benchmarks/run_all.py --full     # + fit 24 h; 5 runs
+    python benchmarks/run_all.py --full     # + fit 24 h, fleet run (300 sessions); 5 runs
     python benchmarks/run_all.py --rows fit diagnose --no-write   # some rows, RESULTS.md untouched
 
 The console shows the load average once per run (figures on a loaded machine are inflated: compare
@@ -61,6 +61,7 @@ class Row:
     base_name: str
     base: list[str] | None
     judge: Callable[[Fig, Fig | None], tuple[str, bool]]
+    wall_only: bool = False  # judged on wall time whatever --by says (a parallel speed-up)
     shown: str = ""  # the command as RESULTS.md prints it
     figs: dict[str, list] = field(default_factory=lambda: {"cmd": [], "base": []})
 
@@ -136,6 +137,18 @@ def made(d: Path, kind: str, sec: float) -> Path:
     return path
 
 
+def fleet_sessions(d: Path, n: int) -> Path:
+    """A simulated fleet of n short sessions (accellog.flows.fleet_sim, 4 per device), made once."""
+    out = d / f"fleet_{n}"
+    if not (out / "fleet_truth.json").exists():
+        code = (
+            "from accellog.flows.fleet_sim import FleetSpec, simulate_fleet\n"
+            f"simulate_fleet(FleetSpec(n_devices={-(-n // 4)}, sessions_per_device=4), {str(out)!r}, jobs=2)"
+        )
+        subprocess.run([sys.executable, "-c", code], env=ENV, cwd=BENCH, check=True)
+    return out
+
+
 def calibration(d: Path) -> Path:
     """model3 calibration of bench_replay's synthetic chip (its own six-pose session), made once."""
     path = d / "model3.json"
@@ -183,7 +196,7 @@ def judged(r: Row, by: str) -> tuple[Fig, Fig | None, str, bool]:
     goal on CPU time instead of wall time (a loaded machine inflates wall times)."""
     f = median(r.figs["cmd"])
     b = median(r.figs["base"]) if r.figs["base"] else None
-    on = (lambda x: Fig(x.cpu_s, x.cpu_s, x.peak_mb)) if by == "cpu" else (lambda x: x)
+    on = (lambda x: Fig(x.cpu_s, x.cpu_s, x.peak_mb)) if by == "cpu" and not r.wall_only else (lambda x: x)
     ratio, ok = r.judge(on(f), None if b is None else on(b))
     return f, b, ratio, ok
 
@@ -210,6 +223,14 @@ def _ros2(sec: float) -> Callable[[Fig, Fig | None], tuple[str, bool]]:
     def judge(f: Fig, b: Fig | None) -> tuple[str, bool]:
         rt = sec / f.wall_s
         return f"{f.wall_s / b.wall_s:.2f}x; {rt:.0f}x real time", rt >= 100 and f.peak_mb <= 300
+
+    return judge
+
+
+def _speedup(at_least: float) -> Callable[[Fig, Fig | None], tuple[str, bool]]:
+    def judge(f: Fig, b: Fig | None) -> tuple[str, bool]:
+        r = b.wall_s / f.wall_s if b else float("nan")
+        return f"{r:.2f}x faster", r >= at_least
 
     return judge
 
@@ -278,9 +299,16 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
             out.append(Row("scale", f"`fit` {name} (memory flat in the length)", "peak <= 1.25x the 1 h fit",
                            accellog("fit", path, "-o", d / "cal_scale.json"), "`fit` 1 h (row above)", None,
                            _flat(ref)))  # fmt: skip
+    if full and want("fleet"):
+        fl = fleet_sessions(d, 300)
+        run = ("fleet", "run", ROOT / "pipelines" / "fleet.toml", f"{fl}/**/*.mcap", "--force", "-o")
+        out.append(Row("fleet", "`fleet run` 300 sessions, 2 local workers", ">= 1.8x faster than serial",
+                       accellog(*run, d / "fleet_par", "--workers", 2), "the serial loop (--workers 0)",
+                       accellog(*run, d / "fleet_ser", "--workers", 0), _speedup(1.8), wall_only=True))  # fmt: skip
     head = len(accellog())
     for r in out:  # as RESULTS.md shows it: the CLI as `accellog`, the input directory as D
-        r.shown = shlex.join(["accellog"] + [str(a).replace(str(d), "D") for a in r.cmd[head:]])
+        args = [str(a).replace(str(d), "D").replace(str(ROOT) + "/", "") for a in r.cmd[head:]]
+        r.shown = shlex.join(["accellog", *args])
     return out
 
 
@@ -321,7 +349,9 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, help="runs per command (default 3; --quick 1, --full 5)")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/accellog_bench"), help="inputs, generated once")
     ap.add_argument(
-        "--rows", nargs="+", help="only these rows: fit diagnose csv replay ros2 startup noise scale"
+        "--rows",
+        nargs="+",
+        help="only these rows: fit diagnose csv replay ros2 startup noise scale fleet (--full)",
     )
     ap.add_argument(
         "--by", choices=["wall", "cpu"], default="wall", help="judge ratios and goals on this time"
