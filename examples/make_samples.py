@@ -9,8 +9,9 @@
   /imu/data (sensor_msgs/Imu, m/s^2 and rad/s, frame imu_link) with /imu/temperature at 10 Hz; zstd chunks, as
   `ros2 bag record --storage-preset-profile zstd_fast` writes them ->
   `accellog import ros2 examples/imu_bag.mcap --detect-holds -o s.mcap`.
-- mag_session.mcap: an accellog session with the AK8963 magnetometer (24 orientations, 50 Hz; field
-  (20, 0, -45) uT, hard iron (30, -12, 8) uT, a soft-iron matrix) -> `accellog magcal`.
+- mag_session.mcap: an accellog session with the AK8963 magnetometer, simulated from
+  examples/mag_scenario.toml (24 orientations, 50 Hz; field (20, 0, -45) uT, hard iron (30, -12, 8) uT,
+  a soft-iron matrix) -> `accellog magcal examples/mag_session.mcap`.
 """
 
 from __future__ import annotations
@@ -84,9 +85,8 @@ def zstd_chunks(src: Path, out: Path) -> None:
 
 
 def mag_session(out: Path) -> None:
-    mag = {"field_uT": [20.0, 0.0, -45.0], "hard_iron_uT": [30.0, -12.0, 8.0],
-           "soft_iron": [[1.05, 0.02, 0.0], [0.02, 0.97, 0.01], [0.0, 0.01, 0.98]]}  # fmt: skip
-    sc = Scenario(protocol="24", hold_s=1.0, move_s=1.5, sample_rate_hz=50.0, seed=3, magnetometer=mag)
+    """examples/mag_scenario.toml, simulated (the same file `accellog simulate --scenario` reads)."""
+    sc = Scenario.from_toml(HERE / "mag_scenario.toml")
     simulate(sc, out, force=True, start_time_unix_ns=START_NS, truth_step_s=0.1)
 
 

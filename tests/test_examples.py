@@ -47,3 +47,12 @@ def test_ros2_bag_imports_with_faces_and_temperature(tmp_path, capsys):
 def test_mag_session_gives_the_hard_iron(capsys):
     d = json.loads(_run(["magcal", EXAMPLES / "mag_session.mcap", "--json"], capsys)[0])
     assert np.allclose(d["hard_iron_uT"], [30.0, -12.0, 8.0], atol=0.1)  # make_samples.py's emulated value
+
+
+def test_mag_scenario_toml_simulates_the_sample(tmp_path, capsys):
+    """examples/mag_scenario.toml is what made mag_session.mcap: simulated again, the same hard iron."""
+    out = tmp_path / "m.mcap"
+    _run(["simulate", "--scenario", EXAMPLES / "mag_scenario.toml", "-o", out], capsys)
+    d = json.loads(_run(["magcal", out, "--json"], capsys)[0])
+    ref = json.loads(_run(["magcal", EXAMPLES / "mag_session.mcap", "--json"], capsys)[0])
+    assert np.allclose(d["hard_iron_uT"], ref["hard_iron_uT"], rtol=0, atol=1e-9)
