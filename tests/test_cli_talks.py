@@ -220,3 +220,32 @@ def test_fleet_run_ends_without_worker_tracebacks(tmp_path):
     )
     assert got.returncode == 0, got.stderr
     assert "Traceback" not in got.stderr and "heartbeat" not in got.stderr, got.stderr[-2000:]
+
+
+def test_busy_spinner_after_silence_and_gone_before_output(capsys):
+    import time
+
+    from accellog.cli.busy import Busy
+
+    real_out = sys.stdout
+    with Busy("accellog fit", delay_s=0.1) as busy:
+        time.sleep(0.3)
+        assert busy._status is not None  # silent for 0.1 s: the spinner is up
+        print("table")  # the command prints: the spinner goes first, the wait starts again
+        assert busy._status is None and busy._timer is not None
+    assert sys.stdout is real_out and busy._status is None and busy._timer is None
+    assert "table" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "busy"),
+    [(["fit", "x.mcap", "-o", "c.json"], True), (["fit", "x.mcap", "--json"], False), (["record"], False),
+     (["--version"], False), (["view", "x.rrd"], False), (["fit", "--help"], False)],
+)  # fmt: skip
+def test_busy_only_for_computing_commands_on_a_terminal(argv, busy, monkeypatch):
+    from accellog.cli import _busy
+    from accellog.cli.busy import Busy
+
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True, raising=False)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    assert isinstance(_busy(argv), Busy) == busy

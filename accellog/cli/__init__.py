@@ -55,6 +55,23 @@ def _usage_error_line(command_path: str | None, message: str) -> str:
     return f"accellog: error: {where}{text} (see {' '.join(['accellog', sub]).strip()} --help)"
 
 
+_WAITS = ("record", "view")  # they wait for a person or a viewer, not for a computation
+
+
+def _busy(args: list[str]):
+    """A spinner after 2 s of silence on a terminal (accellog.cli.busy); not for --json, help,
+    options alone (--version, completion), nor the commands that wait for a person or a viewer."""
+    words = [a for a in args if not a.startswith("-")]
+    if not words or words[0] in _WAITS or "--json" in args or "--help" in args or args[0].startswith("-"):
+        return contextlib.nullcontext()
+    if not (sys.stdout.isatty() and sys.stderr.isatty()):
+        return contextlib.nullcontext()
+    from accellog.cli.busy import Busy
+
+    label = "accellog " + " ".join(words[:2] if words[0] in ("import", "fleet") else words[:1])
+    return Busy(label)
+
+
 def _run(args: list[str]) -> int:
     """Parse and run one command line; the top-level help (`--help`, or nothing: then an error
     too, as click's no_args_is_help) without typer."""
@@ -114,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     notices.take()  # notes of an earlier in-process call are not this command's
     args = sys.argv[1:] if argv is None else list(argv)
     try:
-        with warnings.catch_warnings(), _one_blas_thread():
+        with warnings.catch_warnings(), _one_blas_thread(), _busy(args):
             warnings.simplefilter("always", DataIntegrityWarning)
             warnings.showwarning = _integrity_line
             rc = _run(args)

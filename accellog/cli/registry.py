@@ -18,7 +18,7 @@ from accellog.cli.commands_table import COMMANDS
 # Command modules are imported in this order for full registration: the help lists the panels in
 # this order (the story: record, calibrate, discover, inspect, move), then any others by name.
 ORDER = ["demo", "record", "imports", "calibrate", "report", "workbench", "inspect", "move"]
-NOT_COMMAND_MODULES = {"app", "commands_table", "option_checks", "progress", "registry", "tophelp"}
+NOT_COMMAND_MODULES = {"app", "busy", "commands_table", "option_checks", "progress", "registry", "tophelp"}
 MODULE_OF = {name: module for name, module, _panel, _help in COMMANDS}
 
 
