@@ -77,7 +77,10 @@ def label_mismatches(
     """Every hold (label, sample slice) whose mean reading is more than max_angle_deg from its label."""
     out = []
     for p, sl in holds:
-        m = np.nanmean(session.accel_g[sl], axis=0)
+        a = session.accel_g[sl]
+        m = a.mean(axis=0)  # the same sum as nanmean without NaN, at half its cost
+        if not np.isfinite(m).all():
+            m = np.nanmean(a, axis=0)
         norm = float(np.linalg.norm(m))
         up = np.asarray(p.up_sensor, float)
         if not np.isfinite(norm) or norm == 0 or not np.isfinite(up).all():
