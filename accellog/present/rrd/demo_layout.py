@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from accellog.present.rrd.bars2d import nice_ticks
 from accellog.present.rrd.entities import (
     DOCS,
     LADDER,
@@ -62,6 +63,16 @@ def y_range(values: np.ndarray, pad: float = 0.08) -> tuple[float, float]:
     return lo - pad * span, hi + pad * span
 
 
+def tick_range(values: np.ndarray) -> tuple[float, float]:
+    """y_range widened to the nearest 1-2-5 ticks outside it (plus 3 % of the span), so that at
+    least three tick values are labelled (the viewer labels the ticks of its own spacing that fall
+    inside the range: a range just inside +-20 labels only '0' when it picks a spacing of 20)."""
+    lo, hi = y_range(values, pad=0.04)
+    ticks = nice_ticks(lo, hi, n=4)
+    margin = 0.03 * float(ticks[-1] - ticks[0])
+    return float(ticks[0]) - margin, float(ticks[-1]) + margin
+
+
 def legend_corner(series: Sequence[Series], y_lim: tuple[float, float] | None = None):
     """The plot corner (rrb Corner2D) whose LEGEND_BOX covers the fewest samples of the series."""
     import rerun.blueprint as rrb
@@ -87,13 +98,6 @@ def legend_corner(series: Sequence[Series], y_lim: tuple[float, float] | None = 
     return min(boxes, key=lambda c: int(np.count_nonzero(boxes[c])))
 
 
-def _legend(series: Sequence[Series]):
-    """PlotLegend in the series' free corner (None: the viewer's default, when there is no data)."""
-    import rerun.blueprint as rrb
-
-    return rrb.PlotLegend(legend_corner(series)) if series else None
-
-
 def whole_range_plot(**kw):
     """A time-series view that always shows its whole time range (the demo's sessions differ in
     length and share the sensor_time timeline, so a cursor-relative window would hide data)."""
@@ -113,7 +117,7 @@ def framed_plot(origin: str, name: str, series: Sequence[Series], **kw):
 
     if not series:
         return whole_range_plot(origin=origin, name=name, **kw)
-    lim = y_range(np.concatenate([np.asarray(v, np.float64).ravel() for _, v in series]))
+    lim = tick_range(np.concatenate([np.asarray(v, np.float64).ravel() for _, v in series]))
     return whole_range_plot(
         origin=origin,
         name=name,
@@ -241,16 +245,12 @@ def _workbench_tab(data: DemoData):
     return rrb.Horizontal(
         rrb.Vertical(
             ladder_bars_view(),
-            whole_range_plot(
-                origin=f"/{LADDER}/steps",
-                name="calibration residuals (mg): Model 3 vs the final model",
-                plot_legend=_legend(data.workbench_residuals),
+            framed_plot(
+                f"/{LADDER}/steps",
+                "calibration residuals (mg): Model 3 vs the final model",
+                data.workbench_residuals,
             ),
-            whole_range_plot(
-                origin=f"/{LADDER_DRIVER}",
-                name="temperature during the warm-up (degC)",
-                plot_legend=_legend(data.workbench_driver),
-            ),
+            framed_plot(f"/{LADDER_DRIVER}", "temperature during the warm-up (degC)", data.workbench_driver),
             row_shares=[4, 4, 2],
         ),
         rrb.Tabs(
@@ -283,7 +283,7 @@ def _robot_tab(data: DemoData):
         ),
         rrb.Vertical(
             *([rrb.Grid(*plots, name="robot position per calibration")] if plots else []),
-            whole_range_plot(origin="/errors/robot", name="position error (m)", plot_legend=_legend(errors)),
+            framed_plot("/errors/robot", "position error (m)", errors),
             whole_range_plot(origin="/zupt/robot", name="ZUPT stops (1: stopped)"),
             rrb.TextDocumentView(origin=f"/{DOCS}/results/robot_tracks", name="position errors"),
             row_shares=[5, 3, 1, 2] if plots else [3, 1, 2],
