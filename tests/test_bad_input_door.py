@@ -660,3 +660,11 @@ def test_json_of_a_million_containers_is_refused_before_parsing(tmp_path):
     p = _write(tmp_path / "lists.json", "[" + "[]," * 1_000_001 + "[]]")
     with pytest.raises(InputError, match="lists.json: JSON with 1,000,003 arrays/objects"):
         read_json(p)
+
+
+def test_a_time_beyond_int64_nanoseconds_is_refused_not_wrapped(tmp_path):
+    s = synth_session(seed=3, hold_s=2.0, move_s=1.0, rate_hz=100.0)
+    s.t_s[-1] = 1e300  # would become -9.2e9 s through astype(int64)
+    with pytest.raises(InputError, match=r"time stamp 1e\+300 s at sample \d+ does not fit int64"):
+        write_session(tmp_path / "o.mcap", s)
+    assert list(tmp_path.iterdir()) == []

@@ -87,5 +87,20 @@ def _ns(t_s: float) -> int:
     return round(t_s * NS_PER_S)
 
 
-def _ns_array(t_s: np.ndarray) -> np.ndarray:
-    return np.round(np.asarray(t_s, dtype=np.float64) * NS_PER_S).astype(np.int64)
+MAX_TIME_S = 9.2e9
+"""Largest |t| (s) that int64 nanoseconds hold (2^63 ns = 9.22e9 s, about 292 years)."""
+
+
+def _ns_array(t_s: np.ndarray, where: str | None = None) -> np.ndarray:
+    """Times (s) as int64 ns; InputError for a time that does not fit (NaN, inf, |t| >= MAX_TIME_S),
+    which the conversion would silently wrap."""
+    t = np.asarray(t_s, dtype=np.float64)
+    bad = ~(np.abs(t) < MAX_TIME_S)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(
+            f"time stamp {t[k]:g} s at sample {k} does not fit int64 nanoseconds (|t| < {MAX_TIME_S:g} s): "
+            "a corrupt time value?",
+            where=where,
+        )
+    return np.round(t * NS_PER_S).astype(np.int64)

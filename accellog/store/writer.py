@@ -426,9 +426,10 @@ def write_session(
     meta = session.meta
     n = session.n
     ao = AtomicOutput(path, inputs=(*inputs, session.path or None), overwrite=overwrite)
-    t_ns = _ns_array(session.t_s)
+    where = str(session.path or path)
+    t_ns = _ns_array(session.t_s, where)
     si = np.asarray(session.sample_index, dtype=np.int64)
-    host_ns = None if session.host_time_s is None else _ns_array(session.host_time_s)
+    host_ns = None if session.host_time_s is None else _ns_array(session.host_time_s, where)
     lsb_a, lsb_g = meta.accel_lsb_per_g, meta.gyro_lsb_per_dps
     ac = session.accel_counts
     put_ag = _values_needed(ac, session.accel_g, lambda c: c / lsb_a) if lsb_a else True
