@@ -117,3 +117,33 @@ def test_temperature_topic_found_by_namespace(tmp_path):
     assert s.meta.extra["ros2_temperature_topic"] == "/cam/temperature" and np.all(s.temp_degC == 31.0)
     s = import_ros2(bag, temperature_topic="/cpu/temperature")
     assert np.all(s.temp_degC == 55.0)
+
+
+@pytest.mark.parametrize("frame", ["imu_link", "imu", "a", "", "base_imu_frame_long"])
+def test_imu_cdr_is_rosbags_serialization_byte_for_byte(frame):
+    """The numpy CDR encoder writes exactly what rosbags' serialize_cdr writes (every alignment case)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from accellog.store.ros2_writer import _NO_ORIENTATION, imu_cdr
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+    rng = np.random.default_rng(3)
+    n = 20
+    stamp = START_NS + np.arange(n, dtype=np.int64) * 4_999_999 - 1_800_000_000 * 10**9 * (np.arange(n) % 2)
+    acc, gyr, ca, cg = (rng.normal(size=(n, k)) for k in (3, 3, 9, 9))
+    rows = imu_cdr(stamp, frame, acc, gyr, ca, cg)
+    for i in range(n):
+        st = int(stamp[i])
+        m = T["sensor_msgs/msg/Imu"](
+            header=T["std_msgs/msg/Header"](
+                stamp=T["builtin_interfaces/msg/Time"](sec=st // 10**9, nanosec=st % 10**9), frame_id=frame
+            ),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=_NO_ORIENTATION,
+            angular_velocity=T["geometry_msgs/msg/Vector3"](x=gyr[i, 0], y=gyr[i, 1], z=gyr[i, 2]),
+            angular_velocity_covariance=cg[i].copy(),
+            linear_acceleration=T["geometry_msgs/msg/Vector3"](x=acc[i, 0], y=acc[i, 1], z=acc[i, 2]),
+            linear_acceleration_covariance=ca[i].copy(),
+        )
+        assert rows[i].tobytes() == bytes(ts.serialize_cdr(m, "sensor_msgs/msg/Imu"))
