@@ -66,6 +66,14 @@ def _gyro_section(bias=(0.1, -0.2, 0.3), **kw) -> dict:
     return g
 
 
+def _drift_section(q0_x=0.001) -> dict:
+    from accellog.calibrate.drift_model import DriftModel
+
+    d = DriftModel(q=np.full((3, 3), 1e-3), cov=np.zeros((3, 3, 3)), fit_duration_s=20.0).to_dict()
+    d["axes"]["x"]["q0_m"] = q0_x
+    return d
+
+
 def _set_gyro(section: dict | str) -> Callable[[dict], object]:
     def edit(c):
         if isinstance(section, str):  # raw JSON text for the section (NaN literal)
@@ -365,6 +373,15 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
         ],
         ("badcal.json", "NaN is not JSON"),
     ),
+    "cal-drift-null-coefficient": (
+        lambda d, g: [
+            "evaluate",
+            str(g["mcap"]),
+            "--cal",
+            str(_cal(g, d, lambda c: c.__setitem__("drift", _drift_section(q0_x=None)))),
+        ],
+        ("badcal.json", "malformed drift model", "finite"),
+    ),
     "cal-deep-json": (
         lambda d, g: ["evaluate", str(g["mcap"]), "--cal", str(_write(d / "deep.json", _deep(200_000)))],
         ("deep.json", "nested deeper"),
@@ -658,7 +675,7 @@ def test_json_of_a_million_containers_is_refused_before_parsing(tmp_path):
     from accellog.core.textin import read_json
 
     p = _write(tmp_path / "lists.json", "[" + "[]," * 1_000_001 + "[]]")
-    with pytest.raises(InputError, match="lists.json: JSON with 1,000,003 arrays/objects"):
+    with pytest.raises(InputError, match=r"lists\.json: JSON with 1,000,003 arrays/objects"):
         read_json(p)
 
 

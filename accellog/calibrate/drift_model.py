@@ -8,6 +8,7 @@ its (3,3) covariance.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -80,6 +81,8 @@ class DriftModel:
             up = d.get("up_sensor")
             if cov.shape != (3, 3, 3):
                 raise ValueError(f"covariance shape {cov.shape}, expected (3, 3, 3)")
+            if not (np.isfinite(q).all() and 0 < float(d["fit_duration_s"]) < math.inf):  # cov may be unknown
+                raise ValueError("coefficients q0, q1, q2 and fit_duration_s (> 0) must be finite numbers")
             return cls(
                 q=q,
                 cov=cov,
