@@ -2,6 +2,9 @@
 message definitions it ships: sensor_msgs/msg/Imu, Temperature and MagneticField, readable by
 ``ros2 bag``, Foxglove and PlotJuggler.
 
+sensor_msgs/msg/Imu messages are encoded by ``imu_cdr`` with numpy, all rows at once (the same bytes as
+rosbags' serialize_cdr); Temperature and MagneticField through rosbags' message classes.
+
 Units (REP 103): linear_acceleration m/s^2, angular_velocity rad/s, temperature degC, magnetic field
 tesla. Covariances are row-major 3x3 (x, y, z). Orientation is not estimated:
 ``orientation_covariance[0] = -1`` as sensor_msgs/Imu requires for "no orientation".
