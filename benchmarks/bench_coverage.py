@@ -20,7 +20,11 @@ median ratio of sigma to a full leave-one-hold-out refit jackknife's on the same
 0.7-1.5; variance.refit_jackknife_cov). Also the CPU seconds of the run (process time).
 
     python benchmarks/bench_coverage.py [--n 40] [--wander-mg 0.3] [--tilt-deg 0.1] [--emulated-n 40]
-                                        [--instability-mg 0.3]
+                                        [--instability-mg 0.3] [--real ../shared/data]
+
+--real DIR: the same ratios on real recordings (imucal's Ferraris session, the capstone's four
+trials, labelled and orientation-free) and the capstone's leave-one-trial-out predictive held-out
+chi2/dof per model (no truth there: the refit jackknife is the reference).
 """
 
 from __future__ import annotations
@@ -108,6 +112,59 @@ def run_emulated(n: int, instability_mg: float, workdir: Path) -> dict:
     }
 
 
+def real_data(root: Path) -> list[str]:
+    """sigma / refit-jackknife sigma per option on real recordings, and predictive held-out scores."""
+    from accellog.calibrate.loso import concat_obs
+    from accellog.calibrate.segment import observations
+    from accellog.calibrate.transfer import predictive_stats
+    from accellog.flows.stages import load_input
+    from accellog.store.importers import import_imucal
+
+    trials = [
+        load_input(root / "capstone" / t)
+        for t in (
+            "trial_1/six_position_data_1.csv",
+            "trial_2/six_position_data_2.csv",
+            "trial_3/six_position_data_3.csv",
+            "final_trial/six_position_data.csv",
+        )
+    ]
+    imucal = observations(import_imucal(root / "imucal" / "example_ferraris_session.csv"), window_s=1.0)
+    cases = (
+        ("imucal Ferraris, model3, 6 holds", imucal, "model3", fit_model),
+        ("capstone 4 trials, model3, 24 holds", concat_obs(trials), "model3", fit_model),
+        (
+            "capstone 4 trials, orientation-free bias+scale",
+            concat_obs(trials),
+            "bias+scale",
+            fit_orientation_free,
+        ),
+    )
+    lines = []
+    for title, obs, name, fit in cases:
+        res = fit(obs, build_model(name))
+        ref = np.sqrt(np.diag(refit_jackknife_cov(res, obs, fit)[0]))
+        lines.append(
+            f"{title} (chi2/dof {res.chi2_dof:.3g}): sigma / refit jackknife, min-max over parameters"
+        )
+        lines.append(f"  {'bound':<14}{np.min(res.sigma / ref):.3g}-{np.max(res.sigma / ref):.3g}")
+        for m in METHODS:
+            r = with_uncertainty(res, obs, m).sigma / ref
+            lines.append(f"  {m:<14}{np.min(r):.3g}-{np.max(r):.3g}")
+    lines.append("capstone, fitted on three trials, predicting the fourth: held-out chi2/dof per trial")
+    for name in ("model1", "model2", "model3"):
+        st = [
+            predictive_stats(
+                fit_model(concat_obs(trials[:k] + trials[k + 1 :]), build_model(name)), trials[k]
+            )
+            for k in range(4)
+        ]
+        pred = " ".join(f"{s['heldout_chi2_dof']:.3g}" for s in st)
+        noise = " ".join(f"{s['heldout_chi2_dof_noise']:.3g}" for s in st)
+        lines.append(f"  {name}: predictive {pred}; window noise only {noise}")
+    return lines
+
+
 def table(out: dict) -> list[str]:
     """One line per method: coverage, RMS z, median sigma / refit-jackknife sigma (and its 10-90 %)."""
     lines = [f"{'method':<14}{'1-sigma coverage':>18}{'RMS z':>8}{'sigma / refit jackknife':>30}"]
@@ -126,7 +183,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--tilt-deg", type=float, default=0.1)
     ap.add_argument("--emulated-n", type=int, default=40)
     ap.add_argument("--instability-mg", type=float, default=0.3)
+    ap.add_argument("--real", type=Path, default=None, help="shared data folder (capstone/, imucal/)")
     a = ap.parse_args(argv)
+    if a.real is not None:
+        print("\n".join(real_data(a.real)))
     for case, title in (
         (
             "handheld",
@@ -134,6 +194,8 @@ def main(argv: list[str] | None = None) -> None:
         ),
         ("labelled", "labelled model3, 24 poses, clean (Cramer-Rao check)"),
     ):
+        if a.n <= 0:
+            break
         t0 = time.process_time()
         out = run(case, a.n, a.wander_mg, a.tilt_deg)
         print(f"{title}: {a.n} seeds, {time.process_time() - t0:.1f} s CPU")
