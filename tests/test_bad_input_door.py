@@ -114,6 +114,14 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
         lambda d, g: [*SIM, "--set", "bias_g=nan,0,0", "-o", str(d / "s.mcap")],
         ("set", "bias_g", "finite"),
     ),
+    "sim-set-bias-1e300": (
+        lambda d, g: [*SIM, "--set", "bias_g=1e300,0,0", "-o", str(d / "s.mcap")],
+        ("bias_g", "physical range"),
+    ),
+    "sim-set-noise-negative": (
+        lambda d, g: [*SIM, "--set", "noise_density_g_per_rtHz=-1e-4", "-o", str(d / "s.mcap")],
+        ("noise_density_g_per_rtHz", "physical range"),
+    ),
     "sim-ramp-1e6": (
         lambda d, g: [*SIM, "--temperature", "ramp:25:1e6", "-o", str(d / "s.mcap")],
         ("ramp", "operating range"),

@@ -69,3 +69,27 @@ def check_session_runs(sc: Any, temperature: Any, session_s: float) -> None:
             where="scenario",
         )
     sc.fault_plan().check_session(session_s)
+
+
+ERROR_LIMITS = {  # field: (low, high) of every element; beyond them the loaders refuse the calibration
+    "bias_g": (-1.0, 1.0),
+    "scale": (-0.5, 0.5),
+    "cross_axis": (-0.3, 0.3),
+    "warmup_g": (-1.0, 1.0),
+    "temp_hysteresis_g": (-1.0, 1.0),
+    "noise_density_g_per_rtHz": (0.0, 0.1),
+    "bias_instability_g": (0.0, 0.1),
+    "random_walk_g_per_s_rtHz": (0.0, 0.1),
+}
+
+
+def check_accel_errors(accel: Any) -> None:
+    """InputError when an accelerometer error field (AccelErrors, after the scenario's [set]) is
+    outside ERROR_LIMITS: a session that saturates or that no calibration loader would accept."""
+    for name, (lo, hi) in ERROR_LIMITS.items():
+        v = np.asarray(getattr(accel, name), float)
+        if not ((v >= lo) & (v <= hi)).all():
+            raise InputError(
+                f"error field {name} = {np.round(v, 6).tolist()} outside its physical range {lo:g}..{hi:g}",
+                where="scenario",
+            )

@@ -63,7 +63,12 @@ from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
 from accellog.core.textin import read_text, toml_loads
 from accellog.core.units import STANDARD_GRAVITY_MPS2
-from accellog.flows.scenario_checks import MAX_SESSION_S, check_numbers, check_session_runs
+from accellog.flows.scenario_checks import (
+    MAX_SESSION_S,
+    check_accel_errors,
+    check_numbers,
+    check_session_runs,
+)
 from accellog.store.atomic import AtomicOutput, check_output
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
@@ -247,6 +252,7 @@ def build_sensor_model(sc: Scenario):
                 )
             values[k] = float(arr) if default.ndim == 0 else np.broadcast_to(arr, default.shape).copy()
         accel = dataclasses.replace(accel, **values)
+        check_accel_errors(accel)
     gyro = GyroErrors.datasheet(sc.chip_seed) if sc.gyro_errors == "datasheet" else GyroErrors.perfect()
     temperature = temperature_path(sc.temperature)
     known_mag = {"field_uT", "hard_iron_uT", "soft_iron", "noise_uT"}
