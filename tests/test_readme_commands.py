@@ -15,7 +15,7 @@ How the blocks are run (README commands must be written so that they run under t
   or ``python -m pytest``), ``accellog view`` (a window or a browser) and ``accellog demo`` (minutes on
   a loaded machine); ACCELLOG_README_ALL=1 runs ``demo`` too.
 - Hardware: ``accellog record --bus N ...`` runs as ``accellog record --sim --fast ...`` (the emulated
-  chip on a simulated clock), at ``--rate 200`` unless the line names a rate.
+  chip on a simulated clock), at ``--rate 100`` unless the line names a rate.
 - A block that names ../shared/data (the real recordings) is skipped when that folder is missing.
 """
 
@@ -61,7 +61,7 @@ def runnable(line: str) -> str:
     if re.match(r"^\s*accellog\s+record\b", line) and "--bus" in line:
         line = re.sub(r"--bus\s+\S+", "--sim --fast", line)
         if "--rate" not in line:
-            line = line.replace("--sim --fast", "--sim --fast --rate 200", 1)
+            line = line.replace("--sim --fast", "--sim --fast --rate 100", 1)
     return line
 
 
@@ -95,7 +95,7 @@ PYTHON = blocks("python")
 
 def test_rules_rewrite_hardware_and_skip_installs():
     assert runnable("accellog record --bus 1 --hold 20 -o c.mcap") == (
-        "accellog record --sim --fast --rate 200 --hold 20 -o c.mcap"
+        "accellog record --sim --fast --rate 100 --hold 20 -o c.mcap"
     )
     assert (
         runnable("accellog record --bus 1 --rate 100 -o c.mcap")
