@@ -693,3 +693,27 @@ def test_a_time_beyond_int64_nanoseconds_is_refused_not_wrapped(tmp_path):
     with pytest.raises(InputError, match=r"time stamp 1e\+300 s at sample \d+ does not fit int64"):
         write_session(tmp_path / "o.mcap", s)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "tail, match",
+    [
+        (bytes(9_000_000), "zero-filled space at byte 8; the last 8.6 MiB not read"),
+        ((b"\x80" + bytes(8)) * 1_000_000, r"no MCAP record \(opcode 0x80\) at byte 8"),
+        (b"\x06" + (10**9).to_bytes(8, "little") + bytes(100), "claims 1000000000 bytes, past the end"),
+    ],
+    ids=["zeros", "unknown-opcodes", "length-past-end"],
+)
+def test_salvage_scan_stops_at_once(tail, match):
+    """The salvaging scan ends at the first record that cannot be MCAP, in O(1) (not 9 bytes at a
+    time through 9 MB), and never allocates a length the file does not have."""
+    import io
+
+    from accellog.store.collect import _SalvageReader
+    from accellog.store.layout import MCAP_MAGIC
+
+    data = MCAP_MAGIC + tail
+    t0 = time.process_time()
+    with pytest.raises(Exception, match=match):
+        list(_SalvageReader(io.BytesIO(data), len(data)).records)
+    assert time.process_time() - t0 < 0.5

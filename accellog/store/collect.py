@@ -239,30 +239,35 @@ def generic_collect(path: Path, topics: Iterable[str] | None = None) -> Collecte
 
 
 class ZeroFilled(Exception):
-    """The scan reached a record opcode 0 (not an MCAP record: zero-filled space)."""
+    """The scan reached a record opcode that is not an MCAP record: 0 (zero-filled space) or one of
+    no MCAP record type (garbage, or a private extension no accellog file has)."""
 
-    def __init__(self, start: int, size: int) -> None:
-        super().__init__(
-            f"zero-filled space at byte {start}; the last {(size - start) / 2**20:.1f} MiB not read"
-        )
+    def __init__(self, start: int, size: int, opcode: int = 0) -> None:
+        what = "zero-filled space" if opcode == 0 else f"no MCAP record (opcode {opcode:#04x})"
+        super().__init__(f"{what} at byte {start}; the last {(size - start) / 2**20:.1f} MiB not read")
 
 
-class _ZeroStop:
-    """The file as the salvaging scan reads it, ending the scan at a record opcode 0 (O(1)):
-    zero-filled space (a preallocated or crash-damaged tail) would otherwise be walked as empty
-    records of 9 bytes, ~1 s per MiB, and 2 GB of it for half an hour. A read past the end of the
-    file (a damaged length) fails before allocating it."""
+_LAST_OPCODE = 0x0F  # DataEnd: MCAP's record opcodes are 0x01..0x0F
+
+
+class _SalvageReader(StreamReader):
+    """mcap's StreamReader for the salvaging scan, ending it (O(1)) at a record that is not an MCAP
+    record: opcode 0 is zero-filled space (a preallocated or crash-damaged tail), above 0x0F garbage;
+    both would otherwise be walked as empty records of 9 bytes, ~1 s per MiB, 2 GB for half an
+    hour. A record length past the end of the file fails before anything is allocated for it."""
 
     def __init__(self, f, size: int) -> None:
+        super().__init__(f, emit_chunks=True)
         self._f, self._size = f, size
 
-    def read(self, n: int = -1) -> bytes:
-        if n > self._size - self._f.tell():  # a length past the end: fail without reading (memory)
-            raise EOFError(f"a record at byte {self._f.tell()} claims {n} bytes, past the end of the file")
-        data = self._f.read(n)
-        if n == 1 and data == b"\0":  # only record opcodes (and summary group opcodes) are 1-byte reads
-            raise ZeroFilled(self._f.tell() - 1, self._size)
-        return data
+    def _read_record(self, opcode: int, length: int):
+        if not 1 <= opcode <= _LAST_OPCODE:
+            raise ZeroFilled(self._f.tell() - 9, self._size, opcode)
+        if length > self._size - self._f.tell():
+            raise EOFError(
+                f"a record at byte {self._f.tell() - 9} claims {length} bytes, past the end of the file"
+            )
+        return super()._read_record(opcode, length)
 
 
 def recover(path: Path, topics: Iterable[str] | None, why: Exception) -> Collected:
@@ -297,7 +302,7 @@ def recover(path: Path, topics: Iterable[str] | None, why: Exception) -> Collect
 
     with open(path, "rb") as f:
         try:
-            for rec in StreamReader(_ZeroStop(f, path.stat().st_size), emit_chunks=True).records:
+            for rec in _SalvageReader(f, path.stat().st_size).records:
                 if isinstance(rec, Chunk):
                     at = f.tell() - 9 - (40 + len(rec.compression.encode()) + len(rec.data))
                     inner = chunk_records(rec, at)
