@@ -28,7 +28,7 @@ from rich.table import Table
 from accellog.calibrate.segment import observations
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import run_drift, run_evaluate, run_fit
-from accellog.flows.workbench import discover, ladder_rows, log_ladder, steps_for
+from accellog.flows.workbench import BASE_STEPS, discover, ladder_rows, log_ladder, steps_for
 from accellog.navigate.track_eval import run_session_tracks
 from accellog.present.rrd.demo_layout import DemoData, demo_blueprint
 from accellog.present.rrd.recording import RunRecording
@@ -312,8 +312,11 @@ def _layout_data(res: DemoResult) -> DemoData:
             data.robot_errors[r.name] = (t, np.linalg.norm(p - ref, axis=1))
     if res.workbench_obs is not None:
         t = np.asarray(res.workbench_obs.t_s, dtype=np.float64)
+        last = len(res.ladder) - 1  # the steps log_ladder plots: the start model and the final one
         data.workbench_residuals = [
-            (t, 1000.0 * np.asarray(r.residual_g)) for r in res.ladder if r.residual_g is not None
+            (t, 1000.0 * np.asarray(r.residual_g))
+            for i, r in enumerate(res.ladder)
+            if r.residual_g is not None and (i == last or (not r.added and r.model not in BASE_STEPS))
         ]
         if res.workbench_obs.temp_degC is not None:
             data.workbench_driver = [(t, np.asarray(res.workbench_obs.temp_degC, dtype=np.float64))]
