@@ -248,6 +248,10 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
     "scenario-set-nan": (_scenario("[set]\nbias_g = [nan, 0.0, 0.0]\n"), ("sc.toml", "set", "finite")),
     "scenario-seed-negative": (_scenario("seed = -1\n"), ("sc.toml", "seed")),
     "scenario-gravity-moon": (_scenario("local_gravity_mps2 = 1.62\n"), ("sc.toml", "local_gravity_mps2")),
+    "scenario-tilt-1e6": (
+        _scenario("fixture_tilt_deg = [1e6, 0.0]\n"),
+        ("sc.toml", "fixture_tilt_deg", "90"),
+    ),
     "scenario-tilt-inf": (_scenario("fixture_tilt_deg = [inf, 0.0]\n"), ("sc.toml", "fixture_tilt_deg")),
     "scenario-warmup-200C": (
         _scenario('[temperature]\nkind = "warmup"\nT_start = 25.0\nT_end = 200.0\ntau_s = 1.0\n'),

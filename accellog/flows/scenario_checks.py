@@ -42,6 +42,8 @@ def check_numbers(sc: Any, where: str) -> None:
     for key in ("seed", "chip_seed"):
         if getattr(sc, key) < 0:
             raise InputError(f"{key}={getattr(sc, key)} must be >= 0", where=where)
+    if any(abs(a) > 90.0 for a in sc.fixture_tilt_deg):
+        raise InputError(f"fixture_tilt_deg={list(sc.fixture_tilt_deg)} must be within +-90 deg", where=where)
     lo, hi = EARTH_GRAVITY_RANGE_MPS2
     if not lo <= sc.local_gravity_mps2 <= hi:
         raise InputError(
