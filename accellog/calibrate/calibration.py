@@ -161,7 +161,12 @@ class Calibration(JsonResult):
         """The accellog.calibrate.model.Model of this calibration, built from the spec once (a user effects
         file is imported and its SHA-256 checked on first use, not on every correct())."""
 
-        return model_from_spec(self.model_spec, self.effects_file)
+        try:
+            return model_from_spec(self.model_spec, self.effects_file)
+        except ModelError as exc:
+            if self.path is None or exc.where is not None:
+                raise
+            raise ModelError(str(exc), where=self.path) from None
 
     @property
     def terms(self) -> list[str]:
@@ -449,6 +454,10 @@ def check_values(
 
 
 def _stored_S_b(d: dict, where: str | None) -> tuple[np.ndarray, np.ndarray]:
+    """S and b_g as stored, for a model with user effects whose code was not given."""
+    unknown = [t for t in d["model"].get("terms", []) if t not in LIBRARY]
+    if not d["model"].get("effects_file"):
+        raise InputError(f"model names unknown effect(s) {', '.join(map(repr, unknown))}", where=where)
     try:
         S, b = np.asarray(d["S"], float), np.asarray(d["b_g"], float)
     except (KeyError, TypeError, ValueError):
