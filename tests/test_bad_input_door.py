@@ -171,6 +171,10 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
         ],
         ("--seed",),
     ),
+    "sim-fleet-10M-sessions": (
+        lambda d, g: ["simulate", "--fleet", "10000", "--fleet-sessions", "1000", "-o", str(d / "fleet")],
+        ("10000 devices x 1000 sessions", "100,000"),
+    ),
     "fit-trim-nan": (
         lambda d, g: ["fit", str(g["mcap"]), "--trim-s", "nan", "-o", str(d / "c.json")],
         ("--trim-s", "finite"),

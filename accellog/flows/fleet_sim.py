@@ -25,7 +25,7 @@ import datetime as _dt
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -60,10 +60,18 @@ class FleetSpec:
             return None
         return self.n_devices // 2 if self.damaged < 0 else int(self.damaged)
 
+    MAX_SESSIONS: ClassVar[int] = 100_000
+    """Most sessions one fleet simulation writes (more would run for days and fill the disk)."""
+
     def validate(self) -> None:
         if self.n_devices < 1 or self.sessions_per_device < 1:
             raise InputError(
                 f"fleet of {self.n_devices} devices x {self.sessions_per_device} sessions: need >= 1"
+            )
+        if self.n_devices * self.sessions_per_device > self.MAX_SESSIONS:
+            raise InputError(
+                f"fleet of {self.n_devices} devices x {self.sessions_per_device} sessions: at most "
+                f"{self.MAX_SESSIONS:,} sessions"
             )
         d = self.damaged_index()
         if d is not None and not 0 <= d < self.n_devices:
