@@ -155,9 +155,14 @@ def test_y_range_ticks_and_legend_corner() -> None:
     from accellog.present.rrd.demo_layout import tick_range
 
     # an axis reaches past the outer ticks, so '0' is never the only labelled value
-    for v in (np.array([-14.0, 15.0]), np.array([0.0, 0.042]), np.array([20.0, 40.0])):
+    for v in (
+        np.array([-14.0, 15.0]),
+        np.array([0.0, 0.042]),
+        np.array([20.0, 40.0]),
+        np.array([-800.0, 0.0]),
+    ):
         lo, hi = tick_range(v)
-        step = float(np.diff(nice_ticks(v.min(), v.max(), n=4))[0])  # the data's own 1-2-5 step
+        step = float(np.diff(nice_ticks(v.min(), v.max(), n=6))[0])  # the data's own 1-2-5 step
         inside = np.arange(np.ceil(lo / step), np.floor(hi / step) + 1) * step
         assert lo < v.min() and hi > v.max() and len(inside) >= 3 and hi - lo < 2.5 * np.ptp(v), (v, lo, hi)
 

@@ -68,7 +68,7 @@ def tick_range(values: np.ndarray) -> tuple[float, float]:
     least three tick values are labelled (the viewer labels the ticks of its own spacing that fall
     inside the range: a range just inside +-20 labels only '0' when it picks a spacing of 20)."""
     lo, hi = y_range(values, pad=0.04)
-    ticks = nice_ticks(lo, hi, n=4)
+    ticks = nice_ticks(lo, hi, n=6)
     margin = 0.03 * float(ticks[-1] - ticks[0])
     return float(ticks[0]) - margin, float(ticks[-1]) + margin
 
