@@ -11,8 +11,9 @@
 - ``/world/tracks/{label}``     LineStrips3D of the track (m), static; ``.../final`` Points3D
 - ``/docs/{path}``              TextDocument (markdown), static
 - ``/ladder/{metric}/{k:02d}_{model}`` BarChart of log10(metric) of ladder step k at abscissa k
-  (metric in LADDER_METRICS; the entity name puts the model on its bar); ``/ladder/steps/...``
-  residuals (mg) vs the driver
+  (metric in LADDER_METRICS; the entity name puts the model on its bar); ``/ladder/steps/{k:02d}/
+  residual_mg`` residuals (mg) of step k in its own colour; ``/ladder/driver`` what they are plotted
+  against (e.g. temperature, degC), once
 - ``/charts/...``               the same residuals and ladder as 2D bar charts with named groups
 - ``/live/...``                 live recording panels (prompt, stillness, running calibration)
 """
