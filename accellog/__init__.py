@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from accellog.core.version import __version__
 
-if TYPE_CHECKING:  # the same names as _API, for type checkers (tests/test_public_api.py checks both)
+if TYPE_CHECKING:  # the same names as _API, for type checkers (tests/cli/test_public_api.py checks both)
     from accellog.calibrate.calibration import Calibration, load_calibration
     from accellog.calibrate.detect import detect_static
     from accellog.calibrate.diagnose import diagnose

@@ -34,7 +34,7 @@ def _sparse(path: Path, size: int, head: bytes = b"") -> Path:
 
 
 def make_inputs(d: Path) -> dict[str, Path]:
-    from test_segment import synth_session
+    from support.sessions import synth_session
 
     from accellog.store.writer import write_session
 

@@ -384,10 +384,11 @@ def _acceptance(
     if dof == 0:
         w.append("no degrees of freedom left: the fit interpolates the data, residuals say nothing")
     if np.isfinite(chi2_dof) and dof > 0 and chi2_dof > 3.0 and p < 1e-3:
+        only = bool(weighted and noise_only)
+        bound = "; parameter sigmas are the noise-only bound, see sigma_scaled" * only
         w.append(
             f"residuals are {np.sqrt(chi2_dof):.1f}x the noise floor (chi2/dof = {chi2_dof:.3g}): the model "
-            "misses an effect (run `accellog diagnose`)"
-            + ("; parameter sigmas are the noise-only bound, see sigma_scaled" if weighted and noise_only else "")
+            f"misses an effect (run `accellog diagnose`){bound}"
         )
     for n, s, t in zip(model.param_names, sigma, model.param_typical, strict=True):
         if np.isfinite(s) and s > t:

@@ -50,7 +50,7 @@ CORRELATION_INFLATION = 2.0
 """Sigma inflation for the correlation between overlapping AVAR estimates at octave taus (adjacent octaves
 share half their data), which the weighted fit treats as independent. Empirical: with 1.5 the pulls
 (estimate - truth) / sigma of N, B, K over 12 emulated 2 h sessions had rms 1.2, 1.1, 1.6; the coverage
-test (tests/test_allan.py) checks 2.0 on other seeds."""
+test (tests/calibrate/test_allan.py) checks 2.0 on other seeds."""
 EDF_TARGET = 32.0
 """EDF at the characteristic tau that a parameter needs (ADEV known to 1/sqrt(2 edf) = 12.5 %)."""
 _ALPHAS = np.array([ALPHA_WHITE_PM, ALPHA_WHITE_FM, ALPHA_FLICKER_FM, ALPHA_RW_FM])

@@ -95,8 +95,25 @@ def _run(args: list[str]) -> int:
         return 2
     from accellog.cli.registry import command_group
 
+    if "--show-completion" in args or "--install-completion" in args:
+        _shell_from_env_when_undetected()
     rc = command_group(args[0] if args else None)(args=args, prog_name="accellog", standalone_mode=False)
     return rc if isinstance(rc, int) else 0
+
+
+def _shell_from_env_when_undetected() -> None:
+    """typer finds the shell from the parent processes (shellingham); where they do not tell (no
+    terminal, a job runner), the login shell in $SHELL is used instead of failing."""
+    from typer import _completion_shared, completion
+
+    found = _completion_shared._get_shell_name
+
+    def shell_name() -> str | None:
+        name = found()
+        env = os.path.basename(os.environ.get("SHELL", ""))
+        return name or (env if env in {s.value for s in _completion_shared.Shells} else None)
+
+    _completion_shared._get_shell_name = completion._get_shell_name = shell_name
 
 
 def _exit_code(exc: Exception) -> int | None:

@@ -1,7 +1,7 @@
 """`accellog --help` (and `accellog` alone) drawn from accellog.cli.commands_table with rich alone:
 the same panels, styles and widths as typer's rich help (typer.rich_utils, rich markup mode), without
 importing typer, rich.markdown or any command module, nor building a click command (#9).
-tests/test_cli_startup.py compares it with typer's own rendering, plain and in colour."""
+tests/cli/test_cli_startup.py compares it with typer's own rendering, plain and in colour."""
 
 from __future__ import annotations
 

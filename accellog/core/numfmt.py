@@ -6,7 +6,7 @@ y = x * 10^(8 - X) in float: one rounding, |y - exact| <= 2^-24 (y < 2^30), so r
 correctly rounded N unless y lies within 1e-6 of a half-integer. Those values (about 2 in a
 million), zeros, non-finite values and |8 - X| > 22 (10^k is then not an exact float) are formatted
 by Python's '%.9g' itself; the others are laid out by C printf's %g rule (fixed for -4 <= X < 9, else exponential;
-trailing zeros and a bare point dropped). tests/test_numfmt.py checks the bytes against '%.9g'.
+trailing zeros and a bare point dropped). tests/core/test_numfmt.py checks the bytes against '%.9g'.
 """
 
 from __future__ import annotations

@@ -15,8 +15,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.session_drivers import session_drivers
 from accellog.calibrate.gyro import GyroCalibration
+from accellog.calibrate.session_drivers import session_drivers
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.units import STANDARD_GRAVITY_MPS2

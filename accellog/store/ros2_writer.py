@@ -36,7 +36,7 @@ _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation: little endian, plain CDR
 
 def imu_cdr(stamp_ns, frame_id: str, accel_mps2, gyro_radps, accel_cov, gyro_cov) -> np.ndarray:
     """(n, L) uint8: each row one sensor_msgs/msg/Imu serialised as CDR, byte for byte what
-    ``rosbags``' serialize_cdr writes (tests/test_ros2_roundtrip.py), built with numpy for all rows at
+    ``rosbags``' serialize_cdr writes (tests/flows/test_ros2_roundtrip.py), built with numpy for all rows at
     once. Layout after the 4-byte encapsulation (alignment counted from there): stamp sec int32,
     nanosec uint32, frame_id (uint32 length with the NUL, bytes, NUL), padding to 8, then 37 float64:
     orientation (0, 0, 0, 1), orientation_covariance (-1, 0 ...), angular_velocity, its covariance,

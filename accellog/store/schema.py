@@ -200,7 +200,7 @@ def render_proto() -> str:
     out = [
         "// accellog MCAP message schemas, protobuf package accellog.v1.",
         "// Generated from accellog/store/schema.py (python -m accellog.store.schema > schemas/accellog_v1.proto);",
-        "// tests/test_messages.py checks that this file and the runtime descriptors agree.",
+        "// tests/store/test_messages.py checks that this file and the runtime descriptors agree.",
         "// Times are int64 ns since the session start; vectors are interleaved per sample (x,y,z).",
         'syntax = "proto3";',
         "",

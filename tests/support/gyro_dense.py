@@ -1,6 +1,6 @@
 """The dense gyro scale/misalignment fit as it was before the moves-only rewrite (kept verbatim,
 apart from passing least_squares options through): every ~10 ms block from mid to mid integrated
-for every residual call, forward-difference Jacobian. tests/test_gyro_cal.py checks the fast
+for every residual call, forward-difference Jacobian. tests/calibrate/test_gyro_cal.py checks the fast
 accellog.calibrate.gyro.fit_gyro_matrix against it."""
 
 from __future__ import annotations

@@ -1,0 +1,101 @@
+"""segment: pose statistics, windowed observations, pose-mean tables, static checks and detection.
+
+The seeded labelled session is `support.sessions.synth_session`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from support.sessions import B_TRUE, S_TRUE, synth_session
+
+from accellog.calibrate.detect import detect_static, with_labels
+from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations, pose_stats
+from accellog.core.errors import InputError, ModelError
+
+
+def test_pose_stats_means_and_autocorr_sem():
+    s = synth_session(hold_s=20.0, seed=1)
+    st = pose_stats(s)
+    assert [p.name for p in st] == ["+z", "-z", "+y", "-y", "+x", "-x"]
+    for p in st:
+        expect = S_TRUE @ p.up_sensor + B_TRUE
+        # mean within 5 autocorrelation-aware standard errors
+        assert np.all(np.abs(p.mean_g - expect) < 5 * p.sem_g + 1e-5)
+        # AR(1) phi=0.5: tau = (1+phi)/(1-phi) = 3
+        assert np.all((p.tau_samples > 2.0) & (p.tau_samples < 4.5))
+        assert p.start_s >= s.poses[0].start_s
+        assert p.temp_degC == pytest.approx(30.0, abs=0.2)
+        assert p.dtemp_degC_per_s == pytest.approx(0.001, rel=1e-6)
+
+
+def test_observations_windows_fill_all_columns():
+    s = synth_session(hold_s=10.0, seed=2)
+    obs = observations(s, window_s=2.0, trim_s=0.5)
+    # 9 s usable per hold -> 4 windows of 2.25 s
+    assert obs.n == 6 * 4
+    assert obs.pose_names == ["+z", "-z", "+y", "-y", "+x", "-x"]
+    assert np.all(obs.t_in_pose_s > 0.5) and np.all(obs.t_in_pose_s < 9.5)
+    assert np.all(obs.n_samples > 300)
+    assert obs.temp_degC is not None and np.allclose(obs.dtemp_degC_per_s, 0.001, atol=1e-6)
+    assert np.all(np.isfinite(obs.q_sensor_to_world))
+    expect = obs.up_sensor @ S_TRUE.T + B_TRUE
+    z = (obs.meas_g - expect) / obs.sigma_g
+    # standard errors are honest: normalised residuals have unit scale (not 1/sqrt(tau))
+    assert 0.6 < np.sqrt(np.mean(z**2)) < 1.6
+
+
+def test_obs_from_pose_means_and_duplicates():
+    up = np.eye(3)[[2, 2, 1, 1, 0, 0]] * np.array([1, -1, 1, -1, 1, -1])[:, None]
+    obs = obs_from_pose_means(up, up * 1.01, np.full((6, 3), 0.004), 5400)
+    assert obs.pose_names == ["+z", "-z", "+y", "-y", "+x", "-x"]
+    assert np.allclose(obs.sigma_g, 0.004 / np.sqrt(5400))
+    with pytest.raises(InputError, match=r"more than once"):
+        obs_from_pose_means(up[[0, 0, 2, 3, 4, 5]], up, np.full((6, 3), 0.004), 100)
+
+
+def test_coverage_names_missing_faces():
+    s = synth_session(poses=["+z", "-z", "+y", "-y", "+x"], seed=3)
+    obs = observations(s)
+    check_coverage(obs)  # five faces still determine S and b (rank [up 1] = 4)
+    s2 = synth_session(poses=["+z", "-z", "+y"], seed=3)
+    with pytest.raises(ModelError, match=r"missing .*-x"):
+        check_coverage(observations(s2))
+
+
+def test_moving_hold_is_refused_with_pose_and_time():
+    s = synth_session(seed=4)
+    p = s.poses[2]
+    sl = s.slice_time(p.start_s + 4.0, p.start_s + 5.0)
+    s.accel_g[sl] += np.random.default_rng(0).normal(0, 0.2, (sl.stop - sl.start, 3))
+    with pytest.raises(
+        InputError, match=r"pose '\+y' is labelled static but moves at t = 28\.\d+-2[89]\.\d+ s"
+    ):
+        observations(s)
+
+
+def test_units_and_nan_and_short_holds():
+    s = synth_session(seed=5)
+    s.accel_g = s.accel_counts.astype(float)  # counts declared as g
+    with pytest.raises(InputError, match=r"counts declared as g"):
+        pose_stats(s)
+    s = synth_session(seed=5)
+    s.accel_g[s.slice_time(30.0, 30.01)] = np.nan
+    with pytest.raises(InputError, match=r"NaN"):
+        observations(s)
+    s = synth_session(seed=5, hold_s=1.0)
+    with pytest.raises(InputError, match=r"samples after trimming"):
+        observations(s, trim_s=0.45, min_samples=50)
+
+
+def test_detect_static_finds_holds_and_refuses_too_few():
+    s = synth_session(seed=6, hold_s=4.0, move_s=2.0, label=False, phi=0.0, noise_g=0.002)
+    labels = detect_static(s, min_poses=6)
+    assert len(labels) >= 6
+    ups = np.array([lab.up_sensor for lab in labels])
+    truth = {tuple(np.round(u)) for u in ups}
+    assert len(truth) == 6
+    obs = observations(with_labels(s, labels), check_moving=True)
+    assert obs.n >= 6
+    with pytest.raises(InputError, match=r"found at most 6 distinct static orientations \(need >= 9"):
+        detect_static(s, min_poses=9)

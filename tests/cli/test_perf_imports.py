@@ -1,0 +1,105 @@
+"""What the long-running commands import, and the scipy.special forms that keep scipy.stats (~0.8 s of
+CPU at start-up) out of `diagnose`: equal to scipy.stats' own survival functions."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+from support.synthetic import synthetic_obs, synthetic_session, true_theta
+
+from accellog.calibrate.model import build_model
+from accellog.core.numeric import f_sf, normal_sf
+from accellog.store.writer import write_session
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.parametrize("x", [-1.0, 0.0, 1e-300, 0.3, 3.2, 50.0, np.inf, np.nan])
+@pytest.mark.parametrize("d1,d2", [(1, 5), (2, 100), (4, 20), (0, 3), (3, 1e6)])
+def test_f_sf_is_scipy_stats(x, d1, d2):
+    np.testing.assert_equal(f_sf(x, d1, d2), float(stats.f.sf(x, d1, d2)))
+
+
+@pytest.mark.parametrize("z", [-3.0, 0.0, 1.5, 8.0, 40.0, np.inf, np.nan])
+def test_normal_sf_is_scipy_stats(z):
+    np.testing.assert_equal(normal_sf(z), float(stats.norm.sf(z)))
+
+
+def test_diagnose_loads_no_scipy_stats(tmp_path):
+    """`accellog diagnose` on a labelled session runs without importing scipy.stats (nor rerun,
+    pyarrow or dask): each would add to every run's start-up."""
+    model = build_model("model3")
+    s = synthetic_session(model, true_theta(model), hold_s=4.0, rate_hz=100.0, seed=3)
+    path = write_session(tmp_path / "s.mcap", s)
+    code = (
+        "import sys, io, contextlib\nfrom accellog.cli import main\n"
+        f"with contextlib.redirect_stdout(io.StringIO()): rc = main(['diagnose', {str(path)!r}, '--json'])\n"
+        "print(rc, ' '.join(m for m in ('scipy.stats', 'rerun', 'pyarrow', 'dask') if m in sys.modules))"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    rc, *loaded = out.stdout.split()
+    assert rc == "0" and loaded == []
+
+
+def test_yaw_per_face_equals_per_row():
+    """driver_signals._yaw_deg forms the face rotation once per face: the same angles, bit for bit,
+    as one quat_between per row (24 poses: 6 faces x 4 yaw angles, 6 windows each)."""
+    from accellog.calibrate.driver_signals import _yaw_deg
+    from accellog.core.rotations import quat_between, quat_conjugate, quat_multiply
+
+    model = build_model("model3")
+    obs = synthetic_obs(model, true_theta(model), protocol="24", hold_s=12.0, seed=2)
+    z = np.array([0.0, 0.0, 1.0])
+    qf = np.stack([quat_between(u, z) for u in np.asarray(obs.up_sensor, float)])
+    qy = quat_multiply(np.asarray(obs.q_sensor_to_world, float), quat_conjugate(qf))
+    want = np.rad2deg(2.0 * np.arctan2(qy[:, 3], qy[:, 0]))
+    got = _yaw_deg(obs)
+    assert got is not None and np.array_equal(got, want)
+    assert np.unique(np.round(got)).size > 1  # the yaw really varies
+
+
+def test_host_clock_taken_in_the_observation_pass(tmp_path):
+    """open_labelled(host=True) takes the host clock points in its observation pass: the same
+    points as a pass of their own (store.stream.read_host_clock)."""
+    from accellog.flows.stream_input import open_labelled
+    from accellog.store.stream import read_host_clock
+
+    model = build_model("model3")
+    s = synthetic_session(model, true_theta(model), hold_s=4.0, rate_hz=100.0, eps_clock=20e-6, seed=4)
+    path = write_session(tmp_path / "s.mcap", s)
+    want = read_host_clock(path)
+    got = open_labelled(path, host=True).host_clock
+    assert want is not None and want[0].size > 5
+    assert all(np.array_equal(w, g) for w, g in zip(want, got, strict=True))
+
+
+def test_fit_takes_the_gyro_first_pass_in_the_observation_pass(tmp_path, monkeypatch):
+    """`fit` on a labelled MCAP file reads the samples twice (observations + the gyro's bias
+    windows, then the gyro's moves), not three times, and its gyro calibration is the one of
+    stream_calibrate_gyro's own passes, exactly (many small blocks: windows span them)."""
+    from accellog.calibrate import stream_gyro, stream_segment
+    from accellog.calibrate.gyro import gyro_full_scale_dps
+    from accellog.flows.simulate import Scenario, simulate
+    from accellog.flows.stages import run_fit
+    from accellog.store import fastread
+    from accellog.store.stream import read_labels
+
+    path = tmp_path / "six.mcap"
+    simulate(Scenario(protocol="six", hold_s=3.0, move_s=1.0, sample_rate_hz=500.0), path)
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 32 << 10)
+    meta, poses, _ = read_labels(path)
+    want = stream_gyro.stream_calibrate_gyro(path, poses, full_scale_dps=gyro_full_scale_dps(meta))
+    passes = []
+    for mod in (stream_segment, stream_gyro):
+        real = mod.iter_imu
+        monkeypatch.setattr(mod, "iter_imu", lambda p, real=real: passes.append(p) or real(p))
+    got = run_fit(str(path)).cal.gyro
+    assert len(passes) == 2
+    assert want is not None and got is not None and got.to_dict() == want.to_dict()

@@ -1,0 +1,144 @@
+"""evaluate / integrate chunk by chunk: the same numbers as the whole-session path (JSON within 1e-9
+relative), on simulated MCAP sessions long enough for several chunk groups, and the running sums
+against the whole-series formulas when fed in small irregular blocks."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from support.sessions import RTOL, assert_json_close, synth_session
+from support.sessions import random_blocks as _blocks
+
+from accellog.calibrate.noise import BLOCK, integrated_autocorr_time
+from accellog.cli import main
+from accellog.core.errors import InputError
+from accellog.core.jsonio import dumps
+from accellog.flows.simulate import Scenario, simulate
+from accellog.flows.static_stages import run_evaluate_report
+from accellog.flows.stream_input import StreamedSession
+from accellog.navigate.stream_sums import AutocorrTime, ResidualSums
+from accellog.store.stream import iter_imu
+from accellog.store.writer import write_session
+
+
+@pytest.mark.parametrize("n", [5000, 2 * BLOCK + 7, 5 * BLOCK + 123])
+def test_autocorr_time_in_pieces_equals_the_whole_series(n):
+    rng = np.random.default_rng(n)
+    x = np.cumsum(rng.normal(size=(n, 3)), axis=0) * 0.01 + rng.normal(size=(n, 3)) + [5.0, -3.0, 0.2]
+    acc = AutocorrTime()
+    for sl in _blocks(n, rng):
+        acc.add(x[sl])
+    np.testing.assert_allclose(acc.tau(), integrated_autocorr_time(x), rtol=RTOL)
+
+
+def test_residual_sums_in_pieces_equal_one_block():
+    """Windows whose edges fall exactly on samples and on block boundaries; times read between
+    samples, at the end, within and beyond the 0.5 s tolerance."""
+    n = 2 * BLOCK + 5000
+    rng = np.random.default_rng(3)
+    t = np.arange(n) * 0.001  # window edges 0, 2, 4 ... s are sample times
+    r = rng.normal(size=(n, 3)) * 0.03 + [0.01, -0.2, 0.05]
+    times = (0.0, 10.0005, 30.0, 38.0, 38.5)  # t_end 37.767 s: 38.0 takes the end, 38.5 NaN
+    one = ResidualSums(times, 2.0)
+    one.add(t, r)
+    a = one.finish()
+    many = ResidualSums(times, 2.0)
+    for sl in _blocks(n, rng, cuts=[2000, 2001, 4000, n - 1]):
+        many.add(t[sl], r[sl])
+    b = many.finish()
+    for k in ("mean", "std", "tau", "rms", "disp_at", "disp_end"):
+        np.testing.assert_allclose(b[k], a[k], rtol=RTOL, atol=1e-15, err_msg=k)
+    np.testing.assert_array_equal(np.isnan(b["t_used"]), [False, False, False, False, True])
+    # the whole-series formulas
+    np.testing.assert_allclose(a["std"], r.std(axis=0, ddof=1), rtol=1e-12)
+    starts = np.unique(np.searchsorted(t, np.arange(t[0], t[-1], 2.0)))
+    means = np.add.reduceat(r, starts, axis=0) / np.diff(np.append(starts, n))[:, None]
+    assert a["rms"] == pytest.approx(np.sqrt(np.mean(means**2)), rel=1e-12)
+
+
+@pytest.fixture(autouse=True)
+def small_groups(monkeypatch):
+    """Chunk groups of 64 KiB instead of 4 MiB: a 40 s session streams in ~15 blocks."""
+    from accellog.store import fastread
+
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 1 << 16)
+
+
+def _static_mcap(path, seed: int, hold_s: float = 40.0, bump_at_s: float | None = None):
+    """A 1 kHz '+z' hold (more than 2 x noise.BLOCK samples) with uneven sample times and a
+    30 -> 40 degC ramp, written as MCAP; bump_at_s: the sensor is knocked (+0.3 g for 0.4 s)."""
+    s = synth_session(poses=["+z"], hold_s=hold_s, move_s=0.0, rate_hz=1000.0, seed=seed)
+    s.temp_degC = 30.0 + 10.0 * s.t_s / s.t_s[-1]
+    if bump_at_s is not None:
+        s.accel_g[s.slice_time(bump_at_s, bump_at_s + 0.4)] += 0.3
+    return write_session(path, s, chunk_size=32 * 1024)
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    """Six-position calibrations (model3, + temperature bias, + drift model), a 40 s 1 kHz '+z'
+    test session and a six-pose session for the per-pose path."""
+    d = tmp_path_factory.mktemp("streval")
+    simulate(Scenario(protocol="six", hold_s=5.0, move_s=2.0, sample_rate_hz=200.0, seed=1), d / "cal.mcap")
+    simulate(Scenario(protocol="+z", hold_s=40.0, sample_rate_hz=200.0, seed=4), d / "drift.mcap")
+    simulate(
+        Scenario(protocol="six", hold_s=10.0, move_s=2.0, sample_rate_hz=200.0, seed=5), d / "poses.mcap"
+    )
+    _static_mcap(d / "test.mcap", seed=2)
+    assert main(["fit", str(d / "cal.mcap"), "-o", str(d / "m3.json")]) == 0
+    assert main(["fit", str(d / "cal.mcap"), "--add", "temp_bias", "-o", str(d / "tb.json")]) == 0
+    assert main(["drift", str(d / "drift.mcap"), "--cal", str(d / "m3.json"), "-o", str(d / "m3d.json")]) == 0
+    return d
+
+
+def test_test_session_spans_several_chunk_groups(sessions):
+    assert len([b.n for b in iter_imu(sessions / "test.mcap")]) >= 10
+
+
+@pytest.mark.parametrize(
+    "cut", [{}, {"until_s": 25.5}, {"max_samples": 37_000}], ids=["all", "until", "max_samples"]
+)
+def test_streamed_evaluate_equals_whole_session(sessions, cut):
+    d = sessions
+    cals = [d / "m3.json", d / "tb.json", d / "m3d.json"]
+    streamed = run_evaluate_report(d / "test.mcap", cals, **cut)
+    whole = run_evaluate_report(d / "test.mcap", cals, stream=False, **cut)
+    assert isinstance(streamed.data, StreamedSession) and streamed.single[0].t_s is None
+    assert whole.single[0].t_s is not None
+    assert streamed.single[-1].drift_applied
+    assert_json_close(whole.to_dict(), streamed.to_dict())
+
+
+def test_streamed_per_pose_evaluate_equals_whole_session(sessions):
+    d = sessions
+    streamed = run_evaluate_report(d / "poses.mcap", [d / "m3.json"])
+    whole = run_evaluate_report(d / "poses.mcap", [d / "m3.json"], stream=False)
+    assert isinstance(streamed.data, StreamedSession) and streamed.kind == "poses"
+    assert_json_close(whole.to_dict(), streamed.to_dict())
+
+
+def test_streamed_integrate_csv_equals_whole_session(sessions, capsys):
+    d = sessions
+    args = ["integrate", str(d / "test.mcap"), "--cal", str(d / "m3.json"), "--json"]
+    assert main([*args, "-o", str(d / "s.csv")]) == 0
+    streamed = json.loads(capsys.readouterr().out)
+    from accellog.flows.static_stages import run_integrate
+
+    whole = run_integrate(d / "test.mcap", d / "m3.json", stream=False)
+    (d / "w.csv").write_text(whole.csv_text())
+    a = np.loadtxt(d / "w.csv", delimiter=",", skiprows=1)
+    b = np.loadtxt(d / "s.csv", delimiter=",", skiprows=1)
+    assert a.shape == b.shape and a.shape[0] > 2 * BLOCK
+    np.testing.assert_allclose(b, a, rtol=1e-8, atol=1e-12)  # the CSV holds 9 significant digits
+    assert_json_close(json.loads(dumps(whole.to_dict(streamed["output"]))), streamed)
+
+
+def test_streamed_evaluate_refuses_a_moving_session(tmp_path):
+    _static_mcap(tmp_path / "m.mcap", seed=6, bump_at_s=35.0)  # in a late block
+    with pytest.raises(InputError, match=r"labelled static but moves at t = 3[45]\.") as streamed:
+        run_evaluate_report(tmp_path / "m.mcap", [])
+    with pytest.raises(InputError) as whole:
+        run_evaluate_report(tmp_path / "m.mcap", [], stream=False)
+    assert str(streamed.value) == str(whole.value)
