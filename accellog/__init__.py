@@ -22,12 +22,12 @@ from typing import TYPE_CHECKING, Any
 from accellog.core.version import __version__
 
 if TYPE_CHECKING:  # the same names as _API, for type checkers (tests/cli/test_public_api.py checks both)
-    from accellog.calibrate.calibration import Calibration, load_calibration
-    from accellog.calibrate.detect import detect_static
-    from accellog.calibrate.diagnose import diagnose
-    from accellog.calibrate.fit import fit_model, fit_orientation_free
-    from accellog.calibrate.model import build_model
-    from accellog.calibrate.segment import observations
+    from accellog.calibrate.calfile.calibration import Calibration, load_calibration
+    from accellog.calibrate.diagnosis.diagnose import diagnose
+    from accellog.calibrate.model.compose import build_model
+    from accellog.calibrate.model.fit import fit_model, fit_orientation_free
+    from accellog.calibrate.observe.detect import detect_static
+    from accellog.calibrate.observe.segment import observations
     from accellog.core.errors import AccellogError, DeviceError, InputError, ModelError
     from accellog.core.session import ObsTable, PoseLabel, Session, SessionMeta
     from accellog.flows.pipeline import run_pipeline
@@ -59,14 +59,14 @@ _API = {
     "import_capstone": "accellog.store.importers",
     "import_imucal": "accellog.store.importers",
     # calibrate
-    "observations": "accellog.calibrate.segment",
-    "detect_static": "accellog.calibrate.detect",
-    "build_model": "accellog.calibrate.model",
-    "fit_model": "accellog.calibrate.fit",
-    "fit_orientation_free": "accellog.calibrate.fit",
-    "Calibration": "accellog.calibrate.calibration",
-    "load_calibration": "accellog.calibrate.calibration",
-    "diagnose": "accellog.calibrate.diagnose",
+    "observations": "accellog.calibrate.observe.segment",
+    "detect_static": "accellog.calibrate.observe.detect",
+    "build_model": "accellog.calibrate.model.compose",
+    "fit_model": "accellog.calibrate.model.fit",
+    "fit_orientation_free": "accellog.calibrate.model.fit",
+    "Calibration": "accellog.calibrate.calfile.calibration",
+    "load_calibration": "accellog.calibrate.calfile.calibration",
+    "diagnose": "accellog.calibrate.diagnosis.diagnose",
     # navigate
     "evaluate": "accellog.navigate.evaluate",
     "evaluate_poses": "accellog.navigate.evaluate",

@@ -47,8 +47,8 @@ from rich.console import Console
 from rich.table import Table
 
 from accellog.acquire.emulator.sensor_model import AccelErrors
-from accellog.calibrate.noise import integrated_autocorr_time
-from accellog.calibrate.segment import observations
+from accellog.calibrate.observe.hold_noise import integrated_autocorr_time
+from accellog.calibrate.observe.segment import observations
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import run_fit

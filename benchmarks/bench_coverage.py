@@ -2,7 +2,7 @@
 
 Many seeded sessions of one chip (window means from the measurement equation,
 tests/support/synthetic.py), each fitted and its uncertainty computed by every method of
-accellog.calibrate.variance:
+accellog.calibrate.model.variance:
 
 - hand-held: 26 cube orientations (faces, edges, corners) x 20 s, 6 windows per hold, fitted
   orientation-free (bias+scale+misalignment_tri, the gravity-norm residual), with a bias offset per
@@ -37,10 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.fit import fit_model, fit_orientation_free
-from accellog.calibrate.handheld import HANDHELD_START
-from accellog.calibrate.model import build_model
-from accellog.calibrate.variance import METHODS, refit_jackknife_cov, with_uncertainty
+from accellog.calibrate.diagnosis.handheld import HANDHELD_START
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model, fit_orientation_free
+from accellog.calibrate.model.variance import METHODS, refit_jackknife_cov, with_uncertainty
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from support.synthetic import cube_poses, hold_disturbance, synthetic_obs, true_theta
@@ -80,7 +80,7 @@ EMULATED_TRUTH = {"bias_g": [0.04, -0.03, 0.06], "scale": [0.02, -0.01, 0.015]}
 
 def run_emulated(n: int, instability_mg: float, workdir: Path) -> dict:
     """As run() on emulated hand-held recordings (module doc); truth b = bias_g, S_ii = 1 + scale."""
-    from accellog.calibrate.handheld import detect_holds
+    from accellog.calibrate.diagnosis.handheld import detect_holds
     from accellog.flows.simulate import Scenario, simulate
     from accellog.store.reader import read_session
 
@@ -114,9 +114,9 @@ def run_emulated(n: int, instability_mg: float, workdir: Path) -> dict:
 
 def real_data(root: Path) -> list[str]:
     """sigma / refit-jackknife sigma per option on real recordings, and predictive held-out scores."""
-    from accellog.calibrate.loso import concat_obs
-    from accellog.calibrate.segment import observations
-    from accellog.calibrate.transfer import predictive_stats
+    from accellog.calibrate.diagnosis.loso import concat_obs
+    from accellog.calibrate.diagnosis.transfer import predictive_stats
+    from accellog.calibrate.observe.segment import observations
     from accellog.flows.stages import load_input
     from accellog.store.importers import import_imucal
 

@@ -1,7 +1,7 @@
 """Diagnose speed and estimator efficiency.
 
 1. A 24-pose session (30 s holds, 1 kHz, warm-up temperature path, hidden temp_bias) is generated
-   sample by sample, cut into 2 s windows by accellog.calibrate.segment.observations (the window step), then
+   sample by sample, cut into 2 s windows by accellog.calibrate.observe.segment.observations (the window step), then
    diagnosed against model3 with every library effect as a candidate (the diagnose step).
    Goal: diagnose < 5 s.
 2. Parameter error vs Cramer-Rao bound: over seeds, RMS of (theta_hat - theta) / sigma per parameter
@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from accellog.calibrate.cross_validation import cv_scores
-from accellog.calibrate.diagnose import diagnose
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import observations
+from accellog.calibrate.diagnosis.cross_validation import cv_scores
+from accellog.calibrate.diagnosis.diagnose import diagnose
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.observe.segment import observations
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from support.synthetic import synthetic_obs, synthetic_session, true_theta

@@ -35,8 +35,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from support.discovery import session_obs
 
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
 from accellog.flows.workbench import discover
 
 SCENARIOS = ("rate", "hysteresis", "two", "single")
@@ -53,7 +53,7 @@ def run_one(root: Path, name: str, seed: int, rounds: int, hold_s: float, numeri
     cpu = time.process_time() - t0
     cpu_numeric = np.nan
     if numeric:  # the same loop with central differences for every column (the baseline)
-        import accellog.calibrate.fit as fit_mod
+        import accellog.calibrate.model.fit as fit_mod
 
         analytic, fit_mod._Problem.analytic = fit_mod._Problem.analytic, None
         try:

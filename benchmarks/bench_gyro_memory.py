@@ -18,7 +18,7 @@ import os, resource, sys, time
 from threadpoolctl import threadpool_limits
 import numpy
 threadpool_limits(1, "blas")
-from accellog.calibrate.stream_gyro import stream_calibrate_gyro
+from accellog.calibrate.gyro.stream import stream_calibrate_gyro
 from accellog.flows.stages import run_fit
 from accellog.store.stream import read_labels
 path, what = sys.argv[1], sys.argv[2]

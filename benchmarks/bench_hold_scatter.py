@@ -9,7 +9,7 @@ of one chip, with hold-level disturbances the window noise does not describe:
   and zero-mean (--wander-mg rms), so the session's bias is still the estimand.
 
 Each session is fitted with model3 (window-weighted) and its uncertainty computed three ways
-(accellog.calibrate.variance): noise only, between-hold variance component, leave-one-hold-out
+(accellog.calibrate.model.variance): noise only, between-hold variance component, leave-one-hold-out
 jackknife. Printed per method: RMS over seeds and parameters of (estimate - truth) / sigma (1 when
 sigma is honest; goal 0.9-1.2) per parameter group, with its statistical 1-sigma from the seed count,
 and the mean estimated between-hold scatter vs the injected one.
@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.variance import with_uncertainty
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.model.variance import with_uncertainty
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from support.synthetic import hold_disturbance, synthetic_obs, true_theta

@@ -47,8 +47,8 @@ class _Stages:
 
 
 def main(mode: str, path: str) -> None:
-    from accellog.calibrate.model import build_model
-    from accellog.calibrate.stream_segment import stream_observations
+    from accellog.calibrate.model.compose import build_model
+    from accellog.calibrate.observe.stream_segment import stream_observations
 
     st = _Stages()
     if mode == "fit":
@@ -64,8 +64,8 @@ def main(mode: str, path: str) -> None:
         s.gyro_calibration()
         st.mark("gyro")
         return
-    from accellog.calibrate.diagnose import diagnose
-    from accellog.calibrate.fit import fit_model
+    from accellog.calibrate.diagnosis.diagnose import diagnose
+    from accellog.calibrate.model.fit import fit_model
 
     st.mark("imports")
     obs = stream_observations(path)

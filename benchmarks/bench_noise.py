@@ -48,7 +48,7 @@ _BASE = r"""
 import json, resource, sys, time
 import numpy as np, allantools
 from accellog.store.reader import read_session
-from accellog.calibrate.allan import oadev
+from accellog.calibrate.noise.allan import oadev
 t0 = time.perf_counter(); s = read_session(sys.argv[1])
 y = np.concatenate([s.accel_g * 9.80665, np.deg2rad(s.gyro_dps)], axis=1); rate = s.meta.sample_rate_hz
 t1 = time.perf_counter()

@@ -45,7 +45,7 @@ def cpu():
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 from accellog.flows.replay import replay
 from accellog.navigate.evaluate import evaluate
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calfile.calibration import load_calibration
 from accellog.present.rrd.recording import RunRecording
 from accellog.store.reader import read_session
 import rerun

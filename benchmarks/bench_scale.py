@@ -48,15 +48,15 @@ from synth_static import write_static
 MODES = {
     "read": "from accellog.store.reader import read_session; s = read_session(P)",
     "whole": (
-        "from accellog.store.reader import read_session; from accellog.calibrate.segment import observations\n"
-        "from accellog.calibrate.fit import fit_model; from accellog.calibrate.model import build_model\n"
-        "from accellog.calibrate.diagnose import diagnose\n"
+        "from accellog.store.reader import read_session; from accellog.calibrate.observe.segment import observations\n"
+        "from accellog.calibrate.model.fit import fit_model; from accellog.calibrate.model.compose import build_model\n"
+        "from accellog.calibrate.diagnosis.diagnose import diagnose\n"
         "obs = observations(read_session(P)); fit_model(obs, build_model('model3')); diagnose(obs, build_model('model3'))"
     ),
     "stream": (
-        "from accellog.calibrate.stream_segment import stream_observations\n"
-        "from accellog.calibrate.fit import fit_model; from accellog.calibrate.model import build_model\n"
-        "from accellog.calibrate.diagnose import diagnose\n"
+        "from accellog.calibrate.observe.stream_segment import stream_observations\n"
+        "from accellog.calibrate.model.fit import fit_model; from accellog.calibrate.model.compose import build_model\n"
+        "from accellog.calibrate.diagnosis.diagnose import diagnose\n"
         "obs = stream_observations(P); fit_model(obs, build_model('model3')); diagnose(obs, build_model('model3'))"
     ),
     "fit_whole": "from accellog.flows.stages import load_input, run_fit; run_fit(load_input(P))",

@@ -33,9 +33,9 @@ import time
 import tracemalloc
 from pathlib import Path
 
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import observations
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.observe.segment import observations
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.workbench import discover, ladder_rows, steps_for
 from accellog.store.reader import read_session
@@ -138,9 +138,9 @@ def main(argv: list[str] | None = None) -> None:
 
 def more(hold_s: float, rate_hz: float) -> None:
     """Leave one session out (three labelled warm-ups) and a hand-held session with a held-out one."""
-    from accellog.calibrate.fit import fit_orientation_free
-    from accellog.calibrate.handheld import HANDHELD_START, detect_holds
-    from accellog.calibrate.loso import concat_obs
+    from accellog.calibrate.diagnosis.handheld import HANDHELD_START, detect_holds
+    from accellog.calibrate.diagnosis.loso import concat_obs
+    from accellog.calibrate.model.fit import fit_orientation_free
     from accellog.flows.workbench_run import run_workbench
 
     with tempfile.TemporaryDirectory() as d:

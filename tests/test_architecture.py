@@ -32,6 +32,41 @@ def test_no_relative_imports():
     assert rel == []
 
 
+def test_no_module_imports_another_modules_private_name():
+    """A name with a leading underscore is private to its module: none is imported elsewhere."""
+    found = [
+        f"{p.relative_to(ROOT)}:{n.lineno} {n.module}.{a.name}"
+        for p in PKG.rglob("*.py")
+        for n in ast.walk(ast.parse(p.read_text()))
+        if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("accellog")
+        for a in n.names
+        if a.name.startswith("_") and not a.name.startswith("__")
+    ]
+    assert found == []
+
+
+def test_calibrate_is_laid_out_in_rooms_without_circles():
+    """calibrate/ holds rooms (observe, model, calfile, diagnosis, gyro, noise, mag), no loose
+    modules, and no two of its modules import each other (also inside functions)."""
+    cal = PKG / "calibrate"
+    assert sorted(p.name for p in cal.glob("*.py")) == ["__init__.py"]
+    assert {p.name for p in cal.iterdir() if p.is_dir() and p.name != "__pycache__"} == {
+        "observe", "model", "calfile", "diagnosis", "gyro", "noise", "mag",
+    }  # fmt: skip
+    imports: dict[str, set[str]] = {}
+    for p in cal.rglob("*.py"):
+        mod = "accellog." + ".".join(p.relative_to(PKG).with_suffix("").parts)
+        imports[mod] = {
+            n.module
+            for n in ast.walk(ast.parse(p.read_text()))
+            if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("accellog.calibrate.")
+        }
+    circles = sorted(
+        {tuple(sorted((a, b))) for a, deps in imports.items() for b in deps if a in imports.get(b, ())}
+    )
+    assert circles == []
+
+
 MAX_MODULE_LINES = 500
 MAX_FUNCTION_LINES = 80
 """Function length = end_lineno - lineno of its `def` (docstring and body, decorators not counted)."""

@@ -22,9 +22,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
-from accellog.calibrate.fit import fit_model  # noqa: E402
-from accellog.calibrate.model import build_model  # noqa: E402
-from accellog.calibrate.segment import observations  # noqa: E402
+from accellog.calibrate.model.compose import build_model  # noqa: E402
+from accellog.calibrate.model.fit import fit_model  # noqa: E402
+from accellog.calibrate.observe.segment import observations  # noqa: E402
 from accellog.flows.simulate import Scenario, simulate  # noqa: E402
 from accellog.flows.workbench import discover  # noqa: E402
 from accellog.present.residual_views import contribution_g, log_panels, panels  # noqa: E402

@@ -1,7 +1,7 @@
 """Batch calibration commands: segment, fit, evaluate, drift, apply, run (pipelines).
 
 Each command calls a plain function of accellog.flows.pipeline (run_fit, run_evaluate, run_drift,
-run_apply, run_pipeline) and prints rich tables, or machine-readable JSON on stdout with --json.
+run_pipeline; accellog.flows.apply.run_apply) and prints rich tables, or machine-readable JSON on stdout with --json.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def segment(
     json_out: JsonOpt = False,
 ) -> None:
     """Per-pose statistics (mean, std, autocorrelation-aware sem) and windowed observations."""
-    from accellog.calibrate.calibration import write_json_atomic
+    from accellog.calibrate.calfile.calibration import write_json_atomic
     from accellog.flows.static_stages import run_segment
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
@@ -165,7 +165,7 @@ def evaluate_cmd(
 
     Example: `accellog evaluate static.mcap --cal model2.json --cal model3.json` (side by side).
     """
-    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.flows.static_stages import run_evaluate_report
     from accellog.present import tables as report
 
@@ -221,7 +221,7 @@ def drift(
     effects_file: EffectsOpt = None,
 ) -> None:
     """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
-    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.flows.stages import load_input, run_drift
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
@@ -274,9 +274,9 @@ def apply(
     """
     import warnings
 
-    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.cli.progress import progress_bar
-    from accellog.flows.stages import OtherDeviceWarning, run_apply
+    from accellog.flows.apply import OtherDeviceWarning, run_apply
     from accellog.store.atomic import check_outputs
 
     check_outputs([output, ros2], [session, cal, effects_file])
@@ -343,7 +343,7 @@ def integrate(
 ) -> None:
     """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
     local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
-    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.flows.static_stages import run_integrate
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs

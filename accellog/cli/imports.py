@@ -246,7 +246,7 @@ def import_ros2_cmd(
     """
     from rich.table import Table
 
-    from accellog.calibrate.detected_holds import label_detected_holds
+    from accellog.calibrate.observe.detected_holds import label_detected_holds
     from accellog.cli.progress import progress_bar, wanted
     from accellog.store.importers.ros2 import IMU_TYPE, import_ros2, list_topics
 

@@ -42,7 +42,7 @@ FullOpt = Annotated[
 
 def _cals(paths: list[Path] | None, effects_file: Path | None) -> list:
     """The --cal files loaded (a model with user effects runs only the user's --effects-file)."""
-    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.calfile.calibration import load_calibration
 
     return [load_calibration(p, effects_file) for p in paths or []]
 

@@ -55,8 +55,8 @@ def export_cmd(
     `accellog export cal.json --to ardupilot --rotation ROTATION_YAW_270 -o cal.parm`;
     `accellog export cal.json --to kalibr --noise-from still.mcap -o imu.yaml`.
     """
-    from accellog.calibrate.calibration import load_calibration
-    from accellog.calibrate.imu_noise import NoiseCharacterisation
+    from accellog.calibrate.calfile.calibration import load_calibration
+    from accellog.calibrate.noise.imu_noise import NoiseCharacterisation
     from accellog.flows.characterise import characterise_noise
     from accellog.present.exports import export_calibration
     from accellog.store.atomic import check_outputs, write_text_atomic

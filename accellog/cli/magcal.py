@@ -46,7 +46,7 @@ def magcal_cmd(
         raise InputError("--out must differ from --cal (the original calibration is kept)", where=str(out))
     c, session = run_magcal(session_path, form, field_uT)
     if cal is not None and out is not None:
-        from accellog.calibrate.calibration import load_calibration
+        from accellog.calibrate.calfile.calibration import load_calibration
 
         k = load_calibration(cal)
         k.magnetometer = c

@@ -32,7 +32,7 @@ def track_cmd(
 ) -> None:
     """Integrate the session (gyro attitude + accel) per calibration; print the final and RMS
     position error against the truth (simulations) or the loop-closure error (real runs)."""
-    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.core.jsonio import dumps
     from accellog.flows.track import track_session
     from accellog.present.tables import track_table

@@ -40,8 +40,8 @@ def noise_cmd(
         raise InputError("--out must differ from --cal (the original calibration is kept)", where=str(out))
     model = characterise_noise(session_path)
     if cal is not None and out is not None:
-        from accellog.calibrate.calibration import load_calibration
-        from accellog.calibrate.noise_model import calibration_section
+        from accellog.calibrate.calfile.calibration import load_calibration
+        from accellog.calibrate.noise.noise_model import calibration_section
 
         c = load_calibration(cal)
         c.noise = calibration_section(model)

@@ -24,7 +24,7 @@ def report(
     markdown: Annotated[bool, typer.Option("--markdown", help="Markdown tables on stdout.")] = False,
 ) -> None:
     """Print the tables of stage artifacts (parameters ± 1σ, the seed's tables, the model ladder)."""
-    from accellog.calibrate.calibration import read_json
+    from accellog.calibrate.calfile.calibration import read_json
     from accellog.present.artifacts import tables_for
     from accellog.present.views import table_markdown
 

@@ -1,6 +1,6 @@
 """`accellog diagnose`, `accellog workbench` (the model workbench) and `accellog effects` (the effect
 library): each parses, calls one library function (accellog.flows.diagnose_run.run_diagnose,
-accellog.flows.workbench_run.run_workbench, accellog.calibrate.effects.describe) and presents
+accellog.flows.workbench_run.run_workbench, accellog.calibrate.model.effects.describe) and presents
 (accellog.present.discovery_text)."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ def effects(
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable list on stdout.")] = False,
 ) -> None:
     """List the effect library: name, parameters with units, driver signals, meaning."""
-    from accellog.calibrate.effects import describe, load_effects_file
+    from accellog.calibrate.model.effects import describe, load_effects_file
     from accellog.core.jsonio import dumps
     from accellog.present.discovery_text import print_effects
 

@@ -166,7 +166,7 @@ class Session:
 class ObsTable:
     """Static observations for model fitting: one row per averaging window of a static hold.
 
-    Built by accellog.calibrate.segment from a Session (several windows per hold, so that slow effects such
+    Built by accellog.calibrate.observe.segment from a Session (several windows per hold, so that slow effects such
     as temperature or warm-up are visible), or from pose means (one row per pose, the seed's CSVs).
     All accelerations in g.
     """

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.allan import AllanAccumulator
-from accellog.calibrate.noise import integrated_autocorr_time
-from accellog.calibrate.noise_model import NoiseModel, SensorNoise, TempSegment, fit_axis
+from accellog.calibrate.noise.allan import AllanAccumulator
+from accellog.calibrate.noise.noise_model import NoiseModel, SensorNoise, TempSegment, fit_axis
+from accellog.calibrate.observe.hold_noise import integrated_autocorr_time
 from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import STANDARD_GRAVITY_MPS2

@@ -25,7 +25,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from accellog.calibrate.segment import observations
+from accellog.calibrate.observe.segment import observations
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import run_drift, run_evaluate, run_fit
 from accellog.flows.workbench import BASE_STEPS, discover, ladder_rows, log_ladder, steps_for

@@ -1,9 +1,9 @@
 """`accellog diagnose` as one library call: read the session, fit the model, rank what is missing.
 
 A labelled session (MCAP streamed chunk by chunk when no .rrd is asked for, CSV, pose table or
-observations JSON) goes to accellog.calibrate.diagnose with its observation windows, the host clock
+observations JSON) goes to accellog.calibrate.diagnosis.diagnose with its observation windows, the host clock
 and the held-out sessions; a session without pose labels (hand-held) to
-accellog.calibrate.handheld on its detected static intervals (gravity-norm residual). The result is
+accellog.calibrate.diagnosis.handheld on its detected static intervals (gravity-norm residual). The result is
 typed (DiagnoseOutcome); the CLI only presents it.
 """
 
@@ -21,8 +21,8 @@ from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 
 if TYPE_CHECKING:
-    from accellog.calibrate.diagnose import Diagnosis
-    from accellog.calibrate.handheld import Detection
+    from accellog.calibrate.diagnosis.diagnose import Diagnosis
+    from accellog.calibrate.diagnosis.handheld import Detection
 
 
 @dataclass
@@ -96,9 +96,9 @@ def run_diagnose(
 def _labelled(
     data, streamed, session, model, add, effects_file, window_s, weighted, gravity_g, heldout, noise_from, rrd
 ) -> DiagnoseOutcome:
-    from accellog.calibrate import diagnose as dg
-    from accellog.calibrate.model import build_model
-    from accellog.calibrate.segment import observations
+    from accellog.calibrate.diagnosis import diagnose as dg
+    from accellog.calibrate.model.compose import build_model
+    from accellog.calibrate.observe.segment import observations
     from accellog.flows.stages import as_session
 
     m = build_model(model, add=list(add), effects_file=effects_file)
@@ -122,8 +122,8 @@ def _labelled(
 
 def _noise_floored(obs, helds, data, noise_from):
     """Floor every window's sigma by the calibration's white noise (Allan) at the session's rate."""
-    from accellog.calibrate.calibration import load_calibration
-    from accellog.calibrate.noise_model import floor_obs_sigma
+    from accellog.calibrate.calfile.calibration import load_calibration
+    from accellog.calibrate.noise.noise_model import floor_obs_sigma
 
     section = load_calibration(noise_from).noise
     if not section:
@@ -160,14 +160,14 @@ def _handheld(
 ) -> DiagnoseOutcome:
     """An unlabelled session: detected static intervals, gravity-norm residual; held-out sessions
     judge the significant candidates on their gravity norm (d.choice)."""
-    from accellog.calibrate.handheld import (
+    from accellog.calibrate.diagnosis.handheld import (
         HANDHELD_START,
         detect_holds,
         diagnose_handheld,
         norm_choice,
         norm_obs,
     )
-    from accellog.calibrate.model import build_model
+    from accellog.calibrate.model.compose import build_model
     from accellog.flows.stages import as_session
 
     name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here

@@ -8,7 +8,7 @@ percentile of |dt - dt_m| exceeds 25 % of dt_m). Clipping: raw counts at the 16-
 of >= 3 consecutive samples at an axis's exact extreme value (a flat top) when that extreme lies more
 than 8 robust standard deviations (1.4826 MAD) from the axis median. Events (gaps, FIFO
 overflows, I2C errors) are counted by kind. Still intervals come from
-``accellog.calibrate.detect.detect_static``; what they allow decides the supported calibrations.
+``accellog.calibrate.observe.detect.detect_static``; what they allow decides the supported calibrations.
 """
 
 from __future__ import annotations
@@ -211,7 +211,7 @@ def _distinct(up: np.ndarray, angle_deg: float = 10.0) -> int:
 
 def still(s: Session) -> list[dict]:
     """Still intervals (detect_static; none when the log is too short or never still)."""
-    from accellog.calibrate.detect import detect_static
+    from accellog.calibrate.observe.detect import detect_static
 
     try:
         labels = detect_static(s, min_poses=1)

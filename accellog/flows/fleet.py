@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from accellog.calibrate.calibration import sha256_file, write_json_atomic
+from accellog.calibrate.calfile.calibration import sha256_file, write_json_atomic
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.version import __version__
 from accellog.flows.fleet_inputs import find_sessions, safe_part, unique_files
@@ -66,8 +66,8 @@ def pipeline_hash(spec: dict) -> str:
 def _heldout(fo) -> tuple[float, float]:
     """Held-out residual RMS and noise floor (g): refit on every other window of each hold, score
     on the windows left out (same session; see calibrate.diagnose.heldout_stats)."""
-    from accellog.calibrate.diagnose import heldout_stats
-    from accellog.calibrate.fit import fit_model
+    from accellog.calibrate.diagnosis.diagnose import heldout_stats
+    from accellog.calibrate.model.fit import fit_model
     from accellog.core.session import ObsTable
 
     obs = fo.obs
@@ -320,9 +320,9 @@ def warm_worker() -> int:
     """Import what a task needs and pin BLAS to one thread (run once on each worker before timing);
     returns the pid."""
     pin_blas()
-    import accellog.calibrate.diagnose
-    import accellog.calibrate.fit
-    import accellog.calibrate.gyro
+    import accellog.calibrate.diagnosis.diagnose
+    import accellog.calibrate.gyro.calibrate
+    import accellog.calibrate.model.fit
     import accellog.flows.pipeline
     import accellog.store.reader  # noqa: F401
 

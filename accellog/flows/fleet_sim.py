@@ -188,7 +188,7 @@ def _simulate_one(spec: FleetSpec, s: SimulatedSession) -> str:
 
 def simulate_fleet(spec: FleetSpec, out_dir: str | Path, *, jobs: int = 1) -> FleetSimResult:
     """Write every session of the fleet (jobs > 1: that many processes) and fleet_truth.json."""
-    from accellog.calibrate.calibration import write_json_atomic
+    from accellog.calibrate.calfile.calibration import write_json_atomic
 
     plan, truth = plan_fleet(spec, out_dir)
     out = Path(out_dir)

@@ -1,14 +1,14 @@
 """The workbench on a hand-held session (no pose labels): the detected static intervals
-(accellog.calibrate.handheld.detect_holds) and the orientation-free gravity-norm residual
+(accellog.calibrate.diagnosis.handheld.detect_holds) and the orientation-free gravity-norm residual
 
     e_r = |correct(a'_r)| - g
 
 replace the labelled poses. Loop: diagnose_handheld, add a significant effect, refit, until nothing
 the norm can identify is significant (or max_steps). Which effect: with held-out sessions the one
-that predicts their gravity norm best (accellog.calibrate.norm_transfer, chosen as the labelled
-workbench chooses: accellog.calibrate.choose; ties and near-collinear candidates are named); with
+that predicts their gravity norm best (accellog.calibrate.diagnosis.norm_transfer, chosen as the labelled
+workbench chooses: accellog.calibrate.diagnosis.choose; ties and near-collinear candidates are named); with
 several calibration sessions by leaving one out; with one session by blocks of its temperature
-range and of time (accellog.calibrate.norm_transfer.norm_blocked_scores). Then the ladder start -> + each found effect, judged on the norm
+range and of time (accellog.calibrate.diagnosis.norm_transfer.norm_blocked_scores). Then the ladder start -> + each found effect, judged on the norm
 (chi^2/dof, RMS in g), on the held-out norm, and, with a static test, by its |displacement| at at_s
 (m). The verdict never says "nothing is missing" while the held-out norm chi2/dof exceeds
 HELDOUT_OK. What the norm cannot identify (a frame rotation, fixture tilt, the clock, effects the
@@ -27,10 +27,10 @@ from accellog.core.session import Session
 from accellog.flows.workbench import HELDOUT_OK, evidence_parts
 
 if TYPE_CHECKING:
-    from accellog.calibrate.choose import StepChoice
-    from accellog.calibrate.diagnose import Diagnosis
-    from accellog.calibrate.handheld import Detection
-    from accellog.calibrate.ladder import LadderRow
+    from accellog.calibrate.diagnosis.choose import StepChoice
+    from accellog.calibrate.diagnosis.diagnose import Diagnosis
+    from accellog.calibrate.diagnosis.handheld import Detection
+    from accellog.calibrate.diagnosis.ladder import LadderRow
     from accellog.core.session import ObsTable
 
 
@@ -121,8 +121,8 @@ def discover_handheld(
     adds the candidate that predicts their gravity norm best, and only if it does. more_sessions:
     further calibration sessions: the fit uses all of them and candidates are judged by leaving
     one session out (calibrate.loso); `detection` is the first session's."""
-    from accellog.calibrate.handheld import HANDHELD_START, detect_holds
-    from accellog.calibrate.loso import concat_obs
+    from accellog.calibrate.diagnosis.handheld import HANDHELD_START, detect_holds
+    from accellog.calibrate.diagnosis.loso import concat_obs
     from accellog.flows.workbench import small_problem_threads
 
     start = start or HANDHELD_START
@@ -152,12 +152,12 @@ def discover_handheld(
 
 
 def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file, parts: list) -> None:
-    from accellog.calibrate.diagnose import default_candidates
-    from accellog.calibrate.fit import fit_orientation_free
-    from accellog.calibrate.handheld import diagnose_handheld, norm_choice
-    from accellog.calibrate.loso import loso_stats, mean_stats
-    from accellog.calibrate.model import build_model
-    from accellog.calibrate.norm_transfer import norm_heldout_stats
+    from accellog.calibrate.diagnosis.diagnose import default_candidates
+    from accellog.calibrate.diagnosis.handheld import diagnose_handheld, norm_choice
+    from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
+    from accellog.calibrate.diagnosis.norm_transfer import norm_heldout_stats
+    from accellog.calibrate.model.compose import build_model
+    from accellog.calibrate.model.fit import fit_orientation_free
     from accellog.flows.workbench_prune import backward_step, proxy_stats
 
     gone: set[str] = set()
@@ -206,9 +206,9 @@ def _loop(found: HandheldDiscovery, held: list, max_steps: int, effects_file, pa
 
 def _norm_scores(obs, held, parts):
     """Out-of-sample gravity-norm scores of fits by name, with norm_choice's evidence."""
-    from accellog.calibrate.fit import fit_orientation_free
-    from accellog.calibrate.loso import loso_score
-    from accellog.calibrate.norm_transfer import norm_blocked_scores, norm_heldout_score
+    from accellog.calibrate.diagnosis.loso import loso_score
+    from accellog.calibrate.diagnosis.norm_transfer import norm_blocked_scores, norm_heldout_score
+    from accellog.calibrate.model.fit import fit_orientation_free
 
     def scores(fits):
         if len(parts) > 1:
@@ -224,7 +224,7 @@ def _norm_scores(obs, held, parts):
 
 
 def _stats1(res, obs) -> dict[str, float]:
-    from accellog.calibrate.norm_transfer import norm_heldout_stats
+    from accellog.calibrate.diagnosis.norm_transfer import norm_heldout_stats
 
     return norm_heldout_stats(res, [obs])
 
@@ -247,10 +247,10 @@ def _ladder(
     """start, start + e1, start + e1 + e2, ... fitted orientation-free on the detected windows;
     held-out norm statistics (mean over the held-out sessions, or with several calibration sessions
     over the left-out sessions; then each row's per-session statistics are appended to row_loso)."""
-    from accellog.calibrate.fit import fit_orientation_free
-    from accellog.calibrate.ladder import ladder_row
-    from accellog.calibrate.loso import loso_stats, mean_stats
-    from accellog.calibrate.norm_transfer import norm_heldout_stats
+    from accellog.calibrate.diagnosis.ladder import ladder_row
+    from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
+    from accellog.calibrate.diagnosis.norm_transfer import norm_heldout_stats
+    from accellog.calibrate.model.fit import fit_orientation_free
     from accellog.flows.stages import run_fit
     from accellog.flows.workbench import add_static_drift
 

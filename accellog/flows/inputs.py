@@ -9,10 +9,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from accellog.calibrate.calibration import read_json
-from accellog.calibrate.label_check import check_timestamps
-from accellog.calibrate.obs_file import OBS_FORMAT, obs_from_dict
-from accellog.calibrate.segment import obs_from_pose_means
+from accellog.calibrate.calfile.calibration import read_json
+from accellog.calibrate.observe.label_check import check_timestamps
+from accellog.calibrate.observe.obs_file import OBS_FORMAT, obs_from_dict
+from accellog.calibrate.observe.segment import obs_from_pose_means
 from accellog.core.errors import InputError
 from accellog.core.session import ObsTable, Session
 from accellog.store import importers

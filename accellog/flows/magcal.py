@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.magnetometer import MagCalibration, fit_magnetometer
+from accellog.calibrate.mag.magnetometer import MagCalibration, fit_magnetometer
 from accellog.core.errors import InputError
 from accellog.core.session import Session
 

@@ -18,8 +18,8 @@ from typing import TYPE_CHECKING, Any
 
 import tomllib
 
-from accellog.calibrate.calibration import read_text, source_entry, write_json_atomic
-from accellog.calibrate.effects import load_effects_file
+from accellog.calibrate.calfile.calibration import read_text, source_entry, write_json_atomic
+from accellog.calibrate.model.effects import load_effects_file
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
@@ -40,7 +40,7 @@ from accellog.present import views
 from accellog.present.rrd.recording import RunRecording
 
 if TYPE_CHECKING:
-    from accellog.calibrate.ladder import LadderRow
+    from accellog.calibrate.diagnosis.ladder import LadderRow
 
 # ------------------------------------------------------------------------------------------ pipelines
 
@@ -228,7 +228,7 @@ class PipelineResult(JsonResult):
 
     def ladder(self) -> list[LadderRow]:
         """One ladder row per fitted model (named as in the pipeline file)."""
-        from accellog.calibrate.ladder import ladder_row
+        from accellog.calibrate.diagnosis.ladder import ladder_row
 
         return [ladder_row(fo.fit, fit=fo, model=name) for name, fo in self.fits.items()]
 

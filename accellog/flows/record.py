@@ -26,10 +26,10 @@ from accellog.acquire.recorder import (
     raise_priority,
     session_meta,
 )
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import obs_from_pose_means
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.observe.segment import obs_from_pose_means
 from accellog.core.device import check_serial
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.protocol import parse_protocol
@@ -203,6 +203,7 @@ def record_session(
             opts.out, meta, exclusive=True, overwrite=opts.force, compression=opts.compression
         ) as writer:
             dev.driver.start()
+            real_time = not (opts.use_sim and opts.fast)  # the FIFO must be drained within 36 ms
             rec = Recorder(
                 dev.driver,
                 writer,
@@ -212,9 +213,10 @@ def record_session(
                 on_batch=live.on_batch if live else None,
                 on_pose=RunningCalibration(live, warn) if live else None,
                 stop=stop,
+                write_thread=real_time,  # writes, live view and UI off the reading thread
             )
-            if not (opts.use_sim and opts.fast):  # real time: the FIFO must be drained within 36 ms
-                writer.write_event(Event(0.0, "note", raise_priority()))
+            if real_time:  # before the first post: the helper thread inherits the priority
+                rec.post(writer.write_event, Event(0.0, "note", raise_priority()))
             started(f"recording to {opts.out} (Ctrl-C finishes the file)")
             try:
                 rec.run(poses, wait=opts.wait)
@@ -222,7 +224,9 @@ def record_session(
                 rec.summary.interrupted = True
                 rec.summary.duration_s = rec.t_s
                 note = "recording interrupted by the operator (Ctrl-C); file finished cleanly"
-                writer.write_event(Event(rec.t_s, "note", note))
+                rec.post(writer.write_event, Event(rec.t_s, "note", note))
+            finally:
+                rec.close()  # write what the helper thread still holds before the file closes
     finally:
         if live is not None:
             live.close()

@@ -189,7 +189,7 @@ class _Track:
 
 def _load_cal(c: Any):
     if isinstance(c, (str, os.PathLike)):
-        from accellog.calibrate.calibration import load_calibration
+        from accellog.calibrate.calfile.calibration import load_calibration
 
         return load_calibration(c)
     return c

@@ -76,7 +76,7 @@ class ReplayInput:
 
     def drivers(self, b: ImuBlock, i0: int, needed: Sequence[str]) -> dict[str, np.ndarray]:
         """The needed driver signals of batch b (whose first sample is sample i0 of the replay)."""
-        from accellog.calibrate.session_drivers import session_drivers
+        from accellog.calibrate.model.session_drivers import session_drivers
 
         if not needed:
             return {}
@@ -119,7 +119,7 @@ def _whole(s: Session, where) -> ReplayInput:
 
 def _streamed(p: Path) -> ReplayInput | None:
     """A streamed ReplayInput, or None when the file takes the whole-session reader."""
-    from accellog.calibrate.stream_segment import stream_check_timestamps
+    from accellog.calibrate.observe.stream_segment import stream_check_timestamps
     from accellog.flows.stream_input import can_stream
     from accellog.store.stream import iter_imu, read_labels
 

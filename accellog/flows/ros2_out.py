@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration
+from accellog.calibrate.calfile.calibration import Calibration
 from accellog.core.session import Session
 
 CHUNK = 65536
@@ -119,7 +119,7 @@ def write_ros2(
 ) -> Ros2Export:
     """Write the calibrated session as a ROS 2 bag (see the module docstring); returns a summary.
     topic, frame_id: default the input bag's (``ros2_names``); progress(done, total): called per chunk."""
-    from accellog.calibrate.session_drivers import session_drivers
+    from accellog.calibrate.model.session_drivers import session_drivers
     from accellog.store.ros2_writer import Ros2BagWriter
 
     topic, temp_topic, mag_topic, frame_id = ros2_names(s, topic, frame_id)

@@ -6,15 +6,13 @@
 - `run_fit(...)`            -> FitOutcome (ObsTable, FitResult, Calibration)
 - `run_evaluate(...)`       -> list[Evaluation] (raw reading first when include_raw)
 - `run_drift(...)`          -> DriftOutcome (calibration + drift model, before/after on the fit session)
-- `run_apply(...)`          -> Path of an MCAP copy with /derived/accel_calibrated (g)
+- `run_apply(...)` (accellog.flows.apply) -> Path of an MCAP copy with /derived/accel_calibrated (g)
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import os
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,19 +20,23 @@ from typing import Any
 
 import numpy as np
 
-from accellog.calibrate.cal_sections import DetectedInterval, DeviceInfo, SensorInfo, SourceFile
-from accellog.calibrate.calibration import Calibration, load_calibration, source_entry
-from accellog.calibrate.detect import detect_static, with_labels
-from accellog.calibrate.drift_model import DriftModel
-from accellog.calibrate.fit import fit_model, fit_orientation_free
-from accellog.calibrate.gyro import GyroCalibration, calibrate_gyro, gyro_full_scale_dps, warn_clipped_moves
-from accellog.calibrate.heap import trim_heap
-from accellog.calibrate.label_check import relabel_holds
-from accellog.calibrate.magnetometer import MagCalibration
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import check_coverage, observations
+from accellog.calibrate.calfile.calibration import Calibration, load_calibration, source_entry
+from accellog.calibrate.calfile.drift_model import DriftModel
+from accellog.calibrate.calfile.sections import DetectedInterval, DeviceInfo, SensorInfo, SourceFile
+from accellog.calibrate.gyro.calibrate import (
+    calibrate_gyro,
+    gyro_full_scale_dps,
+    warn_clipped_moves,
+)
+from accellog.calibrate.gyro.model import GyroCalibration
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model, fit_orientation_free
+from accellog.calibrate.observe.detect import detect_static, with_labels
+from accellog.calibrate.observe.heap import trim_heap
+from accellog.calibrate.observe.label_check import relabel_holds
+from accellog.calibrate.observe.segment import check_coverage, observations
 from accellog.core.errors import AccellogError, InputError, ModelError
-from accellog.core.jsonio import JsonResult, dumps
+from accellog.core.jsonio import JsonResult
 from accellog.core.notices import note
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
@@ -45,12 +47,7 @@ from accellog.navigate.drift import drift_from_session
 from accellog.navigate.evaluate import Evaluation, evaluate
 from accellog.present import views
 from accellog.present.rrd.recording import RunRecording
-from accellog.store.atomic import AtomicOutput
-from accellog.store.layout import NS_PER_S
-from accellog.store.reader import read_session
-from accellog.store.recovery import announce
 from accellog.store.stream import read_labels
-from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
 GRAVITY_CONVENTIONS = ("seed", "local")
 """'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
@@ -102,7 +99,7 @@ class FitOutcome(JsonResult):
     """A fitted model: the observations, the FitResult and the Calibration built from it."""
 
     obs: ObsTable
-    fit: Any  # accellog.calibrate.fit.FitResult
+    fit: Any  # accellog.calibrate.model.fit.FitResult
     cal: Calibration
 
     def to_dict(self) -> dict:
@@ -158,7 +155,7 @@ def run_fit(
     calibrate the gyro from the session's holds and the moves between them (stored in cal.gyro).
     uncertainty: 'noise' (window noise; scaled by the hold means' Birge ratio when they reject it),
     'between_hold' (plus the between-hold variance component) or 'jackknife' (leave one hold out);
-    accellog.calibrate.variance (fit.uncertainty_note says which). relabel: replace
+    accellog.calibrate.model.variance (fit.uncertainty_note says which). relabel: replace
     hold labels that contradict the measured gravity direction (each change is a note on stderr).
     """
 
@@ -241,7 +238,7 @@ def _fit_obs(obs, m, data, orientation_free: bool, weighted: bool, truth: float,
             obs, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=_name(data)
         )
         fit = fit_model(obs, m, weighted=weighted, gravity_g=truth)
-    from accellog.calibrate.variance import with_uncertainty
+    from accellog.calibrate.model.variance import with_uncertainty
 
     return with_uncertainty(fit, obs, uncertainty)  # 'noise' too: scaled when the holds reject it
 
@@ -384,116 +381,3 @@ def run_drift(
     if entry.recovered is not None:  # provenance: the drift was fitted on a recovered (truncated) file
         cal_d.sources = [*cal_d.sources, entry]
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
-
-
-def _write_mag_calibrated(w, s: Session, mc: MagCalibration) -> None:
-    """/derived/mag_calibrated: A (m - h) in uT, AK8963 axes (accellog.calibrate.magnetometer)."""
-    from accellog.store.layout import NS_PER_S
-
-    t_ns = np.round(s.mag_t_s * NS_PER_S).astype(np.int64)
-    w.write_vector3("mag_calibrated", t_ns, mc.correct(s.mag_uT), "uT", frame="AK8963")
-
-
-class OtherDeviceWarning(UserWarning):
-    """A calibration of another device was applied (run_apply(other_device='warn'))."""
-
-
-OTHER_DEVICE_MODES = ("refuse", "warn")
-
-
-def check_device(session: Session, cal: Calibration, other_device: str = "refuse", where: str = "") -> str:
-    """'' when the calibration's device key matches the session's (or either is unknown); else the
-    one-line mismatch, raised as InputError ('refuse') or issued as OtherDeviceWarning ('warn')."""
-    if other_device not in OTHER_DEVICE_MODES:
-        raise InputError(f"other_device={other_device!r}: use 'refuse' or 'warn'")
-    diff = cal.device_conflicts(session.meta.device)
-    if not diff:
-        return ""
-    cal_id = cal.device.id or "?"
-    msg = f"calibration is for device {cal_id}, session is from {session.meta.device.id} ({'; '.join(diff)})"
-    if other_device == "refuse":
-        raise InputError(msg + ": use --other-device warn to apply it anyway", where=where)
-    warnings.warn(msg, OtherDeviceWarning, stacklevel=2)
-    return msg
-
-
-def run_apply(
-    session_path: str | os.PathLike,
-    cal: Calibration | str | os.PathLike,
-    out: str | os.PathLike,
-    *,
-    ros2: str | os.PathLike | None = None,
-    other_device: str = "refuse",
-    compression: str = DEFAULT_COMPRESSION,
-    ros2_topic: str | None = None,
-    ros2_frame_id: str | None = None,
-    progress=None,
-) -> Path:
-    """Copy an MCAP session to `out`, adding /derived/accel_calibrated (calibrated units, g) and
-    /derived/accel_calibrated_mps2 (and /derived/mag_calibrated, uT, when the calibration has a magnetometer
-    section and the session magnetometer samples), and attaching the calibration JSON. Atomic (temp + rename).
-    ros2: also write the calibrated data as a ROS 2 bag (accellog.flows.ros2_out.write_ros2) on
-    ros2_topic with ros2_frame_id (default: the input bag's); progress(done, total) per ROS 2 chunk.
-    A calibration of another device (device keys differ) is refused, or warned about with
-    other_device='warn' (see check_device). compression: of the copy's MCAP chunks."""
-
-    check_compression(compression)
-    src = Path(session_path)
-    if src.suffix.lower() != ".mcap":
-        raise InputError(
-            "apply copies an MCAP session: convert other files with `accellog import` first", where=str(src)
-        )
-    s = read_session(src)
-    announce(s)  # a truncated input: what was recovered (a note on stderr)
-    c = _cal(cal)
-    check_device(s, c, other_device, where=str(src))
-    f = c.correct(s)
-    out = Path(out)
-    ao = AtomicOutput(out, inputs=(src, getattr(c, "path", None)))
-    tmp = ao.begin()
-    t_ns = np.round(s.t_s * NS_PER_S).astype(np.int64)
-    si = np.asarray(s.sample_index, np.int64)
-    cuts = np.flatnonzero(np.diff(si) != 1) + 1
-    bounds = np.unique(np.concatenate([[0], cuts, np.arange(0, s.n, 500), [s.n]]))
-    try:
-        with SessionWriter(tmp, s.meta, compression=compression) as w:
-            for a, b in itertools.pairwise(bounds):  # batches of <= 500 samples
-                w.write_imu(
-                    int(si[a]),
-                    t_ns[a:b],
-                    accel_counts=None if s.accel_counts is None else s.accel_counts[a:b],
-                    gyro_counts=None if s.gyro_counts is None else s.gyro_counts[a:b],
-                    temp_counts=None if s.temp_counts is None else s.temp_counts[a:b],
-                    host_time_ns=0 if s.host_time_s is None else round(s.host_time_s[b - 1] * NS_PER_S),
-                    accel_g=s.accel_g[a:b] if s.accel_counts is None or not s.meta.accel_lsb_per_g else None,
-                    gyro_dps=None if s.gyro_dps is None or s.gyro_counts is not None else s.gyro_dps[a:b],
-                    temp_degC=None if s.temp_degC is None or s.temp_counts is not None else s.temp_degC[a:b],
-                )
-                w.write_vector3("accel_calibrated", t_ns[a:b], f[a:b], "g")
-                w.write_vector3("accel_calibrated_mps2", t_ns[a:b], f[a:b] * c.mps2_per_unit, "m/s^2")
-            if s.mag_t_s is not None and s.mag_t_s.shape[0]:
-                w.write_mag(
-                    np.round(s.mag_t_s * NS_PER_S).astype(np.int64),
-                    mag_counts=s.mag_counts,
-                    st2=s.mag_st2,
-                    mag_uT=s.mag_uT,
-                    first_index=0,
-                )
-                if c.magnetometer is not None and s.mag_uT is not None:
-                    _write_mag_calibrated(w, s, c.magnetometer)
-            for p in s.poses:
-                w.write_pose(p)
-            for e in s.events:
-                w.write_event(e)
-            if s.truth is not None:
-                w.write_truth(s.truth)
-            w.attach("calibration/accel.json", "application/json", dumps(c.to_dict()).encode())
-    except BaseException:
-        ao.abort()
-        raise
-    ao.commit()
-    if ros2 is not None:
-        from accellog.flows.ros2_out import write_ros2
-
-        write_ros2(s, c, ros2, topic=ros2_topic, frame_id=ros2_frame_id, progress=progress)
-    return out

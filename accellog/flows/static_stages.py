@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration, as_calibration
-from accellog.calibrate.obs_file import obs_to_dict
-from accellog.calibrate.segment import PoseStats, observations, pose_stats
-from accellog.calibrate.stream_segment import stream_observations
+from accellog.calibrate.calfile.calibration import Calibration, as_calibration
+from accellog.calibrate.observe.obs_file import obs_to_dict
+from accellog.calibrate.observe.segment import PoseStats, observations, pose_stats
+from accellog.calibrate.observe.stream_segment import stream_observations
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.numfmt import format_rows

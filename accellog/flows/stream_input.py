@@ -14,10 +14,15 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-from accellog.calibrate.gyro import GyroCalibration, gyro_full_scale_dps
-from accellog.calibrate.segment import PoseStats
-from accellog.calibrate.stream_gyro import FirstPass, first_pass, stream_calibrate_gyro
-from accellog.calibrate.stream_segment import TimestampCheck, stream_check_timestamps, stream_observations
+from accellog.calibrate.gyro.calibrate import gyro_full_scale_dps
+from accellog.calibrate.gyro.model import GyroCalibration
+from accellog.calibrate.gyro.stream import FirstPass, first_pass, stream_calibrate_gyro
+from accellog.calibrate.observe.segment import PoseStats
+from accellog.calibrate.observe.stream_segment import (
+    TimestampCheck,
+    stream_check_timestamps,
+    stream_observations,
+)
 from accellog.core.errors import AccellogError, DataIntegrityWarning, InputError, ModelError
 from accellog.core.notices import note
 from accellog.core.session import ObsTable, PoseLabel, SessionMeta

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import os
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.calfile.drift_model import DriftModel
 from accellog.core.session import Session
 from accellog.flows.stream_input import can_stream, open_streamed
 from accellog.navigate.evaluate import Evaluation

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from accellog.calibrate.calibration import as_calibration
+from accellog.calibrate.calfile.calibration import as_calibration
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import Session

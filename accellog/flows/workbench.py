@@ -1,5 +1,5 @@
 """The model workbench loop: diagnose, add the significant effect that predicts unseen data best
-(accellog.calibrate.choose), refit, until no candidate improves out of sample; then the ladder of model-building steps, each judged on the calibration
+(accellog.calibrate.diagnosis.choose), refit, until no candidate improves out of sample; then the ladder of model-building steps, each judged on the calibration
 data (chi^2/dof), on a held-out session (residual RMS vs its noise floor) and on a static test
 (|displacement| after 60 s).
 
@@ -22,7 +22,7 @@ import numpy as np
 from accellog.core.session import ObsTable, Session
 
 if TYPE_CHECKING:
-    from accellog.calibrate.ladder import LadderRow
+    from accellog.calibrate.diagnosis.ladder import LadderRow
 
 BASE_STEPS = ("model1", "model2")
 
@@ -116,12 +116,12 @@ def small_problem_threads():
 
 
 def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step, parts=None) -> Discovery:
-    from accellog.calibrate.choose import choose_effect
-    from accellog.calibrate.diagnose import default_candidates, diagnose, heldout_stats
-    from accellog.calibrate.fit import fit_model
-    from accellog.calibrate.loso import loso_score, loso_stats, mean_stats
-    from accellog.calibrate.model import build_model
-    from accellog.calibrate.transfer import heldout_score
+    from accellog.calibrate.diagnosis.choose import choose_effect
+    from accellog.calibrate.diagnosis.diagnose import default_candidates, diagnose, heldout_stats
+    from accellog.calibrate.diagnosis.loso import loso_score, loso_stats, mean_stats
+    from accellog.calibrate.diagnosis.transfer import heldout_score
+    from accellog.calibrate.model.compose import build_model
+    from accellog.calibrate.model.fit import fit_model
     from accellog.flows.workbench_prune import backward_step, proxy_stats, scorer
 
     held = [heldout] if isinstance(heldout, ObsTable) else list(heldout or [])
@@ -265,7 +265,7 @@ def ladder_rows(
 
 
 def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro) -> list[LadderRow]:
-    from accellog.calibrate.ladder import ladder_row
+    from accellog.calibrate.diagnosis.ladder import ladder_row
     from accellog.flows.stages import run_fit
 
     rows = []

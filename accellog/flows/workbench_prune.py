@@ -13,7 +13,7 @@ the loop's own evidence (held-out sessions, leave one session out, or blocks of 
   (held-out chi2/dof > HELDOUT_OK) has not found the physics: its added effects only bend what is
   missing onto library shapes. They are dropped (the calibration keeps the start model's terms) and
   the verdict says that no library effect explains what is left, names the driver the residual
-  follows (accellog.calibrate.driver_signals) and points to writing a user effect (docs/effects.md).
+  follows (accellog.calibrate.diagnosis.driver_signals) and points to writing a user effect (docs/effects.md).
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from accellog.calibrate.choose import Z_IMPROVE
-from accellog.calibrate.fit import FitResult, fit_model
-from accellog.calibrate.model import Model, build_model
-from accellog.calibrate.transfer import Score, blocked_scores, heldout_score
+from accellog.calibrate.diagnosis.choose import Z_IMPROVE
+from accellog.calibrate.diagnosis.transfer import Score, blocked_scores, heldout_score
+from accellog.calibrate.model.compose import Model, build_model
+from accellog.calibrate.model.fit import FitResult, fit_model
 from accellog.core.errors import ModelError
 from accellog.core.session import ObsTable
 
@@ -35,7 +35,7 @@ ScoreFn = Callable[[dict[str, FitResult]], dict[str, Score]]
 def scorer(obs: ObsTable, held: Sequence[ObsTable], parts: Sequence[ObsTable]) -> ScoreFn:
     """Out-of-sample scores of fits by name, with the evidence the loop uses: leave one session
     out (several calibration sessions), held-out sessions, else blocks of obs."""
-    from accellog.calibrate.loso import loso_score
+    from accellog.calibrate.diagnosis.loso import loso_score
 
     def scores(fits: dict[str, FitResult]) -> dict[str, Score]:
         if len(parts) > 1:
@@ -99,7 +99,7 @@ def residual_driver(diagnosis, obs: ObsTable | None = None) -> str:
         return f"{top['signal']} on axis {top['axis']} (partial R^2 = {top['partial_r2']:.2f})"
     if obs is None:
         return ""
-    from accellog.calibrate.fit import obs_drivers
+    from accellog.calibrate.model.fit import obs_drivers
 
     res = diagnosis.fit
     drv = obs_drivers(obs)

@@ -20,7 +20,7 @@ from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 
 if TYPE_CHECKING:
-    from accellog.calibrate.ladder import LadderRow
+    from accellog.calibrate.diagnosis.ladder import LadderRow
     from accellog.flows.handheld_workbench import HandheldDiscovery
     from accellog.flows.workbench import Discovery
 
@@ -136,8 +136,8 @@ def run_workbench(
 def _labelled(
     datas, session, heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step
 ) -> WorkbenchOutcome:
-    from accellog.calibrate.loso import concat_obs
-    from accellog.calibrate.segment import observations
+    from accellog.calibrate.diagnosis.loso import concat_obs
+    from accellog.calibrate.observe.segment import observations
     from accellog.flows.stages import as_session
     from accellog.flows.workbench import discover, ladder_rows, steps_for
 
@@ -216,9 +216,9 @@ def with_notes(cal, found):
 def _loso_rows(rows, parts) -> list[list[dict | None]]:
     """Each ladder row's model left-one-session-out: per session its held-out statistics; the
     row's heldout_* columns become their mean."""
-    from accellog.calibrate.diagnose import heldout_stats
-    from accellog.calibrate.fit import fit_model
-    from accellog.calibrate.loso import loso_stats, mean_stats
+    from accellog.calibrate.diagnosis.diagnose import heldout_stats
+    from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
+    from accellog.calibrate.model.fit import fit_model
 
     out = []
     for r in rows:
@@ -248,7 +248,7 @@ def _handheld(
 ) -> WorkbenchOutcome:
     """The workbench on an unlabelled session (accellog.flows.handheld_workbench); held-out sessions
     (labelled or not) are judged on their gravity norm."""
-    from accellog.calibrate.handheld import norm_obs
+    from accellog.calibrate.diagnosis.handheld import norm_obs
     from accellog.flows.handheld_workbench import discover_handheld
     from accellog.flows.stages import as_session
 

@@ -24,9 +24,9 @@ import dataclasses
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.drift_model import DriftModel
-from accellog.calibrate.noise import integrated_autocorr_time
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.calfile.drift_model import DriftModel
+from accellog.calibrate.observe.hold_noise import integrated_autocorr_time
 from accellog.core.errors import InputError
 from accellog.core.session import Session
 from accellog.navigate.evaluate import calibrated_residual
@@ -42,7 +42,7 @@ def grid_index(n: int, n_grid: int = 400) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, min(n_grid, n)).astype(int))
 
 
-def _noise_cov_q(t: np.ndarray, accel_noise_var: np.ndarray, n_grid: int | None = 400) -> np.ndarray:
+def noise_cov_q(t: np.ndarray, accel_noise_var: np.ndarray, n_grid: int | None = 400) -> np.ndarray:
     """(3,3,3) covariance of the OLS q per axis under white acceleration noise (see module doc);
     n_grid None: t is already the grid (the sample times at grid_index)."""
     tg_abs = t if n_grid is None else t[grid_index(t.size, n_grid)]
@@ -200,7 +200,7 @@ def fit_drift(
         tau = np.asarray(integrated_autocorr_time(a))
         dt = float(np.median(np.diff(t)))
         var_density = a.var(axis=0, ddof=1) * tau * dt  # (m/s^2)^2 s
-        cov = _noise_cov_q(t, var_density)
+        cov = noise_cov_q(t, var_density)
     else:
         cov = np.full((3, 3, 3), np.nan)
     return DriftModel(

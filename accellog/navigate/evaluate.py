@@ -24,11 +24,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.drift_model import DriftModel
-from accellog.calibrate.noise_model import sem_with_noise_floor
-from accellog.calibrate.segment import check_static
-from accellog.calibrate.session_drivers import session_drivers
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.calfile.drift_model import DriftModel
+from accellog.calibrate.model.session_drivers import session_drivers
+from accellog.calibrate.noise.noise_model import sem_with_noise_floor
+from accellog.calibrate.observe.segment import check_static
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import PoseLabel, Session
@@ -338,11 +338,11 @@ def finish_evaluation(
         disp_series_m=series.get("d"),
     )
     if ctx.drift is not None:
-        _drift_result(ev, ctx.drift, st, series)
+        drift_result(ev, ctx.drift, st, series)
     return ev
 
 
-def _drift_result(ev: Evaluation, dm: DriftModel, st: dict, series: dict) -> None:
+def drift_result(ev: Evaluation, dm: DriftModel, st: dict, series: dict) -> None:
     ev.drift_applied = True
     ev.disp_drift_series_m = series.get("dd")
     ev.disp_drift_m = st["disp_drift_at"]

@@ -19,11 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.detect import detect_static, with_labels
-from accellog.calibrate.fit import obs_drivers
-from accellog.calibrate.handheld import NORM_BLIND
-from accellog.calibrate.segment import observations
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.diagnosis.handheld import NORM_BLIND
+from accellog.calibrate.model.fit import obs_drivers
+from accellog.calibrate.observe.detect import detect_static, with_labels
+from accellog.calibrate.observe.segment import observations
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 

@@ -91,7 +91,7 @@ class OnlineIntegrator:
 
     @classmethod
     def from_calibration(cls, cal, *, up_sensor=(0.0, 0.0, 1.0), local_gravity_mps2: float | None = None):
-        """Integrator applying an accellog.calibrate.calibration.Calibration (its correct(), g_local, units)."""
+        """Integrator applying an accellog.calibrate.calfile.calibration.Calibration (its correct(), g_local, units)."""
         g = float(local_gravity_mps2 or cal.local_gravity_mps2)
         return cls(
             up_sensor=up_sensor,

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.segment import observations
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.observe.segment import observations
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 from accellog.navigate.pose_passes import AXES, PassRow, TrendRow, disagreements, flag_lines, passes, trends
@@ -112,7 +112,7 @@ def evaluate_pose_obs(
     obs: ObsTable, cal: Calibration | None, *, at_s: float = 60.0, raw_gravity_mps2: float, session: str
 ) -> PoseEvaluation:
     """evaluate_poses from the session's observation table (segment.observations, or streamed)."""
-    from accellog.calibrate.fit import obs_drivers
+    from accellog.calibrate.model.fit import obs_drivers
 
     if cal is None:
         r = np.asarray(obs.meas_g, float) - np.asarray(obs.up_sensor, float)

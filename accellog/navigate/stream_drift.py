@@ -36,11 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.calfile.drift_model import DriftModel
 from accellog.core.session import PoseLabel, SessionMeta
-from accellog.navigate.drift import DriftRefine, DriftSums, IntervalCount, _noise_cov_q, grid_index
-from accellog.navigate.evaluate import Evaluation, _drift_result, block_residual, eval_context
+from accellog.navigate.drift import DriftRefine, DriftSums, IntervalCount, grid_index, noise_cov_q
+from accellog.navigate.evaluate import Evaluation, block_residual, drift_result, eval_context
 from accellog.navigate.stream_evaluate import can_stream_cals, checked_blocks, stream_evaluate
 from accellog.navigate.stream_sums import Integrator
 
@@ -100,12 +100,12 @@ def stream_drift(
     var_density = st["std"] ** 2 * st["tau"] * dt.median()  # (m/s^2)^2 s
     dm = DriftModel(
         q=q.T.copy(),
-        cov=_noise_cov_q(tg, var_density, n_grid=None),
+        cov=noise_cov_q(tg, var_density, n_grid=None),
         fit_duration_s=float(st["t_last"] - st["t_first"]),
         up_sensor=tuple(float(v) for v in up),
         source=str(path),
         rms_residual_m=rms,
     )
     at, end = acc.integ.series_at(dm.apply)
-    _drift_result(ev, dm, {"disp_drift_at": at, "disp_drift_end": end}, {})
+    drift_result(ev, dm, {"disp_drift_at": at, "disp_drift_end": end}, {})
     return dataclasses.replace(cal, drift=dm, path=None), dm, ev

@@ -24,8 +24,8 @@ from typing import TypeVar
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.stream_segment import TimestampCheck
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.observe.stream_segment import TimestampCheck
 from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.session import PoseLabel, Session, SessionMeta
 from accellog.navigate.evaluate import (

@@ -15,8 +15,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from accellog.calibrate.segment import MOVING_MEAN_SHIFT_G, MOVING_STD_FACTOR, _window_stats, moving_error
-from accellog.calibrate.window_spill import WindowSpill, median
+from accellog.calibrate.observe.segment import (
+    MOVING_MEAN_SHIFT_G,
+    MOVING_STD_FACTOR,
+    moving_error,
+    window_stats,
+)
+from accellog.calibrate.observe.window_spill import WindowSpill, median
 from accellog.navigate.stream_sums import WindowCarry
 
 COLS = 9
@@ -37,7 +42,7 @@ class MotionCheck:
         if out is None:
             return
         t, (acc,), starts = out
-        mean, std, n = _window_stats(acc, starts)
+        mean, std, n = window_stats(acc, starts)
         ends = np.append(starts[1:] - 1, t.shape[0] - 1)
         self.spill.append(np.column_stack([t[starts], t[ends], mean, std, n]))
 

@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from accellog.calibrate.noise import BLOCK, SOKAL_C, integrated_autocorr_time, tau_from_rho
+from accellog.calibrate.observe.hold_noise import BLOCK, SOKAL_C, integrated_autocorr_time, tau_from_rho
 
 
 class AutocorrTime:

@@ -15,8 +15,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.gyro import GyroCalibration
-from accellog.calibrate.session_drivers import session_drivers
+from accellog.calibrate.gyro.model import GyroCalibration
+from accellog.calibrate.model.session_drivers import session_drivers
 from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.units import STANDARD_GRAVITY_MPS2
@@ -113,7 +113,7 @@ class TrackRun:
 def accel_corrector(cal, session=None) -> Callable[[np.ndarray], np.ndarray]:
     """A calibration as accel_g (N,3) -> corrected accel_g (N,3), in g0 units (what strapdown wants).
 
-    accellog.calibrate.calibration.Calibration: correct_mps2(a, drivers) / g0, with the temperature/time
+    accellog.calibrate.calfile.calibration.Calibration: correct_mps2(a, drivers) / g0, with the temperature/time
     drivers its model needs taken from the session; any other object: its ``correct(a)`` method;
     a plain callable: used as is.
     """

@@ -9,7 +9,7 @@ from typing import Any
 
 from rich.table import Table
 
-from accellog.calibrate.cal_sections import FitInfo
+from accellog.calibrate.calfile.sections import FitInfo
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError
 from accellog.present.tables import fmt_pm, ladder_table
@@ -71,7 +71,7 @@ def tables_for(d: Any, name: str) -> list[Table]:
     if isinstance(d, dict) and "raw" in d and "calibrated" in d and d.get("kind") != "poses":
         return _evaluations([x for x in [d["raw"], *d["calibrated"]] if x], name)
     if isinstance(d, dict) and "ladder" in d:
-        from accellog.calibrate.ladder import LadderRow
+        from accellog.calibrate.diagnosis.ladder import LadderRow
 
         return [ladder_table([LadderRow.from_dict(r) for r in d["ladder"]], title=f"{name}: model ladder")]
     if isinstance(d, dict) and "disp_end_m" in d and "displacement_at_s" in d:

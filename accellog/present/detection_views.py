@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from accellog.calibrate.handheld import Detection
+    from accellog.calibrate.diagnosis.handheld import Detection
 
 
 def _threshold(det: Detection) -> str:

@@ -24,7 +24,7 @@ def _fmt(v, spec: str = ".3g") -> str:
 
 
 def effects_table(rows: Sequence[dict]) -> Table:
-    """The effect library (accellog.calibrate.effects.describe rows)."""
+    """The effect library (accellog.calibrate.model.effects.describe rows)."""
     t = Table(title="accellog effect library (names accepted by --add)")
     for c in ("effect", "parameters [unit]", "drivers", "meaning", "revealed by"):
         t.add_column(c, overflow="fold")

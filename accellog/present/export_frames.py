@@ -33,7 +33,7 @@ import re
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration
+from accellog.calibrate.calfile.calibration import Calibration
 from accellog.core.errors import InputError
 from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
 

@@ -2,7 +2,7 @@
 PX4 and ArduPilot parameter files, accellog's own YAML. Every export states in its header what it
 cannot hold and how large that loss is on this calibration (accellog.present.export_frames).
 
-accellog's model (accellog.calibrate.calibration): reading a' = S u + b (g) at reference conditions,
+accellog's model (accellog.calibrate.calfile.calibration): reading a' = S u + b (g) at reference conditions,
 u = S^-1 (a' - b) in calibrated units, a = u * mps2_per_unit (m/s^2). With g0 = 9.80665:
 
     a = K (a'_mps2 - o),   K = (mps2_per_unit / g0) S^-1,   o = g0 b          (m/s^2)
@@ -12,7 +12,7 @@ SM = K and bias = K o: the linear model exactly; it estimates its own gyro bias 
 PX4 (``Correct()``: rotation ((data - offset) .* scale)) and ArduPilot (``_rotate_and_correct_accel``:
 rotate to the board, (accel - offset) .* scale, rotate to the vehicle) hold o and diag(K) in the axes
 after the driver's rotation (``--rotation``, default none): the off-diagonal of K, temperature and the
-gyro matrix are dropped. Kalibr's imu.yaml holds noise only (``accellog.calibrate.imu_noise``).
+gyro matrix are dropped. Kalibr's imu.yaml holds noise only (``accellog.calibrate.noise.imu_noise``).
 Sources and units: docs/interop.md.
 """
 
@@ -23,8 +23,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.imu_noise import NoiseCharacterisation
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.noise.imu_noise import NoiseCharacterisation
 from accellog.core.errors import InputError
 from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
 from accellog.present.export_frames import (

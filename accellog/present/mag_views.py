@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.magnetometer import MagCalibration
+from accellog.calibrate.mag.magnetometer import MagCalibration
 
 
 def print_magcal(c: MagCalibration, source: str) -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.noise_model import NoiseModel, SensorNoise
+from accellog.calibrate.noise.noise_model import NoiseModel, SensorNoise
 
 AXIS_COLORS = {"x": (230, 80, 80), "y": (80, 190, 80), "z": (80, 120, 230)}
 

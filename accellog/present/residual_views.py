@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from accellog.calibrate.fit import FitResult, obs_drivers
+from accellog.calibrate.model.fit import FitResult, obs_drivers
 from accellog.core.session import ObsTable
 from accellog.present.rrd.entities import AXIS_COLORS, slug
 

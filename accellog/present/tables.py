@@ -5,7 +5,7 @@
   +- its autocorrelation-aware standard error (m/s^2), chi2 against the noise;
 - `displacement_table` (seed Table 5): integrated displacement at a time per model (m);
 - `drift_table` (the seed's final table): before / after the drift model, and the q with +-.
-- `ladder_table`: the model ladder (accellog.calibrate.ladder.LadderRow rows).
+- `ladder_table`: the model ladder (accellog.calibrate.diagnosis.ladder.LadderRow rows).
 Every column names its unit.
 """
 
@@ -18,13 +18,13 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.drift_model import DriftModel
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.calfile.drift_model import DriftModel
 from accellog.core.jsonio import dumps
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation
 
 if TYPE_CHECKING:
-    from accellog.calibrate.ladder import LadderRow
+    from accellog.calibrate.diagnosis.ladder import LadderRow
 
 AXES = ("x", "y", "z")
 

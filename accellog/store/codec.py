@@ -14,7 +14,7 @@ from functools import cache
 
 import numpy as np
 
-from accellog.store.schema import _PACKED_TYPES, _SCALAR_TYPES, MESSAGE_DEFS
+from accellog.store.schema import MESSAGE_DEFS, PACKED_TYPES, SCALAR_TYPES
 
 # ---------------------------------------------------------------------------------------------
 # wire format
@@ -61,9 +61,9 @@ def codecs_of(message: str) -> tuple[tuple[FieldCodec, ...], dict[int, FieldCode
     codecs = []
     for f in m.fields:
         if f.repeated:
-            kind, wire, dtype = "packed", 2, _PACKED_TYPES[f.type]
+            kind, wire, dtype = "packed", 2, PACKED_TYPES[f.type]
         else:
-            wire = _SCALAR_TYPES[f.type][0]
+            wire = SCALAR_TYPES[f.type][0]
             kind = {
                 "uint64": "varint_u",
                 "uint32": "varint_u",

@@ -153,7 +153,7 @@ def check_file(path: Path) -> None:
         raise InputError("not an MCAP file (bad magic bytes)", where=str(path))
 
 
-class _Sink:
+class Sink:
     """Routes (schema, channel, data) of accellog topics into per-topic batch decoders."""
 
     def __init__(self, topics: Iterable[str] | None) -> None:
@@ -211,7 +211,7 @@ def file_damage(path: Path) -> tuple[Exception | None, Damage | None]:
 
 def generic_collect(path: Path, topics: Iterable[str] | None = None) -> Collected:
     """``_collect`` with mcap's SeekingReader and one ``BatchDecoder.add`` per message."""
-    sink = _Sink(topics)
+    sink = Sink(topics)
     bad_summary, outside = file_damage(path)
     if bad_summary is not None:
         return recover(path, topics, bad_summary)
@@ -278,7 +278,7 @@ def recover(path: Path, topics: Iterable[str] | None, why: Exception) -> Collect
     unreadable record (a truncated file): what came before is kept and the stop is described."""
     from mcap.records import DataEnd, Footer
 
-    sink = _Sink(topics)
+    sink = Sink(topics)
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     damaged: list[Damage] = []

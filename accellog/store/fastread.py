@@ -34,7 +34,7 @@ from accellog.store.batch_decode import BatchAccumulator, decode_batch
 from accellog.store.byte_views import read_le
 from accellog.store.collect import (
     Collected,
-    _Sink,
+    Sink,
     data_section_damage,
     recover,
     release_pages,
@@ -139,7 +139,7 @@ def _fast_walk(
     # the session metadata (LSB scales) first: a stream needs it before the first group
     meta_kv, meta_error = _session_metadata(data, metadata_at, stream, summary_start)
     # chunks in groups of a few MiB decompressed: each group is decoded while in the CPU cache
-    sink = _Sink(topics)
+    sink = Sink(topics)
     message_of: dict[int, str | None] = {}  # channel id -> accellog message type (None: not decoded)
     parts: dict[int, BatchAccumulator] = {}
 
@@ -233,7 +233,7 @@ def _session_metadata(data: Bytes, at_list: list[int], stream: str | None, summa
 
 
 def _finish(
-    sink: _Sink, schemas, channels, message_of, parts, meta_kv, meta_error, outside, damaged
+    sink: Sink, schemas, channels, message_of, parts, meta_kv, meta_error, outside, damaged
 ) -> Collected:
     """The Collected of a walk: decoded channels handed to the sink, damage sorted by offset; a damaged
     session metadata record is Refuse when the data section CRC confirms it, else NotFast."""
@@ -259,7 +259,7 @@ def _decode_group(
     done: float,
     channels: dict[int, Channel],
     schemas: dict[int, Schema],
-    sink: _Sink,
+    sink: Sink,
     message_of: dict[int, str | None],
     parts: dict[int, BatchAccumulator],
     new_part: Callable[[int, str], BatchAccumulator],

@@ -36,7 +36,7 @@ TOPIC_EVENTS = "/events"
 TOPIC_TRUTH = "/truth"
 DERIVED_PREFIX = "/derived/"
 
-_TOPIC_MESSAGE = {
+TOPIC_MESSAGE = {
     TOPIC_IMU: "ImuBatch",
     TOPIC_MAG: "MagBatch",
     TOPIC_POSES: "PoseLabel",
@@ -83,7 +83,7 @@ def metadata_to_meta(d: dict[str, str], where: str = "") -> SessionMeta:
     return SessionMeta(**kw)
 
 
-def _ns(t_s: float) -> int:
+def to_ns(t_s: float) -> int:
     return round(t_s * NS_PER_S)
 
 
@@ -91,7 +91,7 @@ MAX_TIME_S = 9.2e9
 """Largest |t| (s) that int64 nanoseconds hold (2^63 ns = 9.22e9 s, about 292 years)."""
 
 
-def _ns_array(t_s: np.ndarray, where: str | None = None) -> np.ndarray:
+def to_ns_array(t_s: np.ndarray, where: str | None = None) -> np.ndarray:
     """Times (s) as int64 ns; InputError for a time that does not fit (NaN, inf, |t| >= MAX_TIME_S),
     which the conversion would silently wrap."""
     t = np.asarray(t_s, dtype=np.float64)

@@ -43,7 +43,7 @@ from accellog.store.schema import full_name
 FAST_READ = True
 
 
-def _collect(path: Path, topics: Iterable[str] | None = None, accumulator=None) -> Collected:
+def collect_session(path: Path, topics: Iterable[str] | None = None, accumulator=None) -> Collected:
     """Read every message of ``topics`` (all if None); salvage unfinished files chunk by chunk.
 
     Finished files in the canonical layout take the vectorised ``fast_collect``; anything else (and
@@ -89,7 +89,7 @@ def read_session(path: str | Path) -> Session:
     """
     path = Path(path)
     where = str(path)
-    col = _collect(path, accumulator=_imu_accumulator)
+    col = collect_session(path, accumulator=_imu_accumulator)
     if col.topics.get(TOPIC_IMU) != full_name("ImuBatch"):
         _refuse_without_imu(col, where)
     meta = metadata_to_meta(col.metadata, where) if col.metadata else SessionMeta(source="unknown")
@@ -231,8 +231,8 @@ def _read_other_topics(session: Session, col: Collected, where: str) -> None:
     """Magnetometer, poses, events and truth into the session; the recovered and damaged parts as events
     (each damaged chunk also a DataIntegrityWarning)."""
     _read_mag(session, col.decoders.get(TOPIC_MAG), where)
-    session.poses = _read_poses(col.decoders.get(TOPIC_POSES))
-    session.events = _read_events(col.decoders.get(TOPIC_EVENTS))
+    session.poses = read_poses(col.decoders.get(TOPIC_POSES))
+    session.events = read_events(col.decoders.get(TOPIC_EVENTS))
     session.truth = _read_truth(col.decoders.get(TOPIC_TRUTH), where)
     if col.recovered is not None:
         session.events.append(Event(float(session.t_s[-1]), "recovered", col.recovered))
@@ -305,7 +305,7 @@ def _messages(dec: Decoder | None):
     return out
 
 
-def _read_poses(dec: Decoder | None) -> list[PoseLabel]:
+def read_poses(dec: Decoder | None) -> list[PoseLabel]:
     return [
         PoseLabel(
             name=d["name"],
@@ -321,7 +321,7 @@ def _read_poses(dec: Decoder | None) -> list[PoseLabel]:
     ]
 
 
-def _read_events(dec: Decoder | None) -> list[Event]:
+def read_events(dec: Decoder | None) -> list[Event]:
     return [
         Event(d["t_ns"] / NS_PER_S, d["kind"], d["detail"], int(d["sample_index"]), int(d["lost_samples"]))
         for d in _messages(dec)
@@ -354,7 +354,7 @@ def read_vector3(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray, 
     path = Path(path)
     if not topic.startswith(DERIVED_PREFIX):
         topic = DERIVED_PREFIX + topic.lstrip("/")
-    col = _collect(path, [topic])
+    col = collect_session(path, [topic])
     dec = col.decoders.get(topic)
     if dec is None or dec.n_messages == 0:
         raise InputError(f"no derived channel {topic}", where=str(path))

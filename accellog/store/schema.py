@@ -17,7 +17,7 @@ SCHEMA_VERSION = "accellog.v1"
 PROTO_FILE_NAME = "accellog_v1.proto"
 
 # field type -> (wire type, numpy dtype for packed arrays or None)
-_SCALAR_TYPES = {
+SCALAR_TYPES = {
     "uint64": (0, None),
     "int64": (0, None),
     "uint32": (0, None),
@@ -26,7 +26,7 @@ _SCALAR_TYPES = {
     "string": (2, None),
     "bytes": (2, None),
 }
-_PACKED_TYPES = {"sfixed64": np.dtype("<i8"), "sfixed32": np.dtype("<i4"), "double": np.dtype("<f8")}
+PACKED_TYPES = {"sfixed64": np.dtype("<i8"), "sfixed32": np.dtype("<i4"), "double": np.dtype("<f8")}
 
 
 @dataclass(frozen=True)

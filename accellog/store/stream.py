@@ -191,9 +191,9 @@ class HostClock:
 
 def read_labels(path: str | Path) -> tuple[SessionMeta, list[PoseLabel], list[Event]]:
     """Metadata, pose labels and events of a session without its samples (bounded memory)."""
-    from accellog.store.reader import _collect, _read_events, _read_poses
+    from accellog.store.reader import collect_session, read_events, read_poses
 
     path = Path(path)
-    col = _collect(path, [TOPIC_POSES, TOPIC_EVENTS])
+    col = collect_session(path, [TOPIC_POSES, TOPIC_EVENTS])
     meta = metadata_to_meta(col.metadata, str(path)) if col.metadata else SessionMeta(source="unknown")
-    return meta, _read_poses(col.decoders.get(TOPIC_POSES)), _read_events(col.decoders.get(TOPIC_EVENTS))
+    return meta, read_poses(col.decoders.get(TOPIC_POSES)), read_events(col.decoders.get(TOPIC_EVENTS))

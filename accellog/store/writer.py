@@ -21,17 +21,17 @@ from accellog.core.version import __version__
 from accellog.store.atomic import AtomicOutput, OutputLock, check_output
 from accellog.store.codec import encode
 from accellog.store.layout import (
-    _TOPIC_MESSAGE,
     DERIVED_PREFIX,
     NS_PER_S,
     TOPIC_EVENTS,
     TOPIC_IMU,
     TOPIC_MAG,
+    TOPIC_MESSAGE,
     TOPIC_POSES,
     TOPIC_TRUTH,
-    _ns,
-    _ns_array,
     meta_to_metadata,
+    to_ns,
+    to_ns_array,
 )
 from accellog.store.schema import SCHEMA_VERSION, file_descriptor_set_bytes, full_name
 
@@ -82,7 +82,7 @@ class SessionWriter:
         self.path = Path(path)
         self.meta = meta
         self._flush_s = float(flush_interval_s)
-        self._flush_ns = _ns(self._flush_s) if math.isfinite(self._flush_s) else None
+        self._flush_ns = to_ns(self._flush_s) if math.isfinite(self._flush_s) else None
         self._base_ns = int(meta.start_time_unix_ns)
         self._lock: OutputLock | None = None
         if exclusive:
@@ -106,7 +106,7 @@ class SessionWriter:
         self._schema_ids: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._seq: dict[str, int] = {}
-        for topic, msg in _TOPIC_MESSAGE.items():
+        for topic, msg in TOPIC_MESSAGE.items():
             self._channel(topic, msg)
         self.samples_written = 0
         self.mag_samples_written = 0
@@ -275,19 +275,19 @@ class SessionWriter:
         data = encode(
             "PoseLabel",
             name=pose.name,
-            start_ns=_ns(pose.start_s),
-            end_ns=_ns(pose.end_s),
+            start_ns=to_ns(pose.start_s),
+            end_ns=to_ns(pose.end_s),
             up_sensor=pose.up_sensor,
             q_sensor_to_world=pose.q_sensor_to_world,
             hold_index=int(pose.hold_index),
         )
-        self._add(TOPIC_POSES, "PoseLabel", _ns(pose.start_s), data)
+        self._add(TOPIC_POSES, "PoseLabel", to_ns(pose.start_s), data)
         self.poses_written += 1
         self._maybe_flush(self._t_last_ns)
 
     def write_event(self, event: Event) -> None:
         """An event (gap, overflow, note, ...) at its sensor time."""
-        t_ns = _ns(event.t_s)
+        t_ns = to_ns(event.t_s)
         data = encode(
             "Event",
             t_ns=t_ns,
@@ -302,7 +302,7 @@ class SessionWriter:
 
     def write_truth(self, truth: Truth, *, batch_size: int = 1000) -> None:
         """Ground truth, written in slices of batch_size samples."""
-        t_ns = _ns_array(truth.t_s)
+        t_ns = to_ns_array(truth.t_s)
         for i in range(0, t_ns.shape[0], batch_size):
             s = slice(i, i + batch_size)
             data = encode(
@@ -427,9 +427,9 @@ def write_session(
     n = session.n
     ao = AtomicOutput(path, inputs=(*inputs, session.path or None), overwrite=overwrite)
     where = str(session.path or path)
-    t_ns = _ns_array(session.t_s, where)
+    t_ns = to_ns_array(session.t_s, where)
     si = np.asarray(session.sample_index, dtype=np.int64)
-    host_ns = None if session.host_time_s is None else _ns_array(session.host_time_s, where)
+    host_ns = None if session.host_time_s is None else to_ns_array(session.host_time_s, where)
     lsb_a, lsb_g = meta.accel_lsb_per_g, meta.gyro_lsb_per_dps
     ac = session.accel_counts
     put_ag = _values_needed(ac, session.accel_g, lambda c: c / lsb_a) if lsb_a else True
@@ -458,7 +458,7 @@ def write_session(
                         temp_degC=session.temp_degC[s:e] if put_td else None,
                     )
             if session.mag_t_s is not None and session.mag_t_s.shape[0]:
-                m_ns = _ns_array(session.mag_t_s)
+                m_ns = to_ns_array(session.mag_t_s)
                 for i in range(0, m_ns.shape[0], batch_size):
                     s = slice(i, i + batch_size)
                     w.write_mag(

@@ -8,12 +8,13 @@ import json
 
 import pytest
 
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calfile.calibration import load_calibration
 from accellog.cli import main
 from accellog.core.device import DeviceKey, check_serial
 from accellog.core.errors import InputError
+from accellog.flows.apply import OtherDeviceWarning, run_apply
 from accellog.flows.simulate import Scenario, simulate
-from accellog.flows.stages import OtherDeviceWarning, run_apply, run_fit
+from accellog.flows.stages import run_fit
 from accellog.store.layout import meta_to_metadata, metadata_to_meta
 from accellog.store.reader import read_session
 

@@ -20,11 +20,11 @@ from support.static_noise import (
     write_static_mcap,
 )
 
-from accellog.calibrate.allan import AllanAccumulator, edf_simple, oadev
-from accellog.calibrate.calibration import load_calibration
-from accellog.calibrate.noise import integrated_autocorr_time
-from accellog.calibrate.noise_model import fit_axis
-from accellog.calibrate.noise_section import AxisNoiseTerms, NoiseSection, NoiseTerm, SensorNoiseTerms
+from accellog.calibrate.calfile.calibration import load_calibration
+from accellog.calibrate.calfile.noise_section import AxisNoiseTerms, NoiseSection, NoiseTerm, SensorNoiseTerms
+from accellog.calibrate.noise.allan import AllanAccumulator, edf_simple, oadev
+from accellog.calibrate.noise.noise_model import fit_axis
+from accellog.calibrate.observe.hold_noise import integrated_autocorr_time
 from accellog.cli import main
 from accellog.flows.characterise import characterise_noise, tau_min_samples
 from accellog.flows.simulate import Scenario, simulate
@@ -256,7 +256,7 @@ def test_evaluate_uses_the_calibration_noise_floor(static_mcap, tmp_path):
 
 
 def test_obs_sigma_floored_by_the_noise_section():
-    from accellog.calibrate.noise_model import floor_obs_sigma
+    from accellog.calibrate.noise.noise_model import floor_obs_sigma
     from accellog.core.session import ObsTable
 
     n = 4

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from support.synthetic import synthetic_obs, true_theta
 
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.transfer import _whitened, block_cv, block_groups, blocking_drivers
+from accellog.calibrate.diagnosis.transfer import _whitened, block_cv, block_groups, blocking_drivers
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
 
 
 def _block_cv_dense(res, obs, groups):

@@ -14,7 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibrate.cal_sections import (
+from accellog.calibrate.calfile.calibration import load_calibration
+from accellog.calibrate.calfile.noise_section import NoiseSection
+from accellog.calibrate.calfile.sections import (
     DetectedInterval,
     DeviceInfo,
     FitInfo,
@@ -22,10 +24,8 @@ from accellog.calibrate.cal_sections import (
     SourceFile,
     TemperatureInfo,
 )
-from accellog.calibrate.calibration import load_calibration
-from accellog.calibrate.gyro import GyroCalibration
-from accellog.calibrate.magnetometer import MagCalibration
-from accellog.calibrate.noise_section import NoiseSection
+from accellog.calibrate.gyro.model import GyroCalibration
+from accellog.calibrate.mag.magnetometer import MagCalibration
 from accellog.cli import main
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError

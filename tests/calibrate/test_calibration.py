@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from support.sessions import B_TRUE, S_TRUE, synth_session
 
-from accellog.calibrate.calibration import Calibration, load_calibration
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import observations
-from accellog.calibrate.session_drivers import rate_of_change, session_drivers
+from accellog.calibrate.calfile.calibration import Calibration, load_calibration
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.model.session_drivers import rate_of_change, session_drivers
+from accellog.calibrate.observe.segment import observations
 from accellog.core.errors import InputError
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 

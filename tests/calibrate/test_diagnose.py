@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, synthetic_obs, synthetic_session, true_theta
 
-from accellog.calibrate.diagnose import diagnose, heldout_residual
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.ladder import ladder
-from accellog.calibrate.model import build_model
+from accellog.calibrate.diagnosis.diagnose import diagnose, heldout_residual
+from accellog.calibrate.diagnosis.ladder import ladder
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
 from accellog.cli import main
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -193,7 +193,7 @@ def _cv_scores_dense(res, obs):
 def test_cv_scores_small_matrix_form_equals_the_dense_form(model, protocol, weighted, windows):
     """The p x p (push-through) cross-validation equals the dense per-hold inverse to 1e-9,
     infinities (holds the others cannot predict) included."""
-    from accellog.calibrate.cross_validation import cv_scores
+    from accellog.calibrate.diagnosis.cross_validation import cv_scores
 
     name, *add = model.split("+")
     m = build_model(name, add=add)

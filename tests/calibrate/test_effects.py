@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, true_theta
 
-from accellog.calibrate.effects import LIBRARY, load_effects_file
-from accellog.calibrate.model import build_model, model_from_spec
+from accellog.calibrate.model.compose import build_model, model_from_spec
+from accellog.calibrate.model.effects import LIBRARY, load_effects_file
 from accellog.cli import main
 from accellog.core.errors import InputError, ModelError
 
@@ -145,7 +145,7 @@ def test_bad_effects_files(tmp_path):
         load_effects_file(empty)
     clash = tmp_path / "clash.py"
     clash.write_text(
-        "from accellog.calibrate.effects import Effect\nE = Effect('bias', (), contribution=lambda p, f, d: f*0)\n"
+        "from accellog.calibrate.model.effects import Effect\nE = Effect('bias', (), contribution=lambda p, f, d: f*0)\n"
     )
     with pytest.raises(InputError, match="clashes"):
         load_effects_file(clash)

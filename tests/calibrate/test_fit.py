@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, synthetic_obs, true_theta
 
-from accellog.calibrate.fit import fit_model, fit_orientation_free
-from accellog.calibrate.model import build_model
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model, fit_orientation_free
 from accellog.core.errors import InputError, ModelError
 from accellog.core.session import ObsTable
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from accellog.acquire.emulator.robot import demo_loop
-from accellog.calibrate.gyro import GyroCalibration, calibrate_gyro, fit_gyro_bias, fit_gyro_matrix
+from accellog.calibrate.gyro.calibrate import calibrate_gyro, fit_gyro_bias, fit_gyro_matrix
+from accellog.calibrate.gyro.model import GyroCalibration
 from accellog.core.errors import InputError
 from accellog.core.protocol import six_position
 from accellog.core.rotations import quat_conjugate, quat_multiply
@@ -168,17 +169,17 @@ def test_moves_only_fit_equals_the_dense_fit(seq, case):
 
 
 def test_relative_rotations_in_groups_of_hold_pairs_equal_one_scan():
-    """_relative_rotations formed a few hold pairs at a time (bounded memory) equals the one scan
+    """relative_rotations formed a few hold pairs at a time (bounded memory) equals the one scan
     over all blocks to rounding, for one matrix and for a stack of complex-stepped ones."""
-    from accellog.calibrate.gyro_rotation import _relative_rotations
+    from accellog.calibrate.gyro.rotation import relative_rotations
 
     rng = np.random.default_rng(4)
     at = np.concatenate([[0], np.cumsum(rng.integers(1, 40, 15))])
     phi, c = rng.normal(0, 0.02, (at[-1], 3)), rng.normal(0, 1e-5, (at[-1], 3))
     m = M_TRUE + 1j * 1e-30 * rng.normal(size=(4, 3, 3))
     for mm in (M_TRUE, m):
-        whole = _relative_rotations(phi, c, at, mm, budget=10**9)
+        whole = relative_rotations(phi, c, at, mm, budget=10**9)
         for budget in (1, 7, 50):
-            part = _relative_rotations(phi, c, at, mm, budget=budget)
+            part = relative_rotations(phi, c, at, mm, budget=budget)
             np.testing.assert_allclose(part.real, whole.real, rtol=0, atol=1e-14)
             np.testing.assert_allclose(part.imag, whole.imag, rtol=1e-9, atol=1e-45)

@@ -9,14 +9,14 @@ import json
 import numpy as np
 import pytest
 
-from accellog.calibrate.gyro import (
+from accellog.calibrate.gyro.calibrate import (
     CLIP_NEAR,
-    _pose_times,
     calibrate_gyro,
     clipped_in_moves,
     gyro_full_scale_dps,
+    pose_times,
 )
-from accellog.calibrate.stream_gyro import stream_calibrate_gyro
+from accellog.calibrate.gyro.stream import stream_calibrate_gyro
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session
@@ -42,12 +42,12 @@ def test_the_flip_clips_and_only_it(sessions):
     s = read_session(sessions["fast"])
     fs = gyro_full_scale_dps(s.meta)
     assert fs == 250.0
-    per_move = clipped_in_moves(s.t_s, s.gyro_dps, _pose_times(s.poses)[0], fs)
+    per_move = clipped_in_moves(s.t_s, s.gyro_dps, pose_times(s.poses)[0], fs)
     assert per_move.shape == (8,) and per_move[FLIP] > 0
     assert np.all(np.delete(per_move, FLIP) == 0)
     assert np.abs(s.gyro_counts).max() >= 32767  # the recorded rate did saturate
     slow = read_session(sessions["slow"])
-    assert not clipped_in_moves(slow.t_s, slow.gyro_dps, _pose_times(slow.poses)[0], fs).any()
+    assert not clipped_in_moves(slow.t_s, slow.gyro_dps, pose_times(slow.poses)[0], fs).any()
     assert np.abs(slow.gyro_dps).max() < CLIP_NEAR * fs
 
 

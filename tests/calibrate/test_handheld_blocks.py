@@ -14,11 +14,11 @@ import json
 import numpy as np
 from support.synthetic import cube_poses, synthetic_session, true_theta
 
-from accellog.calibrate.fit import fit_orientation_free
-from accellog.calibrate.handheld import HANDHELD_START, detect_holds
-from accellog.calibrate.model import build_model
-from accellog.calibrate.norm_transfer import _norm_jacobian, norm_block_cv, norm_residual
-from accellog.calibrate.transfer import block_groups, blocking_drivers
+from accellog.calibrate.diagnosis.handheld import HANDHELD_START, detect_holds
+from accellog.calibrate.diagnosis.norm_transfer import _norm_jacobian, norm_block_cv, norm_residual
+from accellog.calibrate.diagnosis.transfer import block_groups, blocking_drivers
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_orientation_free
 from accellog.cli import main
 from accellog.store.writer import write_session
 

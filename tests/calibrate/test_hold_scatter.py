@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from support.synthetic import hold_disturbance, synthetic_obs, true_theta
 
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import observations
-from accellog.calibrate.variance import METHODS, estimate_scatter, with_uncertainty
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.model.variance import METHODS, estimate_scatter, with_uncertainty
+from accellog.calibrate.observe.segment import observations
 from accellog.core.errors import ModelError
 from accellog.store.importers import import_imucal
 

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, synthetic_obs, true_theta
 
-from accellog.calibrate.diagnose import default_candidates
-from accellog.calibrate.effects import LIBRARY
-from accellog.calibrate.fit import fit_model, fit_orientation_free
-from accellog.calibrate.handheld import HANDHELD_START, diagnose_handheld
-from accellog.calibrate.identifiability import NORM_ONLY_LABELLED, design_null, norm_blind_reason
-from accellog.calibrate.model import build_model
+from accellog.calibrate.diagnosis.diagnose import default_candidates
+from accellog.calibrate.diagnosis.handheld import HANDHELD_START, diagnose_handheld
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.effects import LIBRARY
+from accellog.calibrate.model.fit import fit_model, fit_orientation_free
+from accellog.calibrate.model.identifiability import NORM_ONLY_LABELLED, design_null, norm_blind_reason
 from accellog.core.errors import ModelError
 
 

@@ -10,8 +10,8 @@ import pytest
 from rich.console import Console
 from support.synthetic import synthetic_obs, true_theta
 
-from accellog.calibrate.ladder import LadderRow, ladder
-from accellog.calibrate.model import build_model
+from accellog.calibrate.diagnosis.ladder import LadderRow, ladder
+from accellog.calibrate.model.compose import build_model
 from accellog.cli import main
 from accellog.core.jsonio import dumps
 from accellog.present.tables import ladder_table

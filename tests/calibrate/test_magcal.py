@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from rrd_readback import load_rrd
 
-from accellog.calibrate.calibration import load_calibration
-from accellog.calibrate.magnetometer import fit_magnetometer
+from accellog.calibrate.calfile.calibration import load_calibration
+from accellog.calibrate.mag.magnetometer import fit_magnetometer
 from accellog.cli import main
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import dumps
+from accellog.flows.apply import run_apply
 from accellog.flows.simulate import Scenario, simulate
-from accellog.flows.stages import run_apply
 from accellog.store.reader import read_session, read_vector3
 
 FIELD = np.array([20.0, 0.0, -45.0])

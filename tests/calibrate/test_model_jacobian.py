@@ -1,4 +1,4 @@
-"""Analytic Jacobians of the library effects (accellog.calibrate.model_jacobian) equal central
+"""Analytic Jacobians of the library effects (accellog.calibrate.model.jacobian) equal central
 differences of Model.predict (labelled) and of |Model.correct| (gravity norm) for every effect, at a
 point away from the start (every parameter at a plausible nonzero value, temperature varying)."""
 
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, synthetic_obs, true_theta
 
-from accellog.calibrate.effects import LIBRARY
-from accellog.calibrate.fit import _numjac, _Problem, _steps, obs_drivers
-from accellog.calibrate.handheld import HANDHELD_START
-from accellog.calibrate.model import build_model
-from accellog.calibrate.model_jacobian import norm_jacobian, numeric_columns, predict_jacobian
+from accellog.calibrate.diagnosis.handheld import HANDHELD_START
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.effects import LIBRARY
+from accellog.calibrate.model.fit import _numjac, _Problem, _steps, obs_drivers
+from accellog.calibrate.model.jacobian import norm_jacobian, numeric_columns, predict_jacobian
 
 EFFECTS = [e for e in LIBRARY if LIBRARY[e].static and e not in ("misalignment_tri", "cross_axis")]
 

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import lfilter
 
-from accellog.calibrate.noise import autocorrelation, batch_means_sem, integrated_autocorr_time, sem_autocorr
+from accellog.calibrate.observe.hold_noise import (
+    autocorrelation,
+    batch_means_sem,
+    integrated_autocorr_time,
+    sem_autocorr,
+)
 
 
 def _ar1(phi: float, n: int, k: int, seed: int) -> np.ndarray:

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, synthetic_obs, true_theta
 
-from accellog.calibrate import diagnose as diag_mod
-from accellog.calibrate.fit import FitResult, fit_model, fit_orientation_free
-from accellog.calibrate.model import build_model
+from accellog.calibrate.diagnosis import diagnose as diag_mod
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import FitResult, fit_model, fit_orientation_free
 
 
 def _temp(t):

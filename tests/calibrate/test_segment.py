@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from support.sessions import B_TRUE, S_TRUE, synth_session
 
-from accellog.calibrate.detect import detect_static, with_labels
-from accellog.calibrate.segment import check_coverage, obs_from_pose_means, observations, pose_stats
+from accellog.calibrate.observe.detect import detect_static, with_labels
+from accellog.calibrate.observe.segment import check_coverage, obs_from_pose_means, observations, pose_stats
 from accellog.core.errors import InputError, ModelError
 
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibrate.gyro import calibrate_gyro
-from accellog.calibrate.stream_gyro import stream_calibrate_gyro
-from accellog.calibrate.stream_segment import stream_check_timestamps
+from accellog.calibrate.gyro.calibrate import calibrate_gyro
+from accellog.calibrate.gyro.stream import stream_calibrate_gyro
+from accellog.calibrate.observe.stream_segment import stream_check_timestamps
 from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.flows.simulate import Scenario, simulate
@@ -59,7 +59,7 @@ def test_stream_gyro_equals_whole_session(recorded, small_groups):
 def test_open_streamed_reads_a_good_file_once(recorded, monkeypatch):
     """The time-stamp checks ride on the observation pass: one pass over the samples, and the same
     observations as with the checks in a pass of their own."""
-    from accellog.calibrate import stream_segment
+    from accellog.calibrate.observe import stream_segment
     from accellog.flows import stream_input
 
     passes = []
@@ -98,7 +98,7 @@ def test_fit_streams_and_matches_whole_session(recorded, small_groups, tmp_path)
 
 @pytest.mark.parametrize("i", [700, 1, 2999, None])
 def test_stream_time_checks_equal_whole_session(recorded, small_groups, tmp_path, i):
-    from accellog.calibrate.label_check import check_timestamps
+    from accellog.calibrate.observe.label_check import check_timestamps
     from accellog.store.stream import iter_imu
     from accellog.store.writer import write_session
 
@@ -124,7 +124,7 @@ def test_stream_time_checks_equal_whole_session(recorded, small_groups, tmp_path
 
 
 def test_segment_streams_and_matches_whole_session(recorded, small_groups):
-    from accellog.calibrate.segment import observations, pose_stats
+    from accellog.calibrate.observe.segment import observations, pose_stats
     from accellog.flows.static_stages import run_segment
     from accellog.flows.stream_input import StreamedSession
 
@@ -139,13 +139,13 @@ def test_segment_streams_and_matches_whole_session(recorded, small_groups):
 
 
 def obs_dict(o):
-    from accellog.calibrate.obs_file import obs_to_dict
+    from accellog.calibrate.observe.obs_file import obs_to_dict
 
     return json.loads(json.dumps(obs_to_dict(o)))
 
 
 def test_host_clock_points_equal_whole_session(recorded, small_groups):
-    from accellog.calibrate.clock import clock_from_host_time
+    from accellog.calibrate.diagnosis.clock import clock_from_host_time
     from accellog.store.stream import read_host_clock
 
     s = read_session(recorded)
@@ -173,9 +173,9 @@ def test_coarse_blocks_fed_in_batches_equal_whole_array_increments(batch):
     gyro._increments' phi and c whatever the batches; coarse blocks span batches."""
     import numpy as np
 
-    from accellog.calibrate.gyro import GyroCalibration
-    from accellog.calibrate.gyro_rotation import _increments
-    from accellog.calibrate.stream_gyro import _CoarseBlocks
+    from accellog.calibrate.gyro.calibrate import GyroCalibration
+    from accellog.calibrate.gyro.rotation import _increments
+    from accellog.calibrate.gyro.stream import _CoarseBlocks
 
     rng = np.random.default_rng(5)
     fine = np.cumsum(rng.integers(4, 7, 400))
@@ -211,12 +211,12 @@ def test_stream_gyro_with_temperature_slope_equals_whole_session(tmp_path, small
 
 @pytest.mark.parametrize("rate_hz", [20.0, 99.0, 1000.0])
 def test_pair_by_pair_block_edges_equal_the_whole_arrays(rate_hz):
-    """_fine_pieces / _coarse_plan (one hold pair in memory at a time) give _block_edges' fine and
+    """fine_pieces / coarse_plan (one hold pair in memory at a time) give _block_edges' fine and
     coarse edges and the fine index of each coarse edge, also when the 10 ms blocks are shorter
     than a sample (rounded edges repeat) and when two holds share a middle."""
     import numpy as np
 
-    from accellog.calibrate.gyro_rotation import _block_edges, _coarse_plan, _fine_pieces
+    from accellog.calibrate.gyro.rotation import _block_edges, coarse_plan, fine_pieces
 
     rng = np.random.default_rng(int(rate_hz))
     for trial in range(40):
@@ -229,8 +229,8 @@ def test_pair_by_pair_block_edges_equal_the_whole_arrays(rate_hz):
         if trial % 5 == 0:
             mids[1] = mids[0]
         fine, coarse = _block_edges(t, mids, ends, starts, 0.01)
-        np.testing.assert_array_equal(np.concatenate([mids[:1], *_fine_pieces(t, mids, 0.01)]), fine)
-        c2, at, n_fine = _coarse_plan(t, mids, ends, starts, 0.01)
+        np.testing.assert_array_equal(np.concatenate([mids[:1], *fine_pieces(t, mids, 0.01)]), fine)
+        c2, at, n_fine = coarse_plan(t, mids, ends, starts, 0.01)
         np.testing.assert_array_equal(c2, coarse)
         np.testing.assert_array_equal(at, np.searchsorted(fine, coarse[:-1]))
         assert n_fine == fine.size

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, hold_disturbance, synthetic_obs, true_theta
 
-from accellog.calibrate.fit import fit_model, fit_orientation_free
-from accellog.calibrate.handheld import HANDHELD_START
-from accellog.calibrate.model import build_model
-from accellog.calibrate.transfer import predictive_heldout_score, predictive_stats
-from accellog.calibrate.variance import METHODS, obs_rows, refit_jackknife_cov, with_uncertainty
+from accellog.calibrate.diagnosis.handheld import HANDHELD_START
+from accellog.calibrate.diagnosis.transfer import predictive_heldout_score, predictive_stats
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model, fit_orientation_free
+from accellog.calibrate.model.variance import METHODS, obs_rows, refit_jackknife_cov, with_uncertainty
 
 
 def _handheld(seed: int, wander_g: float = 3e-4, repeats: int = 1, holds: int = 26, windows: int = 6):

@@ -541,7 +541,7 @@ def _plugin(body: str, argv_extra: tuple[str, ...] = ("--add", "mine")):
     return build
 
 
-HEAD = "import numpy as np\nfrom accellog.calibrate.effects import Effect, per_axis\n\n"
+HEAD = "import numpy as np\nfrom accellog.calibrate.model.effects import Effect, per_axis\n\n"
 
 
 def _effect(fn_body: str) -> str:

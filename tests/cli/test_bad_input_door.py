@@ -21,8 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from support.sessions import synth_session
 
-from accellog.calibrate.calibration import calibration_from_dict, load_calibration
-from accellog.calibrate.gyro import GyroCalibration
+from accellog.calibrate.calfile.calibration import calibration_from_dict, load_calibration
+from accellog.calibrate.gyro.model import GyroCalibration
 from accellog.cli import main
 from accellog.cli.option_checks import OPTION_RANGES, check_option
 from accellog.core.errors import InputError
@@ -67,7 +67,7 @@ def _gyro_section(bias=(0.1, -0.2, 0.3), **kw) -> dict:
 
 
 def _drift_section(q0_x=0.001) -> dict:
-    from accellog.calibrate.drift_model import DriftModel
+    from accellog.calibrate.calfile.drift_model import DriftModel
 
     d = DriftModel(q=np.full((3, 3), 1e-3), cov=np.zeros((3, 3, 3)), fit_duration_s=20.0).to_dict()
     d["axes"]["x"]["q0_m"] = q0_x

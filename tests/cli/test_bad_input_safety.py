@@ -155,7 +155,7 @@ def test_rrd_error_leaves_no_calibration(tmp_path, capsys):
 def test_subprocess_one_line_no_traceback(tmp_path, argv):
     write_session(tmp_path / "s.mcap", synth_session(seed=5, hold_s=5.0, rate_hz=100.0))
     (tmp_path / "fx.py").write_text(
-        "import sys\nfrom accellog.calibrate.effects import Effect, per_axis\n"
+        "import sys\nfrom accellog.calibrate.model.effects import Effect, per_axis\n"
         "def h(p, f_g, d):\n    sys.exit(0)\n"
         "MINE = Effect(name='mine', params=per_axis('m', 'g'), contribution=h)\n"
     )
@@ -230,7 +230,7 @@ def test_mislabelled_hold_named_and_relabel_fixes_it(tmp_path, capsys):
 
 
 def test_absurd_calibration_values_are_refused(tmp_path):
-    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.calfile.calibration import load_calibration
 
     src = write_session(tmp_path / "s.mcap", synth_session(seed=8, hold_s=5.0, rate_hz=100.0))
     good = tmp_path / "c.json"
@@ -388,11 +388,11 @@ def test_fuzz_csv_reader(tmp_path, header, rows):
 
 
 def test_plugin_errors_name_file_effect_line(tmp_path):
-    from accellog.calibrate.effects import load_effects_file
+    from accellog.calibrate.model.effects import load_effects_file
 
     fx = tmp_path / "fx.py"
     fx.write_text(
-        "from accellog.calibrate.effects import Effect, per_axis\n"
+        "from accellog.calibrate.model.effects import Effect, per_axis\n"
         "def h(p, f_g, d):\n"
         "    x = 1\n"
         "    raise SystemExit('bye')\n"

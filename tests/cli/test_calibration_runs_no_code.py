@@ -19,7 +19,7 @@ from accellog.store.writer import write_session
 TROJAN = """
 from pathlib import Path
 import numpy as np
-from accellog.calibrate.effects import Effect, per_axis
+from accellog.calibrate.model.effects import Effect, per_axis
 Path({marker!r}).write_text("ran")
 def h(p, f_g, d):
     t = d["t_in_pose_s"]

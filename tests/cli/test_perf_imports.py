@@ -13,7 +13,7 @@ import pytest
 from scipy import stats
 from support.synthetic import synthetic_obs, synthetic_session, true_theta
 
-from accellog.calibrate.model import build_model
+from accellog.calibrate.model.compose import build_model
 from accellog.core.numeric import f_sf, normal_sf
 from accellog.store.writer import write_session
 
@@ -51,7 +51,7 @@ def test_diagnose_loads_no_scipy_stats(tmp_path):
 def test_yaw_per_face_equals_per_row():
     """driver_signals._yaw_deg forms the face rotation once per face: the same angles, bit for bit,
     as one quat_between per row (24 poses: 6 faces x 4 yaw angles, 6 windows each)."""
-    from accellog.calibrate.driver_signals import _yaw_deg
+    from accellog.calibrate.diagnosis.driver_signals import _yaw_deg
     from accellog.core.rotations import quat_between, quat_conjugate, quat_multiply
 
     model = build_model("model3")
@@ -84,8 +84,9 @@ def test_fit_takes_the_gyro_first_pass_in_the_observation_pass(tmp_path, monkeyp
     """`fit` on a labelled MCAP file reads the samples twice (observations + the gyro's bias
     windows, then the gyro's moves), not three times, and its gyro calibration is the one of
     stream_calibrate_gyro's own passes, exactly (many small blocks: windows span them)."""
-    from accellog.calibrate import stream_gyro, stream_segment
-    from accellog.calibrate.gyro import gyro_full_scale_dps
+    from accellog.calibrate.gyro import stream as stream_gyro
+    from accellog.calibrate.observe import stream_segment
+    from accellog.calibrate.gyro.calibrate import gyro_full_scale_dps
     from accellog.flows.simulate import Scenario, simulate
     from accellog.flows.stages import run_fit
     from accellog.store import fastread

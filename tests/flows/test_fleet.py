@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calfile.calibration import load_calibration
 from accellog.cli import main
 from accellog.flows.fleet import read_table, run_fleet
 from accellog.flows.fleet_report import fleet_report

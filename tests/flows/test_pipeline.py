@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from support.sessions import synth_session
 
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calfile.calibration import load_calibration
 from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.flows.pipeline import load_pipeline, run_pipeline

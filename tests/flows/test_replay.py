@@ -89,7 +89,7 @@ def _sha(p: Path) -> str:
 
 
 def test_replay_tracks_equal_batch_evaluation_and_rrd(files, tmp_path: Path) -> None:
-    from accellog.calibrate.calibration import load_calibration
+    from accellog.calibrate.calfile.calibration import load_calibration
 
     before = _sha(files["test"])
     mtime = files["test"].stat().st_mtime_ns

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 from support.ros2_bags import decode
 
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calfile.calibration import load_calibration
 from accellog.cli import main
 from accellog.flows.ros2_out import white_noise_var, write_ros2
 from accellog.flows.simulate import Scenario, simulate

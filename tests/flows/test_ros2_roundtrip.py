@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from support.ros2_bags import START_NS, decode, handheld_session, session_to_bag
 
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calfile.calibration import load_calibration
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 from support.discovery import handheld_path, session_obs
 
-from accellog.calibrate.choose import heats_and_cools, new_recording
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
+from accellog.calibrate.diagnosis.choose import heats_and_cools, new_recording
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
 from accellog.flows.workbench import discover
 from accellog.flows.workbench_prune import backward_step, scorer
 from accellog.flows.workbench_run import run_workbench

@@ -31,10 +31,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from accellog.calibrate.diagnose import diagnose
-from accellog.calibrate.ladder import ladder
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import observations
+from accellog.calibrate.diagnosis.diagnose import diagnose
+from accellog.calibrate.diagnosis.ladder import ladder
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.observe.segment import observations
 from accellog.cli import main
 from accellog.core.session import Session
 from accellog.flows.simulate import Scenario, simulate

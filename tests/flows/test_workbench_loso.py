@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calfile.calibration import load_calibration
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session

@@ -17,8 +17,8 @@ import pytest
 from scipy import stats
 from support.synthetic import synthetic_obs, true_theta
 
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.workbench import discover
@@ -201,7 +201,7 @@ def test_unknown_driver_name_lists_the_valid_ones(tmp_path, capsys):
     ef = tmp_path / "typo.py"
     ef.write_text(
         "import numpy as np\n"
-        "from accellog.calibrate.effects import Effect, per_axis\n"
+        "from accellog.calibrate.model.effects import Effect, per_axis\n"
         "E = Effect(name='tb_typo', params=per_axis('tb', 'g/degC', 0.0, 1e-3), drivers=('temperature',),\n"
         "           contribution=lambda p, f, d: np.stack([p['tb_x'] * d['temperature']] * 3, axis=1))\n"
     )

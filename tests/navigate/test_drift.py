@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from support.sessions import synth_session
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.drift_model import LIMITS, DriftModel
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import observations
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.calfile.drift_model import LIMITS, DriftModel
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.observe.segment import observations
 from accellog.navigate.drift import drift_from_session, fit_drift
 from accellog.navigate.integrate import displacement
 

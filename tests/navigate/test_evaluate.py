@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from support.sessions import synth_session
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import observations
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.observe.segment import observations
 from accellog.core.errors import InputError
 from accellog.navigate.evaluate import evaluate, evaluate_poses
 

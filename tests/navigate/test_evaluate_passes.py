@@ -12,10 +12,10 @@ import pytest
 from rrd_readback import load_rrd
 from support.synthetic import synthetic_session, true_theta
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import observations
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.observe.segment import observations
 from accellog.cli import main
 from accellog.core.protocol import six_position
 from accellog.flows.static_stages import run_evaluate_report

@@ -65,7 +65,7 @@ def test_drift_sums_in_pieces_equal_one_block_and_lstsq():
 
 def test_series_at_equals_the_series_read_while_adding():
     """Integrator.series_at(fn) after the pass gives what add(extra=fn) read: same bits."""
-    from accellog.calibrate.drift_model import DriftModel
+    from accellog.calibrate.calfile.drift_model import DriftModel
     from accellog.navigate.stream_sums import Integrator
 
     rng = np.random.default_rng(5)

@@ -11,7 +11,7 @@ import pytest
 from support.sessions import RTOL, assert_json_close, synth_session
 from support.sessions import random_blocks as _blocks
 
-from accellog.calibrate.noise import BLOCK, integrated_autocorr_time
+from accellog.calibrate.observe.hold_noise import BLOCK, integrated_autocorr_time
 from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.core.jsonio import dumps

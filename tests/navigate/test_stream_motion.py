@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibrate.segment import _window_stats, moving_check
-from accellog.calibrate.window_spill import WindowSpill, kth_smallest, median
+from accellog.calibrate.observe.segment import moving_check, window_stats
+from accellog.calibrate.observe.window_spill import WindowSpill, kth_smallest, median
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
 from accellog.navigate.stream_motion import MotionCheck
@@ -82,7 +82,7 @@ def _whole_verdict(t, acc, quantum):
     parts = [cut.push(t, acc), cut.flush()]
     cols = []
     for tt, (a,), starts in parts:
-        mean, std, n = _window_stats(a, starts)
+        mean, std, n = window_stats(a, starts)
         ends = np.append(starts[1:] - 1, tt.shape[0] - 1)
         cols.append((tt[starts], tt[ends], mean, std, n))
     cols = [np.concatenate([c[i] for c in cols]) for i in range(5)]

@@ -1,7 +1,7 @@
 """Track evaluation and the `accellog track` pipeline: the ordering physics predicts, on simulated runs.
 
 Two levels: (1) errors made directly from the measurement equation with numpy (self-contained);
-(2) the emulator's SensorModel -> MCAP -> calibrations fitted by accellog.calibrate.fit -> `accellog track`.
+(2) the emulator's SensorModel -> MCAP -> calibrations fitted by accellog.calibrate.model.fit -> `accellog track`.
 """
 
 from __future__ import annotations
@@ -159,9 +159,9 @@ def _emulated_session(motion, *, gyro: bool = True, seed: int = 3) -> Session:
 def _calibration_file(path, model: str, temps_degC: list[float]):
     """Fit accellog's model to simulated six-pose means (measurement equation of AccelErrors)."""
     from accellog.acquire.emulator.sensor_model import AccelErrors
-    from accellog.calibrate.calibration import Calibration
-    from accellog.calibrate.fit import fit_model
-    from accellog.calibrate.model import build_model
+    from accellog.calibrate.calfile.calibration import Calibration
+    from accellog.calibrate.model.compose import build_model
+    from accellog.calibrate.model.fit import fit_model
 
     acc = AccelErrors(bias_g=B0, scale=np.diag(S_ERR) - 1.0, cross_axis=C_ERR, temp_bias_g_per_degC=BT)
     rng = np.random.default_rng(len(temps_degC))

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from ruamel.yaml import YAML
 
-from accellog.calibrate.cal_sections import DeviceInfo
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calfile.calibration import load_calibration
+from accellog.calibrate.calfile.sections import DeviceInfo
 from accellog.cli import main
 from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
 from accellog.flows.simulate import Scenario, simulate

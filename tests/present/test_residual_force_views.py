@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 from support.synthetic import synthetic_obs, true_theta
 
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
 from accellog.present.residual_views import DRIVERS, panels
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibrate.ladder import LadderRow
+from accellog.calibrate.diagnosis.ladder import LadderRow
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel
 from accellog.navigate.online import OnlineIntegrator, integrate_batch

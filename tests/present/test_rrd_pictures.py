@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibrate.ladder import LadderRow
+from accellog.calibrate.diagnosis.ladder import LadderRow
 from accellog.present.rrd.bars2d import nice_ticks
 from accellog.present.rrd.demo_layout import DemoData, demo_blueprint, legend_corner, y_range
 from accellog.present.rrd.recording import RunRecording

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from rrd_readback import load_rrd
 
-from accellog.calibrate.calibration import load_calibration
+from accellog.calibrate.calfile.calibration import load_calibration
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import run_fit

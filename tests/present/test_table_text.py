@@ -9,7 +9,7 @@ import re
 import pytest
 from rich.console import Console
 
-from accellog.calibrate.ladder import LadderRow
+from accellog.calibrate.diagnosis.ladder import LadderRow
 from accellog.cli import main
 from accellog.present.discovery_text import candidates_table
 from accellog.present.tables import ladder_table

@@ -16,9 +16,9 @@ import json
 import numpy as np
 import pytest
 
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import obs_from_pose_means
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.observe.segment import obs_from_pose_means
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 G_IMUCAL = 9.81  # m/s^2, imucal's default 'grav'

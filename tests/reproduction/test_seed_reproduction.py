@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibrate.calibration import Calibration
-from accellog.calibrate.fit import fit_model
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import obs_from_pose_means
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.observe.segment import obs_from_pose_means
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import SEED_LOCAL_GRAVITY_MPS2
 from accellog.navigate.drift import drift_from_session

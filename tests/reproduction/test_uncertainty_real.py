@@ -15,12 +15,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accellog.calibrate.fit import fit_model, fit_orientation_free
-from accellog.calibrate.loso import concat_obs
-from accellog.calibrate.model import build_model
-from accellog.calibrate.segment import observations
-from accellog.calibrate.transfer import predictive_stats
-from accellog.calibrate.variance import METHODS, refit_jackknife_cov, with_uncertainty
+from accellog.calibrate.diagnosis.loso import concat_obs
+from accellog.calibrate.diagnosis.transfer import predictive_stats
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.fit import fit_model, fit_orientation_free
+from accellog.calibrate.model.variance import METHODS, refit_jackknife_cov, with_uncertainty
+from accellog.calibrate.observe.segment import observations
 from accellog.flows.stages import load_input
 from accellog.store.importers import import_imucal
 

@@ -93,7 +93,7 @@ def test_group_conversions_equal_generic_reader(tmp_path, monkeypatch, layout, c
     monkeypatch.setattr(mcap_index, "_INDEX_WINDOW", 7)  # the chunk indexes checked 7 at a time
     ahead, real = [], fastread._ahead
     monkeypatch.setattr(fastread, "_ahead", lambda *a: ahead.append(real(*a)) or ahead[-1])
-    col = reader._collect(p, accumulator=reader._imu_accumulator)
+    col = reader.collect_session(p, accumulator=reader._imu_accumulator)
     assert ahead == [2 if compression == "zstd" else 1]  # small zstd chunks (both layouts here): 2 threads
     assert col.recovered is None and set(col.decoders["/imu"].derived) == {
         "t_s", "accel_g", "gyro_dps", "temp_degC", "host_time_s", "sample_index"
@@ -278,7 +278,7 @@ def test_conversion_error_on_the_worker_falls_back(tmp_path, monkeypatch):
 
     monkeypatch.setattr(imu_arrays.ImuAccumulator, "_convert", failing)
     threads = threading.active_count()
-    dec = reader._collect(p, accumulator=reader._imu_accumulator).decoders["/imu"]
+    dec = reader.collect_session(p, accumulator=reader._imu_accumulator).decoders["/imu"]
     assert getattr(dec, "derived", None) is None
     assert len(calls) == 3  # it failed mid-file, then the generic reader decided
     got = read_session(p)

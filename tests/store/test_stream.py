@@ -71,8 +71,8 @@ def test_stream_observations_equal_observations(recorded, monkeypatch):
     """Per-hold reduction while streaming gives exactly the whole-session observation table."""
     import dataclasses
 
-    from accellog.calibrate.segment import observations
-    from accellog.calibrate.stream_segment import stream_observations
+    from accellog.calibrate.observe.segment import observations
+    from accellog.calibrate.observe.stream_segment import stream_observations
 
     monkeypatch.setattr(fastread, "_GROUP_BYTES", 32 << 10)  # holds span several blocks
     a = stream_observations(recorded, window_s=0.5, trim_s=0.3)
@@ -83,7 +83,7 @@ def test_stream_observations_equal_observations(recorded, monkeypatch):
 
 
 def test_stream_observations_refuse_as_observations(recorded):
-    from accellog.calibrate.stream_segment import stream_observations
+    from accellog.calibrate.observe.stream_segment import stream_observations
     from accellog.core.errors import InputError
 
     with pytest.raises(InputError, match=r"has \d+ samples after trimming 1.5 s"):
@@ -126,8 +126,8 @@ def test_stream_observations_refuse_a_moving_hold_as_observations(recorded):
     taken as each hold passes, one window table) names the same pose, time and reason."""
     import dataclasses
 
-    from accellog.calibrate.segment import observations
-    from accellog.calibrate.stream_segment import stream_observations
+    from accellog.calibrate.observe.segment import observations
+    from accellog.calibrate.observe.stream_segment import stream_observations
     from accellog.core.errors import InputError
 
     meta, poses, events = read_labels(recorded)
@@ -142,7 +142,7 @@ def test_stream_observations_refuse_a_moving_hold_as_observations(recorded):
 
 
 def test_rows_grow_past_their_capacity():
-    from accellog.calibrate.stream_segment import _Rows
+    from accellog.calibrate.observe.stream_segment import _Rows
 
     rows, parts = _Rows(3), [np.arange(k * 2.0).reshape(k, 2) for k in (2, 4, 1)]
     for x in parts:

@@ -18,7 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from accellog.calibrate.segment import observations
+from accellog.calibrate.observe.segment import observations
 from accellog.core.session import ObsTable
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session

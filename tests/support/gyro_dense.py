@@ -1,7 +1,7 @@
 """The dense gyro scale/misalignment fit as it was before the moves-only rewrite (kept verbatim,
 apart from passing least_squares options through): every ~10 ms block from mid to mid integrated
 for every residual call, forward-difference Jacobian. tests/calibrate/test_gyro_cal.py checks the fast
-accellog.calibrate.gyro.fit_gyro_matrix against it."""
+accellog.calibrate.gyro.calibrate.fit_gyro_matrix against it."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from accellog.calibrate.gyro import PARAM_NAMES, GyroCalibration
+from accellog.calibrate.gyro.model import PARAM_NAMES, GyroCalibration
 from accellog.core.errors import InputError, ModelError
 from accellog.core.rotations import (
     prefix_quat_product,

@@ -6,9 +6,9 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from accellog.calibrate.effects import AXES, LIBRARY
-from accellog.calibrate.fit import obs_drivers
-from accellog.calibrate.model import Model
+from accellog.calibrate.model.compose import Model
+from accellog.calibrate.model.effects import AXES, LIBRARY
+from accellog.calibrate.model.fit import obs_drivers
 from accellog.core.protocol import PoseSpec, parse_protocol
 from accellog.core.rotations import quat_between, quat_from_rotvec, rotate
 from accellog.core.session import ObsTable

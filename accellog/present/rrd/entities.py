@@ -61,7 +61,7 @@ DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
 SPAWN_PORT = 9876
 """Port of the native viewer started by the 'spawn' sink (bound to 127.0.0.1 only)."""
 
-_EVENT_LEVEL = {
+EVENT_LEVEL = {
     "gap": "WARN",
     "fifo_overflow": "WARN",
     "misaligned": "WARN",
@@ -74,7 +74,7 @@ _EVENT_LEVEL = {
 
 AXIS_COLORS = [(230, 80, 80), (80, 190, 80), (80, 130, 240)]
 """Series colours of the x, y, z axes in every plot (RGB)."""
-_TRACK_COLORS = [
+TRACK_COLORS = [
     (240, 160, 40),
     (60, 170, 230),
     (200, 90, 200),
@@ -96,7 +96,7 @@ def slug_path(label: str) -> str:
     return "/".join(slug(p) for p in str(label).split("/") if p.strip()) or "unnamed"
 
 
-def _as_2d(values: np.ndarray, n: int, what: str) -> np.ndarray:
+def as_2d(values: np.ndarray, n: int, what: str) -> np.ndarray:
     v = np.asarray(values, dtype=np.float64)
     if v.ndim == 1:
         v = v[:, None]

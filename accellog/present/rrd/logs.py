@@ -17,12 +17,11 @@ from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel
 from accellog.present.rrd.bars2d import log_bar_groups
 from accellog.present.rrd.entities import (
-    _EVENT_LEVEL,
-    _TRACK_COLORS,
     AXES,
     AXIS_COLORS,
     CHARTS,
     DOCS,
+    EVENT_LEVEL,
     EVENTS,
     EVENTS_LOST,
     LADDER,
@@ -33,6 +32,7 @@ from accellog.present.rrd.entities import (
     POSES_LOG,
     RESIDUALS,
     TRACK_3D_MAX_POINTS,
+    TRACK_COLORS,
     TRACKS,
     WORLD_TRACKS,
     slug,
@@ -41,7 +41,7 @@ from accellog.present.rrd.entities import (
 from accellog.present.rrd.envelope import FULL_RATE_MAX_SAMPLES, track_keep
 
 if TYPE_CHECKING:
-    from accellog.calibrate.ladder import LadderRow
+    from accellog.calibrate.diagnosis.ladder import LadderRow
 
 
 class PipelineLogs:
@@ -112,7 +112,7 @@ class PipelineLogs:
             + (f", {e.lost_samples} samples lost" if e.lost_samples else "")
             for e in events
         ]
-        levels = [_EVENT_LEVEL.get(e.kind, "INFO") for e in events]
+        levels = [EVENT_LEVEL.get(e.kind, "INFO") for e in events]
         self._entities[EVENTS] = "textlog"
         self.rec.send_columns(
             EVENTS,
@@ -195,7 +195,7 @@ class PipelineLogs:
 
     def _log_track(self, label: str, t_s: np.ndarray, disp_m: np.ndarray) -> None:
         d = np.asarray(disp_m, dtype=np.float64).reshape(-1, 3)
-        color = _TRACK_COLORS[self._n_tracks % len(_TRACK_COLORS)]
+        color = TRACK_COLORS[self._n_tracks % len(TRACK_COLORS)]
         if f"{TRACKS}/{slug_path(label)}" not in self._entities:
             self._n_tracks += 1
         name = str(label).rsplit("/", 1)[-1]
@@ -227,7 +227,7 @@ class PipelineLogs:
         import rerun as rr
 
         d = np.asarray(disp_m, dtype=np.float64).reshape(-1, 3)
-        color = color or _TRACK_COLORS[0]
+        color = color or TRACK_COLORS[0]
         n = d.shape[0]
         if n > TRACK_3D_MAX_POINTS:
             keep = np.unique(np.r_[np.linspace(0, n - 1, TRACK_3D_MAX_POINTS).astype(np.int64), n - 1])
@@ -376,7 +376,7 @@ LADDER_BAR_GROUPS = {
 
 def step_color(i: int) -> tuple[int, int, int]:
     """Colour of ladder step i (its bars and its residual series)."""
-    return _TRACK_COLORS[i % len(_TRACK_COLORS)]
+    return TRACK_COLORS[i % len(TRACK_COLORS)]
 
 
 def axis_shades(rgb: tuple[int, int, int]) -> list[tuple[int, int, int]]:

@@ -32,7 +32,7 @@ from accellog.present.rrd.entities import (
     SAMPLE_TIMELINE,
     SPAWN_PORT,
     TEMPERATURE,
-    _as_2d,
+    as_2d,
     slug,
 )
 from accellog.present.rrd.envelope import (
@@ -194,7 +194,7 @@ class RunRecording(PipelineLogs):
         import rerun as rr
 
         t = np.asarray(t_s, dtype=np.float64)
-        v = _as_2d(values, t.shape[0], entity)
+        v = as_2d(values, t.shape[0], entity)
         if decimate and not self.full_rate:
             t, v, sample_index = self._envelope(entity, t, v, sample_index)
         if entity not in self._entities:

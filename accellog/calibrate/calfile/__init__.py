@@ -1,0 +1,1 @@
+"""The calibration file: the Calibration type, its typed sections and their JSON round trip."""

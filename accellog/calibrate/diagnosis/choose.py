@@ -1,0 +1,213 @@
+"""Choose the effect that transfers: one step of the workbench, judged out of sample.
+
+Among the candidates diagnose() calls significant on the calibration data, the step picks the one
+with the lowest out-of-sample score (among those within Z_TIE standard errors of the lowest, the
+one with the lowest dBIC: parsimony) (accellog.calibrate.diagnosis.transfer: held-out sessions when given,
+else blocked validation over temperature and time). It adds nothing when
+
+    s_base - s_best <= Z_IMPROVE * se(s_best),   se(s) = sqrt(2 / m) max(1, s)
+
+(the best candidate does not predict unseen data better than the base model). Every significant
+runner-up whose columns are near-collinear with the best one (canonical correlation > 0.95) is
+named with rho and the recording that separates them. The step is *undecided* (the data cannot
+tell the two apart, and the verdict says so) when the runner-up's score is within Z_TIE * se of the
+best one's with no more parameters, or when, without a held-out session, the two are driven by different kinds of signal
+(temperature vs time): blocks of one session cannot separate drivers that move together.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from accellog.calibrate.diagnosis.transfer import (
+    COLLINEAR_RHO,
+    Score,
+    blocked_scores,
+    canonical_correlation,
+    driver_kind,
+    heldout_score,
+    separating_recording,
+)
+from accellog.calibrate.model.fit import FitResult
+from accellog.core.session import ObsTable
+
+Z_IMPROVE = 3.0
+"""An effect is added only if it lowers the out-of-sample score by more than 3 standard errors."""
+Z_TIE = 2.0
+"""Two collinear candidates whose scores differ by less than 2 standard errors are a tie."""
+
+
+@dataclass
+class Collinear:
+    """Two candidates that explain the same residual on this data."""
+
+    a: str
+    b: str
+    rho: float
+    separate_by: str
+
+    def to_dict(self) -> dict:
+        return {"a": self.a, "b": self.b, "rho": self.rho, "separate_by": self.separate_by}
+
+    def text(self) -> str:
+        return (
+            f"{self.a} and {self.b} are near-collinear on this data (canonical correlation "
+            f"{self.rho:.3f}); what separates them: {self.separate_by}"
+        )
+
+
+@dataclass
+class StepChoice:
+    """The evidence of one workbench step and what it chose."""
+
+    model: str
+    evidence: str
+    """'heldout' or 'blocks:<drivers>'."""
+    base_score: Score
+    scores: dict[str, Score]
+    chosen: str | None
+    reason: str
+    undecided: list[str] = field(default_factory=list)
+    collinear: list[Collinear] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "model": self.model,
+            "evidence": self.evidence,
+            "base_score": self.base_score.to_dict(),
+            "scores": {k: v.to_dict() for k, v in self.scores.items()},
+            "chosen": self.chosen,
+            "undecided": list(self.undecided),
+            "collinear": [c.to_dict() for c in self.collinear],
+            "reason": self.reason,
+        }
+
+
+OUT_OF_SESSION = ("heldout", "leave-one-session-out")
+"""Evidence kinds that predict another session (they break confounds of drivers within one session)."""
+
+
+def choose_effect(
+    base: FitResult,
+    candidates: Sequence[dict],
+    fits: Mapping[str, FitResult],
+    obs: ObsTable,
+    heldout: Sequence[ObsTable] | None = None,
+    *,
+    scores: Callable[[dict[str, FitResult]], dict[str, Score]] | None = None,
+    rho: Callable[[FitResult, FitResult], float] | None = None,
+) -> StepChoice:
+    """Judge the significant candidates (diagnose rows with their fits of base model + effect) out
+    of sample and choose one (or none). scores(fits by name, '' = base) -> Score by name replaces
+    the default evidence (held-out sessions if given, else blocked validation), e.g. leave one
+    session out or the gravity norm of a hand-held session; rho(fit_a, fit_b) replaces the
+    canonical correlation of the labelled Jacobian columns."""
+    eligible = [c["effect"] for c in candidates if c.get("significant") and c["effect"] in fits]
+    model = base.model
+    fits = {"": base, **{n: fits[n] for n in eligible}}
+    if scores is not None:
+        sc = scores(fits)
+    elif heldout:
+        sc = {n: heldout_score(r, heldout) for n, r in fits.items()}
+    else:
+        sc = blocked_scores(fits, obs)
+    if rho is None:
+
+        def rho(a: FitResult, b: FitResult) -> float:
+            return canonical_correlation(a, b, model, obs)
+
+    base = sc.pop("")
+    evidence = base.kind
+    if not eligible:
+        return StepChoice(model.name, evidence, base, sc, None, "no candidate is significant here")
+    rows = {c["effect"]: c for c in candidates}
+
+    def score(n: str) -> float:
+        v = sc[n].chi2_per_eq
+        return v if np.isfinite(v) else np.inf
+
+    s_min = min(score(n) for n in eligible)
+    se_min = sc[min(eligible, key=score)].se
+    # parsimony among the equally good: the lowest dBIC (fewest parameters for the same fit) wins
+    tied_best = [n for n in eligible if score(n) <= s_min + Z_TIE * se_min]
+    best = min(tied_best, key=lambda n: rows[n].get("delta_bic", np.inf))
+    ranked = [best, *sorted((n for n in eligible if n != best), key=score)]
+    s_best = sc[best]
+    what = {"heldout": "held-out", "leave-one-session-out": "leave-one-session-out"}.get(
+        evidence, "blocked-validation"
+    )
+    gain = base.chi2_per_eq - s_best.chi2_per_eq
+    collinear, undecided = [], []
+    for other in ranked[1:]:
+        r = rho(fits[best], fits[other])
+        if r < COLLINEAR_RHO:
+            continue
+        collinear.append(Collinear(best, other, r, new_recording(best, other, model, obs)))
+        # a tie with an alternative that is no more complex: the data cannot choose
+        tie = other in tied_best and rows[other]["n_params"] <= rows[best]["n_params"]
+        # within one session, blocks cannot break a confound of two drivers that move together
+        # (temperature following time): a difference in score then reflects functional form only
+        kinds = {driver_kind(best, model), driver_kind(other, model)}
+        confound = evidence not in OUT_OF_SESSION and len(kinds) == 2 and "orientation" not in kinds
+        if tie or confound:
+            undecided.append(other)
+    if not np.isfinite(gain) or gain <= Z_IMPROVE * s_best.se:
+        reason = (
+            f"{best} is significant here but does not predict unseen data better: {what} chi2/eq "
+            f"{base.chi2_per_eq:.3g} -> {s_best.chi2_per_eq:.3g} (se {s_best.se:.2g})"
+        )
+        return StepChoice(model.name, evidence, base, sc, None, reason, undecided, collinear)
+    reason = f"{best}: {what} chi2/eq {base.chi2_per_eq:.3g} -> {s_best.chi2_per_eq:.3g}"
+    if len(ranked) > 1:
+        r2 = ranked[1]
+        reason += f" (next: {r2} {sc[r2].chi2_per_eq:.3g})"
+    if undecided:
+        reason += f"; cannot tell it from {', '.join(undecided)} on this data"
+    return StepChoice(model.name, evidence, base, sc, best, reason, undecided, collinear)
+
+
+def heats_and_cools(obs: ObsTable, min_degC: float = 1.0) -> bool:
+    """The session's die temperature both rose and fell by >= min_degC (heat then cool, or the reverse)."""
+    T = obs.temp_degC
+    if T is None or not np.all(np.isfinite(T)) or len(T) < 3:
+        return False
+    T = np.asarray(T, float)[np.argsort(np.asarray(obs.t_s, float), kind="stable")]
+    rise = T - np.minimum.accumulate(T)
+    fall = np.maximum.accumulate(T) - T
+    return bool(rise.max() >= min_degC and fall.max() >= min_degC)
+
+
+def new_recording(a: str, b: str, model, obs: ObsTable) -> str:
+    """What to record so that a and b stop looking alike (transfer.separating_recording), never a
+    recording like the one they were confused on: a session that already heated and cooled is
+    told to record another session on another temperature path instead."""
+    text = separating_recording(a, b, model)
+    if "heat then cool" in text and heats_and_cools(obs):
+        text = (
+            "this session already heated and cooled: a second session of the sensor on another "
+            "temperature path (other soak temperatures, another rate; use it as --heldout)"
+        )
+    elif "repeats a pose" in text and repeats_a_pose(obs):
+        text = "this session already repeats a pose over its length: a second, longer session (--heldout)"
+    elif "cube edges" in text and _off_axis(obs):
+        text = "this session already has off-axis poses: a second session with other orientations (--heldout)"
+    return text
+
+
+def repeats_a_pose(obs: ObsTable) -> bool:
+    """Some orientation is held in the first, the middle and the last third of the session."""
+    t = np.asarray(obs.t_s, float)
+    if t.size < 3 or np.ptp(t) <= 0:
+        return False
+    third = np.minimum(((t - t.min()) / np.ptp(t) * 3).astype(int), 2)
+    up = np.round(np.asarray(obs.up_sensor, float), 2)
+    sets = [{tuple(u) for u in up[third == k]} for k in range(3)]
+    return bool(sets[0] & sets[1] & sets[2])
+
+
+def _off_axis(obs: ObsTable) -> bool:
+    up = np.abs(np.asarray(obs.up_sensor, float))
+    return bool(np.any(up.max(axis=1) < 0.9))

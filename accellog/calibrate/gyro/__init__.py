@@ -1,0 +1,1 @@
+"""Gyro calibration: bias from holds, scale and misalignment from rotations between them."""

@@ -1,0 +1,387 @@
+"""Gyro calibration of an MCAP session chunk by chunk: ``calibrate_gyro`` on a file without loading
+it (memory: one chunk group plus O(windows + coarse blocks + the fine blocks of one hold pair), the
+coarse blocks being the 10 ms blocks of the moves and one per hold: bounded by the moves, not by
+the session length).
+
+Two streaming passes over ``store.stream.iter_imu``:
+
+1. windows and locate: the sample index of every time the fit asks for (hold window edges, hold
+   start/middle/end) is the count of samples before it, summed over blocks (``np.searchsorted`` on
+   the whole time axis, block by block), plus the time of the first sample at or after each hold
+   middle; each bias window's rate and temperature sums are taken as soon as its end is found
+   (``FirstPass``), and the bias model (``gyro.bias_fit``) is fitted from them; the samples whose
+   rate clips are counted per move on the way (``gyro.clipped_in_moves``: those moves are left out).
+   A caller that reads the file anyway (the fit's observation pass) feeds ``first_pass(...)`` its
+   blocks and hands it over: then this pass is not made again;
+2. integrate: the trapezoid integrals of the rate (and temperature) over the 10 ms fine blocks
+   between hold middles (a sample pair that straddles two groups is carried over), bias-corrected
+   and reduced to their coarse blocks (phi, c) as each chunk group completes them
+   (``_CoarseBlocks``: the prefix sum and any open coarse block carried between groups). The fine
+   block edges are made one hold pair at a time (``gyro_rotation.fine_pieces``); the pass stops
+   at the last hold middle.
+
+The fit itself is the one of ``calibrate.gyro`` on these sums, so the result equals
+``calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC)`` of ``s = read_session(path)`` up to the
+rounding of sums split at block boundaries (~1e-16 relative).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from accellog.calibrate.gyro.calibrate import (
+    bias_fit,
+    bias_window_times,
+    clipped_in_moves,
+    fit_matrix,
+    hold_intervals,
+    known_poses,
+    pose_times,
+)
+from accellog.calibrate.gyro.model import GyroCalibration
+from accellog.calibrate.gyro.rotation import coarse_plan, fine_pieces
+from accellog.calibrate.observe.heap import trim_heap
+from accellog.core.errors import InputError
+from accellog.core.session import PoseLabel
+from accellog.store.stream import iter_imu
+
+_BLOCK_S = 0.01
+"""Fine block length (s), as gyro.fit_gyro_matrix."""
+
+
+def stream_calibrate_gyro(
+    path: str | Path,
+    poses: Sequence[PoseLabel],
+    *,
+    model: str = "full",
+    reference: str = "gravity",
+    t_ref_degC: float = 25.0,
+    window_s: float = 1.0,
+    min_temp_span_degC: float = 2.0,
+    trim_s: float = 0.2,
+    full_scale_dps: float | None = None,
+    first: FirstPass | None = None,
+) -> GyroCalibration | None:
+    """calibrate_gyro on the session in path (module doc); None when it records no gyro rate.
+    first: step 1 already fed every block of the file (first_pass with the same arguments)."""
+    iv, known, first_new = _plan(poses, model, reference, window_s, trim_s, full_scale_dps)
+    if first is None:
+        first = first_new
+        for blk in iter_imu(path):
+            if not first.add(blk):
+                break
+        trim_heap()  # the pass's block arrays are freed: give their pages back (calibrate.heap)
+    found, moves = first.result(), first.moves
+    if found is None:
+        return None
+    sums, has_temp, (counts, n_total, first_at) = found
+    if sums[2].size < 2:
+        raise InputError(
+            f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
+        )
+    means = sums[0] / sums[2][:, None]
+    temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
+    cal = bias_fit(means, temps, has_temp, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC)
+    k = len(known)
+    if not k:
+        return cal
+    pidx = np.clip(counts, 0, n_total - 1)
+    mids, ends, starts = pidx[:k], pidx[k : 2 * k], pidx[2 * k :]
+    t_mid = {int(i): float(v) for i, v in zip(mids, first_at[:k], strict=True)}
+    coarse, at, n_fine = coarse_plan(t_mid, mids, ends, starts, _BLOCK_S)
+    if n_fine == 1:
+        phi, c = np.zeros((0, 3)), np.zeros((0, 3))
+    else:
+        use_temp = has_temp and bool(np.any(cal.temp_bias_dps_per_degC != 0))
+        blocks = _CoarseBlocks(at, n_fine, cal, use_temp)
+        _integrate_pass(path, mids[0], fine_pieces(t_mid, mids, _BLOCK_S), blocks)
+        trim_heap()
+        phi, c = blocks.phi, blocks.c
+    at = np.searchsorted(coarse, mids)
+    return fit_matrix(phi, c, at, known, cal, model, 0.05, reference, moves.counts > 0)
+
+
+def first_pass(
+    poses: Sequence[PoseLabel],
+    *,
+    model: str = "full",
+    reference: str = "gravity",
+    window_s: float = 1.0,
+    trim_s: float = 0.2,
+    full_scale_dps: float | None = None,
+) -> FirstPass:
+    """Step 1 of stream_calibrate_gyro with these arguments, to be fed a pass's blocks (add) and
+    handed to it as first; InputError as stream_calibrate_gyro (no static holds)."""
+    return _plan(poses, model, reference, window_s, trim_s, full_scale_dps)[2]
+
+
+def _plan(poses, model: str, reference: str, window_s: float, trim_s: float, full_scale_dps):
+    """(holds, known poses, an unfed FirstPass) of stream_calibrate_gyro's arguments."""
+    iv = hold_intervals(poses)
+    if iv.shape[0] == 0:
+        raise InputError("no static holds: the gyro bias cannot be estimated")
+    n_ref = len(poses) if reference == "gravity" else sum(p.q_sensor_to_world is not None for p in poses)
+    known = known_poses(poses, model, reference) if n_ref >= 2 else []
+    win_times = bias_window_times(iv, window_s, trim_s)
+    pose_t = pose_times(known) if known else (np.zeros(0),) * 3
+    return iv, known, FirstPass(win_times, np.concatenate(pose_t), _MoveClips(pose_t[0], full_scale_dps))
+
+
+class _MoveClips:
+    """Clipped samples per move (gyro.clipped_in_moves), summed block by block."""
+
+    def __init__(self, mid_t: np.ndarray, full_scale_dps: float | None) -> None:
+        self.mid_t, self.full_scale_dps = mid_t, full_scale_dps
+        self.counts = np.zeros(max(len(mid_t) - 1, 0), np.int64)
+
+    def add(self, t_s: np.ndarray, gyro_dps: np.ndarray) -> None:
+        self.counts += clipped_in_moves(t_s, gyro_dps, self.mid_t, self.full_scale_dps)
+
+
+class FirstPass:
+    """Module doc step 1 fed block by block: the rate and temperature sums over the bias windows
+    (edge times win_times, one array per hold) and the locate for the pose times pose_q; moves
+    counts the clipped samples per move. result(): ((rate sums (W,3), temperature sums (W,),
+    samples (W,)) of the windows of >= 2 samples, has_temp, (samples before each pose time,
+    samples in all, time of the first sample at or after each (the last sample's time when none
+    is))); None when the session has no gyro rate.
+
+    A window's sample range [a, b) is the count of samples before its edge times; the count is
+    final once a sample at or after the time has passed (times sorted), so each window is summed
+    (_Segments, one np.add.reduceat over exactly its samples) as soon as its end is found, the
+    samples from the first window still open kept over to the next block."""
+
+    def __init__(self, win_times: list[np.ndarray], pose_q: np.ndarray, moves: _MoveClips) -> None:
+        nw = [len(q) for q in win_times]
+        queries = np.concatenate([*win_times, pose_q])
+        qlo = np.concatenate(
+            [s + np.arange(n - 1) for s, n in zip(np.cumsum([0, *nw]), nw, strict=False)] or [[]]
+        )
+        self.qlo, self.n_pose, self.moves = qlo.astype(np.int64), pose_q.size, moves
+        self.loc = _Locator(queries)
+        self.end_t = (
+            np.maximum.accumulate(queries[self.qlo + 1]) if self.qlo.size else np.zeros(0)
+        )  # prefix max
+        self.nxt, self.has_temp, self.no_gyro = 0, True, False
+        self.out: list[tuple] = []
+        self.buf, self.buf0 = None, 0  # samples (w, temp) kept from global index buf0
+
+    def add(self, blk) -> bool:
+        """The next block (store.stream.ImuBlock); False once the session shows no gyro rate."""
+        if self.no_gyro or blk.gyro_dps is None:
+            self.no_gyro = True
+            return False
+        loc, qlo, nxt = self.loc, self.qlo, self.nxt
+        self.moves.add(blk.t_s, blk.gyro_dps)
+        loc.add(blk.t_s)
+        self.has_temp = has_temp = self.has_temp and blk.temp_degC is not None
+        add = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)
+        buf = add if self.buf is None else tuple(_cat(o, n) for o, n in zip(self.buf, add, strict=True))
+        m = max(nxt, int(np.searchsorted(self.end_t, loc.t_last, side="right")))  # windows with a found end
+        self.out.append(_window_sums(loc.counts[qlo[nxt:m]], loc.counts[qlo[nxt:m] + 1], buf, self.buf0))
+        self.nxt = nxt = m
+        held = self.buf0 + buf[0].shape[0]
+        need = held if nxt == qlo.size else loc.count(qlo[nxt])
+        keep = min(need, held) - self.buf0
+        self.buf, self.buf0 = tuple(None if x is None else x[keep:] for x in buf), self.buf0 + keep
+        return True
+
+    def result(self):
+        """The sums and locate of every block added (class doc); None without gyro rate."""
+        loc, qlo, nxt = self.loc, self.qlo, self.nxt
+        if self.no_gyro or loc.n == 0:
+            return None
+        counts, n_total, first_at = loc.finish()
+        if nxt < qlo.size:  # windows running to the end of the session
+            self.out.append(_window_sums(counts[qlo[nxt:]], counts[qlo[nxt:] + 1], self.buf, self.buf0))
+            self.nxt = qlo.size
+        self.buf = None
+        sums = tuple(np.concatenate([o[i] for o in self.out]) for i in range(3))
+        k = self.n_pose
+        return sums, self.has_temp, (counts[counts.size - k :], n_total, first_at[first_at.size - k :])
+
+
+class _Locator:
+    """For each query time: the count of samples before it and the time of the first sample at or
+    after it, as the blocks pass (times increasing, as the time-stamp checks require). A query is
+    settled by the first block whose last sample is at or after it; only unsettled queries are
+    searched, in time order (O(samples + queries log queries) in all, not blocks x queries)."""
+
+    def __init__(self, queries: np.ndarray) -> None:
+        self.q, self.order = queries, np.argsort(queries, kind="stable")
+        self.sorted, self.k = queries[self.order], 0  # settled: self.order[: self.k]
+        self.counts, self.first_at = np.zeros(queries.size, np.int64), np.full(queries.size, np.nan)
+        self.n, self.t_last = 0, -np.inf
+
+    def add(self, t: np.ndarray) -> None:
+        """The next block's sample times (s)."""
+        m = self.k + int(np.searchsorted(self.sorted[self.k :], t[-1], side="right"))
+        j = np.searchsorted(t, self.sorted[self.k : m])
+        idx = self.order[self.k : m]
+        self.counts[idx], self.first_at[idx] = self.n + j, t[j]
+        self.k, self.n, self.t_last = m, self.n + t.size, max(self.t_last, t[-1])
+
+    def count(self, i: int) -> int:
+        """Samples before query i: final once settled, else all samples so far (a lower bound)."""
+        return int(self.counts[i]) if self.q[i] <= self.t_last else self.n
+
+    def finish(self) -> tuple[np.ndarray, int, np.ndarray]:
+        """(counts, samples in all, first times): unsettled queries count every sample and take the
+        last sample's time."""
+        rest = self.order[self.k :]
+        self.counts[rest], self.first_at[rest] = self.n, self.t_last
+        return self.counts, self.n, self.first_at
+
+
+def _window_sums(a: np.ndarray, b: np.ndarray, buf: tuple, buf0: int) -> tuple:
+    """(rate sums, temperature sums, samples) of the windows [a, b) of >= 2 samples, all in buf."""
+    keep = b - a >= 2
+    a, b = a[keep], b[keep]
+    w, temp = _Segments(a, b, 3), _Segments(a, b, 1)
+    if a.size:
+        w.add(buf[0], buf0)
+        if buf[1] is not None:
+            temp.add(buf[1], buf0)
+    return w.acc, temp.acc, (b - a).astype(float)
+
+
+class _Segments:
+    """Sums over sorted, non-overlapping index ranges [lo_j, hi_j), each summed in one np.add.reduceat
+    call over exactly its samples (bit for bit the whole-session sums): a range is summed once the
+    buffer holds all of it; its start is carried to the next block until then. keep=False: only the
+    sums of the ranges completed by the last add are held (self.new, ranges self.done), not all."""
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, width: int, keep: bool = True) -> None:
+        self.lo, self.hi, self.k = np.asarray(lo, np.int64), np.asarray(hi, np.int64), 0
+        shape = (self.lo.size if keep else 0, width) if width > 1 else (self.lo.size if keep else 0,)
+        self.acc, self.keep = np.zeros(shape), keep
+        self.new, self.done = self.acc[:0], (0, 0)
+
+    def add(self, x: np.ndarray, x0: int) -> int:
+        """Sum the ranges complete within x (global indices x0 ..); returns the first index still needed."""
+        end = x0 + x.shape[0]
+        m = self.k + int(np.searchsorted(self.hi[self.k :], end, side="right"))
+        self.new, self.done = self.acc[:0], (self.k, m)
+        if m > self.k:
+            lo, hi = self.lo[self.k : m] - x0, self.hi[self.k : m] - x0
+            edges = np.stack([lo, hi], axis=1).ravel()
+            if edges[-1] >= x.shape[0]:
+                edges = edges[:-1]
+            self.new = np.add.reduceat(x, edges, axis=0)[::2]
+            if self.keep:
+                self.acc[self.k : m] = self.new
+            self.k = m
+        return int(self.lo[m]) if m < self.lo.size else end
+
+
+class _CoarseBlocks:
+    """gyro._increments fed the fine blocks in order, a batch at a time: each batch is reduced to
+    its coarse blocks at once (memory O(coarse blocks + one batch), not O(fine blocks)).
+
+    Carried between batches: the running sum p of all earlier fine blocks (the prefix p_excl of the
+    next one) and the partial (phi, sum p_excl x b) and p_excl at the start of a coarse block still
+    open, prepended as a row to the next batch's sums, so every sum is formed in the same order as
+    the whole-array cumsum/reduceat of gyro._increments."""
+
+    def __init__(self, at: np.ndarray, n_fine: int, base: GyroCalibration, use_temp: bool):
+        """at: first fine block of each coarse block; n_fine: number of fine block edges."""
+        self.at = np.asarray(at, np.int64)
+        self.end = np.append(self.at[1:], n_fine - 1)  # one past its last fine block
+        self.phi, self.c = np.zeros((self.at.size, 3)), np.zeros((self.at.size, 3))
+        self.base, self.use_temp = base, use_temp
+        self.p, self.k, self.open = np.zeros(3), 0, None  # open: (phi, cross sum, p at start)
+
+    def add(self, w_int: np.ndarray, temp_int: np.ndarray | None, span: np.ndarray) -> None:
+        """The next fine blocks: rate integrals (deg), temperature integrals (degC s), durations (s)."""
+        base = self.base
+        b = w_int - np.outer(span, base.bias_dps)
+        if self.use_temp:
+            b -= np.outer(temp_int - base.t_ref_degC * span, base.temp_bias_dps_per_degC)
+        b = np.deg2rad(b)
+        if b.shape[0] == 0:
+            return
+        k0, k1 = self.k, self.k + b.shape[0]
+        ps = np.cumsum(np.concatenate([self.p[None], b]), axis=0)
+        p_excl, self.p, self.k = ps[:-1], ps[-1], k1
+        cr = np.cross(p_excl, b)
+        qs, qe = np.searchsorted(self.at, [k0, k1])
+        offs, q = self.at[qs:qe] - k0, np.arange(qs, qe)
+        p_at = p_excl[offs]
+        if self.open is not None:
+            b, cr = np.concatenate([self.open[0][None], b]), np.concatenate([self.open[1][None], cr])
+            offs, q = np.concatenate([[0], offs + 1]), np.concatenate([[qs - 1], q])
+            p_at = np.concatenate([self.open[2][None], p_at])
+        phi, crs = np.add.reduceat(b, offs, axis=0), np.add.reduceat(cr, offs, axis=0)
+        self.open = None
+        if self.end[q[-1]] > k1:  # the last coarse block goes on in the next batch
+            self.open = (phi[-1], crs[-1], p_at[-1])
+            phi, crs, p_at, q = phi[:-1], crs[:-1], p_at[:-1], q[:-1]
+        self.phi[q] = phi
+        self.c[q] = 0.5 * (crs - np.cross(p_at, phi))
+
+
+def _window_pass(path, a: np.ndarray, b: np.ndarray):
+    """Rate and temperature sums over the windows [a, b) (sample indices); returns (sums, has_temp)."""
+    wins = (_Segments(a, b, 3), _Segments(a, b, 1))
+    buf, buf0, has_temp = None, 0, True  # samples (w, temp) kept from global index buf0
+    for blk in iter_imu(path):
+        has_temp = has_temp and blk.temp_degC is not None
+        new = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)
+        buf = new if buf is None else tuple(_cat(o, n) for o, n in zip(buf, new, strict=True))
+        need = wins[0].add(buf[0], buf0)
+        if has_temp:
+            wins[1].add(buf[1], buf0)
+        keep = min(need, buf0 + buf[0].shape[0]) - buf0
+        buf, buf0 = tuple(None if x is None else x[keep:] for x in buf), buf0 + keep
+    return wins, has_temp
+
+
+def _cat(old, new):
+    return None if old is None or new is None else np.concatenate([old, new])
+
+
+def _integrate_pass(path, first: int, pieces: Iterator[np.ndarray], blocks: _CoarseBlocks) -> None:
+    """Trapezoid integrals of the rate (and temperature) over the fine blocks, fed to blocks as
+    each chunk group completes them (a sample pair that straddles two groups is carried over).
+    The fine edges come hold pair by hold pair from pieces (after the first, mids[0]), taken as
+    the samples reach them; the pass stops after the last edge."""
+    edges, more = np.array([first], np.int64), True  # the fine edges from the first block not summed
+    buf, buf0 = None, 0  # samples (t, w, temp) kept from global index buf0
+    for blk in iter_imu(path):
+        temp = np.asarray(blk.temp_degC, float) if blocks.use_temp else np.zeros(blk.n)
+        new = (blk.t_s, np.asarray(blk.gyro_dps, float), temp)
+        buf = new if buf is None else tuple(np.concatenate([o, n]) for o, n in zip(buf, new, strict=True))
+        t, w, temp = buf
+        end = buf0 + t.size - 1  # one past the last sample pair held
+        while more and edges[-1] < end:
+            piece = next(pieces, None)
+            more = piece is not None
+            edges = edges if piece is None else np.concatenate([edges, piece])
+        need = int(edges[0])
+        if edges.size > 1 and need < end:
+            pairs = (
+                _Segments(edges[:-1], edges[1:], 3, keep=False),
+                _Segments(edges[:-1], edges[1:], 1, keep=False),
+            )
+            lo = need - buf0
+            dt = np.diff(t[lo:])
+            inc = w[lo:-1] + w[lo + 1 :]
+            inc *= (0.5 * dt)[:, None]
+            need = pairs[0].add(inc, need)
+            temp_int = None
+            if blocks.use_temp:
+                ti = temp[lo:-1] + temp[lo + 1 :]
+                ti *= 0.5 * dt
+                pairs[1].add(ti, buf0 + lo)
+                temp_int = pairs[1].new
+            m = pairs[0].done[1]
+            span = t[edges[1 : m + 1] - buf0] - t[edges[:m] - buf0]
+            blocks.add(pairs[0].new, temp_int, span)
+            edges = edges[m:]
+        if edges.size == 1 and not more:
+            return  # the last fine block is summed: the rest of the session is not needed
+        keep = min(need, buf0 + t.size) - buf0  # a range not yet begun: keep nothing
+        buf, buf0 = tuple(x[keep:] for x in buf), buf0 + keep

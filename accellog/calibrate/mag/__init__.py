@@ -1,0 +1,1 @@
+"""Magnetometer hard and soft iron."""

@@ -1,0 +1,1 @@
+"""Allan deviation and the fitted noise model of a rate sensor."""
