@@ -82,6 +82,7 @@ def small_rrd(tmp_path_factory) -> Path:
     return p
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGHUP", "timeout"])
 def test_view_web_leaves_no_orphan(small_rrd, how):
     code = "import sys; from accellog.cli import main; sys.exit(main())"

@@ -85,8 +85,8 @@ def test_fit_takes_the_gyro_first_pass_in_the_observation_pass(tmp_path, monkeyp
     windows, then the gyro's moves), not three times, and its gyro calibration is the one of
     stream_calibrate_gyro's own passes, exactly (many small blocks: windows span them)."""
     from accellog.calibrate.gyro import stream as stream_gyro
-    from accellog.calibrate.observe import stream_segment
     from accellog.calibrate.gyro.calibrate import gyro_full_scale_dps
+    from accellog.calibrate.observe import stream_segment
     from accellog.flows.simulate import Scenario, simulate
     from accellog.flows.stages import run_fit
     from accellog.store import fastread

@@ -24,6 +24,8 @@ from accellog.flows.fleet import read_table, run_fleet
 from accellog.flows.fleet_report import fleet_report
 from accellog.flows.fleet_sim import FleetSpec, simulate_fleet
 
+pytestmark = pytest.mark.slow  # a real local Dask cluster per module
+
 REPO = Path(__file__).resolve().parents[2]
 PIPELINE = REPO / "pipelines" / "fleet.toml"
 N_DEVICES, N_SESSIONS = 40, 3

@@ -305,6 +305,7 @@ def test_viewer_killed_mid_recording_does_not_touch_mcap(tmp_path: Path) -> None
     assert max(worst) < 1.0, f"a live call stalled the loop for {max(worst):.2f} s"
 
 
+@pytest.mark.slow
 def test_unreachable_viewer_from_the_start(tmp_path: Path) -> None:
     reports: list[str] = []
     live = LiveView(

@@ -74,6 +74,7 @@ def test_evaluate_rrd_tracks_end_at_the_reported_displacement(sessions, capsys):
     assert any(v["class"] == "3D" and v["origin"] == "/world" for v in r.views())
 
 
+@pytest.mark.slow
 def test_demo_rrd_tells_the_whole_story(tmp_path):
     rrd = tmp_path / "demo.rrd"
     assert main(["demo", "--quick", "-o", str(tmp_path / "demo"), "--rrd", str(rrd)]) == 0

@@ -17,7 +17,7 @@ from accellog.cli import main
 from accellog.present.rrd.recording import RunRecording
 from accellog.present.viewer import Chromium, find_chromium, pixel_stats, screenshot_rrd, serve_rrd
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 SERIES_COLORS = {"x": (230, 80, 80), "y": (80, 190, 80), "z": (80, 130, 240)}
 
