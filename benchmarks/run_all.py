@@ -343,6 +343,23 @@ def results_md(done: list[Row], mode: str, repeat: int, by: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+README_START, README_END = "<!-- speed table: python benchmarks/run_all.py -->", "<!-- end of speed table -->"
+
+
+def write_readme_table(done: list[Row], by: str) -> None:
+    """The README's speed table (between its two markers): what, the end-to-end figure, the ratio to
+    the same-run baseline, the goal and whether it is met; the commands are in RESULTS.md."""
+    lines = [README_START, "", "| what (end to end, from the CLI) | figure | vs the same-run baseline | goal | met |",
+             "|---|---|---|---|---|"]  # fmt: skip
+    for r in done:
+        f, b, ratio, ok = judged(r, by)
+        lines.append(f"| {r.what} | {f.wall_s:.2f} s, {f.peak_mb:.0f} MB | {ratio} ({r.base_name}) | {r.goal} "
+                     f"| {'yes' if ok else '**no**'} |")  # fmt: skip
+    text = (ROOT / "README.md").read_text()
+    a, b = text.index(README_START), text.index(README_END)
+    (ROOT / "README.md").write_text(text[:a] + "\n".join([*lines, ""]) + "\n" + text[b:])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     g = ap.add_mutually_exclusive_group()
@@ -386,6 +403,9 @@ def main() -> None:
     if not a.no_write:
         (BENCH / "RESULTS.md").write_text(results_md(todo, mode, repeat, a.by))
         print(f"\nwrote {BENCH / 'RESULTS.md'}")
+        if not a.rows:  # every row ran: the README's speed table follows
+            write_readme_table(todo, a.by)
+            print(f"wrote the speed table of {ROOT / 'README.md'}")
 
 
 if __name__ == "__main__":
