@@ -97,6 +97,10 @@ def _run(args: list[str]) -> int:
 
     if "--show-completion" in args or "--install-completion" in args:
         _shell_from_env_when_undetected()
+    if os.environ.get("ACCELLOG_RRD_FULL", "").strip().lower() in ("1", "true", "yes"):
+        from accellog.present.rrd.recording import RunRecording  # every .rrd at the full rate
+
+        RunRecording.DEFAULT_FULL_RATE = True
     rc = command_group(args[0] if args else None)(args=args, prog_name="accellog", standalone_mode=False)
     return rc if isinstance(rc, int) else 0
 

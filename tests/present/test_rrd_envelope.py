@@ -54,7 +54,7 @@ def test_envelope_keeps_the_order_of_min_and_max() -> None:
     np.testing.assert_array_equal(env.values[2:4], [[2, 2], [-4, 7]])  # x: max (2) first, y: min first
 
 
-def test_whole_series_envelope_and_full_rate_from_the_environment(tmp_path, monkeypatch) -> None:
+def test_whole_series_envelope_and_full_rate_from_the_command_line(tmp_path, monkeypatch, capsys) -> None:
     """A whole long series logged at once (fit / evaluate / demo recordings) is an envelope with its
     device sample numbers; ACCELLOG_RRD_FULL=1 (full data on demand) logs every sample."""
     import sys
@@ -77,7 +77,14 @@ def test_whole_series_envelope_and_full_rate_from_the_environment(tmp_path, monk
     assert len(vals) <= 2 * (ENVELOPE_BUCKETS + 1)
     np.testing.assert_array_equal(vals, minmax_envelope(t, v).values)
     np.testing.assert_array_equal(s_idx, minmax_envelope(t, v, index=idx).row_index)
+    # the command line turns ACCELLOG_RRD_FULL=1 into the default; the library reads no environment
+    from accellog.cli import main
+
+    monkeypatch.setattr(RunRecording, "DEFAULT_FULL_RATE", False)
     monkeypatch.setenv("ACCELLOG_RRD_FULL", "1")
+    with RunRecording(f"save:{tmp_path / 'lib.rrd'}") as rec:
+        assert not rec.full_rate
+    assert main(["effects"]) == 0 and RunRecording.DEFAULT_FULL_RATE
     with RunRecording(f"save:{tmp_path / 'full.rrd'}") as rec:
         assert rec.full_rate
         rec.log_samples("raw", t, idx, v, "g")

@@ -15,7 +15,6 @@ events, residuals, tracks, documents and the ladder are logged by the ``Pipeline
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 import threading
 import urllib.parse
@@ -61,9 +60,13 @@ class RunRecording(PipelineLogs):
     blueprint), or an ``rrb.Blueprint``. guard: catch and count logging failures instead of raising
     (default: True for live sinks, False for files). on_failure: called once with a one-line
     message at the first failure (default: print to stderr). full_rate: log long series at the full
-    rate instead of display envelopes (``present.rrd.envelope``; default: the environment variable
-    ACCELLOG_RRD_FULL=1, else envelopes for series longer than FULL_RATE_MAX_SAMPLES).
+    rate instead of display envelopes (``present.rrd.envelope``; default: ``DEFAULT_FULL_RATE``,
+    which the CLI sets from ACCELLOG_RRD_FULL=1; else envelopes for series longer than
+    FULL_RATE_MAX_SAMPLES).
     """
+
+    DEFAULT_FULL_RATE = False
+    """full_rate when a caller does not say; configuration, set by the command line only."""
 
     def __init__(
         self,
@@ -78,9 +81,7 @@ class RunRecording(PipelineLogs):
     ) -> None:
         import rerun as rr
 
-        if full_rate is None:
-            full_rate = os.environ.get("ACCELLOG_RRD_FULL", "").strip().lower() in ("1", "true", "yes")
-        self.full_rate = bool(full_rate)
+        self.full_rate = bool(type(self).DEFAULT_FULL_RATE if full_rate is None else full_rate)
         self._span: tuple[float, float] | None = None  # batched logging: (t0, bucket width) s
         self._builders: dict[str, tuple[EnvelopeBuilder, bool]] = {}  # entity -> (builder, has index)
         self._extents: dict[str, tuple[float, float]] = {}  # entity -> (first, last) sensor_time (s)
