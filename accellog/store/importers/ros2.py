@@ -15,7 +15,6 @@ of order are sorted (stable) and counted; duplicated stamps are kept (``accellog
 from __future__ import annotations
 
 import itertools
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +23,7 @@ import numpy as np
 from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.store.importers.ros2_cdr import decode_imu
 
 IMU_TYPE = "sensor_msgs/msg/Imu"
 TEMP_TYPE = "sensor_msgs/msg/Temperature"
@@ -115,10 +115,6 @@ def _pick(conns, topic: str | None, msgtype: str, path: Path, flag: str, require
 _BLOCK = 65536
 
 
-PARALLEL_MIN_MESSAGES = 400_000
-"""Bags with more IMU messages than this are decoded by several processes, one log-time range each."""
-
-
 def _messages(reader, conns, start=None, stop=None):
     """(connection, log time, raw) of conns in log-time order, start <= log time < stop; a single bag
     is read directly (no merge)."""
@@ -157,44 +153,81 @@ def _read_imu_parallel(reader, conns, path: Path, jobs: int):
 def _read_imu(reader, conns, start=None, stop=None, progress=None):
     """Arrays of the IMU messages: stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, covariances.
 
-    Rows are gathered in Python tuples and turned into arrays every _BLOCK messages (memory stays
-    one block of tuples plus the arrays); progress(done, total messages) after each block."""
+    Raw messages are gathered _BLOCK at a time and decoded together (ros2_cdr.decode_imu; rosbags'
+    deserialize_cdr one by one for blocks it does not take) into arrays sized from the bag's message
+    count; progress(done, total messages) after each block. Memory: the arrays plus one block."""
     total = sum(int(c.msgcount) for c in conns)
-    des = reader.typestore.deserialize_cdr
-    blocks: list[np.ndarray] = []
-    rows: list[tuple] = []
-    frames: set[str] = set()
-    first = None
-    for conn, t_log, raw in _messages(reader, conns, start, stop):
-        m = des(raw, conn.msgtype)
-        st, la, av = m.header.stamp, m.linear_acceleration, m.angular_velocity
-        rows.append((st.sec, st.nanosec, t_log, la.x, la.y, la.z, av.x, av.y, av.z))
-        frames.add(m.header.frame_id)
-        if first is None:
-            first = m
-        if len(rows) == _BLOCK:
-            blocks.append(_block(rows))
-            rows = []
+    gather = _Gather(total if start is None and stop is None else 0)
+    raws: list[bytes] = []
+    logs: list[int] = []
+    msgtype = conns[0].msgtype if conns else IMU_TYPE
+    for _conn, t_log, raw in _messages(reader, conns, start, stop):
+        raws.append(raw)
+        logs.append(t_log)
+        if len(raws) == _BLOCK:
+            gather.add(_decode_block(reader, msgtype, raws, logs))
+            raws, logs = [], []
             if progress is not None:
-                progress(len(blocks) * _BLOCK, total)
-    if rows or not blocks:
-        blocks.append(_block(rows))
-    ints = np.concatenate([b[0] for b in blocks])
-    vals = np.concatenate([b[1] for b in blocks])
-    stamp = ints[:, 0] * 1_000_000_000 + ints[:, 1]
-    cov_a = cov_g = None
-    if first is not None:
-        cov_a = np.array(first.linear_acceleration_covariance)
-        cov_g = np.array(first.angular_velocity_covariance)
-    return stamp, ints[:, 2], vals[:, :3], vals[:, 3:], frames, cov_a, cov_g
+                progress(gather.n, total)
+    if raws or not gather.n:
+        gather.add(_decode_block(reader, msgtype, raws, logs))
+    return gather.result()
 
 
-def _block(rows: list[tuple]) -> tuple[np.ndarray, np.ndarray]:
+class _Gather:
+    """Decoded blocks written into preallocated arrays (capacity: the expected message count), or kept
+    and joined at the end beyond it; frame ids and the first message's covariances kept."""
+
+    def __init__(self, capacity: int) -> None:
+        self.arrays = [np.empty(capacity, np.int64), np.empty(capacity, np.int64),
+                       np.empty((capacity, 3)), np.empty((capacity, 3))]  # fmt: skip
+        self.n = 0
+        self.extra: list[tuple] = []
+        self.frames: set[str] = set()
+        self.cov: tuple = (None, None)
+
+    def add(self, block: tuple) -> None:
+        m = block[0].shape[0]
+        self.frames |= block[4]
+        if self.cov[0] is None and m:
+            self.cov = (block[5], block[6])
+        if not self.extra and self.n + m <= self.arrays[0].shape[0]:
+            for i in range(4):
+                self.arrays[i][self.n : self.n + m] = block[i]
+        else:
+            self.extra.append(block)
+        self.n += m
+
+    def result(self) -> tuple:
+        k = self.n - sum(b[0].shape[0] for b in self.extra)
+        cat = [a[:k] for a in self.arrays]
+        if self.extra:
+            cat = [np.concatenate([cat[i], *(b[i] for b in self.extra)]) for i in range(4)]
+        return (*cat, self.frames, *self.cov)
+
+
+def _decode_block(reader, msgtype: str, raws: list, logs: list) -> tuple:
+    """(stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, cov accel, cov gyro) of one block."""
+    log = np.asarray(logs, dtype=np.int64)
+    fast = decode_imu(raws)
+    if fast is not None:
+        stamp, acc, gyr, frames, cov_a, cov_g = fast
+        return stamp, log, acc, gyr, frames, cov_a, cov_g
+    des = reader.typestore.deserialize_cdr
+    rows, frames, first = [], set(), None
+    for raw in raws:
+        m = des(raw, msgtype)
+        st, la, av = m.header.stamp, m.linear_acceleration, m.angular_velocity
+        rows.append((st.sec, st.nanosec, la.x, la.y, la.z, av.x, av.y, av.z))
+        frames.add(m.header.frame_id)
+        first = first or m
     if not rows:
-        return np.empty((0, 3), np.int64), np.empty((0, 6))
-    ints = np.array([r[:3] for r in rows], dtype=np.int64)
-    vals = np.array([r[3:] for r in rows], dtype=np.float64)
-    return ints, vals
+        return np.empty(0, np.int64), log, np.empty((0, 3)), np.empty((0, 3)), frames, None, None
+    ints = np.array([r[:2] for r in rows], dtype=np.int64)
+    vals = np.array([r[2:] for r in rows], dtype=np.float64)
+    cov_a = np.array(first.linear_acceleration_covariance)
+    cov_g = np.array(first.angular_velocity_covariance)
+    return ints[:, 0] * 1_000_000_000 + ints[:, 1], log, vals[:, :3], vals[:, 3:], frames, cov_a, cov_g
 
 
 def _read_scalar(reader, conns, kind: str):
@@ -256,9 +289,7 @@ def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs, progress=No
         mc = _pick(conns, mag_topic, MAG_TYPE, path, "--mag-topic", False)
         tc = tc if temperature_topic else companion(conns, imu[0].topic, TEMP_TYPE)
         mc = mc if mag_topic else companion(conns, imu[0].topic, MAG_TYPE)
-        n_msg = sum(int(c.msgcount) for c in imu)
-        if jobs is None:
-            jobs = min(os.cpu_count() or 1, 4) if n_msg > PARALLEL_MIN_MESSAGES else 1
+        jobs = 1 if jobs is None else jobs
         if jobs > 1 and len(imu) == 1 and "fork" in multiprocessing.get_all_start_methods():
             arrays = _read_imu_parallel(reader, imu, path, jobs)
         else:
@@ -318,8 +349,8 @@ def import_ros2(
     Without ``topic`` the bag's only sensor_msgs/msg/Imu topic is used; with several, the error
     lists them. Without ``temperature_topic`` / ``mag_topic`` the bag's topic of that type that goes
     with the IMU topic is read (the only one, or the only one in its namespace; ``companion``). Provenance (bag, topic, frame_id, stamp/log-time agreement, the bag's covariances)
-    goes to meta.extra. jobs: decoding processes (default: the CPU count, up to 4, for bags with more
-    than PARALLEL_MIN_MESSAGES IMU messages; 1 otherwise). progress(done, total): IMU messages decoded
+    goes to meta.extra. jobs: decoding processes (default 1: decoding is vectorised, so the
+    read dominates, and each process holds its own arrays; an hour at 1 kHz takes ~11 s CPU, 380 MB). progress(done, total): IMU messages decoded
     (every 65536 in one process; at the end with several).
     """
     path = Path(path)
@@ -355,8 +386,8 @@ def import_ros2(
         meta=meta,
         t_s=t_s,
         sample_index=np.arange(t_s.shape[0], dtype=np.int64),
-        accel_g=acc / STANDARD_GRAVITY_MPS2,
-        gyro_dps=np.rad2deg(gyr),
+        accel_g=np.divide(acc, STANDARD_GRAVITY_MPS2, out=acc),  # in place: the decoded arrays are ours
+        gyro_dps=np.rad2deg(gyr, out=gyr),
         temp_degC=temp_degC,
         mag_t_s=mag_t,
         mag_uT=mag_uT,
