@@ -72,13 +72,17 @@ class LabelMismatch:
 
 
 def label_mismatches(
-    session: Session, holds: list[tuple[PoseLabel, slice]], max_angle_deg: float = MAX_LABEL_ANGLE_DEG
+    session: Session,
+    holds: list[tuple[PoseLabel, slice]],
+    max_angle_deg: float = MAX_LABEL_ANGLE_DEG,
+    means: list[np.ndarray] | None = None,
 ) -> list[LabelMismatch]:
-    """Every hold (label, sample slice) whose mean reading is more than max_angle_deg from its label."""
+    """Every hold (label, sample slice) whose mean reading is more than max_angle_deg from its label
+    (means: each hold's accel_g[sl].mean(axis=0) when the caller has them)."""
     out = []
-    for p, sl in holds:
+    for i, (p, sl) in enumerate(holds):
         a = session.accel_g[sl]
-        m = a.mean(axis=0)  # the same sum as nanmean without NaN, at half its cost
+        m = a.mean(axis=0) if means is None else means[i]  # the same sum as nanmean without NaN
         if not np.isfinite(m).all():
             m = np.nanmean(a, axis=0)
         norm = float(np.linalg.norm(m))
@@ -99,9 +103,11 @@ def check_labels(
     holds: list[tuple[PoseLabel, slice]],
     where: str | None = None,
     max_angle_deg: float = MAX_LABEL_ANGLE_DEG,
+    means: list[np.ndarray] | None = None,
 ) -> None:
-    """InputError naming the first mislabelled hold and its likely true label (see module doc)."""
-    bad = label_mismatches(session, holds, max_angle_deg)
+    """InputError naming the first mislabelled hold and its likely true label (see module doc);
+    means: as for label_mismatches."""
+    bad = label_mismatches(session, holds, max_angle_deg, means)
     if bad:
         more = f" (and {len(bad) - 1} more holds)" if len(bad) > 1 else ""
         raise InputError(f"{bad[0].line()}{more}; fix the label or fit with --relabel", where=where)

@@ -161,10 +161,10 @@ def checked_labels(poses: Sequence[PoseLabel], where: str, events: Sequence = ()
     return labels
 
 
-def _check_units(session: Session, holds: list[tuple[PoseLabel, slice]]) -> None:
+def _check_units(session: Session, holds: list[tuple[PoseLabel, slice]], means: list[np.ndarray]) -> None:
     lo, hi = UNIT_NORM_RANGE_G
-    for p, sl in holds:
-        norm = float(np.linalg.norm(session.accel_g[sl].mean(axis=0)))
+    for (p, _sl), mean in zip(holds, means, strict=True):
+        norm = float(np.linalg.norm(mean))
         if not lo <= norm <= hi:
             hint = " (are raw counts declared as g? check accel_lsb_per_g)" if norm > hi else ""
             raise InputError(
@@ -189,9 +189,9 @@ def check_window(window_s: float, rate_hz: float, where: str | None = None) -> N
         )
 
 
-def window_stats(x: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(mean, std (ddof=1), n) of x (n,k) over windows beginning at indices `starts` (sorted)."""
-    ref = x.mean(axis=0)
+def window_stats(x: np.ndarray, starts: np.ndarray, ref=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mean, std (ddof=1), n) of x (n,k) over windows at indices `starts` (sorted); ref: x's mean, if known."""
+    ref = x.mean(axis=0) if ref is None else ref
     xc = x - ref
     n = np.diff(np.append(starts, x.shape[0]))
     s1 = np.add.reduceat(xc, starts, axis=0)
@@ -296,15 +296,16 @@ def moving_error(
 
 def _checked_holds(
     session: Session, trim_s: float, min_samples: int, check_units: bool, check_moving: bool
-) -> list[tuple[PoseLabel, slice]]:
-    """Validated holds (see _hold_slices), optionally checked for units (|a| ~ 1 g) and motion."""
+) -> tuple[list[tuple[PoseLabel, slice]], list[np.ndarray]]:
+    """Validated holds (see _hold_slices) and their mean readings (g), checked for units and motion if asked."""
     holds = _hold_slices(session, trim_s, min_samples)
+    means = [session.accel_g[sl].mean(axis=0) for _p, sl in holds]  # once, for the checks and the caller
     if check_units:
-        _check_units(session, holds)
-        check_labels(session, holds, where=session_where(session))
+        _check_units(session, holds, means)
+        check_labels(session, holds, where=session_where(session), means=means)
     if check_moving:
         check_static(session, holds)
-    return holds
+    return holds, means
 
 
 def _temp_slope(t: np.ndarray, temp: np.ndarray) -> float:
@@ -323,10 +324,10 @@ def pose_stats(
     check_moving: bool = True,
 ) -> list[PoseStats]:
     """Per-hold statistics (mean, std, autocorrelation-aware sem, tau, temperature, times)."""
-    holds = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
+    holds, means = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
     q = quantum_g(session)
     out = []
-    for p, sl in holds:
+    for (p, sl), mean in zip(holds, means, strict=True):
         acc = session.accel_g[sl]
         t = session.t_s[sl]
         sem, tau = sem_autocorr(acc, quantum=q)
@@ -343,7 +344,7 @@ def pose_stats(
                 start_s=float(t[0]),
                 end_s=float(t[-1]),
                 n=int(acc.shape[0]),
-                mean_g=acc.mean(axis=0),
+                mean_g=mean,
                 std_g=acc.std(axis=0, ddof=1),
                 sem_g=sem,
                 tau_samples=tau,
@@ -371,7 +372,7 @@ def observations(
     in-window slope for a single-window hold), q = the label's nominal orientation (NaN if unknown).
     """
     check_window(window_s, session.meta.sample_rate_hz, session_where(session))
-    holds = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
+    holds, means = _checked_holds(session, trim_s, min_samples, check_units, check_moving)
     quantum = quantum_g(session)
     names: list[str] = []
     name_id: dict[str, int] = {}
@@ -379,7 +380,7 @@ def observations(
         k: [] for k in ("meas", "sigma", "std", "up", "pid", "t", "tin", "n", "temp", "dtemp", "q")
     }
     has_temp = session.temp_degC is not None
-    for p, sl in holds:
+    for (p, sl), hold_mean in zip(holds, means, strict=True):
         acc = session.accel_g[sl]
         t = session.t_s[sl]
         n_all = acc.shape[0]
@@ -387,8 +388,8 @@ def observations(
         edges = t[0] + (t[-1] - t[0]) * np.arange(nwin) / nwin
         starts = np.unique(np.searchsorted(t, edges))
         starts = starts[starts < n_all]
-        mean, std, n = window_stats(acc, starts)
-        tau = integrated_autocorr_time(acc)
+        mean, std, n = window_stats(acc, starts, hold_mean)
+        tau = integrated_autocorr_time(acc, mean=hold_mean)
         sigma = np.maximum(std * np.sqrt(tau[None, :] / n[:, None]), quantum / np.sqrt(12.0 * n[:, None]))
         tmid = np.add.reduceat(t - t[0], starts) / n + t[0]
         if p.name not in name_id:
