@@ -18,6 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
+from accellog.acquire.handoff import Handoff
 from accellog.acquire.registers import FIFO_SIZE_BYTES, PACKET_BYTES
 from accellog.acquire.stillness import StillnessDetector
 from accellog.core.protocol import PoseSpec
@@ -145,6 +146,9 @@ class Recorder:
     on_batch: optional callback (e.g. a live Rerun view) given every batch; it must not raise.
     on_pose: optional callback (label, mean_g (3,), std_g (3,), n) after every labelled hold.
     stop: optional event (set by a signal handler); the loop stops at the next FIFO read.
+    write_thread: hand the MCAP writes, on_batch, on_pose and the UI calls to one helper thread
+    (accellog.acquire.handoff, in order), so the reading thread only reads the FIFO and tracks
+    stillness (live recording on a busy host); ``close()`` then writes what is still queued.
     """
 
     def __init__(
@@ -160,6 +164,7 @@ class Recorder:
         on_pose: Callable[[PoseLabel, np.ndarray, np.ndarray, int], None] | None = None,
         read_mag: bool = False,
         stop: threading.Event | None = None,
+        write_thread: bool = False,
     ) -> None:
         self.driver = driver
         self.writer = writer
@@ -171,6 +176,9 @@ class Recorder:
         self.on_pose = on_pose
         self.read_mag = read_mag
         self.stop = stop
+        self.handoff = Handoff(threaded=write_thread)
+        self.post = self.handoff.post
+        """post(fn, *args): run fn after everything the loop wrote so far (on the helper thread)."""
         self._hold_sum = np.zeros(3)
         self._hold_sq = np.zeros(3)
         self._hold_n = 0
@@ -232,14 +240,16 @@ class Recorder:
         self._last_read_ns = int(clock()) if clock is not None else None
         batch = self.driver.read()
         self.reads += 1
+        post = self.post
         for ev in batch.events:
-            self.writer.write_event(ev)
+            post(self.writer.write_event, ev)
             self.summary.events.append(ev)
             self.summary.lost_samples += ev.lost_samples
         n = len(batch.t_ns)
         self._catch_up = n >= (FIFO_SIZE_BYTES // PACKET_BYTES) // 2  # behind: read again at once
         if n:
-            self.writer.write_imu(
+            post(
+                self.writer.write_imu,
                 batch.first_index,
                 batch.t_ns,
                 accel_counts=batch.accel_counts,
@@ -263,11 +273,16 @@ class Recorder:
                 self._hold_sq += (accel_g**2).sum(axis=0)
                 self._hold_n += n
             if self.on_batch is not None:
-                self.on_batch(batch, accel_g)
+                post(self.on_batch, batch, accel_g)
         if self.read_mag:
             mag = self.driver.read_mag()
             if mag is not None:
-                self.writer.write_mag_reading(mag)
+                post(self.writer.write_mag_reading, mag)
+
+    def close(self) -> None:
+        """Write everything still handed to the helper thread and stop it (idempotent); raises a
+        write's error. Call it before the SessionWriter closes."""
+        self.handoff.close()
 
     @property
     def t_s(self) -> float:
@@ -298,11 +313,12 @@ class Recorder:
         if wait == "enter" and enter is None:
             enter = EnterKey()
         for k, pose in enumerate(poses):
-            self.ui.prompt(k, len(poses), pose)
-            self.writer.write_event(Event(self.t_s, "pose_prompt", f"pose {k + 1}/{len(poses)}: {pose.name}"))
+            self.post(self.ui.prompt, k, len(poses), pose)
+            prompt = f"pose {k + 1}/{len(poses)}: {pose.name}"
+            self.post(self.writer.write_event, Event(self.t_s, "pose_prompt", prompt))
             if not self._wait_ready(k, wait, timeout_s, enter):
                 ev = Event(self.t_s, "note", f"pose {pose.name}: not still within {timeout_s:g} s, skipped")
-                self.writer.write_event(ev)
+                self.post(self.writer.write_event, ev)
                 self.summary.events.append(ev)
                 continue
             start = self.t_s
@@ -311,7 +327,7 @@ class Recorder:
             self._hold_first_s = None
             while self.t_s - start < pose.hold_s:
                 self.step()
-                self.ui.holding(pose, self.t_s - start)
+                self.post(self.ui.holding, pose, self.t_s - start)
                 if not self.stillness.still:
                     moved = True
             self._holding = False
@@ -321,15 +337,15 @@ class Recorder:
             label = PoseLabel(pose.name, first, end, pose.up_sensor, pose.q_sensor_to_world, k)
             if moved:
                 ev = Event(start, "note", f"pose {pose.name}: sensor moved during the hold")
-                self.writer.write_event(ev)
+                self.post(self.writer.write_event, ev)
                 self.summary.events.append(ev)
-            self.writer.write_pose(label)
+            self.post(self.writer.write_pose, label)
             self.summary.poses.append(label)
-            self.ui.finished_pose(label)
+            self.post(self.ui.finished_pose, label)
             if self.on_pose is not None and self._hold_n > 1:
                 mean = self._hold_sum / self._hold_n
                 std = np.sqrt(np.maximum(self._hold_sq / self._hold_n - mean**2, 0.0))
-                self.on_pose(label, mean, std, self._hold_n)
+                self.post(self.on_pose, label, mean, std, self._hold_n)
         self.summary.duration_s = self.t_s
         return self.summary
 
@@ -344,7 +360,7 @@ class Recorder:
                 continue
             if not self.stillness.still:
                 moved = True
-            self.ui.waiting(not self.stillness.still, self.stillness.still_for_s)
+            self.post(self.ui.waiting, not self.stillness.still, self.stillness.still_for_s)
             if moved and self.stillness.settled:
                 return True
         return False
