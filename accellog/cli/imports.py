@@ -263,6 +263,17 @@ def import_ros2_cmd(
         Console().print(table)
         return
     _check_out(out, bag, compression, force)
+    if not detect_holds:  # streamed (flat memory); None: stamps to sort or zero, imported in memory
+        from accellog.store.importers.ros2_stream import import_ros2_to_mcap
+
+        with progress_bar("import ros2 (messages)", show=wanted(as_json)) as bar:
+            facts = import_ros2_to_mcap(bag, out, topic=topic, temperature_topic=temperature_topic,
+                                        mag_topic=mag_topic, batch_size=batch_size, compression=compression,
+                                        overwrite=force, progress=bar)  # fmt: skip
+        if facts is not None:
+            head = {"input": str(bag), "output": str(out), "source": "import:ros2"}
+            _present({**head, **facts}, bag, out, as_json)
+            return
     with progress_bar("import ros2 (messages)", show=wanted(as_json)) as bar:
         session = import_ros2(
             bag, topic=topic, temperature_topic=temperature_topic, mag_topic=mag_topic, progress=bar

@@ -276,6 +276,16 @@ def companion(conns, imu_topic: str, msgtype: str) -> list:
     return [c for c in of_type if c.topic == near[0]] if len(near) == 1 else []
 
 
+def _topics(conns, path: Path, topic, temperature_topic, mag_topic) -> tuple[list, list, list]:
+    """Connections of the IMU topic, its temperature topic and its magnetometer topic (see _read_bag)."""
+    imu = _pick(conns, topic, IMU_TYPE, path, "--topic", True)
+    tc = _pick(conns, temperature_topic, TEMP_TYPE, path, "--temperature-topic", False)
+    mc = _pick(conns, mag_topic, MAG_TYPE, path, "--mag-topic", False)
+    tc = tc if temperature_topic else companion(conns, imu[0].topic, TEMP_TYPE)
+    mc = mc if mag_topic else companion(conns, imu[0].topic, MAG_TYPE)
+    return imu, tc, mc
+
+
 def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs, progress=None):
     """IMU arrays (+ temperature and magnetometer messages) of the chosen topics; without a
     temperature or magnetometer topic, the one that goes with the IMU topic (``companion``)."""
@@ -283,12 +293,7 @@ def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs, progress=No
 
     reader = _open(path)
     try:
-        conns = reader.connections
-        imu = _pick(conns, topic, IMU_TYPE, path, "--topic", True)
-        tc = _pick(conns, temperature_topic, TEMP_TYPE, path, "--temperature-topic", False)
-        mc = _pick(conns, mag_topic, MAG_TYPE, path, "--mag-topic", False)
-        tc = tc if temperature_topic else companion(conns, imu[0].topic, TEMP_TYPE)
-        mc = mc if mag_topic else companion(conns, imu[0].topic, MAG_TYPE)
+        imu, tc, mc = _topics(reader.connections, path, topic, temperature_topic, mag_topic)
         jobs = 1 if jobs is None else jobs
         if jobs > 1 and len(imu) == 1 and "fork" in multiprocessing.get_all_start_methods():
             arrays = _read_imu_parallel(reader, imu, path, jobs)
@@ -335,6 +340,37 @@ def _provenance(path: Path, topic: str, arrays) -> tuple[np.ndarray, np.ndarray,
     return stamp, acc, gyr, extra
 
 
+def temp_on(temp, stamp: np.ndarray) -> np.ndarray | None:
+    """The temperature messages (topic, stamp ns, degC) interpolated linearly onto IMU stamps ns."""
+    if temp is None or not temp[1].size:
+        return None
+    return np.interp(stamp.astype(np.float64), temp[1].astype(np.float64), temp[2])
+
+
+def side_extras(extra: dict, temp, mag, t0: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """meta.extra lines of the temperature and magnetometer topics; the magnetometer's t s and uT."""
+    if temp is not None and temp[1].size:
+        extra["temperature"] = f"{temp[0]}: {temp[1].size} messages, interpolated onto the IMU stamps"
+        extra["ros2_temperature_topic"] = temp[0]
+    if mag is None or not mag[1].size:
+        return None, None
+    extra["magnetometer"] = f"{mag[0]}: tesla -> uT (x 1e6)"
+    extra["ros2_mag_topic"] = mag[0]
+    return (mag[1] - t0) / 1e9, mag[2] * 1e6
+
+
+def session_meta(t0: int, t_s: np.ndarray, extra: dict) -> SessionMeta:
+    """The imported session's meta: rate 1 / median interval of t_s (s)."""
+    med = float(np.median(np.diff(t_s)))
+    return SessionMeta(
+        source="import:ros2",
+        chip="unknown",
+        sample_rate_hz=1.0 / med if med > 0 else 0.0,
+        start_time_unix_ns=t0,
+        extra=extra,
+    )
+
+
 def import_ros2(
     path: str | Path,
     *,
@@ -364,24 +400,9 @@ def import_ros2(
     stamp, acc, gyr, extra = _provenance(path, imu_topic, arrays)
     t0 = int(stamp[0])
     t_s = (stamp - t0) / 1e9
-    temp_degC = None
-    if temp is not None and temp[1].size:
-        temp_degC = np.interp(stamp.astype(np.float64), temp[1].astype(np.float64), temp[2])
-        extra["temperature"] = f"{temp[0]}: {temp[1].size} messages, interpolated onto the IMU stamps"
-        extra["ros2_temperature_topic"] = temp[0]
-    mag_t = mag_uT = None
-    if mag is not None and mag[1].size:
-        mag_t, mag_uT = (mag[1] - t0) / 1e9, mag[2] * 1e6
-        extra["magnetometer"] = f"{mag[0]}: tesla -> uT (x 1e6)"
-        extra["ros2_mag_topic"] = mag[0]
-    med = float(np.median(np.diff(t_s)))
-    meta = SessionMeta(
-        source="import:ros2",
-        chip="unknown",
-        sample_rate_hz=1.0 / med if med > 0 else 0.0,
-        start_time_unix_ns=t0,
-        extra=extra,
-    )
+    temp_degC = temp_on(temp, stamp)
+    mag_t, mag_uT = side_extras(extra, temp, mag, t0)
+    meta = session_meta(t0, t_s, extra)
     return Session(
         meta=meta,
         t_s=t_s,
