@@ -8,6 +8,7 @@ read and the file is finished cleanly.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from dataclasses import dataclass
@@ -102,24 +103,33 @@ class RecordResult:
 
 
 class RunningCalibration:
-    """Refits the richest seed model the holds so far determine and shows it in the live view."""
+    """Refits the richest seed model the holds so far determine and shows it in the live view.
+
+    The constructor runs the whole fit once on six ideal poses (nothing shown): the first refit
+    would otherwise import scipy.optimize during the recording (0.4 s holding the GIL, while the
+    reading thread must drain the FIFO every 36 ms)."""
 
     def __init__(self, live, warn=print) -> None:
         self.live = live
         self.warn = warn
         self.rows: list[tuple[str, tuple, np.ndarray, np.ndarray, int]] = []
+        up = np.vstack([np.eye(3), -np.eye(3)])
+        with contextlib.suppress(Exception):  # the first real hold reports what fails
+            self._text([(f"warm-up {k}", tuple(u), u, np.full(3, 1e-3), 1000) for k, u in enumerate(up)])
 
     def __call__(self, label: PoseLabel, mean_g: np.ndarray, std_g: np.ndarray, n: int) -> None:
         try:
-            self._update(label, mean_g, std_g, n)
+            self.rows.append((label.name, label.up_sensor, mean_g, std_g, n))
+            self.live.running_calibration(self._text(self.rows))
         except Exception as exc:  # the live view must never stop the recording
             self.warn(f"live calibration skipped: {exc}")
 
-    def _update(self, label: PoseLabel, mean_g: np.ndarray, std_g: np.ndarray, n: int) -> None:
-        self.rows.append((label.name, label.up_sensor, mean_g, std_g, n))
-        names = [r[0] for r in self.rows]
+    @staticmethod
+    def _text(rows: list) -> str:
+        """Markdown of the richest preset the rows (name, up_sensor, mean_g, std_g, n) determine."""
+        names = [r[0] for r in rows]
         obs = obs_from_pose_means(
-            *(np.array([r[k] for r in self.rows]) for k in (1, 2, 3, 4)), names=names, session="live"
+            *(np.array([r[k] for r in rows]) for k in (1, 2, 3, 4)), names=names, session="live"
         )
         text = f"holds so far: {', '.join(names)}\n\n"
         for preset in ("model3", "model2", "model1"):
@@ -131,7 +141,7 @@ class RunningCalibration:
             cal = Calibration.from_fit(res, obs=obs, gravity_convention="local")
             text += "\n" + table_markdown(params_table(cal, title=f"running {preset}"))
             break
-        self.live.running_calibration(text)
+        return text
 
 
 def _open_bus(opts: RecordOptions):

@@ -4,6 +4,8 @@ failed write stops the recording instead of being skipped."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -105,3 +107,24 @@ def test_inline_handoff_runs_at_once():
     h.post(done.append, 1)
     assert done == [1]
     h.close()
+
+
+def test_running_calibration_imports_nothing_during_the_recording():
+    """Its first refit used to import scipy.optimize on the reading thread (0.4 s: a FIFO overflow
+    after the first hold of every `record --rerun`); the constructor now runs the fit once."""
+    code = (
+        "import sys, numpy as np\n"
+        "from accellog.flows.record import RunningCalibration\n"
+        "shown = []\n"
+        "class View:\n"
+        "    def running_calibration(self, text): shown.append(text)\n"
+        "rc = RunningCalibration(View(), warn=sys.exit)\n"
+        "before = set(sys.modules)\n"
+        "class Label: name, up_sensor = '+z', (0.0, 0.0, 1.0)\n"
+        "rc(Label(), np.array([0.0, 0.0, 1.0]), np.full(3, 1e-3), 1000)\n"
+        "assert shown and 'running model1' in shown[0], shown\n"
+        "print(sorted(set(sys.modules) - before))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
