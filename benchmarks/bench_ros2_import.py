@@ -8,10 +8,9 @@ Python process (peak RSS = its own ru_maxrss); the page cache is warmed first. V
 - read floor: rosbags AnyReader iterating the raw IMU messages (no decoding);
 - decode floor: the same plus rosbags' CDR deserialization of every message (what any importer
   using the maintained decoder must pay);
-- accellog: import_ros2 (decode, SI -> accellog units, stamps vs log time, temperature interpolation)
-  + write_session to an accellog MCAP, i.e. `accellog import ros2 BAG -o OUT.mcap`; bags above
-  400k IMU messages are decoded by up to 4 forked processes (one log-time range each), whose CPU
-  time is included and whose peak RSS is added to the parent's (an upper bound).
+- accellog: import_ros2_to_mcap, what `accellog import ros2 BAG -o OUT.mcap` runs (blocks of raw
+  messages decoded with numpy, SI -> accellog units, stamps vs log time, temperature interpolation,
+  written to an accellog MCAP as they are read).
 Speed is reported as x real time (bag duration / wall, and / process CPU time, which a loaded shared
 machine distorts less) and as a ratio to the decode floor; the load average is printed with every
 figure (the machine is shared).
@@ -65,11 +64,8 @@ if variant in ("read_floor", "decode_floor"):
                 des(raw, c.msgtype)
             n += 1
 else:
-    from accellog.store.importers.ros2 import import_ros2
-    from accellog.store.writer import write_session
-    s = import_ros2(bag, temperature_topic="/imu/temperature")
-    write_session(out, s)
-    n = s.n
+    from accellog.store.importers.ros2_stream import import_ros2_to_mcap
+    n = import_ros2_to_mcap(bag, out, temperature_topic="/imu/temperature", overwrite=True)["samples"]
 wall = time.perf_counter() - t0
 ru, rc = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
 cpu = ru.ru_utime + ru.ru_stime + rc.ru_utime + rc.ru_stime  # + the decoding worker processes
