@@ -62,3 +62,13 @@ def test_label_check_with_shared_means():
         InputError, match=r"pose .\+z. .*measured gravity is 1[78]\d deg from the label.*and 5 more holds"
     ):
         observations(s)
+
+
+def test_non_finite_sample_named_with_its_time():
+    s = synth_session(hold_s=12.0, seed=6)
+    _p, sl = _hold_slices(s, 0.5, 20)[2]
+    i = sl.start + 100
+    s.accel_g[i, 1] = np.nan
+    s.accel_g[i + 5, 2] = np.inf
+    with pytest.raises(InputError, match=rf"accel is NaN/inf at t = {s.t_s[i]:.3f} s \(2 bad samples\)"):
+        observations(s)
