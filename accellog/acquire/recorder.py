@@ -148,7 +148,10 @@ class Recorder:
     stop: optional event (set by a signal handler); the loop stops at the next FIFO read.
     write_thread: hand the MCAP writes, on_batch, on_pose and the UI calls to one helper thread
     (accellog.acquire.handoff, in order), so the reading thread only reads the FIFO and tracks
-    stillness (live recording on a busy host); ``close()`` then writes what is still queued.
+    stillness; ``close()`` then writes what is still queued. Off by default and in ``accellog
+    record``: on a loaded 2-core host it did not lower the loss (benchmarks/bench_record_load.py,
+    ``adaptive`` vs ``inline``) and costs 1.5-2.5 % more of a core; for writes that block (slow
+    storage).
     """
 
     def __init__(

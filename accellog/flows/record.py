@@ -223,9 +223,8 @@ def record_session(
                 on_batch=live.on_batch if live else None,
                 on_pose=RunningCalibration(live, warn) if live else None,
                 stop=stop,
-                write_thread=real_time,  # writes, live view and UI off the reading thread
             )
-            if real_time:  # before the first post: the helper thread inherits the priority
+            if real_time:
                 rec.post(writer.write_event, Event(0.0, "note", raise_priority()))
             started(f"recording to {opts.out} (Ctrl-C finishes the file)")
             try:
