@@ -408,15 +408,18 @@ def test_threads_cannot_share_an_output(tmp_path):
     out = tmp_path / "o.json"
     errors: list[str] = []
     gate = threading.Barrier(4)
+    others_refused = threading.Event()  # the writer holds its output until the three others tried
 
     def write(k: int) -> None:
         gate.wait()
         try:
             with atomic_output(out) as tmp:
                 tmp.write_text(str(k) * 1000)
-                threading.Event().wait(0.2)
+                others_refused.wait(30.0)
         except InputError as exc:
             errors.append(str(exc))
+            if len(errors) == 3:
+                others_refused.set()
 
     ts = [threading.Thread(target=write, args=(k,)) for k in range(4)]
     for t in ts:
