@@ -106,7 +106,7 @@ def test_configure_writes_registers_and_reports_config():
     cfg = drv.configure(accel_range_g=8, gyro_range_dps=1000, dlpf_cfg=2, a_dlpf_cfg=4, sample_rate_div=4)
     regs = chip.regs
     assert regs[R.PWR_MGMT_1] == 0x01 and regs[R.PWR_MGMT_2] == 0
-    assert (regs[R.SMPLRT_DIV], regs[R.CONFIG], regs[R.GYRO_CONFIG]) == (4, 2, 2 << 3)
+    assert (regs[R.SMPLRT_DIV], regs[R.CONFIG], regs[R.GYRO_CONFIG]) == (4, 2 | R.CONFIG_FIFO_MODE, 2 << 3)
     assert (regs[R.ACCEL_CONFIG], regs[R.ACCEL_CONFIG2], regs[R.FIFO_EN]) == (2 << 3, 4, 0xF8)
     assert cfg.sample_rate_hz == 200.0 and chip.sample_rate_hz == 200.0
     assert (cfg.accel_lsb_per_g, cfg.gyro_lsb_per_dps) == (4096.0, 32.8)
@@ -159,21 +159,42 @@ def test_overflow_is_detected_reset_and_accounted():
     # everything the chip took is either received, lost (in events) or still in the FIFO
     in_fifo = chip.fifo_count // 14
     assert abs(received + ev.lost_samples + in_fifo - chip.fifo_samples_pushed) <= 1
-    assert 470 <= ev.lost_samples <= 485
-    assert ev.sample_index == 500 and ev.t_s == pytest.approx(0.5)
+    # FIFO_MODE = 1: the 36 whole packets the full FIFO kept are read (aligned), only the rest is lost
+    assert 434 <= ev.lost_samples <= 449
+    assert ev.sample_index == 536 and ev.t_s == pytest.approx(0.536)
     check_alignment(chip, batches)
 
 
-def test_fifo_mode_one_overflow_also_detected():
+def test_overflow_keeps_the_whole_packets_the_full_fifo_held():
     clock, chip, drv = make()
     drv.configure()
-    chip.write_byte_data(0x68, R.CONFIG, chip.regs[R.CONFIG] | R.CONFIG_FIFO_MODE)
+    assert chip.regs[R.CONFIG] & R.CONFIG_FIFO_MODE
     drv.start()
-    run(clock, drv, 4)
+    batches = run(clock, drv, 4)
     clock.sleep(0.2)
     b = drv.read()
     assert [e.kind for e in b.events] == ["fifo_overflow"]
-    assert b.events[0].lost_samples == 200
+    assert "36 whole packets kept" in b.events[0].detail
+    assert b.n == 36 and b.first_index == 100 and b.events[0].lost_samples == 164
+    check_alignment(chip, [*batches, b], tol_counts=0)
+
+
+def test_a_clone_that_ignores_fifo_mode_stores_no_misaligned_packet():
+    # the chip stores FIFO_MODE = 1 but drops its oldest bytes: the head is misaligned; the driver sees
+    # the kept packets' temperature jump and drops them (the pre-FIFO_MODE loss, never garbage)
+    clock = SimClock()
+    model = SensorModel(WobbleMotion(), AccelErrors(), GyroErrors.perfect(), seed=0)  # temperature noise on
+    chip = EmulatedMpu9250(model, clock, honours_fifo_mode=False)
+    drv = Mpu9250(chip, clock_ns=clock.now_ns)
+    drv.configure()
+    drv.start()
+    batches = run(clock, drv, 4)
+    clock.sleep(0.2)
+    b = drv.read()
+    assert [e.kind for e in b.events] == ["fifo_overflow"] and "misaligned, dropped" in b.events[0].detail
+    assert b.n == 0 and b.events[0].lost_samples == 200
+    batches += [b, *run(clock, drv, 4)]
+    check_alignment(chip, batches, tol_counts=40)  # temperature-noise model: counts within noise
 
 
 def test_misaligned_fifo_is_reset_and_accounted():

@@ -67,6 +67,7 @@ class EmulatedMpu9250:
         support_i2c_rdwr: bool = True,
         error_consumes_fifo: bool = True,
         block_samples: int = 2048,
+        honours_fifo_mode: bool = True,
     ) -> None:
         self.model = model
         self.clock = clock
@@ -78,6 +79,8 @@ class EmulatedMpu9250:
         self.support_i2c_rdwr = bool(support_i2c_rdwr)
         self.error_consumes_fifo = bool(error_consumes_fifo)
         self.block_samples = int(block_samples)
+        self.honours_fifo_mode = bool(honours_fifo_mode)
+        """False: a clone that stores CONFIG.FIFO_MODE but always drops the oldest bytes."""
         self._err_rng = np.random.default_rng([int(seed), 0x12C])
         self._t0_ns = int(self._now_ns())
         # statistics
@@ -204,7 +207,7 @@ class EmulatedMpu9250:
         pkt = 2 * bin(sel).count("1") + (4 if sel & R.FIFO_EN_ACCEL else 0)
         cap = R.FIFO_SIZE_BYTES
         fifo = self._fifo
-        if self.regs[R.CONFIG] & R.CONFIG_FIFO_MODE:  # keep old data, drop what does not fit
+        if self.regs[R.CONFIG] & R.CONFIG_FIFO_MODE and self.honours_fifo_mode:  # keep old data
             room = cap - len(fifo)
             n_fit = min(m, -(-room // pkt)) if room > 0 else 0
             if n_fit:
