@@ -5,7 +5,9 @@ The group follows click's lazy-loading pattern ("Lazily Loading Subcommands" in 
 typer's group class: it lists the commands from COMMANDS and imports a command's module, and builds
 only that command, when the command is asked for. A command line loads only its command's module;
 `accellog --help` and shell completion load every command module (the libraries are imported inside
-the commands, when they run)."""
+the commands, when they run). The command modules do not postpone their annotations (no `from
+__future__ import annotations`): typer would compile and eval every string annotation twice per command,
+44 ms instead of 12 ms of CPU to build the 24 commands of the help."""
 
 from __future__ import annotations
 
