@@ -5,7 +5,7 @@ run --repeat times in a fresh interpreter: the `accellog` script installed besid
 (the one `python -c pass` runs; a version manager's shim on PATH, e.g. pyenv's bash script, would add
 its own ~0.1 s to accellog only), else `python -m accellog`. Reported: median wall and CPU time (user +
 sys), peak RSS, and which heavy modules the command imported (numpy, pydantic, typer, scipy, rerun,
-pyarrow, protobuf, mcap, dask): --help should load none of them.
+pyarrow, protobuf, mcap, dask): --help should load typer alone (it draws the help).
 
     python benchmarks/bench_startup.py [--repeat 9]
 """

@@ -1,6 +1,6 @@
 """`accellog` command line: one module per group of commands, all registered on one typer app
-(accellog.cli.app). A command line imports only the module of its command and builds only that
-command, and the top-level help is drawn from a table without typer (accellog.cli.registry, #9)."""
+(accellog.cli.app), run as a lazy click group: a command line imports only the module of its command
+and builds only that command (#9)."""
 
 from __future__ import annotations
 
@@ -73,27 +73,13 @@ def _busy(args: list[str]):
 
 
 def _run(args: list[str]) -> int:
-    """Parse and run one command line; the top-level help (`--help`, or nothing: then an error
-    too, as click's no_args_is_help) without typer."""
+    """Parse and run one command line (`--version` without typer)."""
     if args == ["--version"]:
         from accellog.core.version import __version__
 
         print(f"accellog {__version__}")
         return 0
-    if (
-        args in ([], ["--help"])
-        and "TYPER_USE_RICH" not in os.environ
-        and "_ACCELLOG_COMPLETE" not in os.environ
-    ):
-        from accellog.cli.tophelp import print_help
-
-        print_help()
-        if args:
-            print()
-            return 0
-        print(_usage_error_line("accellog", ""), file=sys.stderr)
-        return 2
-    from accellog.cli.registry import command_group
+    from accellog.cli.app import command_group
 
     if "--show-completion" in args or "--install-completion" in args:
         _shell_from_env_when_undetected()
@@ -101,7 +87,7 @@ def _run(args: list[str]) -> int:
         from accellog.present.rrd.recording import RunRecording  # every .rrd at the full rate
 
         RunRecording.DEFAULT_FULL_RATE = True
-    rc = command_group(args[0] if args else None)(args=args, prog_name="accellog", standalone_mode=False)
+    rc = command_group()(args=args, prog_name="accellog", standalone_mode=False)
     return rc if isinstance(rc, int) else 0
 
 

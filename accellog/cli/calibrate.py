@@ -4,8 +4,6 @@ Each command calls a plain function of accellog.flows.pipeline (run_fit, run_eva
 run_pipeline; accellog.flows.apply.run_apply) and prints rich tables, or machine-readable JSON on stdout with --json.
 """
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 

@@ -1,7 +1,5 @@
 """`accellog demo`: the main job on the emulated chip (see accellog.flows.demo)."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 

@@ -1,8 +1,6 @@
 """`accellog doctor FILE`: rate, jitter, gaps, duplicates, bursts, clipping, events, temperature, still
 intervals and the calibrations a log supports; table, --json, --rrd."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 

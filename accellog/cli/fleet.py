@@ -4,8 +4,6 @@ The library does the work (accellog.flows.fleet, accellog.flows.fleet_report); t
 shows a progress bar and presents the typed results (rich tables, or JSON on stdout with --json).
 """
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 

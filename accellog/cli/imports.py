@@ -1,7 +1,5 @@
 """`accellog import capstone|imucal|csv FILE -o OUT.mcap`: other tools' recordings -> accellog MCAP."""
 
-from __future__ import annotations
-
 import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -26,7 +24,7 @@ BatchOpt = Annotated[int, typer.Option("--batch-size", min=1, help="Samples per 
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
 
 
-def _facts(session: Session, src: Path, out: Path) -> dict:
+def _facts(session: "Session", src: Path, out: Path) -> dict:
     t = session.t_s
     return {
         "input": str(src),
@@ -64,7 +62,7 @@ def _check_out(out: Path, src: Path, compression: str, force: bool) -> None:
 
 
 def _write(
-    session: Session, src: Path, out: Path, as_json: bool, batch_size: int, compression: str, force: bool
+    session: "Session", src: Path, out: Path, as_json: bool, batch_size: int, compression: str, force: bool
 ) -> None:
     from accellog.store.writer import write_session
 

@@ -7,8 +7,6 @@
 Session files are only read. .rrd files are written to a temporary name and renamed when complete.
 """
 
-from __future__ import annotations
-
 import time
 from pathlib import Path
 from typing import Annotated

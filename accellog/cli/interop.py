@@ -1,7 +1,5 @@
 """`accellog export CAL.json --to kalibr|ros|px4|ardupilot|yaml`: calibrations for other tools."""
 
-from __future__ import annotations
-
 import json
 from pathlib import Path
 from typing import Annotated

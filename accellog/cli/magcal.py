@@ -1,7 +1,5 @@
 """`accellog magcal`: hard and soft iron of the AK8963 magnetometer from a rotating session."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 

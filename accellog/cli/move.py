@@ -1,7 +1,5 @@
 """`accellog track`: strapdown tracks of a moving session, one per calibration, with their errors."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 

@@ -1,7 +1,5 @@
 """`accellog noise`: Allan-variance noise characterisation of a long static session."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 

@@ -1,7 +1,5 @@
 """`accellog record` (guided recording from hardware or the emulated chip) and `accellog simulate`."""
 
-from __future__ import annotations
-
 import signal
 import threading
 from pathlib import Path
@@ -28,7 +26,7 @@ class TerminalUI:
         self._last_wait = -1.0
         self._last_hold = -1
 
-    def prompt(self, index: int, total: int, pose: PoseSpec) -> None:
+    def prompt(self, index: int, total: int, pose: "PoseSpec") -> None:
         up = ", ".join(f"{v:+.0f}" for v in pose.up_sensor)
         console.print(
             f"[bold]pose {index + 1}/{total}: {pose.name}[/] - turn the sensor so that ({up}) points up, "
@@ -43,7 +41,7 @@ class TerminalUI:
             console.print(f"  still for {still_for_s:.1f} s", end="\r")
         self._last_wait = still_for_s
 
-    def holding(self, pose: PoseSpec, done_s: float) -> None:
+    def holding(self, pose: "PoseSpec", done_s: float) -> None:
         if not console.is_terminal:
             return
         pct = int(100 * min(done_s / pose.hold_s, 1.0))
@@ -52,7 +50,7 @@ class TerminalUI:
             console.print(f"  holding {pose.name} [{bar}] {pct:3d}%", end="\r")
             self._last_hold = pct // 10
 
-    def finished_pose(self, label: PoseLabel) -> None:
+    def finished_pose(self, label: "PoseLabel") -> None:
         console.print(f"  {label.name}: held {label.end_s - label.start_s:.1f} s" + " " * 30)
 
 

@@ -5,8 +5,6 @@ Reads calibration files (`fit -o`, `drift -o`), `evaluate --json`, `integrate --
 into a lab notebook or an issue.
 """
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 

@@ -3,8 +3,6 @@ library): each parses, calls one library function (accellog.flows.diagnose_run.r
 accellog.flows.workbench_run.run_workbench, accellog.calibrate.model.effects.describe) and presents
 (accellog.present.discovery_text)."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 
