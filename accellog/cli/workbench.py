@@ -91,8 +91,6 @@ def diagnose(
     --heldout other.mcap`.
     """
     from accellog.flows.diagnose_run import run_diagnose
-    from accellog.present.discovery_text import print_diagnose_outcome
-    from accellog.present.tables import json_text
 
     out = run_diagnose(
         session,
@@ -109,8 +107,10 @@ def diagnose(
         rrd=rrd,
     )
     if as_json:
-        print(json_text(out.to_dict()))
+        print(out.to_json())  # strict JSON (core.jsonio): not the table module (calibrate/, navigate/)
         return
+    from accellog.present.discovery_text import print_diagnose_outcome
+
     print_diagnose_outcome(out)
 
 

@@ -9,7 +9,7 @@ typed (DiagnoseOutcome); the CLI only presents it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -65,14 +65,13 @@ def run_diagnose(
 ) -> DiagnoseOutcome:
     """Diagnose one session file (module doc); rrd: also write a Rerun recording of the residuals
     per pose, the verdict and the candidates (labelled sessions)."""
-    from accellog.flows.stages import load_input
     from accellog.flows.stream_input import open_labelled
 
     session = Path(session)
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
     streamed = open_labelled(session, window_s=window_s, host=True) if rrd is None else None
-    data = streamed if streamed is not None else load_input(session)  # pose tables, observations: ObsTable
+    data = streamed if streamed is not None else _load_whole(session)  # pose tables, observations: ObsTable
     if isinstance(data, Session) and not data.poses:
         return _handheld(
             data, session, model, add, effects_file, window_s, detect_window_s, threshold, heldout
@@ -93,13 +92,31 @@ def run_diagnose(
     )
 
 
+def _load_whole(session: Path):
+    """The whole session (flows.stages.load_input), imported here: a streamed MCAP session does
+    not load the stages' readers and importers (~0.12 s of CPU at start-up)."""
+    from accellog.flows.stages import load_input
+
+    return load_input(session)
+
+
+def _sessions(paths: Sequence[str | Path]) -> Iterator[Session]:
+    """The --heldout sessions one by one, whole (flows.stages.as_session, imported only when there
+    are some)."""
+    if not paths:
+        return
+    from accellog.flows.stages import as_session
+
+    for h in paths:
+        yield as_session(h, "--heldout")
+
+
 def _labelled(
     data, streamed, session, model, add, effects_file, window_s, weighted, gravity_g, heldout, noise_from, rrd
 ) -> DiagnoseOutcome:
     from accellog.calibrate.diagnosis import diagnose as dg
     from accellog.calibrate.model.compose import build_model
     from accellog.calibrate.observe.segment import observations
-    from accellog.flows.stages import as_session
 
     m = build_model(model, add=list(add), effects_file=effects_file)
     host = None
@@ -111,7 +128,7 @@ def _labelled(
         obs = observations(data, window_s=window_s)
         if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
             host = (data.t_s, data.host_time_s)
-    helds = [observations(as_session(h, "--heldout"), window_s=window_s) for h in heldout]
+    helds = [observations(h, window_s=window_s) for h in _sessions(heldout)]
     if noise_from is not None:
         obs, helds = _noise_floored(obs, helds, data, noise_from)
     d = dg.diagnose(obs, m, weighted=weighted, gravity_g=gravity_g, host_time=host, heldout=helds)
@@ -168,13 +185,12 @@ def _handheld(
         norm_obs,
     )
     from accellog.calibrate.model.compose import build_model
-    from accellog.flows.stages import as_session
 
     name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
     m = build_model(name, add=list(add), effects_file=effects_file)
     obs, det = detect_holds(data, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)
     d = diagnose_handheld(obs, m)
     if heldout:
-        helds = [norm_obs(as_session(h, "--heldout"), window_s=window_s) for h in heldout]
+        helds = [norm_obs(h, window_s=window_s) for h in _sessions(heldout)]
         norm_choice(d, obs, helds)
     return DiagnoseOutcome(str(session), d, det)
