@@ -112,6 +112,8 @@ def test_no_gyro_and_no_samples(sessions):
     s = read_session(sessions["six"])
     no_gyro = [RateBlock(s.t_s, None, s.temp_degC)]
     assert calibrate_blocks(lambda: iter(no_gyro), s.poses) is None
+    with pytest.raises(InputError, match="no gyro rate"):
+        calibrate_gyro(s.t_s, None, s.poses)
     with pytest.raises(InputError, match="fewer than 2 windows"):
         calibrate_gyro(np.zeros(0), np.zeros((0, 3)), s.poses)
 

@@ -14,6 +14,7 @@ import numpy as np
 from accellog.calibrate.gyro.fit import CLIP_NEAR
 from accellog.calibrate.gyro.model import GyroCalibration
 from accellog.calibrate.gyro.stream import Blocks, RateBlock, calibrate_blocks
+from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
 
 
@@ -31,8 +32,11 @@ def calibrate_gyro(
     """The bias from the poses' holds (fit_gyro_bias), then the matrix (fit_gyro_matrix, see there
     for reference and full_scale_dps) when there are >= 2 holds to rotate between (with known
     orientations for reference='orientation'). t_s (N,) s, gyro_dps (N,3), temp_degC (N,) or None."""
-    kw = {"model": model, "reference": reference, "full_scale_dps": full_scale_dps}
-    return calibrate_blocks(_one_block(t_s, gyro_dps, temp_degC), poses, **kw, **bias_kw)
+    blocks = _one_block(t_s, gyro_dps, temp_degC)
+    cal = calibrate_blocks(
+        blocks, poses, model=model, reference=reference, full_scale_dps=full_scale_dps, **bias_kw
+    )
+    return _given(cal)
 
 
 def fit_gyro_bias(
@@ -49,8 +53,16 @@ def fit_gyro_bias(
     """Bias (and temp_bias when the holds span >= min_temp_span_degC) from static holds (gyro.fit
     module doc). holds: PoseLabels or (K,2) start/end times (s); trim_s is cut from both ends of
     each hold."""
-    kw = {"t_ref_degC": t_ref_degC, "window_s": window_s, "min_temp_span_degC": min_temp_span_degC}
-    return calibrate_blocks(_one_block(t_s, gyro_dps, temp_degC), holds, rotations=False, trim_s=trim_s, **kw)
+    cal = calibrate_blocks(
+        _one_block(t_s, gyro_dps, temp_degC),
+        holds,
+        t_ref_degC=t_ref_degC,
+        window_s=window_s,
+        min_temp_span_degC=min_temp_span_degC,
+        trim_s=trim_s,
+        rotations=False,
+    )
+    return _given(cal)
 
 
 def fit_gyro_matrix(
@@ -78,15 +90,31 @@ def fit_gyro_matrix(
     full_scale_dps: the gyro full scale (gyro_full_scale_dps): moves whose rate clips are left out
     (GyroCalibration.clipped_moves); None: every move is used.
     """
-    kw = {"model": model, "floor_deg": floor_deg, "reference": reference, "full_scale_dps": full_scale_dps}
-    return calibrate_blocks(_one_block(t_s, gyro_dps, temp_degC), poses, base=base, **kw)
+    cal = calibrate_blocks(
+        _one_block(t_s, gyro_dps, temp_degC),
+        poses,
+        model=model,
+        floor_deg=floor_deg,
+        reference=reference,
+        full_scale_dps=full_scale_dps,
+        base=base,
+    )
+    return _given(cal)
 
 
 def _one_block(t_s, gyro_dps, temp_degC) -> Blocks:
     """The arrays as the one block of a session."""
+    w = None if gyro_dps is None else np.asarray(gyro_dps, float)
     temp = None if temp_degC is None else np.asarray(temp_degC, float)
-    blk = RateBlock(np.asarray(t_s, float), np.asarray(gyro_dps, float), temp)
+    blk = RateBlock(np.asarray(t_s, float), w, temp)
     return lambda: (blk,)
+
+
+def _given(cal: GyroCalibration | None) -> GyroCalibration:
+    """calibrate_blocks' result on arrays: None only when no rate was given."""
+    if cal is None:
+        raise InputError("no gyro rate: the gyro cannot be calibrated")
+    return cal
 
 
 def gyro_full_scale_dps(meta) -> float | None:

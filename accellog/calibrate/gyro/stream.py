@@ -48,7 +48,7 @@ from accellog.calibrate.gyro.rotation import coarse_plan, fine_pieces
 from accellog.calibrate.observe.heap import trim_heap
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
-from accellog.store.stream import iter_imu
+from accellog.store.stream import ImuBlock, iter_imu
 
 _BLOCK_S = 0.01
 """Fine block length (s)."""
@@ -56,14 +56,14 @@ _BLOCK_S = 0.01
 
 class RateBlock(NamedTuple):
     """Consecutive samples of a session: times (s, increasing), rates (N,3) deg/s (None: no gyro
-    recorded), temperatures (N,) degC or None. A store.stream.ImuBlock serves as one too."""
+    recorded), temperatures (N,) degC or None (a store.stream.ImuBlock has these fields too)."""
 
     t_s: np.ndarray
     gyro_dps: np.ndarray | None
     temp_degC: np.ndarray | None
 
 
-Blocks = Callable[[], Iterable[RateBlock]]
+Blocks = Callable[[], Iterable[RateBlock | ImuBlock]]
 """A session's blocks in time order: a fresh iteration of them per call (one call per pass)."""
 
 
@@ -413,7 +413,8 @@ def _integrate_pass(blocks: Iterable, first: int, pieces: Iterator[np.ndarray], 
         need = int(edges[0])
         if edges.size > 1 and need < end:
             stop = held if more else min(held, int(edges[-1]) - buf0 + 1)
-            need, m = _integrate(*(None if x is None else x[:stop] for x in buf), buf0, edges, acc)
+            t, w, temp = buf[0][:stop], buf[1][:stop], None if buf[2] is None else buf[2][:stop]
+            need, m = _integrate(t, w, temp, buf0, edges, acc)
             edges = edges[m:]
         if edges.size == 1 and not more:
             return  # the last fine block is summed: the rest of the session is not needed
