@@ -8,8 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accellog.calibrate.gyro.calibrate import calibrate_gyro
-from accellog.calibrate.gyro.stream import stream_calibrate_gyro
 from accellog.calibrate.observe.stream_segment import stream_check_timestamps
 from accellog.cli import main
 from accellog.core.errors import InputError
@@ -48,14 +46,6 @@ def _close(a, b, path="", tol=1e-12) -> None:
         assert a == b, path
 
 
-def test_stream_gyro_equals_whole_session(recorded, small_groups):
-    s = read_session(recorded)
-    whole = calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC).to_dict()
-    streamed = stream_calibrate_gyro(recorded, s.poses).to_dict()
-    assert "scale" in whole["effects"]
-    _close(whole, streamed)
-
-
 def test_open_streamed_reads_a_good_file_once(recorded, monkeypatch):
     """The time-stamp checks ride on the observation pass: one pass over the samples, and the same
     observations as with the checks in a pass of their own."""
@@ -71,17 +61,6 @@ def test_open_streamed_reads_a_good_file_once(recorded, monkeypatch):
     assert len(passes) == 3
     np.testing.assert_array_equal(one.obs.meas_g, two.obs.meas_g)
     assert len(one.stats) == len(two.stats) == len(one.poses)
-
-
-def test_stream_gyro_hold_labelled_past_the_end(recorded, small_groups):
-    """Bias windows whose edges lie past the last sample (a hold labelled beyond the end of the
-    recording: their ranges are found only at the end of the pass): the whole-session result."""
-    from dataclasses import replace
-
-    s = read_session(recorded)
-    poses = [*s.poses[:-1], replace(s.poses[-1], end_s=float(s.t_s[-1]) + 5.0)]
-    whole = calibrate_gyro(s.t_s, s.gyro_dps, poses, s.temp_degC).to_dict()
-    _close(whole, stream_calibrate_gyro(recorded, poses).to_dict())
 
 
 def test_fit_streams_and_matches_whole_session(recorded, small_groups, tmp_path):
@@ -165,72 +144,3 @@ def test_diagnose_streams_and_matches_whole_session(recorded, small_groups, monk
     whole = json.loads(capsys.readouterr().out)
     assert streamed["clock"] is not None
     _close(whole, streamed)
-
-
-@pytest.mark.parametrize("batch", [1, 7, 1000])
-def test_coarse_blocks_fed_in_batches_equal_whole_array_increments(batch):
-    """_CoarseBlocks (the streamed reduction to coarse blocks, temperature term on) gives
-    gyro._increments' phi and c whatever the batches; coarse blocks span batches."""
-    import numpy as np
-
-    from accellog.calibrate.gyro.calibrate import GyroCalibration
-    from accellog.calibrate.gyro.rotation import _increments
-    from accellog.calibrate.gyro.stream import _CoarseBlocks
-
-    rng = np.random.default_rng(5)
-    fine = np.cumsum(rng.integers(4, 7, 400))
-    coarse = np.concatenate([fine[:50:49], fine[50:120], fine[120:300:179], fine[300:]])
-    w_int, temp_int = rng.normal(0, 0.3, (399, 3)), 30.0 + rng.normal(0, 0.1, 399)
-    span = rng.uniform(0.009, 0.011, 399)
-    base = GyroCalibration(
-        bias_dps=np.array([0.5, -1.2, 0.8]),
-        bias_sigma_dps=np.full(3, 0.01),
-        temp_bias_dps_per_degC=np.array([0.01, -0.02, 0.03]),
-    )
-    phi, c, _ = _increments(w_int, temp_int, span, base, fine, coarse, fine[:1])
-    blocks = _CoarseBlocks(np.searchsorted(fine, coarse[:-1]), fine.size, base, use_temp=True)
-    for i in range(0, 399, batch):
-        blocks.add(w_int[i : i + batch], temp_int[i : i + batch], span[i : i + batch])
-    assert blocks.open is None and phi.shape == blocks.phi.shape == (coarse.size - 1, 3)
-    np.testing.assert_allclose(blocks.phi, phi, rtol=1e-12, atol=1e-15)
-    np.testing.assert_allclose(blocks.c, c, rtol=1e-12, atol=1e-18)
-
-
-def test_stream_gyro_with_temperature_slope_equals_whole_session(tmp_path, small_groups):
-    """A warming sensor: the temperature term of the integration pass is on and matches. The
-    block sums differ from the whole-array ones by ~1e-20 rad (long coarse blocks summed in two
-    parts); this poorly conditioned matrix fit (scale 0.9, rms 0.6 deg) turns that into ~1e-10."""
-    p = tmp_path / "warm.mcap"
-    temp = {"kind": "ramp", "T0": 25.0, "rate_degC_per_s": 0.2}
-    simulate(Scenario(protocol="six", hold_s=3.0, move_s=1.0, sample_rate_hz=500.0, temperature=temp), p)
-    s = read_session(p)
-    whole = calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC)
-    assert any(whole.temp_bias_dps_per_degC != 0)
-    _close(whole.to_dict(), stream_calibrate_gyro(p, s.poses).to_dict(), tol=1e-9)
-
-
-@pytest.mark.parametrize("rate_hz", [20.0, 99.0, 1000.0])
-def test_pair_by_pair_block_edges_equal_the_whole_arrays(rate_hz):
-    """fine_pieces / coarse_plan (one hold pair in memory at a time) give _block_edges' fine and
-    coarse edges and the fine index of each coarse edge, also when the 10 ms blocks are shorter
-    than a sample (rounded edges repeat) and when two holds share a middle."""
-    import numpy as np
-
-    from accellog.calibrate.gyro.rotation import _block_edges, coarse_plan, fine_pieces
-
-    rng = np.random.default_rng(int(rate_hz))
-    for trial in range(40):
-        n = int(rng.integers(50, 3000))
-        t = np.cumsum(rng.uniform(0.5, 1.5, n)) / rate_hz
-        k = int(rng.integers(2, 6))
-        starts = np.sort(rng.integers(0, n, k))
-        ends = np.maximum(np.sort(np.minimum(starts + rng.integers(0, n // k + 1, k), n - 1)), starts)
-        mids = np.sort((starts + ends) // 2)
-        if trial % 5 == 0:
-            mids[1] = mids[0]
-        fine, coarse = _block_edges(t, mids, ends, starts, 0.01)
-        np.testing.assert_array_equal(np.concatenate([mids[:1], *fine_pieces(t, mids, 0.01)]), fine)
-        c2, at, n_fine = coarse_plan(t, mids, ends, starts, 0.01)
-        np.testing.assert_array_equal(c2, coarse)
-        np.testing.assert_array_equal(at, np.searchsorted(fine, coarse[:-1]))
-        assert n_fine == fine.size

@@ -1,27 +1,7 @@
-"""Gyro calibration: zero-rate bias (and its temperature slope) from static holds; scale and
-misalignment from known rotations between labelled poses.
-
-Gyro measurement model (the accelerometer's effect library idea, on the rate; deg/s):
-
-    w_meas = M w_true + b0 + b_T (T - T_ref) + noise,    M = I + scale/cross-axis terms
-    correct:  w_true = M^-1 (w_meas - b0 - b_T (T - T_ref))
-
-Effects: 'bias' (b0), 'temp_bias' (b_T, deg/s/degC, fitted only when the holds span at least
-min_temp_span_degC), 'scale' (diag M), 'cross_axis' (off-diagonal M).
-
-Bias: every static hold is cut into window_s windows; the window means obey mean = b0 + b_T dT,
-fitted per axis by least squares; sigma = sqrt(s^2 (A^T A)^-1) with s^2 the residual variance of
-the window means (so hold-to-hold scatter, e.g. from bias instability, widens the uncertainty).
-
-Scale/misalignment: for consecutive holds a, b, integrate the corrected rate from the middle of a
-to the middle of b (accellog.calibrate.gyro.rotation, as accellog.navigate.strapdown) and compare
-what gravity can check: the up vector of a, carried through dq_int, must land on the up vector of b (residual dq_int^-1 up_a - up_b, deg;
-yaw about the vertical is free, so a hand-held operator's turns do no harm). With
-reference='orientation' (known headings: a fixture, a vehicle) the whole nominal change
-dq_nom = q_a^-1 q_b is compared instead: residual = rotation vector of dq_nom^-1 dq_int (deg). M is found by nonlinear least squares (core.numeric.least_squares: scipy's Levenberg-Marquardt with the
-exact complex-step Jacobian; a fit that does not converge is a ModelError); parameters the rotations do
-not excite (e.g. x/y scale when the robot only turns about z) are held at the identity and
-reported as undetermined (sigma NaN). Covariance = s^2 (J^T J)^-1, s^2 = max(RSS/dof, s_min^2).
+"""Gyro calibration of a session held in memory: its arrays fed as one block to the one
+implementation (accellog.calibrate.gyro.stream.calibrate_blocks; the model and the fits:
+accellog.calibrate.gyro.fit), and what the fit flow reads off a session for it (the gyro full
+scale, the warning for the moves left out).
 """
 
 from __future__ import annotations
@@ -31,38 +11,32 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from accellog.calibrate.gyro.model import PARAM_NAMES, GyroCalibration
-from accellog.calibrate.gyro.rotation import (
-    DEG_PER_RAD,
-    block_increments,
-    quat_conj_rows,
-    relative_rotations,
-    rotate_inverse_rows,
-    rotvec_deg,
-)
-from accellog.core.errors import InputError, ModelError
-from accellog.core.numeric import least_squares
-from accellog.core.rotations import quat_conjugate, quat_multiply
+from accellog.calibrate.gyro.fit import CLIP_NEAR
+from accellog.calibrate.gyro.model import GyroCalibration
+from accellog.calibrate.gyro.stream import Blocks, RateBlock, calibrate_blocks
+from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
 
 
-def hold_intervals(holds: Sequence[PoseLabel] | np.ndarray) -> np.ndarray:
-    """(K,2) start/end times (s) from PoseLabels or an array of intervals."""
-    if len(holds) and isinstance(holds[0], PoseLabel):
-        return np.array([[h.start_s, h.end_s] for h in holds], float)
-    return np.asarray(holds, float).reshape(-1, 2)
-
-
-def _window_means(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Means of x[a_k:b_k] (rows) for windows that do not overlap and are in order."""
-    if not a.size:
-        return np.zeros((0, *x.shape[1:]))
-    edges = np.stack([a, b], axis=1).ravel()  # slots [a0,b0), [b0,a1), [a1,b1), ...: keep the even ones
-    if edges[-1] >= x.shape[0]:
-        edges = edges[:-1]  # the last slot [a_last:] then runs to the end, which is b_last
-    sums = np.add.reduceat(x, edges, axis=0)[::2]
-    n = (b - a).astype(float)
-    return sums / (n[:, None] if x.ndim == 2 else n)
+def calibrate_gyro(
+    t_s: np.ndarray,
+    gyro_dps: np.ndarray,
+    poses: Sequence[PoseLabel],
+    temp_degC: np.ndarray | None = None,
+    *,
+    model: str = "full",
+    reference: str = "gravity",
+    full_scale_dps: float | None = None,
+    **bias_kw,
+) -> GyroCalibration:
+    """The bias from the poses' holds (fit_gyro_bias), then the matrix (fit_gyro_matrix, see there
+    for reference and full_scale_dps) when there are >= 2 holds to rotate between (with known
+    orientations for reference='orientation'). t_s (N,) s, gyro_dps (N,3), temp_degC (N,) or None."""
+    blocks = _one_block(t_s, gyro_dps, temp_degC)
+    cal = calibrate_blocks(
+        blocks, poses, model=model, reference=reference, full_scale_dps=full_scale_dps, **bias_kw
+    )
+    return _given(cal)
 
 
 def fit_gyro_bias(
@@ -76,104 +50,19 @@ def fit_gyro_bias(
     min_temp_span_degC: float = 2.0,
     trim_s: float = 0.2,
 ) -> GyroCalibration:
-    """Bias (and temp_bias when the holds span >= min_temp_span_degC) from static holds (see module doc).
-
-    holds: PoseLabels or (K,2) start/end times (s); trim_s is cut from both ends of each hold.
-    """
-    t = np.asarray(t_s, float)
-    w = np.asarray(gyro_dps, float)
-    temp = None if temp_degC is None else np.asarray(temp_degC, float)
-    iv = hold_intervals(holds)
-    if iv.shape[0] == 0:
-        raise InputError("no static holds: the gyro bias cannot be estimated")
-    a, b = _bias_windows([np.searchsorted(t, q) for q in bias_window_times(iv, window_s, trim_s)])
-    means = _window_means(w, a, b)
-    temps = np.full(a.size, np.nan) if temp is None else _window_means(temp, a, b)
-    return bias_fit(
-        means, temps, temp is not None, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC
+    """Bias (and temp_bias when the holds span >= min_temp_span_degC) from static holds (gyro.fit
+    module doc). holds: PoseLabels or (K,2) start/end times (s); trim_s is cut from both ends of
+    each hold."""
+    cal = calibrate_blocks(
+        _one_block(t_s, gyro_dps, temp_degC),
+        holds,
+        t_ref_degC=t_ref_degC,
+        window_s=window_s,
+        min_temp_span_degC=min_temp_span_degC,
+        trim_s=trim_s,
+        rotations=False,
     )
-
-
-def bias_window_times(iv: np.ndarray, window_s: float, trim_s: float) -> list[np.ndarray]:
-    """Edge times (s) of the whole window_s windows of every trimmed hold (one array per hold)."""
-    out = []
-    for lo, hi in iv:
-        lo, hi = lo + trim_s, hi - trim_s
-        n_win = int((hi - lo) // window_s)
-        if n_win >= 1:
-            out.append(lo + window_s * np.arange(n_win + 1))
-    return out
-
-
-def _bias_windows(edges: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Sample index ranges [a, b) of the windows (edges: sample indices per hold), >= 2 samples each."""
-    a = np.concatenate([e[:-1] for e in edges]) if edges else np.zeros(0, np.int64)
-    b = np.concatenate([e[1:] for e in edges]) if edges else np.zeros(0, np.int64)
-    keep = b - a >= 2
-    return a[keep], b[keep]
-
-
-def bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_span_degC) -> GyroCalibration:
-    """Least squares mean = b0 + b_T (T - T_ref) over the window means (module doc)."""
-    if len(means) < 2:
-        raise InputError(
-            f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
-        )
-    y, tt = means, temps
-    use_temp = has_temp and np.isfinite(tt).all() and np.ptp(tt) >= min_temp_span_degC
-    cols = [np.ones(len(y))] + ([tt - t_ref_degC] if use_temp else [])
-    A = np.stack(cols, axis=1)
-    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-    dof = max(len(y) - A.shape[1], 1)
-    s2 = ((y - A @ coef) ** 2).sum(axis=0) / dof
-    cov_unit = np.linalg.inv(A.T @ A)
-    sig = np.sqrt(np.outer(np.diag(cov_unit), s2))
-    cal = GyroCalibration(bias_dps=coef[0], bias_sigma_dps=sig[0], t_ref_degC=t_ref_degC, n_holds=n_holds)
-    if use_temp:
-        cal.temp_bias_dps_per_degC = coef[1]
-        cal.temp_bias_sigma_dps_per_degC = sig[1]
-        cal.effects = ["bias", "temp_bias"]
-    return cal
-
-
-CLIP_NEAR = 0.98
-"""A rate at or above this fraction of the gyro full scale on any axis counts as clipped."""
-
-
-def gyro_full_scale_dps(meta) -> float | None:
-    """The configured gyro full scale (deg/s) of a SessionMeta: its range, else 32768 counts / LSB per
-    deg/s; None when neither is recorded."""
-    if meta.gyro_range_dps:
-        return float(meta.gyro_range_dps)
-    return 32768.0 / meta.gyro_lsb_per_dps if meta.gyro_lsb_per_dps else None
-
-
-def clipped_in_moves(t_s: np.ndarray, gyro_dps: np.ndarray, mid_t: np.ndarray, full_scale_dps) -> np.ndarray:
-    """Clipped samples (|rate| >= CLIP_NEAR full scale on some axis) in each move k, the span
-    [mid_t[k], mid_t[k+1]) the rotation from hold k to hold k+1 integrates: (K-1,) counts."""
-    n_moves = max(len(mid_t) - 1, 0)
-    if not full_scale_dps or not n_moves:
-        return np.zeros(n_moves, np.int64)
-    w, lim = np.asarray(gyro_dps), CLIP_NEAR * float(full_scale_dps)
-    hit = np.zeros(w.shape[0], bool)
-    for k in range(3):  # booleans only: no (N,3) temporary
-        hit |= (w[:, k] >= lim) | (w[:, k] <= -lim)
-    move = np.searchsorted(mid_t, np.asarray(t_s)[hit], side="right") - 1
-    return np.bincount(move[(move >= 0) & (move < n_moves)], minlength=n_moves)
-
-
-def warn_clipped_moves(fit, cal) -> None:
-    """When cal.gyro left moves out (clipped_moves), a warning of the fit `fit` (a FitResult: printed
-    by `fit`) and of the calibration `cal` (its fit section: written into the file)."""
-    g = cal.gyro
-    if g is None or not g.clipped_moves:
-        return
-    msg = (
-        f"gyro: {g.clipped_moves} of {max(g.n_holds - 1, g.clipped_moves)} moves between holds reach "
-        f"{CLIP_NEAR:.0%} of the gyro full scale (clipped): left out of the gyro scale/misalignment fit"
-    )
-    fit.warnings.append(msg)
-    cal.fit = dataclasses.replace(cal.fit, warnings=(*(cal.fit.warnings or ()), msg))
+    return _given(cal)
 
 
 def fit_gyro_matrix(
@@ -189,8 +78,8 @@ def fit_gyro_matrix(
     full_scale_dps: float | None = None,
 ) -> GyroCalibration:
     """Scale ('scale': diag M) or scale + cross-axis ('full': all of M) from rotations between
-    consecutive labelled poses (see module doc). Returns a copy of base with matrix,
-    matrix_sigma, undetermined and rotation_rms_deg filled in.
+    consecutive labelled poses (gyro.fit module doc), on top of base's bias. Returns a copy of base
+    with matrix, matrix_sigma, undetermined and rotation_rms_deg filled in.
 
     reference: 'gravity' (default) compares only what gravity sees: the up vector of hold a,
     carried through the integrated rotation, must land on the up vector of hold b (residual
@@ -201,151 +90,50 @@ def fit_gyro_matrix(
     full_scale_dps: the gyro full scale (gyro_full_scale_dps): moves whose rate clips are left out
     (GyroCalibration.clipped_moves); None: every move is used.
     """
-    known = known_poses(poses, model, reference)
-    t = np.asarray(t_s, float)
-    idx = lambda times: np.clip(np.searchsorted(t, times), 0, t.size - 1)  # noqa: E731
-    mid_t, end_t, start_t = pose_times(known)
-    mids, ends, starts = idx(mid_t), idx(end_t), idx(start_t)
-    temp = temp_degC if np.any(base.temp_bias_dps_per_degC != 0) else None
-    phi, c, at = block_increments(t, gyro_dps, temp, base, (mids, ends, starts), block_s=0.01)
-    clipped = clipped_in_moves(t, gyro_dps, mid_t, full_scale_dps) > 0
-    return fit_matrix(phi, c, at, known, base, model, floor_deg, reference, clipped)
-
-
-def known_poses(poses: Sequence[PoseLabel], model: str, reference: str) -> list[PoseLabel]:
-    """The poses fit_gyro_matrix rotates between (checks model and reference)."""
-    if model not in ("scale", "full"):
-        raise InputError(f"unknown gyro model {model!r}: use 'scale' or 'full'")
-    if reference not in ("gravity", "orientation"):
-        raise InputError(f"unknown gyro reference {reference!r}: use 'gravity' or 'orientation'")
-    known = [p for p in poses if reference == "gravity" or p.q_sensor_to_world is not None]
-    if len(known) < 2:
-        raise InputError("fewer than 2 labelled poses with known orientation: gyro scale cannot be fitted")
-    return known
-
-
-def pose_times(known: list[PoseLabel]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Middle, end and start time (s) of every hold."""
-    return (
-        np.array([0.5 * (p.start_s + p.end_s) for p in known]),
-        np.array([p.end_s for p in known]),
-        np.array([p.start_s for p in known]),
+    cal = calibrate_blocks(
+        _one_block(t_s, gyro_dps, temp_degC),
+        poses,
+        model=model,
+        floor_deg=floor_deg,
+        reference=reference,
+        full_scale_dps=full_scale_dps,
+        base=base,
     )
+    return _given(cal)
 
 
-def _residuals(phi, c, at, known: list[PoseLabel], reference: str, rows: np.ndarray):
-    """forward(m): the residual rows `rows` (..., R) of the rotations between consecutive holds for
-    gyro matrices m ((3,3) or (P,3,3)); three rows a move (module doc)."""
-    if reference == "orientation":
-        qn = np.array([p.q_sensor_to_world for p in known], float)
-        dq_nom_c = quat_conj_rows(quat_multiply(quat_conjugate(qn[:-1]), qn[1:]))
-    else:
-        up = np.array([p.up_sensor for p in known], float)
-        up /= np.linalg.norm(up, axis=1, keepdims=True)
-
-    def forward(m: np.ndarray) -> np.ndarray:
-        dq_int = relative_rotations(phi, c, at, m)
-        if reference == "orientation":
-            return rotvec_deg(quat_multiply(dq_nom_c, dq_int)).reshape((*dq_int.shape[:-2], -1))[..., rows]
-        # up_a (world-fixed) seen from the sensor at hold b: v_b = dq_int^-1 v_a; the difference of
-        # unit vectors is the tilt error in rad for small errors (and, unlike a cross product,
-        # it does not vanish for a vector pointing the opposite way)
-        pred = rotate_inverse_rows(dq_int, up[:-1])
-        return ((pred - up[1:]) * DEG_PER_RAD).reshape((*dq_int.shape[:-2], -1))[..., rows]
-
-    return forward
+def _one_block(t_s, gyro_dps, temp_degC) -> Blocks:
+    """The arrays as the one block of a session."""
+    w = None if gyro_dps is None else np.asarray(gyro_dps, float)
+    temp = None if temp_degC is None else np.asarray(temp_degC, float)
+    blk = RateBlock(np.asarray(t_s, float), w, temp)
+    return lambda: (blk,)
 
 
-def fit_matrix(
-    phi, c, at, known, base: GyroCalibration, model: str, floor_deg: float, reference: str, clipped=None
-):
-    """fit_gyro_matrix from the block increments of block_increments; clipped: (K-1,) moves left out."""
-    diag_idx = [0, 4, 8]
-    free_all = diag_idx if model == "scale" else list(range(9))
-    clipped = np.zeros(len(known) - 1, bool) if clipped is None else np.asarray(clipped, bool)
-    if clipped.any() and 3 * int((~clipped).sum()) < len(free_all):  # too few moves left: bias only
-        return dataclasses.replace(
-            base, undetermined=[PARAM_NAMES[f] for f in free_all], clipped_moves=int(clipped.sum())
-        )
-    forward = _residuals(phi, c, at, known, reference, np.flatnonzero(np.repeat(~clipped, 3)))
-
-    def matrix(p: np.ndarray, free: list[int]) -> np.ndarray:
-        m = np.eye(3).ravel()
-        m[free] = p
-        return m.reshape(3, 3)
-
-    def jacobian(p: np.ndarray, free: list[int]) -> np.ndarray:
-        """d residuals / d M_free, all columns in one vectorised complex-step pass (exact to
-        rounding: Im f(M + i h E_j) / h with h = 1e-30, no subtractive cancellation)."""
-        h = 1e-30
-        m = np.broadcast_to(matrix(p, free).astype(complex), (len(free), 3, 3)).reshape(len(free), 9).copy()
-        m[np.arange(len(free)), free] += 1j * h
-        return (forward(m.reshape(-1, 3, 3)).imag / h).T
-
-    # which entries of M do the rotations excite? (sensitivity at M = I)
-    p_init = np.eye(3).ravel()[free_all]
-    j_init = jacobian(p_init, free_all)
-    sens = np.linalg.norm(j_init, axis=0)
-    # a 1 % error in M_ij must move some rotation by > 10 floor_deg-ish to be determinable
-    free = [f for f, s in zip(free_all, sens, strict=True) if s * 0.01 > floor_deg]
-    undetermined = [PARAM_NAMES[f] for f in free_all if f not in free]
-    if not free:
-        raise ModelError("the rotations between labelled poses are too small to determine any gyro scale")
-    if j_init.shape[0] < len(free):
-        raise ModelError(
-            f"gyro {model} model is not determined by these rotations ({j_init.shape[0]} residuals for "
-            f"{len(free)} parameters)"
-        )
-    fun, jac = lambda p: forward(matrix(p, free)), lambda p: jacobian(p, free)
-    sol = least_squares(fun, np.eye(3).ravel()[free], what=f"gyro {model} fit", jac=jac, x_scale=0.01)
-    r = sol.fun
-    dof = r.size - len(free)
-    s2 = max(float(r @ r) / dof, floor_deg**2) if dof > 0 else floor_deg**2
-    jtj = sol.jac.T @ sol.jac
-    if np.linalg.cond(jtj) > 1e12:
-        raise ModelError(f"gyro {model} model is not determined by these rotations (rank deficient)")
-    cov = s2 * np.linalg.inv(jtj)
-    m = np.eye(3).ravel()
-    m[free] = sol.x
-    msig = np.full(9, np.nan)
-    msig[free] = np.sqrt(np.diag(cov))
-    offdiag_free = [f for f in free if f not in diag_idx]
-    effects = [e for e in base.effects if e not in ("scale", "cross_axis")] + ["scale"]
-    if offdiag_free:
-        effects.append("cross_axis")
-    return GyroCalibration(
-        bias_dps=base.bias_dps,
-        bias_sigma_dps=base.bias_sigma_dps,
-        temp_bias_dps_per_degC=base.temp_bias_dps_per_degC,
-        temp_bias_sigma_dps_per_degC=base.temp_bias_sigma_dps_per_degC,
-        t_ref_degC=base.t_ref_degC,
-        matrix=m.reshape(3, 3),
-        matrix_sigma=msig.reshape(3, 3),
-        effects=effects,
-        undetermined=undetermined,
-        n_holds=base.n_holds,
-        rotation_rms_deg=float(np.sqrt(np.mean(r**2))),
-        clipped_moves=int(clipped.sum()),
-    )
-
-
-def calibrate_gyro(
-    t_s: np.ndarray,
-    gyro_dps: np.ndarray,
-    poses: Sequence[PoseLabel],
-    temp_degC: np.ndarray | None = None,
-    *,
-    model: str = "full",
-    reference: str = "gravity",
-    full_scale_dps: float | None = None,
-    **bias_kw,
-) -> GyroCalibration:
-    """fit_gyro_bias on the poses' holds, then fit_gyro_matrix (see there for reference and
-    full_scale_dps) when there are >= 2 holds to rotate between (with known orientations for
-    reference='orientation')."""
-    cal = fit_gyro_bias(t_s, gyro_dps, poses, temp_degC, **bias_kw)
-    n_ref = len(poses) if reference == "gravity" else sum(p.q_sensor_to_world is not None for p in poses)
-    if n_ref >= 2:
-        kw = {"model": model, "reference": reference, "full_scale_dps": full_scale_dps}
-        cal = fit_gyro_matrix(t_s, gyro_dps, poses, cal, temp_degC, **kw)
+def _given(cal: GyroCalibration | None) -> GyroCalibration:
+    """calibrate_blocks' result on arrays: None only when no rate was given."""
+    if cal is None:
+        raise InputError("no gyro rate: the gyro cannot be calibrated")
     return cal
+
+
+def gyro_full_scale_dps(meta) -> float | None:
+    """The configured gyro full scale (deg/s) of a SessionMeta: its range, else 32768 counts / LSB per
+    deg/s; None when neither is recorded."""
+    if meta.gyro_range_dps:
+        return float(meta.gyro_range_dps)
+    return 32768.0 / meta.gyro_lsb_per_dps if meta.gyro_lsb_per_dps else None
+
+
+def warn_clipped_moves(fit, cal) -> None:
+    """When cal.gyro left moves out (clipped_moves), a warning of the fit `fit` (a FitResult: printed
+    by `fit`) and of the calibration `cal` (its fit section: written into the file)."""
+    g = cal.gyro
+    if g is None or not g.clipped_moves:
+        return
+    msg = (
+        f"gyro: {g.clipped_moves} of {max(g.n_holds - 1, g.clipped_moves)} moves between holds reach "
+        f"{CLIP_NEAR:.0%} of the gyro full scale (clipped): left out of the gyro scale/misalignment fit"
+    )
+    fit.warnings.append(msg)
+    cal.fit = dataclasses.replace(cal.fit, warnings=(*(cal.fit.warnings or ()), msg))

@@ -1,5 +1,5 @@
 """The gyro model a calibration carries: w_meas = M w_true + b0 + b_T (T - T_ref) (deg/s), with
-1-sigma uncertainties (fitted by accellog.calibrate.gyro.calibrate)."""
+1-sigma uncertainties (fitted by accellog.calibrate.gyro.stream with the fits of gyro.fit)."""
 
 from __future__ import annotations
 

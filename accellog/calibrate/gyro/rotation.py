@@ -1,44 +1,33 @@
-"""Gyro rates -> rotations between holds, for the gyro matrix fit (accellog.calibrate.gyro.calibrate).
+"""Gyro rates -> rotations between holds, for the gyro matrix fit (accellog.calibrate.gyro.fit).
 
-The rate is integrated once into ~10 ms trapezoid blocks; a gyro matrix M then corrects the blocks
-instead of every sample (block rotation vector M^-1 phi + det(M^-1) M^T c, c the second-order
-Baker-Campbell-Hausdorff term of the blocks merged inside a hold). The quaternion helpers are the
-arithmetic of accellog.core.rotations written so that a complex step propagates through them.
+The rate is integrated once (accellog.calibrate.gyro.stream) into ~10 ms trapezoid fine blocks
+from the middle of the first hold to the middle of the last; a gyro matrix M then corrects the
+blocks instead of every sample. Block edges: between the middles a, b of consecutive holds, ~10 ms
+blocks evenly spaced from a to b (np.linspace, rounded); the coarse blocks are the fine blocks of
+the move between the holds, but the fine blocks inside a hold (a .. end of hold a, start of hold
+b .. b) merged into one each.
+
+A fine block's phi is the trapezoid integral of the bias-corrected rate (body frame):
+int (w - b0 - b_T (T - T_ref)) dt = W - b0 dt - b_T (int T dt - T_ref dt), so only the raw rate
+and the temperature are integrated per sample. It is exact for rotation about a fixed axis (the
+protocol's moves) and second order in (rate x block length) otherwise; it is linear in the rate,
+so a gyro matrix correction applies to the blocks instead of every sample. A coarse block that
+merges the fine blocks b_1..b_n of a static hold also carries their second-order term
+c = 1/2 sum_{i<j} b_i x b_j, so that exp(b_1) ... exp(b_n) = exp(phi + c) + O(|b|^3)
+(Baker-Campbell-Hausdorff; the product the dense integration forms); corrected by M, a block's
+rotation vector is M^-1 phi + det(M^-1) M^T c. The quaternion helpers are the arithmetic of
+accellog.core.rotations written so that a complex step propagates through them.
 """
 
 from __future__ import annotations
 
 import itertools
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from accellog.core.rotations import quat_multiply
 
-if TYPE_CHECKING:
-    from accellog.calibrate.gyro.model import GyroCalibration
-
 DEG_PER_RAD = 180.0 / np.pi
-
-
-def _block_edges(t: np.ndarray, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block_s: float):
-    """Fine and coarse block edges (sample indices) from mids[0] to mids[-1].
-
-    Fine: between the mids a, b of consecutive holds, ~block_s blocks evenly spaced from a to b
-    (np.linspace, rounded). Coarse: the fine edges of the move between the holds, but the fine
-    blocks inside a hold (a .. end of hold a, start of hold b .. b) merged into one each."""
-    fine, coarse = [np.array([mids[0]])], [np.array([mids[0]])]
-    for f, c in _pair_edges(t, mids, ends, starts, block_s):
-        fine.append(f)
-        coarse.append(c)
-    return _sorted_unique(np.concatenate(fine)), _sorted_unique(np.concatenate(coarse))
-
-
-def _pair_edges(t, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block_s: float):
-    """_block_edges hold pair by hold pair: the fine edges after mids[k] up to mids[k+1] and the
-    coarse ones among them (repeats not removed); t: sample times (anything indexable by sample)."""
-    for k, (a, b) in enumerate(itertools.pairwise(mids)):
-        yield _pair_fine(t, a, b, block_s)[1:], _pair_coarse(t, a, b, ends[k], starts[k + 1], block_s)
 
 
 def _pair_fine(t, a: int, b: int, block_s: float) -> np.ndarray:
@@ -57,8 +46,9 @@ def _pair_coarse(t, a: int, b: int, end_a: int, start_b: int, block_s: float) ->
 
 
 def fine_pieces(t, mids: np.ndarray, block_s: float):
-    """The fine edges of _block_edges as consecutive pieces, one per hold pair, without repeats:
-    their concatenation after mids[0] is _block_edges' fine array (memory: one pair's edges)."""
+    """The fine block edges (module doc; t: sample times, anything indexable by sample index) after
+    mids[0] as consecutive pieces, one per hold pair, increasing and without repeats (memory: one
+    pair's edges)."""
     last = mids[0]
     for a, b in itertools.pairwise(mids):
         f = _sorted_unique(_pair_fine(t, a, b, block_s))
@@ -69,8 +59,9 @@ def fine_pieces(t, mids: np.ndarray, block_s: float):
 
 
 def coarse_plan(t, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block_s: float):
-    """(coarse edges of _block_edges, index in the fine edges of each coarse edge but the last,
-    number of fine edges), formed hold pair by hold pair (memory: one pair's fine edges)."""
+    """(coarse block edges (module doc) from mids[0], index in the fine edges of each coarse edge
+    but the last, number of fine edges), formed hold pair by hold pair (memory: one pair's fine
+    edges); ends, starts: the sample index of each hold's end and start."""
     coarse, at = [np.array([mids[0]])], [np.zeros(1, np.int64)]
     n_fine, last = 1, mids[0]
     for k, f in enumerate(fine_pieces(t, mids, block_s)):
@@ -88,61 +79,6 @@ def coarse_plan(t, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block
 def _sorted_unique(e: np.ndarray) -> np.ndarray:
     """np.unique of an already non-decreasing array, in one pass."""
     return e[np.concatenate([[True], e[1:] != e[:-1]])] if e.size else e
-
-
-def _trapezoid_blocks(t: np.ndarray, x: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Trapezoid integrals of x ((N,) or (N,k)) over [t[e_j], t[e_j+1]] for consecutive edges."""
-    dt = np.diff(t)
-    inc = x[:-1] + x[1:]
-    inc *= (0.5 * dt)[:, None] if inc.ndim == 2 else 0.5 * dt
-    return np.add.reduceat(inc, edges[:-1], axis=0)
-
-
-def block_increments(
-    t: np.ndarray,
-    w_dps: np.ndarray,
-    temp_degC: np.ndarray | None,
-    base: GyroCalibration,
-    holds: tuple[np.ndarray, np.ndarray, np.ndarray],
-    block_s: float,
-) -> tuple:
-    """Rotation increments over the coarse blocks of _block_edges: (phi (B,3) rad, c (B,3) rad^2,
-    block-edge index of each mid (K,)); holds = (mid, end, start) sample index of each hold.
-
-    phi is the trapezoid integral of the bias-corrected rate over a block (body frame):
-    int (w - b0 - b_T (T - T_ref)) dt = W - b0 dt - b_T (int T dt - T_ref dt), so only the raw
-    rate and the temperature are integrated per sample. It is exact for rotation about a fixed
-    axis (the protocol's moves) and second order in (rate x block_s) otherwise; it is linear in
-    the rate, so a gyro matrix correction applies to the blocks instead of every sample. A coarse
-    block that merges the fine blocks b_1..b_n of a static hold also carries their second-order
-    term c = 1/2 sum_{i<j} b_i x b_j, so that exp(b_1) ... exp(b_n) = exp(phi + c) + O(|b|^3)
-    (Baker-Campbell-Hausdorff; the product the dense integration forms). Cost: one pass over the
-    samples from the first to the last mid, then O(fine blocks)."""
-    mids, ends, starts = holds
-    fine, coarse = _block_edges(t, mids, ends, starts, block_s)
-    lo, hi = int(fine[0]), int(fine[-1])
-    if hi == lo:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.searchsorted(coarse, mids)
-    tt, fe = t[lo : hi + 1], fine - lo
-    w_int = _trapezoid_blocks(tt, np.asarray(w_dps[lo : hi + 1], float), fe)
-    temp_int = None
-    if temp_degC is not None:
-        temp_int = _trapezoid_blocks(tt, np.asarray(temp_degC[lo : hi + 1], float), fe)
-    return _increments(w_int, temp_int, np.diff(tt[fe]), base, fine, coarse, mids)
-
-
-def _increments(w_int, temp_int, span, base: GyroCalibration, fine, coarse, mids) -> tuple:
-    """block_increments from the fine blocks' trapezoid integrals of the raw rate (deg) and the
-    temperature (degC s) and their durations span (s)."""
-    b = w_int - np.outer(span, base.bias_dps)
-    if temp_int is not None:
-        b -= np.outer(temp_int - base.t_ref_degC * span, base.temp_bias_dps_per_degC)
-    b = np.deg2rad(b)
-    p_excl = np.concatenate([np.zeros((1, 3)), np.cumsum(b, axis=0)[:-1]])  # sum of earlier blocks
-    at = np.searchsorted(fine, coarse[:-1])  # first fine block of each coarse block
-    phi = np.add.reduceat(b, at, axis=0)
-    c = 0.5 * (np.add.reduceat(np.cross(p_excl, b), at, axis=0) - np.cross(p_excl[at], phi))
-    return phi, c, np.searchsorted(coarse, mids)
 
 
 # complex-safe quaternion helpers: the same arithmetic as accellog.core.rotations, written so that

@@ -1,38 +1,40 @@
-"""Gyro calibration of an MCAP session chunk by chunk: ``calibrate_gyro`` on a file without loading
-it (memory: one chunk group plus O(windows + coarse blocks + the fine blocks of one hold pair), the
-coarse blocks being the 10 ms blocks of the moves and one per hold: bounded by the moves, not by
-the session length).
+"""Gyro calibration of a session fed block by block: the one implementation of the stage (the fits
+on its sums: ``gyro.fit``). ``stream_calibrate_gyro`` feeds it the chunk groups of an MCAP file
+without loading it; ``calibrate.calibrate_gyro`` feeds it whole arrays as one block. Memory: one
+block plus O(windows + coarse blocks + the fine blocks of one hold pair), the coarse blocks being
+the 10 ms blocks of the moves and one per hold: bounded by the moves, not by the session length.
 
-Two streaming passes over ``store.stream.iter_imu``:
+Two passes over the blocks (``blocks()`` is called once per pass):
 
 1. windows and locate: the sample index of every time the fit asks for (hold window edges, hold
    start/middle/end) is the count of samples before it, summed over blocks (``np.searchsorted`` on
    the whole time axis, block by block), plus the time of the first sample at or after each hold
    middle; each bias window's rate and temperature sums are taken as soon as its end is found
-   (``FirstPass``), and the bias model (``gyro.bias_fit``) is fitted from them; the samples whose
-   rate clips are counted per move on the way (``gyro.clipped_in_moves``: those moves are left out).
+   (``FirstPass``), and the bias model (``fit.bias_fit``) is fitted from them; the samples whose
+   rate clips are counted per move on the way (``fit.clipped_in_moves``: those moves are left out).
    A caller that reads the file anyway (the fit's observation pass) feeds ``first_pass(...)`` its
    blocks and hands it over: then this pass is not made again;
 2. integrate: the trapezoid integrals of the rate (and temperature) over the 10 ms fine blocks
-   between hold middles (a sample pair that straddles two groups is carried over), bias-corrected
-   and reduced to their coarse blocks (phi, c) as each chunk group completes them
-   (``_CoarseBlocks``: the prefix sum and any open coarse block carried between groups). The fine
-   block edges are made one hold pair at a time (``gyro_rotation.fine_pieces``); the pass stops
-   at the last hold middle.
+   between hold middles (a sample pair that straddles two blocks is carried over), bias-corrected
+   and reduced to their coarse blocks (phi, c; ``rotation`` module doc) as each block completes them
+   (``_CoarseBlocks``: the prefix sum and any open coarse block carried between blocks). The fine
+   block edges are made one hold pair at a time (``rotation.fine_pieces``); the pass stops at the
+   last hold middle. The matrix is then fitted on (phi, c) (``fit.fit_matrix``).
 
-The fit itself is the one of ``calibrate.gyro`` on these sums, so the result equals
-``calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC)`` of ``s = read_session(path)`` up to the
-rounding of sums split at block boundaries (~1e-16 relative).
+Every window and fine-block sum is one ``np.add.reduceat`` over exactly its samples, so the result
+does not depend on where the blocks are cut, but for the sums of a coarse block that spans two
+blocks (~1e-16 relative).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from accellog.calibrate.gyro.calibrate import (
+from accellog.calibrate.gyro.fit import (
     bias_fit,
     bias_window_times,
     clipped_in_moves,
@@ -46,10 +48,23 @@ from accellog.calibrate.gyro.rotation import coarse_plan, fine_pieces
 from accellog.calibrate.observe.heap import trim_heap
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
-from accellog.store.stream import iter_imu
+from accellog.store.stream import ImuBlock, iter_imu
 
 _BLOCK_S = 0.01
-"""Fine block length (s), as gyro.fit_gyro_matrix."""
+"""Fine block length (s)."""
+
+
+class RateBlock(NamedTuple):
+    """Consecutive samples of a session: times (s, increasing), rates (N,3) deg/s (None: no gyro
+    recorded), temperatures (N,) degC or None (a store.stream.ImuBlock has these fields too)."""
+
+    t_s: np.ndarray
+    gyro_dps: np.ndarray | None
+    temp_degC: np.ndarray | None
+
+
+Blocks = Callable[[], Iterable[RateBlock | ImuBlock]]
+"""A session's blocks in time order: a fresh iteration of them per call (one call per pass)."""
 
 
 def stream_calibrate_gyro(
@@ -65,43 +80,84 @@ def stream_calibrate_gyro(
     full_scale_dps: float | None = None,
     first: FirstPass | None = None,
 ) -> GyroCalibration | None:
-    """calibrate_gyro on the session in path (module doc); None when it records no gyro rate.
-    first: step 1 already fed every block of the file (first_pass with the same arguments)."""
-    iv, known, first_new = _plan(poses, model, reference, window_s, trim_s, full_scale_dps)
+    """calibrate_blocks on the chunk groups of the session in path; None when it records no gyro
+    rate. first: step 1 already fed every block of the file (first_pass with the same arguments)."""
+    return calibrate_blocks(
+        lambda: iter_imu(path),
+        poses,
+        model=model,
+        reference=reference,
+        t_ref_degC=t_ref_degC,
+        window_s=window_s,
+        min_temp_span_degC=min_temp_span_degC,
+        trim_s=trim_s,
+        full_scale_dps=full_scale_dps,
+        first=first,
+    )
+
+
+def calibrate_blocks(
+    blocks: Blocks,
+    poses: Sequence[PoseLabel] | np.ndarray,
+    *,
+    model: str = "full",
+    reference: str = "gravity",
+    t_ref_degC: float = 25.0,
+    window_s: float = 1.0,
+    min_temp_span_degC: float = 2.0,
+    trim_s: float = 0.2,
+    full_scale_dps: float | None = None,
+    floor_deg: float = 0.05,
+    rotations: bool = True,
+    base: GyroCalibration | None = None,
+    first: FirstPass | None = None,
+) -> GyroCalibration | None:
+    """The gyro calibration of the session blocks() yields (module doc): the bias from the holds
+    poses (trim_s cut from both ends of each), then the matrix from the rotations between them when
+    >= 2 have a reference (all for reference='gravity', those with an orientation for
+    'orientation'); None when the session records no gyro rate. Arguments: gyro.fit.
+
+    rotations=False: the bias only (poses may then be (K,2) start/end times, s). base: the bias is
+    base's (no windows are summed) and the matrix is fitted (>= 2 poses with a reference needed).
+    first: step 1 already fed every block (first_pass with the same arguments)."""
+    iv, known, first_new = _plan(
+        poses, model, reference, window_s, trim_s, full_scale_dps, rotations, bias=base is None
+    )
     if first is None:
         first = first_new
-        for blk in iter_imu(path):
+        for blk in blocks():
             if not first.add(blk):
                 break
         trim_heap()  # the pass's block arrays are freed: give their pages back (calibrate.heap)
-    found, moves = first.result(), first.moves
+    found = first.result()
     if found is None:
         return None
-    sums, has_temp, (counts, n_total, first_at) = found
-    if sums[2].size < 2:
-        raise InputError(
-            f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
-        )
-    means = sums[0] / sums[2][:, None]
-    temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
-    cal = bias_fit(means, temps, has_temp, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC)
-    k = len(known)
-    if not k:
-        return cal
+    sums, has_temp, located = found
+    if base is None:
+        means = sums[0] / sums[2][:, None]
+        temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
+        base = bias_fit(means, temps, has_temp, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC)
+    if not known:
+        return base
+    phi, c, at = _rotation_blocks(blocks, located, len(known), base, has_temp)
+    return fit_matrix(phi, c, at, known, base, model, floor_deg, reference, first.moves.counts > 0)
+
+
+def _rotation_blocks(blocks: Blocks, located, k: int, base: GyroCalibration, has_temp: bool):
+    """Step 2 (module doc): (phi, c, coarse block index of each hold middle) from the blocks and the
+    located hold middles, ends and starts of the k poses rotated between."""
+    counts, n_total, first_at = located
     pidx = np.clip(counts, 0, n_total - 1)
     mids, ends, starts = pidx[:k], pidx[k : 2 * k], pidx[2 * k :]
     t_mid = {int(i): float(v) for i, v in zip(mids, first_at[:k], strict=True)}
     coarse, at, n_fine = coarse_plan(t_mid, mids, ends, starts, _BLOCK_S)
     if n_fine == 1:
-        phi, c = np.zeros((0, 3)), np.zeros((0, 3))
-    else:
-        use_temp = has_temp and bool(np.any(cal.temp_bias_dps_per_degC != 0))
-        blocks = _CoarseBlocks(at, n_fine, cal, use_temp)
-        _integrate_pass(path, mids[0], fine_pieces(t_mid, mids, _BLOCK_S), blocks)
-        trim_heap()
-        phi, c = blocks.phi, blocks.c
-    at = np.searchsorted(coarse, mids)
-    return fit_matrix(phi, c, at, known, cal, model, 0.05, reference, moves.counts > 0)
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.searchsorted(coarse, mids)
+    use_temp = has_temp and bool(np.any(base.temp_bias_dps_per_degC != 0))
+    acc = _CoarseBlocks(at, n_fine, base, use_temp)
+    _integrate_pass(blocks(), mids[0], fine_pieces(t_mid, mids, _BLOCK_S), acc)
+    trim_heap()
+    return acc.phi, acc.c, np.searchsorted(coarse, mids)
 
 
 def first_pass(
@@ -118,20 +174,25 @@ def first_pass(
     return _plan(poses, model, reference, window_s, trim_s, full_scale_dps)[2]
 
 
-def _plan(poses, model: str, reference: str, window_s: float, trim_s: float, full_scale_dps):
-    """(holds, known poses, an unfed FirstPass) of stream_calibrate_gyro's arguments."""
+def _plan(poses, model, reference, window_s, trim_s, full_scale_dps, rotations=True, bias=True):
+    """(holds, poses rotated between, an unfed FirstPass) of calibrate_blocks' arguments."""
     iv = hold_intervals(poses)
-    if iv.shape[0] == 0:
+    if bias and iv.shape[0] == 0:
         raise InputError("no static holds: the gyro bias cannot be estimated")
-    n_ref = len(poses) if reference == "gravity" else sum(p.q_sensor_to_world is not None for p in poses)
-    known = known_poses(poses, model, reference) if n_ref >= 2 else []
-    win_times = bias_window_times(iv, window_s, trim_s)
+    if not bias:
+        known = known_poses(poses, model, reference)
+    elif not rotations:
+        known = []
+    else:
+        n_ref = len(poses) if reference == "gravity" else sum(p.q_sensor_to_world is not None for p in poses)
+        known = known_poses(poses, model, reference) if n_ref >= 2 else []
+    win_times = bias_window_times(iv, window_s, trim_s) if bias else []
     pose_t = pose_times(known) if known else (np.zeros(0),) * 3
     return iv, known, FirstPass(win_times, np.concatenate(pose_t), _MoveClips(pose_t[0], full_scale_dps))
 
 
 class _MoveClips:
-    """Clipped samples per move (gyro.clipped_in_moves), summed block by block."""
+    """Clipped samples per move (fit.clipped_in_moves), summed block by block."""
 
     def __init__(self, mid_t: np.ndarray, full_scale_dps: float | None) -> None:
         self.mid_t, self.full_scale_dps = mid_t, full_scale_dps
@@ -147,7 +208,7 @@ class FirstPass:
     counts the clipped samples per move. result(): ((rate sums (W,3), temperature sums (W,),
     samples (W,)) of the windows of >= 2 samples, has_temp, (samples before each pose time,
     samples in all, time of the first sample at or after each (the last sample's time when none
-    is))); None when the session has no gyro rate.
+    is))); None when the session has no gyro rate (or no block was added).
 
     A window's sample range [a, b) is the count of samples before its edge times; the count is
     final once a sample at or after the time has passed (times sorted), so each window is summed
@@ -165,15 +226,18 @@ class FirstPass:
         self.end_t = (
             np.maximum.accumulate(queries[self.qlo + 1]) if self.qlo.size else np.zeros(0)
         )  # prefix max
-        self.nxt, self.has_temp, self.no_gyro = 0, True, False
-        self.out: list[tuple] = []
+        self.nxt, self.has_temp, self.no_gyro, self.seen = 0, True, False, False
+        self.out: list[tuple] = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))]
         self.buf, self.buf0 = None, 0  # samples (w, temp) kept from global index buf0
 
     def add(self, blk) -> bool:
-        """The next block (store.stream.ImuBlock); False once the session shows no gyro rate."""
+        """The next block (a RateBlock); False once the session shows no gyro rate."""
         if self.no_gyro or blk.gyro_dps is None:
             self.no_gyro = True
             return False
+        self.seen = True
+        if not len(blk.t_s):
+            return True  # nothing to locate or sum
         loc, qlo, nxt = self.loc, self.qlo, self.nxt
         self.moves.add(blk.t_s, blk.gyro_dps)
         loc.add(blk.t_s)
@@ -192,7 +256,7 @@ class FirstPass:
     def result(self):
         """The sums and locate of every block added (class doc); None without gyro rate."""
         loc, qlo, nxt = self.loc, self.qlo, self.nxt
-        if self.no_gyro or loc.n == 0:
+        if self.no_gyro or not self.seen:
             return None
         counts, n_total, first_at = loc.finish()
         if nxt < qlo.size:  # windows running to the end of the session
@@ -278,13 +342,15 @@ class _Segments:
 
 
 class _CoarseBlocks:
-    """gyro._increments fed the fine blocks in order, a batch at a time: each batch is reduced to
-    its coarse blocks at once (memory O(coarse blocks + one batch), not O(fine blocks)).
+    """The coarse block increments (phi, c; rotation module doc) of the bias-corrected fine blocks b,
+    fed in order a batch at a time, each batch reduced to its coarse blocks at once (memory
+    O(coarse blocks + one batch), not O(fine blocks)): phi = sum of b over the coarse block and
+    c = 1/2 sum_{i<j} b_i x b_j = 1/2 (sum p_excl x b - p_start x phi), p_excl the sum of all
+    earlier fine blocks and p_start its value at the coarse block's first.
 
-    Carried between batches: the running sum p of all earlier fine blocks (the prefix p_excl of the
-    next one) and the partial (phi, sum p_excl x b) and p_excl at the start of a coarse block still
-    open, prepended as a row to the next batch's sums, so every sum is formed in the same order as
-    the whole-array cumsum/reduceat of gyro._increments."""
+    Carried between batches: the running sum p of all earlier fine blocks (the p_excl of the next
+    one) and the partial (phi, sum p_excl x b) and p_start of a coarse block still open, prepended
+    as a row to the next batch's sums, so every sum is formed in the order of one whole batch."""
 
     def __init__(self, at: np.ndarray, n_fine: int, base: GyroCalibration, use_temp: bool):
         """at: first fine block of each coarse block; n_fine: number of fine block edges."""
@@ -323,65 +389,61 @@ class _CoarseBlocks:
         self.c[q] = 0.5 * (crs - np.cross(p_at, phi))
 
 
-def _window_pass(path, a: np.ndarray, b: np.ndarray):
-    """Rate and temperature sums over the windows [a, b) (sample indices); returns (sums, has_temp)."""
-    wins = (_Segments(a, b, 3), _Segments(a, b, 1))
-    buf, buf0, has_temp = None, 0, True  # samples (w, temp) kept from global index buf0
-    for blk in iter_imu(path):
-        has_temp = has_temp and blk.temp_degC is not None
-        new = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)
-        buf = new if buf is None else tuple(_cat(o, n) for o, n in zip(buf, new, strict=True))
-        need = wins[0].add(buf[0], buf0)
-        if has_temp:
-            wins[1].add(buf[1], buf0)
-        keep = min(need, buf0 + buf[0].shape[0]) - buf0
-        buf, buf0 = tuple(None if x is None else x[keep:] for x in buf), buf0 + keep
-    return wins, has_temp
-
-
 def _cat(old, new):
     return None if old is None or new is None else np.concatenate([old, new])
 
 
-def _integrate_pass(path, first: int, pieces: Iterator[np.ndarray], blocks: _CoarseBlocks) -> None:
-    """Trapezoid integrals of the rate (and temperature) over the fine blocks, fed to blocks as
-    each chunk group completes them (a sample pair that straddles two groups is carried over).
-    The fine edges come hold pair by hold pair from pieces (after the first, mids[0]), taken as
-    the samples reach them; the pass stops after the last edge."""
+def _integrate_pass(blocks: Iterable, first: int, pieces: Iterator[np.ndarray], acc: _CoarseBlocks) -> None:
+    """Trapezoid integrals of the rate (and temperature) over the fine blocks, fed to acc as each
+    block completes them (a sample pair that straddles two blocks is carried over). The fine edges
+    come hold pair by hold pair from pieces (after the first, mids[0]), taken as the samples reach
+    them; the pass stops after the last edge (samples past it are not integrated)."""
     edges, more = np.array([first], np.int64), True  # the fine edges from the first block not summed
-    buf, buf0 = None, 0  # samples (t, w, temp) kept from global index buf0
-    for blk in iter_imu(path):
-        temp = np.asarray(blk.temp_degC, float) if blocks.use_temp else np.zeros(blk.n)
+    buf, buf0 = None, 0  # samples (t, w, temp or None) kept from global index buf0
+    for blk in blocks:
+        temp = np.asarray(blk.temp_degC, float) if acc.use_temp else None
         new = (blk.t_s, np.asarray(blk.gyro_dps, float), temp)
-        buf = new if buf is None else tuple(np.concatenate([o, n]) for o, n in zip(buf, new, strict=True))
-        t, w, temp = buf
-        end = buf0 + t.size - 1  # one past the last sample pair held
+        buf = new if buf is None else tuple(_cat(o, n) for o, n in zip(buf, new, strict=True))
+        held = buf[0].size
+        end = buf0 + held - 1  # one past the last sample pair held
         while more and edges[-1] < end:
             piece = next(pieces, None)
             more = piece is not None
             edges = edges if piece is None else np.concatenate([edges, piece])
         need = int(edges[0])
         if edges.size > 1 and need < end:
-            pairs = (
-                _Segments(edges[:-1], edges[1:], 3, keep=False),
-                _Segments(edges[:-1], edges[1:], 1, keep=False),
-            )
-            lo = need - buf0
-            dt = np.diff(t[lo:])
-            inc = w[lo:-1] + w[lo + 1 :]
-            inc *= (0.5 * dt)[:, None]
-            need = pairs[0].add(inc, need)
-            temp_int = None
-            if blocks.use_temp:
-                ti = temp[lo:-1] + temp[lo + 1 :]
-                ti *= 0.5 * dt
-                pairs[1].add(ti, buf0 + lo)
-                temp_int = pairs[1].new
-            m = pairs[0].done[1]
-            span = t[edges[1 : m + 1] - buf0] - t[edges[:m] - buf0]
-            blocks.add(pairs[0].new, temp_int, span)
+            stop = held if more else min(held, int(edges[-1]) - buf0 + 1)
+            t, w, temp = buf[0][:stop], buf[1][:stop], None if buf[2] is None else buf[2][:stop]
+            need, m = _integrate(t, w, temp, buf0, edges, acc)
             edges = edges[m:]
         if edges.size == 1 and not more:
             return  # the last fine block is summed: the rest of the session is not needed
-        keep = min(need, buf0 + t.size) - buf0  # a range not yet begun: keep nothing
-        buf, buf0 = tuple(x[keep:] for x in buf), buf0 + keep
+        keep = min(need, buf0 + held) - buf0  # a range not yet begun: keep nothing
+        buf, buf0 = tuple(None if x is None else x[keep:] for x in buf), buf0 + keep
+
+
+def _integrate(t, w, temp, buf0: int, edges: np.ndarray, acc: _CoarseBlocks) -> tuple[int, int]:
+    """The fine blocks between consecutive edges that the samples t, w, temp (global indices buf0 ..)
+    complete, fed to acc; returns (the first sample still needed, the number of blocks fed)."""
+    need = int(edges[0])
+    pairs = (
+        _Segments(edges[:-1], edges[1:], 3, keep=False),
+        _Segments(edges[:-1], edges[1:], 1, keep=False),
+    )
+    lo = need - buf0
+    half_dt = np.diff(t[lo:])
+    half_dt *= 0.5
+    inc = w[lo:-1] + w[lo + 1 :]
+    inc *= half_dt[:, None]
+    need = pairs[0].add(inc, need)
+    del inc  # its block sums are taken: not held beside the temperature's
+    temp_int = None
+    if temp is not None:
+        ti = temp[lo:-1] + temp[lo + 1 :]
+        ti *= half_dt
+        pairs[1].add(ti, buf0 + lo)
+        temp_int = pairs[1].new
+    m = pairs[0].done[1]
+    span = t[edges[1 : m + 1] - buf0] - t[edges[:m] - buf0]
+    acc.add(pairs[0].new, temp_int, span)
+    return need, m

@@ -1,0 +1,148 @@
+"""The gyro calibration is one implementation fed blocks of samples (accellog.calibrate.gyro.stream):
+its result must not depend on where the session is cut into blocks (whole arrays are one block, an
+MCAP file's chunk groups are many). Windows, hold middles and fine blocks then span block edges,
+down to blocks of one sample."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from accellog.calibrate.gyro.calibrate import calibrate_gyro, gyro_full_scale_dps
+from accellog.calibrate.gyro.stream import RateBlock, calibrate_blocks, stream_calibrate_gyro
+from accellog.core.errors import InputError
+from accellog.flows.simulate import Scenario, simulate
+from accellog.store.reader import read_session
+
+CLIPPING = "+z,+x,+y,-x,-y,-z,+y,-y,+x"  # the +y -> -y flip in 1 s clips a 250 deg/s gyro
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    d = tmp_path_factory.mktemp("gyro_blocks")
+    warm = {"kind": "ramp", "T0": 25.0, "rate_degC_per_s": 0.2}
+    out = {}
+    for name, sc in (
+        ("six", Scenario(protocol="six", hold_s=3.0, move_s=3.0, sample_rate_hz=100.0)),
+        ("warm", Scenario(protocol="six", hold_s=3.0, move_s=3.0, sample_rate_hz=100.0, temperature=warm)),
+        ("clip", Scenario(protocol=CLIPPING, hold_s=3.0, move_s=1.0, sample_rate_hz=200.0, seed=2)),
+    ):
+        simulate(sc, d / f"{name}.mcap")
+        out[name] = d / f"{name}.mcap"
+    return out
+
+
+def _cut(s, sizes):
+    """The session's samples as blocks of the given sizes, cycled."""
+    cuts, i, k = [], 0, 0
+    while i < s.t_s.size:
+        cuts.append(i)
+        i, k = i + sizes[k % len(sizes)], k + 1
+    return [
+        RateBlock(s.t_s[a:b], s.gyro_dps[a:b], s.temp_degC[a:b])
+        for a, b in zip(cuts, [*cuts[1:], s.t_s.size], strict=True)
+    ]
+
+
+def _close(a, b, tol):
+    """GyroCalibration dicts equal, floats within tol (relative to max(1, |a|)); NaN where NaN."""
+    assert a.keys() == b.keys()
+    for k in a:
+        x, y = np.array(a[k], dtype=object), np.array(b[k], dtype=object)
+        if x.dtype == object and all(isinstance(v, (float, int, type(None))) for v in x.ravel()):
+            x, y = (np.array(np.where(v == None, np.nan, v), float) for v in (x, y))  # noqa: E711
+            np.testing.assert_allclose(y, x, rtol=0, atol=tol * max(1.0, np.nanmax(np.abs(x), initial=0)))
+            assert np.array_equal(np.isnan(x), np.isnan(y)), k
+        else:
+            assert a[k] == b[k], k
+
+
+@pytest.mark.parametrize("sizes", [[1], [1000], [3, 250, 1, 40]])
+@pytest.mark.parametrize("name", ["six", "warm", "clip"])
+def test_any_cut_into_blocks_gives_the_one_block_result(sessions, name, sizes):
+    s = read_session(sessions[name])
+    fs = gyro_full_scale_dps(s.meta)
+    whole = calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC, full_scale_dps=fs)
+    blocks = _cut(s, sizes)
+    cut = calibrate_blocks(lambda: iter(blocks), s.poses, full_scale_dps=fs)
+    assert "scale" in whole.effects and cut.clipped_moves == whole.clipped_moves == (name == "clip")
+    assert ("temp_bias" in whole.effects) == (name == "warm")
+    # a coarse block summed in two parts rounds differently (~1e-16); the matrix fits of the warm
+    # and clipping sessions turn that into ~1e-10 (where Levenberg-Marquardt stops moves with it)
+    _close(whole.to_dict(), cut.to_dict(), 1e-12 if name == "six" else 1e-9)
+
+
+def test_a_hold_labelled_past_the_end(sessions):
+    """Bias windows and a hold middle past the last sample (found only at the end of the pass)."""
+    s = read_session(sessions["six"])
+    poses = [*s.poses[:-1], replace(s.poses[-1], end_s=float(s.t_s[-1]) + 5.0)]
+    whole = calibrate_gyro(s.t_s, s.gyro_dps, poses, s.temp_degC)
+    assert whole.n_holds == 6 and "scale" in whole.effects
+    blocks = _cut(s, [37])
+    _close(whole.to_dict(), calibrate_blocks(lambda: iter(blocks), poses).to_dict(), 1e-12)
+
+
+def test_the_file_is_read_in_its_chunk_groups(sessions, monkeypatch):
+    """stream_calibrate_gyro feeds the file's chunk groups: many of them here, two passes."""
+    from accellog.calibrate.gyro import stream
+    from accellog.store import fastread
+
+    monkeypatch.setattr(fastread, "_GROUP_BYTES", 8 << 10)
+    seen = []
+    real = stream.iter_imu
+
+    def counted(path):
+        seen.append([])
+        for blk in real(path):
+            seen[-1].append(blk.n)
+            yield blk
+
+    monkeypatch.setattr(stream, "iter_imu", counted)
+    s = read_session(sessions["warm"])
+    cal = stream_calibrate_gyro(sessions["warm"], s.poses)
+    assert len(seen) == 2 and len(seen[0]) > 10 and len(seen[1]) > 10 and sum(seen[0]) == s.t_s.size
+    assert cal.effects == ["bias", "temp_bias", "scale", "cross_axis"]
+    assert cal.rotation_rms_deg < 1.0 and np.all(np.abs(cal.matrix - np.eye(3)) < 0.15)
+
+
+def test_no_gyro_and_no_samples(sessions):
+    s = read_session(sessions["six"])
+    no_gyro = [RateBlock(s.t_s, None, s.temp_degC)]
+    assert calibrate_blocks(lambda: iter(no_gyro), s.poses) is None
+    with pytest.raises(InputError, match="no gyro rate"):
+        calibrate_gyro(s.t_s, None, s.poses)
+    with pytest.raises(InputError, match="fewer than 2 windows"):
+        calibrate_gyro(np.zeros(0), np.zeros((0, 3)), s.poses)
+
+
+@pytest.mark.parametrize("rate_hz", [20.0, 99.0, 1000.0])
+def test_block_edges_made_pair_by_pair(rate_hz):
+    """fine_pieces / coarse_plan (one hold pair in memory at a time): fine edges strictly increasing
+    from the first hold middle to the last, through every middle, ceil(span / 10 ms) blocks between
+    two middles (one a sample when 10 ms is shorter); the coarse edges are fine edges with their index in them; also when two holds
+    share a middle."""
+    from accellog.calibrate.gyro.rotation import coarse_plan, fine_pieces
+
+    rng = np.random.default_rng(int(rate_hz))
+    for trial in range(40):
+        n = int(rng.integers(50, 3000))
+        t = np.cumsum(rng.uniform(0.5, 1.5, n)) / rate_hz
+        k = int(rng.integers(2, 6))
+        starts = np.sort(rng.integers(0, n, k))
+        ends = np.maximum(np.sort(np.minimum(starts + rng.integers(0, n // k + 1, k), n - 1)), starts)
+        mids = np.sort((starts + ends) // 2)
+        if trial % 5 == 0:
+            mids[1] = mids[0]
+        fine = np.concatenate([mids[:1], *fine_pieces(t, mids, 0.01)])
+        assert fine[0] == mids[0] and fine[-1] == mids[-1] and np.all(np.diff(fine) > 0)
+        assert np.isin(mids, fine).all()
+        for a, b in itertools.pairwise(mids):  # ceil(span / 10 ms) blocks, at most one a sample
+            want = min(b - a, max(1, int(np.ceil((t[b] - t[a]) / 0.01)))) if b > a else 0
+            assert np.count_nonzero((fine > a) & (fine <= b)) == want
+        coarse, at, n_fine = coarse_plan(t, mids, ends, starts, 0.01)
+        assert n_fine == fine.size and np.all(np.diff(coarse) > 0) and np.isin(mids, coarse).all()
+        np.testing.assert_array_equal(fine[at], coarse[:-1])
+        assert coarse[-1] == fine[-1]
