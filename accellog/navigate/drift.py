@@ -13,6 +13,9 @@ propagated from white acceleration noise of variance sigma_a^2 per sample (infla
 autocorrelation time tau): Cov(d(s), d(t)) = sigma_a^2 tau dt (m^2 M / 2 - m^3 / 6), m = min(s,t),
 M = max(s,t), evaluated on a decimated time grid. Bias instability and flicker are not included.
 
+The fit runs on the session's blocks (navigate.blocks: a file chunk by chunk, a session in memory as
+one block) in two passes (drift_blocks), memory independent of the session length.
+
 LIMITS (stated in every output): a residual-bias model for a sensor at rest in the orientation it
 was fitted in; it is not a calibration of the sensor and is invalid once the sensor moves or turns,
 and it extrapolates poorly beyond the fitted duration.
@@ -189,10 +192,13 @@ class DriftFit:
         self.sums.add(t, d)
         self.dt.add(t)
 
+    def second_pass(self, n: int) -> None:
+        """After pass 1 over n samples: the refinement starts from pass 1's q."""
+        self.refine = DriftRefine(self.sums.solve(), self.sums.t0, self.sums.t_last)
+        self.grid = grid_index(n)
+
     def add_again(self, t: np.ndarray, d: np.ndarray) -> None:
-        """Pass 2 (the same blocks)."""
-        if self.refine is None:
-            self.refine = DriftRefine(self.sums.solve(), self.sums.t0, self.sums.t_last)
+        """Pass 2 (the same blocks, after second_pass)."""
         self.refine.add(t, d)
         g = self.grid
         self.grid_t.append(t[g[(g >= self.n2) & (g < self.n2 + t.size)] - self.n2])
@@ -242,7 +248,7 @@ def fit_drift(
         raise InputError("drift fit: displacement or time contains NaN")
     fit = DriftFit()
     fit.add(t, d)
-    fit.grid = grid_index(t.size)
+    fit.second_pass(t.size)
     fit.add_again(t, d)
     var = tau = None
     if accel_resid_mps2 is not None:
@@ -289,7 +295,7 @@ def drift_blocks(
     up = ev.up_sensor  # inferred in pass 1 when not given (its note is in ev.notes)
     ctx = eval_context(src.where, src.meta, cal, up, [], apply_drift=False)
     integ = Integrator(())
-    fit.grid = grid_index(st["n"])
+    fit.second_pass(st["n"])
     for b, block in checked_blocks(src, until_s, max_samples):
         _v, d, _ = integ.add(b.t_s, block_residual(ctx, block))
         fit.add_again(b.t_s, d)
