@@ -14,11 +14,11 @@ process under GNU time (wall, peak RSS), one at a time:
     decompress      the floor of any reader: zstd-decompress every chunk of the file (no decoding)
     evaluate_whole  the evaluate command before streaming: run_evaluate_report(P, [CAL], stream=False)
                     on a static '+z' session of the same length (synth_static.py), raw + model3
-    evaluate_stream the evaluate command now (navigate.stream_evaluate: one pass over the chunks)
+    evaluate_stream the evaluate command now (navigate.evaluate: one pass over the chunks)
     integrate_whole the integrate command before streaming (whole session, CSV of every sample)
     integrate_stream the integrate command now (rows written block by block)
     drift_whole     the drift command before streaming: run_drift(load_input(P), CAL) (whole session)
-    drift_stream    the drift command now: run_drift(P, CAL) (navigate.stream_drift: three passes
+    drift_stream    the drift command now: run_drift(P, CAL) (navigate.drift: two passes
                     over the chunks, same calibration to 1e-9 relative)
 
 Prints the load average with each row (a loaded 2-core machine inflates every wall time).

@@ -41,10 +41,10 @@ from accellog.core.notices import note
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.flows.inputs import load_input
+from accellog.flows.static_input import StaticInput, run_on_blocks
 from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
-from accellog.flows.streamed_drift import streamed_drift
-from accellog.navigate.drift import drift_from_session
-from accellog.navigate.evaluate import Evaluation, evaluate
+from accellog.navigate.drift import drift_blocks
+from accellog.navigate.evaluate import Evaluation, evaluate_blocks, targets
 from accellog.present import views
 from accellog.present.rrd.recording import RunRecording
 from accellog.store.stream import read_labels
@@ -308,7 +308,7 @@ def _cal(x: Calibration | str | os.PathLike) -> Calibration:
 
 
 def run_evaluate(
-    test: Session | str | os.PathLike,
+    test: StaticInput,
     cal: Calibration | str | os.PathLike | Sequence[Calibration],
     *,
     include_raw: bool = True,
@@ -316,20 +316,19 @@ def run_evaluate(
     until_s: float | None = None,
     max_samples: int | None = None,
     labels: Sequence[str] | None = None,
+    stream: bool = False,
 ) -> list[Evaluation]:
-    """Evaluate calibration(s) on a static test session; the raw reading first when include_raw."""
-    s = as_session(test, "evaluate")
+    """Evaluate calibration(s) on a static test session; the raw reading first when include_raw.
+    stream: an MCAP file chunk by chunk (its evaluations then keep no series to plot), else in memory."""
     cals = [_cal(c) for c in cal] if isinstance(cal, (list, tuple)) else [_cal(cal)]
-    out = []
-    if include_raw:
-        g = cals[0].local_gravity_mps2 if cals else None
-        out.append(
-            evaluate(s, None, local_gravity_mps2=g, times_s=times_s, until_s=until_s, max_samples=max_samples)
-        )
-    for i, c in enumerate(cals):
-        lab = labels[i] if labels else None
-        out.append(evaluate(s, c, label=lab, times_s=times_s, until_s=until_s, max_samples=max_samples))
-    return out
+    tgts = targets(cals, labels, include_raw)
+    evs, _data = run_on_blocks(
+        test,
+        lambda src: evaluate_blocks(src, tgts, times_s=times_s, until_s=until_s, max_samples=max_samples),
+        lambda: as_session(test, "evaluate"),
+        stream=stream,
+    )
+    return evs
 
 
 @dataclass
@@ -371,13 +370,14 @@ def run_drift(
 ) -> DriftOutcome:
     """Fit the displacement-drift model on a calibrated static session (an MCAP file: chunk by chunk)."""
     c = _cal(cal)
-    got = streamed_drift(static, c, until_s=until_s, max_samples=max_samples) if stream else None
-    if got is not None:
-        return DriftOutcome(cal=got[0], drift=got[1], fit_eval=got[2])
-    s = as_session(static, "drift")
-    cal_d, dm = drift_from_session(s, c, until_s=until_s, max_samples=max_samples)
-    ev = evaluate(s, cal_d, until_s=until_s, max_samples=max_samples)
-    entry = _source(s, None, "drift")
-    if entry.recovered is not None:  # provenance: the drift was fitted on a recovered (truncated) file
-        cal_d.sources = [*cal_d.sources, entry]
+    (cal_d, dm, ev), data = run_on_blocks(
+        static,
+        lambda src: drift_blocks(src, c, until_s=until_s, max_samples=max_samples),
+        lambda: as_session(static, "drift"),
+        stream=stream,
+    )
+    if isinstance(data, Session):
+        entry = _source(data, None, "drift")
+        if entry.recovered is not None:  # provenance: the drift was fitted on a recovered (truncated) file
+            cal_d.sources = [*cal_d.sources, entry]
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)

@@ -23,15 +23,22 @@ from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.numfmt import format_rows
 from accellog.core.session import ObsTable, Session
-from accellog.core.timeseries import cumtrapz
 from accellog.flows.stages import load_input, run_evaluate
+from accellog.flows.static_input import run_on_blocks
 from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
-from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_pose_obs
-from accellog.navigate.stream_evaluate import can_stream_cals, stream_evaluate
+from accellog.navigate.blocks import Blocks, file_blocks
+from accellog.navigate.evaluate import (
+    Evaluation,
+    PoseEvaluation,
+    Target,
+    evaluate_blocks,
+    evaluate_pose_obs,
+    targets,
+)
 from accellog.present import tables, views
 from accellog.present.residual_views import log_panels, log_residuals_vs_drivers, panels
 from accellog.present.rrd.recording import RunRecording
-from accellog.store.atomic import atomic_output, write_text_atomic
+from accellog.store.atomic import atomic_output
 
 if TYPE_CHECKING:  # the hand-held path (scipy.stats, ~60 MB and ~0.9 s of imports) loads when used
     from accellog.navigate.handheld_evaluate import HandheldEvaluation
@@ -200,11 +207,19 @@ def _handheld_report(
 def _labelled_or_static(
     test, cals: list[Calibration], labels, *, until_s, max_samples, at_s: float, stream: bool
 ) -> EvaluationReport:
-    """A labelled multi-pose session hold by hold, or one static hold (streamed for MCAP)."""
+    """A labelled multi-pose session hold by hold, or one static hold (an MCAP file chunk by chunk
+    when stream; damaged chunks or a model reading dT/dt: in memory)."""
     if stream and can_stream(test):
-        rep = _streamed_report(test, cals, labels, until_s=until_s, max_samples=max_samples, at_s=at_s)
-        if rep is not None:
-            return rep
+        s = open_streamed(test, observe=False, check_times=False)  # one hold: checked in the evaluate pass
+        if s is not None and len(s.poses) > 1:
+            rep = _streamed_poses(test, cals, labels, until_s=until_s, max_samples=max_samples, at_s=at_s)
+            if rep is not None:
+                return rep
+        elif s is not None:
+            evs = evaluate_blocks(file_blocks(s.path, s.meta, s.poses), targets(cals, labels),
+                                  until_s=until_s, max_samples=max_samples)  # fmt: skip
+            if evs is not None:
+                return EvaluationReport(s, cals, labels, at_s, single=evs)
     data = load_input(test)
     rep = EvaluationReport(data, cals, labels, at_s)
     if isinstance(data, Session) and len(data.poses) > 1:
@@ -239,34 +254,17 @@ def _refuse_cut(n_poses: int, until_s: float | None, max_samples: int | None, wh
         )
 
 
-def _streamed_report(
+def _streamed_poses(
     test, cals: list[Calibration], labels, *, until_s, max_samples, at_s: float
 ) -> EvaluationReport | None:
-    """run_evaluate_report on an MCAP file chunk by chunk; None: the whole-session path must read it
-    (damaged chunks, or a model reading dT/dt on a single hold)."""
-    s = open_streamed(test, observe=False, check_times=False)  # one hold: checked in the evaluate pass
-    if s is not None and len(s.poses) > 1:
-        s = open_streamed(test, observe=False)  # the time-stamp check before the observation pass
+    """The holds of a labelled MCAP file evaluated from its streamed observations; None: damaged
+    chunks (the whole-session path reads it)."""
+    s = open_streamed(test, observe=False)  # the time-stamp check before the observation pass
     if s is None:
         return None
     rep = EvaluationReport(s, cals, labels, at_s)
-    if len(s.poses) > 1:
-        _refuse_cut(len(s.poses), until_s, max_samples, s.path)
-        _pose_evaluations(rep, stream_observations(s.path, labels=(s.meta, s.poses, [])), s.meta, s.path)
-        return rep
-    evs = stream_evaluate(
-        s.path,
-        s.meta,
-        s.poses,
-        cals,
-        labels=labels,
-        until_s=until_s,
-        max_samples=max_samples,
-        check_times=True,
-    )
-    if evs is None:
-        return None
-    rep.single = evs
+    _refuse_cut(len(s.poses), until_s, max_samples, s.path)
+    _pose_evaluations(rep, stream_observations(s.path, labels=(s.meta, s.poses, [])), s.meta, s.path)
     return rep
 
 
@@ -314,45 +312,36 @@ def run_integrate(
 ) -> Integration:
     """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
     local gravity: a = f g_local - up g_local (m/s^2); v, d by cumulative trapezoid. With output,
-    the CSV (CSV_HEADER, one row per sample) is written atomically; an MCAP session then streams
-    chunk by chunk (rows written as they are integrated, memory independent of the length)."""
+    the CSV (CSV_HEADER, one row per sample) is written atomically as the blocks are integrated (an
+    MCAP file chunk by chunk when stream: memory independent of its length); without output the
+    session is read in memory."""
     c = as_calibration(cal_path) if cal_path is not None else None
     cp = c.path if c is not None else None
-    if output is not None and stream and can_stream(path):
-        res = _stream_integrate(path, c, cp, until_s=until_s, output=output)
-        if res is not None:
-            return res
-    data = _session_input(path, "integrate")
-    ev = run_evaluate(data, [c] if c else [], include_raw=c is None, until_s=until_s)[-1]
-    v = cumtrapz(ev.t_s, ev.resid_series_mps2)  # the residual acceleration (m/s^2) is what integrates to d
-    res = Integration(str(path), cp, ev, v)
-    if output is not None:
-        res.written = write_text_atomic(output, res.csv_text(), inputs=(path, cal_path))
-    return res
+    tgts = [Target(c)] if c is not None else targets([])
+    load = lambda: _session_input(path, "integrate")  # noqa: E731
+    vel: list[np.ndarray] = []
 
+    def run(src: Blocks, rows=None) -> list[Evaluation] | None:
+        vel.clear()
 
-def _stream_integrate(
-    path, c: Calibration | None, cp: str | None, *, until_s, output: Path
-) -> Integration | None:
-    """run_integrate of an MCAP file in one pass, CSV rows written per block (None: not streamable)."""
-    s = open_streamed(path, observe=False, check_times=False)  # checked in the evaluate pass
-    if s is None or not can_stream_cals([c] if c else []):
-        return None
-    try:
-        with atomic_output(output, inputs=(path, cp)) as tmp, open(tmp, "wb") as f:
+        def sink(_k: int, t: np.ndarray, v: np.ndarray, d: np.ndarray) -> None:
+            if src.in_memory:
+                vel.append(v)
+            if rows is not None:
+                rows(t, v, d)
+
+        return evaluate_blocks(src, tgts, until_s=until_s, on_block=sink)
+
+    if output is None:
+        evs, _ = run_on_blocks(path, run, load, stream=False)
+        return Integration(str(path), cp, evs[-1], np.concatenate(vel))
+    with atomic_output(output, inputs=(path, cp)) as tmp, open(tmp, "wb") as f:
+
+        def csv_pass(src: Blocks) -> list[Evaluation] | None:
+            f.seek(0)
+            f.truncate()  # a pass that met damaged chunks wrote rows: the whole session writes them again
             f.write(CSV_HEADER.encode("ascii"))
+            return run(src, lambda t, v, d: f.write(format_rows(np.column_stack([t, v, d]))))
 
-            def rows(_k: int, t: np.ndarray, v: np.ndarray, d: np.ndarray) -> None:
-                f.write(format_rows(np.column_stack([t, v, d])))  # np.savetxt's "%.9g" bytes, ~3.5x faster
-
-            evs = stream_evaluate(s.path, s.meta, s.poses, [c] if c else [], include_raw=c is None,
-                                  until_s=until_s, on_block=rows, check_times=True)  # fmt: skip
-            if evs is None:  # damaged chunks: no CSV from this pass, the whole-session path writes it
-                raise _Damaged
-    except _Damaged:
-        return None
-    return Integration(str(path), cp, evs[-1], None, Path(output))
-
-
-class _Damaged(Exception):
-    """The streamed pass met damaged chunks (aborts its atomic output)."""
+        evs, _ = run_on_blocks(path, csv_pass, load, stream=stream)
+    return Integration(str(path), cp, evs[-1], np.concatenate(vel) if vel else None, Path(output))

@@ -13,6 +13,9 @@ propagated from white acceleration noise of variance sigma_a^2 per sample (infla
 autocorrelation time tau): Cov(d(s), d(t)) = sigma_a^2 tau dt (m^2 M / 2 - m^3 / 6), m = min(s,t),
 M = max(s,t), evaluated on a decimated time grid. Bias instability and flicker are not included.
 
+The fit runs on the session's blocks (navigate.blocks: a file chunk by chunk, a session in memory as
+one block) in two passes (drift_blocks), memory independent of the session length.
+
 LIMITS (stated in every output): a residual-bias model for a sensor at rest in the orientation it
 was fitted in; it is not a calibration of the sensor and is invalid once the sensor moves or turns,
 and it extrapolates poorly beyond the fitted duration.
@@ -21,16 +24,18 @@ and it extrapolates poorly beyond the fitted duration.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
 from accellog.calibrate.calfile.calibration import Calibration
 from accellog.calibrate.calfile.drift_model import DriftModel
-from accellog.calibrate.observe.hold_noise import integrated_autocorr_time
 from accellog.core.errors import InputError
 from accellog.core.session import Session
-from accellog.navigate.evaluate import calibrated_residual
-from accellog.navigate.integrate import displacement
+from accellog.navigate.blocks import Blocks, checked_blocks, session_blocks
+from accellog.navigate.evaluate import Target, evaluate_blocks
+from accellog.navigate.evaluation import Evaluation, block_residual, drift_result, eval_context
+from accellog.navigate.stream_sums import Integrator, ResidualSums
 
 
 def _design(t: np.ndarray) -> np.ndarray:
@@ -170,6 +175,56 @@ class IntervalCount:
         return float(np.mean([lo, hi]))
 
 
+class DriftFit:
+    """The fit of q on d(t) fed in two passes of consecutive blocks (module doc of drift_blocks):
+    pass 1 DriftSums and the sample intervals, pass 2 DriftRefine and the covariance grid's times."""
+
+    def __init__(self) -> None:
+        self.sums = DriftSums()
+        self.dt = IntervalCount()
+        self.refine: DriftRefine | None = None
+        self.grid = np.zeros(0, dtype=int)
+        self.n2 = 0
+        self.grid_t: list[np.ndarray] = []
+
+    def add(self, t: np.ndarray, d: np.ndarray) -> None:
+        """Pass 1."""
+        self.sums.add(t, d)
+        self.dt.add(t)
+
+    def second_pass(self, n: int) -> None:
+        """After pass 1 over n samples: the refinement starts from pass 1's q."""
+        self.refine = DriftRefine(self.sums.solve(), self.sums.t0, self.sums.t_last)
+        self.grid = grid_index(n)
+
+    def add_again(self, t: np.ndarray, d: np.ndarray) -> None:
+        """Pass 2 (the same blocks, after second_pass)."""
+        self.refine.add(t, d)
+        g = self.grid
+        self.grid_t.append(t[g[(g >= self.n2) & (g < self.n2 + t.size)] - self.n2])
+        self.n2 += t.size
+
+    def model(
+        self, var_mps2: np.ndarray | None, tau: np.ndarray | None, up_sensor, source: str
+    ) -> DriftModel:
+        """The DriftModel after both passes; var_mps2 (3,) (m/s^2)^2 and tau (3,) samples of the
+        residual acceleration (None: sigma NaN, no honest estimate)."""
+        q, rms = self.refine.solve()
+        if var_mps2 is None:
+            cov = np.full((3, 3, 3), np.nan)
+        else:
+            var_density = var_mps2 * tau * self.dt.median()  # (m/s^2)^2 s
+            cov = noise_cov_q(np.concatenate(self.grid_t), var_density, n_grid=None)
+        return DriftModel(
+            q=q.T.copy(),
+            cov=cov,
+            fit_duration_s=float(self.sums.t_last - self.sums.t0),
+            up_sensor=None if up_sensor is None else tuple(float(v) for v in up_sensor),
+            source=source,
+            rms_residual_m=rms,
+        )
+
+
 def fit_drift(
     t_s: np.ndarray,
     disp_m: np.ndarray,
@@ -178,7 +233,8 @@ def fit_drift(
     up_sensor: tuple[float, float, float] | None = None,
     source: str = "",
 ) -> DriftModel:
-    """Least-squares q per axis on d(t) = q0 + q1 t + 1/2 q2 t^2 (t_s s, disp_m (n,3) m).
+    """Least-squares q per axis on d(t) = q0 + q1 t + 1/2 q2 t^2 (t_s s, disp_m (n,3) m): DriftFit
+    fed with one block.
 
     accel_resid_mps2: the gravity-removed calibrated acceleration (n,3) the displacement came from;
     its variance and autocorrelation time give the uncertainty (white-noise propagation). Without
@@ -190,27 +246,64 @@ def fit_drift(
         raise InputError(f"drift fit needs >= 10 samples of (n,3) displacement, got t {t.shape}, d {d.shape}")
     if not (np.isfinite(t).all() and np.isfinite(d).all()):
         raise InputError("drift fit: displacement or time contains NaN")
-    sums = DriftSums()  # the sums stream_drift feeds block by block (two passes), here in one block
-    sums.add(t, d)
-    refine = DriftRefine(sums.solve(), float(t[0]), float(t[-1]))
-    refine.add(t, d)
-    coef, rms = refine.solve()  # (3 params, 3 axes), (3,) m
+    fit = DriftFit()
+    fit.add(t, d)
+    fit.second_pass(t.size)
+    fit.add_again(t, d)
+    var = tau = None
     if accel_resid_mps2 is not None:
-        a = np.asarray(accel_resid_mps2, float)
-        tau = np.asarray(integrated_autocorr_time(a))
-        dt = float(np.median(np.diff(t)))
-        var_density = a.var(axis=0, ddof=1) * tau * dt  # (m/s^2)^2 s
-        cov = noise_cov_q(t, var_density)
-    else:
-        cov = np.full((3, 3, 3), np.nan)
-    return DriftModel(
-        q=coef.T.copy(),
-        cov=cov,
-        fit_duration_s=float(t[-1] - t[0]),
-        up_sensor=up_sensor,
-        source=source,
-        rms_residual_m=rms,
-    )
+        acc = ResidualSums((), 2.0)
+        acc.add(t, np.asarray(accel_resid_mps2, float))
+        st = acc.finish()
+        var, tau = st["std"] ** 2, st["tau"]
+    return fit.model(var, tau, up_sensor, source)
+
+
+def drift_blocks(
+    src: Blocks,
+    cal: Calibration,
+    *,
+    up_sensor: Sequence[float] | None = None,
+    until_s: float | None = None,
+    max_samples: int | None = None,
+) -> tuple[Calibration, DriftModel, Evaluation] | None:
+    """(cal + drift, drift, evaluation of cal + drift on the session) in two passes over the
+    session's blocks. None: a file with damaged chunks or a model reading dT/dt (evaluate_blocks).
+
+    1. evaluate_blocks of the calibration without its drift model (the checks, the file's
+       time-stamp check, the orientation): its displacement d(t) into DriftFit (normal equations of
+       d = q0 + q1 t + 1/2 q2 t^2 on a scaled time, the sample intervals' exact median) and the
+       residual's std and autocorrelation time;
+    2. the same d again (stream_sums.Integrator) into DriftFit (one step of iterative refinement on a
+       centred basis: q to least-squares accuracy, the residual RMS; the decimated covariance grid).
+
+    The evaluation of cal + drift is pass 1's: the residual does not depend on the drift model, and
+    the drifted displacement at the reported times is the model applied to the two samples around
+    each (Integrator.series_at), the interpolation an evaluation of cal + drift makes.
+
+    The median interval is exact: IntervalCount keeps every distinct float dt with its count; its
+    memory is the number of distinct intervals, which the clock bounds (integer nanosecond stamps),
+    not the number of samples."""
+    cal0 = dataclasses.replace(cal, drift=None)  # pass 1 evaluates the calibration alone
+    fit = DriftFit()
+    sums: list = []
+    evs = evaluate_blocks(src, [Target(cal0)], up_sensor=up_sensor, until_s=until_s, max_samples=max_samples,
+                          on_block=lambda _k, t, _v, d: fit.add(t, d), sums_out=sums)  # fmt: skip
+    if evs is None:
+        return None
+    ev, (acc, st) = evs[0], sums[0]
+    up = ev.up_sensor  # inferred in pass 1 when not given (its note is in ev.notes)
+    ctx = eval_context(src.where, src.meta, cal, up, [], apply_drift=False)
+    integ = Integrator(())
+    fit.second_pass(st["n"])
+    for b, block in checked_blocks(src, until_s, max_samples):
+        _v, d, _ = integ.add(b.t_s, block_residual(ctx, block))
+        fit.add_again(b.t_s, d)
+    dm = fit.model(st["std"] ** 2, st["tau"], up, src.where)
+    at, end = acc.integ.series_at(dm.apply)
+    series = {} if ev.t_s is None else {"dd": dm.apply(ev.t_s, ev.disp_series_m)}
+    drift_result(ev, dm, {"disp_drift_at": at, "disp_drift_end": end}, series)
+    return dataclasses.replace(cal, drift=dm, path=None), dm, ev
 
 
 def drift_from_session(
@@ -221,21 +314,9 @@ def drift_from_session(
     until_s: float | None = None,
     max_samples: int | None = None,
 ) -> tuple[Calibration, DriftModel]:
-    """Fit the drift model on a static session calibrated with `cal`; returns (cal + drift, drift).
-
-    The session is calibrated, gravity is removed (up * g_local), the residual acceleration is
-    integrated twice over its timestamps and q is fitted per axis (see fit_drift).
-    """
-
-    t, r, up, _, _, _ = calibrated_residual(
-        session, cal, up_sensor=up_sensor, until_s=until_s, max_samples=max_samples
+    """Fit the drift model on a static session in memory calibrated with `cal`; returns (cal + drift,
+    drift): drift_blocks on the session as one block."""
+    cal_d, dm, _ev = drift_blocks(
+        session_blocks(session), cal, up_sensor=up_sensor, until_s=until_s, max_samples=max_samples
     )
-    _, d = displacement(t, r, remove_gravity_mps2=None, where=session.path)
-    dm = fit_drift(
-        t,
-        d,
-        accel_resid_mps2=r - r.mean(axis=0),
-        up_sensor=tuple(float(v) for v in up),
-        source=session.path or session.meta.source,
-    )
-    return dataclasses.replace(cal, drift=dm, path=None), dm
+    return cal_d, dm

@@ -1,357 +1,146 @@
-"""Evaluate a calibration on a different static session (the seed's Tables 4 and 5).
+"""Evaluate calibrations on a static session in one pass over its blocks (the seed's Tables 4 and 5;
+the formulas: navigate.evaluation).
 
-For a session at rest in one orientation (up vector u, sensor frame):
-
-    a (m/s^2)  = correct(theta, reading) * mps2_per_unit          (calibrated specific force)
-    r (m/s^2)  = a - u * g_local                                   (residual; seed: minus 9.797 on z)
-    mean_r +- sem (autocorrelation-aware), std, residual RMS of window means,
-    chi2_noise = sum_axes (mean_r / sem)^2   (dof 3): is the residual explained by noise alone?
-    chi2_total = sum_axes mean_r^2 / (sem^2 + sigma_cal^2), sigma_cal propagated from the
-                 calibration covariance through correct() (numerical Jacobian),
-    d(t) = double trapezoid integral of r over the real timestamps, reported at 10/30/60 s,
-    and after the drift model when the calibration carries one (d - 1/2 q2 t^2 - q1 t - q0).
-
-`cal=None` evaluates the raw reading (the seed's "No calibration" row: a = reading * g_local).
-The statistics come from running sums (navigate.stream_sums.ResidualSums), fed here with the whole
-session as one block and by navigate.stream_evaluate chunk by chunk from an MCAP file: both paths
-give the same numbers. Multi-pose sessions: navigate.pose_evaluate (evaluate_poses, re-exported).
+The session arrives as blocks (``navigate.blocks``: an MCAP file chunk by chunk, a Session in memory
+as one block); a second, cheaper pass first only when the orientation must be inferred from the mean
+reading. Each block is cut (until_s, max_samples), checked (finite reading, increasing stamps),
+calibrated (``evaluation.block_residual``, per calibration) and folded into
+``stream_sums.ResidualSums``; the motion check runs on the 0.5 s windows of the raw reading
+(``stream_motion.MotionCheck``: check_static's verdict in bounded memory). Memory is one block plus
+a few window tables, whatever the session length; a session in memory also keeps its series (t, r,
+d) for plots. A file whose calibration reads dT/dt (a centred 5 s slope) is not cut into blocks:
+``evaluate_blocks`` returns None and the caller feeds the whole session as one block.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from accellog.calibrate.calfile.calibration import Calibration
-from accellog.calibrate.calfile.drift_model import DriftModel
-from accellog.calibrate.model.session_drivers import session_drivers
-from accellog.calibrate.noise.noise_model import sem_with_noise_floor
-from accellog.calibrate.observe.segment import check_static
 from accellog.core.errors import InputError
-from accellog.core.jsonio import JsonResult
-from accellog.core.session import PoseLabel, Session
-from accellog.core.timeseries import check_time
+from accellog.core.session import Session
+from accellog.navigate.blocks import Blocks, checked_blocks, mean_reading, session_blocks
+from accellog.navigate.evaluation import (
+    AXES,
+    EvalContext,
+    Evaluation,
+    block_residual,
+    check_norm,
+    driver_sums,
+    eval_context,
+    finish_evaluation,
+    infer_up,
+)
 from accellog.navigate.integrate import DEFAULT_TIMES_S
+from accellog.navigate.stream_motion import MotionCheck
 from accellog.navigate.stream_sums import ResidualSums
 
-AXES = ("x", "y", "z")
+BlockSink = Callable[[int, np.ndarray, np.ndarray, np.ndarray], None]
+"""on_block(evaluation index, t_s, v_mps (n,3), d_m (n,3)) receives every block's integration."""
 
 
-@dataclass
-class Evaluation(JsonResult):
-    """Result of evaluating one calibration (or none) on one static session. m/s^2, m, s."""
+@dataclass(frozen=True)
+class Target:
+    """One evaluation of a session: a calibration (None: the raw reading) and how it is reported."""
 
-    label: str
-    session: str
-    up_sensor: np.ndarray
-    n: int
-    duration_s: float
-    local_gravity_mps2: float
-    mps2_per_unit: float
-    mean_resid_mps2: np.ndarray
-    sem_mps2: np.ndarray
-    std_mps2: np.ndarray
-    cal_sigma_mps2: np.ndarray
-    chi2_noise: float
-    chi2_total: float
-    dof: int
-    rms_mps2: float
-    times_s: np.ndarray
-    t_used_s: np.ndarray
-    disp_m: np.ndarray  # (m,3) at times_s
-    t_end_s: float
-    disp_end_m: np.ndarray
-    drift_applied: bool = False
-    disp_drift_m: np.ndarray | None = None  # (m,3) after the drift model
-    disp_end_drift_m: np.ndarray | None = None
-    notes: list[str] = field(default_factory=list)
-    # full series (for plots / .rrd; not in to_dict)
-    t_s: np.ndarray | None = None
-    resid_series_mps2: np.ndarray | None = None
-    disp_series_m: np.ndarray | None = None
-    disp_drift_series_m: np.ndarray | None = None
-
-    @property
-    def rms_g(self) -> float:
-        """Residual RMS in calibrated units (g): rms_mps2 / mps2_per_unit."""
-        return self.rms_mps2 / self.mps2_per_unit
-
-    @property
-    def chi2_noise_dof(self) -> float:
-        return self.chi2_noise / self.dof
-
-    def disp_at(self, t: float, drift: bool = False) -> np.ndarray:
-        """Displacement (3,) m at one of the reported times (after the drift model if drift)."""
-        i = int(np.argmin(np.abs(self.times_s - t)))
-        src = self.disp_drift_m if drift and self.disp_drift_m is not None else self.disp_m
-        return src[i]
-
-    def to_dict(self) -> dict:
-        d = {
-            "label": self.label,
-            "session": self.session,
-            "up_sensor": self.up_sensor.tolist(),
-            "n_samples": self.n,
-            "duration_s": self.duration_s,
-            "local_gravity_mps2": self.local_gravity_mps2,
-            "mps2_per_unit": self.mps2_per_unit,
-            "mean_residual_mps2": dict(zip(AXES, self.mean_resid_mps2.tolist(), strict=True)),
-            "sem_mps2": dict(zip(AXES, self.sem_mps2.tolist(), strict=True)),
-            "std_mps2": dict(zip(AXES, self.std_mps2.tolist(), strict=True)),
-            "calibration_sigma_mps2": dict(zip(AXES, self.cal_sigma_mps2.tolist(), strict=True)),
-            "chi2_noise": self.chi2_noise,
-            "chi2_total": self.chi2_total,
-            "dof": self.dof,
-            "chi2_noise_dof": self.chi2_noise_dof,
-            "rms_mps2": self.rms_mps2,
-            "rms_g": self.rms_g,
-            "displacement": {
-                "times_s": self.times_s.tolist(),
-                "t_used_s": self.t_used_s.tolist(),
-                "disp_m": self.disp_m.tolist(),
-                "t_end_s": self.t_end_s,
-                "disp_end_m": self.disp_end_m.tolist(),
-            },
-            "displacement_60s_m": self.disp_at(60.0).tolist() if np.any(self.times_s == 60.0) else None,
-            "drift_applied": self.drift_applied,
-            "notes": list(self.notes),
-        }
-        if self.drift_applied and self.disp_drift_m is not None:
-            d["displacement"]["disp_after_drift_m"] = self.disp_drift_m.tolist()
-            d["displacement"]["disp_end_after_drift_m"] = self.disp_end_drift_m.tolist()
-            d["displacement_60s_after_drift_m"] = (
-                self.disp_at(60.0, drift=True).tolist() if np.any(self.times_s == 60.0) else None
-            )
-        return d
+    cal: Calibration | None = None
+    label: str | None = None
+    local_gravity_mps2: float | None = None
+    """m/s^2; None: the calibration's (the session's for the raw reading)."""
+    raw_truth_g: float = 1.0
+    apply_drift: bool = True
 
 
-def _infer_up(session: Session, notes: list[str]) -> np.ndarray:
-    if len(session.poses) == 1:
-        return np.asarray(session.poses[0].up_sensor, float)
-    if len(session.poses) > 1:
-        raise InputError(
-            f"evaluate needs a static session in one orientation; this one has {len(session.poses)} pose "
-            "labels (use evaluate_poses / the pipeline's evaluate_poses stage)",
-            where=session.path,
-        )
-    return infer_up(np.nanmean(session.accel_g, axis=0), notes)
+def targets(
+    cals: Sequence[Calibration], labels: Sequence[str] | None = None, include_raw: bool = True
+) -> list[Target]:
+    """The raw reading first when include_raw (gravity of the first calibration), then each calibration."""
+    raw = (
+        [Target(None, local_gravity_mps2=cals[0].local_gravity_mps2 if cals else None)] if include_raw else []
+    )
+    return raw + [Target(c, labels[i] if labels else None) for i, c in enumerate(cals)]
 
 
-def _slice(session: Session, until_s: float | None, max_samples: int | None) -> slice:
-    n = session.n
-    if until_s is not None:
-        n = min(n, int(np.searchsorted(session.t_s, until_s, side="right")))
-    if max_samples is not None:
-        n = min(n, int(max_samples))
-    return slice(0, n)
-
-
-def calibrated_residual(
-    session: Session,
-    cal: Calibration | None,
+def evaluate_blocks(
+    src: Blocks,
+    tgts: Sequence[Target],
     *,
     up_sensor: Sequence[float] | None = None,
-    local_gravity_mps2: float | None = None,
-    raw_truth_g: float = 1.0,
+    times_s: Sequence[float] = DEFAULT_TIMES_S,
     until_s: float | None = None,
     max_samples: int | None = None,
+    window_s: float = 2.0,
     check_moving: bool = True,
-    notes: list[str] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, np.ndarray]:
-    """(t_s, resid_mps2 (n,3), up (3,), g_local, mps2_per_unit, reading_g (n,3)) of a static session.
-
-    resid = correct(reading) * mps2_per_unit - up * g_local (m/s^2). Without a calibration the
-    reading itself is used with mps2_per_unit = g_local / raw_truth_g (seed: a = reading * 9.797).
-    """
-    notes = notes if notes is not None else []
-    where = session.path or session.meta.source
-    sl = _slice(session, until_s, max_samples)
-    if sl.stop < 10:
-        raise InputError(f"static session has {sl.stop} samples (need >= 10)", where=where)
-    t = session.t_s[sl]
-    reading = session.accel_g[sl]
-    if not np.isfinite(reading).all():
-        i = int(np.argmax(~np.isfinite(reading).all(axis=1)))
-        raise InputError(f"accel is NaN/inf at t = {t[i]:.3f} s", where=where)
-    up = np.asarray(up_sensor, float) if up_sensor is not None else _infer_up(session, notes)
-    check_norm(reading.mean(axis=0), where)
-    if check_moving:
-        sub = Session(
-            meta=session.meta, t_s=t, sample_index=session.sample_index[sl], accel_g=reading, path=where
-        )
-        label = PoseLabel("static test", float(t[0]), float(t[-1]) + 1e-9, tuple(up))
-        check_static(sub, [(label, slice(0, t.size))])
-    ctx = eval_context(where, session.meta, cal, up, notes, local_gravity_mps2=local_gravity_mps2,
-                       raw_truth_g=raw_truth_g, apply_drift=False)  # fmt: skip
-    temp = None if session.temp_degC is None else session.temp_degC[sl]
-    block = Session(meta=session.meta, t_s=t, sample_index=session.sample_index[sl], accel_g=reading,
-                    temp_degC=temp, poses=session.poses, path=session.path)  # fmt: skip
-    return t, block_residual(ctx, block), up, ctx.g_local, ctx.unit, reading
+    on_block: BlockSink | None = None,
+    sums_out: list[tuple[ResidualSums, dict]] | None = None,
+) -> list[Evaluation] | None:
+    """One Evaluation per target (module doc). None: a file with damaged chunks or a model reading
+    dT/dt (the caller feeds the whole session). sums_out receives each evaluation's (ResidualSums,
+    its finish() statistics)."""
+    if not src.can_take([t.cal for t in tgts if t.cal is not None]):
+        return None
+    opts = dict(up_sensor=up_sensor, times_s=times_s, until_s=until_s, max_samples=max_samples,
+                window_s=window_s, check_moving=check_moving, on_block=on_block, sums_out=sums_out)  # fmt: skip
+    return src.checked(lambda: _evaluate(src, tgts, **opts))
 
 
-def check_norm(mean_reading_g: np.ndarray, where: str | None) -> None:
-    """InputError unless |mean reading| at rest is 0.5-2 g (raw counts declared as g, wrong units)."""
-    norm = float(np.linalg.norm(mean_reading_g))
-    if not 0.5 <= norm <= 2.0:
+def _evaluate(
+    src: Blocks, tgts, *, up_sensor, times_s, until_s, max_samples, window_s, check_moving, on_block, sums_out
+) -> list[Evaluation]:
+    """evaluate_blocks' pass."""
+    where, meta = src.where, src.meta
+    notes: list[str] = []
+    up = _up(src, up_sensor, notes)
+    ctxs: list[EvalContext] = [
+        eval_context(where, meta, x.cal, up, list(notes), label=x.label, local_gravity_mps2=x.local_gravity_mps2,
+                     raw_truth_g=x.raw_truth_g, apply_drift=x.apply_drift)
+        for x in tgts
+    ]  # fmt: skip
+    sums = [ResidualSums(times_s, window_s, drift=x.drift, keep_series=src.in_memory) for x in ctxs]
+    drv: list[dict[str, float]] = [{} for _ in ctxs]
+    motion = MotionCheck() if check_moving else None
+    n, read_sum = 0, np.zeros(3)
+    for b, block in checked_blocks(src, until_s, max_samples):
+        n += b.n
+        read_sum += b.accel_g.sum(axis=0)
+        if motion is not None:
+            motion.add(b.t_s, b.accel_g)
+        for k, (x, acc) in enumerate(zip(ctxs, sums, strict=True)):
+            v, d = acc.add(b.t_s, block_residual(x, block))
+            for name, val in driver_sums(x.cal, block).items():
+                drv[k][name] = drv[k].get(name, 0.0) + val
+            if on_block is not None:
+                on_block(k, b.t_s, v, d)
+    if n < 10:
+        raise InputError(f"static session has {n} samples (need >= 10)", where=where)
+    check_norm(read_sum / n, where)
+    if motion is not None:
+        motion.check(1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0, where)
+    stats = [acc.finish() for acc in sums]
+    if sums_out is not None:
+        sums_out.extend(zip(sums, stats, strict=True))
+    return [
+        finish_evaluation(x, st, read_sum / n, {k: v / n for k, v in dv.items()}, times_s)
+        for x, st, dv in zip(ctxs, stats, drv, strict=True)
+    ]
+
+
+def _up(src: Blocks, up_sensor, notes: list[str]) -> np.ndarray:
+    """The given up vector, the single pose label's, or the one inferred from the mean reading."""
+    if up_sensor is not None:
+        return np.asarray(up_sensor, float)
+    if len(src.poses) == 1:
+        return np.asarray(src.poses[0].up_sensor, float)
+    if len(src.poses) > 1:
         raise InputError(
-            f"|accel| at rest is {norm:.4g} g, expected about 1 g"
-            + (" (are raw counts declared as g?)" if norm > 2 else ""),
-            where=where,
+            f"evaluate needs a static session in one orientation; this one has {len(src.poses)} pose "
+            "labels (use evaluate_poses / the pipeline's evaluate_poses stage)",
+            where=src.where,
         )
-
-
-def _cal_sigma_mps2(cal: Calibration, reading_mean: np.ndarray, drivers: dict, unit: float) -> np.ndarray:
-    """1-sigma (3,) m/s^2 of correct(theta, mean reading) from the calibration covariance."""
-    if not np.isfinite(cal.cov).all():
-        return np.full(3, np.nan)
-    model = cal.model
-    th = cal.theta
-    step = 1e-6 * np.maximum(np.abs(th), np.maximum(model.param_typical, 1e-3))
-    J = np.empty((3, th.size))
-    x = reading_mean[None, :]
-    for k in range(th.size):  # one column per parameter (<= a few dozen), not per sample
-        tp, tm = th.copy(), th.copy()
-        tp[k] += step[k]
-        tm[k] -= step[k]
-        J[:, k] = (model.correct(tp, x, drivers)[0] - model.correct(tm, x, drivers)[0]) / (2 * step[k])
-    return np.sqrt(np.clip(np.diag(J @ cal.cov @ J.T), 0, None)) * unit
-
-
-def infer_up(mean_reading_g: np.ndarray, notes: list[str]) -> np.ndarray:
-    """The face whose axis carries the largest |mean reading| (a noted guess, not a label)."""
-    m = np.asarray(mean_reading_g, float)
-    i = int(np.argmax(np.abs(m)))
-    up = np.zeros(3)
-    up[i] = np.sign(m[i])
-    notes.append(f"orientation inferred from the mean reading: {'+' if up[i] > 0 else '-'}{AXES[i]} up")
-    return up
-
-
-@dataclass
-class EvalContext:
-    """What one evaluation of one static session needs besides the samples (units: m/s^2)."""
-
-    cal: Calibration | None
-    label: str
-    session: str
-    up: np.ndarray
-    g_local: float
-    unit: float
-    """m/s^2 per unit of the evaluated output."""
-    quantum_mps2: float
-    notes: list[str]
-    drift: DriftModel | None = None
-    """The calibration's drift model when it applies to this orientation (see drift_for)."""
-
-
-def eval_context(
-    session_name: str,
-    meta,
-    cal: Calibration | None,
-    up: np.ndarray,
-    notes: list[str],
-    *,
-    label: str | None = None,
-    local_gravity_mps2: float | None = None,
-    raw_truth_g: float = 1.0,
-    apply_drift: bool = True,
-) -> EvalContext:
-    """Units, label and the applicable drift model of one evaluation (cal None: the raw reading)."""
-    if cal is not None:
-        g_local = float(local_gravity_mps2 or cal.local_gravity_mps2)
-        unit = g_local / cal.truth_g
-        name = cal.model_spec.get("name", "calibrated")
-    else:
-        g_local = float(local_gravity_mps2 or meta.local_gravity_mps2)
-        unit = g_local / raw_truth_g
-        name = "no calibration"
-    q = (unit / meta.accel_lsb_per_g) if meta.accel_lsb_per_g else 0.0
-    ctx = EvalContext(cal, label or name, session_name, np.asarray(up, float), g_local, unit, q, notes)
-    if cal is not None and cal.drift is not None and apply_drift:
-        dm = cal.drift
-        if dm.up_sensor is not None and not np.allclose(dm.up_sensor, ctx.up, atol=1e-6):
-            notes.append(
-                f"drift model not applied: fitted with up {list(dm.up_sensor)}, this session has up {ctx.up.tolist()}"
-            )
-        else:
-            ctx.drift = dm
-    return ctx
-
-
-def block_residual(ctx: EvalContext, block: Session) -> np.ndarray:
-    """resid = correct(reading) * unit - up * g_local (n,3) m/s^2 of consecutive samples."""
-    f = ctx.cal.correct(block) if ctx.cal is not None else block.accel_g
-    return f * ctx.unit - ctx.up * ctx.g_local
-
-
-def driver_sums(cal: Calibration | None, block: Session) -> dict[str, float]:
-    """Sums over the block of the drivers the calibration's model needs (for their session mean)."""
-    if cal is None:
-        return {}
-    return {k: float(np.sum(v)) for k, v in session_drivers(block, cal.model.required_drivers).items()}
-
-
-def finish_evaluation(
-    ctx: EvalContext, st: dict, reading_mean_g: np.ndarray, drv_mean: dict[str, float], times_s
-) -> Evaluation:
-    """The Evaluation from ResidualSums.finish() statistics (see the module doc for the formulas)."""
-    n = int(st["n"])
-    mean, std = st["mean"], st["std"]
-    sem = np.maximum(std * np.sqrt(st["tau"] / n), ctx.quantum_mps2 / np.sqrt(12.0 * n))
-    duration = float(st["t_last"] - st["t_first"])
-    cal = ctx.cal
-    if cal is not None and cal.noise is not None:  # the calibration's measured white noise is the floor
-        sem = sem_with_noise_floor(cal.noise, sem, duration)
-        ctx.notes.append("noise floor: at least the white noise of the calibration's noise section")
-    cal_sigma = np.zeros(3)
-    if cal is not None:
-        drv = {k: np.array([v]) for k, v in drv_mean.items()}
-        cal_sigma = _cal_sigma_mps2(cal, np.asarray(reading_mean_g, float), drv, ctx.unit)
-    tot = sem**2 + np.nan_to_num(cal_sigma) ** 2
-    series = st.get("series", {})
-    ev = Evaluation(
-        label=ctx.label,
-        session=ctx.session,
-        up_sensor=ctx.up,
-        n=n,
-        duration_s=duration,
-        local_gravity_mps2=ctx.g_local,
-        mps2_per_unit=ctx.unit,
-        mean_resid_mps2=mean,
-        sem_mps2=sem,
-        std_mps2=std,
-        cal_sigma_mps2=cal_sigma,
-        chi2_noise=float(np.sum((mean / sem) ** 2)),
-        chi2_total=float(np.sum(mean**2 / tot)),
-        dof=3,
-        rms_mps2=st["rms"],
-        times_s=np.asarray(times_s, float),
-        t_used_s=st["t_used"],
-        disp_m=st["disp_at"],
-        t_end_s=float(st["t_last"]),
-        disp_end_m=st["disp_end"],
-        notes=ctx.notes,
-        t_s=series.get("t"),
-        resid_series_mps2=series.get("r"),
-        disp_series_m=series.get("d"),
-    )
-    if ctx.drift is not None:
-        drift_result(ev, ctx.drift, st, series)
-    return ev
-
-
-def drift_result(ev: Evaluation, dm: DriftModel, st: dict, series: dict) -> None:
-    ev.drift_applied = True
-    ev.disp_drift_series_m = series.get("dd")
-    ev.disp_drift_m = st["disp_drift_at"]
-    ev.disp_end_drift_m = st["disp_drift_end"]
-    if ev.duration_s > 1.05 * dm.fit_duration_s:
-        ev.notes.append(
-            f"drift model fitted over {dm.fit_duration_s:.1f} s, applied over {ev.duration_s:.1f} s: extrapolated"
-        )
-    ev.notes.append("drift model: " + dm.limits)
+    return infer_up(mean_reading(src), notes)
 
 
 def evaluate(
@@ -369,38 +158,13 @@ def evaluate(
     apply_drift: bool = True,
     check_moving: bool = True,
 ) -> Evaluation:
-    """Evaluate `cal` (None: raw reading) on a static session; see the module docstring.
-
-    until_s / max_samples cut the session first (the seed used the first 10,800 samples of its
-    300 s final test). A drift model is applied only when its orientation matches up_sensor.
-    Steps: checks and residual (calibrated_residual), running sums (stream_sums.ResidualSums, the
-    same code the chunk-by-chunk path feeds), statistics (finish_evaluation).
-    """
-    notes: list[str] = []
-    t, r, up, _g, _unit, reading = calibrated_residual(
-        session,
-        cal,
-        up_sensor=up_sensor,
-        local_gravity_mps2=local_gravity_mps2,
-        raw_truth_g=raw_truth_g,
-        until_s=until_s,
-        max_samples=max_samples,
-        check_moving=check_moving,
-        notes=notes,
-    )
-    name = session.path or session.meta.source
-    check_time(t, session.path)
-    ctx = eval_context(name, session.meta, cal, up, notes, label=label, local_gravity_mps2=local_gravity_mps2,
-                       raw_truth_g=raw_truth_g, apply_drift=apply_drift)  # fmt: skip
-    acc = ResidualSums(times_s, window_s, drift=ctx.drift, keep_series=True)
-    acc.add(t, r)
-    drv: dict[str, float] = {}
-    if cal is not None:
-        temp = None if session.temp_degC is None else session.temp_degC[: t.size]
-        sub = Session(meta=session.meta, t_s=t, sample_index=np.arange(t.size), accel_g=reading,
-                      temp_degC=temp, poses=session.poses)  # fmt: skip
-        drv = {k: v / t.size for k, v in driver_sums(cal, sub).items()}
-    return finish_evaluation(ctx, acc.finish(), reading.mean(axis=0), drv, times_s)
+    """Evaluate `cal` (None: raw reading) on a static session in memory (evaluate_blocks on it as one
+    block). until_s / max_samples cut the session first (the seed used the first 10,800 samples of
+    its 300 s final test). A drift model is applied only when its orientation matches up_sensor."""
+    tgt = Target(cal, label, local_gravity_mps2, raw_truth_g, apply_drift)
+    evs = evaluate_blocks(session_blocks(session), [tgt], up_sensor=up_sensor, times_s=times_s, until_s=until_s,
+                          max_samples=max_samples, window_s=window_s, check_moving=check_moving)  # fmt: skip
+    return evs[0]
 
 
 # multi-pose sessions: accellog.navigate.pose_evaluate (re-exported here for existing callers)
@@ -408,17 +172,12 @@ from accellog.navigate.pose_evaluate import PoseEvaluation, evaluate_pose_obs, e
 
 __all__ = [
     "AXES",
-    "EvalContext",
     "Evaluation",
     "PoseEvaluation",
-    "block_residual",
-    "calibrated_residual",
-    "check_norm",
-    "driver_sums",
-    "eval_context",
+    "Target",
     "evaluate",
+    "evaluate_blocks",
     "evaluate_pose_obs",
     "evaluate_poses",
-    "finish_evaluation",
-    "infer_up",
+    "targets",
 ]

@@ -338,6 +338,9 @@ class ResidualSums:
             "t_first": self.t_first,
             "t_last": self.t_last,
         }
-        if self.keep:
-            out["series"] = {k: np.concatenate(v) for k, v in self.series.items() if v}
+        if self.keep:  # one block (a session in memory) is handed over as it is (t: the session's own array)
+            out["series"] = {
+                k: v[0] if len(v) == 1 else np.concatenate(v) for k, v in self.series.items() if v
+            }
+            self.series = {k: [] for k in self.series}
         return out

@@ -1,5 +1,6 @@
-"""drift chunk by chunk: the same calibration and JSON as the whole-session path (within 1e-9
-relative) on MCAP sessions spanning many chunk groups; the running sums against whole-series numpy."""
+"""drift over a session's blocks: an MCAP file in many blocks gives the calibration and JSON of the same
+session in memory as one block (within 1e-9 relative) on sessions spanning many chunk groups; the
+running sums against whole-series numpy; the checks' order (time stamps, reader errors)."""
 
 from __future__ import annotations
 
@@ -103,7 +104,7 @@ def sessions(tmp_path_factory):
     [("drift", {}), ("drift", {"until_s": 25.5}), ("drift", {"max_samples": 37_000}), ("unlabelled", {})],
     ids=["all", "until", "max_samples", "inferred_up"],
 )
-def test_streamed_drift_equals_whole_session(sessions, name, cut):
+def test_drift_in_many_blocks_equals_one_block(sessions, name, cut):
     d = sessions
     path = d / f"{name}.mcap"
     assert len(list(iter_imu(path))) >= 10
@@ -179,7 +180,8 @@ def test_time_stamp_error_comes_first_in_the_merged_pass(tmp_path, sessions, cap
 def test_merged_check_keeps_the_readers_own_refusal_first(monkeypatch, sessions, good_blocks):
     """A reader error mid-file (after a cut, or before any block) is raised as the separate
     time-stamp pass raised it, not replaced by the check's 'session has 0 samples'."""
-    from accellog.navigate import stream_evaluate as se
+    from accellog.navigate import blocks as se
+    from accellog.navigate.evaluate import evaluate_blocks, targets
     from accellog.store.stream import read_labels
 
     path = sessions / "drift.mcap"
@@ -194,4 +196,4 @@ def test_merged_check_keeps_the_readers_own_refusal_first(monkeypatch, sessions,
     monkeypatch.setattr(se, "iter_imu", failing)
     meta, poses, _ = read_labels(path)
     with pytest.raises(InputError, match="reader says no"):
-        se.stream_evaluate(path, meta, poses, [], until_s=1.0, check_times=True)
+        evaluate_blocks(se.file_blocks(path, meta, poses), targets([]), until_s=1.0)

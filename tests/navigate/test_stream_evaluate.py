@@ -1,6 +1,7 @@
-"""evaluate / integrate chunk by chunk: the same numbers as the whole-session path (JSON within 1e-9
-relative), on simulated MCAP sessions long enough for several chunk groups, and the running sums
-against the whole-series formulas when fed in small irregular blocks."""
+"""evaluate / integrate over a session's blocks: an MCAP file in many blocks gives the numbers of the same
+session in memory as one block (JSON within 1e-9 relative: the carried sums, the cuts across blocks),
+on simulated sessions long enough for several chunk groups; the running sums against the
+whole-series formulas when fed in small irregular blocks; a CSV input integrated with a calibration."""
 
 from __future__ import annotations
 
@@ -100,7 +101,7 @@ def test_test_session_spans_several_chunk_groups(sessions):
 @pytest.mark.parametrize(
     "cut", [{}, {"until_s": 25.5}, {"max_samples": 37_000}], ids=["all", "until", "max_samples"]
 )
-def test_streamed_evaluate_equals_whole_session(sessions, cut):
+def test_evaluate_in_many_blocks_equals_one_block(sessions, cut):
     d = sessions
     cals = [d / "m3.json", d / "tb.json", d / "m3d.json"]
     streamed = run_evaluate_report(d / "test.mcap", cals, **cut)
@@ -119,7 +120,7 @@ def test_streamed_per_pose_evaluate_equals_whole_session(sessions):
     assert_json_close(whole.to_dict(), streamed.to_dict())
 
 
-def test_streamed_integrate_csv_equals_whole_session(sessions, capsys):
+def test_integrate_csv_in_many_blocks_equals_one_block(sessions, capsys):
     d = sessions
     args = ["integrate", str(d / "test.mcap"), "--cal", str(d / "m3.json"), "--json"]
     assert main([*args, "-o", str(d / "s.csv")]) == 0
@@ -142,3 +143,29 @@ def test_streamed_evaluate_refuses_a_moving_session(tmp_path):
     with pytest.raises(InputError) as whole:
         run_evaluate_report(tmp_path / "m.mcap", [], stream=False)
     assert str(streamed.value) == str(whole.value)
+
+
+def test_integrate_a_csv_input_with_a_calibration(sessions, tmp_path, capsys):
+    """A CSV input is one block in memory; its CSV rows end at the displacement the JSON reports
+    (this ended in a traceback when the calibration was given)."""
+    s = synth_session(poses=["+z"], hold_s=20.0, move_s=0.0, rate_hz=200.0, seed=9)
+    rows = "\n".join(
+        f"{t:.6f},{x:.9f},{y:.9f},{z:.9f}" for t, (x, y, z) in zip(s.t_s, s.accel_g, strict=True)
+    )
+    (tmp_path / "s.csv").write_text("Static. Z up.\ntime (s)x (g),y (g),z (g)\n" + rows + "\n")
+    out = tmp_path / "o.csv"
+    args = [
+        "integrate",
+        str(tmp_path / "s.csv"),
+        "--cal",
+        str(sessions / "m3.json"),
+        "-o",
+        str(out),
+        "--json",
+    ]
+    assert main(args) == 0
+    res = json.loads(capsys.readouterr().out)
+    got = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert got.shape == (s.n, 7)
+    np.testing.assert_allclose(got[-1, 4:], res["disp_end_m"], rtol=1e-8, atol=1e-12)
+    assert abs(got[-1, 6]) > 0.0
