@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import signal
 import socket
@@ -408,3 +409,23 @@ def test_every_time_series_view_shows_its_own_data_range(tmp_path: Path) -> None
     for name, (lo, hi) in want.items():
         np.testing.assert_allclose(views[name]["time_range"], (lo, hi), atol=1e-9, err_msg=name)
         np.testing.assert_allclose(views[name]["axis_range"], (lo, hi), atol=1e-9, err_msg=name)
+
+
+@pytest.mark.parametrize("gc_on", [True, False])
+def test_rerun_is_imported_once_with_its_objects_frozen(gc_on: bool, tmp_path: Path) -> None:
+    """The first RunRecording imports rerun with the collector paused and freezes what is alive
+    (present.rrd.sdk); the collector is left as the caller had it."""
+    code = (
+        "import gc, json, sys\n"
+        f"{'' if gc_on else 'gc.disable()'}\n"
+        "from accellog.present.rrd.recording import RunRecording\n"
+        "before = 'rerun' in sys.modules\n"
+        "RunRecording('save:' + sys.argv[1]).close()\n"
+        "print(json.dumps([before, 'rerun' in sys.modules, gc.isenabled(), gc.get_freeze_count()]))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "r.rrd")],
+        capture_output=True, text=True, check=True, env={**os.environ, "RERUN_ANALYTICS": "0"},
+    ).stdout  # fmt: skip
+    before, loaded, enabled, frozen = json.loads(out)
+    assert not before and loaded and enabled == gc_on and frozen > 10_000

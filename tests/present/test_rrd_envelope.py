@@ -117,3 +117,49 @@ def test_bucket_edges_are_exactly_floor_of_time_over_width() -> None:
         b = np.floor((t - t0) / w)
         first = np.r_[0, np.flatnonzero(np.diff(b)) + 1]  # first and last sample of every bucket
         np.testing.assert_array_equal(np.concatenate([p.row_index for p in parts])[0::2], first, err_msg=name)
+
+
+def _ordered_reference(t, v, t0, w):
+    """Per bucket and column, by numpy on each bucket: the first-occurring of (min, max) then the
+    other (NaNs ignored; NaN, NaN for a bucket of only NaNs)."""
+    b = np.floor((t - t0) / w).astype(np.int64)
+    rows = []
+    for k in np.unique(b):
+        seg = v[b == k]
+        pair = np.full((2, v.shape[1]), np.nan)
+        for j in range(v.shape[1]):
+            col = seg[:, j]
+            if np.isnan(col).all():
+                continue
+            lo, hi = np.nanmin(col), np.nanmax(col)
+            first_lo, first_hi = np.flatnonzero(col == lo)[0], np.flatnonzero(col == hi)[0]
+            pair[:, j] = (lo, hi) if first_lo <= first_hi else (hi, lo)
+        rows.extend(pair)
+    return np.array(rows)
+
+
+def test_envelope_rows_in_order_with_ties_nans_and_infs_on_even_and_uneven_buckets() -> None:
+    """Every bucket's extremes in the order they occur, whether the buckets of a batch all hold the
+    same number of samples (regular sampling) or not, with ties, NaNs (also a bucket of only NaNs),
+    infinities and a jump in time, however the series is cut into batches."""
+    rng = np.random.default_rng(29)
+    n = 9000
+    regular = np.arange(n) * 1e-3
+    cases = {
+        "regular": regular,
+        "jittered": regular + rng.uniform(0, 4e-4, n),
+        "jump in time": np.r_[regular[: n // 2], 50.0 + regular[n // 2 :]],
+    }
+    for name, t in cases.items():
+        v = np.round(rng.normal(size=(n, 3)) * 3)  # many ties, also between min and max
+        if name != "regular":
+            v[2000:2003, 0] = np.nan
+            v[4000:4100, 1] = np.nan  # a whole bucket
+            v[[10, 6000], [2, 0]] = np.inf, -np.inf
+        w = 0.1  # 100 samples per bucket when regular
+        want = _ordered_reference(t, v, 0.0, w)
+        for n_cuts in (0, 7, 40):
+            eb = EnvelopeBuilder(0.0, w)
+            cuts = np.r_[0, np.sort(rng.choice(np.arange(1, n), n_cuts, replace=False)), n]
+            got = [eb.push(t[a:b], v[a:b]).values for a, b in itertools.pairwise(cuts)] + [eb.finish().values]
+            np.testing.assert_array_equal(np.concatenate(got), want, err_msg=f"{name}, {n_cuts} cuts")

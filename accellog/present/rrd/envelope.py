@@ -62,20 +62,26 @@ def _envelope(t: np.ndarray, v: np.ndarray, pos, starts: np.ndarray, ids: np.nda
     first sample (int, then counted on); starts: first sample of each bucket (increasing, from 0), ids
     their bucket numbers.
 
-    Column by column on a contiguous copy (k, n): min and max by ``reduceat``, and the first sample
-    equal to each (which comes first) from the sorted positions of the equal samples."""
+    Column by column on a contiguous copy (k, n): the first min and max of each bucket by
+    ``_arg_extremes``, or, when a bucket holds a NaN, min and max by ``fmin/fmax.reduceat`` (NaNs
+    ignored) and the first sample equal to each from the sorted positions of the equal samples."""
     n, k = v.shape
     if n == 0:
         return Envelope(np.empty(0), np.empty((0, k)), np.empty(0, np.int64), np.empty(0, np.int64))
     nb = starts.shape[0]
     ends = np.empty_like(starts)  # exclusive
     ends[:-1], ends[-1] = starts[1:], n
-    cols = np.ascontiguousarray(v.T)  # (k, n): reduceat along contiguous rows is ~10x faster
-    with np.errstate(invalid="ignore"):
-        mn = np.fmin.reduceat(cols, starts, axis=1)  # (k, buckets), NaNs ignored
-        mx = np.fmax.reduceat(cols, starts, axis=1)
+    cols = np.ascontiguousarray(v.T)  # (k, n): reductions along contiguous rows are ~10x faster
     counts = ends - starts
-    min_first = _first_equal(cols, mn, starts, ends, counts) <= _first_equal(cols, mx, starts, ends, counts)
+    found = _arg_extremes(cols, starts, counts)
+    if found is not None:
+        mn, mx, min_first = found
+    else:
+        with np.errstate(invalid="ignore"):
+            mn = np.fmin.reduceat(cols, starts, axis=1)  # (k, buckets), NaNs ignored
+            mx = np.fmax.reduceat(cols, starts, axis=1)
+        first = [_first_equal(cols, ext, starts, ends, counts) for ext in (mn, mx)]
+        min_first = first[0] <= first[1]
     rows = np.empty((2 * nb, k))
     rows[0::2] = np.where(min_first, mn, mx).T  # the extreme that comes first (NaN buckets: NaN)
     rows[1::2] = np.where(min_first, mx, mn).T
@@ -83,6 +89,28 @@ def _envelope(t: np.ndarray, v: np.ndarray, pos, starts: np.ndarray, ids: np.nda
     idx[0::2], idx[1::2] = starts, ends - 1
     row_index = idx + pos if isinstance(pos, (int, np.integer)) else np.asarray(pos, np.int64)[idx]
     return Envelope(t[idx], rows, row_index, np.asarray(ids, np.int64).repeat(2))
+
+
+def _arg_extremes(cols: np.ndarray, starts: np.ndarray, counts: np.ndarray):
+    """(min, max, min comes first) per column and bucket (k, buckets) of cols (k, n) from one
+    ``argmin`` and one ``argmax`` pass over the buckets laid side by side (k, buckets, longest): a
+    view when every bucket has the same length, else a copy with each bucket padded with its own last
+    sample (a repeat after the end cannot be a first extreme). None when a bucket holds a NaN (argmin
+    and argmax stop at the first NaN) or when padding would more than double the samples."""
+    k, n = cols.shape
+    nb, c = starts.shape[0], int(counts.max())
+    if nb * c > 2 * n:
+        return None
+    if int(counts.min()) == c:
+        g = cols.reshape(k, nb, c)
+    else:
+        g = cols.take(np.minimum(starts[:, None] + np.arange(c), (starts + counts - 1)[:, None]), axis=1)
+    i_mn, i_mx = g.argmin(axis=2), g.argmax(axis=2)
+    flat, row = g.reshape(-1), np.arange(0, k * nb * c, c).reshape(k, nb)
+    mn, mx = flat[row + i_mn], flat[row + i_mx]
+    if np.isnan(mn).any() or np.isnan(mx).any():
+        return None
+    return mn, mx, i_mn <= i_mx
 
 
 def _first_equal(cols: np.ndarray, ext: np.ndarray, starts, ends, counts) -> np.ndarray:

@@ -43,6 +43,7 @@ from accellog.present.rrd.envelope import (
 from accellog.present.rrd.layout import build_blueprint, live_blueprint
 from accellog.present.rrd.logs import PipelineLogs
 from accellog.present.rrd.ranges import with_time_ranges
+from accellog.present.rrd.sdk import rerun_sdk
 from accellog.present.rrd.sinks import SinkWatch, parse_sink, spawn_viewer
 from accellog.store.atomic import AtomicOutput
 
@@ -79,8 +80,7 @@ class RunRecording(PipelineLogs):
         on_failure: Callable[[str], None] | None = None,
         full_rate: bool | None = None,
     ) -> None:
-        import rerun as rr
-
+        rr = rerun_sdk()
         self.full_rate = bool(type(self).DEFAULT_FULL_RATE if full_rate is None else full_rate)
         self._span: tuple[float, float] | None = None  # batched logging: (t0, bucket width) s
         self._builders: dict[str, tuple[EnvelopeBuilder, bool]] = {}  # entity -> (builder, has index)
