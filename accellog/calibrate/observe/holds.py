@@ -170,8 +170,14 @@ def units_error(p: PoseLabel, mean: np.ndarray, where: str) -> InputError | None
 def window_stats(x: np.ndarray, starts: np.ndarray, ref=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean, std (ddof=1), n) of x (n,k) over windows at indices `starts` (sorted); ref: x's mean, if known."""
     ref = x.mean(axis=0) if ref is None else ref
-    xc = x - ref
-    n = np.diff(np.append(starts, x.shape[0]))
+    return centred_window_stats(x - ref, starts, ref)
+
+
+def centred_window_stats(
+    xc: np.ndarray, starts: np.ndarray, ref
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """window_stats of x from xc = x - ref (made once by a caller that needs it again)."""
+    n = np.diff(np.append(starts, xc.shape[0]))
     s1 = np.add.reduceat(xc, starts, axis=0)
     s2 = np.add.reduceat(xc * xc, starts, axis=0)
     mean_c = s1 / n[:, None]
@@ -201,8 +207,10 @@ def hold_rows(
     edges = t[0] + (t[-1] - t[0]) * np.arange(nwin) / nwin
     starts = np.unique(np.searchsorted(t, edges))
     starts = starts[starts < n_all]
-    wmean, std, n = window_stats(acc, starts, mean)
-    tau = integrated_autocorr_time(acc, mean=mean)
+    xc = acc - mean  # once, for the windows and the autocorrelation
+    wmean, std, n = centred_window_stats(xc, starts, mean)
+    tau = integrated_autocorr_time(xc, centred=True)
+    del xc
     sigma = np.maximum(std * np.sqrt(tau[None, :] / n[:, None]), quantum / np.sqrt(12.0 * n[:, None]))
     tmid = np.add.reduceat(t - t[0], starts) / n + t[0]
     k = len(starts)

@@ -34,11 +34,14 @@ def check_static(
     moving_check(per_hold, quantum_g(session), session_where(session), std_factor, mean_shift_g)
 
 
-def static_windows(t: np.ndarray, acc: np.ndarray, window_s: float = 0.5) -> tuple:
-    """check_static's windows of one hold: (window start times, end times, mean, std, n)."""
+def static_windows(
+    t: np.ndarray, acc: np.ndarray, window_s: float = 0.5, mean: np.ndarray | None = None
+) -> tuple:
+    """check_static's windows of one hold: (window start times, end times, mean, std, n); mean:
+    acc.mean(axis=0) when the caller has it (the same values, not computed again)."""
     edges = np.arange(t[0], t[-1], window_s)
     starts = np.unique(np.searchsorted(t, edges))
-    mean, std, n = window_stats(acc, starts)
+    mean, std, n = window_stats(acc, starts, mean)
     ends = np.append(starts[1:] - 1, t.shape[0] - 1)
     return t[starts], t[ends], mean, std, n
 

@@ -120,7 +120,7 @@ class _Holds:
         if self.units is not None or self.mismatches:  # refused when every hold has passed
             return
         if self.wins is not None:
-            self.wins.add(p, *static_windows(t, acc))
+            self.wins.add(p, *static_windows(t, acc, mean=mean))
         if self.window_s is not None:
             if p.name not in self.names:
                 self.names.append(p.name)
