@@ -3,7 +3,8 @@
 - `load_input(path)`        .mcap / capstone or imucal CSV / generic CSV -> Session; pose tables
                             (capstone six_position_data) and observation JSON -> ObsTable
                             (accellog.flows.inputs)
-- `run_fit(...)`            -> FitOutcome (ObsTable, FitResult, Calibration)
+- `run_fit(...)`            -> FitOutcome (ObsTable, FitResult, Calibration); its input (a path, a
+                            Session or an ObsTable) resolved once by `fit_input` into a FitInput
 - `run_evaluate(...)`       -> list[Evaluation] (raw reading first when include_raw)
 - `run_drift(...)`          -> DriftOutcome (calibration + drift model, before/after on the fit session)
 - `run_apply(...)` (accellog.flows.apply) -> Path of an MCAP copy with /derived/accel_calibrated (g)
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -56,10 +57,6 @@ g_local / g0 in standard g (the physical convention)."""
 
 # ------------------------------------------------------------------------------------------ inputs
 # (reading them: accellog.flows.inputs.load_input, imported here for run_fit and the stages' callers)
-
-
-def _name(x: Session | StreamedSession | ObsTable) -> str:
-    return (x.path or x.meta.source) if isinstance(x, (Session, StreamedSession)) else x.session
 
 
 def _path_of(x: Session | ObsTable) -> str | None:
@@ -128,6 +125,78 @@ def make_obs(
     return observations(data, window_s=window_s, trim_s=trim_s, min_samples=min_samples)
 
 
+@dataclass
+class FitInput:
+    """run_fit's input resolved once (fit_input), whatever the caller gave: a path, a Session or an
+    ObsTable. Exactly one of obs (observations made or given) and session (samples in memory,
+    segmented by run_fit) is set, unless the caller gives obs for a session."""
+
+    name: str  # the input in messages
+    poses: list  # pose labels ([] for a pose table or observations)
+    local_gravity_mps2: float  # the session's (m/s^2); g0 without a session
+    sensor: SensorInfo
+    device: DeviceInfo | None  # None: no session, the calibration keeps its default
+    source: SourceFile  # provenance entry
+    obs: ObsTable | None
+    session: Session | None
+    gyro: Callable[[Any, list | None], GyroCalibration | None]
+    """gyro(fit, detected intervals or None): the gyro calibration from the session's holds and moves."""
+
+
+def fit_input(
+    data: Session | ObsTable | str | os.PathLike,
+    obs: ObsTable | None = None,
+    *,
+    whole: bool = False,
+    relabel: bool = False,
+    window_s: float = 2.0,
+    trim_s: float = 0.5,
+    n_per_pose: int | None = None,
+    gyro: bool = False,
+) -> FitInput:
+    """FitInput of data: a labelled accellog MCAP file is streamed (bounded memory: its observations
+    and, with gyro, the gyro calibration's first pass in one pass over the samples) unless the whole
+    session is needed (whole: relabelling, orientation-free) or obs are given; other files are read
+    (load_input); hold labels that contradict gravity are replaced when relabel (a note each)."""
+    src = str(data) if isinstance(data, (str, os.PathLike)) else None
+    if src is not None:
+        if obs is None and not whole and can_stream(src) and read_labels(src)[1]:
+            streamed = open_streamed(src, window_s=window_s, trim_s=trim_s, gyro=gyro)
+            if streamed is not None:  # None: damaged chunks, read whole (load_input says what it skipped)
+                return _streamed_input(streamed)
+        data = load_input(src, n_per_pose=n_per_pose)
+    if isinstance(data, ObsTable):
+        return FitInput(data.session, [], STANDARD_GRAVITY_MPS2, SensorInfo.empty(), None, _source(data, src, ""),
+                        data if obs is None else obs, None, lambda fit, detected: None)  # fmt: skip
+    if relabel:
+        data, changes = relabel_holds(data, trim_s=trim_s)
+        for c in changes:
+            note(f"{data.path or 'session'}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
+    session = data
+
+    def whole_gyro(fit, detected) -> GyroCalibration | None:
+        # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
+        # and the rotations between them (imu_tk style), not skipped
+        return _gyro_calibration(with_labels(session, detected) if detected else session)
+
+    m = session.meta
+    return FitInput(session.path or m.source, session.poses, m.local_gravity_mps2, SensorInfo.from_meta(m),
+                    DeviceInfo.from_key(m.device), _source(session, src, m.source), obs, session, whole_gyro)  # fmt: skip
+
+
+def _streamed_input(s: StreamedSession) -> FitInput:
+    """FitInput of a file streamed by open_streamed (its observations made in that pass)."""
+
+    def streamed_gyro(fit, detected) -> GyroCalibration | None:
+        fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
+        trim_heap()
+        return s.gyro_calibration()  # the moves, streamed from the file again (holds: in the obs pass)
+
+    m = s.meta
+    return FitInput(s.path, s.poses, m.local_gravity_mps2, SensorInfo.from_meta(m), DeviceInfo.from_key(m.device),
+                    _source(s, s.path, m.source), s.obs, None, streamed_gyro)  # fmt: skip
+
+
 def run_fit(
     data: Session | ObsTable | str | os.PathLike,
     model: str = "model3",
@@ -158,32 +227,22 @@ def run_fit(
     accellog.calibrate.model.variance (fit.uncertainty_note says which). relabel: replace
     hold labels that contradict the measured gravity direction (each change is a note on stderr).
     """
-
-    whole = relabel or orientation_free
-    data, src, obs = _fit_input(data, obs, whole, relabel, window_s, trim_s, n_per_pose, gyro=gyro)
+    fi = fit_input(data, obs, whole=relabel or orientation_free, relabel=relabel, window_s=window_s,
+                   trim_s=trim_s, n_per_pose=n_per_pose, gyro=gyro)  # fmt: skip
     m = build_model(model, add=list(add), effects_file=effects_file)
-    if not orientation_free and obs is None and isinstance(data, Session) and not data.poses:
-        orientation_free, m = True, _orientation_free_model(m, effects_file, _name(data))
+    if not orientation_free and fi.obs is None and not fi.poses:
+        orientation_free, m = True, _orientation_free_model(m, effects_file, fi.name)
     if local_gravity_mps2 is None:
-        local_gravity_mps2 = (
-            data.meta.local_gravity_mps2
-            if isinstance(data, (Session, StreamedSession))
-            else STANDARD_GRAVITY_MPS2
-        )
+        local_gravity_mps2 = fi.local_gravity_mps2
     truth = _truth_g(gravity, float(local_gravity_mps2))
     detected = None  # static intervals found in an unlabelled session
+    obs = fi.obs
     if obs is None:
-        obs, detected = _fit_observations(data, m, truth, orientation_free, window_s, trim_s)
-    fit = _fit_obs(obs, m, data, orientation_free, weighted, truth, uncertainty)
-    cal = _calibration(fit, obs, data, src, gravity, float(local_gravity_mps2), detected)
-    if gyro and isinstance(data, Session):
-        # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
-        # and the rotations between them (imu_tk style), not skipped
-        cal.gyro = _gyro_calibration(with_labels(data, detected) if detected else data)
-    elif gyro and isinstance(data, StreamedSession):
-        fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
-        trim_heap()
-        cal.gyro = data.gyro_calibration()  # the moves, streamed from the file again (holds: in the obs pass)
+        obs, detected = _fit_observations(fi.session, m, truth, orientation_free, window_s, trim_s)
+    fit = _fit_obs(obs, m, fi.name, orientation_free, weighted, truth, uncertainty)
+    cal = _calibration(fit, obs, fi, gravity, float(local_gravity_mps2), detected)
+    if gyro:
+        cal.gyro = fi.gyro(fit, detected)
     warn_clipped_moves(fit, cal)  # moves left out of the gyro fit: said, and in the file
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
@@ -197,29 +256,13 @@ def _orientation_free_model(m, effects_file, where: str):
     return build_model("+".join(dict.fromkeys(terms)), effects_file=effects_file) if swap else m
 
 
-def _fit_input(data, obs, whole: bool, relabel: bool, window_s: float, trim_s: float, n_per_pose, gyro=False):
-    """(data, source path or None, obs): a file path opened streamed (bounded memory) unless the
-    whole session is needed (whole: relabelling, orientation-free) or obs are given, else loaded;
-    hold labels that contradict gravity replaced when relabel (a note each); gyro: see open_streamed."""
-    src = str(data) if isinstance(data, (str, os.PathLike)) else None
-    if src is not None and obs is None and not whole and can_stream(src) and read_labels(src)[1]:
-        data = open_streamed(src, window_s=window_s, trim_s=trim_s, gyro=gyro)  # bounded memory
-        obs = None if data is None else data.obs
-    if src is not None and not isinstance(data, StreamedSession):
-        data = load_input(src, n_per_pose=n_per_pose)
-    if relabel and isinstance(data, Session):
-        data, changes = relabel_holds(data, trim_s=trim_s)
-        for c in changes:
-            note(f"{data.path or 'session'}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
-    return data, src, obs
-
-
-def _fit_observations(data, m, truth: float, orientation_free: bool, window_s: float, trim_s: float):
+def _fit_observations(
+    session: Session, m, truth: float, orientation_free: bool, window_s: float, trim_s: float
+):
     """(obs, detected static intervals or None): windowed observations of the holds, or of the static
     intervals detect_static finds in an unlabelled session for an orientation-free fit."""
-    if not (orientation_free and isinstance(data, Session) and not data.poses):
-        return make_obs(data, window_s=window_s, trim_s=trim_s), None
-    session = data
+    if not (orientation_free and not session.poses):
+        return observations(session, window_s=window_s, trim_s=trim_s), None
 
     def cost(labels) -> float:
         o = observations(with_labels(session, labels), window_s=window_s, trim_s=0.0, check_units=False)
@@ -229,37 +272,32 @@ def _fit_observations(data, m, truth: float, orientation_free: bool, window_s: f
     return observations(with_labels(session, detected), window_s=window_s, trim_s=0.0), detected
 
 
-def _fit_obs(obs, m, data, orientation_free: bool, weighted: bool, truth: float, uncertainty: str):
+def _fit_obs(obs, m, name: str, orientation_free: bool, weighted: bool, truth: float, uncertainty: str):
     """The fit (orientation-free, or labelled after the pose coverage check), with the uncertainty asked."""
     if orientation_free:
         fit = fit_orientation_free(obs, m, weighted=weighted, gravity_g=truth)
     else:
-        check_coverage(
-            obs, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=_name(data)
-        )
+        check_coverage(obs, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=name)
         fit = fit_model(obs, m, weighted=weighted, gravity_g=truth)
     from accellog.calibrate.model.variance import with_uncertainty
 
     return with_uncertainty(fit, obs, uncertainty)  # 'noise' too: scaled when the holds reject it
 
 
-def _calibration(fit, obs, data, src, gravity: str, local_gravity_mps2: float, detected) -> Calibration:
+def _calibration(fit, obs, fi: FitInput, gravity: str, local_gravity_mps2: float, detected) -> Calibration:
     """The calibration of a fit: sensor, source, device and the detected intervals it used."""
-    sensor, kind = SensorInfo.empty(), ""
-    if isinstance(data, (Session, StreamedSession)):
-        sensor, kind = SensorInfo.from_meta(data.meta), data.meta.source
     cal = Calibration.from_fit(
         fit,
         obs=obs,
         gravity_convention=gravity,
         local_gravity_mps2=local_gravity_mps2,
-        sources=[_source(data, src, kind)],
-        sensor=sensor,
+        sources=[fi.source],
+        sensor=fi.sensor,
     )
-    if isinstance(data, (Session, StreamedSession)):
-        cal.device = DeviceInfo.from_key(data.meta.device)
+    if fi.device is not None:
+        cal.device = fi.device
     if detected:  # hand-held: the static intervals the fit used go into the calibration file
-        t = data.t_s
+        t = fi.session.t_s
         intervals = tuple(
             DetectedInterval(
                 start_s=p.start_s,

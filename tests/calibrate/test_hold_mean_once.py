@@ -11,8 +11,16 @@ from support.sessions import synth_session
 
 from accellog.calibrate.observe.hold_noise import BLOCK, autocorrelation, integrated_autocorr_time
 from accellog.calibrate.observe.label_check import label_mismatches
-from accellog.calibrate.observe.segment import _hold_slices, observations, window_stats
+from accellog.calibrate.observe.segment import observations, window_stats
 from accellog.core.errors import InputError
+
+
+def _holds(s, trim_s: float = 0.5) -> list:
+    """(label, sample slice) of every hold trimmed by trim_s (s), in time order."""
+    return [
+        (p, s.slice_time(p.start_s + trim_s, p.end_s - trim_s))
+        for p in sorted(s.poses, key=lambda p: p.start_s)
+    ]
 
 
 @pytest.mark.parametrize("n", [50, 2 * BLOCK + 7])  # one FFT, and block spectra
@@ -32,7 +40,7 @@ def test_observations_rows_from_each_hold_alone():
     s = synth_session(hold_s=12.0, seed=4)
     obs = observations(s, window_s=2.0)
     i = 0
-    for _p, sl in _hold_slices(s, 0.5, 20):
+    for _p, sl in _holds(s):
         acc, t = s.accel_g[sl], s.t_s[sl]
         nwin = max(1, int(np.floor((t[-1] - t[0]) / 2.0 + 1e-9)))
         starts = np.unique(np.searchsorted(t, t[0] + (t[-1] - t[0]) * np.arange(nwin) / nwin))
@@ -49,12 +57,12 @@ def test_observations_rows_from_each_hold_alone():
 
 def test_label_check_with_shared_means():
     s = synth_session(hold_s=12.0, seed=5)
-    holds = _hold_slices(s, 0.5, 20)
+    holds = _holds(s)
     means = [s.accel_g[sl].mean(axis=0) for _p, sl in holds]
     assert label_mismatches(s, holds) == label_mismatches(s, holds, means=means) == []
     swapped = [dataclasses.replace(p, up_sensor=-np.asarray(p.up_sensor, float)) for p in s.poses]
     s.poses = swapped  # every label upside down: each hold is named, with or without the means
-    holds = _hold_slices(s, 0.5, 20)
+    holds = _holds(s)
     means = [s.accel_g[sl].mean(axis=0) for _p, sl in holds]
     bad = label_mismatches(s, holds, means=means)
     assert bad == label_mismatches(s, holds) and len(bad) == len(holds)
@@ -66,7 +74,7 @@ def test_label_check_with_shared_means():
 
 def test_non_finite_sample_named_with_its_time():
     s = synth_session(hold_s=12.0, seed=6)
-    _p, sl = _hold_slices(s, 0.5, 20)[2]
+    _p, sl = _holds(s)[2]
     i = sl.start + 100
     s.accel_g[i, 1] = np.nan
     s.accel_g[i + 5, 2] = np.inf

@@ -5,12 +5,16 @@ The seeded labelled session is `support.sessions.synth_session`.
 
 from __future__ import annotations
 
+import dataclasses
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from support.sessions import B_TRUE, S_TRUE, synth_session
 
 from accellog.calibrate.observe.detect import detect_static, with_labels
 from accellog.calibrate.observe.segment import check_coverage, obs_from_pose_means, observations, pose_stats
+from accellog.calibrate.observe.stream_segment import segment_blocks
 from accellog.core.errors import InputError, ModelError
 
 
@@ -99,3 +103,48 @@ def test_detect_static_finds_holds_and_refuses_too_few():
     assert obs.n >= 6
     with pytest.raises(InputError, match=r"found at most 6 distinct static orientations \(need >= 9"):
         detect_static(s, min_poses=9)
+
+
+def _blocks(s, size: int) -> list:
+    """The session's samples as blocks of `size` samples (what a file's chunks give)."""
+    return [
+        SimpleNamespace(
+            t_s=s.t_s[i : i + size], accel_g=s.accel_g[i : i + size], temp_degC=s.temp_degC[i : i + size]
+        )
+        for i in range(0, s.n, size)
+    ]
+
+
+@pytest.mark.parametrize("size", [97, 1000, 10**6])
+def test_holds_cut_across_blocks_give_the_table_of_one_block(size):
+    """segment_blocks gathers each hold from the blocks that hold it: the table (and the statistics)
+    does not depend on where the blocks cut the holds."""
+    s = synth_session(seed=8, hold_s=6.0)
+    s.temp_degC = 25.0 + 0.01 * s.t_s  # a warming sensor: the temperature columns too
+    one, stats = observations(s, window_s=1.0, trim_s=0.3), pose_stats(s, trim_s=0.3)
+    got: list = []
+    cut = segment_blocks(s.meta, s.poses, _blocks(s, size), 1.0, 0.3, where="w", stats_out=got)
+    for f in dataclasses.fields(one):
+        x, y = getattr(one, f.name), getattr(cut, f.name)
+        assert np.array_equal(x, y) if isinstance(x, np.ndarray) else (f.name == "session" or x == y), f.name
+    assert one.temp_degC is not None and one.n > 6 * 4
+    assert [a.to_dict() for a in got] == [b.to_dict() for b in stats]
+
+
+def test_session_wide_refusals_come_after_every_holds_own():
+    """A hold's own defect (too short) is named before a wrong reading of an earlier hold (units,
+    label), and units before labels, labels before motion, whatever the hold order."""
+    s = synth_session(seed=9)
+    poses = sorted(s.poses, key=lambda p: p.start_s)
+    sl = s.slice_time(poses[0].start_s, poses[0].end_s)
+    s.accel_g[sl] *= 3.0  # hold 1: |a| = 3 g
+    s.poses = [*poses[:1], dataclasses.replace(poses[1], up_sensor=(0.0, 0.0, -1.0) if poses[1].name != "-z"
+               else (0.0, 0.0, 1.0)), *poses[2:-1], dataclasses.replace(poses[-1], end_s=poses[-1].start_s + 1.04)]  # fmt: skip
+    with pytest.raises(InputError, match=rf"pose {poses[-1].name!r} .* has \d+ samples after trimming"):
+        observations(s)
+    s.poses = s.poses[:-1]
+    with pytest.raises(InputError, match=r"\|accel\| at rest is 3"):
+        observations(s)
+    s.accel_g[sl] /= 3.0
+    with pytest.raises(InputError, match=rf"pose {poses[1].name!r} .*measured gravity is .* from the label"):
+        observations(s)

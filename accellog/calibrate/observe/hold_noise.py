@@ -26,19 +26,23 @@ BLOCK = 16384
 """Samples per block when long series are autocorrelated block-wise (lags < BLOCK)."""
 
 
-def autocorrelation(x: np.ndarray, block: int = BLOCK, mean: np.ndarray | None = None) -> np.ndarray:
+def autocorrelation(
+    x: np.ndarray, block: int = BLOCK, mean: np.ndarray | None = None, centred: bool = False
+) -> np.ndarray:
     """Normalised autocorrelation rho_k of each column of x (FFT, zero padded).
 
     Series longer than 2 * block use averaged block spectra (non-overlapping blocks, all centred on
     the global mean): lags k < block, O(n log block) instead of O(n log n). A column with zero
     variance (e.g. a constant quantised reading) gets rho = (1, 0, 0, ...). mean: x.mean(axis=0)
-    when the caller has it already (the same values, not computed again).
+    when the caller has it already (the same values, not computed again); centred: x is x - mean
+    already (the caller's, not made again).
     """
     x = np.asarray(x, float)
     squeeze = x.ndim == 1
     x2 = x[:, None] if squeeze else x
     n = x2.shape[0]
-    xc = x2 - (x2.mean(axis=0) if mean is None else np.asarray(mean, float).reshape(-1))
+    mean = None if centred else (x2.mean(axis=0) if mean is None else np.asarray(mean, float).reshape(-1))
+    xc = x2 if mean is None else x2 - mean
     if n > 2 * block:
         nb = n // block
         blocks = xc[: nb * block].reshape(nb, block, -1)
@@ -56,15 +60,17 @@ def autocorrelation(x: np.ndarray, block: int = BLOCK, mean: np.ndarray | None =
     return rho[:, 0] if squeeze else rho
 
 
-def integrated_autocorr_time(x: np.ndarray, c: float = SOKAL_C, mean: np.ndarray | None = None) -> np.ndarray:
+def integrated_autocorr_time(
+    x: np.ndarray, c: float = SOKAL_C, mean: np.ndarray | None = None, centred: bool = False
+) -> np.ndarray:
     """Integrated autocorrelation time tau (samples, >= 1) of each column, Sokal's window.
 
     tau(M) = 1 + 2 sum_{k=1..M} rho_k; M = smallest lag with M >= c * tau(M). Returns a float for
-    1-D input, an array (k,) for (n,k) input. mean: x.mean(axis=0) if the caller has it.
+    1-D input, an array (k,) for (n,k) input. mean, centred: as for autocorrelation.
     """
     x = np.asarray(x, float)
     squeeze = x.ndim == 1
-    tau = tau_from_rho(autocorrelation(x[:, None] if squeeze else x, mean=mean), c)
+    tau = tau_from_rho(autocorrelation(x[:, None] if squeeze else x, mean=mean, centred=centred), c)
     return float(tau[0]) if squeeze else tau
 
 

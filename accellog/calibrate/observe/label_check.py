@@ -85,17 +85,28 @@ def label_mismatches(
         m = a.mean(axis=0) if means is None else means[i]  # the same sum as nanmean without NaN
         if not np.isfinite(m).all():
             m = np.nanmean(a, axis=0)
-        norm = float(np.linalg.norm(m))
-        up = np.asarray(p.up_sensor, float)
-        if not np.isfinite(norm) or norm == 0 or not np.isfinite(up).all():
-            continue
-        d = m / norm
-        ang = float(np.degrees(np.arccos(np.clip(d @ up, -1.0, 1.0))))
-        if ang > max_angle_deg:
-            name, u = likely_label(d)
-            la = float(np.degrees(np.arccos(np.clip(d @ u, -1.0, 1.0))))
-            out.append(LabelMismatch(p.name, p.hold_index, p.start_s, p.end_s, ang, name, la))
+        bad = hold_mismatch(p, m, max_angle_deg)
+        if bad is not None:
+            out.append(bad)
     return out
+
+
+def hold_mismatch(
+    p: PoseLabel, mean: np.ndarray, max_angle_deg: float = MAX_LABEL_ANGLE_DEG
+) -> LabelMismatch | None:
+    """The mismatch of a hold labelled p whose mean reading is mean (g), if more than max_angle_deg
+    from its label; None otherwise (or when the direction is unknown)."""
+    norm = float(np.linalg.norm(mean))
+    up = np.asarray(p.up_sensor, float)
+    if not np.isfinite(norm) or norm == 0 or not np.isfinite(up).all():
+        return None
+    d = mean / norm
+    ang = float(np.degrees(np.arccos(np.clip(d @ up, -1.0, 1.0))))
+    if ang <= max_angle_deg:
+        return None
+    name, u = likely_label(d)
+    la = float(np.degrees(np.arccos(np.clip(d @ u, -1.0, 1.0))))
+    return LabelMismatch(p.name, p.hold_index, p.start_s, p.end_s, ang, name, la)
 
 
 def check_labels(
@@ -107,10 +118,17 @@ def check_labels(
 ) -> None:
     """InputError naming the first mislabelled hold and its likely true label (see module doc);
     means: as for label_mismatches."""
-    bad = label_mismatches(session, holds, max_angle_deg, means)
-    if bad:
-        more = f" (and {len(bad) - 1} more holds)" if len(bad) > 1 else ""
-        raise InputError(f"{bad[0].line()}{more}; fix the label or fit with --relabel", where=where)
+    err = mismatch_error(label_mismatches(session, holds, max_angle_deg, means), where)
+    if err is not None:
+        raise err
+
+
+def mismatch_error(bad: list[LabelMismatch], where: str | None = None) -> InputError | None:
+    """The refusal naming the first mislabelled hold of bad and how many more there are; None if none."""
+    if not bad:
+        return None
+    more = f" (and {len(bad) - 1} more holds)" if len(bad) > 1 else ""
+    return InputError(f"{bad[0].line()}{more}; fix the label or fit with --relabel", where=where)
 
 
 def relabel_holds(

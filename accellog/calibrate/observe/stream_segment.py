@@ -1,38 +1,171 @@
-"""Stage 'segment' on a file, chunk by chunk: the observation table of ``segment.observations``
-without loading the session (memory bounded by the longest hold plus one chunk group).
+"""Stage 'segment': the observation table (and per-hold statistics) of a session's labelled holds,
+made from its samples as blocks in time order (``segment_blocks``): an MCAP file chunk by chunk
+(``stream_observations``: memory bounded by the longest hold plus one chunk group, whatever the
+session length) or a whole Session in memory as a single block (``segment.observations``).
 
-The pose labels are read first (``store.stream.read_labels``); the samples then stream past
-(``store.stream.iter_imu``) and each trimmed hold's samples are gathered until the hold ends, cut
-into windows and reduced to their rows by ``segment.observations`` on that hold alone, then
-dropped. The rows are exactly those of ``observations(read_session(path), ...)``: the same
-per-hold code runs on the same samples; the session-wide checks (labels, motion against the
-median window noise of all holds) run on the per-hold summaries. Window statistics (means,
-standard deviations, autocorrelation time) are sufficient for the fit, the diagnosis and the
+The labels are checked first (``holds.checked_labels``); the samples then pass and each trimmed
+hold [start + trim_s, end - trim_s) is gathered until it ends, checked (``holds.check_hold``: unit
+up vector, min_samples, finite readings: refused at once), reduced to its observation rows
+(``holds.hold_rows``) and statistics (``holds.hold_stats``), then dropped. The session-wide checks
+run when every hold has passed, in this order: wrong units (|mean| far from 1 g: the first such
+hold), labels that contradict the measured gravity (``label_check``: the first and how many more)
+and motion (``motion``: every hold's 0.5 s windows, spilled to a temporary file as they pass,
+judged against the median window noise of all holds). Window statistics (means, standard
+deviations, autocorrelation time) are sufficient for the fit, the diagnosis and the
 cross-validation, which all take the ObsTable.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from accellog.calibrate.observe.heap import trim_heap
-from accellog.calibrate.observe.segment import (
+from accellog.calibrate.observe.holds import (
     PoseStats,
+    check_hold,
     check_window,
     checked_labels,
-    mean_shift,
-    moving_verdict,
-    observations,
-    pose_stats,
-    static_windows,
+    hold_rows,
+    hold_stats,
+    meta_quantum_g,
+    units_error,
 )
+from accellog.calibrate.observe.label_check import hold_mismatch, mismatch_error
+from accellog.calibrate.observe.motion import mean_shift, moving_verdict, static_windows
 from accellog.calibrate.observe.window_spill import WindowSpill, median
 from accellog.core.errors import InputError
-from accellog.core.session import ObsTable, PoseLabel, Session, SessionMeta
+from accellog.core.session import ObsTable, PoseLabel, SessionMeta
 from accellog.store.stream import iter_imu, read_labels
+
+
+def segment_blocks(
+    meta: SessionMeta,
+    poses: Sequence[PoseLabel],
+    blocks: Iterable,
+    window_s: float | None = 2.0,
+    trim_s: float = 0.5,
+    *,
+    where: str,
+    name: str | None = None,
+    events: Sequence = (),
+    min_samples: int = 20,
+    check_units: bool = True,
+    check_moving: bool = True,
+    stats_out: list[PoseStats] | None = None,
+    on_block: Callable | None = None,
+    release: bool = True,
+) -> ObsTable | None:
+    """The ObsTable of the holds labelled by poses (one row per window of about window_s (s) in
+    every hold trimmed by trim_s (s) at both ends; None when window_s is None: statistics only)
+    from blocks (objects with t_s (s), accel_g (g) and temp_degC (degC or None), in time order);
+    where names the session in refusals (InputError), name the table's session (default where).
+    stats_out (a list), when given, receives every hold's PoseStats; on_block(block) is called with
+    every block (e.g. a TimestampCheck); release: give the heap's free pages back after each hold
+    (heap.trim_heap, for a long file)."""
+    if window_s is not None:
+        check_window(window_s, meta.sample_rate_hz, where)
+    labels = checked_labels(poses, where, events)
+    holds = _Holds(meta, labels, window_s, trim_s, where, min_samples, check_units, check_moving, stats_out)
+    gather = _HoldGatherer(labels, trim_s)
+    try:
+        for block in blocks:
+            if on_block is not None:
+                on_block(block)
+            for p, parts in gather.add(block):
+                holds.add(p, parts)
+                if release:
+                    trim_heap()  # a hold's arrays are freed: give their pages back (calibrate.heap)
+        for p, parts in gather.finish():
+            holds.add(p, parts)
+        holds.judge()
+    finally:
+        holds.close()
+    out = None if window_s is None else holds.table(name or where)
+    if release:
+        trim_heap()
+    return out
+
+
+class _Holds:
+    """segment_blocks' reduction of each gathered hold and the session-wide verdicts (module doc)."""
+
+    def __init__(self, meta: SessionMeta, labels: list[PoseLabel], window_s: float | None, trim_s: float,
+                 where: str, min_samples: int, check_units: bool, check_moving: bool,
+                 stats_out: list[PoseStats] | None) -> None:  # fmt: skip
+        self.window_s, self.trim_s, self.where, self.min_samples = window_s, trim_s, where, min_samples
+        self.check_units, self.stats_out = check_units, stats_out
+        self.quantum = meta_quantum_g(meta)
+        rows = 0 if window_s is None else sum(_most_windows(p, trim_s, window_s) for p in labels)
+        self.rows = _Rows(rows)
+        self.wins = _HoldWindows() if check_moving else None
+        self.names: list[str] = []
+        self.units: InputError | None = None  # the first hold far from 1 g
+        self.mismatches: list = []  # label_check.LabelMismatch of every hold far from its label
+
+    def add(self, p: PoseLabel, parts: list[tuple]) -> None:
+        """Check and reduce one trimmed hold (parts: its (t, accel, temp) pieces in time order)."""
+        t, acc, temp = _joined(parts)
+        check_hold(p, t, acc, self.trim_s, self.min_samples, self.where)
+        mean = acc.mean(axis=0)  # once, for the checks and the rows
+        if self.check_units:
+            if self.units is None:
+                self.units = units_error(p, mean, self.where)
+            bad = hold_mismatch(p, mean)
+            if bad is not None:
+                self.mismatches.append(bad)
+        if self.units is not None or self.mismatches:  # refused when every hold has passed
+            return
+        if self.wins is not None:
+            self.wins.add(p, *static_windows(t, acc, mean=mean))
+        if self.window_s is not None:
+            if p.name not in self.names:
+                self.names.append(p.name)
+            cols = hold_rows(p, t, acc, temp, mean, self.window_s, self.quantum)
+            self.rows.add({"pose_id": np.full(len(cols["t_s"]), self.names.index(p.name)), **cols})
+        if self.stats_out is not None:
+            self.stats_out.append(hold_stats(p, t, acc, temp, mean, self.quantum))
+
+    def judge(self) -> None:
+        """The session-wide refusals, in order: units, labels, motion (InputError)."""
+        if self.units is not None:
+            raise self.units
+        err = mismatch_error(self.mismatches, self.where)
+        if err is not None:
+            raise err
+        if self.wins is not None:
+            self.wins.judge(self.quantum, self.where)
+
+    def table(self, name: str) -> ObsTable:
+        """The ObsTable of every hold's rows (columns no hold has are None)."""
+        out = {}
+        for f in dataclasses.fields(ObsTable):
+            if f.name == "pose_names":
+                out[f.name] = self.names
+            elif f.name == "session":
+                out[f.name] = name
+            else:
+                out[f.name] = self.rows.col(f.name) if f.name in self.rows.cols else None
+        out["pose_id"] = out["pose_id"].astype(int)
+        return ObsTable(**out)
+
+    def close(self) -> None:
+        if self.wins is not None:
+            self.wins.close()
+
+
+def _joined(parts: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(t, accel, temp or None) of a hold's pieces (the piece itself when there is one)."""
+    if len(parts) == 1:
+        return parts[0]
+    if not parts:
+        return np.zeros(0), np.zeros((0, 3)), None
+    t, acc = (np.concatenate([x[i] for x in parts]) for i in range(2))
+    temp = None if parts[0][2] is None else np.concatenate([x[2] for x in parts])
+    return t, acc, temp
 
 
 def stream_observations(
@@ -47,56 +180,15 @@ def stream_observations(
     labels: tuple[SessionMeta, list[PoseLabel], list] | None = None,
     on_block=None,
 ) -> ObsTable:
-    """observations(read_session(path), window_s, trim_s, ...) in bounded memory (module doc);
-    stats_out (a list), when given, receives pose_stats(read_session(path), trim_s, ...) as well;
-    labels: read_labels(path) when the caller has it already; on_block(block), when given, is
-    called with every block of the pass (e.g. feeding a TimestampCheck)."""
+    """segment_blocks on the file's samples chunk by chunk (module doc): bounded memory; labels:
+    read_labels(path) when the caller has it already; the other arguments as segment_blocks."""
     where = str(path)
     check_window(window_s, 0.0, where)  # before reading: at most the chip's highest rate
-    meta, poses, _events = labels if labels is not None else read_labels(path)
-    check_window(window_s, meta.sample_rate_hz, where)
-    labels = checked_labels(poses, where)
-    gather = _HoldGatherer(labels, trim_s)
-    rows = _Rows(sum(_most_windows(p, trim_s, window_s) for p in labels))  # the observation rows
-    wins = _HoldWindows() if check_moving else None
-    names: list[str] = []
-
-    def reduce(p: PoseLabel, parts: list[tuple]) -> None:
-        mini = _hold_session(meta, p, parts, where)
-        if mini.n < min_samples:
-            raise InputError(
-                f"pose {p.name!r} ({p.start_s:.2f}-{p.end_s:.2f} s) has {mini.n} samples after trimming "
-                f"{trim_s} s at each end (need >= {min_samples}): hold longer or lower --trim",
-                where=where,
-            )
-        tb = observations(mini, window_s, trim_s, min_samples=min_samples,
-                          check_units=check_units, check_moving=False)  # fmt: skip
-        if p.name not in names:
-            names.append(p.name)
-        rows.add(_table_columns(tb, names.index(p.name)))
-        if stats_out is not None:
-            stats_out.extend(pose_stats(mini, trim_s=trim_s, min_samples=min_samples,
-                                         check_units=check_units, check_moving=False))  # fmt: skip
-        if wins is not None:
-            wins.add(p, *static_windows(mini.t_s, mini.accel_g))
-        trim_heap()  # a hold's arrays are freed: give their pages back (calibrate.heap)
-
-    try:
-        for block in iter_imu(path):
-            if on_block is not None:
-                on_block(block)
-            for p, parts in gather.add(block):
-                reduce(p, parts)
-        for p, parts in gather.finish():
-            reduce(p, parts)
-        if wins is not None:
-            wins.judge(1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0, where)
-    finally:
-        if wins is not None:
-            wins.close()
-    out = _table(rows, names, where)
-    trim_heap()
-    return out
+    meta, poses, events = labels if labels is not None else read_labels(path)
+    return segment_blocks(
+        meta, poses, iter_imu(path), window_s, trim_s, where=where, events=events, min_samples=min_samples,
+        check_units=check_units, check_moving=check_moving, stats_out=stats_out, on_block=on_block,
+    )  # fmt: skip
 
 
 def _most_windows(p: PoseLabel, trim_s: float, window_s: float) -> int:
@@ -192,14 +284,17 @@ class _HoldGatherer:
 
     def add(self, b):
         """Yield (label, parts) for every hold this block completes."""
+        if b.t_s.shape[0] == 0:
+            return
         while self.k < len(self.labels):
             p = self.labels[self.k]
             t0, t1 = self._range(p)
             i, j = np.searchsorted(b.t_s, [t0, t1])
             if j > i:
                 sl = slice(i, j)
-                temp = None if b.temp_degC is None else b.temp_degC[sl]
-                self.parts.append((b.t_s[sl], b.sample_index[sl], b.accel_g[sl], temp))
+                self.parts.append(
+                    (b.t_s[sl], b.accel_g[sl], None if b.temp_degC is None else b.temp_degC[sl])
+                )
             if b.t_s[-1] < t1:  # the hold goes on in the next block
                 return
             yield p, self.parts
@@ -211,40 +306,6 @@ class _HoldGatherer:
             yield self.labels[self.k], self.parts
             self.parts = []
             self.k += 1
-
-
-def _hold_session(meta: SessionMeta, p: PoseLabel, parts: list[tuple], where: str) -> Session:
-    """A Session holding one trimmed hold's samples and its label."""
-    if parts:
-        t, si, acc = (np.concatenate([x[i] for x in parts]) for i in range(3))
-        temp = None if parts[0][3] is None else np.concatenate([x[3] for x in parts])
-    else:
-        t, si, acc, temp = np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 3)), None
-    return Session(meta=meta, t_s=t, sample_index=si, accel_g=acc, temp_degC=temp, poses=[p], path=where)
-
-
-def _table_columns(tb: ObsTable, pose_id: int) -> dict[str, np.ndarray]:
-    """One hold's ObsTable as columns for _Rows (pose ids by first appearance, as observations)."""
-    out = {"pose_id": np.full(tb.n, pose_id)}
-    for f in dataclasses.fields(ObsTable):
-        v = getattr(tb, f.name)
-        if f.name != "pose_id" and isinstance(v, np.ndarray):
-            out[f.name] = v
-    return out
-
-
-def _table(rows: _Rows, names: list[str], where: str) -> ObsTable:
-    """The ObsTable of every hold's rows (columns no hold has are None)."""
-    out = {}
-    for f in dataclasses.fields(ObsTable):
-        if f.name == "pose_names":
-            out[f.name] = names
-        elif f.name == "session":
-            out[f.name] = where
-        else:
-            out[f.name] = rows.col(f.name) if f.name in rows.cols else None
-    out["pose_id"] = out["pose_id"].astype(int)
-    return ObsTable(**out)
 
 
 def stream_check_timestamps(path: str | Path) -> None:
