@@ -412,9 +412,9 @@ def test_every_time_series_view_shows_its_own_data_range(tmp_path: Path) -> None
 
 
 @pytest.mark.parametrize("gc_on", [True, False])
-def test_rerun_is_imported_once_with_its_objects_frozen(gc_on: bool, tmp_path: Path) -> None:
-    """The first RunRecording imports rerun with the collector paused and freezes what is alive
-    (present.rrd.sdk); the collector is left as the caller had it."""
+def test_rerun_is_imported_once_with_the_collector_left_as_it_was(gc_on: bool, tmp_path: Path) -> None:
+    """The first RunRecording imports rerun with the collector paused (present.rrd.sdk); the collector
+    is left as the caller had it and none of the caller's objects is frozen (a library must not)."""
     code = (
         "import gc, json, sys\n"
         f"{'' if gc_on else 'gc.disable()'}\n"
@@ -428,4 +428,4 @@ def test_rerun_is_imported_once_with_its_objects_frozen(gc_on: bool, tmp_path: P
         capture_output=True, text=True, check=True, env={**os.environ, "RERUN_ANALYTICS": "0"},
     ).stdout  # fmt: skip
     before, loaded, enabled, frozen = json.loads(out)
-    assert not before and loaded and enabled == gc_on and frozen > 10_000
+    assert not before and loaded and enabled == gc_on and frozen == 0

@@ -1,12 +1,12 @@
-"""The Rerun SDK, imported once per process with the cyclic garbage collector kept out of the way.
+"""The Rerun SDK, imported once per process with the cyclic garbage collector paused.
 
-``import rerun`` runs ~500 modules (attrs classes) and leaves ~60,000 long-lived objects. Imported
-plainly, the collector rescans them in later collections and at interpreter shutdown: a 1 h
-``replay --rrd`` spent 0.2 s more CPU (exit alone: 0.22 s instead of 0.06 s). ``rerun_sdk()``
-imports it with the collector paused, then moves every object alive to the permanent generation
-(``gc.freeze``, as pre-fork servers do): they are still freed by reference counting, only never
-scanned for cycles again. This happens on the first call only, and only when nothing imported
-rerun before.
+``import rerun`` runs ~500 modules (attrs classes) and creates ~60,000 long-lived objects; with the
+collector running, the import triggers collections that scan them again and again (0.04 s of a 1 h
+``replay --rrd``). ``rerun_sdk()`` imports it with the collector paused and leaves the collector as
+the caller had it. In a one-shot process (the CLI sets FREEZE_AFTER_IMPORT) every object alive is
+then frozen (``gc.freeze``): later collections and interpreter shutdown never scan rerun's objects
+again (0.2 s of CPU at the exit of a 1 h ``replay --rrd``). A library must not move a user's objects
+out of the collector's reach, so by default nothing is frozen.
 """
 
 from __future__ import annotations
@@ -15,9 +15,12 @@ import gc
 import sys
 from types import ModuleType
 
+FREEZE_AFTER_IMPORT = False
+"""True in the `accellog` command's own process (accellog.cli sets it): gc.freeze() after the import."""
+
 
 def rerun_sdk() -> ModuleType:
-    """The ``rerun`` module (imported and frozen on first use, see the module docstring)."""
+    """The ``rerun`` module, imported with the collector paused on first use (module docstring)."""
     if "rerun" in sys.modules:
         import rerun
 
@@ -29,5 +32,6 @@ def rerun_sdk() -> ModuleType:
     finally:
         if was_on:
             gc.enable()
-    gc.freeze()
+    if FREEZE_AFTER_IMPORT:
+        gc.freeze()
     return rerun
