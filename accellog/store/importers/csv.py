@@ -11,7 +11,9 @@ two rows spanning a non-zero duration.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+import queue
+import threading
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -291,6 +293,55 @@ def _counts(path: Path, block: Block, raw: np.ndarray, offset: float, what: str)
     return c.astype(np.int32)
 
 
+def read_ahead(items: Iterable, name: str = "read-ahead") -> Iterator:
+    """Yield ``items`` while a second thread already makes the next one (at most one ahead).
+
+    The producer's exception is raised here, at its place in the sequence; leaving the loop early
+    (break, an error, Ctrl-C) stops the producer before this generator returns. Used to parse the next
+    CSV block (pyarrow and numpy release the GIL) while the current one is encoded, compressed and written.
+    """
+    slots = threading.Semaphore(2)  # items alive: the one the consumer holds and the one being made
+    out: queue.SimpleQueue = queue.SimpleQueue()
+    stop = threading.Event()
+    end = object()
+
+    def produce() -> None:
+        it = iter(items)
+        try:
+            while True:
+                while not slots.acquire(timeout=0.05):
+                    if stop.is_set():
+                        return
+                if stop.is_set():
+                    return
+                item = next(it, end)
+                out.put((item, None))
+                if item is end:
+                    return
+        except BaseException as exc:  # handed to the consumer, raised there
+            out.put((end, exc))
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:
+                close()
+
+    worker = threading.Thread(target=produce, name=name, daemon=True)
+    worker.start()
+    try:
+        while True:
+            item, exc = out.get()
+            if exc is not None:
+                raise exc
+            if item is end:
+                return
+            yield item
+            del item
+            slots.release()
+    finally:
+        stop.set()
+        worker.join()
+
+
 def _options(opts: CsvOptions | None, kw: dict) -> CsvOptions:
     if opts is not None and kw:
         raise TypeError("give either options or keyword options")
@@ -373,8 +424,9 @@ def import_csv_to_mcap(
     w = None
     t_first = t_last = 0.0
     size_mb = path.stat().st_size / 1e6 if progress is not None else 0.0
+    chunks = read_ahead(imp.chunks(), "csv-parse")  # the next block is parsed while this one is written
     try:
-        for k, ch in enumerate(imp.chunks()):
+        for k, ch in enumerate(chunks):
             if progress is not None:
                 progress(min((k + 1) * block_bytes / 1e6, size_mb), size_mb)
             if w is None:
@@ -404,6 +456,7 @@ def import_csv_to_mcap(
         w.update_meta(imp.meta)
         w.close()
     except BaseException:
+        chunks.close()
         if w is not None:
             w.close()
         ao.abort()
