@@ -5,7 +5,8 @@ qw..qz) are mapped onto the file's with ``CsvOptions.columns``. Units and conver
 ``accellog.store.importers.csv_options``; the source units, offsets and conversions are recorded in
 meta.extra. The file is parsed in byte blocks (``csv_blocks``), converted and checked block by block:
 time must strictly increase (duplicates and backward steps are refused with their line), a file needs
-two rows spanning a non-zero duration.
+two rows spanning a non-zero duration. ``import_csv_to_mcap`` parses the next block on a second thread
+while the current one is encoded, compressed and written (``read_ahead``).
 """
 
 from __future__ import annotations
@@ -412,7 +413,8 @@ def import_csv_to_mcap(
     nothing half-written on error, never over the CSV itself, nor over an existing file with
     overwrite=False).
 
-    Memory: one block of text (``block_bytes``) and its columns, plus the MCAP chunk being built.
+    Memory: two blocks of text (``block_bytes``) and their columns (the block being written and the
+    next one, parsed meanwhile on a second thread: ``read_ahead``), plus the MCAP chunk being built.
     progress(done_MB, total_MB): after every block (done counted in whole blocks read).
     """
     from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter
