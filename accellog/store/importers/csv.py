@@ -146,9 +146,12 @@ class CsvImport:
                 true = _stack(block, ("true_x", "true_y", "true_z"))
                 quat = _stack(block, ("qw", "qx", "qy", "qz"))
                 runs.feed(block.cols["pose"], t_s, true, quat, block.line_of)
-            yield self._convert(block, t_s)
-            self.n += block.n
-            t_prev = (float(t_s[-1]), block.line_of(block.n - 1))
+            ch = self._convert(block, t_s)
+            n, t_prev = block.n, (float(t_s[-1]), block.line_of(block.n - 1))
+            del block, t_s  # what the chunk does not use is freed before the chunk waits to be written
+            yield ch
+            del ch  # the consumer's, not kept while the next block is parsed (read_ahead)
+            self.n += n
         if self.n == 0:
             raise InputError("no data rows", where=str(self.path))
         if self.n < 2 or (self.opts.strict_time and t_prev[0] <= t_first_s):
