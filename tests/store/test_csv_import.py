@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import re
 import shlex
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.importers import CsvOptions, import_csv, import_csv_to_mcap
+from accellog.store.importers.csv import read_ahead
 from accellog.store.reader import read_session
 
 _RAW_MAP = "t=timestamp_us,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z,temp=temp_C"
@@ -167,6 +169,57 @@ def test_streaming_matches_in_memory(tmp_path):
     s = read_session(out)
     assert np.array_equal(s.accel_counts, mem.accel_counts) and np.array_equal(s.gyro_counts, mem.gyro_counts)
     assert np.allclose(s.t_s, mem.t_s, rtol=0, atol=1e-9)
+
+
+def test_read_ahead_keeps_order_errors_and_stops_early():
+    """Items in order, at most one made ahead of the one in use; the producer's error is raised at its
+    place; leaving the loop early closes the source and ends the thread."""
+    made, closed = [], []
+
+    def source(n, fail_at=None):
+        try:
+            for i in range(n):
+                if i == fail_at:
+                    raise InputError("bad row", where=f"x.csv:{i}")
+                made.append(i)
+                yield i
+        finally:
+            closed.append(True)
+
+    got = []
+    for k, i in enumerate(read_ahead(source(40), "t-order")):
+        assert len(made) <= k + 2  # item k in use, k + 1 at most made ahead
+        got.append(i)
+    assert got == list(range(40)) and closed == [True]
+
+    made.clear()
+    got = []
+    with pytest.raises(InputError, match="bad row") as e:
+        for i in read_ahead(source(40, fail_at=7), "t-error"):
+            got.append(i)
+    assert got == list(range(7)) and e.value.where == "x.csv:7"
+
+    made.clear()
+    closed.clear()
+    gen = read_ahead(source(10**6), "t-stop")
+    assert [next(gen), next(gen)] == [0, 1]
+    gen.close()
+    assert closed == [True] and len(made) <= 3
+    assert not [t for t in threading.enumerate() if t.name.startswith("t-")]
+
+
+def test_streaming_error_deep_in_the_file_leaves_nothing(tmp_path):
+    """A bad row found by the read-ahead thread several blocks in: its line, and no output or
+    temporary file left behind."""
+    src, out = tmp_path / "d.csv", tmp_path / "d.mcap"
+    rows = [f"{i * 0.01:.2f},0.01,0.02,1.0" for i in range(3000)]
+    rows[2500] = rows[2499]
+    src.write_text("t,ax,ay,az\n" + "\n".join(rows) + "\n")
+    with pytest.raises(InputError, match="duplicated timestamp") as e:
+        import_csv_to_mcap(src, out, block_bytes=4096)
+    assert e.value.where == f"{src}:2502"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.csv"]
+    assert not [t for t in threading.enumerate() if t.name == "csv-parse"]
 
 
 @pytest.mark.parametrize(

@@ -5,13 +5,16 @@ qw..qz) are mapped onto the file's with ``CsvOptions.columns``. Units and conver
 ``accellog.store.importers.csv_options``; the source units, offsets and conversions are recorded in
 meta.extra. The file is parsed in byte blocks (``csv_blocks``), converted and checked block by block:
 time must strictly increase (duplicates and backward steps are refused with their line), a file needs
-two rows spanning a non-zero duration.
+two rows spanning a non-zero duration. ``import_csv_to_mcap`` parses the next block on a second thread
+while the current one is encoded, compressed and written (``read_ahead``).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+import queue
+import threading
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -143,9 +146,12 @@ class CsvImport:
                 true = _stack(block, ("true_x", "true_y", "true_z"))
                 quat = _stack(block, ("qw", "qx", "qy", "qz"))
                 runs.feed(block.cols["pose"], t_s, true, quat, block.line_of)
-            yield self._convert(block, t_s)
-            self.n += block.n
-            t_prev = (float(t_s[-1]), block.line_of(block.n - 1))
+            ch = self._convert(block, t_s)
+            n, t_prev = block.n, (float(t_s[-1]), block.line_of(block.n - 1))
+            del block, t_s  # what the chunk does not use is freed before the chunk waits to be written
+            yield ch
+            del ch  # the consumer's, not kept while the next block is parsed (read_ahead)
+            self.n += n
         if self.n == 0:
             raise InputError("no data rows", where=str(self.path))
         if self.n < 2 or (self.opts.strict_time and t_prev[0] <= t_first_s):
@@ -291,6 +297,55 @@ def _counts(path: Path, block: Block, raw: np.ndarray, offset: float, what: str)
     return c.astype(np.int32)
 
 
+def read_ahead(items: Iterable, name: str = "read-ahead") -> Iterator:
+    """Yield ``items`` while a second thread already makes the next one (at most one ahead).
+
+    The producer's exception is raised here, at its place in the sequence; leaving the loop early
+    (break, an error, Ctrl-C) stops the producer before this generator returns. Used to parse the next
+    CSV block (pyarrow and numpy release the GIL) while the current one is encoded, compressed and written.
+    """
+    slots = threading.Semaphore(2)  # items alive: the one the consumer holds and the one being made
+    out: queue.SimpleQueue = queue.SimpleQueue()
+    stop = threading.Event()
+    end = object()
+
+    def produce() -> None:
+        it = iter(items)
+        try:
+            while True:
+                while not slots.acquire(timeout=0.05):
+                    if stop.is_set():
+                        return
+                if stop.is_set():
+                    return
+                item = next(it, end)
+                out.put((item, None))
+                if item is end:
+                    return
+        except BaseException as exc:  # handed to the consumer, raised there
+            out.put((end, exc))
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:
+                close()
+
+    worker = threading.Thread(target=produce, name=name, daemon=True)
+    worker.start()
+    try:
+        while True:
+            item, exc = out.get()
+            if exc is not None:
+                raise exc
+            if item is end:
+                return
+            yield item
+            del item
+            slots.release()
+    finally:
+        stop.set()
+        worker.join()
+
+
 def _options(opts: CsvOptions | None, kw: dict) -> CsvOptions:
     if opts is not None and kw:
         raise TypeError("give either options or keyword options")
@@ -361,7 +416,8 @@ def import_csv_to_mcap(
     nothing half-written on error, never over the CSV itself, nor over an existing file with
     overwrite=False).
 
-    Memory: one block of text (``block_bytes``) and its columns, plus the MCAP chunk being built.
+    Memory: two blocks of text (``block_bytes``) and their columns (the block being written and the
+    next one, parsed meanwhile on a second thread: ``read_ahead``), plus the MCAP chunk being built.
     progress(done_MB, total_MB): after every block (done counted in whole blocks read).
     """
     from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter
@@ -373,8 +429,9 @@ def import_csv_to_mcap(
     w = None
     t_first = t_last = 0.0
     size_mb = path.stat().st_size / 1e6 if progress is not None else 0.0
+    chunks = read_ahead(imp.chunks(), "csv-parse")  # the next block is parsed while this one is written
     try:
-        for k, ch in enumerate(imp.chunks()):
+        for k, ch in enumerate(chunks):
             if progress is not None:
                 progress(min((k + 1) * block_bytes / 1e6, size_mb), size_mb)
             if w is None:
@@ -404,6 +461,7 @@ def import_csv_to_mcap(
         w.update_meta(imp.meta)
         w.close()
     except BaseException:
+        chunks.close()
         if w is not None:
             w.close()
         ao.abort()
