@@ -136,7 +136,9 @@ class FitInput:
     local_gravity_mps2: float  # the session's (m/s^2); g0 without a session
     sensor: SensorInfo
     device: DeviceInfo | None  # None: no session, the calibration keeps its default
-    source: SourceFile  # provenance entry
+    source: Callable[[], SourceFile]
+    """source(): the provenance entry, hashed only when a calibration is built (a file that fails
+    to fit is not read twice: a 2 GB truncated file costs its readable head, not a hash of 2 GB)."""
     obs: ObsTable | None
     session: Session | None
     gyro: Callable[[Any, list | None], GyroCalibration | None]
@@ -166,7 +168,7 @@ def fit_input(
                 return _streamed_input(streamed)
         data = load_input(src, n_per_pose=n_per_pose)
     if isinstance(data, ObsTable):
-        return FitInput(data.session, [], STANDARD_GRAVITY_MPS2, SensorInfo.empty(), None, _source(data, src, ""),
+        return FitInput(data.session, [], STANDARD_GRAVITY_MPS2, SensorInfo.empty(), None, lambda: _source(data, src, ""),
                         data if obs is None else obs, None, lambda fit, detected: None)  # fmt: skip
     if relabel:
         data, changes = relabel_holds(data, trim_s=trim_s)
@@ -181,7 +183,7 @@ def fit_input(
 
     m = session.meta
     return FitInput(session.path or m.source, session.poses, m.local_gravity_mps2, SensorInfo.from_meta(m),
-                    DeviceInfo.from_key(m.device), _source(session, src, m.source), obs, session, whole_gyro)  # fmt: skip
+                    DeviceInfo.from_key(m.device), lambda: _source(session, src, m.source), obs, session, whole_gyro)  # fmt: skip
 
 
 def _streamed_input(s: StreamedSession) -> FitInput:
@@ -194,7 +196,7 @@ def _streamed_input(s: StreamedSession) -> FitInput:
 
     m = s.meta
     return FitInput(s.path, s.poses, m.local_gravity_mps2, SensorInfo.from_meta(m), DeviceInfo.from_key(m.device),
-                    _source(s, s.path, m.source), s.obs, None, streamed_gyro)  # fmt: skip
+                    lambda: _source(s, s.path, m.source), s.obs, None, streamed_gyro)  # fmt: skip
 
 
 def run_fit(
@@ -291,7 +293,7 @@ def _calibration(fit, obs, fi: FitInput, gravity: str, local_gravity_mps2: float
         obs=obs,
         gravity_convention=gravity,
         local_gravity_mps2=local_gravity_mps2,
-        sources=[fi.source],
+        sources=[fi.source()],
         sensor=fi.sensor,
     )
     if fi.device is not None:
