@@ -5,6 +5,20 @@ with tight tolerances and its convergence verdict kept: a solve that stops witho
 tolerance (evaluation budget spent, improper input, non-finite residuals) is a one-line ModelError
 naming the fit, never a silent result. ``chi2_sf`` is ``scipy.special.chdtrc``. scipy is imported
 inside the functions, when a fit runs, not when the command line starts.
+
+Bit-for-bit repeatable: MINPACK's QR (scipy 1.17's C translation of qrfac) recomputes the norm of a
+column whose remaining norm cancelled below ~7e-8 of its start (nearly collinear columns, e.g. a
+warm-up whose tau is far below the observation times, where w and the bias cancel) with one element
+too many; for the last column that element lies past the end of the Jacobian buffer, so the pivot
+order, the path and the result (chi2 from its 7th digit, about 1 fresh process in 4 on such a fit)
+depended on whatever the heap held there (valgrind: "Invalid read of size 8 ... 0 bytes after a
+block" in enorm <- qrfac <- LMDER). The solver is handed one extra, last parameter that the
+residuals ignore (an all-zero Jacobian column): MINPACK's pivoting never moves a zero-norm column and
+never recomputes its norm, so every read stays inside the buffer; the parameter stays at 0 and is
+dropped from the result. One extra residual, always 0 (a zero row: exact no-op in MINPACK's sums),
+keeps a fit with as many residuals as parameters solvable. The extra column makes MINPACK take its
+rank-deficient branch: accelerometer calibrations checked came out byte for byte the same, the gyro
+fit moved by up to 3e-10 relative (inside its tolerance).
 """
 
 from __future__ import annotations
@@ -57,17 +71,32 @@ def least_squares(
     residuals."""
     from scipy.optimize import least_squares as scipy_least_squares
 
+    x0 = np.asarray(x0, float)
+    n = x0.size
+    fun_z = lambda xz: np.append(fun(xz[:n]), 0.0)  # noqa: E731  (module docstring)
+    jac_z = jac if isinstance(jac, str) else (lambda xz: _zero_border(jac(xz[:n])))
+    if not isinstance(x_scale, str):
+        x_scale = np.append(np.broadcast_to(np.asarray(x_scale, float), (n,)), 1.0)
     try:
         sol = scipy_least_squares(
-            fun, np.asarray(x0, float), jac=jac, method="lm", x_scale=x_scale,
+            fun_z, np.append(x0, 0.0), jac=jac_z, method="lm", x_scale=x_scale,
             ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev,
         )  # fmt: skip
     except (ValueError, np.linalg.LinAlgError) as exc:  # e.g. non-finite residuals at x0
         raise ModelError(f"{what} did not converge: {exc}") from None
-    out = LsqResult(sol.x, sol.fun, sol.jac, int(sol.nfev), int(sol.status), str(sol.message))
+    x, f, J = sol.x[:n], sol.fun[:-1], sol.jac[:-1, :n]
+    out = LsqResult(x, f, J, int(sol.nfev), int(sol.status), str(sol.message))
     if not out.converged or not np.all(np.isfinite(out.fun)):
         why = out.message if not out.converged else "non-finite residuals at the solution"
         raise ModelError(f"{what} did not converge ({out.nfev} evaluations): {why}")
+    return out
+
+
+def _zero_border(J: np.ndarray) -> np.ndarray:
+    """J (m, n) with an all-zero row and column appended (m + 1, n + 1)."""
+    J = np.asarray(J, float)
+    out = np.zeros((J.shape[0] + 1, J.shape[1] + 1))
+    out[:-1, :-1] = J
     return out
 
 
