@@ -35,6 +35,7 @@ from accellog.acquire.emulator.clock import RealClock, SimClock
 from accellog.acquire.recorder import Recorder
 from accellog.acquire.stillness import StillnessDetector
 from accellog.core.session import SessionMeta
+from accellog.flows.record import LIVE_BLOCK_SAMPLES
 from accellog.flows.simulate import Scenario, build_sensor_model, simulate
 from accellog.store.reader import read_session
 from accellog.store.writer import SessionWriter
@@ -62,12 +63,14 @@ def cpu_s() -> float:
 
 
 def make_chain(sc: Scenario, clock, *, mag: bool = False, timed: dict | None = None):
-    """Emulated chip + configured, started driver for a scenario (as simulate / record --sim do).
+    """Emulated chip + configured, started driver for a scenario (as simulate / record --sim do;
+    on the real clock with record --sim's LIVE_BLOCK_SAMPLES).
 
     timed: if given, the chip's bus methods add their thread CPU time (s) to timed['chip_s'].
     """
     model, motion = build_sensor_model(sc)
-    chip = EmulatedMpu9250(model, clock, seed=sc.seed)
+    block = {"block_samples": LIVE_BLOCK_SAMPLES} if isinstance(clock, RealClock) else {}
+    chip = EmulatedMpu9250(model, clock, seed=sc.seed, **block)
     if timed is not None:
         timed.setdefault("chip_s", 0.0)
         for name in BUS_METHODS:

@@ -144,6 +144,13 @@ class RunningCalibration:
         return text
 
 
+LIVE_BLOCK_SAMPLES = 512
+"""Samples the emulated chip computes per model call on the real clock: the read that crosses a
+block pays for all of it (2048 samples: up to 2.3 ms of the read loop's CPU, 512: 1.4 ms, same
+counts; benchmarks/bench_record_steps.py --block). The simulated clock keeps the chip's 2048
+(fewer model calls, 20 % less of the chip's CPU)."""
+
+
 def _open_bus(opts: RecordOptions):
     """(bus, sleep, clock_ns, source) of the emulated chip or of /dev/i2c-<bus>."""
     if not opts.use_sim:
@@ -159,7 +166,8 @@ def _open_bus(opts: RecordOptions):
     sc.validate()
     model, _motion = build_sensor_model(sc)
     clock = SimClock() if opts.fast else RealClock()
-    chip = EmulatedMpu9250(model, clock, seed=opts.seed, address=parse_address(opts.address))
+    block = {} if opts.fast else {"block_samples": LIVE_BLOCK_SAMPLES}
+    chip = EmulatedMpu9250(model, clock, seed=opts.seed, address=parse_address(opts.address), **block)
     return chip, clock.sleep, clock.now_ns, "emulator"
 
 
