@@ -17,12 +17,11 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from accellog.calibrate.calfile.calibration import Calibration, load_calibration, source_entry
-from accellog.calibrate.calfile.drift_model import DriftModel
 from accellog.calibrate.calfile.sections import DetectedInterval, DeviceInfo, SensorInfo, SourceFile
 from accellog.calibrate.gyro.calibrate import (
     calibrate_gyro,
@@ -42,13 +41,13 @@ from accellog.core.notices import note
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.flows.inputs import load_input
-from accellog.flows.static_input import StaticInput, run_on_blocks
 from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
-from accellog.navigate.drift import drift_blocks
-from accellog.navigate.evaluate import Evaluation, evaluate_blocks, targets
-from accellog.present import views
-from accellog.present.rrd.recording import RunRecording
 from accellog.store.stream import read_labels
+
+if TYPE_CHECKING:  # run_evaluate/run_drift import these when called (`fit` does without them)
+    from accellog.calibrate.calfile.drift_model import DriftModel
+    from accellog.flows.static_input import StaticInput
+    from accellog.navigate.evaluate import Evaluation
 
 GRAVITY_CONVENTIONS = ("seed", "local")
 """'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
@@ -109,6 +108,9 @@ class FitOutcome(JsonResult):
 
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
         """Recording of the fit (residuals per pose) and, for a session, its samples raw and calibrated."""
+
+        from accellog.present import views
+        from accellog.present.rrd.recording import RunRecording
 
         with RunRecording(f"save:{path}") as rec:
             if isinstance(data, Session):
@@ -360,6 +362,9 @@ def run_evaluate(
 ) -> list[Evaluation]:
     """Evaluate calibration(s) on a static test session; the raw reading first when include_raw.
     stream: an MCAP file chunk by chunk (its evaluations then keep no series to plot), else in memory."""
+    from accellog.flows.static_input import run_on_blocks
+    from accellog.navigate.evaluate import evaluate_blocks, targets
+
     cals = [_cal(c) for c in cal] if isinstance(cal, (list, tuple)) else [_cal(cal)]
     tgts = targets(cals, labels, include_raw)
     evs, _data = run_on_blocks(
@@ -394,6 +399,9 @@ class DriftOutcome(JsonResult):
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
         """Recording of the static session calibrated, with and without the drift model."""
 
+        from accellog.present import views
+        from accellog.present.rrd.recording import RunRecording
+
         with RunRecording(f"save:{path}") as rec:
             if isinstance(data, Session):
                 views.log_session(rec, data, calibrations={"calibrated + drift model": self.cal})
@@ -409,6 +417,9 @@ def run_drift(
     stream: bool = True,
 ) -> DriftOutcome:
     """Fit the displacement-drift model on a calibrated static session (an MCAP file: chunk by chunk)."""
+    from accellog.flows.static_input import run_on_blocks
+    from accellog.navigate.drift import drift_blocks
+
     c = _cal(cal)
     (cal_d, dm, ev), data = run_on_blocks(
         static,

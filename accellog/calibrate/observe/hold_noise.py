@@ -86,15 +86,18 @@ def tau_from_rho(rho: np.ndarray, c: float = SOKAL_C) -> np.ndarray:
     return np.maximum(taus[first, np.arange(rho.shape[1])], 1.0)
 
 
-def sem_autocorr(x: np.ndarray, quantum: float = 0.0, c: float = SOKAL_C) -> tuple[np.ndarray, np.ndarray]:
+def sem_autocorr(
+    x: np.ndarray, quantum: float = 0.0, c: float = SOKAL_C, tau: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(sem, tau): autocorrelation-aware standard error of the column means, sem = std sqrt(tau/n).
 
     quantum: resolution of the data (e.g. 1/16384 g); the sem is floored at quantum/sqrt(12 n) so a
-    constant quantised column never claims a zero uncertainty.
+    constant quantised column never claims a zero uncertainty. tau: integrated_autocorr_time(x, c)
+    when the caller has it (the same values, not computed again).
     """
     x = np.asarray(x, float)
     n = x.shape[0]
-    tau = integrated_autocorr_time(x, c=c)
+    tau = integrated_autocorr_time(x, c=c) if tau is None else tau
     std = x.std(axis=0, ddof=1) if n > 1 else np.zeros(x.shape[1:])
     sem = std * np.sqrt(np.asarray(tau) / max(n, 1))
     floor = quantum / np.sqrt(12.0 * max(n, 1))

@@ -195,9 +195,10 @@ def temp_slope(t: np.ndarray, temp: np.ndarray) -> float:
 def hold_rows(
     p: PoseLabel, t: np.ndarray, acc: np.ndarray, temp: np.ndarray | None, mean: np.ndarray, window_s: float,
     quantum: float,
-) -> dict[str, np.ndarray]:  # fmt: skip
-    """The observation rows of one trimmed hold (t s, acc g, temp degC or None, mean its mean g) as
-    ObsTable columns (pose_id apart): meas_g = window mean, sigma_g = std_window sqrt(tau_hold /
+) -> tuple[dict[str, np.ndarray], np.ndarray]:  # fmt: skip
+    """(columns, tau): the observation rows of one trimmed hold (t s, acc g, temp degC or None, mean
+    its mean g) as ObsTable columns (pose_id apart), and the hold's integrated autocorrelation time
+    per axis (samples; hold_noise.integrated_autocorr_time, for hold_stats). Columns: meas_g = window mean, sigma_g = std_window sqrt(tau_hold /
     n_window) (floored at quantum / sqrt(12 n)), t_s = mean sample time of the window,
     t_in_pose_s = t_s - label start, temp_degC = window mean, dtemp_degC_per_s = slope of the window
     means within the hold (the in-window slope for a single-window hold), q = the label's nominal
@@ -229,14 +230,21 @@ def hold_rows(
         tw = np.add.reduceat(temp, starts) / n
         cols["temp_degC"] = tw
         cols["dtemp_degC_per_s"] = np.gradient(tw, tmid) if k >= 2 else np.array([temp_slope(t, temp)])
-    return cols
+    return cols, tau
 
 
 def hold_stats(
-    p: PoseLabel, t: np.ndarray, acc: np.ndarray, temp: np.ndarray | None, mean: np.ndarray, quantum: float
+    p: PoseLabel,
+    t: np.ndarray,
+    acc: np.ndarray,
+    temp: np.ndarray | None,
+    mean: np.ndarray,
+    quantum: float,
+    tau: np.ndarray | None = None,
 ) -> PoseStats:
-    """PoseStats of one trimmed hold (arguments as hold_rows)."""
-    sem, tau = sem_autocorr(acc, quantum=quantum)
+    """PoseStats of one trimmed hold (arguments as hold_rows; tau: the tau hold_rows returned for
+    it, the same values: the autocorrelation is not computed again)."""
+    sem, tau = sem_autocorr(acc, quantum=quantum, tau=tau)
     tmean = dtemp = None
     if temp is not None:
         tmean = float(temp.mean())

@@ -121,13 +121,15 @@ class _Holds:
             return
         if self.wins is not None:
             self.wins.add(p, *static_windows(t, acc, mean=mean))
+        tau = None  # the hold's autocorrelation time, computed once for the rows and the stats
         if self.window_s is not None:
             if p.name not in self.names:
                 self.names.append(p.name)
-            cols = hold_rows(p, t, acc, temp, mean, self.window_s, self.quantum)
+            cols, tau = hold_rows(p, t, acc, temp, mean, self.window_s, self.quantum)
             self.rows.add({"pose_id": np.full(len(cols["t_s"]), self.names.index(p.name)), **cols})
         if self.stats_out is not None:
-            self.stats_out.append(hold_stats(p, t, acc, temp, mean, self.quantum))
+            same = tau is not None and acc.dtype == np.float64  # hold_stats' own tau would be these bits
+            self.stats_out.append(hold_stats(p, t, acc, temp, mean, self.quantum, tau if same else None))
 
     def judge(self) -> None:
         """The session-wide refusals, in order: units, labels, motion (InputError)."""

@@ -8,13 +8,29 @@ is silently altered. Every bad input raises a one-line InputError naming the fil
 
 from __future__ import annotations
 
+from importlib import import_module
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from accellog.core.errors import InputError
-from accellog.core.session import Session
-from accellog.store.importers.capstone import PoseTable, import_capstone, load_capstone_pose_table
-from accellog.store.importers.csv import CsvOptions, import_csv, import_csv_to_mcap
-from accellog.store.importers.imucal import import_imucal
+
+if TYPE_CHECKING:
+    from accellog.core.session import Session
+    from accellog.store.importers.capstone import PoseTable, import_capstone, load_capstone_pose_table
+    from accellog.store.importers.csv import CsvOptions, import_csv, import_csv_to_mcap
+    from accellog.store.importers.imucal import import_imucal
+
+# each name loaded from its module on first use: a sibling module (ros2.is_ros2_bag, asked by every
+# streamed command) is reached without loading the CSV/capstone/imucal importers
+_WHERE = {
+    "CsvOptions": "csv",
+    "import_csv": "csv",
+    "import_csv_to_mcap": "csv",
+    "PoseTable": "capstone",
+    "import_capstone": "capstone",
+    "load_capstone_pose_table": "capstone",
+    "import_imucal": "imucal",
+}
 
 __all__ = [
     "CsvOptions",
@@ -28,13 +44,25 @@ __all__ = [
 ]
 
 
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        return getattr(import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def import_file(kind: str, path: str | Path, **options) -> Session:
     """Dispatch: kind 'capstone' | 'imucal' | 'csv' | 'ros2' (options passed on)."""
     if kind == "capstone":
+        from accellog.store.importers.capstone import import_capstone
+
         return import_capstone(path)
     if kind == "imucal":
+        from accellog.store.importers.imucal import import_imucal
+
         return import_imucal(path, **options)
     if kind == "csv":
+        from accellog.store.importers.csv import import_csv
+
         return import_csv(path, **options)
     if kind == "ros2":
         from accellog.store.importers.ros2 import import_ros2
