@@ -1,7 +1,7 @@
 """The generic MCAP reader: mcap's SeekingReader + ``BatchDecoder`` per topic, and salvage of unfinished files.
 
 ``recover`` scans an unfinished file front to back and keeps every complete chunk (all or nothing per
-chunk). The fast reader (accellog.store.fastread) falls back here on anything outside the canonical
+chunk). The fast reader (accellog.store.mcap.fastread) falls back here on anything outside the canonical
 layout; both give identical results where both apply.
 
 Corruption: every chunk's uncompressed CRC is checked (when the writer stored one); a chunk that
@@ -24,10 +24,10 @@ from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from accellog.core.errors import InputError
-from accellog.store.batch_decode import DecodedBatch
 from accellog.store.codec import BatchDecoder
 from accellog.store.layout import MCAP_MAGIC
-from accellog.store.mcap_records import scanned_metadata
+from accellog.store.mcap.batch_decode import DecodedBatch
+from accellog.store.mcap.records import scanned_metadata
 
 try:  # ISA-L's CRC-32: the same polynomial and values as zlib.crc32, ~7x faster (PCLMUL); optional
     from isal.isal_zlib import crc32

@@ -18,8 +18,8 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.units import TEMP_LSB_PER_DEGC, temp_counts_to_degC
-from accellog.store.batch_decode import BatchAccumulator, DecodedBatch
 from accellog.store.layout import NS_PER_S
+from accellog.store.mcap.batch_decode import BatchAccumulator, DecodedBatch
 
 F8 = np.dtype(np.float64)
 INT64_MAX = np.iinfo(np.int64).max

@@ -22,7 +22,6 @@ from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
 from accellog.core.units import temp_counts_to_degC
 from accellog.store.collect import Collected, Damage, Decoder, check_file, generic_collect, recover
-from accellog.store.fastread import fast_collect
 from accellog.store.imu_arrays import ImuAccumulator, first_indexes, lsb_scales
 from accellog.store.layout import (
     DERIVED_PREFIX,
@@ -34,8 +33,9 @@ from accellog.store.layout import (
     TOPIC_TRUTH,
     metadata_to_meta,
 )
-from accellog.store.mcap_records import scanned_metadata
-from accellog.store.mcap_summary import SummaryFacts, attachments_of, summary_of
+from accellog.store.mcap.fastread import fast_collect
+from accellog.store.mcap.records import scanned_metadata
+from accellog.store.mcap.summary import SummaryFacts, attachments_of, summary_of
 from accellog.store.schema import full_name
 
 # read_session / read_vector3 try the vectorised reader first; False forces the generic reader (tests and
@@ -380,7 +380,7 @@ def read_attachments(path: str | Path) -> list[tuple[str, str, bytes]]:
 
 
 def _facts_summary(facts: SummaryFacts) -> dict:
-    """session_summary's keys of a finished file, from mcap_summary.summary_of."""
+    """session_summary's keys of a finished file, from mcap.summary.summary_of."""
     st = facts.statistics
     return {
         "finished": True,

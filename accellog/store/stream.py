@@ -27,10 +27,10 @@ from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.heap import HeapTrim
 from accellog.core.session import Event, PoseLabel, SessionMeta
 from accellog.core.units import temp_counts_to_degC
-from accellog.store.batch_decode import DecodedBatch
 from accellog.store.collect import check_file
 from accellog.store.imu_arrays import first_indexes, per_sample
 from accellog.store.layout import NS_PER_S, TOPIC_EVENTS, TOPIC_IMU, TOPIC_POSES, metadata_to_meta
+from accellog.store.mcap.batch_decode import DecodedBatch
 
 
 @dataclass
@@ -53,7 +53,7 @@ class ImuBlock:
 
 def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
     """The session's IMU samples block by block (see module doc); raises InputError as read_session."""
-    from accellog.store import fastread
+    from accellog.store.mcap import fastread
 
     path = Path(path)
     where = str(path)

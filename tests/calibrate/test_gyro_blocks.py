@@ -88,7 +88,7 @@ def test_a_hold_labelled_past_the_end(sessions):
 def test_the_file_is_read_in_its_chunk_groups(sessions, monkeypatch):
     """stream_calibrate_gyro feeds the file's chunk groups: many of them here, two passes."""
     from accellog.calibrate.gyro import stream
-    from accellog.store import fastread
+    from accellog.store.mcap import fastread
 
     monkeypatch.setattr(fastread, "_GROUP_BYTES", 8 << 10)
     seen = []

@@ -14,7 +14,7 @@ from accellog.core.errors import InputError
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import load_input, run_fit
 from accellog.flows.stream_input import can_stream, open_streamed
-from accellog.store import fastread
+from accellog.store.mcap import fastread
 from accellog.store.reader import read_session
 
 

@@ -101,7 +101,7 @@ def test_fit_takes_the_gyro_first_pass_in_the_observation_pass(tmp_path, monkeyp
     from accellog.calibrate.observe import stream_segment
     from accellog.flows.simulate import Scenario, simulate
     from accellog.flows.stages import run_fit
-    from accellog.store import fastread
+    from accellog.store.mcap import fastread
     from accellog.store.stream import read_labels
 
     path = tmp_path / "six.mcap"

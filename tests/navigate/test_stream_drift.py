@@ -25,7 +25,7 @@ from accellog.store.writer import write_session
 @pytest.fixture(autouse=True)
 def small_groups(monkeypatch):
     """Chunk groups of 64 KiB instead of 4 MiB: a 40 s session streams in ~15 blocks."""
-    from accellog.store import fastread
+    from accellog.store.mcap import fastread
 
     monkeypatch.setattr(fastread, "_GROUP_BYTES", 1 << 16)
 

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from accellog.store import fastread
+from accellog.store.mcap import fastread
 
 
 def _greedy(sizes: list[int], whole: bool) -> list[tuple[int, int]]:

@@ -14,9 +14,9 @@ from mcap.reader import make_reader
 
 from accellog.core.errors import DataIntegrityWarning
 from accellog.flows.simulate import Scenario, simulate
-from accellog.store import group_decompress
 from accellog.store.collect import crc32_holding_gil
-from accellog.store.mcap_index import read_footer
+from accellog.store.mcap import decompress as group_decompress
+from accellog.store.mcap.index import read_footer
 from accellog.store.reader import read_session
 
 COLUMNS = ("t_s", "sample_index", "accel_counts", "gyro_counts", "temp_counts", "accel_g", "host_time_s")

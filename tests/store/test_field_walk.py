@@ -1,4 +1,4 @@
-"""store.field_walk: the sequence walk (same keys, lengths free: recorder batches of varying FIFO reads)
+"""store.mcap.field_walk: the sequence walk (same keys, lengths free: recorder batches of varying FIFO reads)
 and the varint reader give what the message-by-message decoder gives."""
 
 from __future__ import annotations
@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accellog.store import field_walk
-from accellog.store.batch_decode import decode_batch
 from accellog.store.codec import BatchDecoder, encode
+from accellog.store.mcap import field_walk
+from accellog.store.mcap.batch_decode import decode_batch
 
 
 def _imu_batches(rng, n_messages: int, drop_host_at: int | None = None) -> list[bytes]:

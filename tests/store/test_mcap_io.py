@@ -20,9 +20,10 @@ from mcap.writer import Writer
 
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
-from accellog.store import fastread, field_walk, reader, record_starts
+from accellog.store import reader
 from accellog.store.codec import encode
 from accellog.store.layout import meta_to_metadata
+from accellog.store.mcap import fastread, field_walk, record_starts
 from accellog.store.reader import read_attachments, read_session, read_vector3, session_summary
 from accellog.store.schema import file_descriptor_set_bytes, full_name, stock_message_class
 from accellog.store.writer import SessionWriter, write_session
@@ -639,7 +640,7 @@ def test_equal_records_guess_checks_every_record():
     whose every guessed record it checked: a chunk whose size is a multiple of the guessed stride
     but whose records differ, one that starts with another record, and one that does not divide
     evenly are left to the walk; the offsets kept are those of the walk."""
-    from accellog.store.mcap_index import equal_records
+    from accellog.store.mcap.index import equal_records
 
     def rec(op: int, ln: int) -> bytes:
         return bytes([op]) + ln.to_bytes(8, "little") + bytes([5]) * ln  # payload bytes look like opcodes

@@ -1,7 +1,7 @@
 """A session written by the official mcap Writer without a metadata index (``index_types`` without
 METADATA, or no indexes at all) reads, streams, lists its labels and fits exactly like the same
 session written with the index, in the fast and in the generic reader: the session record is found
-by walking the records between the chunks (store.mcap_records)."""
+by walking the records between the chunks (store.mcap.records)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from mcap.writer import IndexType, Writer
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store import reader
-from accellog.store.mcap_records import metadata_between_chunks, scanned_metadata
+from accellog.store.mcap.records import metadata_between_chunks, scanned_metadata
 from accellog.store.stream import iter_imu, read_labels
 
 NO_METADATA_INDEX = IndexType.ALL & ~IndexType.METADATA

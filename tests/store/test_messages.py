@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2
 
-from accellog.store.batch_decode import BatchAccumulator, decode_batch, gather_bytes
 from accellog.store.codec import BatchDecoder, decode, encode
+from accellog.store.mcap.batch_decode import BatchAccumulator, decode_batch, gather_bytes
 from accellog.store.schema import (
     MESSAGE_DEFS,
     MESSAGES,
@@ -217,7 +217,7 @@ def test_decode_batch_equals_batch_decoder(message, sizes):
 def test_decode_batch_uniform_layout(message, spacing, monkeypatch):
     """Messages of one layout (same fields, lengths and varint sizes; values vary) take the uniform
     walk, read as one strided view when evenly spaced and gathered by offset otherwise: same result."""
-    import accellog.store.field_walk as fw
+    import accellog.store.mcap.field_walk as fw
 
     rng = np.random.default_rng(sum(map(ord, message + spacing)))
     fields = MESSAGE_DEFS[message].fields

@@ -13,9 +13,11 @@ import pytest
 
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import temp_counts_to_degC
-from accellog.store import fastread, imu_arrays, mcap_index, reader
-from accellog.store.batch_decode import decode_batch
+from accellog.store import imu_arrays, reader
 from accellog.store.codec import encode
+from accellog.store.mcap import fastread
+from accellog.store.mcap import index as mcap_index
+from accellog.store.mcap.batch_decode import decode_batch
 from accellog.store.reader import read_session
 from accellog.store.writer import SessionWriter, write_session
 

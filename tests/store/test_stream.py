@@ -9,7 +9,7 @@ import pytest
 
 from accellog.core.errors import DataIntegrityWarning
 from accellog.flows.simulate import Scenario, simulate
-from accellog.store import fastread
+from accellog.store.mcap import fastread
 from accellog.store.reader import read_session
 from accellog.store.stream import iter_imu, read_labels
 
@@ -82,8 +82,8 @@ def test_labels_read_only_the_chunks_that_hold_them(recorded, tmp_path):
     from mcap.reader import make_reader
 
     from accellog.core.session import PoseLabel
-    from accellog.store.fastread import fast_collect
     from accellog.store.layout import TOPIC_EVENTS, TOPIC_POSES
+    from accellog.store.mcap.fastread import fast_collect
 
     with open(recorded, "rb") as f:
         summary = make_reader(f).get_summary()

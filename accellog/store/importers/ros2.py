@@ -66,7 +66,7 @@ def is_ros2_bag(path: str | Path) -> bool:
         return False
     from mcap.reader import make_reader
 
-    from accellog.store.mcap_summary import summary_of
+    from accellog.store.mcap.summary import summary_of
 
     try:
         schemas = summary_of(p).schemas  # without the chunk indexes (~75 MB for a day of 0.5 s chunks)

@@ -3,9 +3,9 @@
 mcap's ``SeekingReader.get_summary`` makes a Python object of every chunk index: a day of live
 recording (0.5 s chunks) has ~170 k of them, ~75 MB and ~2 s. Asking whether a file is a ROS 2 bag,
 listing its statistics or attachments does not need them. ``summary_of`` walks the summary records
-(``mcap_index.read_summary``, which keeps only the chunk index offsets, 8 bytes each) and parses the
+(``index.read_summary``, which keeps only the chunk index offsets, 8 bytes each) and parses the
 statistics, attachment index and metadata records with mcap's own record parsers. Raises
-``mcap_index.NotFast`` (or ``SummaryDamaged``) where the file is not one it takes: the callers then
+``index.NotFast`` (or ``SummaryDamaged``) where the file is not one it takes: the callers then
 use mcap's reader.
 """
 
@@ -20,8 +20,8 @@ from mcap.data_stream import ReadDataStream
 from mcap.records import Attachment, AttachmentIndex, Channel, Schema, Statistics
 
 from accellog.store.collect import release_pages
-from accellog.store.mcap_index import PAGES_AT_ONCE, REC, read_footer, read_metadata, read_summary
-from accellog.store.mcap_records import metadata_between_chunks
+from accellog.store.mcap.index import PAGES_AT_ONCE, REC, read_footer, read_metadata, read_summary
+from accellog.store.mcap.records import metadata_between_chunks
 
 OP_ATTACHMENT, OP_ATTACHMENT_INDEX, OP_STATISTICS = 0x09, 0x0A, 0x0B
 

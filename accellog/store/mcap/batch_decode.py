@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from accellog.store.byte_views import byte_window, void_window
 from accellog.store.codec import DOUBLE, FieldCodec, codecs_of
-from accellog.store.field_walk import WIRE, Walk, walk_fields
+from accellog.store.mcap.byte_views import byte_window, void_window
+from accellog.store.mcap.field_walk import WIRE, Walk, walk_fields
 
 _MAX_LENGTH_GROUPS = 64  # gather_bytes: message-sized copies per distinct length up to this many lengths
 

@@ -15,8 +15,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from accellog.store.byte_views import read_le
 from accellog.store.codec import FieldCodec
+from accellog.store.mcap.byte_views import read_le
 
 WIRE = {"packed": 2, "string": 2, "bytes": 2, "varint_u": 0, "varint_s": 0, "double": 1}
 

@@ -12,8 +12,8 @@ import itertools
 
 import numpy as np
 
-from accellog.store.byte_views import read_le
-from accellog.store.mcap_index import (
+from accellog.store.mcap.byte_views import read_le
+from accellog.store.mcap.index import (
     OP_CHANNEL,
     OP_MESSAGE,
     OP_SCHEMA,
@@ -34,7 +34,7 @@ def chunkwise_starts(records: bytes | bytearray, usize: list[int]) -> np.ndarray
     step, so the steps are the records of the longest chunk whatever their lengths; the same checks
     (no record across its chunk end; schema and channel records fill their length). None if a chunk
     holds more than MAX_STEPS records (then the guessing walk does better). Chunks of equal-length
-    Messages only (mcap_index.equal_records, all checked at once) are not walked."""
+    Messages only (index.equal_records, all checked at once) are not walked."""
     size = np.asarray(usize, dtype=np.int64)
     end = np.cumsum(size)
     pos, end = (end - size)[size > 0], end[size > 0]

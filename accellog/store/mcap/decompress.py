@@ -13,7 +13,7 @@ import numpy as np
 import zstandard
 
 from accellog.store.collect import Damage, crc32_holding_gil, release_pages
-from accellog.store.mcap_index import Bytes, NotFast, header_agrees
+from accellog.store.mcap.index import Bytes, NotFast, header_agrees
 
 SMALL_CHUNK = 128 << 10  # decompressed bytes of a chunk below which zstd chunks go a group at a time
 PAD = 16  # zero bytes after the decompressed records (vectorised reads may look a few bytes ahead)

@@ -1,9 +1,9 @@
 """Fast path of the MCAP reader: walk a finished file with struct/numpy, decode every batch channel at once.
 
 The file is mapped, footer and summary parsed with struct, chunks decompressed 4-8 MiB at a time into
-reused buffers (store.group_decompress; the next groups on worker threads while this one is decoded),
+reused buffers (store.mcap.decompress; the next groups on worker threads while this one is decoded),
 records walked by checked guesses (runs of equal-length messages) or, in groups of many small chunks,
-all chunks side by side (store.record_starts), and every channel's payloads decoded at once by
+all chunks side by side (store.mcap.record_starts), and every channel's payloads decoded at once by
 ``batch_decode.decode_batch`` straight into arrays sized once (a channel's accumulator may convert each
 group as it comes: store.imu_arrays). Anything unexpected raises ``NotFast`` and the generic reader
 decides.
@@ -30,8 +30,6 @@ import numpy as np
 from mcap.records import Channel, Schema
 
 from accellog.core.errors import InputError
-from accellog.store.batch_decode import BatchAccumulator, decode_batch
-from accellog.store.byte_views import read_le
 from accellog.store.collect import (
     Collected,
     Sink,
@@ -40,8 +38,10 @@ from accellog.store.collect import (
     release_pages,
     stored_data_crc,
 )
-from accellog.store.group_decompress import PAD, SMALL_CHUNK, GroupDecompressor
-from accellog.store.mcap_index import (
+from accellog.store.mcap.batch_decode import BatchAccumulator, decode_batch
+from accellog.store.mcap.byte_views import read_le
+from accellog.store.mcap.decompress import PAD, SMALL_CHUNK, GroupDecompressor
+from accellog.store.mcap.index import (
     MESSAGE_HEADER,
     Bytes,
     NotFast,
@@ -53,8 +53,8 @@ from accellog.store.mcap_index import (
     read_metadata,
     read_summary,
 )
-from accellog.store.mcap_records import metadata_between_chunks
-from accellog.store.record_starts import MANY_CHUNKS, chunkwise_starts, message_starts
+from accellog.store.mcap.record_starts import MANY_CHUNKS, chunkwise_starts, message_starts
+from accellog.store.mcap.records import metadata_between_chunks
 
 # ---------------------------------------------------------------------------------------------
 # fast path: walk the MCAP file with struct/numpy, decode every batch channel at once
@@ -216,7 +216,7 @@ def _session_metadata(data: Bytes, at_list: list[int], stream: str | None, summa
     """(key-values of the 'session' metadata record, (byte, error) of a damaged one or None); a
     stream cannot wait for the data section CRC's verdict, so damage there is NotFast at once.
     at_list: the metadata index's offsets; without a metadata index (another writer's choice) the
-    records between the chunks are walked (mcap_records.metadata_between_chunks)."""
+    records between the chunks are walked (records.metadata_between_chunks)."""
     meta_kv: dict[str, str] = {}
     meta_error: tuple[int, str] | None = None
     for at in at_list or metadata_between_chunks(data, summary_start):

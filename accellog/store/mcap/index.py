@@ -1,7 +1,7 @@
 """The index of a finished MCAP file, read with struct/numpy: footer, summary section (schemas,
 channels, chunk and metadata indexes), chunk headers checked against their index, metadata records.
 
-Used by accellog.store.fastread (the fast reader); anything outside the canonical layout raises
+Used by accellog.store.mcap.fastread (the fast reader); anything outside the canonical layout raises
 ``NotFast`` and the generic reader decides; ``SummaryDamaged`` means the summary CRC failed.
 """
 
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 from mcap.records import Channel, Schema
 
-from accellog.store.byte_views import read_le
 from accellog.store.collect import crc32, release_pages
 from accellog.store.layout import MCAP_MAGIC
+from accellog.store.mcap.byte_views import read_le
 
 REC = struct.Struct("<BQ")  # record prefix: opcode u8, content length u64
 U16, U32, U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
