@@ -112,8 +112,10 @@ def _device_columns(meta) -> dict[str, Any]:
     }
 
 
-def session_task(path: str, content_sha256: str, spec: dict, pipe_sha256: str) -> dict[str, Any]:
+def session_task(path: str, content_sha256: str | None, spec: dict, pipe_sha256: str) -> dict[str, Any]:
     """Run the pipeline on one session; returns {'rows': [...], 'cals': {model: dict}} (small).
+    `content_sha256` None: the task hashes the file itself (a run where every session runs: the
+    worker reads the file anyway, the client does not read it first).
 
     Never raises for bad input: an AccellogError (or any exception) becomes one error row."""
     from accellog.flows.pipeline import run_pipeline
@@ -121,6 +123,8 @@ def session_task(path: str, content_sha256: str, spec: dict, pipe_sha256: str) -
 
     pin_blas()
     t0, c0 = time.perf_counter(), time.process_time()
+    if content_sha256 is None:
+        content_sha256 = sha256_file(path) or ""
     base = {
         "session": str(path),
         "session_name": Path(path).stem,
@@ -281,7 +285,9 @@ def warm_worker() -> int:
     return os.getpid()
 
 
-def session_batch(paths: Sequence[str], hashes: Sequence[str], spec: dict, pipe_sha256: str) -> list[dict]:
+def session_batch(
+    paths: Sequence[str], hashes: Sequence[str | None], spec: dict, pipe_sha256: str
+) -> list[dict]:
     """``session_task`` on each session of a batch, in order (one Dask task)."""
     return [session_task(p, h, spec, pipe_sha256) for p, h in zip(paths, hashes, strict=True)]
 
@@ -322,9 +328,12 @@ def run_fleet(
     own = None
     try:
         prev = read_table(table_path) if table_path.exists() else []
-        hashes = {p: sha256_file(p) or "" for p in files}
-        done = {(r["session"], r["content_sha256"], r["pipeline_sha256"]) for r in prev}
-        todo = [p for p in files if force or (p, hashes[p], ph) not in done]
+        if prev and not force:  # the content hashes decide what runs
+            hashes: dict[str, str | None] = {p: sha256_file(p) or "" for p in files}
+            done = {(r["session"], r["content_sha256"], r["pipeline_sha256"]) for r in prev}
+            todo = [p for p in files if (p, hashes[p], ph) not in done]
+        else:  # everything runs: each task hashes its file (read there anyway)
+            hashes, todo = dict.fromkeys(files), list(files)
         if todo and need:
             own = client = (starting or start_client(scheduler, workers)).result()
         res = FleetRunResult(
