@@ -35,10 +35,12 @@ import numpy as np
 
 from accellog.calibrate.calfile.calibration import sha256_file, write_json_atomic
 from accellog.core.errors import AccellogError, InputError
+from accellog.core.jsonio import dumps
 from accellog.core.version import __version__
 from accellog.flows.fleet_dask import close_own, run_batches, start_client
 from accellog.flows.fleet_inputs import find_sessions, safe_part, unique_files
 from accellog.flows.fleet_table import TABLE_NAME, read_table, write_table
+from accellog.store.atomic import write_text_atomic
 
 __all__ = [
     "CAL_DIR",
@@ -244,8 +246,6 @@ class FleetRunResult:
         }
 
     def to_json(self) -> str:
-        from accellog.core.jsonio import dumps
-
         return dumps(self.to_dict())
 
 
@@ -288,8 +288,14 @@ def warm_worker() -> int:
 def session_batch(
     paths: Sequence[str], hashes: Sequence[str | None], spec: dict, pipe_sha256: str
 ) -> list[dict]:
-    """``session_task`` on each session of a batch, in order (one Dask task)."""
-    return [session_task(p, h, spec, pipe_sha256) for p, h in zip(paths, hashes, strict=True)]
+    """``session_task`` on each session of a batch, in order (one Dask task); the calibrations come
+    back as the JSON text of their files (encoded here on the worker, not in the client, whose time
+    per session bounds how many workers it can keep busy)."""
+    out = []
+    for p, h in zip(paths, hashes, strict=True):
+        r = session_task(p, h, spec, pipe_sha256)
+        out.append({**r, "cals": {m: dumps(c) + "\n" for m, c in r["cals"].items()}})
+    return out
 
 
 def _run_serial(todo, hashes, spec, ph, on_result) -> None:
@@ -421,7 +427,10 @@ def _store_results(out: Path, results: list[dict]) -> list[dict]:
                         f"{safe_part(row['session_name'])}_{row['content_sha256'][:8]}_{safe_part(row['model'])}.json"
                     )
                 )
-                write_json_atomic(out / rel, cal)
+                if isinstance(cal, str):  # the file's text, encoded by the worker (session_batch)
+                    write_text_atomic(out / rel, cal, mkdir=True)
+                else:
+                    write_json_atomic(out / rel, cal)
                 row["calibration"] = str(rel)
             rows.append(row)
     return rows
