@@ -102,6 +102,11 @@ def measure_inner(files: list[str], workers: int, scratch: Path) -> dict[str, fl
         m["noop_wall"] = (time.perf_counter() - t0) / k
         m["noop_worker"] = (wcpu() - w0) / k
         m["noop_client"] = (_cpu() - c0) / k
+        t0 = time.perf_counter()  # the fixed cost on a running cluster: connect, warm-up, close
+        other = type(client)(client.scheduler.address)
+        other.run(warm_worker)
+        other.close()
+        m["f_running"] = time.perf_counter() - t0
     finally:
         t0 = time.perf_counter()
         close_own(client)
@@ -169,9 +174,6 @@ def main() -> None:
     print(f"\n| quantity | measured | ({_load()}; CPU times stand for idle wall times) |\n|---|---|---|")
     print(f"| t_s: CPU per session, serial loop | {ms * m['t_s']:.1f} ms | session_task |")
     print(f"| c_s: client CPU per session around it (store, table) | {ms * m['c_s']:.2f} ms | serial |")
-    print(
-        f"| c_p - c_s: Dask's share of it (scheduler, comms, results) | {ms * (m['c_p'] - m['c_s']):.2f} ms | |"
-    )
     print(f"| t_w: CPU per session on a worker, {w} in parallel | {ms * m['t_w']:.1f} ms "
           f"(task {ms * m['t_w_task']:.1f} ms) | the worker process as a whole |")  # fmt: skip
     print(f"| c_p: client + scheduler CPU per session, parallel | {ms * m['c_p']:.2f} ms | "
@@ -188,10 +190,13 @@ def main() -> None:
           f"(CPU {cli[f'{n} serial'][1]:.2f} / {cli[f'{n} par'][1]:.2f} s) | measured speed-up {ws / wp:.2f}x |")  # fmt: skip
     ts, tp = predict(m, a_s, fixed, n, w, os.cpu_count())
     print(f"| model, {n} sessions on {w} local workers | {ts:.2f} / {tp:.2f} s | predicted {ts / tp:.2f}x |")
-    print(f"\n| {a.predict} sessions | T_serial | T_parallel | speed-up |\n|---|---|---|---|")
+    print(f"| fixed cost on a running cluster (connect, warm-up) | {m['f_running']:.2f} s | F_run |")
+    print(f"\n| {a.predict} sessions, cluster | T_serial | T_par, cluster started (F) | speed-up "
+          "| T_par, running cluster (F_run) | speed-up |\n|---|---|---|---|---|---|")  # fmt: skip
     for wk in a.at:
         ts, tp = predict(m, a_s, fixed, a.predict, wk, None)
-        print(f"| {wk} workers (cluster) | {ts:.1f} s | {tp:.1f} s | {ts / tp:.1f}x |")
+        _, tr = predict(m, a_s, m["f_running"], a.predict, wk, None)
+        print(f"| {wk} workers | {ts:.1f} s | {tp:.1f} s | {ts / tp:.1f}x | {tr:.1f} s | {ts / tr:.1f}x |")
 
 
 if __name__ == "__main__":
