@@ -328,7 +328,7 @@ def run_fleet(
     table_path = out / TABLE_NAME
     need = client is None and workers != 0  # a client to make: of `scheduler`, else a local cluster
     local = need and not scheduler
-    # every session will run: start the local cluster now, its workers import while this hashes
+    # every session will run: start the local cluster now (its workers import meanwhile)
     early = local and files and (force or not table_path.exists())
     starting = start_client(None, workers) if early else None
     own = None
