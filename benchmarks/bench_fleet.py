@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.flows.fleet import local_cluster, run_fleet
+from accellog.flows.fleet import run_fleet
+from accellog.flows.fleet_dask import local_cluster
 from accellog.flows.fleet_sim import FleetSpec, simulate_fleet
 
 REPO = Path(__file__).resolve().parents[1]

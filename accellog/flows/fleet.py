@@ -2,19 +2,22 @@
 
     accellog fleet run PIPELINE.toml 'SESSIONS/**/*.mcap' -o FLEET/
 
-Each session is one task (``session_task``): the worker reads the file with accellog's reader
+Each session is one call of ``session_task``: the worker reads the file with accellog's reader
 (fastread for finished files), runs the pipeline with every input role bound to that file, and
 returns a few rows (one per model: parameters +- 1 sigma, chi2/dof, held-out RMS, noise) plus the
-calibration dicts: a few kB, never samples. A file that cannot be read or fitted becomes one error
-row with its one-line message. The client writes FLEET/fleet.parquet atomically (temp + rename)
-and FLEET/cal/<device>/<session>_<model>.json.
+calibration dicts: a few kB, never samples. A Dask task runs a batch of sessions
+(``session_batch``; batch sizes: accellog.flows.fleet_dask.batches). A file that cannot be read or
+fitted becomes one error row with its one-line message. The client writes
+FLEET/cal/<device>/<session>_<model>.json as each result arrives (while the workers go on) and
+FLEET/fleet.parquet atomically (temp + rename) at the end.
 
 Re-runs: a session whose content SHA-256 and pipeline hash (pipeline spec + accellog version) are
 already in fleet.parquet is skipped (its rows are kept); ``force`` recomputes everything.
 
 Cluster: a LocalCluster bound to 127.0.0.1 (one single-threaded worker process per core) unless
 a scheduler address (tcp://HOST:8786) is given; the input paths must then be readable by the
-workers under the same names (shared filesystem). Dask is imported only here.
+workers under the same names (shared filesystem). Dask is imported only in
+accellog.flows.fleet_dask.
 """
 
 from __future__ import annotations
@@ -32,9 +35,12 @@ import numpy as np
 
 from accellog.calibrate.calfile.calibration import sha256_file, write_json_atomic
 from accellog.core.errors import AccellogError, InputError
+from accellog.core.jsonio import dumps
 from accellog.core.version import __version__
+from accellog.flows.fleet_dask import close_own, run_batches, start_client
 from accellog.flows.fleet_inputs import find_sessions, safe_part, unique_files
 from accellog.flows.fleet_table import TABLE_NAME, read_table, write_table
+from accellog.store.atomic import write_text_atomic
 
 __all__ = [
     "CAL_DIR",
@@ -108,8 +114,10 @@ def _device_columns(meta) -> dict[str, Any]:
     }
 
 
-def session_task(path: str, content_sha256: str, spec: dict, pipe_sha256: str) -> dict[str, Any]:
+def session_task(path: str, content_sha256: str | None, spec: dict, pipe_sha256: str) -> dict[str, Any]:
     """Run the pipeline on one session; returns {'rows': [...], 'cals': {model: dict}} (small).
+    `content_sha256` None: the task hashes the file itself (a run where every session runs: the
+    worker reads the file anyway, the client does not read it first).
 
     Never raises for bad input: an AccellogError (or any exception) becomes one error row."""
     from accellog.flows.pipeline import run_pipeline
@@ -117,6 +125,8 @@ def session_task(path: str, content_sha256: str, spec: dict, pipe_sha256: str) -
 
     pin_blas()
     t0, c0 = time.perf_counter(), time.process_time()
+    if content_sha256 is None:
+        content_sha256 = sha256_file(path) or ""
     base = {
         "session": str(path),
         "session_name": Path(path).stem,
@@ -236,69 +246,11 @@ class FleetRunResult:
         }
 
     def to_json(self) -> str:
-        from accellog.core.jsonio import dumps
-
         return dumps(self.to_dict())
 
 
 Progress = Callable[[int, int, dict[str, Any]], None]
 """on_progress(done, total, task_result): once before the first task (0, total, {}), then after each."""
-
-
-WORKER_CONFIG = {
-    "distributed.worker.profile.enabled": False,
-    "distributed.admin.system-monitor.interval": "2s",
-    "distributed.admin.system-monitor.gil.enabled": False,
-    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": 1 << 30,
-}
-"""Dask settings of local workers: no statistical profiler (a thread sampling the task thread's
-stack every 10 ms), a slower system monitor, and glibc's malloc trim threshold raised from Dask's
-64 KiB to 1 GiB: with Dask's value every freed numpy array went back to the kernel and came back as
-page faults, which doubled the CPU time of a task (172 vs 92 ms; 2 workers ran at 0.94x the serial
-loop, 1.78x with this setting, benchmarks/bench_fleet.py). On a real cluster set the same keys in the
-workers' dask config (docs/fleet.md)."""
-
-
-def local_cluster(n_workers: int | None = None):
-    """A dask LocalCluster on 127.0.0.1: n_workers single-threaded processes (default: cores),
-    no dashboard, WORKER_CONFIG."""
-    import logging
-
-    import dask
-    from dask.distributed import LocalCluster
-
-    n = n_workers or os.cpu_count() or 1
-    with dask.config.set(WORKER_CONFIG):
-        return LocalCluster(
-            n_workers=n,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address="127.0.0.1:0",  # Dask's HTTP endpoints on a free local port
-            silence_logs=logging.ERROR,
-        )
-
-
-def _n_workers(dask_scheduler) -> int:
-    return len(dask_scheduler.workers)
-
-
-def _close_own(client) -> None:
-    """Close a client and the cluster accellog started for it, workers first: a worker whose
-    scheduler went first logged 'Failed to communicate with scheduler during heartbeat' with a
-    traceback on stderr after a successful run."""
-    cluster = client.cluster
-    if cluster is not None:
-        try:
-            cluster.scale(0)  # the nannies stop their workers while the scheduler still answers
-            end = time.monotonic() + 30.0
-            while client.run_on_scheduler(_n_workers) and time.monotonic() < end:
-                time.sleep(0.05)
-        except Exception:  # a cluster that is already going away: closing below is enough
-            pass
-    client.close()
-    if cluster is not None:
-        cluster.close()
 
 
 _PINNED = False
@@ -318,48 +270,37 @@ def pin_blas() -> None:
 
 def warm_worker() -> int:
     """Import what a task needs and pin BLAS to one thread (run once on each worker before timing);
-    returns the pid."""
+    returns the pid. scipy.optimize (imported lazily by the first fit) is half of it: 0.15 s of CPU
+    that the first task of every worker paid before."""
     pin_blas()
+    import scipy.optimize  # noqa: F401
+
     import accellog.calibrate.diagnosis.diagnose
     import accellog.calibrate.gyro.calibrate
     import accellog.calibrate.model.fit
+    import accellog.calibrate.model.variance
     import accellog.flows.pipeline
     import accellog.store.reader  # noqa: F401
 
     return os.getpid()
 
 
-def _run_serial(todo, hashes, spec, ph, on_progress) -> list[dict]:
+def session_batch(
+    paths: Sequence[str], hashes: Sequence[str | None], spec: dict, pipe_sha256: str
+) -> list[dict]:
+    """``session_task`` on each session of a batch, in order (one Dask task); the calibrations come
+    back as the JSON text of their files (encoded here on the worker, not in the client, whose time
+    per session bounds how many workers it can keep busy)."""
     out = []
-    for k, path in enumerate(todo):
-        r = session_task(path, hashes[path], spec, ph)
-        out.append(r)
-        if on_progress:
-            on_progress(k + 1, len(todo), r)
+    for p, h in zip(paths, hashes, strict=True):
+        r = session_task(p, h, spec, pipe_sha256)
+        out.append({**r, "cals": {m: dumps(c) + "\n" for m, c in r["cals"].items()}})
     return out
 
 
-def _run_dask(client, todo, hashes, spec, ph, on_progress) -> list[dict]:
-    from dask.distributed import as_completed
-
-    [spec_f] = client.scatter([spec], broadcast=True)
-    futs = client.map(session_task, todo, [hashes[p] for p in todo], spec=spec_f, pipe_sha256=ph, pure=False)
-    out = []
-    # the task function catches its own errors; a lost worker still surfaces here as an error row
-    for k, fut in enumerate(as_completed(futs)):
-        try:
-            r = fut.result()
-        except Exception as exc:
-            path = todo[futs.index(fut)]
-            r = {
-                "rows": [{"session": path, "model": "", "error": f"task failed: {type(exc).__name__}: {exc}"}]
-            }
-            r["cals"] = {}
-        out.append(r)
-        fut.release()
-        if on_progress:
-            on_progress(k + 1, len(todo), r)
-    return out
+def _run_serial(todo, hashes, spec, ph, on_result) -> None:
+    for path in todo:
+        on_result(session_task(path, hashes[path], spec, ph))
 
 
 def run_fleet(
@@ -385,48 +326,37 @@ def run_fleet(
     files = find_sessions(sessions) if isinstance(sessions, str) else unique_files(sessions)
     out = Path(out_dir)
     table_path = out / TABLE_NAME
-    prev = read_table(table_path) if table_path.exists() else []
-    hashes = {p: sha256_file(p) or "" for p in files}
-    done = {(r["session"], r["content_sha256"], r["pipeline_sha256"]) for r in prev}
-    todo = [p for p in files if force or (p, hashes[p], ph) not in done]
-    res = FleetRunResult(
-        out_dir=str(out),
-        table=str(table_path),
-        pipeline=spec["pipeline"]["name"],
-        n_sessions=len(files),
-        n_run=len(todo),
-        n_skipped=len(files) - len(todo),
-    )
-    if on_progress:
-        on_progress(0, len(todo), {})  # the total is known before the first task ends (no "0/?")
-    t0 = time.perf_counter()
-    if not todo:
-        results: list[dict] = []
-    elif client is not None or (workers != 0):
-        own = None
-        if client is None:
-            from dask.distributed import Client
-
-            own = Client(scheduler) if scheduler else Client(local_cluster(workers))
-            client = own
-        try:
-            res.scheduler = client.scheduler.address
-            res.n_workers = len(client.scheduler_info()["workers"])
-            client.run(warm_worker)  # imports (scipy, ...) once per worker, outside the timed phase
-            t0 = time.perf_counter()
-            results = _run_dask(client, todo, hashes, spec, ph, on_progress)
-        finally:
-            if own is not None:
-                _close_own(own)
-    else:
-        res.scheduler, res.n_workers = "serial", 1
-        warm_worker()
-        t0 = time.perf_counter()
-        results = _run_serial(todo, hashes, spec, ph, on_progress)
-    res.wall_s = time.perf_counter() - t0 if todo else 0.0
-    new_rows = _store_results(out, results)
-    res.sum_task_s = float(sum(r["rows"][0].get("task_s") or 0.0 for r in results))
-    res.sum_task_cpu_s = float(sum(r["rows"][0].get("task_cpu_s") or 0.0 for r in results))
+    need = client is None and workers != 0  # a client to make: of `scheduler`, else a local cluster
+    local = need and not scheduler
+    # every session will run: start the local cluster now (its workers import meanwhile)
+    early = local and files and (force or not table_path.exists())
+    starting = start_client(None, workers) if early else None
+    own = None
+    try:
+        prev = read_table(table_path) if table_path.exists() else []
+        if prev and not force:  # the content hashes decide what runs
+            hashes: dict[str, str | None] = {p: sha256_file(p) or "" for p in files}
+            done = {(r["session"], r["content_sha256"], r["pipeline_sha256"]) for r in prev}
+            todo = [p for p in files if (p, hashes[p], ph) not in done]
+        else:  # everything runs: each task hashes its file (read there anyway)
+            hashes, todo = dict.fromkeys(files), list(files)
+        if todo and need:
+            own = client = (starting or start_client(scheduler, workers)).result()
+        res = FleetRunResult(
+            out_dir=str(out),
+            table=str(table_path),
+            pipeline=spec["pipeline"]["name"],
+            n_sessions=len(files),
+            n_run=len(todo),
+            n_skipped=len(files) - len(todo),
+        )
+        new_rows, sums = _run(res, client, out, todo, hashes, spec, ph, on_progress)
+    finally:
+        if own is None and starting is not None and starting.exception() is None:
+            own = starting.result()  # started for sessions that did not run (an error above)
+        if own is not None:
+            close_own(own)
+    res.sum_task_s, res.sum_task_cpu_s = float(sums[0]), float(sums[1])
     res.cal_files = sum(1 for r in new_rows if r.get("calibration"))
     redone = set(todo)
     rows = [r for r in prev if r["session"] not in redone] + new_rows
@@ -437,6 +367,50 @@ def run_fleet(
     res.n_rows = len(rows)
     res.errors = sorted({(r["session"], r["error"]) for r in new_rows if r.get("error")})
     return res
+
+
+def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_progress):
+    """The task phase: `todo` on `client` (None: the serial loop here); each result is stored as it
+    arrives, by WRITERS threads. Returns (new table rows, [sum of task wall s, sum of task CPU s,
+    sessions done]); the task phase's wall time (to the last result stored, s) goes to res.wall_s."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    if on_progress:
+        on_progress(0, len(todo), {})  # the total is known before the first task ends (no "0/?")
+    stored: list = []  # futures of the rows of each stored result
+    sums = [0.0, 0.0, 0]
+
+    def on_result(r: dict) -> None:
+        """Hand one session's result to the writers (its calibration files are written while the
+        tasks go on) and count it."""
+        stored.append(writers.submit(_store_results, out, [r]))
+        sums[0] += r["rows"][0].get("task_s") or 0.0
+        sums[1] += r["rows"][0].get("task_cpu_s") or 0.0
+        sums[2] += 1
+        if on_progress:
+            on_progress(sums[2], len(todo), r)
+
+    with ThreadPoolExecutor(WRITERS, thread_name_prefix="fleet-write") as writers:
+        if todo and client is not None:
+            res.scheduler = client.scheduler.address
+            res.n_workers = len(client.scheduler_info()["workers"])
+            client.run(warm_worker)  # imports (scipy, ...) once per worker, outside the timed phase
+            t0 = time.perf_counter()
+            run_batches(client, session_batch, todo, [hashes[p] for p in todo], (spec, ph), on_result)
+        elif todo:
+            res.scheduler, res.n_workers = "serial", 1
+            warm_worker()
+            t0 = time.perf_counter()
+            _run_serial(todo, hashes, spec, ph, on_result)
+    if todo:
+        res.wall_s = time.perf_counter() - t0
+    return [row for f in stored for row in f.result()], sums
+
+
+WRITERS = 8
+"""Threads writing calibration files in the client. Each file is written atomically with two
+fsyncs (accellog.store.atomic): one after another they took 12-15 ms of wall time per session on
+the 2-core test host (2 ms of CPU), more than a task; 8 writers bring it to 1.8 ms."""
 
 
 def _store_results(out: Path, results: list[dict]) -> list[dict]:
@@ -453,7 +427,10 @@ def _store_results(out: Path, results: list[dict]) -> list[dict]:
                         f"{safe_part(row['session_name'])}_{row['content_sha256'][:8]}_{safe_part(row['model'])}.json"
                     )
                 )
-                write_json_atomic(out / rel, cal)
+                if isinstance(cal, str):  # the file's text, encoded by the worker (session_batch)
+                    write_text_atomic(out / rel, cal, mkdir=True)
+                else:
+                    write_json_atomic(out / rel, cal)
                 row["calibration"] = str(rel)
             rows.append(row)
     return rows
