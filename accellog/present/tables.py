@@ -21,10 +21,10 @@ from rich.table import Table
 from accellog.calibrate.calfile.calibration import Calibration
 from accellog.calibrate.calfile.drift_model import DriftModel
 from accellog.core.jsonio import dumps
-from accellog.navigate.evaluate import Evaluation, PoseEvaluation
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.ladder import LadderRow
+    from accellog.navigate.evaluate import Evaluation, PoseEvaluation
 
 AXES = ("x", "y", "z")
 
