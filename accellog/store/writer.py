@@ -7,11 +7,16 @@ the readers salvage every complete chunk of an unfinished file.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
+import mcap.writer
 import numpy as np
+import zstandard
 from mcap.writer import CompressionType, Writer
 
 from accellog.core.errors import InputError
@@ -35,7 +40,7 @@ from accellog.store.layout import (
 )
 from accellog.store.schema import SCHEMA_VERSION, file_descriptor_set_bytes, full_name
 
-# Chunk compression written by default: zstd (level 3), the MCAP tools' default. Its files are 32-39 %
+# Chunk compression written by default: zstd (level ZSTD_LEVEL). Its files are 32-39 %
 # smaller than lz4's (1 kHz hour: 54-60 MB instead of 79-99 MB), so a session read from storage (SD card,
 # disk, network share) is read 25-42 % faster; from the page cache lz4 reads are faster (a streamed
 # pass 7-22 %, read_session up to 59 %: at most 0.16 s an hour) and its writes take 10-30 % less CPU
@@ -43,6 +48,45 @@ from accellog.store.schema import SCHEMA_VERSION, file_descriptor_set_bytes, ful
 DEFAULT_COMPRESSION = "zstd"
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 COMPRESSIONS = tuple(_COMPRESSION)
+
+
+ZSTD_LEVEL = 2
+"""zstd level of the chunks accellog writes: 0.75x the CPU of zstd's default level 3 on a recording
+(counts; 1.2 % larger) and 0.64x on a CSV import (float64 values; 8 % larger) (python
+benchmarks/bench_zstd_level.py): `import csv` of 4 h at 1 kHz takes 9.8-9.9 s instead of 11.0-11.5 s
+(2 interleaved runs each, the file 466 MB instead of 425 MB)."""
+
+_LEVEL: contextvars.ContextVar[int | None] = contextvars.ContextVar("accellog_zstd_level", default=None)
+
+
+class _ChunkZstd:
+    """Stands in for the zstandard module inside mcap.writer: its Writer (mcap 1.6) compresses every
+    chunk with ``zstandard.compress(data)`` at zstd's default level and has no setting for the level.
+    compress() uses the level a SessionWriter call set (``_at_level``) and zstd's default for any
+    other caller (an mcap Writer outside accellog writes what it wrote before); every other name is
+    zstandard's."""
+
+    def __getattr__(self, name: str):
+        return getattr(zstandard, name)
+
+    @staticmethod
+    def compress(data, level: int | None = None) -> bytes:
+        level = _LEVEL.get() if level is None else level
+        return zstandard.compress(data) if level is None else zstandard.compress(data, level)
+
+
+if getattr(mcap.writer, "zstandard", None) is zstandard:
+    mcap.writer.zstandard = _ChunkZstd()  # type: ignore[attr-defined]
+
+
+@contextlib.contextmanager
+def _at_level(level: int) -> Iterator[None]:
+    """Chunks finished inside are compressed at zstd level ``level`` (see _ChunkZstd)."""
+    token = _LEVEL.set(level)
+    try:
+        yield
+    finally:
+        _LEVEL.reset(token)
 
 
 def check_compression(name: str) -> str:
@@ -75,10 +119,13 @@ class SessionWriter:
         compression: str = DEFAULT_COMPRESSION,
         exclusive: bool = False,
         overwrite: bool = False,
+        zstd_level: int = ZSTD_LEVEL,
     ) -> None:
         """exclusive=True (live recording): the file is created new under an exclusive output lock
-        (accellog.store.atomic), an existing file is refused unless overwrite=True (``--force``)."""
+        (accellog.store.atomic), an existing file is refused unless overwrite=True (``--force``).
+        zstd_level: the level of zstd chunks (ZSTD_LEVEL)."""
         check_compression(compression)
+        self._level = int(zstd_level)
         self.path = Path(path)
         self.meta = meta
         self._flush_s = float(flush_interval_s)
@@ -139,7 +186,10 @@ class SessionWriter:
         cid = self._channel(topic, message)
         log_time = max(0, self._base_ns + int(t_ns))
         pub = max(0, self._base_ns + int(host_time_ns)) if host_time_ns else log_time
-        self._w.add_message(cid, log_time=log_time, data=data, publish_time=pub, sequence=self._seq[topic])
+        with _at_level(self._level):  # a full chunk is compressed by this call
+            self._w.add_message(
+                cid, log_time=log_time, data=data, publish_time=pub, sequence=self._seq[topic]
+            )
         self._seq[topic] += 1
         self.messages_written += 1
 
@@ -159,7 +209,8 @@ class SessionWriter:
 
     def flush(self) -> None:
         """End the current chunk and write it to the OS (survives a killed process, not power loss)."""
-        self._w.flush()
+        with _at_level(self._level):
+            self._w.flush()
         self.flushes += 1
         self._last_flush_t_ns = self._t_last_ns
         self._last_flush_wall = time.monotonic()
@@ -354,7 +405,8 @@ class SessionWriter:
             return
         self.closed = True
         try:
-            self._w.finish()
+            with _at_level(self._level):
+                self._w.finish()
         finally:
             self._f.close()
             self._unlock()

@@ -81,3 +81,52 @@ def test_simulate_and_apply_write_the_compression_asked_for(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and "'zip'" in err, err
         assert not bad.exists()
+
+
+def _chunks(path) -> list[tuple[bytes, int]]:
+    """(compressed bytes, uncompressed size) of every chunk of an MCAP file."""
+    import struct
+
+    out = []
+    with open(path, "rb") as f:
+        for ci in make_reader(f).get_summary().chunk_indexes:
+            f.seek(ci.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4)  # opcode, length, times, size, crc
+            (n,) = struct.unpack("<I", f.read(4))
+            f.seek(n, 1)  # the compression's name
+            (size,) = struct.unpack("<Q", f.read(8))
+            out.append((f.read(size), ci.uncompressed_size))
+    return out
+
+
+def test_zstd_chunks_are_written_at_the_writer_level_and_other_writers_keep_theirs(tmp_path, capsys):
+    """accellog's chunks are zstd level ZSTD_LEVEL (mcap's Writer has no setting: store.writer), and
+    an mcap Writer used directly in the same process still compresses at zstd's default level."""
+    import zstandard
+    from mcap.writer import Writer
+
+    from accellog.store.writer import ZSTD_LEVEL
+
+    src, out = tmp_path / "log.csv", tmp_path / "s.mcap"
+    _csv(src, n=20000)
+    assert main(["import", "csv", str(src), "-o", str(out)]) == 0, capsys.readouterr().err
+    assert ZSTD_LEVEL != 3
+    for data, size in _chunks(out):
+        raw = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+        assert data == zstandard.compress(raw, ZSTD_LEVEL) != zstandard.compress(raw)
+
+    plain = tmp_path / "plain.mcap"
+    with open(plain, "wb") as f:
+        w = Writer(f, chunk_size=4096)
+        w.start()
+        sid = w.register_schema("s", "jsonschema", b"{}")
+        cid = w.register_channel("t", "json", sid)
+        for i in range(2000):
+            w.add_message(
+                cid, log_time=i, publish_time=i, data=b'{"x": %d, "y": "%s"}' % (i, b"ab" * (i % 7))
+            )
+        w.finish()
+    chunks = _chunks(plain)
+    assert len(chunks) > 2
+    for data, size in chunks:
+        raw = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+        assert data == zstandard.compress(raw)
