@@ -1,4 +1,4 @@
-"""Which zstd level accellog's chunks are written at (accellog.store.writer.ZSTD_LEVEL).
+"""Which zstd level accellog's chunks are written at (accellog.store.zstd_level.ZSTD_LEVEL).
 
 Usage: python benchmarks/bench_zstd_level.py [--minutes 10] [--repeat 5] [--levels 1 2 3]
 
@@ -28,7 +28,7 @@ from bench_csv_import import write_csv
 from bench_readback import simulate, write_recorder_layout
 
 from accellog.store.importers.csv import import_csv_to_mcap
-from accellog.store.writer import ZSTD_LEVEL
+from accellog.store.zstd_level import ZSTD_LEVEL
 
 
 def chunks(path: Path) -> list[bytes]:

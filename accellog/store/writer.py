@@ -7,16 +7,11 @@ the readers salvage every complete chunk of an unfinished file.
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import math
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
-import mcap.writer
 import numpy as np
-import zstandard
 from mcap.writer import CompressionType, Writer
 
 from accellog.core.errors import InputError
@@ -39,6 +34,7 @@ from accellog.store.layout import (
     to_ns_array,
 )
 from accellog.store.schema import SCHEMA_VERSION, file_descriptor_set_bytes, full_name
+from accellog.store.zstd_level import ZSTD_LEVEL, at_level
 
 # Chunk compression written by default: zstd (level ZSTD_LEVEL). Its files are 32-39 %
 # smaller than lz4's (1 kHz hour: 54-60 MB instead of 79-99 MB), so a session read from storage (SD card,
@@ -48,45 +44,6 @@ from accellog.store.schema import SCHEMA_VERSION, file_descriptor_set_bytes, ful
 DEFAULT_COMPRESSION = "zstd"
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 COMPRESSIONS = tuple(_COMPRESSION)
-
-
-ZSTD_LEVEL = 2
-"""zstd level of the chunks accellog writes: 0.75x the CPU of zstd's default level 3 on a recording
-(counts; 1.2 % larger) and 0.64x on a CSV import (float64 values; 8 % larger) (python
-benchmarks/bench_zstd_level.py): `import csv` of 4 h at 1 kHz takes 9.8-9.9 s instead of 11.0-11.5 s
-(2 interleaved runs each, the file 466 MB instead of 425 MB)."""
-
-_LEVEL: contextvars.ContextVar[int | None] = contextvars.ContextVar("accellog_zstd_level", default=None)
-
-
-class _ChunkZstd:
-    """Stands in for the zstandard module inside mcap.writer: its Writer (mcap 1.6) compresses every
-    chunk with ``zstandard.compress(data)`` at zstd's default level and has no setting for the level.
-    compress() uses the level a SessionWriter call set (``_at_level``) and zstd's default for any
-    other caller (an mcap Writer outside accellog writes what it wrote before); every other name is
-    zstandard's."""
-
-    def __getattr__(self, name: str):
-        return getattr(zstandard, name)
-
-    @staticmethod
-    def compress(data, level: int | None = None) -> bytes:
-        level = _LEVEL.get() if level is None else level
-        return zstandard.compress(data) if level is None else zstandard.compress(data, level)
-
-
-if getattr(mcap.writer, "zstandard", None) is zstandard:
-    mcap.writer.zstandard = _ChunkZstd()  # type: ignore[attr-defined]
-
-
-@contextlib.contextmanager
-def _at_level(level: int) -> Iterator[None]:
-    """Chunks finished inside are compressed at zstd level ``level`` (see _ChunkZstd)."""
-    token = _LEVEL.set(level)
-    try:
-        yield
-    finally:
-        _LEVEL.reset(token)
 
 
 def check_compression(name: str) -> str:
@@ -186,7 +143,7 @@ class SessionWriter:
         cid = self._channel(topic, message)
         log_time = max(0, self._base_ns + int(t_ns))
         pub = max(0, self._base_ns + int(host_time_ns)) if host_time_ns else log_time
-        with _at_level(self._level):  # a full chunk is compressed by this call
+        with at_level(self._level):  # a full chunk is compressed by this call
             self._w.add_message(
                 cid, log_time=log_time, data=data, publish_time=pub, sequence=self._seq[topic]
             )
@@ -209,7 +166,7 @@ class SessionWriter:
 
     def flush(self) -> None:
         """End the current chunk and write it to the OS (survives a killed process, not power loss)."""
-        with _at_level(self._level):
+        with at_level(self._level):
             self._w.flush()
         self.flushes += 1
         self._last_flush_t_ns = self._t_last_ns
@@ -405,7 +362,7 @@ class SessionWriter:
             return
         self.closed = True
         try:
-            with _at_level(self._level):
+            with at_level(self._level):
                 self._w.finish()
         finally:
             self._f.close()

@@ -104,7 +104,7 @@ def test_zstd_chunks_are_written_at_the_writer_level_and_other_writers_keep_thei
     import zstandard
     from mcap.writer import Writer
 
-    from accellog.store.writer import ZSTD_LEVEL
+    from accellog.store.zstd_level import ZSTD_LEVEL
 
     src, out = tmp_path / "log.csv", tmp_path / "s.mcap"
     _csv(src, n=20000)
