@@ -25,6 +25,7 @@ the ratios); RESULTS.md holds the figures only.
 from __future__ import annotations
 
 import argparse
+import compileall
 import os
 import shlex
 import statistics
@@ -380,6 +381,9 @@ def main() -> None:
     mode = "quick" if a.quick else "full" if a.full else "default"
     repeat = a.repeat or {"quick": 1, "default": 3, "full": 5}[mode]
     a.dir.mkdir(parents=True, exist_ok=True)
+    # users run accellog from bytecode (pip compiles it when installing; an editable install on first
+    # use): so do the timed commands, even where PYTHONDONTWRITEBYTECODE keeps Python from writing it
+    compileall.compile_dir(ROOT / "accellog", quiet=1)
     load = os.getloadavg()
     print(
         f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores; inputs in {a.dir}"
