@@ -462,20 +462,28 @@ class Mpu9250:
 
     def _read_kept(self, n_packets: int) -> tuple[bytes, str]:
         """(the whole packets a full FIFO kept, why some were dropped or ""). A read that fails part
-        way keeps what it got. The packets are kept only when their temperature field runs on from
-        the last read's (within KEPT_TEMP_TOL_COUNTS): a chip that ignored FIFO_MODE = 1 and dropped
-        its oldest bytes leaves a misaligned head, and misaligned packets are never stored."""
+        way keeps what it got and says why. The packets are kept only when their temperature field
+        runs on from the last read's (within KEPT_TEMP_TOL_COUNTS): a chip that ignored FIFO_MODE = 1
+        and dropped its oldest bytes leaves a misaligned head, whose temperature field is another
+        axis; it is dropped unless that axis happens to read within the tolerance of the temperature
+        count (a check that catches the misaligned heads seen in tests, not a proof)."""
         if not n_packets:
             return b"", ""
+        why = ""
         try:
             data = self._read_fifo_bytes(n_packets, n_packets * R.PACKET_BYTES)
         except _FifoLost as exc:
-            data = exc.good
+            data, why = exc.good, f" (the read failed part way: {exc})"
+        if not data:
+            return b"", why
         temp = np.frombuffer(data, dtype=">i2").reshape(-1, 7)[:, 3].astype(np.int64)
         ref = temp[0] if self._last_temp is None else self._last_temp
-        if len(temp) and np.abs(temp - ref).max() > KEPT_TEMP_TOL_COUNTS:
-            return b"", " (its packets did not continue the last read's temperature: misaligned, dropped)"
-        return data, ""
+        if np.abs(temp - ref).max() > KEPT_TEMP_TOL_COUNTS:
+            return (
+                b"",
+                why + " (its packets did not continue the last read's temperature: misaligned, dropped)",
+            )
+        return data, why
 
     def _fifo_count(self) -> int:
         hi, lo = self._rd_block(R.FIFO_COUNTH, 2)

@@ -36,8 +36,8 @@ from accellog.store.layout import (
 from accellog.store.schema import SCHEMA_VERSION, file_descriptor_set_bytes, full_name
 from accellog.store.zstd_level import ZSTD_LEVEL, at_level
 
-# Chunk compression written by default: zstd (level ZSTD_LEVEL). Its files are 32-39 %
-# smaller than lz4's (1 kHz hour: 54-60 MB instead of 79-99 MB), so a session read from storage (SD card,
+# Chunk compression written by default: zstd. At zstd's level 3 its files are 32-39 % smaller than
+# lz4's (1 kHz hour: 54-60 MB instead of 79-99 MB; the ZSTD_LEVEL accellog writes adds 1.2-8 %), so a session read from storage (SD card,
 # disk, network share) is read 25-42 % faster; from the page cache lz4 reads are faster (a streamed
 # pass 7-22 %, read_session up to 59 %: at most 0.16 s an hour) and its writes take 10-30 % less CPU
 # (benchmarks/bench_compression.py). "lz4" and "none" stay available; readers take any of them.
@@ -128,11 +128,12 @@ class SessionWriter:
     def _channel(self, topic: str, message: str) -> int:
         cid = self._channels.get(topic)
         if cid is None:
-            sid = self._schema_ids.get(message)
-            if sid is None:
-                sid = self._w.register_schema(full_name(message), "protobuf", file_descriptor_set_bytes())
-                self._schema_ids[message] = sid
-            cid = self._w.register_channel(topic, "protobuf", sid, metadata={"accellog": SCHEMA_VERSION})
+            with at_level(self._level):  # mcap's Writer may end the current chunk to register them
+                sid = self._schema_ids.get(message)
+                if sid is None:
+                    sid = self._w.register_schema(full_name(message), "protobuf", file_descriptor_set_bytes())
+                    self._schema_ids[message] = sid
+                cid = self._w.register_channel(topic, "protobuf", sid, metadata={"accellog": SCHEMA_VERSION})
             self._channels[topic] = cid
             self._seq[topic] = 0
         return cid

@@ -355,3 +355,21 @@ def test_magnetometer_refused_without_ak8963():
         drv.enable_magnetometer()
     with pytest.raises(InputError):
         drv.enable_magnetometer(mode_hz=50)
+
+
+def test_an_overflow_on_the_first_read_whose_kept_burst_fails_is_counted_not_a_crash():
+    from accellog.acquire import driver as drv_mod
+
+    clock, _chip, drv = make()
+    drv.configure()
+    drv.start()
+    clock.sleep(0.2)  # the first read finds the FIFO overflowed
+
+    def failing(n_packets, n_bytes):
+        raise drv_mod._FifoLost(b"", "burst failed after 3 attempts")
+
+    drv._read_fifo_bytes = failing
+    b = drv.read()
+    assert b.n == 0 and [e.kind for e in b.events] == ["fifo_overflow"]
+    assert "0 whole packets kept" in b.events[0].detail and "burst failed" in b.events[0].detail
+    assert b.events[0].lost_samples == 200
