@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -378,12 +379,13 @@ def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_prog
     if on_progress:
         on_progress(0, len(todo), {})  # the total is known before the first task ends (no "0/?")
     stored: list = []  # futures of the rows of each stored result
+    path_locks: dict[Path, threading.Lock] = {}  # two sessions with one file name are written in turn
     sums = [0.0, 0.0, 0]
 
     def on_result(r: dict) -> None:
         """Hand one session's result to the writers (its calibration files are written while the
         tasks go on) and count it."""
-        stored.append(writers.submit(_store_results, out, [r]))
+        stored.append(writers.submit(_store_results, out, [r], path_locks))
         sums[0] += r["rows"][0].get("task_s") or 0.0
         sums[1] += r["rows"][0].get("task_cpu_s") or 0.0
         sums[2] += 1
@@ -413,8 +415,11 @@ fsyncs (accellog.store.atomic): one after another they took 12-15 ms of wall tim
 the 2-core test host (2 ms of CPU), more than a task; 8 writers bring it to 1.8 ms."""
 
 
-def _store_results(out: Path, results: list[dict]) -> list[dict]:
-    """Write each calibration JSON under OUT/cal/<device>/ and return the rows pointing to them."""
+def _store_results(out: Path, results: list[dict], path_locks: dict[Path, threading.Lock]) -> list[dict]:
+    """Write each calibration JSON under OUT/cal/<device>/ and return the rows pointing to them.
+    path_locks: one lock per file name, shared by the writer threads: two sessions whose files have
+    one name (byte-identical copies in two folders) are written one after the other, the later
+    replacing the earlier as in a serial run, instead of the second failing on the first's lock."""
     rows = []
     for r in results:
         for row in r["rows"]:
@@ -427,10 +432,11 @@ def _store_results(out: Path, results: list[dict]) -> list[dict]:
                         f"{safe_part(row['session_name'])}_{row['content_sha256'][:8]}_{safe_part(row['model'])}.json"
                     )
                 )
-                if isinstance(cal, str):  # the file's text, encoded by the worker (session_batch)
-                    write_text_atomic(out / rel, cal, mkdir=True)
-                else:
-                    write_json_atomic(out / rel, cal)
+                with path_locks.setdefault(rel, threading.Lock()):
+                    if isinstance(cal, str):  # the file's text, encoded by the worker (session_batch)
+                        write_text_atomic(out / rel, cal, mkdir=True)
+                    else:
+                        write_json_atomic(out / rel, cal)
                 row["calibration"] = str(rel)
             rows.append(row)
     return rows

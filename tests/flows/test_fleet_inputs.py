@@ -121,3 +121,31 @@ def test_safe_part_property_any_text(name):
     assert part and part == safe_part(name) and len(part) <= MAX_PART
     assert os.sep not in part and "\x00" not in part and not part.startswith(".")
     assert os.path.normpath(os.path.join("FLEET", "cal", part)) == os.path.join("FLEET", "cal", part)
+
+
+def test_byte_identical_copies_in_several_folders_share_their_calibration_file(tmp_path, capsys):
+    """Copies of one session (a backup beside the original) map to one calibration file name: the
+    writer threads write it in turn, the run ends with its table (one Dask worker: a batch of
+    sessions returns together)."""
+    import shutil
+
+    from accellog.flows.fleet import read_table
+    from accellog.flows.simulate import Scenario, simulate
+
+    first = tmp_path / "sessions" / "c0" / "s.mcap"
+    first.parent.mkdir(parents=True)
+    sc = Scenario(protocol="six", hold_s=3.0, move_s=1.0, sample_rate_hz=100.0, chip_seed=5, seed=6)
+    sc.validate()
+    simulate(sc, first)
+    for k in range(1, 8):
+        (tmp_path / "sessions" / f"c{k}").mkdir()
+        shutil.copyfile(first, tmp_path / "sessions" / f"c{k}" / "s.mcap")
+    out = tmp_path / "FLEET"
+    pattern = str(tmp_path / "sessions" / "**" / "*.mcap")
+    rc = main(
+        ["fleet", "run", str(REPO / "pipelines" / "fleet.toml"), pattern, "-o", str(out), "--workers", "1"]
+    )
+    assert rc == 0, capsys.readouterr().err
+    rows = read_table(out / "fleet.parquet")
+    assert len(rows) == 8 and not any(r["error"] for r in rows)
+    assert len({r["calibration"] for r in rows}) == 1 and (out / rows[0]["calibration"]).is_file()
