@@ -334,10 +334,11 @@ def _gyro_calibration(session: Session) -> GyroCalibration | None:
 # ------------------------------------------------------------------------------------------ evaluate / drift
 
 
-def as_session(x: Session | str | os.PathLike, what: str) -> Session:
+def as_session(x: Session | StreamedSession | str | os.PathLike, what: str) -> Session:
+    """The whole session of x (a StreamedSession: its file read whole); InputError for a pose table."""
     if isinstance(x, Session):
         return x
-    s = load_input(x)
+    s = load_input(x.path if isinstance(x, StreamedSession) else x)
     if not isinstance(s, Session):
         raise InputError(
             f"{what} needs a recorded session (samples), not a pose table / observations", where=str(x)

@@ -112,6 +112,20 @@ def test_evaluate_in_many_blocks_equals_one_block(sessions, cut):
     assert_json_close(whole.to_dict(), streamed.to_dict())
 
 
+def test_evaluate_takes_an_opened_streamed_session_in_memory_too(sessions):
+    """run_evaluate on a StreamedSession (e.g. reused from an earlier stage) with stream=False reads
+    its file whole: the same evaluation as from the path."""
+    from accellog.flows.stages import run_evaluate
+    from accellog.flows.stream_input import open_streamed
+
+    d = sessions
+    opened = open_streamed(d / "test.mcap", observe=False)
+    got = run_evaluate(opened, d / "m3.json", stream=False)
+    want = run_evaluate(d / "test.mcap", d / "m3.json", stream=False)
+    assert got[-1].t_s is not None
+    assert_json_close([e.to_dict() for e in want], [e.to_dict() for e in got])
+
+
 def test_streamed_per_pose_evaluate_equals_whole_session(sessions):
     d = sessions
     streamed = run_evaluate_report(d / "poses.mcap", [d / "m3.json"])
