@@ -17,8 +17,12 @@ from typing import Annotated, Any
 
 import typer
 import typer.main
-from typer import _click
 from typer.core import TyperGroup
+
+try:  # typer >= 0.29 carries its own click (typer._click); earlier ones use the click package
+    from typer import _click
+except ImportError:  # pragma: no cover - the installed typer decides
+    import click as _click  # type: ignore[no-redef]
 
 from accellog.cli.option_checks import guard_options
 

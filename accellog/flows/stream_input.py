@@ -154,8 +154,8 @@ def open_streamed(
     observation table (segment.observations' defaults) and, with stats, its per-hold statistics
     (segment.pose_stats); InputError as load_input/observations. None for a file with damaged
     chunks: the whole-session reader (load_input) says what it skipped and how many samples.
-    check_times False: the labels only (the caller's pass makes the check: stream_evaluate's
-    check_times; None still when reading the labels meets a damaged chunk). host: also the host
+    check_times False: the labels only (the caller's pass makes the check: navigate.blocks'
+    Blocks.checked; None still when reading the labels meets a damaged chunk). host: also the host
     clock points (store.stream.read_host_clock), taken in the observation pass; gyro: the gyro
     calibration's first pass too (StreamedSession.gyro_calibration then reads the file once more,
     not twice)."""

@@ -61,7 +61,7 @@ def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
     n_done = [0]
     try:
         with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            walk = fastread._fast_walk(data, [TOPIC_IMU], stream=TOPIC_IMU)
+            walk = fastread.fast_walk(data, [TOPIC_IMU], stream=TOPIC_IMU)
             try:
                 yield from _walked(walk, where, n_done)
             finally:
@@ -89,7 +89,7 @@ def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
 
 
 def _walked(walk, where: str, n_done: list[int]) -> Iterator[ImuBlock]:
-    """The blocks of a _fast_walk stream (n_done[0] counts the samples handed out)."""
+    """The blocks of a fast_walk stream (n_done[0] counts the samples handed out)."""
     meta = None
     trim = HeapTrim()
     while True:

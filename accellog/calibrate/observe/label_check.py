@@ -109,20 +109,6 @@ def hold_mismatch(
     return LabelMismatch(p.name, p.hold_index, p.start_s, p.end_s, ang, name, la)
 
 
-def check_labels(
-    session: Session,
-    holds: list[tuple[PoseLabel, slice]],
-    where: str | None = None,
-    max_angle_deg: float = MAX_LABEL_ANGLE_DEG,
-    means: list[np.ndarray] | None = None,
-) -> None:
-    """InputError naming the first mislabelled hold and its likely true label (see module doc);
-    means: as for label_mismatches."""
-    err = mismatch_error(label_mismatches(session, holds, max_angle_deg, means), where)
-    if err is not None:
-        raise err
-
-
 def mismatch_error(bad: list[LabelMismatch], where: str | None = None) -> InputError | None:
     """The refusal naming the first mislabelled hold of bad and how many more there are; None if none."""
     if not bad:

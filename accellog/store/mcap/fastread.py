@@ -73,7 +73,7 @@ def fast_collect(
 
     Reads the footer and summary section (schemas, channels, chunk and metadata indexes) with struct,
     decompresses every chunk in summary order (zstd, lz4 or none) into one buffer, walks its records,
-    and decodes each accellog channel with ``messages.decode_batch``: the same chunks, messages, order
+    and decodes each accellog channel with ``batch_decode.decode_batch``: the same chunks, messages, order
     and bytes as mcap's SeekingReader with ``iter_messages(log_time_order=False)``. Unfinished files
     (no footer magic or no summary) and anything unexpected return None. ``accumulator(topic,
     message, session metadata)`` may give a channel's BatchAccumulator (e.g. one that converts units
@@ -96,11 +96,11 @@ class _ChunksUnverified(Exception):
 
 
 def _fast_parse(data: Bytes, topics: Iterable[str] | None, accumulator=None) -> Collected:
-    """The whole file at once: _fast_walk drained (again with every chunk's CRC if damage shows)."""
+    """The whole file at once: fast_walk drained (again with every chunk's CRC if damage shows)."""
     try:
-        return _drained(_fast_walk(data, topics, accumulator=accumulator, check_chunks=False))
+        return _drained(fast_walk(data, topics, accumulator=accumulator, check_chunks=False))
     except _ChunksUnverified:
-        return _drained(_fast_walk(data, topics, accumulator=accumulator))
+        return _drained(fast_walk(data, topics, accumulator=accumulator))
 
 
 def _drained(walk) -> Collected:
@@ -111,7 +111,7 @@ def _drained(walk) -> Collected:
             return end.value
 
 
-def _fast_walk(
+def fast_walk(
     data: Bytes,
     topics: Iterable[str] | None,
     stream: str | None = None,
