@@ -341,6 +341,8 @@ def run_fleet(
             todo = [p for p in files if (p, hashes[p], ph) not in done]
         else:  # everything runs: each task hashes its file (read there anyway)
             hashes, todo = dict.fromkeys(files), list(files)
+        if on_progress:
+            on_progress(0, len(todo), {})  # the total, before the cluster start (no "0/?" meanwhile)
         if todo and need:
             own = client = (starting or start_client(scheduler, workers)).result()
         res = FleetRunResult(
@@ -376,8 +378,6 @@ def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_prog
     sessions done]); the task phase's wall time (to the last result stored, s) goes to res.wall_s."""
     from concurrent.futures import ThreadPoolExecutor
 
-    if on_progress:
-        on_progress(0, len(todo), {})  # the total is known before the first task ends (no "0/?")
     stored: list = []  # futures of the rows of each stored result
     path_locks: dict[Path, threading.Lock] = {}  # two sessions with one file name are written in turn
     sums = [0.0, 0.0, 0]
