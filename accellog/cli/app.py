@@ -84,7 +84,7 @@ app = typer.Typer(
     help="Record, calibrate and inspect MEMS accelerometers (MPU-9250): MCAP logs, error models "
     "with uncertainties, a model workbench and Rerun recordings.",
     no_args_is_help=True,
-    rich_markup_mode="rich",
+    rich_markup_mode="markdown",
     pretty_exceptions_enable=False,
     add_completion=True,
 )
