@@ -45,6 +45,15 @@ def _cals(paths: list[Path] | None, effects_file: Path | None) -> list:
     return [load_calibration(p, effects_file) for p in paths or []]
 
 
+def _prestart_writer(rrd: Path | None) -> None:
+    """With --rrd, the .rrd is written by a child process started now, which imports rerun while
+    this one reads and integrates (present.rrd.offload: 1 h replay FIGURE)."""
+    if rrd is not None:
+        from accellog.present.rrd.offload import prestart
+
+        prestart()
+
+
 def _print_result(res, title: str, json_out: bool) -> None:
     """Strict JSON (NaN -> null) on stdout, or the final-displacement table, notes and .rrd path."""
     from accellog.present.tables import replay_table
@@ -80,6 +89,7 @@ def replay(
 ) -> None:
     """Feed a session through online correction + integration in sensor time, logging raw and
     calibrated accel and displacement tracks to a live viewer or an .rrd."""
+    _prestart_writer(rrd)
     from accellog.flows.inspect import run_replay, sink_option
     from accellog.flows.replay import parse_speed
 
@@ -114,6 +124,7 @@ def compare(
 ) -> None:
     """Displacement tracks of several calibrations of one test session side by side, with their
     final drift (terminal table, --json, and a document in the .rrd)."""
+    _prestart_writer(rrd)
     from accellog.flows.inspect import run_replay, sink_option
 
     if not cal:
