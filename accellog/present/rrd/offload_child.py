@@ -3,8 +3,8 @@
 It reads calls from its stdin (frames of ``send``: pickle protocol 5, numpy arrays as out-of-band
 buffers) and runs them on a real ``RunRecording`` saving to the temporary file its parent reserved
 (``AtomicOutput.begin`` in the parent: the parent checks and locks the output and renames the file on
-success). A reader thread drains the pipe from the first moment, while the main thread imports
-``rerun`` (~0.5 s), so the parent never waits for the import. At the top only the standard library is
+success). A reader thread drains the pipe from the first moment, chunk by chunk, while the main thread
+imports ``rerun`` (~0.5 s), so the parent never waits for the import. At the top only the standard library is
 imported: the reader runs before numpy and rerun are loaded.
 
 Replies (to ``get`` and ``close``, or the first failure) go back on the file descriptor given as
@@ -27,6 +27,7 @@ HEADER = struct.Struct("<IQ")
 """A frame: (number of out-of-band buffers, pickle length), the buffer lengths (<Q each), the pickle,
 the buffers."""
 IOV_MAX = 512
+CHUNK_BYTES = 1 << 20
 
 
 def frame(obj: Any) -> list[memoryview]:
@@ -98,26 +99,65 @@ def recv(fd: int) -> Any:
     return pickle.loads(frame[0], buffers=frame[1])
 
 
-_EOF = object()
+class Frames:
+    """Frames cut out of a byte stream fed in chunks of any size."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.pos = 0
+
+    def feed(self, chunk: bytes) -> None:
+        if self.pos:
+            del self.buf[: self.pos]
+            self.pos = 0
+        self.buf += chunk
+
+    def next(self) -> tuple[bytes, list[bytearray]] | None:
+        """The next complete frame as (pickle bytes, buffers: copies), None until more is fed."""
+        with memoryview(self.buf) as mv:
+            p = self.pos
+            if len(mv) - p < HEADER.size:
+                return None
+            n_buf, n_data = HEADER.unpack_from(mv, p)
+            a = p + HEADER.size + 8 * n_buf
+            if len(mv) < a:
+                return None
+            sizes = struct.unpack_from(f"<{n_buf}Q", mv, p + HEADER.size)
+            if len(mv) < a + n_data + sum(sizes):
+                return None
+            data, bufs = bytes(mv[a : a + n_data]), []
+            a += n_data
+            for size in sizes:
+                bufs.append(bytearray(mv[a : a + size]))
+                a += size
+        self.pos = a
+        return data, bufs
 
 
 def _reader(fd: int, q: queue.SimpleQueue, gone: threading.Event) -> None:
-    try:
-        while (frame := recv_raw(fd)) is not None:
-            q.put(frame)
-    except OSError:
-        pass
+    """Drain fd into q chunk by chunk (the GIL once a chunk: the main thread may be importing), then
+    mark the end of the stream."""
+    with contextlib.suppress(OSError):
+        while chunk := os.read(fd, CHUNK_BYTES):
+            q.put(chunk)
     gone.set()
-    q.put(_EOF)
+    q.put(b"")
+
+
+def _calls(q: queue.SimpleQueue):
+    """The parent's calls in order; stops at the end of the stream."""
+    frames = Frames()
+    while chunk := q.get():  # b"": the end
+        frames.feed(chunk)
+        while (frame := frames.next()) is not None:
+            yield pickle.loads(frame[0], buffers=frame[1])
 
 
 def main() -> None:
     reply = int(sys.argv[1])
-    calls: queue.SimpleQueue = queue.SimpleQueue()
+    chunks: queue.SimpleQueue = queue.SimpleQueue()
     gone = threading.Event()  # the parent closed the pipe (done, gave up or died)
-    threading.Thread(target=_reader, args=(0, calls, gone), daemon=True).start()
-    interval = sys.getswitchinterval()
-    sys.setswitchinterval(0.0005)  # the reader gets the GIL back soon after each read during the import
+    threading.Thread(target=_reader, args=(0, chunks, gone), daemon=True).start()
     rec = out = None
     try:
         from accellog.present.rrd import sdk
@@ -126,8 +166,6 @@ def main() -> None:
         sdk.rerun_sdk()
         from accellog.present.rrd.recording import RunRecording
         from accellog.store.atomic import AtomicOutput
-
-        sys.setswitchinterval(interval)
 
         class ParentsOutput(AtomicOutput):
             """The temporary file the parent reserved: the parent commits it (fsync, rename, unlock);
@@ -140,11 +178,7 @@ def main() -> None:
             def commit(self):
                 return self.tmp
 
-        while True:
-            item = calls.get()
-            if item is _EOF:  # no close: the parent is gone or aborted
-                break
-            op, *rest = pickle.loads(item[0], buffers=item[1])
+        for op, *rest in _calls(chunks):  # to the end of the stream: no close, the parent is gone
             if op == "open":
                 kw, tmp = rest
                 out = ParentsOutput(tmp)
