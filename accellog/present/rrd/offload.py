@@ -230,6 +230,12 @@ class OffloadedRecording(SeriesLogs):
     def _end_rows(self) -> None:  # SeriesLogs.end_batches: the child sends what it gathered
         self._call("end_batches", (), {})
 
+    def _write_track(self, *args: Any) -> None:  # SeriesLogs.log_track: the reduced track
+        self._call("_write_track", args, {})
+
+    def _write_track_3d(self, *args: Any) -> None:
+        self._call("_write_track_3d", args, {})
+
     def _ask(self, name: str) -> Any:
         if self._closed:
             raise RuntimeError(f"{name}: the recording is closed")
@@ -274,8 +280,6 @@ class OffloadedRecording(SeriesLogs):
     log_poses = _forward("log_poses")
     log_events = _forward("log_events")
     log_residuals = _forward("log_residuals")
-    log_track = _forward("log_track")
-    log_track_3d = _forward("log_track_3d")
     log_document = _forward("log_document")
     log_ladder = _forward("log_ladder")
 

@@ -16,33 +16,32 @@ from typing import Any
 
 import numpy as np
 
-from accellog.present.rrd.entities import AXES, AXIS_COLORS, TEMPERATURE, as_2d, slug
+from accellog.present.rrd.entities import AXES, AXIS_COLORS, TEMPERATURE, TRACK_3D_MAX_POINTS, as_2d, slug
 from accellog.present.rrd.envelope import (
     FULL_RATE_MAX_SAMPLES,
     EnvelopeBuilder,
     bucket_width_s,
     minmax_envelope,
+    track_keep,
 )
 
 
 class SeriesLogs:
     """Series logging up to the rows (mixed into a recording, which provides ``full_rate``,
     ``_guarded(fn, *args)`` (run fn unless closed; a guarded recording counts its failures),
-    ``_write_series`` (the rows of one series into the file) and ``_end_rows`` (every gathered row
-    into the file))."""
+    ``_write_series`` (the rows of one series into the file), ``_end_rows`` (every gathered row
+    into the file) and ``_write_track`` / ``_write_track_3d`` (a reduced displacement track, logs.py))."""
 
     full_rate: bool
     _guarded: Callable[..., Any]
+    _write_series: Callable[..., None]
+    _end_rows: Callable[[], None]
+    _write_track: Callable[..., None]
+    _write_track_3d: Callable[..., None]
 
     def _init_series(self) -> None:
         self._span: tuple[float, float] | None = None  # batched logging: (t0, bucket width) s
         self._builders: dict[str, tuple[EnvelopeBuilder, bool]] = {}  # entity -> (builder, has index)
-
-    def _write_series(self, entity, t, v, names, sample_index, role, colors, points, step) -> None:
-        raise NotImplementedError
-
-    def _end_rows(self) -> None:
-        raise NotImplementedError
 
     def log_series(
         self,
@@ -130,3 +129,35 @@ class SeriesLogs:
     def log_temperature(self, t_s: np.ndarray, temp_degC: np.ndarray) -> None:
         """Die temperature (degC) on sensor_time."""
         self.log_series(TEMPERATURE, t_s, temp_degC, ["die temperature (degC)"], role="temperature")
+
+    def log_track(self, label: str, t_s: np.ndarray, disp_m: np.ndarray) -> None:
+        """Displacement track (N,3) in m: time series ``/tracks/{label}`` and a 3D line strip
+        ``/world/tracks/{label}`` with its final point (labelled with the final displacement)."""
+        self._guarded(self._log_track, label, t_s, disp_m)
+
+    def _log_track(self, label: str, t_s: np.ndarray, disp_m: np.ndarray) -> None:
+        d = np.asarray(disp_m, dtype=np.float64).reshape(-1, 3)
+        t = np.asarray(t_s, dtype=np.float64)
+        keep = slice(None)
+        if not self.full_rate and d.shape[0] > FULL_RATE_MAX_SAMPLES:  # smooth: every k-th + the last
+            keep = track_keep(d.shape[0])
+        self._write_track(label, t[keep], d[keep], strip_3d(d))
+
+    def log_track_3d(
+        self, label: str, disp_m: np.ndarray, *, color: tuple[int, int, int] | None = None
+    ) -> None:
+        """Static 3D line strip of a whole track (m; decimated, last point kept) + its final point."""
+        self._guarded(self._log_track_3d, label, disp_m, color)
+
+    def _log_track_3d(self, label: str, disp_m: np.ndarray, color: tuple[int, int, int] | None) -> None:
+        d = np.asarray(disp_m, dtype=np.float64).reshape(-1, 3)
+        self._write_track_3d(label, strip_3d(d), color)
+
+
+def strip_3d(d: np.ndarray) -> np.ndarray:
+    """The points of a track (N,3) drawn as its 3D line strip: at most TRACK_3D_MAX_POINTS evenly
+    spaced, the last one (the final displacement) always."""
+    n = d.shape[0]
+    if n <= TRACK_3D_MAX_POINTS:
+        return d
+    return d[np.unique(np.r_[np.linspace(0, n - 1, TRACK_3D_MAX_POINTS).astype(np.int64), n - 1])]
