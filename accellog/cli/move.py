@@ -35,6 +35,10 @@ def track_cmd(
     from accellog.flows.track import track_session
     from accellog.present.tables import track_table
 
+    if rrd is not None:  # the .rrd is written by a child process started now (present.rrd.offload)
+        from accellog.present.rrd.offload import prestart
+
+        prestart()
     cals = [load_calibration(c, effects_file) for c in cal or []]
     rep = track_session(session_path, cals, zupt=zupt)
     if rrd is not None:
