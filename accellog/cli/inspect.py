@@ -47,7 +47,7 @@ def _cals(paths: list[Path] | None, effects_file: Path | None) -> list:
 
 def _prestart_writer(rrd: Path | None) -> None:
     """With --rrd, the .rrd is written by a child process started now, which imports rerun while
-    this one reads and integrates (present.rrd.offload: 1 h replay FIGURE)."""
+    this one reads and integrates (present.rrd.offload: 1 h replay 1.93-1.97 s -> 1.66-1.73 s)."""
     if rrd is not None:
         from accellog.present.rrd.offload import prestart
 

@@ -1,12 +1,23 @@
-"""A .rrd file written by a child process: ``import rerun`` and the logging run on a second core.
+"""A .rrd file written by a child process: ``import rerun`` and the writing run on a second core.
 
-``accellog replay --rrd`` spent ~0.45 s importing rerun (pyarrow, rerun_bindings, rerun.blueprint)
-and ~0.3 s logging (display envelopes, ``send_columns``) on top of the replay itself; a thread does
-not help (the import holds the GIL). Here a child process (``offload_child``) imports rerun while the
-parent reads the MCAP file and integrates, receives every ``RunRecording`` call (numpy arrays as
-pickle protocol 5 out-of-band buffers over a pipe) and runs it on a real ``RunRecording``: the same
-code writes the same file. Measured (``python benchmarks/run_all.py --rows replay --repeat 5``, 1 h at
-1 kHz, 2 cores): FIGURES.
+In-process, ``accellog replay --rrd`` (1 h at 1 kHz) spent ~0.45 s importing rerun (pyarrow,
+rerun_bindings, rerun.blueprint) and ~0.2 s logging on top of the replay itself; importing on a
+thread gives nothing (the import holds the GIL). Here a child process (``offload_child``), started
+with the command, imports rerun while the parent reads the MCAP file and integrates, and runs the
+recording's calls on a real ``RunRecording``: the same code writes the same file. What needs no
+rerun stays in the parent (``SeriesLogs``: checks, display envelopes, track reduction), so that only
+the rows that go into the file cross the pipe (pickle protocol 5, arrays as out-of-band buffers):
+~2 MB for that replay instead of ~320 MB of samples, whose sending cost the parent more (0.5-0.7 s)
+than building the envelopes (0.13-0.2 s).
+
+Measured with ``python benchmarks/run_all.py --rows replay --repeat 5`` (2 cores, a load of ~1 from
+other jobs), two runs each: ``replay --rrd`` 1 h: 1.93-1.97 s in-process, 1.66-1.73 s with the
+child, the replay alone 1.36-1.42 s (1.39-1.43x -> 1.22x); CPU 2.2 -> 2.3 s; peak memory 185 ->
+123 MB (rerun lives in the child). Other commands, medians of 5 interleaved runs, in-process ->
+child: fit 1 h 2.79 -> 2.49 s, fit 1 min 1.27 -> 1.03 s, drift 1 h 4.18 -> 3.83 s, evaluate 1 h
+4.37 -> 3.76 s, track 64 s 0.81 -> 0.75 s, run six_position 14.6 -> 13.2 s. ``diagnose`` (which
+builds rerun objects itself) showed no steady gain and stays in-process, as do the commands that
+pass a Blueprint or use the stream directly (demo, doctor, magcal, noise, workbench, fleet).
 
 The parent keeps the output: ``AtomicOutput.begin`` checks and locks the path before anything runs
 (the same one-line errors as in-process, the lock holding the parent's PID), the child writes the
@@ -16,9 +27,9 @@ child as it is) and removes the temporary file; when the parent dies, the child 
 stdin, removes the temporary file and exits (a kill of both leaves a temporary file named with the
 parent's PID, which the next writer removes: ``store.atomic``).
 
-A command opts in with ``prestart()`` (the CLI, where a command has been measured to gain: the child
-starts with the command), and its flow opens the recording with ``open_recording``, which hands out
-the started child for the first file sink and a plain ``RunRecording`` otherwise. With one core (or
+A command opts in with ``prestart()`` (the CLI, for the commands measured to gain: the child starts
+with the command), and its flow opens the recording with ``open_recording``, which hands out the
+started child for the first file sink and a plain ``RunRecording`` otherwise. With one core (or
 ACCELLOG_RRD_CHILD=0) ``prestart`` starts nothing and every recording stays in-process.
 """
 
@@ -35,7 +46,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from accellog.core.errors import AccellogError
 from accellog.present.rrd import offload_child as wire
@@ -252,7 +263,7 @@ class OffloadedRecording(SeriesLogs):
             self._failed((status, *rest))
         return rest[0]
 
-    def _failed(self, reply: tuple | None = None) -> None:
+    def _failed(self, reply: tuple | None = None) -> NoReturn:
         """Raise what went wrong in the child, after stopping it and removing the temporary file."""
         w = self._w
         assert w is not None
@@ -318,8 +329,10 @@ class OffloadedRecording(SeriesLogs):
         self.first_failure = state["first_failure"]
         self.down = bool(state["down"])
         assert self._w is not None
-        self._w.stop(timeout_s=5.0)
-        self._out.commit()
+        try:
+            self._out.commit()  # while the child exits
+        finally:
+            self._w.stop(timeout_s=5.0)
 
     def abort(self) -> None:
         """Stop the child (at once) without producing a file (the temporary file is removed)."""
@@ -349,11 +362,14 @@ def prestart() -> bool:
     if _started is not None and _started.proc.poll() is not None:  # died unclaimed
         stop_unclaimed()
     if _started is None and use_child():
-        _started = _Writer()
-        atexit.register(stop_unclaimed)
+        try:
+            _started = _Writer()
+        except OSError:  # no process to spare: the recording stays in this process
+            _started = None
     return _started is not None
 
 
+@atexit.register
 def stop_unclaimed() -> None:
     """Stop a started child no recording has taken (the command ended or failed before)."""
     global _started

@@ -6,7 +6,10 @@ A mixin of ``RunRecording`` (present/rrd/recording.py) and of ``OffloadedRecordi
 (``present.rrd.envelope``: min/max envelopes of long series, carried across ``begin_batches`` ...
 ``end_batches``) and hand the rows to ``_write_series``, which writes them (``RunRecording``) or sends
 them to the process that writes them (``OffloadedRecording``): the rows of a file are the same
-either way, and only a few kB per batch cross to a writer process instead of every sample.
+either way, and only a few kB per batch cross to a writer process instead of every sample (1 h at
+1 kHz: ``replay --rrd`` ~2 MB instead of ~320 MB, ``evaluate``/``drift --rrd`` 2 MB instead of
+231 MB; sending the samples cost the replay's parent 0.5-0.7 s, building the envelopes here
+0.13-0.2 s).
 """
 
 from __future__ import annotations
