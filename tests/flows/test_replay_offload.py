@@ -43,8 +43,9 @@ def _session(f_g: np.ndarray, rate: float, rng, poses=(), events=(), temp=None) 
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """A model3 calibration (six poses) and a 50 s session at 1 kHz (long enough for display
-    envelopes: more than FULL_RATE_MAX_SAMPLES samples) with two holds, an event and temperature."""
+    """A model3 calibration (six poses), a 50 s session at 1 kHz (long enough for display envelopes:
+    more than FULL_RATE_MAX_SAMPLES samples) with two holds, an event and temperature, and a 30 s
+    static session without labels."""
     d = tmp_path_factory.mktemp("offload")
     rng = np.random.default_rng(7)
     per = 800
@@ -59,7 +60,9 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     events = [Event(12.5, "note", "a note"), Event(30.0, "gap", "3 samples missing", 30_000, 3)]
     s = _session(f, 1000.0, rng, holds, events, temp=30.0 + np.linspace(0, 0.8, n))
     write_session(d / "test.mcap", s, batch_size=1000)
-    return {"test": d / "test.mcap", "model3": d / "model3.json"}
+    n = 30_000  # a static test in one orientation (evaluate, drift, run)
+    write_session(d / "still.mcap", _session(f[:n], 1000.0, rng, temp=30.0 + np.linspace(0, 0.3, n)))
+    return {"test": d / "test.mcap", "still": d / "still.mcap", "model3": d / "model3.json"}
 
 
 @pytest.fixture
@@ -232,3 +235,53 @@ def test_one_core_stays_in_process(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("ACCELLOG_RRD_CHILD", "0")
     monkeypatch.setattr(os, "cpu_count", lambda: 8)
     assert not offload.use_child()
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("robot") / "robot.mcap"
+    assert main(["simulate", "--motion", "robot", "-o", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("command", ["fit", "drift", "evaluate", "track", "run"])
+def test_other_commands_write_the_recording_in_process_writes(
+    command: str, files, robot, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, writers: list[int], capsys
+) -> None:
+    cal_session = files["test"].with_name("cal.mcap")
+    args = {
+        "fit": ["fit", str(cal_session), "-o", str(tmp_path / "c.json")],
+        "drift": [
+            "drift",
+            str(files["still"]),
+            "--cal",
+            str(files["model3"]),
+            "-o",
+            str(tmp_path / "d.json"),
+        ],
+        "evaluate": ["evaluate", str(files["still"]), "--cal", str(files["model3"])],
+        "track": ["track", str(robot), "--cal", str(files["model3"])],
+        "run": [
+            "run",
+            str(ROOT / "pipelines" / "six_position.toml"),
+            str(cal_session),
+            *[str(files["still"])] * 3,
+        ],
+    }[command]
+    outs = {}
+    for mode in ("0", "1"):
+        monkeypatch.setenv("ACCELLOG_RRD_CHILD", mode)
+        out = tmp_path / f"{mode}.rrd"
+        assert main([*args, "--rrd", str(out)]) == 0, capsys.readouterr().err
+        assert len(writers) == (1 if mode == "1" else 0)
+        outs[mode] = load_rrd(out)
+    capsys.readouterr()
+    a, b = outs["0"], outs["1"]
+    assert a.entities == b.entities and len(a.entities) >= 5
+    for ent in a.entities:
+        assert a.components(ent) == b.components(ent), ent
+        assert sum(c.num_rows for c in a.chunks[ent]) == sum(c.num_rows for c in b.chunks[ent]), ent
+        if "Scalars:scalars" in a.components(ent) and "sensor_time" in a.chunks[ent][0].schema.names:
+            for x, y in zip(a.series(ent), b.series(ent), strict=True):
+                np.testing.assert_array_equal(x, y)
+    assert sorted(map(repr, a.views())) == sorted(map(repr, b.views()))
