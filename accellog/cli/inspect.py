@@ -14,7 +14,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import EffectsOpt, app
+from accellog.cli.app import EffectsOpt, app, prestart_rrd_writer
 from accellog.core.errors import InputError
 
 _console = Console()
@@ -43,15 +43,6 @@ def _cals(paths: list[Path] | None, effects_file: Path | None) -> list:
     from accellog.calibrate.calfile.calibration import load_calibration
 
     return [load_calibration(p, effects_file) for p in paths or []]
-
-
-def _prestart_writer(rrd: Path | None) -> None:
-    """With --rrd, the .rrd is written by a child process started now, which imports rerun while
-    this one reads and integrates (present.rrd.offload: 1 h replay 1.93-1.97 s -> 1.66-1.73 s)."""
-    if rrd is not None:
-        from accellog.present.rrd.offload import prestart
-
-        prestart()
 
 
 def _print_result(res, title: str, json_out: bool) -> None:
@@ -89,7 +80,7 @@ def replay(
 ) -> None:
     """Feed a session through online correction + integration in sensor time, logging raw and
     calibrated accel and displacement tracks to a live viewer or an .rrd."""
-    _prestart_writer(rrd)
+    prestart_rrd_writer(rrd)
     from accellog.flows.inspect import run_replay, sink_option
     from accellog.flows.replay import parse_speed
 
@@ -124,7 +115,7 @@ def compare(
 ) -> None:
     """Displacement tracks of several calibrations of one test session side by side, with their
     final drift (terminal table, --json, and a document in the .rrd)."""
-    _prestart_writer(rrd)
+    prestart_rrd_writer(rrd)
     from accellog.flows.inspect import run_replay, sink_option
 
     if not cal:
