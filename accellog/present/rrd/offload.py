@@ -351,6 +351,9 @@ class OffloadedRecording(SeriesLogs):
             self.abort()
 
 
+Recording = RunRecording | OffloadedRecording
+"""What ``open_recording`` returns: the same methods either way."""
+
 _started: _Writer | None = None
 
 
@@ -378,7 +381,7 @@ def stop_unclaimed() -> None:
         w.stop()
 
 
-def open_recording(sink: str, **kw: Any) -> RunRecording | OffloadedRecording:
+def open_recording(sink: str, **kw: Any) -> Recording:
     """The recording of a sink (the arguments of ``RunRecording``): the started child's (``prestart``)
     for the first file sink with blueprint 'auto' or None (not guarded, no on_failure), else a
     RunRecording in this process."""

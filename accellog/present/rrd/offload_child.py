@@ -39,7 +39,7 @@ def frame(obj: Any) -> list[memoryview]:
     data = pickle.dumps(obj, protocol=5, buffer_callback=bufs.append)
     raws = [b.raw() for b in bufs]
     head = HEADER.pack(len(raws), len(data)) + struct.pack(f"<{len(raws)}Q", *(r.nbytes for r in raws))
-    return [memoryview(p) for p in (head, data, *raws) if len(p)]
+    return [v for v in (memoryview(head), memoryview(data), *raws) if v.nbytes]
 
 
 def write_all(fd: int, parts: list[memoryview]) -> None:
@@ -189,6 +189,8 @@ def main() -> None:
                     rec = RunRecording(kw.pop("sink"), output=out, **kw)
             elif gone.is_set():
                 continue  # the parent is gone: on to the end of the stream, then abort
+            elif rec is None:
+                raise RuntimeError(f"{op!r} before 'open'")
             elif op == "call":
                 name, args, kwargs = rest
                 getattr(rec, name)(*args, **kwargs)

@@ -141,7 +141,7 @@ class SeriesLogs:
     def _log_track(self, label: str, t_s: np.ndarray, disp_m: np.ndarray) -> None:
         d = np.asarray(disp_m, dtype=np.float64).reshape(-1, 3)
         t = np.asarray(t_s, dtype=np.float64)
-        keep = slice(None)
+        keep: slice | np.ndarray = slice(None)
         if not self.full_rate and d.shape[0] > FULL_RATE_MAX_SAMPLES:  # smooth: every k-th + the last
             keep = track_keep(d.shape[0])
         self._write_track(label, t[keep], d[keep], strip_3d(d))
