@@ -131,7 +131,7 @@ EffectsOpt = Annotated[
 def prestart_rrd_writer(rrd: Path | None) -> None:
     """With --rrd, the commands measured to gain have the .rrd written by a child process started
     now, which imports rerun while this one computes (present.rrd.offload: ``replay --rrd`` 1 h
-    1.93-1.97 s -> 1.66-1.73 s); nothing without --rrd, nothing on one core."""
+    1.33-1.43x -> 1.17-1.26x the replay alone); nothing without --rrd, nothing on one core."""
     if rrd is not None:
         from accellog.present.rrd.offload import prestart
 

@@ -10,10 +10,10 @@ the rows that go into the file cross the pipe (pickle protocol 5, arrays as out-
 ~2 MB for that replay instead of ~320 MB of samples, whose sending cost the parent more (0.5-0.7 s)
 than building the envelopes (0.13-0.2 s).
 
-Measured with ``python benchmarks/run_all.py --rows replay --repeat 5`` (2 cores, a load of ~1 from
-other jobs), two runs each: ``replay --rrd`` 1 h: 1.93-1.97 s in-process, 1.66-1.73 s with the
-child, the replay alone 1.36-1.42 s (1.39-1.43x -> 1.22x); CPU 2.2 -> 2.3 s; peak memory 185 ->
-123 MB (rerun lives in the child). Other commands, medians of 5 interleaved runs, in-process ->
+Measured with ``python benchmarks/run_all.py --rows replay --repeat 5``, six runs each in one session
+(2 cores, a load of 0.8-1.4 from other jobs): ``replay --rrd`` 1 h: 1.63-1.97 s in-process = 1.33-1.43x
+the replay alone, 1.51-1.84 s with the child = 1.17-1.26x (one run 1.40x); CPU +0.1-0.3 s (the
+child's interpreter and imports); peak memory 185 -> 123 MB (rerun lives in the child). Other commands, medians of 5 interleaved runs, in-process ->
 child: fit 1 h 2.79 -> 2.49 s, fit 1 min 1.27 -> 1.03 s, drift 1 h 4.18 -> 3.83 s, evaluate 1 h
 4.37 -> 3.76 s, track 64 s 0.81 -> 0.75 s, run six_position 14.6 -> 13.2 s. ``diagnose`` (which
 builds rerun objects itself) showed no steady gain and stays in-process, as do the commands that

@@ -1,7 +1,7 @@
 """The child side of ``present.rrd.offload``: a process that writes one .rrd file with ``RunRecording``,
 so that the ~0.5 s of ``import rerun`` and the writing run beside the command instead of in it
-(``replay --rrd`` 1 h: 1.93-1.97 s in-process, 1.66-1.73 s with this child, the replay alone
-1.36-1.42 s; ``python benchmarks/run_all.py --rows replay --repeat 5``).
+(``replay --rrd`` 1 h: 1.33-1.43x the replay alone in-process, 1.17-1.26x with this child;
+``python benchmarks/run_all.py --rows replay --repeat 5``, figures in present.rrd.offload).
 
 It reads calls from its stdin (frames of ``send``: pickle protocol 5, numpy arrays as out-of-band
 buffers) and runs them on a real ``RunRecording`` saving to the temporary file its parent reserved
