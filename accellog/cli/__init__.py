@@ -155,7 +155,16 @@ def main(argv: list[str] | None = None) -> int:
         if code is None:
             raise
         return code
+    finally:
+        _stop_unclaimed_writer()
     return rc
+
+
+def _stop_unclaimed_writer() -> None:
+    """A .rrd writer child the command started but did not use (it failed first) ends with it."""
+    offload = sys.modules.get("accellog.present.rrd.offload")
+    if offload is not None:
+        offload.stop_unclaimed()
 
 
 def console() -> None:

@@ -13,7 +13,7 @@ from accellog.flows.replay import compare as compare_fn
 from accellog.flows.replay import replay as replay_fn
 from accellog.flows.stages import load_input
 from accellog.flows.stream_input import can_stream
-from accellog.present.rrd.recording import RunRecording
+from accellog.present.rrd.offload import open_recording
 
 
 def load_session_file(path: Path):
@@ -64,7 +64,7 @@ def run_replay(
     s = load_session_file(session)
     cals = list(cal or [])
     rec = (
-        RunRecording(
+        open_recording(  # a child process's when the command started one (present.rrd.offload)
             sink, recording_id=f"accellog-{'compare' if compare_mode else 'replay'}", full_rate=full_rate
         )
         if sink

@@ -37,7 +37,7 @@ from accellog.flows.stages import (
 from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_poses
 from accellog.present import tables as report
 from accellog.present import views
-from accellog.present.rrd.recording import RunRecording
+from accellog.present.rrd.offload import open_recording
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.ladder import LadderRow
@@ -267,7 +267,7 @@ class PipelineResult(JsonResult):
     def write_rrd(self, path: str | os.PathLike) -> None:
         """Recording of every fit, the evaluations (and after the drift model) and the result tables."""
 
-        with RunRecording(f"save:{path}") as rec:
+        with open_recording(f"save:{path}") as rec:
             for name, fo in self.fits.items():
                 views.log_fit(rec, fo, name)
             views.log_evaluations(rec, self.evaluations)

@@ -2,9 +2,10 @@
 
 The MCAP file is only read, chunk group by chunk group (``flows.replay_input``: memory flat in the
 session length); the samples are fed batch by batch through ``accellog.navigate.online.OnlineIntegrator``
-(one per track: the raw reading and each calibration) and logged to a ``RunRecording`` as they go
-(long series as min/max display envelopes, tracks every k-th sample), sleeping so that sensor time
-advances ``speed`` times faster than wall time (``speed=None``: as fast as possible).
+(one per track: the raw reading and each calibration) and logged to a ``RunRecording`` (or one in a
+child process: present.rrd.offload) as they go (long series as min/max display envelopes, tracks
+every k-th sample), sleeping so that sensor time advances ``speed`` times faster than wall time
+(``speed=None``: as fast as possible).
 
 For a session at rest with up vector u (sensor frame), every track is
 
@@ -33,7 +34,7 @@ from accellog.flows.replay_input import batches, open_replay_input
 from accellog.navigate.online import OnlineIntegrator
 from accellog.present.rrd.entities import AXES, AXIS_COLORS, TRACKS, slug
 from accellog.present.rrd.envelope import ENVELOPE_BUCKETS
-from accellog.present.rrd.recording import RunRecording
+from accellog.present.rrd.offload import Recording
 
 MAX_BATCH_S = 60.0
 """Sensor seconds per batch when replaying as fast as possible (columnar logging)."""
@@ -233,7 +234,7 @@ def replay(
     cals: Sequence[Any] = (),
     labels: Sequence[str] | None = None,
     speed: float | str | None = None,
-    recording: RunRecording | None = None,
+    recording: Recording | None = None,
     up_sensor: str | Sequence[float] | None = None,
     include_raw: bool = True,
     apply_drift: bool = True,
@@ -344,7 +345,7 @@ def _run(src, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float]:
     return n, t_end
 
 
-def _log_track_rows(rec: RunRecording, tr: _Track, t_s: np.ndarray, disp_m: np.ndarray) -> None:
+def _log_track_rows(rec: Recording, tr: _Track, t_s: np.ndarray, disp_m: np.ndarray) -> None:
     names = [f"{tr.label} {a} (m)" for a in AXES]
     rec.log_series(
         f"{TRACKS}/{slug(tr.label)}", t_s, disp_m, names, role="track", colors=AXIS_COLORS, decimate=False
@@ -356,7 +357,7 @@ def compare(
     cals: Sequence[Any],
     *,
     labels: Sequence[str] | None = None,
-    recording: RunRecording | None = None,
+    recording: Recording | None = None,
     up_sensor: str | Sequence[float] | None = None,
     include_raw: bool = True,
 ) -> ReplayResult:

@@ -110,9 +110,9 @@ class FitOutcome(JsonResult):
         """Recording of the fit (residuals per pose) and, for a session, its samples raw and calibrated."""
 
         from accellog.present import views
-        from accellog.present.rrd.recording import RunRecording
+        from accellog.present.rrd.offload import open_recording
 
-        with RunRecording(f"save:{path}") as rec:
+        with open_recording(f"save:{path}") as rec:
             if isinstance(data, Session):
                 views.log_session(rec, data, calibrations={self.fit.model.name: self.cal})
             views.log_fit(rec, self)
@@ -401,9 +401,9 @@ class DriftOutcome(JsonResult):
         """Recording of the static session calibrated, with and without the drift model."""
 
         from accellog.present import views
-        from accellog.present.rrd.recording import RunRecording
+        from accellog.present.rrd.offload import open_recording
 
-        with RunRecording(f"save:{path}") as rec:
+        with open_recording(f"save:{path}") as rec:
             if isinstance(data, Session):
                 views.log_session(rec, data, calibrations={"calibrated + drift model": self.cal})
             views.log_evaluations(rec, [self.fit_eval])

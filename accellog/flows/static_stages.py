@@ -37,7 +37,7 @@ from accellog.navigate.evaluate import (
 )
 from accellog.present import tables, views
 from accellog.present.residual_views import log_panels, log_residuals_vs_drivers, panels
-from accellog.present.rrd.recording import RunRecording
+from accellog.present.rrd.offload import open_recording
 from accellog.store.atomic import atomic_output
 
 if TYPE_CHECKING:  # the hand-held path (scipy.stats, ~60 MB and ~0.9 s of imports) loads when used
@@ -123,7 +123,7 @@ class EvaluationReport(JsonResult):
     def write_rrd(self, path: str | Path) -> None:
         """The session (raw and calibrated) and the evaluation (tracks, or per-pose residual tables)."""
 
-        with RunRecording(f"save:{path}") as rec:
+        with open_recording(f"save:{path}") as rec:
             if isinstance(self.data, Session):
                 views.log_session(rec, self.data, calibrations=self.calibrations_by_label())
             if self.poses:

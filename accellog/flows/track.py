@@ -10,7 +10,7 @@ from accellog.core.errors import InputError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import Session
 from accellog.navigate.track_eval import TrackRun, run_session_tracks
-from accellog.present.rrd.recording import RunRecording
+from accellog.present.rrd.offload import open_recording
 from accellog.present.views import log_session, log_track_runs
 from accellog.store.reader import read_session
 
@@ -45,7 +45,7 @@ class TrackReport(JsonResult):
     def write_rrd(self, path: str | Path) -> None:
         """Recording of the session and its tracks vs truth, errors over time, ZUPT stops."""
 
-        with RunRecording(f"save:{path}") as rec:
+        with open_recording(f"save:{path}") as rec:
             log_session(rec, self.session)
             log_track_runs(rec, self.runs, self.session.truth, group="track")
 

@@ -31,14 +31,12 @@ from accellog.present.rrd.entities import (
     POSES_ACTIVE,
     POSES_LOG,
     RESIDUALS,
-    TRACK_3D_MAX_POINTS,
     TRACK_COLORS,
     TRACKS,
     WORLD_TRACKS,
     slug,
     slug_path,
 )
-from accellog.present.rrd.envelope import FULL_RATE_MAX_SAMPLES, track_keep
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.ladder import LadderRow
@@ -47,7 +45,8 @@ if TYPE_CHECKING:
 class PipelineLogs:
     """Logging methods for pipeline results (mixed into RunRecording, which provides ``rec``,
     ``_guarded``, ``_log_series``, ``_entities``, ``full_rate``, ``_n_tracks``, ``_n_poses`` and
-    ``_finals3d``: 3D final point entity -> (position m, label), decluttered on close)."""
+    ``_finals3d``: 3D final point entity -> (position m, label), decluttered on close). Tracks come
+    reduced by ``SeriesLogs.log_track`` / ``log_track_3d`` (series.py)."""
 
     rec: Any
     full_rate: bool
@@ -188,25 +187,17 @@ class PipelineLogs:
         md = f"### Residuals of {model_name} (measured - predicted)\n\n" + "\n".join(rows) + "\n"
         self._log_document(f"residuals/{model_name}", md)
 
-    def log_track(self, label: str, t_s: np.ndarray, disp_m: np.ndarray) -> None:
-        """Displacement track (N,3) in m: time series ``/tracks/{label}`` and a 3D line strip
-        ``/world/tracks/{label}`` with its final point (labelled with the final displacement)."""
-        self._guarded(self._log_track, label, t_s, disp_m)
-
-    def _log_track(self, label: str, t_s: np.ndarray, disp_m: np.ndarray) -> None:
-        d = np.asarray(disp_m, dtype=np.float64).reshape(-1, 3)
+    def _write_track(self, label: str, t: np.ndarray, d: np.ndarray, d_strip: np.ndarray) -> None:
+        """A displacement track as ``SeriesLogs.log_track`` has reduced it: the time series (t (N,) s,
+        d (N,3) m) and the 3D strip (d_strip (M,3) m, its last row the final displacement)."""
         color = TRACK_COLORS[self._n_tracks % len(TRACK_COLORS)]
         if f"{TRACKS}/{slug_path(label)}" not in self._entities:
             self._n_tracks += 1
         name = str(label).rsplit("/", 1)[-1]
-        t = np.asarray(t_s, dtype=np.float64)
-        keep = slice(None)
-        if not self.full_rate and d.shape[0] > FULL_RATE_MAX_SAMPLES:  # smooth: every k-th + the last
-            keep = track_keep(d.shape[0])
         self._log_series(
             f"{TRACKS}/{slug_path(label)}",
-            t[keep],
-            d[keep],
+            t,
+            d,
             [f"{name} {a} (m)" for a in AXES],
             None,
             "track",
@@ -214,29 +205,17 @@ class PipelineLogs:
             False,
             False,
         )
-        if d.shape[0]:
-            self._log_track_3d(label, d, color)
+        if d_strip.shape[0]:
+            self._write_track_3d(label, d_strip, color)
 
-    def log_track_3d(
-        self, label: str, disp_m: np.ndarray, *, color: tuple[int, int, int] | None = None
-    ) -> None:
-        """Static 3D line strip of a whole track (m; decimated, last point kept) + its final point."""
-        self._guarded(self._log_track_3d, label, disp_m, color)
-
-    def _log_track_3d(self, label: str, disp_m: np.ndarray, color: tuple[int, int, int] | None) -> None:
+    def _write_track_3d(self, label: str, d_strip: np.ndarray, color: tuple[int, int, int] | None) -> None:
+        """The static 3D line strip (SeriesLogs.log_track_3d) and its final point (the last row)."""
         import rerun as rr
 
-        d = np.asarray(disp_m, dtype=np.float64).reshape(-1, 3)
         color = color or TRACK_COLORS[0]
-        n = d.shape[0]
-        if n > TRACK_3D_MAX_POINTS:
-            keep = np.unique(np.r_[np.linspace(0, n - 1, TRACK_3D_MAX_POINTS).astype(np.int64), n - 1])
-            d_strip = d[keep]
-        else:
-            d_strip = d
         ent = f"{WORLD_TRACKS}/{slug_path(label)}"
         self._entities[ent] = "track3d"
-        final = d[-1]
+        final = d_strip[-1]
         label = str(label).rsplit("/", 1)[-1]
         # the strip's label stays in the data but is not drawn: the final point carries the name
         self.rec.log(

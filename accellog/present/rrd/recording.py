@@ -6,9 +6,10 @@ per sample; a file sink gathers a series' small batches, such as envelope rows, 
 ``COALESCE_ROWS`` rows) on the main timeline ``sensor_time`` (duration, s since session start) plus
 ``sample`` (sequence, device sample index) for raw streams. Entity paths in ``entities``.
 
-This module holds the sink, the guard against live-view failures, the generic series (display
-envelopes: ``envelope``) and closing with the blueprint (each view's time range: ``ranges``); holds,
-events, residuals, tracks, documents and the ladder are logged by the ``PipelineLogs`` mixin
+This module holds the sink, the guard against live-view failures, the rows of generic series as they
+go into the file and closing with the blueprint (each view's time range: ``ranges``); series are
+checked and reduced to display envelopes (``envelope``) by the ``SeriesLogs`` mixin (``series``),
+holds, events, residuals, tracks, documents and the ladder are logged by the ``PipelineLogs`` mixin
 (``logs``).
 """
 
@@ -18,32 +19,22 @@ import contextlib
 import sys
 import threading
 import urllib.parse
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from accellog.present.rrd.entities import (
-    AXES,
-    AXIS_COLORS,
     MAIN_TIMELINE,
     SAMPLE_TIMELINE,
     SPAWN_PORT,
-    TEMPERATURE,
-    as_2d,
-    slug,
-)
-from accellog.present.rrd.envelope import (
-    FULL_RATE_MAX_SAMPLES,
-    EnvelopeBuilder,
-    bucket_width_s,
-    minmax_envelope,
 )
 from accellog.present.rrd.layout import build_blueprint, live_blueprint
 from accellog.present.rrd.logs import PipelineLogs
 from accellog.present.rrd.ranges import with_time_ranges
 from accellog.present.rrd.sdk import rerun_sdk
+from accellog.present.rrd.series import SeriesLogs
 from accellog.present.rrd.sinks import SinkWatch, parse_sink, spawn_viewer
 from accellog.store.atomic import AtomicOutput
 
@@ -53,7 +44,7 @@ COALESCE_ROWS = 16_384
 Live sinks get every batch as it comes."""
 
 
-class RunRecording(PipelineLogs):
+class RunRecording(SeriesLogs, PipelineLogs):
     """A Rerun recording of one pipeline run (see the module docstring for the entity layout).
 
     sink: 'save:PATH' | 'spawn' | 'connect' | 'connect:URL'. blueprint: 'auto' (a layout built on
@@ -63,7 +54,10 @@ class RunRecording(PipelineLogs):
     message at the first failure (default: print to stderr). full_rate: log long series at the full
     rate instead of display envelopes (``present.rrd.envelope``; default: ``DEFAULT_FULL_RATE``,
     which the CLI sets from ACCELLOG_RRD_FULL=1; else envelopes for series longer than
-    FULL_RATE_MAX_SAMPLES).
+    FULL_RATE_MAX_SAMPLES). output (file sinks): an ``AtomicOutput`` the caller has begun (the path
+    checked and locked, its temporary file reserved): the recording is written to its temporary file
+    and committed or aborted through it (``present.rrd.offload``: the parent process owns the file,
+    a child writes it); default: one of its own for the sink's path.
     """
 
     DEFAULT_FULL_RATE = False
@@ -79,11 +73,11 @@ class RunRecording(PipelineLogs):
         guard: bool | None = None,
         on_failure: Callable[[str], None] | None = None,
         full_rate: bool | None = None,
+        output: AtomicOutput | None = None,
     ) -> None:
         rr = rerun_sdk()
         self.full_rate = bool(type(self).DEFAULT_FULL_RATE if full_rate is None else full_rate)
-        self._span: tuple[float, float] | None = None  # batched logging: (t0, bucket width) s
-        self._builders: dict[str, tuple[EnvelopeBuilder, bool]] = {}  # entity -> (builder, has index)
+        self._init_series()  # envelopes and batches (series.py)
         self._extents: dict[str, tuple[float, float]] = {}  # entity -> (first, last) sensor_time (s)
         self._pending: dict[str, tuple[int, list]] = {}  # entity -> (rows, [(t, v, index)]) to send
         self.kind, self.target = parse_sink(sink)
@@ -109,8 +103,10 @@ class RunRecording(PipelineLogs):
         bp = self._initial_blueprint()
         if self.kind == "save":
             self._final = Path(self.target)
-            self._out = AtomicOutput(self._final, what="--rrd output")
-            self._tmp = self._out.begin()  # checks the path, locks it, reserves a unique temp name
+            if output is None:
+                output = AtomicOutput(self._final, what="--rrd output")
+                output.begin()  # checks the path, locks it, reserves a unique temp name
+            self._out, self._tmp = output, output.tmp
             try:  # the blueprint goes in on close, with each view's time range (present.rrd.ranges)
                 self.rec.save(str(self._tmp), default_blueprint=None)
             except BaseException:
@@ -167,37 +163,11 @@ class RunRecording(PipelineLogs):
             return None
 
     # -- generic -------------------------------------------------------------------------------------
-    def log_series(
-        self,
-        entity: str,
-        t_s: np.ndarray,
-        values: np.ndarray,
-        names: Sequence[str],
-        *,
-        sample_index: np.ndarray | None = None,
-        role: str = "series",
-        colors: Sequence[tuple[int, int, int]] | None = None,
-        points: bool = False,
-        step: bool = False,
-        decimate: bool = True,
-    ) -> None:
-        """Columnar scalars (N,k) on sensor_time (and ``sample`` if given); names label the k series.
-
-        decimate: a long series (or any series while ``begin_batches`` is in force) is logged as its
-        min/max display envelope unless the recording is ``full_rate`` (see the module docstring)."""
-        self._guarded(
-            self._log_series, entity, t_s, values, names, sample_index, role, colors, points, step, decimate
-        )
-
-    def _log_series(
-        self, entity, t_s, values, names, sample_index, role, colors, points, step, decimate=False
-    ) -> None:
+    def _write_series(self, entity, t, v, names, sample_index, role, colors, points, step) -> None:
+        """Rows as they go into the file (``SeriesLogs._log_series`` has checked and reduced them): the
+        series' style on first use, its extent, and the rows sent or gathered (module docstring)."""
         import rerun as rr
 
-        t = np.asarray(t_s, dtype=np.float64)
-        v = as_2d(values, t.shape[0], entity)
-        if decimate and not self.full_rate:
-            t, v, sample_index = self._envelope(entity, t, v, sample_index)
         if entity not in self._entities:
             self._entities[entity] = role
             style: dict[str, Any] = {"names": list(names)}
@@ -227,6 +197,9 @@ class RunRecording(PipelineLogs):
         if rows + t.shape[0] >= COALESCE_ROWS:
             self._send_pending(entity)
 
+    def _end_rows(self) -> None:
+        self._guarded(self._send_pending)
+
     def _send_pending(self, entity: str | None = None) -> None:
         """Send the gathered rows of entity (None: of every series)."""
         for e in list(self._pending) if entity is None else [entity]:
@@ -244,42 +217,6 @@ class RunRecording(PipelineLogs):
         cols = v[:, 0] if v.shape[1] == 1 else v
         self.rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=cols))
 
-    def _envelope(self, entity, t, v, sample_index):
-        """(t, v, sample_index) to log: the display envelope's rows, or the input when it is short."""
-        if self._span is not None:
-            if entity not in self._builders:
-                self._builders[entity] = (EnvelopeBuilder(*self._span), sample_index is not None)
-            env = self._builders[entity][0].push(t, v, sample_index)
-        elif t.shape[0] > FULL_RATE_MAX_SAMPLES:
-            env = minmax_envelope(t, v, index=sample_index)
-        else:
-            return t, v, sample_index
-        return env.t_s, env.values, (None if sample_index is None else env.row_index)
-
-    def begin_batches(self, t0_s: float, t1_s: float, n_samples: int) -> None:
-        """Series of a session spanning t0_s..t1_s (s, n_samples samples) follow batch by batch: their
-        envelopes share buckets of (t1 - t0) / ENVELOPE_BUCKETS s across calls (no envelope when
-        n_samples <= FULL_RATE_MAX_SAMPLES). ``end_batches`` (or close) writes the last buckets."""
-        self.end_batches()
-        if n_samples > FULL_RATE_MAX_SAMPLES:
-            self._span = (float(t0_s), bucket_width_s(float(t1_s) - float(t0_s)))
-
-    def begin_stream(self, width_s: float, t0_s: float = 0.0) -> None:
-        """Series of an open-ended stream (a live recording) follow batch by batch: their envelopes
-        use buckets of width_s s from t0_s on. ``end_batches`` (or close) writes the last buckets."""
-        self.end_batches()
-        self._span = (float(t0_s), float(width_s))
-
-    def end_batches(self) -> None:
-        """Write the open bucket of every batched envelope (and every gathered row: module docstring)
-        and return to one-shot logging."""
-        builders, self._builders, self._span = self._builders, {}, None
-        for entity, (eb, has_index) in builders.items():
-            env = eb.finish()
-            idx = env.row_index if has_index else None
-            self._guarded(self._log_series, entity, env.t_s, env.values, [], idx, "", None, False, False)
-        self._guarded(self._send_pending)
-
     def log_static(self, entity: str, archetype: Any, role: str = "static") -> None:
         """Any Rerun archetype logged once (static) at entity; role picks its view in the blueprint."""
         self._guarded(self._log_static, entity, archetype, role)
@@ -289,26 +226,6 @@ class RunRecording(PipelineLogs):
         self.rec.log(entity, archetype, static=True)
 
     # -- pipeline data -------------------------------------------------------------------------------
-    def log_samples(
-        self,
-        name: str,
-        t_s: np.ndarray,
-        sample_index: np.ndarray | None,
-        values: np.ndarray,
-        unit: str,
-        kind: str = "accel",
-    ) -> None:
-        """Sample stream (N,3) at ``/{kind}/{name}``, e.g. raw or calibrated accel in g (unit 'g')."""
-        entity = f"{slug(kind)}/{slug(name)}"
-        names = [f"{name} {a} ({unit})" for a in AXES]
-        self.log_series(
-            entity, t_s, values, names, sample_index=sample_index, role=f"samples:{kind}", colors=AXIS_COLORS
-        )
-
-    def log_temperature(self, t_s: np.ndarray, temp_degC: np.ndarray) -> None:
-        """Die temperature (degC) on sensor_time."""
-        self.log_series(TEMPERATURE, t_s, temp_degC, ["die temperature (degC)"], role="temperature")
-
     def log_text(self, entity: str, t_s: float, text: str, level: str = "INFO") -> None:
         """One TextLog line at sensor time t_s."""
         self._guarded(self._log_text, entity, t_s, text, level)
