@@ -309,7 +309,7 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
     if full and want("fleet"):
         fl = fleet_sessions(d, 300)
         run = ("fleet", "run", ROOT / "pipelines" / "fleet.toml", f"{fl}/**/*.mcap", "--force", "-o")
-        out.append(Row("fleet", "`fleet run` 300 sessions, 2 local workers (CPU: the client only)", ">= 1.8x faster than serial",
+        out.append(Row("fleet", "`fleet run` 300 sessions, 2 local workers", ">= 1.8x faster than serial",
                        accellog(*run, d / "fleet_par", "--workers", 2), "the serial loop (--workers 0)",
                        accellog(*run, d / "fleet_ser", "--workers", 0), _speedup(1.8), wall_only=True))  # fmt: skip
         # the ceiling of 2 cores: the same sessions cut in two halves, two serial runs side by side

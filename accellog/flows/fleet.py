@@ -270,12 +270,18 @@ def pin_blas() -> None:
 
 
 def warm_worker() -> int:
-    """Import what a task needs (flows.fleet_worker; a forked local worker has it already) and pin
-    BLAS to one thread (run once on each worker before timing); returns the pid. scipy.optimize
-    (imported lazily by the first fit) is half of it: 0.15 s of CPU that the first task of every
-    worker paid before."""
+    """Import what a task needs and pin BLAS to one thread (run once on each worker before timing);
+    returns the pid. scipy.optimize (imported lazily by the first fit) is half of it: 0.15 s of CPU
+    that the first task of every worker paid before."""
     pin_blas()
-    import accellog.flows.fleet_worker  # noqa: F401
+    import scipy.optimize  # noqa: F401
+
+    import accellog.calibrate.diagnosis.diagnose
+    import accellog.calibrate.gyro.calibrate
+    import accellog.calibrate.model.fit
+    import accellog.calibrate.model.variance
+    import accellog.flows.pipeline
+    import accellog.store.reader  # noqa: F401
 
     return os.getpid()
 

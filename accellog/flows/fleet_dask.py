@@ -44,20 +44,6 @@ WORKER_CONFIG = {
   session instead of 20; a task 8-12 % more CPU than in the serial loop, now the same)."""
 
 
-FORKSERVER_PRELOAD = ["distributed", "numpy", "scipy.optimize", "accellog.flows.fleet_worker"]
-"""What the local cluster's fork server imports once, so that every worker forked from it starts with
-dask, scipy and the fitting code in memory: spawned workers each imported them (0.87 s of CPU per
-worker, twice on 2 cores what the serial loop imports once: docs/fleet.md, "Scaling model")."""
-
-
-def start_method() -> str:
-    """How local worker processes are started: forked from a server that has imported dask, numpy,
-    scipy and the fitting code once (where the platform has it), else spawned (each imports it all)."""
-    import multiprocessing as mp
-
-    return "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-
-
 def local_cluster(n_workers: int | None = None):
     """A dask LocalCluster on 127.0.0.1: n_workers single-threaded processes (default: cores),
     no dashboard, WORKER_CONFIG."""
@@ -67,12 +53,7 @@ def local_cluster(n_workers: int | None = None):
     from dask.distributed import LocalCluster
 
     n = n_workers or os.cpu_count() or 1
-    method = start_method()
-    with dask.config.set({**WORKER_CONFIG, "distributed.worker.multiprocessing-method": method}):
-        if method == "forkserver":  # after dask's own choice (it adds pandas, which no task needs)
-            from distributed.utils import get_mp_context
-
-            get_mp_context().set_forkserver_preload(FORKSERVER_PRELOAD)
+    with dask.config.set(WORKER_CONFIG):
         return LocalCluster(
             n_workers=n,
             threads_per_worker=1,
