@@ -73,6 +73,10 @@ def _busy(args: list[str]):
     return Busy(label)
 
 
+INTERRUPTED = 130
+"""Exit code of a command stopped by Ctrl-C (SIGINT), as shells report it (128 + 2)."""
+
+
 def _run(args: list[str]) -> int:
     """Parse and run one command line (`--version` without typer)."""
     if args == ["--version"]:
@@ -89,6 +93,8 @@ def _run(args: list[str]) -> int:
 
         RunRecording.DEFAULT_FULL_RATE = True
     rc = command_group()(args=args, prog_name="accellog", standalone_mode=False)
+    if rc == INTERRUPTED:  # typer >= 0.29 turns Ctrl-C into a silent Exit(130)
+        print("accellog: interrupted", file=sys.stderr)
     return rc if isinstance(rc, int) else 0
 
 
@@ -115,7 +121,7 @@ def _exit_code(exc: Exception) -> int | None:
         return exc.exit_code
     if typer is not None and isinstance(exc, typer.Abort):
         print("accellog: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
     if typer is not None and isinstance(exc, typer.Exit):
         return int(exc.exit_code)
     if isinstance(exc, OSError):  # a file system problem the command did not foresee: still one line
@@ -147,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"accellog: note: {text}", file=sys.stderr)
     except KeyboardInterrupt:
         print("accellog: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     except Exception as exc:
