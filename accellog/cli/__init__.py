@@ -10,7 +10,7 @@ import os
 import sys
 import warnings
 
-from accellog.core import notices
+from accellog.core import forked, notices
 from accellog.core.errors import AccellogError, DataIntegrityWarning
 
 
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     notices.take()  # notes of an earlier in-process call are not this command's
     args = sys.argv[1:] if argv is None else list(argv)
     try:
-        with warnings.catch_warnings(), _one_blas_thread(), _busy(args):
+        with warnings.catch_warnings(), _one_blas_thread(), _busy(args), forked.allowed():
             warnings.simplefilter("always", DataIntegrityWarning)
             warnings.showwarning = _integrity_line
             rc = _run(args)

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from accellog.core.errors import InputError
+from accellog.core.forked import started
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 
@@ -70,7 +71,14 @@ def run_diagnose(
     session = Path(session)
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
-    streamed = open_labelled(session, window_s=window_s, host=True) if rrd is None else None
+    streamed = None
+    if rrd is None:  # a forked child reads while this process imports the diagnosis (core.forked)
+        with started(
+            open_labelled, session, window_s=window_s, host=True, what=f"reading {session}"
+        ) as reading:
+            if reading.forked:
+                _load_diagnosis()
+            streamed = reading.result()
     data = streamed if streamed is not None else _load_whole(session)  # pose tables, observations: ObsTable
     if isinstance(data, Session) and not data.poses:
         return _handheld(
@@ -90,6 +98,15 @@ def run_diagnose(
         noise_from,
         rrd,
     )
+
+
+def _load_diagnosis() -> None:
+    """Import the diagnosis and its solver now, while a child reads: ~0.4 s of CPU (scipy.optimize,
+    scipy.linalg) that otherwise follows the reading (figures: core.forked)."""
+    import accellog.calibrate.diagnosis.diagnose  # noqa: F401
+    from accellog.core.numeric import load_solver
+
+    load_solver()
 
 
 def _load_whole(session: Path):

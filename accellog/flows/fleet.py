@@ -274,15 +274,15 @@ def warm_worker() -> int:
     returns the pid. scipy.optimize (imported lazily by the first fit) is half of it: 0.15 s of CPU
     that the first task of every worker paid before."""
     pin_blas()
-    import scipy.optimize  # noqa: F401
-
     import accellog.calibrate.diagnosis.diagnose
     import accellog.calibrate.gyro.calibrate
     import accellog.calibrate.model.fit
     import accellog.calibrate.model.variance
     import accellog.flows.pipeline
     import accellog.store.reader  # noqa: F401
+    from accellog.core.numeric import load_solver
 
+    load_solver()
     return os.getpid()
 
 

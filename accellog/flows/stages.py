@@ -36,8 +36,10 @@ from accellog.calibrate.observe.heap import trim_heap
 from accellog.calibrate.observe.label_check import relabel_holds
 from accellog.calibrate.observe.segment import check_coverage, observations
 from accellog.core.errors import AccellogError, InputError, ModelError
+from accellog.core.forked import started
 from accellog.core.jsonio import JsonResult
 from accellog.core.notices import note
+from accellog.core.numeric import load_solver
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.flows.inputs import load_input
@@ -165,7 +167,11 @@ def fit_input(
     src = str(data) if isinstance(data, (str, os.PathLike)) else None
     if src is not None:
         if obs is None and not whole and can_stream(src) and read_labels(src)[1]:
-            streamed = open_streamed(src, window_s=window_s, trim_s=trim_s, gyro=gyro)
+            with started(open_streamed, src, window_s=window_s, trim_s=trim_s, gyro=gyro,
+                         what=f"reading {src}") as reading:  # fmt: skip
+                if reading.forked:
+                    load_solver()  # meanwhile (core.forked); in-process the first fit imports it
+                streamed = reading.result()
             if streamed is not None:  # None: damaged chunks, read whole (load_input says what it skipped)
                 return _streamed_input(streamed)
         data = load_input(src, n_per_pose=n_per_pose)

@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from accellog.core.errors import AccellogError
+from accellog.core.forked import switched, usable_cores
 from accellog.present.rrd import offload_child as wire
 from accellog.present.rrd.recording import RunRecording
 from accellog.present.rrd.series import SeriesLogs
@@ -71,15 +72,8 @@ class RecordingWriterError(AccellogError):
 
 def use_child() -> bool:
     """Whether a file recording may go to a child process (module docstring)."""
-    v = os.environ.get(ENV_SWITCH, "").strip().lower()
-    if v in ("0", "no", "false", "off"):
-        return False
-    if v in ("1", "yes", "true", "on"):
-        return True
-    cores = os.cpu_count() or 1
-    with contextlib.suppress(AttributeError, OSError):
-        cores = min(cores, len(os.sched_getaffinity(0)))
-    return cores > 1
+    on = switched(ENV_SWITCH)
+    return usable_cores() > 1 if on is None else on
 
 
 class _Writer:
