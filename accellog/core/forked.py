@@ -177,10 +177,13 @@ class Pending(Generic[T]):
         self.cancel()
 
 
-def started(fn: Callable[..., T], *args: Any, what: str = "computing", **kw: Any) -> Pending[T]:
+def started(
+    fn: Callable[..., T], *args: Any, what: str = "computing", meanwhile: bool = True, **kw: Any
+) -> Pending[T]:
     """fn(*args, **kw) in a forked child from now on (module docstring), or in-process on result();
-    what: names the work in a ChildDied line ("reading x.mcap")."""
-    return Pending(fn, args, kw, what, use_fork())
+    what: names the work in a ChildDied line ("reading x.mcap"); meanwhile False: the caller has
+    nothing to do in the meantime (e.g. its imports are done), so nothing is forked."""
+    return Pending(fn, args, kw, what, meanwhile and use_fork())
 
 
 def _child(fd: int, fn: Callable[..., Any], args: tuple, kw: dict) -> int:

@@ -24,6 +24,7 @@ fit moved by up to 3e-10 relative (inside its tolerance).
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -95,6 +96,11 @@ def least_squares(
 def load_solver() -> None:
     """Import the solver now (scipy.optimize, ~0.15-0.3 s of CPU), not on the first fit."""
     import scipy.optimize  # noqa: F401
+
+
+def solver_loaded() -> bool:
+    """Whether the solver's import is done (load_solver has nothing left to do)."""
+    return "scipy.optimize" in sys.modules
 
 
 def _zero_border(J: np.ndarray) -> np.ndarray:

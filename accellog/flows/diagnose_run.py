@@ -9,6 +9,7 @@ typed (DiagnoseOutcome); the CLI only presents it.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -73,9 +74,8 @@ def run_diagnose(
         raise InputError("session file not found", where=str(session))
     streamed = None
     if rrd is None:  # a forked child reads while this process imports the diagnosis (core.forked)
-        with started(
-            open_labelled, session, window_s=window_s, host=True, what=f"reading {session}"
-        ) as reading:
+        with started(open_labelled, session, window_s=window_s, host=True, what=f"reading {session}",
+                     meanwhile=not _diagnosis_loaded()) as reading:  # fmt: skip
             if reading.forked:
                 _load_diagnosis()
             streamed = reading.result()
@@ -98,6 +98,13 @@ def run_diagnose(
         noise_from,
         rrd,
     )
+
+
+def _diagnosis_loaded() -> bool:
+    """Whether _load_diagnosis has nothing left to do (a second diagnosis in this process)."""
+    from accellog.core.numeric import solver_loaded
+
+    return solver_loaded() and "accellog.calibrate.diagnosis.diagnose" in sys.modules
 
 
 def _load_diagnosis() -> None:

@@ -39,7 +39,7 @@ from accellog.core.errors import AccellogError, InputError, ModelError
 from accellog.core.forked import started
 from accellog.core.jsonio import JsonResult
 from accellog.core.notices import note
-from accellog.core.numeric import load_solver
+from accellog.core.numeric import load_solver, solver_loaded
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.flows.inputs import load_input
@@ -168,7 +168,7 @@ def fit_input(
     if src is not None:
         if obs is None and not whole and can_stream(src) and read_labels(src)[1]:
             with started(open_streamed, src, window_s=window_s, trim_s=trim_s, gyro=gyro,
-                         what=f"reading {src}") as reading:  # fmt: skip
+                         what=f"reading {src}", meanwhile=not solver_loaded()) as reading:  # fmt: skip
                 if reading.forked:
                     load_solver()  # meanwhile (core.forked); in-process the first fit imports it
                 streamed = reading.result()

@@ -109,6 +109,12 @@ def test_in_process_outside_a_command_and_when_switched_off(monkeypatch):
         assert p.result() == 2
 
 
+def test_nothing_is_forked_when_the_caller_has_nothing_to_do(fork_on):
+    seen: list[int] = []
+    p = forked.started(_records, seen, meanwhile=False)
+    assert not p.forked and p.result() == 1 and seen == [os.getpid()]
+
+
 def test_in_process_errors_are_raised_by_result():
     p = forked.started(_fails)
     with pytest.raises(InputError, match="hold 3"):

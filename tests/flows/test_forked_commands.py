@@ -10,7 +10,7 @@ import pytest
 
 from accellog.cli import main
 from accellog.core import forked
-from accellog.flows import stages, stream_input
+from accellog.flows import diagnose_run, stages, stream_input
 from accellog.flows.simulate import Scenario, simulate
 
 
@@ -41,10 +41,18 @@ def _readers(monkeypatch, tmp_path):
     return log
 
 
+def _imports_pending(monkeypatch):
+    """As in a fresh command: scipy not imported yet, so the read is forked (other tests of this
+    process imported it already: then nothing is forked, there is nothing to do meanwhile)."""
+    monkeypatch.setattr(stages, "solver_loaded", lambda: False)
+    monkeypatch.setattr(diagnose_run, "_diagnosis_loaded", lambda: False)
+
+
 @pytest.mark.parametrize("command", ["diagnose", "fit"])
 def test_the_same_output_read_by_a_child(sessions, command, monkeypatch, capsys, tmp_path):
     good, _ = sessions
     log = _readers(monkeypatch, tmp_path)
+    _imports_pending(monkeypatch)
     out = {}
     for switch in ("1", "0"):
         monkeypatch.setenv(forked.ENV_SWITCH, switch)
@@ -66,6 +74,7 @@ def test_the_same_output_read_by_a_child(sessions, command, monkeypatch, capsys,
 @pytest.mark.parametrize("command", ["diagnose", "fit"])
 def test_an_error_in_the_child_is_the_same_one_line(sessions, command, monkeypatch, capsys, tmp_path):
     _, tilted = sessions
+    _imports_pending(monkeypatch)
     lines = {}
     for switch in ("1", "0"):
         monkeypatch.setenv(forked.ENV_SWITCH, switch)
