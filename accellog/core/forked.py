@@ -21,8 +21,8 @@ is called, so the order of the work, its notes and its errors is the same either
 
 Measured with ``python benchmarks/run_all.py --rows diagnose fit --repeat 5`` run with and without
 ACCELLOG_FORK=0, twice each (2 cores): ``diagnose`` 1 h 1.37-1.70 s instead of 1.70-1.81 s,
-``fit`` 1 h 1.92-2.00 s instead of 2.17-2.33 s; CPU within noise, peak memory 141 vs 191 MB
-(``diagnose``: the imports no longer sit on top of the read's arrays).
+``fit`` 1 h 1.92-2.00 s instead of 2.17-2.33 s; CPU within noise; peak memory (the larger of
+the two processes) 141 MB instead of 146-150 MB for ``diagnose``.
 """
 
 from __future__ import annotations
