@@ -168,6 +168,15 @@ class NoView:
 
 
 def run(kind: str, seconds: float, poll_s: float, out: Path, fill: float | None = None) -> dict:
+    """One recording in this (pool) process, BLAS on one thread as `accellog record` runs it
+    (cli._one_blas_thread): a BLAS worker thread at normal priority would hold up the read loop."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run(kind, seconds, poll_s, out, fill)
+
+
+def _run(kind: str, seconds: float, poll_s: float, out: Path, fill: float | None) -> dict:
     if fill is not None:  # the fraction of the FIFO allowed to fill between reads
         Recorder.FILL_TARGET = fill
     base = kind.split("+")[0]
