@@ -127,16 +127,17 @@ class Pending(Generic[T]):
             return fn(*args, **kw)
         data = self._read()
         status = self._reap()
-        if not data:
+        try:
+            ok, value, caught, notes = pickle.loads(data)
+        except Exception:  # nothing, or a message cut short: the child died
             if os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGINT:
-                raise KeyboardInterrupt
+                raise KeyboardInterrupt from None
             how = (
                 f"signal {signal.Signals(os.WTERMSIG(status)).name}"
                 if os.WIFSIGNALED(status)
                 else f"exit code {os.waitstatus_to_exitcode(status)}"
             )
-            raise ChildDied(f"the process {self.what} ended without a result ({how})")
-        ok, value, caught, notes = pickle.loads(data)
+            raise ChildDied(f"the process {self.what} ended without a result ({how})") from None
         for message, category, filename, lineno in caught:
             warnings.warn_explicit(message, category, filename, lineno)
         for text in notes:

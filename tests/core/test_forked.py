@@ -65,6 +65,27 @@ def test_a_child_that_dies_is_one_line(fork_on):
     assert str(err.value) == "the process reading x.mcap ended without a result (signal SIGKILL)"
 
 
+def _killed_while_sending():
+    return b"x" * (1 << 22)  # more than the pipe holds: the child is still writing when killed
+
+
+def test_a_result_cut_short_is_one_line(fork_on, monkeypatch):
+    real = forked.Pending._read
+
+    def read_then_kill(self):
+        head = os.read(self._fd, 1000)
+        os.kill(self._pid, signal.SIGKILL)
+        return head + real(self)
+
+    monkeypatch.setattr(forked.Pending, "_read", read_then_kill)
+    with (
+        forked.started(_killed_while_sending, what="reading y.mcap") as p,
+        pytest.raises(forked.ChildDied) as err,
+    ):
+        p.result()
+    assert str(err.value) == "the process reading y.mcap ended without a result (signal SIGKILL)"
+
+
 class _Unpicklable(Exception):
     def __reduce__(self):
         raise TypeError("no")
