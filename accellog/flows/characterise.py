@@ -30,7 +30,7 @@ from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.importers.ros2 import is_ros2_bag
-from accellog.store.stream import ImuBlock, iter_imu, read_labels
+from accellog.store.stream import ImuBlock, closed_after, iter_imu, read_labels
 
 TAU_MIN_FACTOR = 100.0
 TEMP_WINDOW_S = 60.0
@@ -145,21 +145,22 @@ def characterise_noise(path: str | os.PathLike) -> NoiseModel:
     acc: AllanAccumulator | None = None
     first: ImuBlock | None = None
     has_gyro = False
-    for c in chunks:
-        if c.t_s.shape[0] == 0:
-            continue
-        if acc is None:
-            first = c
-            rate = _rate_hz(meta, c, notes)
-            has_gyro = c.gyro_dps is not None
-            acc = AllanAccumulator(rate, 6 if has_gyro else 3)
-        stream.add(c)
-        cols = [c.accel_g * STANDARD_GRAVITY_MPS2]
-        if has_gyro:
-            if c.gyro_dps is None:
-                raise InputError("gyro samples stop part-way through the session", where=str(path))
-            cols.append(np.deg2rad(c.gyro_dps))
-        acc.add(np.concatenate(cols, axis=1))
+    with closed_after(chunks):
+        for c in chunks:
+            if c.t_s.shape[0] == 0:
+                continue
+            if acc is None:
+                first = c
+                rate = _rate_hz(meta, c, notes)
+                has_gyro = c.gyro_dps is not None
+                acc = AllanAccumulator(rate, 6 if has_gyro else 3)
+            stream.add(c)
+            cols = [c.accel_g * STANDARD_GRAVITY_MPS2]
+            if has_gyro:
+                if c.gyro_dps is None:
+                    raise InputError("gyro samples stop part-way through the session", where=str(path))
+                cols.append(np.deg2rad(c.gyro_dps))
+            acc.add(np.concatenate(cols, axis=1))
     if acc is None or first is None or stream.n < 64:
         raise InputError(f"too few samples ({stream.n}) for an Allan deviation (need >= 64)", where=str(path))
     curve = acc.curve()

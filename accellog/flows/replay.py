@@ -35,6 +35,7 @@ from accellog.navigate.online import OnlineIntegrator
 from accellog.present.rrd.entities import AXES, AXIS_COLORS, TRACKS, slug
 from accellog.present.rrd.envelope import ENVELOPE_BUCKETS
 from accellog.present.rrd.offload import Recording
+from accellog.store.stream import closed_after
 
 MAX_BATCH_S = 60.0
 """Sensor seconds per batch when replaying as fast as possible (columnar logging)."""
@@ -312,33 +313,34 @@ def _run(src, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float]:
     stride = max(1, src.n // 20_000)  # 3D strip
     slow = max(1, src.n // (2 * ENVELOPE_BUCKETS))  # displacement time series
     n, t_end = 0, t0
-    for b in batches(src.blocks(), t0, batch_s):
-        tb = b.t_s
-        if speed_f is not None:
-            wait = t_pace0 + (float(tb[-1]) - t0) / speed_f - clock()
-            if wait > 0:
-                sleep(wait)
-        keep = slice(-n % slow, None, slow)  # replay samples k * slow (k * stride for the 3D strip)
-        if rec is not None:
-            rec.log_samples("raw", tb, b.sample_index, b.accel_g, "g")
-            if b.temp_degC is not None:
-                rec.log_temperature(tb, b.temp_degC)
-        for tr in tracks:
-            step = tr.integ.push(tb, b.accel_g, src.drivers(b, n, tr.needed))
-            if rec is None:  # the displacement is read from the integrator at the end
-                continue
-            d = tr.drift.apply(tb, step.disp_m) if tr.drift is not None else step.disp_m
-            tr.parts.append(d[-n % stride :: stride].copy())  # not a view: the batch is let go
-            tr.last = d[-1]
-            if tr.cal is not None:
-                rec.log_samples(tr.label, tb, None, step.f_g, "g")
-            _log_track_rows(rec, tr, tb[keep], d[keep])
-        n += b.n
-        t_end = float(tb[-1])
-        if rec is not None and speed_f is not None and clock() - last_3d > 1.0:
-            last_3d = clock()
+    with closed_after(batches(src.blocks(), t0, batch_s)) as cut:
+        for b in cut:
+            tb = b.t_s
+            if speed_f is not None:
+                wait = t_pace0 + (float(tb[-1]) - t0) / speed_f - clock()
+                if wait > 0:
+                    sleep(wait)
+            keep = slice(-n % slow, None, slow)  # replay samples k * slow (k * stride for the 3D strip)
+            if rec is not None:
+                rec.log_samples("raw", tb, b.sample_index, b.accel_g, "g")
+                if b.temp_degC is not None:
+                    rec.log_temperature(tb, b.temp_degC)
             for tr in tracks:
-                rec.log_track_3d(tr.label, np.concatenate([*tr.parts, tr.last[None, :]]))
+                step = tr.integ.push(tb, b.accel_g, src.drivers(b, n, tr.needed))
+                if rec is None:  # the displacement is read from the integrator at the end
+                    continue
+                d = tr.drift.apply(tb, step.disp_m) if tr.drift is not None else step.disp_m
+                tr.parts.append(d[-n % stride :: stride].copy())  # not a view: the batch is let go
+                tr.last = d[-1]
+                if tr.cal is not None:
+                    rec.log_samples(tr.label, tb, None, step.f_g, "g")
+                _log_track_rows(rec, tr, tb[keep], d[keep])
+            n += b.n
+            t_end = float(tb[-1])
+            if rec is not None and speed_f is not None and clock() - last_3d > 1.0:
+                last_3d = clock()
+                for tr in tracks:
+                    rec.log_track_3d(tr.label, np.concatenate([*tr.parts, tr.last[None, :]]))
     if rec is not None and (n - 1) % slow:  # a track ends at its final displacement
         for tr in tracks:
             _log_track_rows(rec, tr, np.array([t_end]), tr.last[None, :])

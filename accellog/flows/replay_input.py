@@ -25,7 +25,7 @@ import numpy as np
 
 from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta
-from accellog.store.stream import ImuBlock
+from accellog.store.stream import ImuBlock, closed_after
 
 WHOLE_SESSION_DRIVERS = frozenset({"dtemp_degC_per_s"})
 """Drivers computed over the whole series (not per batch): a calibration using one is replayed from
@@ -68,10 +68,11 @@ class ReplayInput:
         if self.session is not None:
             return np.nanmean(self.session.accel_g, axis=0)
         tot, cnt = np.zeros(3), np.zeros(3)
-        for b in self.blocks():
-            ok = np.isfinite(b.accel_g)
-            tot += np.where(ok, b.accel_g, 0.0).sum(axis=0)
-            cnt += ok.sum(axis=0)
+        with closed_after(self.blocks()) as blocks:
+            for b in blocks:
+                ok = np.isfinite(b.accel_g)
+                tot += np.where(ok, b.accel_g, 0.0).sum(axis=0)
+                cnt += ok.sum(axis=0)
         return tot / np.maximum(cnt, 1)
 
     def drivers(self, b: ImuBlock, i0: int, needed: Sequence[str]) -> dict[str, np.ndarray]:

@@ -15,7 +15,6 @@ own InputError, as when the check ran in a pass of its own; a file with damaged 
 
 from __future__ import annotations
 
-import contextlib
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -27,7 +26,7 @@ from accellog.calibrate.calfile.calibration import Calibration
 from accellog.calibrate.observe.stream_segment import TimestampCheck
 from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.session import PoseLabel, Session, SessionMeta
-from accellog.store.stream import ImuBlock, iter_imu
+from accellog.store.stream import ImuBlock, closed_after, iter_imu
 
 T = TypeVar("T")
 
@@ -147,7 +146,7 @@ def cut_blocks(src: Blocks, until_s: float | None, max_samples: int | None) -> I
     """The blocks of one pass with t <= until_s and at most max_samples samples."""
     n = 0
     blocks = src.read()
-    with contextlib.closing(blocks) if hasattr(blocks, "close") else contextlib.nullcontext(blocks):
+    with closed_after(blocks):
         for b in blocks:
             k = b.n
             if until_s is not None:

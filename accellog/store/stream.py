@@ -15,9 +15,10 @@ at the end of a recording, so a stage that needs them reads them first: one deco
 
 from __future__ import annotations
 
+import contextlib
 import mmap
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,6 +50,19 @@ class ImuBlock:
     @property
     def n(self) -> int:
         return int(self.t_s.shape[0])
+
+
+@contextlib.contextmanager
+def closed_after(blocks: Iterable[ImuBlock]) -> Iterator[Iterable[ImuBlock]]:
+    """blocks, closed on leaving the with-block, also on an error (when it has close()). A reader
+    left to the garbage collector is closed on whatever thread the collection runs, and its close
+    joins the decompression threads: a collection inside Thread.start deadlocked there (seen in CI)."""
+    try:
+        yield blocks
+    finally:
+        close = getattr(blocks, "close", None)
+        if close is not None:
+            close()
 
 
 def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
@@ -152,8 +166,9 @@ def read_host_clock(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
     points calibrate.diagnose.clock_from_host_time uses (one per read batch: memory ~ samples /
     batch size), streamed; None when the session stores no host time (as read_session's None)."""
     clock = HostClock()
-    for b in iter_imu(path):
-        clock.add(b)
+    with closed_after(iter_imu(path)) as blocks:
+        for b in blocks:
+            clock.add(b)
     return clock.result()
 
 

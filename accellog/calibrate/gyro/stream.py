@@ -48,7 +48,7 @@ from accellog.calibrate.gyro.rotation import coarse_plan, fine_pieces
 from accellog.calibrate.observe.heap import trim_heap
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
-from accellog.store.stream import ImuBlock, iter_imu
+from accellog.store.stream import ImuBlock, closed_after, iter_imu
 
 _BLOCK_S = 0.01
 """Fine block length (s)."""
@@ -125,9 +125,10 @@ def calibrate_blocks(
     )
     if first is None:
         first = first_new
-        for blk in blocks():
-            if not first.add(blk):
-                break
+        with closed_after(blocks()) as it:
+            for blk in it:
+                if not first.add(blk):
+                    break
         trim_heap()  # the pass's block arrays are freed: give their pages back (calibrate.heap)
     found = first.result()
     if found is None:
@@ -155,7 +156,8 @@ def _rotation_blocks(blocks: Blocks, located, k: int, base: GyroCalibration, has
         return np.zeros((0, 3)), np.zeros((0, 3)), np.searchsorted(coarse, mids)
     use_temp = has_temp and bool(np.any(base.temp_bias_dps_per_degC != 0))
     acc = _CoarseBlocks(at, n_fine, base, use_temp)
-    _integrate_pass(blocks(), mids[0], fine_pieces(t_mid, mids, _BLOCK_S), acc)
+    with closed_after(blocks()) as it:
+        _integrate_pass(it, mids[0], fine_pieces(t_mid, mids, _BLOCK_S), acc)
     trim_heap()
     return acc.phi, acc.c, np.searchsorted(coarse, mids)
 

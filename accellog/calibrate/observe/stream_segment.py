@@ -40,7 +40,7 @@ from accellog.calibrate.observe.motion import mean_shift, moving_verdict, static
 from accellog.calibrate.observe.window_spill import WindowSpill, median
 from accellog.core.errors import InputError
 from accellog.core.session import ObsTable, PoseLabel, SessionMeta
-from accellog.store.stream import iter_imu, read_labels
+from accellog.store.stream import closed_after, iter_imu, read_labels
 
 
 def segment_blocks(
@@ -112,7 +112,10 @@ class _Behind:
     def wait(self) -> None:
         f, self.pending = self.pending, None
         if f is not None:
-            f.result()
+            try:
+                f.result()
+            finally:
+                del f  # else its exception's traceback holds this frame, which holds f: a cycle
 
     def submit(self, fn, *args) -> None:
         self.wait()
@@ -225,10 +228,11 @@ def stream_observations(
     where = str(path)
     check_window(window_s, 0.0, where)  # before reading: at most the chip's highest rate
     meta, poses, events = labels if labels is not None else read_labels(path)
-    return segment_blocks(
-        meta, poses, iter_imu(path), window_s, trim_s, where=where, events=events, min_samples=min_samples,
-        check_units=check_units, check_moving=check_moving, stats_out=stats_out, on_block=on_block,
-    )  # fmt: skip
+    with closed_after(iter_imu(path)) as blocks:  # closed here also on an error (store.stream)
+        return segment_blocks(
+            meta, poses, blocks, window_s, trim_s, where=where, events=events, min_samples=min_samples,
+            check_units=check_units, check_moving=check_moving, stats_out=stats_out, on_block=on_block,
+        )  # fmt: skip
 
 
 def _most_windows(p: PoseLabel, trim_s: float, window_s: float) -> int:
@@ -351,8 +355,9 @@ class _HoldGatherer:
 def stream_check_timestamps(path: str | Path) -> None:
     """label_check.check_timestamps on the file's samples, block by block (the same messages)."""
     check = TimestampCheck()
-    for b in iter_imu(path):
-        check.add(b.t_s)
+    with closed_after(iter_imu(path)) as blocks:
+        for b in blocks:
+            check.add(b.t_s)
     check.finish(path)
 
 
