@@ -3,7 +3,7 @@ and how long a fixed piece of work takes it, beside the background load of bench
 whatever the recorder does.
 
 Per load level (the ``mixed`` or ``busy`` background of bench_record_load.py, --warmup-s before
-the first row), a process raises one thread to SCHED_RR (``raise_priority``, as ``accellog record``
+the first row), a process raises one thread to SCHED_RR (``raised_priority``, as ``accellog record``
 does, BLAS on one thread) and sleeps --period-ms (14 ms: the recorder's read period at 1 kHz, 0.4
 of the 36 ms FIFO) from one wake-up to the next, for --seconds. After each wake-up it does --work-ms
 of fixed numpy work on preallocated arrays (default 0.4 ms: the median CPU of one recorder
@@ -22,6 +22,7 @@ time.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import multiprocessing as mp
 import os
 import tempfile
@@ -33,7 +34,7 @@ from bench_record_load import Background, LoadSampler
 from rich.console import Console
 from rich.table import Table
 
-from accellog.acquire.recorder import raise_priority
+from accellog.acquire.recorder import raised_priority
 
 FIFO_S = 0.036  # 512-byte FIFO / 14-byte packets at 1 kHz
 LATE_S = 0.020
@@ -61,8 +62,8 @@ def wakeups(seconds: float, period_s: float, rt: bool, work_s: float = 0.0) -> d
     the time (s) of the fixed work done after each wake-up."""
     from threadpoolctl import threadpool_limits
 
-    prio = raise_priority() if rt else "normal"
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1, user_api="blas"), contextlib.ExitStack() as stack:
+        prio = stack.enter_context(raised_priority()) if rt else "normal"
         work = fixed_work(work_s)
         t = [time.perf_counter()]
         took = []

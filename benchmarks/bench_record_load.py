@@ -20,7 +20,7 @@ driver -> Recorder -> SessionWriter MCAP, zstd chunks flushed every 0.5 s, magne
 - ``adaptive``: the same with ``write_thread=True``: MCAP writes, live view and running calibration
   handed to a helper thread (accellog.acquire.handoff), the reading thread only reads the FIFO;
 - ``before``: the loop before issue 12 (sleep poll_s after every read, no flush before the first);
-- suffix ``+rt``: after ``raise_priority()`` (SCHED_RR when permitted, as ``accellog record`` does
+- suffix ``+rt``: after ``raised_priority()`` (SCHED_RR when permitted, as ``accellog record`` does
   on the real clock; without the suffix: normal priority, what a user without CAP_SYS_NICE gets);
 - suffix ``+cal``: a guided six-pose session (holds of (seconds - 20) / 6 s) with the live view's
   running calibration refitted after every hold.
@@ -38,6 +38,7 @@ goal < 10 %), the background's CPU (cores) and the 1-minute load average (mean o
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import multiprocessing as mp
 import os
@@ -53,7 +54,7 @@ from rich.console import Console
 from rich.table import Table
 
 from accellog.acquire.emulator.clock import RealClock
-from accellog.acquire.recorder import Recorder, raise_priority
+from accellog.acquire.recorder import Recorder, raised_priority
 from accellog.core.protocol import parse_protocol
 from accellog.flows.record import RunningCalibration
 from accellog.flows.simulate import Scenario
@@ -188,7 +189,6 @@ def _run(kind: str, seconds: float, poll_s: float, out: Path, fill: float | None
     timed: dict = {}
     _chip, drv, _ = make_chain(sc, clock, mag=True, timed=timed)
     cls = BeforeRecorder if base == "before" else Recorder
-    prio = raise_priority() if "+rt" in kind else "normal"
     probe = GapProbe(drv, time.sleep)
     extra = {"write_thread": base != "inline"} if base in ("inline", "adaptive") else {}
     if guided:
@@ -200,11 +200,12 @@ def _run(kind: str, seconds: float, poll_s: float, out: Path, fill: float | None
         timed["chip_s"] = 0.0
         c0, w0 = cpu_s(), time.perf_counter()
         end = w0 + seconds
-        try:
-            if guided:
-                rec.run(parse_protocol("six", hold_s))
-            while time.perf_counter() < end and not guided:
-                rec.step()
+        try:  # the loop's thread raised as in `accellog record` (its helper threads are not)
+            with raised_priority() if "+rt" in kind else contextlib.nullcontext("normal") as prio:
+                if guided:
+                    rec.run(parse_protocol("six", hold_s))
+                while time.perf_counter() < end and not guided:
+                    rec.step()
         finally:
             close = getattr(rec, "close", None)
             if close is not None:

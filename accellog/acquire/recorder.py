@@ -9,10 +9,11 @@ finishes the file cleanly: the writer's context closes the MCAP with an event sa
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -51,26 +52,39 @@ def session_meta(info, cfg, *, source: str, protocol: str, **fields) -> SessionM
     )
 
 
-def raise_priority(rt_priority: int = 20, nice: int = -10) -> str:
-    """Ask the OS to run the calling thread (the read loop) before ordinary work, so that a busy
-    host does not hold it off longer than the FIFO lasts (36 ms at 1 kHz). Tries SCHED_RR at
-    rt_priority (needs root, CAP_SYS_NICE or an rtprio limit), else a lower nice value; returns
-    what it got, for the session's events. The loop uses < 10 % of a core, and Linux caps
-    real-time threads at 95 % of the CPU, so the rest of the system keeps running."""
+@contextlib.contextmanager
+def raised_priority(rt_priority: int = 20, nice: int = -10) -> Iterator[str]:
+    """Within the block the OS runs the calling thread (the read loop) before ordinary work, so that
+    a busy host does not hold it off longer than the FIFO lasts (36 ms at 1 kHz): SCHED_RR at
+    rt_priority (needs root, CAP_SYS_NICE or an rtprio limit), else a lower nice value; yields what
+    it got, for the session's events. The loop uses < 10 % of a core, and Linux caps real-time
+    threads at 95 % of the CPU, so the rest of the system keeps running. On leaving, the thread's
+    scheduling is restored (threads it starts meanwhile inherit the raised one: start them before)."""
     import os
 
     try:
+        before = (os.sched_getscheduler(0), os.sched_getparam(0))
         os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(rt_priority))
-        return f"read loop scheduled SCHED_RR priority {rt_priority}"
     except (AttributeError, OSError):
         pass
+    else:
+        try:
+            yield f"read loop scheduled SCHED_RR priority {rt_priority}"
+        finally:
+            os.sched_setscheduler(0, *before)
+        return
     try:
-        got = os.nice(0)
+        was = got = os.nice(0)
         if nice < got:
             got = os.nice(nice - got)
-        return f"read loop at nice {got} (no permission for real-time scheduling)"
     except OSError:
-        return "read loop at normal priority (no permission to raise it)"
+        yield "read loop at normal priority (no permission to raise it)"
+        return
+    try:
+        yield f"read loop at nice {got} (no permission for real-time scheduling)"
+    finally:
+        with contextlib.suppress(OSError):
+            os.nice(was - os.nice(0))
 
 
 class StopRequested(Exception):

@@ -24,7 +24,7 @@ from accellog.acquire.recorder import (
     RecorderUI,
     RecordSummary,
     StopRequested,
-    raise_priority,
+    raised_priority,
     session_meta,
 )
 from accellog.calibrate.calfile.calibration import Calibration
@@ -232,11 +232,12 @@ def record_session(
                 on_pose=RunningCalibration(live, warn) if live else None,
                 stop=stop,
             )
-            if real_time:
-                rec.post(writer.write_event, Event(0.0, "note", raise_priority()))
             started(f"recording to {opts.out} (Ctrl-C finishes the file)")
             try:
-                rec.run(poses, wait=opts.wait)
+                with raised_priority() if real_time else contextlib.nullcontext() as prio:
+                    if prio is not None:
+                        rec.post(writer.write_event, Event(0.0, "note", prio))
+                    rec.run(poses, wait=opts.wait)
             except StopRequested:
                 rec.summary.interrupted = True
                 rec.summary.duration_s = rec.t_s

@@ -128,3 +128,25 @@ def test_running_calibration_imports_nothing_during_the_recording():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+def _scheduling() -> tuple:
+    import os
+
+    return os.sched_getscheduler(0), os.sched_getparam(0).sched_priority, os.nice(0)
+
+
+def test_raised_priority_is_given_back():
+    """The read loop's thread runs raised inside the block only: a recording made in-process (a
+    notebook, the test suite) leaves the caller's thread, and the threads it starts later, as they
+    were."""
+    from accellog.acquire.recorder import raised_priority
+
+    before = _scheduling()
+    with raised_priority() as what:
+        raised = _scheduling() != before  # SCHED_RR, else a lower nice value, unless not permitted
+        assert raised == ("normal priority" not in what), what
+    assert _scheduling() == before
+    with pytest.raises(KeyError), raised_priority():
+        raise KeyError("the loop failed")
+    assert _scheduling() == before
