@@ -14,6 +14,7 @@ is read by scanning its data section).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections.abc import Iterable
 from pathlib import Path
@@ -128,7 +129,9 @@ def release_pages(data, lo: int, hi: int) -> None:
 
     The range is widened by FAULT_AROUND on both sides: a read near an end of [lo, hi) also maps the
     cached pages of its fault-around window outside it (a chunk header, the message indexes between
-    two chunk groups), which no later release covered (~20 MB resident after a 24 h pass)."""
+    two chunk groups), which no later release covered (~20 MB resident after a 24 h pass).
+    Advice only: a kernel that refuses it (EINVAL for the locked pages of an mlockall'd process)
+    leaves the pages mapped."""
     import mmap
 
     if isinstance(data, mmap.mmap) and hasattr(mmap, "MADV_DONTNEED"):
@@ -136,7 +139,8 @@ def release_pages(data, lo: int, hi: int) -> None:
         lo -= lo % mmap.PAGESIZE
         hi = min(hi + FAULT_AROUND, len(data))
         if hi > lo:
-            data.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
+            with contextlib.suppress(OSError):
+                data.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
 
 
 def check_file(path: Path) -> None:

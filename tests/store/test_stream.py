@@ -132,3 +132,28 @@ def test_rows_grow_past_their_capacity():
         rows.add({"x": x, "i": np.arange(len(x))})
     assert rows.cap >= 7 and np.array_equal(rows.col("x"), np.concatenate(parts))
     assert np.array_equal(rows.col("i"), np.concatenate([np.arange(len(x)) for x in parts]))
+
+
+def test_reads_in_a_memory_locked_process(recorded):
+    """A real-time process locks its memory (mlockall) before recording or replaying; the kernel
+    then refuses the readers' MADV_DONTNEED (EINVAL), which is advice: the session is read all the
+    same (it failed with 'Invalid argument' and a BufferError)."""
+    import subprocess
+    import sys
+
+    code = f"""
+import ctypes, sys
+libc = ctypes.CDLL("libc.so.6", use_errno=True)
+if libc.mlockall(3) != 0:  # MCL_CURRENT | MCL_FUTURE
+    sys.exit(77)
+from accellog.store.reader import read_session
+from accellog.store.stream import iter_imu
+n = read_session({str(recorded)!r}).n
+assert n == sum(b.n for b in iter_imu({str(recorded)!r})), n
+print(n)
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    if r.returncode == 77:
+        pytest.skip("mlockall not permitted here")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert int(r.stdout) > 1000
