@@ -11,9 +11,9 @@ iteration; 0: a bare thread that does nothing). Reported: the wake-ups, how many
 20 ms after the previous one (the recorder's margin is gone), how many more than 36 ms after it (a
 full FIFO: the recorder would lose samples there), the worst gap, the share of time lost past 36 ms
 if every such gap lost its excess at 1 kHz (the loss a recorder with this work would still see),
-how often the fixed work took more than 10 ms and its worst time (the thread was running, or
-runnable at real-time priority, and made no progress), the 1-minute load average and the steal
-time.
+how often the fixed work took more than 10 ms and its worst time, where those slow pieces spent
+their time (the thread's /proc schedstat: on a CPU / runnable but waiting for one / neither, i.e.
+blocked or its virtual CPU not running), the 1-minute load average and the steal time.
 
     python benchmarks/bench_record_floor.py [--seconds 60] [--load 1 2 4] [--load-kind mixed|busy]
         [--work-ms 0.4]
@@ -66,16 +66,30 @@ def wakeups(seconds: float, period_s: float, rt: bool, work_s: float = 0.0) -> d
         prio = stack.enter_context(raised_priority()) if rt else "normal"
         work = fixed_work(work_s)
         t = [time.perf_counter()]
-        took = []
+        took, where = [], []
         end = t[0] + seconds
         while t[-1] < end:
+            s0 = schedstat()
             work()
             took.append(time.perf_counter() - t[-1])
+            where.append(schedstat() - s0)
             left = period_s - (time.perf_counter() - t[-1])
             if left > 0:
                 time.sleep(left)
             t.append(time.perf_counter())
-    return {"gaps": np.diff(np.array(t)), "work": np.array(took), "priority": prio}
+    return {"gaps": np.diff(np.array(t)), "work": np.array(took), "where": np.array(where), "priority": prio}
+
+
+def schedstat() -> np.ndarray:
+    """(time on a CPU, time runnable waiting for one) of the calling thread so far (s; Linux
+    /proc/thread-self/schedstat; zeros elsewhere). What a slow piece of work spent in neither,
+    the thread was blocked (a page fault's I/O, a lock) or its virtual CPU was not running."""
+    try:
+        with open("/proc/thread-self/schedstat") as f:
+            on_cpu, waiting = f.read().split()[:2]
+    except (OSError, ValueError):
+        return np.zeros(2)
+    return np.array([int(on_cpu), int(waiting)]) / 1e9
 
 
 def main() -> None:
@@ -94,7 +108,8 @@ def main() -> None:
         f"wake-up, beside a {args.load_kind} background load, {args.seconds:g} s per row, {os.cpu_count()} cores"
     )
     cols = ("load", "thread", "wake-ups", f"> {1e3 * LATE_S:.0f} ms", f"> {1e3 * FIFO_S:.0f} ms", "worst gap",
-            "floor loss %", "work median", "work > 10 ms", "worst work", "load avg", "steal")  # fmt: skip
+            "floor loss %", "work median", "work > 10 ms", "worst work", "slow work: cpu / queued / neither",
+            "load avg", "steal")  # fmt: skip
     for col in cols:
         tab.add_column(col, justify="left" if col == "thread" else "right")
     with tempfile.TemporaryDirectory(prefix="bench_floor_") as wd:
@@ -107,6 +122,9 @@ def main() -> None:
                     with mp.Pool(1) as pool:  # a raised priority must not leak into the next row
                         r = pool.apply(wakeups, (args.seconds, args.period_ms / 1e3, rt, args.work_ms / 1e3))
                     g, w = r["gaps"], r["work"]
+                    slow = w > 0.010
+                    cpu_s, queued_s = r["where"][slow].sum(axis=0) if slow.any() else (0.0, 0.0)
+                    neither_s = w[slow].sum() - cpu_s - queued_s
                     lost_s = np.clip(g - FIFO_S, 0.0, None).sum()
                     tab.add_row(
                         f"{level:g}",
@@ -119,6 +137,7 @@ def main() -> None:
                         f"{1e3 * np.median(w):.2f} ms",
                         str(int((w > 0.010).sum())),
                         f"{1e3 * w.max():.1f} ms",
+                        f"{1e3 * cpu_s:.0f} / {1e3 * queued_s:.0f} / {1e3 * neither_s:.0f} ms",
                         f"{sampler.mean():.1f}",
                         f"{100 * sampler.steal():.1f} %",
                     )
