@@ -15,7 +15,7 @@ how often the fixed work took more than 10 ms and its worst time, where those sl
 their time (the thread's /proc schedstat: on a CPU / runnable but waiting for one / neither, i.e.
 blocked or its virtual CPU not running), the 1-minute load average and the steal time.
 
-    python benchmarks/bench_record_floor.py [--seconds 60] [--load 1 2 4] [--load-kind mixed|busy]
+    python benchmarks/bench_record_floor.py [--seconds 60] [--load 1 2 4] [--load-kind mixed|mixed-reuse|busy]
         [--work-ms 0.4]
 """
 
@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_record_load import Background, LoadSampler
+from bench_record_load import LOAD_KINDS, Background, LoadSampler
 from rich.console import Console
 from rich.table import Table
 
@@ -96,7 +96,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="wall seconds per row")
     ap.add_argument("--load", type=float, nargs="+", default=[1.0, 2.0, 4.0], help="background load levels")
-    ap.add_argument("--load-kind", choices=("mixed", "busy"), default="mixed")
+    ap.add_argument("--load-kind", choices=LOAD_KINDS, default="mixed")
     ap.add_argument("--warmup-s", type=float, default=20.0, help="load before a level's first row")
     ap.add_argument("--period-ms", type=float, default=14.0)
     ap.add_argument("--work-ms", type=float, default=0.4, help="fixed work after each wake-up (0: none)")

@@ -8,6 +8,10 @@ Background load (--load-kind):
   is runnable about half the time, so the 1-minute load average sits near L (plus whatever else the
   machine runs), and I/O and memory traffic come in bursts the way compilers, test runs and
   browsers make them;
+- ``mixed-reuse``: the same, but the 8-64 MB arrays reuse one array made at the start instead of
+  new pages from the kernel each time (a diagnostic: on this project's 2-core virtual machine the
+  recorder's loss comes with the other processes' mapping and unmapping of large memory; see
+  docs/data-safety.md);
 - ``busy`` (issue 12): L processes spinning on the CPU.
 
 Workers start --warmup-s before the first recording of a level (the load average is a 1-minute
@@ -31,7 +35,7 @@ wake-up from sleep / the loop's own work after a read / the read itself), CPU sh
 of the recorder alone (process CPU minus the emulated chip's bus methods, as in bench_record.py;
 goal < 10 %), the background's CPU (cores) and the 1-minute load average (mean over the row).
 
-    python benchmarks/bench_record_load.py [--seconds 120] [--load 1 2 4] [--load-kind mixed|busy]
+    python benchmarks/bench_record_load.py [--seconds 120] [--load 1 2 4] [--load-kind mixed|mixed-reuse|busy]
         [--variants inline+rt adaptive+rt adaptive inline+cal ...] [--poll-ms 20] [--fill 0.4]
 """
 
@@ -39,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import math
 import multiprocessing as mp
 import os
@@ -62,6 +67,7 @@ from accellog.store.reader import read_session
 from accellog.store.writer import SessionWriter
 
 LONG_GAP_S = 0.030
+LOAD_KINDS = ("mixed", "mixed-reuse", "busy")
 DUTY = 0.5
 
 
@@ -73,9 +79,12 @@ def spin(stop, _seed, _path, cpu) -> None:  # pragma: no cover - runs in the loa
     cpu.value = time.process_time()
 
 
-def mixed(stop, seed, path, cpu) -> None:  # pragma: no cover - runs in the load processes
-    """Bursts of mixed work (20-300 ms wall), then a sleep as long as the burst (duty 0.5)."""
+def mixed(stop, seed, path, cpu, reuse: bool = False) -> None:  # pragma: no cover - load processes
+    """Bursts of mixed work (20-300 ms wall), then a sleep as long as the burst (duty 0.5).
+    reuse: the 8-64 MB arrays are slices of one array made at the start, instead of new memory from
+    the kernel each time (the same work and memory traffic, no mapping and unmapping of pages)."""
     rng = np.random.default_rng(seed)
+    big = np.ones(8 << 20) if reuse else None  # 64 MB
     with open(path, "wb") as f:
         while not stop.is_set():
             burst_s = float(rng.uniform(0.02, 0.3))
@@ -86,8 +95,12 @@ def mixed(stop, seed, path, cpu) -> None:  # pragma: no cover - runs in the load
                 if k == 0:
                     np.fft.rfft(rng.standard_normal(1 << int(rng.integers(14, 19))))
                 elif k == 1:
-                    a = np.ones(int(rng.integers(1, 8)) << 20)  # 8-64 MB touched, then freed
-                    a.cumsum()
+                    n = int(rng.integers(1, 8)) << 20
+                    if big is None:
+                        np.ones(n).cumsum()  # 2 x 8-64 MB of new pages touched, then given back
+                    else:
+                        big[:n] = 1.0
+                        np.cumsum(big[:n], out=big[:n])
                 elif k == 2 and not wrote:
                     if f.tell() > 64 << 20:
                         f.seek(0)
@@ -233,8 +246,8 @@ class Background:
     """The load processes of one level; ``cores()`` = their CPU time / wall time so far."""
 
     def __init__(self, kind: str, level: float, wd: Path) -> None:
-        n = round(level / DUTY) if kind == "mixed" else round(level)
-        target = mixed if kind == "mixed" else spin
+        n = round(level) if kind == "busy" else round(level / DUTY)
+        target = spin if kind == "busy" else functools.partial(mixed, reuse=kind == "mixed-reuse")
         self.stop = mp.Event()
         self.cpu = [mp.Value("d", 0.0) for _ in range(n)]
         self.procs = [
@@ -316,7 +329,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=120.0, help="wall seconds per recording")
     ap.add_argument("--load", type=float, nargs="+", default=[1.0, 2.0, 4.0], help="background load levels")
-    ap.add_argument("--load-kind", choices=("mixed", "busy"), default="mixed")
+    ap.add_argument("--load-kind", choices=LOAD_KINDS, default="mixed")
     ap.add_argument("--warmup-s", type=float, default=20.0, help="load before a level's first recording")
     ap.add_argument("--poll-ms", type=float, default=20.0)
     ap.add_argument("--variants", nargs="+", default=["inline+rt", "adaptive+rt"])
