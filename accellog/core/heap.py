@@ -14,7 +14,6 @@ costs page faults when the pages are used again (every block: 2x the system time
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import os
 
 _PAGE_MB = os.sysconf("SC_PAGE_SIZE") / 2**20 if hasattr(os, "sysconf") else 0.0
@@ -23,8 +22,7 @@ _PAGE_MB = os.sysconf("SC_PAGE_SIZE") / 2**20 if hasattr(os, "sysconf") else 0.0
 def _malloc_trim():
     """glibc's malloc_trim, or None."""
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        trim = libc.malloc_trim
+        trim = ctypes.CDLL(None).malloc_trim  # the process's own symbols (find_library runs ldconfig)
     except (OSError, AttributeError):
         return None
     trim.argtypes = [ctypes.c_size_t]

@@ -32,6 +32,7 @@ from accellog.calibrate.calfile.calibration import Calibration
 from accellog.calibrate.calfile.drift_model import DriftModel
 from accellog.core.errors import InputError
 from accellog.core.session import Session
+from accellog.core.timeseries import sorted_unique
 from accellog.navigate.blocks import Blocks, checked_blocks, session_blocks
 from accellog.navigate.evaluate import Target, evaluate_blocks
 from accellog.navigate.evaluation import Evaluation, block_residual, drift_result, eval_context
@@ -44,7 +45,7 @@ def _design(t: np.ndarray) -> np.ndarray:
 
 def grid_index(n: int, n_grid: int = 400) -> np.ndarray:
     """Indices of the <= n_grid samples (of n) the covariance is evaluated on."""
-    return np.unique(np.linspace(0, n - 1, min(n_grid, n)).astype(int))
+    return sorted_unique(np.linspace(0, n - 1, min(n_grid, n)).astype(np.int64))
 
 
 def noise_cov_q(t: np.ndarray, accel_noise_var: np.ndarray, n_grid: int | None = 400) -> np.ndarray:

@@ -7,6 +7,7 @@ import itertools
 import numpy as np
 
 from accellog.present.rrd.envelope import EnvelopeBuilder, bucket_width_s, minmax_envelope
+from accellog.present.rrd.series import SeriesLogs
 
 
 def _reference(t, v, t0, w):
@@ -163,3 +164,48 @@ def test_envelope_rows_in_order_with_ties_nans_and_infs_on_even_and_uneven_bucke
             cuts = np.r_[0, np.sort(rng.choice(np.arange(1, n), n_cuts, replace=False)), n]
             got = [eb.push(t[a:b], v[a:b]).values for a, b in itertools.pairwise(cuts)] + [eb.finish().values]
             np.testing.assert_array_equal(np.concatenate(got), want, err_msg=f"{name}, {n_cuts} cuts")
+
+
+class _Rows(SeriesLogs):
+    """SeriesLogs writing each series' rows into a dict (entity -> list of (t, values))."""
+
+    full_rate = False
+
+    def __init__(self) -> None:
+        self._init_series()
+        self.rows: dict[str, list] = {}
+
+    def _guarded(self, fn, *args, **kw):
+        return fn(*args, **kw)
+
+    def _write_series(self, entity, t, v, *rest) -> None:
+        self.rows.setdefault(entity, []).append((np.array(t), np.array(v)))
+
+    def _end_rows(self) -> None:
+        pass
+
+
+def test_batched_series_sharing_times_each_get_their_own_envelope() -> None:
+    """Series of one batch share the buckets of their common times (computed once); every series
+    still gets exactly its one-shot envelope, also when a caller refills one time array in place."""
+    rng = np.random.default_rng(5)
+    n, k = 60_000, 2_000
+    t = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, n))
+    a, b = rng.normal(size=(n, 3)), rng.normal(size=(n, 1))
+    for refill in (False, True):
+        rec = _Rows()
+        rec.begin_batches(t[0], t[-1], n)
+        buf = np.empty(k)
+        for lo in range(0, n, k):
+            if refill:  # the same array object, new times: its buckets must be found again
+                buf[:] = t[lo : lo + k]
+                tb = buf
+            else:
+                tb = t[lo : lo + k].copy()
+            rec.log_series("a", tb, a[lo : lo + k], ["x", "y", "z"])
+            rec.log_series("b", tb, b[lo : lo + k], ["T"])
+        rec.end_batches()
+        for name, v in (("a", a), ("b", b)):
+            one = minmax_envelope(t, v)
+            np.testing.assert_array_equal(np.concatenate([r[0] for r in rec.rows[name]]), one.t_s)
+            np.testing.assert_array_equal(np.concatenate([r[1] for r in rec.rows[name]]), one.values)

@@ -26,6 +26,7 @@ import itertools
 import numpy as np
 
 from accellog.core.rotations import quat_multiply
+from accellog.core.timeseries import sorted_unique
 
 DEG_PER_RAD = 180.0 / np.pi
 
@@ -51,7 +52,7 @@ def fine_pieces(t, mids: np.ndarray, block_s: float):
     pair's edges)."""
     last = mids[0]
     for a, b in itertools.pairwise(mids):
-        f = _sorted_unique(_pair_fine(t, a, b, block_s))
+        f = sorted_unique(_pair_fine(t, a, b, block_s))
         f = f[f > last]
         if f.size:
             last = f[-1]
@@ -66,7 +67,7 @@ def coarse_plan(t, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block
     n_fine, last = 1, mids[0]
     for k, f in enumerate(fine_pieces(t, mids, block_s)):
         a, b = mids[k], mids[k + 1]
-        c = _sorted_unique(_pair_coarse(t, a, b, ends[k], starts[k + 1], block_s))
+        c = sorted_unique(_pair_coarse(t, a, b, ends[k], starts[k + 1], block_s))
         c = c[c > last]
         if c.size:
             last = c[-1]
@@ -74,11 +75,6 @@ def coarse_plan(t, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block
         at.append(n_fine + np.searchsorted(f, c))
         n_fine += f.size
     return np.concatenate(coarse), np.concatenate(at)[:-1], n_fine
-
-
-def _sorted_unique(e: np.ndarray) -> np.ndarray:
-    """np.unique of an already non-decreasing array, in one pass."""
-    return e[np.concatenate([[True], e[1:] != e[:-1]])] if e.size else e
 
 
 # complex-safe quaternion helpers: the same arithmetic as accellog.core.rotations, written so that

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from accellog.core.timeseries import even_indices
+
 ENVELOPE_BUCKETS = 4000
 """Buckets per logged series: about the width of a plot in pixels (2 rows each)."""
 FULL_RATE_MAX_SAMPLES = 20_000
@@ -33,7 +35,7 @@ much smaller); longer ones as envelopes unless the recording asks for the full r
 def track_keep(n: int, points: int = 2 * ENVELOPE_BUCKETS) -> np.ndarray:
     """Indices of a smooth series (a displacement track, m) kept for display: about ``points``
     evenly spaced samples plus the last one (its final value stays exact)."""
-    return np.unique(np.r_[np.linspace(0, n - 1, min(n, points)).astype(np.int64), n - 1])
+    return even_indices(n, points)
 
 
 def bucket_width_s(span_s: float, buckets: int = ENVELOPE_BUCKETS) -> float:
@@ -164,9 +166,16 @@ class EnvelopeBuilder:
         starts = np.concatenate([[0], np.flatnonzero(b[1:] != b[:-1]) + 1])
         return starts, b[starts]
 
-    def push(self, t_s: np.ndarray, values: np.ndarray, index: np.ndarray | None = None) -> Envelope:
+    def push(
+        self,
+        t_s: np.ndarray,
+        values: np.ndarray,
+        index: np.ndarray | None = None,
+        edges: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> Envelope:
         """Add samples (t_s (n,) s non-decreasing, values (n,k)); index: their sample numbers (default:
-        running count)."""
+        running count); edges: ``starts(t_s)`` when already known (series of one batch sharing its
+        times and this builder's buckets)."""
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         v = np.asarray(values, dtype=np.float64).reshape(t.shape[0], -1)
         n = t.shape[0]
@@ -174,7 +183,7 @@ class EnvelopeBuilder:
         self.n_in += n
         if n == 0:
             return _envelope(t, v, 0, np.empty(0, np.int64), np.empty(0, np.int64))
-        starts, ids = self.starts(t)
+        starts, ids = self.starts(t) if edges is None else edges
         head = None  # rows of the bucket left open by the previous push, now complete
         if self._open is not None:
             ot, ov, op, oid = self._open

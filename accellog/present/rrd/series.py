@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from accellog.core.timeseries import even_indices
 from accellog.present.rrd.entities import AXES, AXIS_COLORS, TEMPERATURE, TRACK_3D_MAX_POINTS, as_2d, slug
 from accellog.present.rrd.envelope import (
     FULL_RATE_MAX_SAMPLES,
@@ -45,6 +46,7 @@ class SeriesLogs:
     def _init_series(self) -> None:
         self._span: tuple[float, float] | None = None  # batched logging: (t0, bucket width) s
         self._builders: dict[str, tuple[EnvelopeBuilder, bool]] = {}  # entity -> (builder, has index)
+        self._edges: tuple | None = None  # (t, (t[0], t[-1]), starts(t)) of the batch's first series
 
     def log_series(
         self,
@@ -82,7 +84,14 @@ class SeriesLogs:
         if self._span is not None:
             if entity not in self._builders:
                 self._builders[entity] = (EnvelopeBuilder(*self._span), sample_index is not None)
-            env = self._builders[entity][0].push(t, v, sample_index)
+            eb = self._builders[entity][0]
+            edges = None
+            if t.shape[0]:  # the batch's other series (the same t) share its buckets
+                e, ends = self._edges, (t[0], t[-1])
+                if e is None or e[0] is not t or e[1] != ends:
+                    e = self._edges = (t, ends, eb.starts(t))
+                edges = e[2]
+            env = eb.push(t, v, sample_index, edges)
         elif t.shape[0] > FULL_RATE_MAX_SAMPLES:
             env = minmax_envelope(t, v, index=sample_index)
         else:
@@ -106,7 +115,7 @@ class SeriesLogs:
     def end_batches(self) -> None:
         """Write the open bucket of every batched envelope (and every gathered row: module docstring
         of present.rrd.recording) and return to one-shot logging."""
-        builders, self._builders, self._span = self._builders, {}, None
+        builders, self._builders, self._span, self._edges = self._builders, {}, None, None
         for entity, (eb, has_index) in builders.items():
             env = eb.finish()
             idx = env.row_index if has_index else None
@@ -163,4 +172,4 @@ def strip_3d(d: np.ndarray) -> np.ndarray:
     n = d.shape[0]
     if n <= TRACK_3D_MAX_POINTS:
         return d
-    return d[np.unique(np.r_[np.linspace(0, n - 1, TRACK_3D_MAX_POINTS).astype(np.int64), n - 1])]
+    return d[even_indices(n, TRACK_3D_MAX_POINTS)]
