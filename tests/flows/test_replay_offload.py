@@ -83,7 +83,9 @@ def writers(monkeypatch: pytest.MonkeyPatch) -> list[int]:
 def _cli(args: list[str], **kw) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "RERUN_ANALYTICS": "0", "ACCELLOG_RRD_CHILD": "1"}
     return subprocess.Popen([sys.executable, "-m", "accellog", *args], env=env, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)  # fmt: skip
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a background job ignores it
+                            **kw)  # fmt: skip
 
 
 def _children(pid: int) -> list[int]:
