@@ -107,6 +107,9 @@ class ImuAccumulator(BatchAccumulator):
             if hi > lo and (name == "t_ns" or self._lsb[name] is not None):
                 views[name] = self._store[name][lo:hi]
         self._wait()  # one conversion in flight: the previous group's
+        if done >= 1.0:  # the file's last group: nothing left to decode meanwhile (core.threads)
+            self._convert(views, part, done)
+            return
         if self._pool is None:
             self._pool = ThreadPoolExecutor(1)
         self._pending = self._pool.submit(self._convert, views, part, done)

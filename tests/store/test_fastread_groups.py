@@ -13,9 +13,11 @@ from accellog.store.mcap import fastread
 def _greedy(sizes: list[int], whole: bool) -> list[tuple[int, int]]:
     """The rule one chunk at a time: a run ends before the chunk that takes it past the cap once
     it holds bytes; a whole read's cap is _WHOLE_GROUPS times larger, its first cap is 1/8 and the
-    tail (<= 1/8) is split off."""
+    tail (<= 1/8) is split off; a whole read of at most 1/8 is one group."""
     big = fastread._GROUP_BYTES * (fastread._WHOLE_GROUPS if whole else 1)
     small = big // 8 if whole else big
+    if whole and sizes and sum(sizes) <= small:
+        return [(0, len(sizes))]
     bounds, total, cap = [0], 0, small
     for i, u in enumerate(sizes):
         if total and total + u > cap:

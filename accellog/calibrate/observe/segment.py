@@ -87,7 +87,7 @@ def pose_stats(
     out: list[PoseStats] = []
     segment_blocks(session.meta, session.poses, _one_block(session, where), None, trim_s, where=where,
                    events=session.events, min_samples=min_samples, check_units=check_units,
-                   check_moving=check_moving, stats_out=out, release=False)  # fmt: skip
+                   check_moving=check_moving, stats_out=out, release=False, threaded=False)  # fmt: skip
     return out
 
 
@@ -108,7 +108,7 @@ def observations(
     return segment_blocks(session.meta, session.poses, _one_block(session, where), window_s, trim_s,
                           where=where, name=session.path or session.meta.source, events=session.events,
                           min_samples=min_samples, check_units=check_units, check_moving=check_moving,
-                          release=False)  # fmt: skip
+                          release=False, threaded=False)  # fmt: skip
 
 
 def obs_from_pose_means(

@@ -13,7 +13,8 @@ and motion (``motion``: every hold's 0.5 s windows, spilled to a temporary file 
 judged against the median window noise of all holds). Window statistics (means, standard
 deviations, autocorrelation time) are sufficient for the fit, the diagnosis and the
 cross-validation, which all take the ObsTable. A hold is reduced on a worker thread while the next
-blocks are read (``_Behind``).
+blocks are read (``_Behind``; a Session in memory, one block, is reduced in the caller's thread: 1 h
+in memory took 0.32-0.33 s either way, and a short session paid the thread start).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ def segment_blocks(
     stats_out: list[PoseStats] | None = None,
     on_block: Callable | None = None,
     release: bool = True,
+    threaded: bool = True,
 ) -> ObsTable | None:
     """The ObsTable of the holds labelled by poses (one row per window of about window_s (s) in
     every hold trimmed by trim_s (s) at both ends; None when window_s is None: statistics only)
@@ -66,7 +68,8 @@ def segment_blocks(
     where names the session in refusals (InputError), name the table's session (default where).
     stats_out (a list), when given, receives every hold's PoseStats; on_block(block) is called with
     every block (e.g. a TimestampCheck); release: give the heap's free pages back after each hold
-    (heap.trim_heap, for a long file)."""
+    (heap.trim_heap, for a long file); threaded: each hold reduced on a worker thread while the
+    next blocks are read (False: here, for a short session, core.threads)."""
     if window_s is not None:
         check_window(window_s, meta.sample_rate_hz, where)
     labels = checked_labels(poses, where, events)
@@ -79,7 +82,7 @@ def segment_blocks(
             trim_heap()  # a hold's arrays are freed: give their pages back (calibrate.heap)
 
     try:
-        with _Behind() as behind:
+        with _Behind(threaded) as behind:
             for block in blocks:
                 if on_block is not None:
                     on_block(block)
@@ -103,10 +106,10 @@ class _Behind:
     pass). Streaming 1 h at 1 kHz (12 holds, ``open_labelled``): 0.92-1.11 s -> 0.72-0.81 s wall,
     the same CPU; the table is bit for bit the sequential one."""
 
-    def __init__(self) -> None:
-        from concurrent.futures import ThreadPoolExecutor
+    def __init__(self, threaded: bool = True) -> None:
+        from accellog.core.threads import pool
 
-        self.pool = ThreadPoolExecutor(1)
+        self.pool = pool(1, threaded)
         self.pending = None
 
     def wait(self) -> None:

@@ -23,13 +23,13 @@ import contextlib
 import itertools
 import mmap
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 from mcap.records import Channel, Schema
 
 from accellog.core.errors import InputError
+from accellog.core.threads import pool as thread_pool
 from accellog.store.collect import (
     Collected,
     Sink,
@@ -162,8 +162,9 @@ def fast_walk(
 
     # the next `ahead` groups are decompressed, each on its own thread (lz4/zstd release the GIL),
     # while group i is decoded; leaving the with-block (also on an exception) waits for them, before
-    # the file is unmapped
-    with ThreadPoolExecutor(ahead) as pool, ThreadPoolExecutor(1) as crc_pool, _closed_on_error(parts):
+    # the file is unmapped. A file of one group has nothing to overlap: no threads (core.threads)
+    threaded = len(groups) > 1
+    with thread_pool(ahead, threaded) as pool, thread_pool(1, threaded) as crc_pool, _closed_on_error(parts):
         pending = [pool.submit(decompress, i) for i in range(min(ahead, len(groups)))]
         # the data section CRC (crc32 releases the GIL); a read of some chunks only (labels) skips it
         # unless the metadata needs its verdict
@@ -321,7 +322,8 @@ def _groups(usize: np.ndarray, whole: bool = True) -> list[tuple[int, int]]:
     """Runs of chunks of about _GROUP_BYTES of records (a whole read: _WHOLE_GROUPS times that): a run
     ends before the chunk that would take it past the cap, once it holds bytes; a whole read's first
     and last runs are ~1/8 of it, so the pipeline (decompress | decode | convert) fills and drains
-    sooner (a stream keeps even blocks)."""
+    sooner (a stream keeps even blocks). A whole read of at most that 1/8 (1 MiB of records) is one
+    group, read without threads: a 250 kB fleet session 5.8 ms instead of 8.6 with them."""
     n = usize.shape[0]
     if n == 0:
         return [(0, 0)]
@@ -329,6 +331,8 @@ def _groups(usize: np.ndarray, whole: bool = True) -> list[tuple[int, int]]:
     np.cumsum(usize, out=cs[1:])
     big = _GROUP_BYTES * (_WHOLE_GROUPS if whole else 1)
     small = big // 8 if whole else big
+    if whole and cs[n] <= small:  # a short file: one group, read without threads (fast_walk)
+        return [(0, n)]
     bounds, cap = [0], small
     while bounds[-1] < n:
         b = bounds[-1]
