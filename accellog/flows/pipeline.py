@@ -7,6 +7,7 @@ inputs = roles of the SESSION arguments in order), [segment], [fit], [evaluate],
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -332,8 +333,12 @@ def _fit_models(spec: dict, inp: _Inputs, res: PipelineResult, ef) -> None:
             )
         except ModelError as exc:
             raise ModelError(f"model {mname!r}: {exc}", where=inp.where) from None
-        kind = (fo.cal.sources[0].kind or "") if fo.cal.sources else ""
-        fo.cal.sources = [source_entry(inp.files[fs["input"]], kind)]
+        path = inp.files[fs["input"]]  # the input as the pipeline's caller named it
+        src = fo.cal.sources[0] if fo.cal.sources else None
+        if src is None or src.path != path:  # else its SHA-256 and what a recovery kept stand
+            src = dataclasses.replace(source_entry(path, (src.kind or "") if src else ""),
+                                      recovered=src.recovered if src else None)  # fmt: skip
+        fo.cal.sources = [src]
         obs = fo.obs
         res.fits[mname] = fo
 

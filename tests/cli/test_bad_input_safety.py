@@ -21,10 +21,13 @@ from support.sessions import synth_session
 from accellog.cli import main
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.session import PoseLabel
+from accellog.flows.pipeline import run_pipeline
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.atomic import AtomicOutput, OutputLock, atomic_output, check_output
 from accellog.store.reader import read_session
 from accellog.store.writer import SessionWriter, write_session
+
+PIPELINES = Path(__file__).resolve().parents[2] / "pipelines"
 
 CLI = [sys.executable, "-c", "import sys; from accellog.cli import main; sys.exit(main())"]
 ENV = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
@@ -203,6 +206,10 @@ def test_recovery_is_announced_in_stderr_json_and_provenance(tmp_path, capsys):
     assert rec["duration_s"] == pytest.approx(kept.t_s[-1] - kept.t_s[0])
     src = json.loads(out.read_text())["sources"][0]
     assert src["recovered"] == rec
+    # a pipeline's calibration keeps it too (it named its input anew and dropped it)
+    res = run_pipeline(PIPELINES / "fleet.toml", [str(cut)])
+    assert res.fits["model3"].cal.sources[0].recovered == rec
+    assert res.fits["model3"].cal.sources[0].sha256 == src["sha256"]
     # a finished file: no note, no 'recovered'
     assert main(["fit", str(full), "--model", "model1", "-o", str(tmp_path / "d.json"), "--json"]) == 0
     cap = capsys.readouterr()
