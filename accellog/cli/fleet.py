@@ -35,6 +35,14 @@ def run(
         typer.Option(min=0, help="Local worker processes (default: cores; 0: serial loop, no Dask)."),
     ] = None,
     force: Annotated[bool, typer.Option(help="Recompute sessions already in the table.")] = False,
+    workers_write: Annotated[
+        bool | None,
+        typer.Option(
+            "--workers-write/--client-writes",
+            help="Who writes FLEET/cal/: the workers (default with local workers; with --scheduler only "
+            "when FLEET/ is on a filesystem every worker shares under the same path) or this process.",
+        ),
+    ] = None,
     json_out: JsonOpt = False,
 ) -> None:
     """Run the pipeline on every session as independent tasks; update FLEET/fleet.parquet."""
@@ -57,9 +65,8 @@ def run(
         def progress(done: int, total: int, _result: dict) -> None:
             bar.update(task, completed=done, total=total)
 
-        res = run_fleet(
-            pipeline, sessions, out, scheduler=scheduler, workers=workers, force=force, on_progress=progress
-        )
+        res = run_fleet(pipeline, sessions, out, scheduler=scheduler, workers=workers, force=force,
+                        workers_write=workers_write, on_progress=progress)  # fmt: skip
     if json_out:
         typer.echo(res.to_json())
         return

@@ -7,9 +7,11 @@ Each session is one call of ``session_task``: the worker reads the file with acc
 returns a few rows (one per model: parameters +- 1 sigma, chi2/dof, held-out RMS, noise) plus the
 calibration dicts: a few kB, never samples. A Dask task runs a batch of sessions
 (``session_batch``; batch sizes: accellog.flows.fleet_dask.batches). A file that cannot be read or
-fitted becomes one error row with its one-line message. The client writes
-FLEET/cal/<device>/<session>_<model>.json as each result arrives (while the workers go on) and
-FLEET/fleet.parquet atomically (temp + rename) at the end.
+fitted becomes one error row with its one-line message. The workers of a local cluster (and the
+serial loop, which runs the workers' code) write FLEET/cal/<device>/<session>_<model>.json
+themselves, a batch at a time; for a remote cluster the client writes them as each result arrives,
+unless told that FLEET/ is shared (``workers_write``). FLEET/fleet.parquet is written atomically
+(temp + rename) at the end.
 
 Re-runs: a session whose content SHA-256 and pipeline hash (pipeline spec + accellog version) are
 already in fleet.parquet is skipped (its rows are kept); ``force`` recomputes everything.
@@ -34,14 +36,14 @@ from typing import Any
 
 import numpy as np
 
-from accellog.calibrate.calfile.calibration import sha256_file, write_json_atomic
+from accellog.calibrate.calfile.calibration import sha256_file
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.jsonio import dumps
 from accellog.core.version import __version__
-from accellog.flows.fleet_dask import close_own, run_batches, start_client
+from accellog.flows.fleet_dask import batches, close_own, is_local, run_batches, start_client
 from accellog.flows.fleet_inputs import find_sessions, safe_part, unique_files
 from accellog.flows.fleet_table import TABLE_NAME, read_table, write_table
-from accellog.store.atomic import write_text_atomic
+from accellog.store.atomic import AtomicOutput, LockBusy, commit_all, write_text_atomic
 
 __all__ = [
     "CAL_DIR",
@@ -287,21 +289,41 @@ def warm_worker() -> int:
 
 
 def session_batch(
-    paths: Sequence[str], hashes: Sequence[str | None], spec: dict, pipe_sha256: str
+    paths: Sequence[str],
+    hashes: Sequence[str | None],
+    spec: dict,
+    pipe_sha256: str,
+    out_dir: str | None = None,
 ) -> list[dict]:
-    """``session_task`` on each session of a batch, in order (one Dask task); the calibrations come
-    back as the JSON text of their files (encoded here on the worker, not in the client, whose time
-    per session bounds how many workers it can keep busy)."""
-    out = []
-    for p, h in zip(paths, hashes, strict=True):
-        r = session_task(p, h, spec, pipe_sha256)
-        out.append({**r, "cals": {m: dumps(c) + "\n" for m, c in r["cals"].items()}})
+    """``session_task`` on each session of a batch, in order (one Dask task). With `out_dir` (the fleet
+    folder, on a filesystem the client shares) the worker writes each calibration file itself and
+    returns the rows pointing to them ("stored": True); else the calibrations come back as the JSON
+    text of their files, for the client to write. Either way the client's work per session, which
+    bounds how many workers it keeps busy, stays small (docs/fleet.md, Scaling model)."""
+    out, staged = [], {}
+    try:
+        for p, h in zip(paths, hashes, strict=True):
+            r = session_task(p, h, spec, pipe_sha256)
+            if out_dir is not None:
+                out.append({"rows": _stage_result(Path(out_dir), r, staged), "cals": {}, "stored": True})
+            else:
+                out.append({**r, "cals": {m: dumps(c) + "\n" for m, c in r["cals"].items()}})
+        commit_all(list(staged.values()))
+    except BaseException:
+        for ao in staged.values():
+            ao.abort()
+        raise
     return out
 
 
-def _run_serial(todo, hashes, spec, ph, on_result) -> None:
-    for path in todo:
-        on_result(session_task(path, hashes[path], spec, ph))
+def _run_serial(todo, hashes, spec, ph, out: Path, on_result) -> None:
+    """The serial loop (workers=0): the batches a single worker would get, run here by the workers'
+    own code, storing as a worker does (one folder sync per batch, no writer threads)."""
+    sizes = [os.path.getsize(p) if os.path.isfile(p) else 0 for p in todo]
+    for part in batches(sizes, 1):
+        paths = todo[part.start : part.stop]
+        for r in session_batch(paths, [hashes[p] for p in paths], spec, ph, str(out.absolute())):
+            on_result(r)
 
 
 def run_fleet(
@@ -313,13 +335,16 @@ def run_fleet(
     workers: int | None = None,
     client: Any = None,
     force: bool = False,
+    workers_write: bool | None = None,
     on_progress: Progress | None = None,
 ) -> FleetRunResult:
     """Run `pipeline` on every session (a glob or a list of files) and update OUT/fleet.parquet.
 
     Execution: `client` (an existing dask Client), else `scheduler` ('tcp://HOST:8786'), else a
     LocalCluster of `workers` processes (default: cores); workers=0 runs the serial loop in this
-    process (the baseline of the benchmark)."""
+    process (the baseline of the benchmark). workers_write: the workers write the calibration files
+    under OUT themselves (OUT must be on a filesystem they share under the same path); default: with
+    a local cluster only, else the client writes them."""
     from accellog.flows.pipeline import load_pipeline
 
     spec = pipeline if isinstance(pipeline, dict) else load_pipeline(pipeline)
@@ -353,7 +378,9 @@ def run_fleet(
             n_run=len(todo),
             n_skipped=len(files) - len(todo),
         )
-        new_rows, sums = _run(res, client, out, todo, hashes, spec, ph, on_progress)
+        if workers_write is None:
+            workers_write = client is not None and is_local(client)
+        new_rows, sums = _run(res, client, out, todo, hashes, spec, ph, on_progress, workers_write)
     finally:
         if own is None and starting is not None and starting.exception() is None:
             own = starting.result()  # started for sessions that did not run (an error above)
@@ -372,20 +399,21 @@ def run_fleet(
     return res
 
 
-def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_progress):
+def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_progress, workers_write=False):
     """The task phase: `todo` on `client` (None: the serial loop here); each result is stored as it
-    arrives, by WRITERS threads. Returns (new table rows, [sum of task wall s, sum of task CPU s,
-    sessions done]); the task phase's wall time (to the last result stored, s) goes to res.wall_s."""
-    from concurrent.futures import ThreadPoolExecutor
+    arrives, by the workers (workers_write) or by WRITERS threads here. Returns (new table rows, [sum
+    of task wall s, sum of task CPU s, sessions done]); the task phase's wall time (to the last result
+    stored, s) goes to res.wall_s."""
+    from concurrent.futures import Future, ThreadPoolExecutor
 
-    stored: list = []  # futures of the rows of each stored result
+    stored: list = []  # the rows of each stored result, or the future of a writer storing it
     path_locks: dict[Path, threading.Lock] = {}  # two sessions with one file name are written in turn
     sums = [0.0, 0.0, 0]
 
     def on_result(r: dict) -> None:
         """Hand one session's result to the writers (its calibration files are written while the
-        tasks go on) and count it."""
-        stored.append(writers.submit(_store_results, out, [r], path_locks))
+        tasks go on) unless a worker wrote them, and count it."""
+        stored.append(r["rows"] if r.get("stored") else writers.submit(_store_results, out, [r], path_locks))
         sums[0] += r["rows"][0].get("task_s") or 0.0
         sums[1] += r["rows"][0].get("task_cpu_s") or 0.0
         sums[2] += 1
@@ -398,45 +426,74 @@ def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_prog
             res.n_workers = len(client.scheduler_info()["workers"])
             client.run(warm_worker)  # imports (scipy, ...) once per worker, outside the timed phase
             t0 = time.perf_counter()
-            run_batches(client, session_batch, todo, [hashes[p] for p in todo], (spec, ph), on_result)
+            args = (spec, ph, str(out.absolute()) if workers_write else None)
+            run_batches(client, session_batch, todo, [hashes[p] for p in todo], args, on_result)
         elif todo:
             res.scheduler, res.n_workers = "serial", 1
             warm_worker()
             t0 = time.perf_counter()
-            _run_serial(todo, hashes, spec, ph, on_result)
+            _run_serial(todo, hashes, spec, ph, out, on_result)
     if todo:
         res.wall_s = time.perf_counter() - t0
-    return [row for f in stored for row in f.result()], sums
+    return [row for f in stored for row in (f.result() if isinstance(f, Future) else f)], sums
 
 
 WRITERS = 8
-"""Threads writing calibration files in the client. Each file is written atomically with two
-fsyncs (accellog.store.atomic): one after another they took 12-15 ms of wall time per session on
-the 2-core test host (2 ms of CPU), more than a task; 8 writers bring it to 1.8 ms."""
+"""Threads writing calibration files in the client, when it stores them (a remote cluster without
+--workers-write). Each file is written atomically with two fsyncs (accellog.store.atomic): one
+after another they took 12-15 ms of wall time per session on the 2-core test host (2 ms of CPU),
+more than a task; 8 writers bring it to 1.8 ms."""
+
+
+def _cal_name(row: dict) -> Path:
+    """OUT-relative name of a row's calibration file: cal/<device>/<session>_<sha8>_<model>.json."""
+    name = f"{safe_part(row['session_name'])}_{row['content_sha256'][:8]}_{safe_part(row['model'])}.json"
+    return Path(CAL_DIR) / safe_part(row["device"]) / name
 
 
 def _store_results(out: Path, results: list[dict], path_locks: dict[Path, threading.Lock]) -> list[dict]:
-    """Write each calibration JSON under OUT/cal/<device>/ and return the rows pointing to them.
-    path_locks: one lock per file name, shared by the writer threads: two sessions whose files have
-    one name (byte-identical copies in two folders) are written one after the other, the later
-    replacing the earlier as in a serial run, instead of the second failing on the first's lock."""
+    """Write each calibration JSON under OUT/cal/<device>/ (the client's writer threads) and return
+    the rows pointing to them. path_locks: one lock per file name, shared by the writer threads: two
+    sessions whose files have one name (byte-identical copies in two folders) are written one after
+    the other, the later replacing the earlier as in a serial run, instead of the second failing on
+    the first's lock."""
     rows = []
     for r in results:
         for row in r["rows"]:
             cal = r["cals"].get(row.get("model"))
             if cal is not None:
-                rel = (
-                    Path(CAL_DIR)
-                    / safe_part(row["device"])
-                    / (
-                        f"{safe_part(row['session_name'])}_{row['content_sha256'][:8]}_{safe_part(row['model'])}.json"
-                    )
-                )
+                rel = _cal_name(row)
+                text = cal if isinstance(cal, str) else dumps(cal) + "\n"  # str: encoded by a worker
                 with path_locks.setdefault(rel, threading.Lock()):
-                    if isinstance(cal, str):  # the file's text, encoded by the worker (session_batch)
-                        write_text_atomic(out / rel, cal, mkdir=True)
-                    else:
-                        write_json_atomic(out / rel, cal)
+                    write_text_atomic(out / rel, text, mkdir=True)
                 row["calibration"] = str(rel)
             rows.append(row)
+    return rows
+
+
+def _stage_result(out: Path, r: dict, staged: dict[Path, AtomicOutput]) -> list[dict]:
+    """A worker's storing of one session's calibrations: each file begun (locked) and written under
+    its temporary name; returns the rows pointing to them. ``commit_all(staged)`` at the end of the
+    batch makes them durable and visible together. A name another worker is writing (two copies of
+    one session) is waited for, but only after this batch's staged files are committed (their locks
+    released): a worker never waits holding a lock, so two workers cannot wait for each other."""
+    rows = []
+    for row in r["rows"]:
+        cal = r["cals"].get(row.get("model"))
+        if cal is not None:
+            rel = _cal_name(row)
+            ao = AtomicOutput(out / rel, mkdir=True)
+            try:
+                if rel in staged:
+                    raise LockBusy("staged in this batch", where=str(rel))
+                ao.begin()
+            except LockBusy:
+                commit_all(list(staged.values()))
+                staged.clear()
+                ao = AtomicOutput(out / rel, mkdir=True, wait=True)
+                ao.begin()
+            staged[rel] = ao
+            ao.tmp.write_text(dumps(cal) + "\n")
+            row["calibration"] = str(rel)
+        rows.append(row)
     return rows

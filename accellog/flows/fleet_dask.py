@@ -146,6 +146,13 @@ def run_batches(
             on_result(r)
 
 
+def is_local(client) -> bool:
+    """Whether `client`'s cluster is a LocalCluster (its workers share this machine's files)."""
+    from dask.distributed import LocalCluster
+
+    return isinstance(getattr(client, "cluster", None), LocalCluster)
+
+
 def start_client(scheduler: str | None, workers: int | None):
     """A Future of a dask Client: of the scheduler at `scheduler`, else of a new LocalCluster of
     `workers` processes, made in a thread (the caller goes on meanwhile)."""

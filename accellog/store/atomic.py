@@ -21,8 +21,9 @@ process and removed by the next writer. Outputs get the usual permissions (0666 
 
 ``check_output``/``check_outputs`` run the checks alone (to validate every output of a command
 before computing); ``AtomicOutput`` (begin/commit/abort) and ``atomic_output`` (a context manager
-yielding the temporary path) write; ``write_bytes_atomic``/``write_text_atomic`` are the one-call
-forms; ``OutputLock`` is the lock alone (``SessionWriter(exclusive=True)`` uses it for live
+yielding the temporary path) write; ``commit_all`` commits several with one folder sync;
+``write_bytes_atomic``/``write_text_atomic`` are the one-call forms; ``wait=True`` waits for the
+lock instead of refusing (``LockBusy``); ``OutputLock`` is the lock alone (``SessionWriter(exclusive=True)`` uses it for live
 recording, which writes under the real name with O_EXCL: a crash must leave the data there).
 """
 
@@ -35,7 +36,7 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 from accellog.core import notices
@@ -155,15 +156,22 @@ def _remove_stale_lock(p: Path) -> None:
         os.close(fd)
 
 
+class LockBusy(InputError):
+    """Another process (or another open of the same lock) holds the output's lock."""
+
+
 class OutputLock:
-    """Exclusive, non-blocking advisory lock on ``.NAME.lock`` beside `path` (removed on release).
+    """Exclusive advisory lock on ``.NAME.lock`` beside `path` (removed on release): non-blocking
+    (a held lock is a one-line error), or with ``wait`` blocking until the holder releases it (the
+    fleet's workers, which may write one file name in turn).
 
     After ``flock`` succeeds the lock file's inode is compared with the path's: a writer that
     opened a lock file just unlinked by a finishing writer retries on the new one."""
 
-    def __init__(self, path: PathLike) -> None:
+    def __init__(self, path: PathLike, wait: bool = False) -> None:
         self.path = Path(path)
         self.lock_path = self.path.with_name(f".{self.path.name}.lock")
+        self.wait = wait
         self._fd: int | None = None
 
     def acquire(self) -> OutputLock:
@@ -175,11 +183,11 @@ class OutputLock:
                     f"cannot create a lock file: {exc.strerror or exc}", where=str(self.path)
                 ) from None
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(fd, fcntl.LOCK_EX if self.wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as exc:
                 os.close(fd)
                 if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                    raise InputError(
+                    raise LockBusy(
                         "another process is writing this file right now; wait for it or choose another name",
                         where=str(self.path),
                     ) from None
@@ -236,12 +244,14 @@ class AtomicOutput:
         overwrite: bool = True,
         mkdir: bool = False,
         what: str = "output",
+        wait: bool = False,
     ) -> None:
         self.out = Path(out)
         self.inputs = [i for i in inputs if i is not None]
         self.overwrite = overwrite
         self.mkdir = mkdir
         self.what = what
+        self.wait = wait
         self.tmp: Path | None = None
         self._lock: OutputLock | None = None
 
@@ -254,7 +264,7 @@ class AtomicOutput:
                 raise InputError(
                     f"cannot create the folder: {exc.strerror or exc}", where=str(p.parent)
                 ) from None
-        self._lock = OutputLock(p).acquire()
+        self._lock = OutputLock(p, self.wait).acquire()
         try:
             check_output(p, self.inputs, overwrite=self.overwrite, what=self.what)  # again, under the lock
             remove_stale(p.parent, f".{p.name}.", r"[A-Za-z0-9_]{8}\.tmp")
@@ -270,7 +280,8 @@ class AtomicOutput:
         self.tmp = Path(tmp)
         return self.tmp
 
-    def commit(self) -> Path:
+    def commit(self, sync_dir: bool = True) -> Path:
+        """fsync the temporary file, rename it onto the output and (sync_dir) fsync the folder."""
         assert self.tmp is not None, "begin() first"
         try:
             with open(self.tmp, "rb+") as f:
@@ -285,7 +296,8 @@ class AtomicOutput:
                 except FileExistsError:
                     raise InputError("file exists; use --force to replace it", where=str(self.out)) from None
                 os.unlink(self.tmp)
-            _fsync_dir(self.out.parent)
+            if sync_dir:
+                _fsync_dir(self.out.parent)
         except BaseException:
             self.abort()
             raise
@@ -306,6 +318,25 @@ class AtomicOutput:
             self._lock = None
 
 
+def commit_all(outputs: Sequence[AtomicOutput]) -> list[Path]:
+    """Commit outputs begun and written together, each folder fsynced once after every rename: a
+    batch of files then costs about two journal commits instead of two per file (the fleet's
+    workers: an atomic write took 2 ms median, 6 ms p90 beside a 2-worker run). An output that
+    fails to commit is removed, the rest are aborted, and the error is raised."""
+    done: list[Path] = []
+    try:
+        for ao in outputs:
+            done.append(ao.commit(sync_dir=False))
+    except BaseException:
+        for ao in outputs:
+            ao.abort()
+        raise
+    finally:
+        for folder in dict.fromkeys(p.parent for p in done):
+            _fsync_dir(folder)
+    return done
+
+
 @contextlib.contextmanager
 def atomic_output(
     out: PathLike,
@@ -314,10 +345,11 @@ def atomic_output(
     overwrite: bool = True,
     mkdir: bool = False,
     what: str = "output",
+    wait: bool = False,
 ) -> Iterator[Path]:
     """Context manager: yields the temporary path to write; renamed onto `out` on success, removed
-    on any exception (Ctrl-C included). See AtomicOutput."""
-    ao = AtomicOutput(out, inputs=inputs, overwrite=overwrite, mkdir=mkdir, what=what)
+    on any exception (Ctrl-C included). See AtomicOutput (wait: OutputLock)."""
+    ao = AtomicOutput(out, inputs=inputs, overwrite=overwrite, mkdir=mkdir, what=what, wait=wait)
     tmp = ao.begin()
     try:
         yield tmp

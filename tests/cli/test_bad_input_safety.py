@@ -63,6 +63,26 @@ def test_lock_is_exclusive_across_processes(tmp_path):
     OutputLock(out).acquire().release()  # the dead holder's lock is gone with its process
 
 
+def test_a_waiting_writer_takes_its_turn_across_processes(tmp_path):
+    """wait=True (the fleet's workers writing one calibration name): the second writer blocks until
+    the holder's process releases the lock, then writes; nothing is left beside the file."""
+    out = tmp_path / "c.json"
+    code = (
+        "from accellog.store.atomic import write_text_atomic; print('writing', flush=True); "
+        f"write_text_atomic({str(out)!r}, 'second', wait=True); print('written', flush=True)"
+    )
+    with atomic_output(out) as tmp:
+        tmp.write_text("first")
+        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=ENV)
+        assert proc.stdout.readline().strip() == "writing"
+        with pytest.raises(subprocess.TimeoutExpired):
+            proc.wait(timeout=0.5)  # blocked while the lock is held (without wait: exit 1 at once)
+        assert not out.exists()
+    assert proc.stdout.readline().strip() == "written" and proc.wait(timeout=30) == 0
+    assert out.read_text() == "second"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json"]
+
+
 def test_no_overwrite_mode_refuses_existing_and_aborts_cleanly(tmp_path):
     out = tmp_path / "keep.mcap"
     out.write_bytes(b"session")

@@ -135,6 +135,29 @@ def test_rerun_skips_everything_and_force_recomputes_one(fleet, tmp_path):
     assert res2.n_run == 2 and res2.scheduler == "serial"
 
 
+def test_the_client_writes_what_the_workers_write(fleet, tmp_path):
+    """--client-writes (a remote cluster whose workers do not share FLEET/) and the workers' own
+    writing give the same table rows and calibration files (up to their creation time)."""
+    from accellog.flows.fleet_dask import close_own, start_client
+
+    files = fleet["good"][:6]
+    client = start_client(None, 2).result()
+    try:
+        by = {w: run_fleet(PIPELINE, files, tmp_path / w, client=client, workers_write=(w == "workers"))
+              for w in ("workers", "client")}  # fmt: skip
+    finally:
+        close_own(client)
+    rows = {w: read_table(r.table) for w, r in by.items()}
+    drop = ("task_s", "task_cpu_s", "worker_pid")
+    assert [{k: v for k, v in r.items() if k not in drop} for r in rows["workers"]] == [
+        {k: v for k, v in r.items() if k not in drop} for r in rows["client"]
+    ]
+    for r in rows["workers"]:
+        w, c = (json.loads((tmp_path / x / r["calibration"]).read_text()) for x in ("workers", "client"))
+        assert {**w, "created_utc": ""} == {**c, "created_utc": ""}
+    assert not [p for p in (tmp_path / "workers").rglob(".*")]  # no temporary or lock file left
+
+
 def read_table_from_bytes(data: bytes, tmp: Path) -> list[dict]:
     p = tmp / "before.parquet"
     p.write_bytes(data)

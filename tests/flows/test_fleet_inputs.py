@@ -125,8 +125,7 @@ def test_safe_part_property_any_text(name):
 
 def test_byte_identical_copies_in_several_folders_share_their_calibration_file(tmp_path, capsys):
     """Copies of one session (a backup beside the original) map to one calibration file name: the
-    writer threads write it in turn, the run ends with its table (one Dask worker: a batch of
-    sessions returns together)."""
+    two workers write it in turn (each waits on the file's lock), the run ends with its table."""
     import shutil
 
     from accellog.flows.fleet import read_table
@@ -143,9 +142,44 @@ def test_byte_identical_copies_in_several_folders_share_their_calibration_file(t
     out = tmp_path / "FLEET"
     pattern = str(tmp_path / "sessions" / "**" / "*.mcap")
     rc = main(
-        ["fleet", "run", str(REPO / "pipelines" / "fleet.toml"), pattern, "-o", str(out), "--workers", "1"]
+        ["fleet", "run", str(REPO / "pipelines" / "fleet.toml"), pattern, "-o", str(out), "--workers", "2"]
     )
     assert rc == 0, capsys.readouterr().err
     rows = read_table(out / "fleet.parquet")
     assert len(rows) == 8 and not any(r["error"] for r in rows)
     assert len({r["calibration"] for r in rows}) == 1 and (out / rows[0]["calibration"]).is_file()
+
+
+def test_two_workers_storing_two_names_in_opposite_orders_both_finish(tmp_path):
+    """Worker A holds calibration name x and needs y while worker B holds y and needs x (copies of two
+    sessions whose folders sort them in opposite orders): the one that finds its next name locked
+    commits what it holds before it waits, so neither waits for the other for ever."""
+    import threading
+
+    from accellog.flows.fleet import _stage_result
+    from accellog.store.atomic import commit_all
+
+    def result(name: str) -> dict:
+        row = {"device": "IMU-1", "session_name": name, "content_sha256": "ab" * 32, "model": "model3"}
+        return {"rows": [row], "cals": {"model3": {"session": name}}}
+
+    both_hold_one = threading.Barrier(2, timeout=10)
+    done: list[list[str]] = []
+
+    def worker(order: tuple[str, str]) -> None:
+        staged: dict = {}
+        rows = _stage_result(tmp_path, result(order[0]), staged)
+        both_hold_one.wait()
+        rows += _stage_result(tmp_path, result(order[1]), staged)
+        commit_all(list(staged.values()))
+        done.append([r["calibration"] for r in rows])
+
+    threads = [threading.Thread(target=worker, args=(o,), daemon=True) for o in (("x", "y"), ("y", "x"))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=20)
+    assert not any(t.is_alive() for t in threads), "the two writers wait for each other"
+    assert len(done) == 2
+    names = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file())
+    assert names == ["cal/IMU-1/x_abababab_model3.json", "cal/IMU-1/y_abababab_model3.json"]
