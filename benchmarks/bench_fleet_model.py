@@ -55,8 +55,9 @@ def _load() -> str:
     return "load avg " + " ".join(f"{x:.1f}" for x in os.getloadavg())
 
 
-def measure_inner(files: list[str], workers: int, scratch: Path) -> dict[str, float]:
-    """Per-session and fixed quantities measured in this process and on a LocalCluster."""
+def measure_inner(files: list[str], workers: int, scratch: Path, repeat: int) -> dict[str, float]:
+    """Per-session and fixed quantities measured in this process and on a LocalCluster (the
+    per-session ones: medians of `repeat` interleaved rounds)."""
     from accellog.flows.fleet import run_fleet, warm_worker
     from accellog.flows.fleet_dask import batches, close_own, start_client
 
@@ -68,13 +69,6 @@ def measure_inner(files: list[str], workers: int, scratch: Path) -> dict[str, fl
     warm_worker()
     run_fleet(PIPELINE, files[:5], scratch / "warm", workers=0)  # first-call caches
     spec = load_pipeline(PIPELINE)
-    c0 = _cpu()
-    for f in files:  # the task alone (no writer threads running beside it)
-        session_task(f, None, spec, pipeline_hash(spec))
-    m["t_s"] = (_cpu() - c0) / n
-    c0 = _cpu()
-    run_fleet(PIPELINE, files, scratch / "serial", workers=0)
-    m["c_s"] = (_cpu() - c0) / n - m["t_s"]
 
     t0, c0 = time.perf_counter(), _cpu()
     client = start_client(None, workers).result()
@@ -88,11 +82,21 @@ def measure_inner(files: list[str], workers: int, scratch: Path) -> dict[str, fl
     m["start_cpu_client"] = _cpu() - c0
     try:
         run_fleet(PIPELINE, files[: 2 * workers], scratch / "pwarm", client=client)
-        w0, c0 = wcpu(), _cpu()
-        r = run_fleet(PIPELINE, files, scratch / "parallel", client=client)
-        m["t_w_task"] = r.sum_task_cpu_s / n
-        m["t_w"] = (wcpu() - w0) / n
-        m["c_p"] = (_cpu() - c0) / n
+        runs: dict[str, list[float]] = {}
+        for _ in range(repeat):  # interleaved: a change of the host's speed hits every figure alike
+            c0 = _cpu()
+            for f in files:  # the task alone (no writer threads running beside it)
+                session_task(f, None, spec, pipeline_hash(spec))
+            runs.setdefault("t_s", []).append((_cpu() - c0) / n)
+            c0 = _cpu()
+            run_fleet(PIPELINE, files, scratch / "serial", workers=0, force=True)
+            runs.setdefault("c_s", []).append((_cpu() - c0) / n - runs["t_s"][-1])
+            w0, c0 = wcpu(), _cpu()
+            r = run_fleet(PIPELINE, files, scratch / "parallel", client=client, force=True)
+            runs.setdefault("t_w_task", []).append(r.sum_task_cpu_s / n)
+            runs.setdefault("t_w", []).append((wcpu() - w0) / n)
+            runs.setdefault("c_p", []).append((_cpu() - c0) / n)
+        m.update({k: statistics.median(v) for k, v in runs.items()})
         sizes = [os.path.getsize(f) for f in files]
         m["size"] = sum(sizes) / n
         m["tasks_per_session"] = len(batches(sizes, workers)) / n
@@ -153,7 +157,12 @@ def main() -> None:
     ap.add_argument("--sessions", type=int, default=300)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--inner", type=int, default=100, help="sessions for the in-process figures")
-    ap.add_argument("--repeat", type=int, default=3, help="CLI runs of each variant")
+    ap.add_argument(
+        "--repeat",
+        type=int,
+        default=3,
+        help="interleaved rounds of the in-process figures and CLI runs of each variant",
+    )
     ap.add_argument("--predict", type=int, default=3000, help="sessions of the prediction")
     ap.add_argument("--at", type=int, nargs="+", default=[2, 16, 64], help="workers of the prediction")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/accellog_bench"))
@@ -163,7 +172,7 @@ def main() -> None:
     scratch = a.dir / "fleet_model"
     shutil.rmtree(scratch, ignore_errors=True)
     print(f"{len(files)} sessions in {folder}; {os.cpu_count()} cores ({_load()})", flush=True)
-    m = measure_inner(files[: a.inner], a.workers, scratch)
+    m = measure_inner(files[: a.inner], a.workers, scratch, a.repeat)
     print(f"in-process figures done ({_load()})", flush=True)
     cli = measure_cli(folder, len(files), a.workers, a.repeat, scratch)
     n, w = len(files), a.workers
