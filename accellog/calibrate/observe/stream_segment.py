@@ -69,7 +69,7 @@ def segment_blocks(
     stats_out (a list), when given, receives every hold's PoseStats; on_block(block) is called with
     every block (e.g. a TimestampCheck); release: give the heap's free pages back after each hold
     (heap.trim_heap, for a long file); threaded: each hold reduced on a worker thread while the
-    next blocks are read (False: here, for a short session, core.threads)."""
+    next blocks are read (False: in the caller's thread, for a Session in memory: one block)."""
     if window_s is not None:
         check_window(window_s, meta.sample_rate_hz, where)
     labels = checked_labels(poses, where, events)
