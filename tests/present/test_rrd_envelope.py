@@ -209,3 +209,22 @@ def test_batched_series_sharing_times_each_get_their_own_envelope() -> None:
             one = minmax_envelope(t, v)
             np.testing.assert_array_equal(np.concatenate([r[0] for r in rec.rows[name]]), one.t_s)
             np.testing.assert_array_equal(np.concatenate([r[1] for r in rec.rows[name]]), one.values)
+
+
+def test_long_and_short_buckets_give_the_same_rows(monkeypatch) -> None:
+    """Long buckets are reduced one by one, short ones all at once: the rows (which extreme comes
+    first included, on ties too) do not depend on the way."""
+    from accellog.present.rrd import envelope
+
+    rng = np.random.default_rng(8)
+    t = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, 20_000))
+    v = np.round(rng.normal(size=(t.shape[0], 3)) * 3)  # many ties between min and max candidates
+    rows = {}
+    for way, least in (("one by one", 0), ("all at once", 10**9)):
+        monkeypatch.setattr(envelope, "LOOP_MIN_SAMPLES", least)
+        for buckets in (50, 700, 5000):
+            env = minmax_envelope(t, v, buckets=buckets)
+            rows[way, buckets] = (env.values, env.row_index)
+    for buckets in (50, 700, 5000):
+        for a, b in zip(rows["one by one", buckets], rows["all at once", buckets], strict=True):
+            np.testing.assert_array_equal(a, b)

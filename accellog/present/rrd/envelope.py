@@ -30,6 +30,11 @@ ENVELOPE_BUCKETS = 4000
 FULL_RATE_MAX_SAMPLES = 20_000
 """Series with at most this many samples are logged at the full rate (an envelope would not be
 much smaller); longer ones as envelopes unless the recording asks for the full rate."""
+LOOP_MIN_SAMPLES = 64
+"""Buckets of this many samples or more (on average) are reduced one by one (``_bucket_extremes``):
+a 60 s batch at 1 kHz (67 buckets, 3 columns) 0.27 ms instead of 1.7 ms for the transposed copy
+and the padded (k, buckets, longest) gather; shorter ones all at once, where a Python loop per
+bucket would cost more than the copies."""
 
 
 def track_keep(n: int, points: int = 2 * ENVELOPE_BUCKETS) -> np.ndarray:
@@ -64,21 +69,28 @@ def _envelope(t: np.ndarray, v: np.ndarray, pos, starts: np.ndarray, ids: np.nda
     first sample (int, then counted on); starts: first sample of each bucket (increasing, from 0), ids
     their bucket numbers.
 
-    Column by column on a contiguous copy (k, n): the first min and max of each bucket by
-    ``_arg_extremes``, or, when a bucket holds a NaN, min and max by ``fmin/fmax.reduceat`` (NaNs
-    ignored) and the first sample equal to each from the sorted positions of the equal samples."""
+    The first min and max of each bucket: bucket by bucket (``_bucket_extremes``) when buckets are
+    long, else column by column on a contiguous copy (k, n) (``_arg_extremes``); when a bucket holds a
+    NaN, min and max by ``fmin/fmax.reduceat`` (NaNs ignored) and the first sample equal to each from
+    the sorted positions of the equal samples."""
     n, k = v.shape
     if n == 0:
         return Envelope(np.empty(0), np.empty((0, k)), np.empty(0, np.int64), np.empty(0, np.int64))
     nb = starts.shape[0]
     ends = np.empty_like(starts)  # exclusive
     ends[:-1], ends[-1] = starts[1:], n
-    cols = np.ascontiguousarray(v.T)  # (k, n): reductions along contiguous rows are ~10x faster
     counts = ends - starts
-    found = _arg_extremes(cols, starts, counts)
+    cols = None
+    if n >= LOOP_MIN_SAMPLES * nb:
+        found = _bucket_extremes(v, starts, ends)
+    else:
+        cols = np.ascontiguousarray(v.T)  # (k, n): reductions along contiguous rows are ~10x faster
+        found = _arg_extremes(cols, starts, counts)
     if found is not None:
         mn, mx, min_first = found
     else:
+        if cols is None:
+            cols = np.ascontiguousarray(v.T)
         with np.errstate(invalid="ignore"):
             mn = np.fmin.reduceat(cols, starts, axis=1)  # (k, buckets), NaNs ignored
             mx = np.fmax.reduceat(cols, starts, axis=1)
@@ -91,6 +103,23 @@ def _envelope(t: np.ndarray, v: np.ndarray, pos, starts: np.ndarray, ids: np.nda
     idx[0::2], idx[1::2] = starts, ends - 1
     row_index = idx + pos if isinstance(pos, (int, np.integer)) else np.asarray(pos, np.int64)[idx]
     return Envelope(t[idx], rows, row_index, np.asarray(ids, np.int64).repeat(2))
+
+
+def _bucket_extremes(v: np.ndarray, starts: np.ndarray, ends: np.ndarray):
+    """(min, max, min comes first) per column and bucket (k, buckets) of v (n, k) from an ``argmin``
+    and an ``argmax`` of each bucket's rows in turn: no copy of the series. None when a bucket holds
+    a NaN (argmin and argmax stop at the first NaN)."""
+    nb, k = starts.shape[0], v.shape[1]
+    i_mn, i_mx = np.empty((nb, k), np.intp), np.empty((nb, k), np.intp)
+    for j, (a, z) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+        part = v[a:z]
+        part.argmin(axis=0, out=i_mn[j])
+        part.argmax(axis=0, out=i_mx[j])
+    col = np.arange(k)
+    mn, mx = v[starts[:, None] + i_mn, col], v[starts[:, None] + i_mx, col]
+    if np.isnan(mn).any() or np.isnan(mx).any():
+        return None
+    return mn.T, mx.T, (i_mn <= i_mx).T
 
 
 def _arg_extremes(cols: np.ndarray, starts: np.ndarray, counts: np.ndarray):
