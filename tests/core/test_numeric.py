@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from accellog.core.errors import ModelError
-from accellog.core.numeric import chi2_sf, least_squares
+from accellog.core.numeric import _zero_border, chi2_sf, jacobian_array, least_squares
 
 # Meyer (MGH #10, NIST StRD "MGH10"): y = x1 exp(x2 / (t + x3)); certified values (NIST)
 MEYER_T = 45.0 + 5.0 * np.arange(1, 17)
@@ -95,6 +95,33 @@ def test_a_solve_that_does_not_converge_is_a_model_error():
     nan_at_start = lambda x: np.array([x[0], math.nan, 1.0])  # noqa: E731
     with pytest.raises(ModelError, match=r"^bad fit did not converge: .*not finite"):
         least_squares(nan_at_start, np.ones(2), what="bad fit")
+
+
+def test_a_jacobian_built_in_a_jacobian_array_reaches_minpack_uncopied():
+    """The solver is handed (m + 1, n + 1) with a zero border (module docstring): a Jacobian written
+    into ``jacobian_array`` is that array already; any other array, or one whose border was written,
+    is copied; the solve is the same either way."""
+    J = jacobian_array(16, 3)
+    J[:] = meyer_jac(np.array([0.02, 4000.0, 250.0]))
+    bordered = _zero_border(J)
+    assert bordered.shape == (17, 4) and np.shares_memory(bordered, J) and not bordered[-1].any()
+    plain = meyer_jac(np.array([0.02, 4000.0, 250.0]))
+    assert not np.shares_memory(_zero_border(plain), plain)
+    np.testing.assert_array_equal(_zero_border(plain), bordered)
+    written = jacobian_array(16, 3)
+    written.base[-1, 0] = 1.0  # a border that is not zero: not handed over
+    assert not np.shares_memory(_zero_border(written), written)
+    assert not np.shares_memory(_zero_border(jacobian_array(17, 3)[:16]), J)  # not its top-left block
+
+    def in_place(x):
+        out = jacobian_array(16, 3)
+        out[:] = meyer_jac(x)
+        return out
+
+    x0 = np.array([0.02, 4000.0, 250.0])
+    a = least_squares(meyer, x0, what="meyer", jac=meyer_jac, x_scale=1.0)
+    b = least_squares(meyer, x0, what="meyer", jac=in_place, x_scale=1.0)
+    np.testing.assert_array_equal(a.x, b.x)
 
 
 def test_chi2_sf():

@@ -36,7 +36,7 @@ from accellog.calibrate.model.identifiability import (
 )
 from accellog.calibrate.model.jacobian import norm_jacobian, numeric_columns, predict_jacobian
 from accellog.core.errors import InputError, ModelError
-from accellog.core.numeric import chi2_sf, least_squares
+from accellog.core.numeric import chi2_sf, jacobian_array, least_squares
 from accellog.core.session import ObsTable
 
 
@@ -197,7 +197,7 @@ def _numjac(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
         tp[k] += steps[k]
         tm[k] -= steps[k]
         col = (fun(tp) - fun(tm)) / (2.0 * steps[k])
-        out = np.empty((col.size, theta.size)) if out is None else out
+        out = jacobian_array(col.size, theta.size) if out is None else out
         out[:, k] = col
     return out if out is not None else np.zeros((fun(theta).size, 0))
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from accellog.calibrate.model.compose import S_INDEX, Model
 from accellog.calibrate.model.effects import CROSS_NAMES, TRI_NAMES
+from accellog.core.numeric import jacobian_array
 
 NUMERIC_TERMS = {"fixture_tilt"}
 """Library effects whose columns are left to central differences (they move the truth f)."""
@@ -54,7 +55,7 @@ def predict_jacobian(
     k2, k3, G, sdiag, C, _ = model._components(theta, drivers)
     u = model._input(f, k2, k3, G)
     M = _matrix(sdiag, C, n)
-    J = np.zeros((n, 3, model.n_params))
+    J = jacobian_array(3 * n, model.n_params).reshape(n, 3, model.n_params)  # handed to the solver uncopied
     ax = np.arange(3)
     dT = None
     if "temp_degC" in drivers and drivers["temp_degC"] is not None:
