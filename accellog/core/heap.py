@@ -1,4 +1,4 @@
-"""Give freed heap memory back to the OS during long streamed passes.
+"""Give freed heap memory back to the OS during long streamed passes (and set glibc's thresholds).
 
 A streamed pass allocates and frees arrays of varying sizes for every block (~1-3 MB each). glibc
 keeps the freed pages in its arenas, which fragment, so the resident set creeps up with the
@@ -31,6 +31,27 @@ def _malloc_trim():
 
 
 _TRIM = _malloc_trim()
+
+
+def trim_heap() -> None:
+    """malloc_trim(0) now (glibc; a no-op elsewhere), ~1 ms: between the stages of a long run. After
+    a large block is freed glibc raises its mmap threshold, so later arrays come from the heap and
+    its free pages stay resident: without a trim after a hold, a pass or a candidate fit, peak memory
+    grew with the number of holds and candidates (24 h session: benchmarks/README.md)."""
+    if _TRIM is not None:
+        _TRIM(0)
+
+
+def set_malloc_thresholds(trim_bytes: int, mmap_bytes: int) -> bool:
+    """glibc's ``mallopt`` M_TRIM_THRESHOLD and M_MMAP_THRESHOLD for this process and the processes
+    forked from it (what the MALLOC_TRIM_THRESHOLD_ / MALLOC_MMAP_THRESHOLD_ environment variables set
+    at a process's start); False without glibc."""
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return bool(mallopt(-1, int(trim_bytes))) and bool(mallopt(-3, int(mmap_bytes)))  # M_TRIM_, M_MMAP_
 
 
 def anon_rss_mb() -> float | None:

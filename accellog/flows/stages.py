@@ -32,11 +32,11 @@ from accellog.calibrate.gyro.model import GyroCalibration
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.fit import fit_model, fit_orientation_free
 from accellog.calibrate.observe.detect import detect_static, with_labels
-from accellog.calibrate.observe.heap import trim_heap
 from accellog.calibrate.observe.label_check import relabel_holds
 from accellog.calibrate.observe.segment import check_coverage, observations
 from accellog.core.errors import AccellogError, InputError, ModelError
 from accellog.core.forked import started
+from accellog.core.heap import trim_heap
 from accellog.core.jsonio import JsonResult
 from accellog.core.notices import note
 from accellog.core.numeric import load_solver, solver_loaded

@@ -32,8 +32,8 @@ from accellog.calibrate.model.compose import Model
 from accellog.calibrate.model.effects import all_effects
 from accellog.calibrate.model.fit import FitResult, fit_model, obs_drivers
 from accellog.calibrate.model.identifiability import checked_advice, effect_requirement
-from accellog.calibrate.observe.heap import trim_heap
 from accellog.core.errors import InputError, ModelError
+from accellog.core.heap import trim_heap
 from accellog.core.numeric import f_sf, normal_sf
 from accellog.core.session import ObsTable
 

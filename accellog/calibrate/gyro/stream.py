@@ -45,8 +45,8 @@ from accellog.calibrate.gyro.fit import (
 )
 from accellog.calibrate.gyro.model import GyroCalibration
 from accellog.calibrate.gyro.rotation import coarse_plan, fine_pieces
-from accellog.calibrate.observe.heap import trim_heap
 from accellog.core.errors import InputError
+from accellog.core.heap import trim_heap
 from accellog.core.session import PoseLabel
 from accellog.store.stream import ImuBlock, closed_after, iter_imu
 
@@ -129,7 +129,7 @@ def calibrate_blocks(
             for blk in it:
                 if not first.add(blk):
                     break
-        trim_heap()  # the pass's block arrays are freed: give their pages back (calibrate.heap)
+        trim_heap()  # the pass's block arrays are freed: give their pages back (core.heap)
     found = first.result()
     if found is None:
         return None

@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.observe.heap import trim_heap
 from accellog.calibrate.observe.holds import (
     PoseStats,
     check_hold,
@@ -40,6 +39,7 @@ from accellog.calibrate.observe.label_check import hold_mismatch, mismatch_error
 from accellog.calibrate.observe.motion import mean_shift, moving_verdict, static_windows
 from accellog.calibrate.observe.window_spill import WindowSpill, median
 from accellog.core.errors import InputError
+from accellog.core.heap import trim_heap
 from accellog.core.session import ObsTable, PoseLabel, SessionMeta
 from accellog.store.stream import closed_after, iter_imu, read_labels
 
@@ -79,7 +79,7 @@ def segment_blocks(
     def reduce(p, parts) -> None:
         holds.add(p, parts)
         if release:
-            trim_heap()  # a hold's arrays are freed: give their pages back (calibrate.heap)
+            trim_heap()  # a hold's arrays are freed: give their pages back (core.heap)
 
     try:
         with _Behind(threaded) as behind:
