@@ -19,7 +19,8 @@ already in fleet.parquet is skipped (its rows are kept); ``force`` recomputes ev
 Cluster: a LocalCluster bound to 127.0.0.1 (one single-threaded worker process per core) unless
 a scheduler address (tcp://HOST:8786) is given; the input paths must then be readable by the
 workers under the same names (shared filesystem). Dask is imported only in
-accellog.flows.fleet_dask.
+accellog.flows.fleet_dask and in accellog.flows.fleet_worker (what the fork server of local workers
+imports before it forks them).
 """
 
 from __future__ import annotations

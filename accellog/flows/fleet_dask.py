@@ -17,10 +17,16 @@ __all__ = [
     "batches",
     "close_own",
     "local_cluster",
+    "prestart_workers",
     "run_batches",
     "start_client",
 ]
 
+
+MALLOC_TRIM_THRESHOLD = 1 << 30
+"""glibc's M_TRIM_THRESHOLD in a worker (bytes): WORKER_CONFIG below."""
+MALLOC_MMAP_THRESHOLD = 1 << 25
+"""glibc's M_MMAP_THRESHOLD in a worker (bytes): WORKER_CONFIG below."""
 
 WORKER_CONFIG = {
     "distributed.worker.profile.enabled": False,
@@ -28,8 +34,8 @@ WORKER_CONFIG = {
     "distributed.admin.system-monitor.gil.enabled": False,
     "distributed.admin.tick.interval": "1s",
     "distributed.worker.memory.monitor-interval": "1s",
-    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": 1 << 30,
-    "distributed.nanny.pre-spawn-environ.MALLOC_MMAP_THRESHOLD_": 1 << 25,
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": MALLOC_TRIM_THRESHOLD,
+    "distributed.nanny.pre-spawn-environ.MALLOC_MMAP_THRESHOLD_": MALLOC_MMAP_THRESHOLD,
 }
 """Dask settings of local workers (the same keys belong in a real cluster's dask config, docs/fleet.md):
 
@@ -44,16 +50,42 @@ WORKER_CONFIG = {
   session instead of 20; a task 8-12 % more CPU than in the serial loop, now the same)."""
 
 
+PRELOAD = "accellog.flows.fleet_worker"
+"""The module the fork server of local workers imports before it forks them."""
+
+
+def prestart_workers() -> bool:
+    """Start the fork server that local workers are forked from, with PRELOAD imported in it, unless
+    it runs: called as ``fleet run`` starts, it imports while the command does (accellog.flows.
+    fleet_worker). False where there is no fork server (not POSIX): workers are then spawned."""
+    import multiprocessing
+    import multiprocessing.forkserver
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return False
+    multiprocessing.set_forkserver_preload([PRELOAD])  # no effect on a server already running
+    multiprocessing.forkserver.ensure_running()
+    return True
+
+
 def local_cluster(n_workers: int | None = None):
     """A dask LocalCluster on 127.0.0.1: n_workers single-threaded processes (default: cores),
-    no dashboard, WORKER_CONFIG."""
+    no dashboard, WORKER_CONFIG; its workers forked from the fork server (``prestart_workers``)."""
     import logging
 
     import dask
+    import distributed.utils
     from dask.distributed import LocalCluster
 
     n = n_workers or os.cpu_count() or 1
-    with dask.config.set(WORKER_CONFIG):
+    config = dict(WORKER_CONFIG)
+    if prestart_workers():
+        config["distributed.worker.multiprocessing-method"] = "forkserver"
+        # Dask would otherwise import pandas & co. here (in the client) to set a preload of its own,
+        # which a running server ignores: ours (PRELOAD) is set
+        if hasattr(distributed.utils, "_forkserver_preload_set"):
+            distributed.utils._forkserver_preload_set = True
+    with dask.config.set(config):
         return LocalCluster(
             n_workers=n,
             threads_per_worker=1,
