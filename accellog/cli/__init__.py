@@ -77,6 +77,21 @@ INTERRUPTED = 130
 """Exit code of a command stopped by Ctrl-C (SIGINT), as shells report it (128 + 2)."""
 
 
+RRD_CHILD_COMMANDS = ("fit", "evaluate", "drift", "run", "track", "replay", "compare")
+"""The commands whose --rrd file is written by a child process (present.rrd.offload), measured to
+gain; the others (diagnose, demo, doctor, magcal, noise, workbench, fleet) write it themselves."""
+
+
+def _writes_rrd(args: list[str]) -> bool:
+    """Whether the command line is one of RRD_CHILD_COMMANDS with --rrd (not --help)."""
+    return (
+        bool(args)
+        and args[0] in RRD_CHILD_COMMANDS
+        and "--help" not in args
+        and any(a == "--rrd" or a.startswith("--rrd=") for a in args)
+    )
+
+
 def _run(args: list[str]) -> int:
     """Parse and run one command line (`--version` without typer)."""
     if args == ["--version"]:
@@ -84,6 +99,10 @@ def _run(args: list[str]) -> int:
 
         print(f"accellog {__version__}")
         return 0
+    if _writes_rrd(args):
+        from accellog.present.rrd.offload_process import prestart
+
+        prestart()  # before typer and the command's imports: the child's own run beside them
     from accellog.cli.app import command_group
 
     if "--show-completion" in args or "--install-completion" in args:
@@ -168,9 +187,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def _stop_unclaimed_writer() -> None:
     """A .rrd writer child the command started but did not use (it failed first) ends with it."""
-    offload = sys.modules.get("accellog.present.rrd.offload")
-    if offload is not None:
-        offload.stop_unclaimed()
+    process = sys.modules.get("accellog.present.rrd.offload_process")
+    if process is not None:
+        process.stop_unclaimed()
 
 
 def console() -> None:

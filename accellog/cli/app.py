@@ -128,16 +128,6 @@ EffectsOpt = Annotated[
 ]
 
 
-def prestart_rrd_writer(rrd: Path | None) -> None:
-    """With --rrd, the commands measured to gain have the .rrd written by a child process started
-    now, which imports rerun while this one computes (present.rrd.offload: ``replay --rrd`` 1 h
-    1.33-1.43x -> 1.17-1.26x the replay alone); nothing without --rrd, nothing on one core."""
-    if rrd is not None:
-        from accellog.present.rrd.offload import prestart
-
-        prestart()
-
-
 def plain_flags(cmd: Any) -> Any:
     """A click command (group: with the subcommands built) whose on/off flags show no '<bool>'
     placeholder in the help (typer's rich help prints the metavar; an empty one prints nothing)."""

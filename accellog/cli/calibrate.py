@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import CompressionOpt, EffectsOpt, app, prestart_rrd_writer
+from accellog.cli.app import CompressionOpt, EffectsOpt, app
 from accellog.core.errors import InputError
 
 _console = Console()
@@ -120,7 +120,6 @@ def fit(
     from accellog.store.atomic import check_outputs
 
     check_outputs([output, rrd], [session, effects_file], mkdir=True)
-    prestart_rrd_writer(rrd)
     data = load_input(session) if rrd is not None else session  # a path: run_fit may stream it
     out = run_fit(
         data,
@@ -168,7 +167,6 @@ def evaluate_cmd(
     from accellog.flows.static_stages import run_evaluate_report
     from accellog.present import tables as report
 
-    prestart_rrd_writer(rrd)
     rep = run_evaluate_report(
         test,
         [load_calibration(c, effects_file) for c in cal],
@@ -227,7 +225,6 @@ def drift(
     from accellog.store.atomic import check_outputs
 
     check_outputs([output, rrd], [static, cal, effects_file], mkdir=True)
-    prestart_rrd_writer(rrd)
     c = load_calibration(cal, effects_file)
     data = load_input(static) if rrd is not None else static  # an MCAP file streams (no series to draw)
     out = run_drift(data, c, until_s=until_s, max_samples=max_samples)
@@ -316,7 +313,6 @@ def run(
     from accellog.store.atomic import check_outputs
 
     check_outputs([rrd], [pipeline, *sessions, effects_file], mkdir=True)
-    prestart_rrd_writer(rrd)
     if output_dir is not None and output_dir.exists() and not output_dir.is_dir():
         raise InputError("--output-dir is an existing file, not a folder", where=str(output_dir))
     res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir, effects_file=effects_file)

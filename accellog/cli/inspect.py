@@ -14,7 +14,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import EffectsOpt, app, prestart_rrd_writer
+from accellog.cli.app import EffectsOpt, app
 from accellog.core.errors import InputError
 
 _console = Console()
@@ -80,7 +80,6 @@ def replay(
 ) -> None:
     """Feed a session through online correction + integration in sensor time, logging raw and
     calibrated accel and displacement tracks to a live viewer or an .rrd."""
-    prestart_rrd_writer(rrd)
     from accellog.flows.inspect import run_replay, sink_option
     from accellog.flows.replay import parse_speed
 
@@ -115,7 +114,6 @@ def compare(
 ) -> None:
     """Displacement tracks of several calibrations of one test session side by side, with their
     final drift (terminal table, --json, and a document in the .rrd)."""
-    prestart_rrd_writer(rrd)
     from accellog.flows.inspect import run_replay, sink_option
 
     if not cal:

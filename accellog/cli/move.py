@@ -6,7 +6,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import EffectsOpt, app, prestart_rrd_writer
+from accellog.cli.app import EffectsOpt, app
 
 
 @app.command("track", rich_help_panel="5. Move")
@@ -35,7 +35,6 @@ def track_cmd(
     from accellog.flows.track import track_session
     from accellog.present.tables import track_table
 
-    prestart_rrd_writer(rrd)
     cals = [load_calibration(c, effects_file) for c in cal or []]
     rep = track_session(session_path, cals, zupt=zupt)
     if rrd is not None:

@@ -18,7 +18,7 @@ from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta
 from accellog.flows.stages import run_fit
-from accellog.present.rrd import offload
+from accellog.present.rrd import offload, offload_process
 from accellog.present.rrd.recording import RunRecording
 from accellog.store.atomic import OutputLock, pid_alive
 from accellog.store.writer import write_session
@@ -68,15 +68,15 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 @pytest.fixture
 def writers(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     """The process ids of the writer children started (the real ones: only counted)."""
-    offload.stop_unclaimed()
+    offload_process.stop_unclaimed()
     started: list[int] = []
-    init = offload._Writer.__init__
+    init = offload_process.Writer.__init__
 
     def counted(self) -> None:
         init(self)
         started.append(self.proc.pid)
 
-    monkeypatch.setattr(offload._Writer, "__init__", counted)
+    monkeypatch.setattr(offload_process.Writer, "__init__", counted)
     return started
 
 
@@ -210,6 +210,33 @@ def test_killed_or_interrupted_parent_leaves_no_child_and_no_file(files, tmp_pat
     assert q.returncode == 0 and _left(out.parent) == ["r.rrd"]
 
 
+def test_the_child_starts_before_the_commands_imports_and_ends_with_a_failed_command(tmp_path: Path) -> None:
+    """`accellog replay ... --rrd` starts the writer before typer and the command are imported (its
+    `import rerun` runs beside theirs); a command that then fails stops it and leaves no file."""
+    probe = (
+        "import sys\n"
+        "from accellog.present.rrd import offload_process as op\n"
+        "init, seen = op.Writer.__init__, []\n"
+        "def counted(self):\n"
+        "    seen.append(('typer' in sys.modules, 'accellog.flows.replay' in sys.modules))\n"
+        "    init(self)\n"
+        "    seen.append(self.proc.pid)\n"
+        "op.Writer.__init__ = counted\n"
+        "from accellog.cli import main\n"
+        "rc = main(sys.argv[1:])\n"
+        "print(rc, seen[0], op.started(), seen[1])\n"
+    )
+    out = tmp_path / "r.rrd"
+    res = subprocess.run(
+        [sys.executable, "-c", probe, "replay", str(tmp_path / "missing.mcap"), "--rrd", str(out)],
+        env={**os.environ, "PYTHONPATH": str(ROOT), "RERUN_ANALYTICS": "0", "ACCELLOG_RRD_CHILD": "1"},
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert res.stdout.startswith("2 (False, False) False "), (res.stdout, res.stderr)
+    assert _gone(int(res.stdout.split()[-1])) and not out.exists()
+    assert res.stderr.count("\n") == 1 and "missing.mcap" in res.stderr
+
+
 def test_bad_output_fails_before_any_work_as_in_process(
     files, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
 ) -> None:
@@ -233,10 +260,10 @@ def test_bad_output_fails_before_any_work_as_in_process(
 def test_one_core_stays_in_process(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("ACCELLOG_RRD_CHILD", raising=False)
     monkeypatch.setattr(os, "cpu_count", lambda: 1)
-    assert not offload.use_child()
+    assert not offload_process.use_child()
     monkeypatch.setenv("ACCELLOG_RRD_CHILD", "0")
     monkeypatch.setattr(os, "cpu_count", lambda: 8)
-    assert not offload.use_child()
+    assert not offload_process.use_child()
 
 
 @pytest.fixture(scope="module")

@@ -27,131 +27,32 @@ child as it is) and removes the temporary file; when the parent dies, the child 
 stdin, removes the temporary file and exits (a kill of both leaves a temporary file named with the
 parent's PID, which the next writer removes: ``store.atomic``).
 
-A command opts in with ``prestart()`` (the CLI, for the commands measured to gain: the child starts
-with the command), and its flow opens the recording with ``open_recording``, which hands out the
-started child for the first file sink and a plain ``RunRecording`` otherwise. With one core (or
-ACCELLOG_RRD_CHILD=0) ``prestart`` starts nothing and every recording stays in-process.
+A command opts in with ``offload_process.prestart()`` (the command line, for the commands measured to
+gain: the child starts with the process), and its flow opens the recording with ``open_recording``,
+which hands out the started child for the first file sink and a plain ``RunRecording`` otherwise.
+With one core (or ACCELLOG_RRD_CHILD=0) ``prestart`` starts nothing and every recording stays
+in-process.
 """
 
 from __future__ import annotations
 
-import atexit
 import contextlib
-import fcntl
 import functools
-import os
 import pickle
-import signal
-import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NoReturn
 
 from accellog.core.errors import AccellogError
-from accellog.core.forked import switched, usable_cores
-from accellog.present.rrd import offload_child as wire
+from accellog.present.rrd import offload_process
 from accellog.present.rrd.recording import RunRecording
 from accellog.present.rrd.series import SeriesLogs
 from accellog.present.rrd.sinks import parse_sink
 from accellog.store.atomic import AtomicOutput
 
-ENV_SWITCH = "ACCELLOG_RRD_CHILD"
-"""0: every recording in-process; 1: a child even on one core; unset: a child with two cores or more."""
-PIPE_BYTES = 1 << 20
-"""The call pipe's capacity (Linux F_SETPIPE_SZ; the default is 64 KiB): fewer wake-ups per batch."""
-SEND_BYTES = 256 << 10
-"""Calls are written to the child in batches of about this many bytes (one frame per call)."""
-ROOT = str(Path(__file__).resolve().parents[3])
-"""The folder holding this accellog package: the child imports the same code as the parent."""
-
 
 class RecordingWriterError(AccellogError):
     """The child process writing a .rrd file failed or died (nothing was written)."""
-
-
-def use_child() -> bool:
-    """Whether a file recording may go to a child process (module docstring)."""
-    on = switched(ENV_SWITCH)
-    return usable_cores() > 1 if on is None else on
-
-
-class _Writer:
-    """A started child process (``offload_child``): calls go to its stdin, replies come back on a pipe
-    of their own (what the child or rerun might print on stdout never mixes in)."""
-
-    def __init__(self) -> None:
-        r, w = os.pipe()
-        code = (
-            f"import sys; sys.path[0] = {ROOT!r}; from accellog.present.rrd.offload_child import main; main()"
-        )
-        try:
-            self.proc = subprocess.Popen(
-                [sys.executable, "-c", code, str(w)],
-                stdin=subprocess.PIPE,
-                stdout=subprocess.DEVNULL,
-                bufsize=0,
-                pass_fds=(w,),
-                start_new_session=True,  # no terminal: Ctrl-C reaches the parent only, which decides
-            )
-        except BaseException:
-            os.close(r)
-            raise
-        finally:
-            os.close(w)
-        self.reply = r
-        self._pending: list[bytes] = []
-        self._pending_bytes = 0
-        assert self.proc.stdin is not None
-        self.fd = self.proc.stdin.fileno()
-        with contextlib.suppress(AttributeError, OSError):
-            fcntl.fcntl(self.fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
-
-    def send(self, msg: tuple, *, flush: bool = False) -> None:
-        """Send msg: small frames are gathered (a copy; the caller may change its arrays once the
-        call returns) and written by SEND_BYTES, one wake-up of the child each; a large one goes at
-        once from the caller's arrays; flush: now, with all before it."""
-        parts = wire.frame(msg)
-        size = sum(p.nbytes for p in parts)
-        if size < SEND_BYTES:
-            self._pending.append(b"".join(parts))
-            self._pending_bytes += size
-            parts = []
-        if parts or flush or self._pending_bytes >= SEND_BYTES:
-            pending = [memoryview(b) for b in self._pending]
-            self._pending, self._pending_bytes = [], 0
-            wire.write_all(self.fd, pending + parts)
-
-    def recv(self) -> Any:
-        """The child's next reply; EOFError when it exited without one."""
-        return wire.recv(self.reply)
-
-    def stop(self, timeout_s: float | None = None) -> None:
-        """Wait for the child to exit (up to timeout_s), kill it if it does not (at once: None), close
-        the pipes."""
-        with contextlib.suppress(OSError, ValueError):
-            self.proc.stdin.close()  # type: ignore[union-attr]
-        try:
-            if timeout_s is None:
-                raise subprocess.TimeoutExpired(self.proc.args, 0)
-            self.proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(OSError):
-                self.proc.kill()
-            self.proc.wait()
-        if self.reply >= 0:
-            os.close(self.reply)
-            self.reply = -1
-
-    def how_it_ended(self) -> str:
-        rc = self.proc.returncode
-        if rc is None:
-            return "stopped answering"
-        if rc < 0:
-            with contextlib.suppress(ValueError):
-                return f"was killed by {signal.Signals(-rc).name}"
-            return f"was killed by signal {-rc}"
-        return f"exited with code {rc}"
 
 
 def _forward(name: str) -> Callable[..., None]:
@@ -182,7 +83,7 @@ class OffloadedRecording(SeriesLogs):
         recording_id: str | None = None,
         blueprint: str | None = "auto",
         full_rate: bool | None = None,
-        writer: _Writer | None = None,
+        writer: offload_process.Writer | None = None,
     ) -> None:
         self.kind, self.target = parse_sink(sink)
         if self.kind != "save":
@@ -201,7 +102,7 @@ class OffloadedRecording(SeriesLogs):
         try:
             self._out.begin()  # the path checked and locked before anything else: the same errors
             if self._w is None:
-                self._w = _Writer()
+                self._w = offload_process.Writer()
             kw = {"sink": sink, "app_id": app_id, "recording_id": recording_id, "blueprint": blueprint,
                   "full_rate": self.full_rate}  # fmt: skip
             self._send(("open", kw, str(self._out.tmp)), flush=True)
@@ -348,48 +249,20 @@ class OffloadedRecording(SeriesLogs):
 Recording = RunRecording | OffloadedRecording
 """What ``open_recording`` returns: the same methods either way."""
 
-_started: _Writer | None = None
-
-
-def prestart() -> bool:
-    """Start the writer child now, when recordings may go to one (``use_child``): it imports rerun
-    while the command computes; the first ``open_recording`` of a file takes it. An unclaimed child
-    is stopped when the command ends (``accellog.cli.main``) or at exit. True when a child runs."""
-    global _started
-    if _started is not None and _started.proc.poll() is not None:  # died unclaimed
-        stop_unclaimed()
-    if _started is None and use_child():
-        try:
-            _started = _Writer()
-        except OSError:  # no process to spare: the recording stays in this process
-            _started = None
-    return _started is not None
-
-
-@atexit.register
-def stop_unclaimed() -> None:
-    """Stop a started child no recording has taken (the command ended or failed before)."""
-    global _started
-    w, _started = _started, None
-    if w is not None:
-        w.stop()
-
 
 def open_recording(sink: str, **kw: Any) -> Recording:
-    """The recording of a sink (the arguments of ``RunRecording``): the started child's (``prestart``)
-    for the first file sink with blueprint 'auto' or None (not guarded, no on_failure), else a
-    RunRecording in this process."""
-    global _started
+    """The recording of a sink (the arguments of ``RunRecording``): the started child's
+    (``offload_process.prestart``) for the first file sink with blueprint 'auto' or None (not
+    guarded, no on_failure), else a RunRecording in this process."""
     bp = kw.get("blueprint", "auto")
     if (
-        _started is not None
+        offload_process.started()
         and sink.startswith("save:")
         and (bp is None or isinstance(bp, str))
         and not kw.get("guard")
         and kw.get("on_failure") is None
         and kw.get("output") is None
     ):
-        w, _started = _started, None
         kw = {k: v for k, v in kw.items() if k not in ("guard", "on_failure", "output")}
-        return OffloadedRecording(sink, writer=w, **kw)
+        return OffloadedRecording(sink, writer=offload_process.claim(), **kw)
     return RunRecording(sink, **kw)
