@@ -10,6 +10,7 @@ import os
 import sys
 import warnings
 
+from accellog.cli import early
 from accellog.core import forked, notices
 from accellog.core.errors import AccellogError, DataIntegrityWarning
 
@@ -77,21 +78,6 @@ INTERRUPTED = 130
 """Exit code of a command stopped by Ctrl-C (SIGINT), as shells report it (128 + 2)."""
 
 
-RRD_CHILD_COMMANDS = ("fit", "evaluate", "drift", "run", "track", "replay", "compare")
-"""The commands whose --rrd file is written by a child process (present.rrd.offload), measured to
-gain; the others (diagnose, demo, doctor, magcal, noise, workbench, fleet) write it themselves."""
-
-
-def _writes_rrd(args: list[str]) -> bool:
-    """Whether the command line is one of RRD_CHILD_COMMANDS with --rrd (not --help)."""
-    return (
-        bool(args)
-        and args[0] in RRD_CHILD_COMMANDS
-        and "--help" not in args
-        and any(a == "--rrd" or a.startswith("--rrd=") for a in args)
-    )
-
-
 def _run(args: list[str]) -> int:
     """Parse and run one command line (`--version` without typer)."""
     if args == ["--version"]:
@@ -99,10 +85,7 @@ def _run(args: list[str]) -> int:
 
         print(f"accellog {__version__}")
         return 0
-    if _writes_rrd(args):
-        from accellog.present.rrd.offload_process import prestart
-
-        prestart()  # before typer and the command's imports: the child's own run beside them
+    early.start_helpers(args)  # before typer and the command's imports: theirs run beside them
     from accellog.cli.app import command_group
 
     if "--show-completion" in args or "--install-completion" in args:

@@ -46,12 +46,6 @@ def run(
     json_out: JsonOpt = False,
 ) -> None:
     """Run the pipeline on every session as independent tasks; update FLEET/fleet.parquet."""
-    from accellog.flows.fleet_table import TABLE_NAME
-
-    if scheduler is None and workers != 0 and (force or not (out / TABLE_NAME).exists()):
-        from accellog.flows.fleet_dask import prestart_workers
-
-        prestart_workers()  # a local cluster for every session: its workers' imports start now
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from accellog.flows.fleet import run_fleet
