@@ -8,6 +8,12 @@ CPU time (user + sys of the process and its threads), median peak RSS (the child
 from wait4; this parent imports only the standard library, so a child inherits no large address
 space). Ratios are end-to-end wall / baseline wall in the same run.
 
+The baseline runs first in every other round: the first of two runs loads from disk what the second
+then finds in the page cache (the input, numpy's and the command's libraries). On a host that drops
+file pages left idle (the 2-core test VM pages out file pages unused for 60 s: a DAMON `pageout`
+scheme), a round of the full run takes minutes, and the command, always first, paid that alone:
+`replay --rrd` 1.25-1.30x its replay in full runs, 1.15-1.22x in runs of that row only.
+
 Inputs are generated once into --dir (default /tmp/accellog_bench) and reused by later runs:
 benchmarks/synth_long.py (1 kHz calibration sessions: 12 holds, accel + gyro + temperature),
 synth_static.py (static sessions for `noise`), bench_replay.py (static session + a model3
@@ -486,11 +492,11 @@ def main() -> None:
         f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores; inputs in {a.dir}"
     )
     todo = rows(a.dir, mode, set(a.rows) if a.rows else None)
-    for k in range(repeat):  # interleaved: each round runs every command once, then its baseline
-        for r in todo:
-            r.figs["cmd"].append(run_once(r.cmd, a.dir))
-            if r.base is not None:
-                r.figs["base"].append(run_once(r.base, a.dir))
+    for k in range(repeat):  # interleaved: each round runs every command and its baseline once,
+        for r in todo:  # the baseline first in every other round (module docstring)
+            pair = [("cmd", r.cmd)] + ([("base", r.base)] if r.base is not None else [])
+            for key, cmd in pair[:: -1 if k % 2 else 1]:
+                r.figs[key].append(run_once(cmd, a.dir))
         print(f"  round {k + 1}/{repeat} done, load {os.getloadavg()[0]:.2f}", flush=True)
     print(
         f"\n{'what':<46} {'wall s':>7} {'CPU s':>7} {'MB':>5} | {'base wall':>9} {'CPU s':>7} {'MB':>5} | ratio"
