@@ -133,15 +133,21 @@ def calibrate_blocks(
     found = first.result()
     if found is None:
         return None
-    sums, has_temp, located = found
+    has_temp, located = found[1:]
     if base is None:
-        means = sums[0] / sums[2][:, None]
-        temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
-        base = bias_fit(means, temps, has_temp, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC)
+        base = _bias(found[0], has_temp, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC)
+    del found  # the window sums are not held through the second pass (24 h: ~5 MB)
     if not known:
         return base
     phi, c, at = _rotation_blocks(blocks, located, len(known), base, has_temp)
     return fit_matrix(phi, c, at, known, base, model, floor_deg, reference, first.moves.counts > 0)
+
+
+def _bias(sums, has_temp: bool, n_holds: int, t_ref_degC: float, window_s: float, min_span: float):
+    """fit.bias_fit on the window means of FirstPass sums."""
+    means = sums[0] / sums[2][:, None]
+    temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
+    return bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span)
 
 
 def _rotation_blocks(blocks: Blocks, located, k: int, base: GyroCalibration, has_temp: bool):
@@ -152,14 +158,16 @@ def _rotation_blocks(blocks: Blocks, located, k: int, base: GyroCalibration, has
     mids, ends, starts = pidx[:k], pidx[k : 2 * k], pidx[2 * k :]
     t_mid = {int(i): float(v) for i, v in zip(mids, first_at[:k], strict=True)}
     coarse, at, n_fine = coarse_plan(t_mid, mids, ends, starts, _BLOCK_S)
+    mid_at = np.searchsorted(coarse, mids)
     if n_fine == 1:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.searchsorted(coarse, mids)
+        return np.zeros((0, 3)), np.zeros((0, 3)), mid_at
+    del coarse
     use_temp = has_temp and bool(np.any(base.temp_bias_dps_per_degC != 0))
     acc = _CoarseBlocks(at, n_fine, base, use_temp)
     with closed_after(blocks()) as it:
         _integrate_pass(it, mids[0], fine_pieces(t_mid, mids, _BLOCK_S), acc)
     trim_heap()
-    return acc.phi, acc.c, np.searchsorted(coarse, mids)
+    return acc.phi, acc.c, mid_at
 
 
 def first_pass(
@@ -229,7 +237,8 @@ class FirstPass:
             np.maximum.accumulate(queries[self.qlo + 1]) if self.qlo.size else np.zeros(0)
         )  # prefix max
         self.nxt, self.has_temp, self.no_gyro, self.seen = 0, True, False, False
-        self.out: list[tuple] = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))]
+        w = qlo.size  # the window sums, filled in as the windows end (none of < 2 samples kept)
+        self.sums: tuple | None = (np.zeros((w, 3)), np.zeros(w), np.zeros(w))
         self.buf, self.buf0 = None, 0  # samples (w, temp) kept from global index buf0
 
     def add(self, blk) -> bool:
@@ -247,7 +256,7 @@ class FirstPass:
         add = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)
         buf = add if self.buf is None else tuple(_cat(o, n) for o, n in zip(self.buf, add, strict=True))
         m = max(nxt, int(np.searchsorted(self.end_t, loc.t_last, side="right")))  # windows with a found end
-        self.out.append(_window_sums(loc.counts[qlo[nxt:m]], loc.counts[qlo[nxt:m] + 1], buf, self.buf0))
+        _window_sums(loc.counts[qlo[nxt:m]], loc.counts[qlo[nxt:m] + 1], buf, self.buf0, self.sums, nxt)
         self.nxt = nxt = m
         held = self.buf0 + buf[0].shape[0]
         need = held if nxt == qlo.size else loc.count(qlo[nxt])
@@ -256,18 +265,20 @@ class FirstPass:
         return True
 
     def result(self):
-        """The sums and locate of every block added (class doc); None without gyro rate."""
+        """The sums and locate of every block added (class doc), once; None without gyro rate."""
         loc, qlo, nxt = self.loc, self.qlo, self.nxt
         if self.no_gyro or not self.seen:
             return None
         counts, n_total, first_at = loc.finish()
         if nxt < qlo.size:  # windows running to the end of the session
-            self.out.append(_window_sums(counts[qlo[nxt:]], counts[qlo[nxt:] + 1], self.buf, self.buf0))
+            _window_sums(counts[qlo[nxt:]], counts[qlo[nxt:] + 1], self.buf, self.buf0, self.sums, nxt)
             self.nxt = qlo.size
-        self.buf = None
-        sums = tuple(np.concatenate([o[i] for o in self.out]) for i in range(3))
+        keep = self.sums[2] >= 2
+        sums = tuple(x[keep] for x in self.sums)
         k = self.n_pose
-        return sums, self.has_temp, (counts[counts.size - k :], n_total, first_at[first_at.size - k :])
+        located = (counts[counts.size - k :].copy(), n_total, first_at[first_at.size - k :].copy())
+        self.buf = self.sums = self.loc = None  # taken once: freed with the locate
+        return sums, self.has_temp, located
 
 
 class _Locator:
@@ -302,43 +313,45 @@ class _Locator:
         return self.counts, self.n, self.first_at
 
 
-def _window_sums(a: np.ndarray, b: np.ndarray, buf: tuple, buf0: int) -> tuple:
-    """(rate sums, temperature sums, samples) of the windows [a, b) of >= 2 samples, all in buf."""
-    keep = b - a >= 2
+def _window_sums(a: np.ndarray, b: np.ndarray, buf: tuple, buf0: int, out: tuple, at: int) -> None:
+    """The (rate sums, temperature sums, samples) of the windows [a, b) of >= 2 samples, all in buf,
+    written to out's rows at, at + 1, ... (a window of fewer samples is left at 0): arrays made once
+    for all windows, not three small ones per block kept to the end of the pass (~6,700 at 24 h)."""
+    n = b - a
+    keep = n >= 2
     a, b = a[keep], b[keep]
-    w, temp = _Segments(a, b, 3), _Segments(a, b, 1)
-    if a.size:
-        w.add(buf[0], buf0)
-        if buf[1] is not None:
-            temp.add(buf[1], buf0)
-    return w.acc, temp.acc, (b - a).astype(float)
+    out[2][at : at + n.size] = n
+    if not a.size:
+        return
+    rows = at + np.flatnonzero(keep)
+    for x, o in zip(buf, out[:2], strict=True):
+        if x is not None:
+            seg = _Segments(a, b)
+            seg.add(x, buf0)
+            o[rows] = seg.new
 
 
 class _Segments:
     """Sums over sorted, non-overlapping index ranges [lo_j, hi_j), each summed in one np.add.reduceat
     call over exactly its samples (bit for bit the whole-session sums): a range is summed once the
-    buffer holds all of it; its start is carried to the next block until then. keep=False: only the
-    sums of the ranges completed by the last add are held (self.new, ranges self.done), not all."""
+    buffer holds all of it; its start is carried to the next block until then. Only the sums of the
+    ranges completed by the last add are held (self.new, ranges self.done), not all."""
 
-    def __init__(self, lo: np.ndarray, hi: np.ndarray, width: int, keep: bool = True) -> None:
+    def __init__(self, lo: np.ndarray, hi: np.ndarray) -> None:
         self.lo, self.hi, self.k = np.asarray(lo, np.int64), np.asarray(hi, np.int64), 0
-        shape = (self.lo.size if keep else 0, width) if width > 1 else (self.lo.size if keep else 0,)
-        self.acc, self.keep = np.zeros(shape), keep
-        self.new, self.done = self.acc[:0], (0, 0)
+        self.new, self.done = None, (0, 0)
 
     def add(self, x: np.ndarray, x0: int) -> int:
         """Sum the ranges complete within x (global indices x0 ..); returns the first index still needed."""
         end = x0 + x.shape[0]
         m = self.k + int(np.searchsorted(self.hi[self.k :], end, side="right"))
-        self.new, self.done = self.acc[:0], (self.k, m)
+        self.new, self.done = x[:0], (self.k, m)
         if m > self.k:
             lo, hi = self.lo[self.k : m] - x0, self.hi[self.k : m] - x0
             edges = np.stack([lo, hi], axis=1).ravel()
             if edges[-1] >= x.shape[0]:
                 edges = edges[:-1]
             self.new = np.add.reduceat(x, edges, axis=0)[::2]
-            if self.keep:
-                self.acc[self.k : m] = self.new
             self.k = m
         return int(self.lo[m]) if m < self.lo.size else end
 
@@ -428,10 +441,7 @@ def _integrate(t, w, temp, buf0: int, edges: np.ndarray, acc: _CoarseBlocks) -> 
     """The fine blocks between consecutive edges that the samples t, w, temp (global indices buf0 ..)
     complete, fed to acc; returns (the first sample still needed, the number of blocks fed)."""
     need = int(edges[0])
-    pairs = (
-        _Segments(edges[:-1], edges[1:], 3, keep=False),
-        _Segments(edges[:-1], edges[1:], 1, keep=False),
-    )
+    pairs = (_Segments(edges[:-1], edges[1:]), _Segments(edges[:-1], edges[1:]))
     lo = need - buf0
     half_dt = np.diff(t[lo:])
     half_dt *= 0.5
