@@ -8,10 +8,11 @@ functions, when a fit runs, not when the command line starts.
 
 ``leastsq`` and ``least_squares(method="lm")`` run the same MINPACK code (the accelerometer and gyro
 fits came out bit for bit the same; a fit without a Jacobian, the magnetometer's, now takes
-MINPACK's own forward differences, LMDIF, instead of scipy's); ``least_squares`` wraps the Jacobian in a ``VectorFunction`` that hands MINPACK a copy
-of every evaluation and evaluates it once more at the end, while MINPACK holds its own: up to five
-Jacobians at once. The 24 h benchmark session's accelerometer fit (127k residuals x 13) peaked at
-62 MB traced that way, 33 MB through ``leastsq`` (the fit's ``Jacobian`` and MINPACK's).
+MINPACK's own forward differences, LMDIF, instead of scipy's). ``least_squares`` wraps the Jacobian
+in a ``VectorFunction`` that hands MINPACK a copy of every evaluation and evaluates it once more at
+the end, while MINPACK holds its own: up to five Jacobians at once. The 24 h benchmark session's
+accelerometer fit (127k residuals x 13) peaked at 62 MB traced that way, 33 MB through ``leastsq``
+(the fit's Jacobian and MINPACK's).
 
 Bit-for-bit repeatable: MINPACK's QR (scipy 1.17's C translation of qrfac) recomputes the norm of a
 column whose remaining norm cancelled below ~7e-8 of its start (nearly collinear columns, e.g. a

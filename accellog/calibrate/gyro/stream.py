@@ -136,7 +136,7 @@ def calibrate_blocks(
     has_temp, located = found[1:]
     if base is None:
         base = _bias(found[0], has_temp, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC)
-    del found  # the window sums are not held through the second pass (24 h: ~5 MB)
+    del found  # the window sums are not held through the second pass (24 h: 3.4 MB)
     if not known:
         return base
     phi, c, at = _rotation_blocks(blocks, located, len(known), base, has_temp)
