@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 def integrated_rows(session: Path) -> np.ndarray:
     """(n, 7) t_s, v (m/s), d (m) of a static session, raw reading: what `integrate -o` writes."""
-    from accellog.flows.static_stages import run_integrate
+    from accellog.flows.stages import run_integrate
 
     res = run_integrate(session)
     ev = res.evaluation

@@ -31,7 +31,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from synth_long import write_long
 
-from accellog.flows.stages import _gyro_calibration, make_obs, run_fit
+from accellog.calibrate.gyro.calibrate import calibrate_gyro
+from accellog.calibrate.observe.segment import observations
+from accellog.flows.stages import run_fit
 from accellog.store.reader import read_session
 
 
@@ -51,9 +53,9 @@ def cli_fit(path: Path, out: Path) -> tuple[float, float, float]:
 
 
 def stages(s) -> None:
-    obs = make_obs(s, window_s=2.0, trim_s=0.5)
+    obs = observations(s, window_s=2.0, trim_s=0.5)
     run_fit(s, "model3", obs=obs, gyro=False)
-    assert _gyro_calibration(s) is not None
+    assert calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC) is not None
 
 
 def numpy_floor(s, trim_s: float = 0.5) -> None:

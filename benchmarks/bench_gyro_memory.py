@@ -18,13 +18,14 @@ import os, resource, sys, time
 from threadpoolctl import threadpool_limits
 import numpy
 threadpool_limits(1, "blas")
-from accellog.calibrate.gyro.stream import stream_calibrate_gyro
+from accellog.calibrate.gyro.stream import calibrate_blocks
 from accellog.flows.stages import run_fit
-from accellog.store.stream import read_labels
+from accellog.store.source import open_source
 path, what = sys.argv[1], sys.argv[2]
 t0 = time.perf_counter()
 if what == "gyro":
-    stream_calibrate_gyro(path, read_labels(path)[1])
+    src = open_source(path)
+    calibrate_blocks(src, src.poses)
 else:
     run_fit(path)
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -2,8 +2,8 @@
 
     python benchmarks/bench_mem_stages.py MODE SESSION.mcap
 
-MODE: `observe` (stream_observations alone), `stream` (stream_observations, fit model3, diagnose:
-bench_scale's `stream`) or `fit` (the fit command's stages: open_streamed, the model3 fit, the gyro
+MODE: `observe` (segment.observations of the file alone), `stream` (observations, fit model3, diagnose:
+bench_scale's `stream`) or `fit` (the fit command's stages: the observation pass, the model3 fit, the gyro
 calibration). After each stage: the peak resident size of that stage (VmHWM, reset between stages
 through /proc/self/clear_refs), the resident size held after it (VmRSS; RssAnon / RssFile: the
 heap and the mapped file) and its CPU time. BLAS on one thread. Linux only (/proc).
@@ -48,27 +48,28 @@ class _Stages:
 
 def main(mode: str, path: str) -> None:
     from accellog.calibrate.model.compose import build_model
-    from accellog.calibrate.observe.stream_segment import stream_observations
+    from accellog.calibrate.observe.segment import observations
 
     st = _Stages()
     if mode == "fit":
         from accellog.flows import stages
 
         st.mark("imports")
-        s = stages.open_streamed(path)
-        st.mark("open_streamed")
-        stages.open_streamed = lambda *a, **k: s  # the fit below reuses the table just read
-        out = stages.run_fit(path, gyro=False)
+        from accellog.store.source import open_source
+
+        obs, first, src = stages.observe_riding(open_source(path), rider=stages._first_pass)
+        st.mark("observations")
+        out = stages.run_fit(src, obs=obs, gyro=False)  # the fit reuses the table just read
         out.fit.release_jacobian()  # as run_fit does before the gyro passes
         st.mark("fit model3")
-        s.gyro_calibration()
+        stages._gyro(src, out.fit, first)
         st.mark("gyro")
         return
     from accellog.calibrate.diagnosis.diagnose import diagnose
     from accellog.calibrate.model.fit import fit_model
 
     st.mark("imports")
-    obs = stream_observations(path)
+    obs = observations(path)
     st.mark("observations")
     if mode == "stream":
         fit_model(obs, build_model("model3"))

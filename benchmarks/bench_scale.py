@@ -6,7 +6,7 @@ process under GNU time (wall, peak RSS), one at a time:
 
     read            read_session (the whole session in memory)
     whole           read_session + segment.observations + fit model3 + diagnose (library calls)
-    stream          calibrate.stream_segment.stream_observations + fit model3 + diagnose: samples
+    stream          calibrate.observe.segment.observations of the file + fit model3 + diagnose: samples
                     pass chunk group by chunk group, memory = the longest hold + one group
     fit_whole       flows.stages.run_fit(load_input(P)): the fit command before streaming (model3 + gyro)
     fit_stream      flows.stages.run_fit(P): the fit command now (observations, time checks and the
@@ -54,10 +54,10 @@ MODES = {
         "obs = observations(read_session(P)); fit_model(obs, build_model('model3')); diagnose(obs, build_model('model3'))"
     ),
     "stream": (
-        "from accellog.calibrate.observe.stream_segment import stream_observations\n"
+        "from accellog.calibrate.observe.segment import observations\n"
         "from accellog.calibrate.model.fit import fit_model; from accellog.calibrate.model.compose import build_model\n"
         "from accellog.calibrate.diagnosis.diagnose import diagnose\n"
-        "obs = stream_observations(P); fit_model(obs, build_model('model3')); diagnose(obs, build_model('model3'))"
+        "obs = observations(P); fit_model(obs, build_model('model3')); diagnose(obs, build_model('model3'))"
     ),
     "fit_whole": "from accellog.flows.stages import load_input, run_fit; run_fit(load_input(P))",
     "fit_stream": "from accellog.flows.stages import run_fit; run_fit(P)",
@@ -70,12 +70,12 @@ MODES = {
         "        z(rec.data, max_output_size=rec.uncompressed_size) if rec.compression == 'zstd' else "
         "lz4.frame.decompress(rec.data)"
     ),
-    "evaluate_whole": "from accellog.flows.static_stages import run_evaluate_report as r; r(P, [CAL], stream=False)",
-    "evaluate_stream": "from accellog.flows.static_stages import run_evaluate_report as r; r(P, [CAL])",
+    "evaluate_whole": "from accellog.flows.stages import run_evaluate_report as r; r(P, [CAL], stream=False)",
+    "evaluate_stream": "from accellog.flows.stages import run_evaluate_report as r; r(P, [CAL])",
     "integrate_whole": (
-        "from accellog.flows.static_stages import run_integrate as r; r(P, CAL, output=OUT, stream=False)"
+        "from accellog.flows.stages import run_integrate as r; r(P, CAL, output=OUT, stream=False)"
     ),
-    "integrate_stream": "from accellog.flows.static_stages import run_integrate as r; r(P, CAL, output=OUT)",
+    "integrate_stream": "from accellog.flows.stages import run_integrate as r; r(P, CAL, output=OUT)",
     "drift_whole": "from accellog.flows.stages import load_input, run_drift as r; r(load_input(P), CAL)",
     "drift_stream": "from accellog.flows.stages import run_drift as r; r(P, CAL)",
 }

@@ -8,7 +8,7 @@ writes ~120 per hour. Whatever the reader keeps per chunk therefore grows with t
 hides there. Each file is written once hour by hour (``SessionWriter`` with its defaults, as the
 recorder: zstd; ~4 s per hour) and reused from --dir. Each figure is a fresh process (its own peak
 RSS, VmHWM: ru_maxrss would count this process's memory when it spawned the child; wall and CPU
-time) of what every streamed stage does first (``can_stream`` + ``read_labels``: "labels") and of ``iter_imu``
+time) of what every streamed stage does first (``store.source.open_source``: "labels") and of ``iter_imu``
 over every block, the pass it makes ("pass"); the load average is printed with it. --baseline DIR:
 the same with PYTHONPATH=DIR, e.g. an export of an earlier commit (``git archive COMMIT accellog |
 tar -x -C DIR``).
@@ -34,14 +34,14 @@ HOUR = 3_600_000  # samples at 1 kHz
 
 _CHILD = """
 import sys, time
-from accellog.store.stream import iter_imu, read_labels
-from accellog.flows.stream_input import can_stream
+from accellog.store.source import open_source
+from accellog.store.stream import iter_imu
 t0, c0, n = time.perf_counter(), time.process_time(), 0
 if sys.argv[2] == "pass":
     for block in iter_imu(sys.argv[1]):
         n += block.n
 else:  # what every streamed stage does first
-    can_stream(sys.argv[1]), read_labels(sys.argv[1])
+    open_source(sys.argv[1])
 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 peak_kb = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM"))
 print(n, peak_kb / 1024, wall, cpu)
@@ -90,7 +90,7 @@ def main() -> None:
         path = args.dir / f"rec_{hours}h.mcap"
         if not path.exists():
             write_recorder_session(path, hours)
-        for what in ("labels", "pass"):  # labels: can_stream + read_labels; pass: iter_imu
+        for what in ("labels", "pass"):  # labels: open_source; pass: iter_imu
             for name, pp in runs:
                 n, peak, wall, cpu = measure(path, pp, what)
                 assert what == "labels" or n == hours * HOUR, (path, n)

@@ -51,7 +51,7 @@ def segment(
 ) -> None:
     """Per-pose statistics (mean, std, autocorrelation-aware sem) and windowed observations."""
     from accellog.calibrate.calfile.calibration import write_json_atomic
-    from accellog.flows.static_stages import run_segment
+    from accellog.flows.stages import run_segment
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 
@@ -164,7 +164,7 @@ def evaluate_cmd(
     Example: `accellog evaluate static.mcap --cal model2.json --cal model3.json` (side by side).
     """
     from accellog.calibrate.calfile.calibration import load_calibration
-    from accellog.flows.static_stages import run_evaluate_report
+    from accellog.flows.stages import run_evaluate_report
     from accellog.present import tables as report
 
     rep = run_evaluate_report(
@@ -342,7 +342,7 @@ def integrate(
     """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
     local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
     from accellog.calibrate.calfile.calibration import load_calibration
-    from accellog.flows.static_stages import run_integrate
+    from accellog.flows.stages import run_integrate
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 

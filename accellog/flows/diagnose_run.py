@@ -20,7 +20,7 @@ import numpy as np
 from accellog.core.errors import InputError
 from accellog.core.forked import started
 from accellog.core.jsonio import JsonResult
-from accellog.core.session import ObsTable, Session
+from accellog.core.session import Session
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.diagnose import Diagnosis
@@ -67,36 +67,22 @@ def run_diagnose(
 ) -> DiagnoseOutcome:
     """Diagnose one session file (module doc); rrd: also write a Rerun recording of the residuals
     per pose, the verdict and the candidates (labelled sessions)."""
-    from accellog.flows.stream_input import open_labelled
+    from accellog.calibrate.observe.obs_file import read_obs_table
+    from accellog.store.source import open_source
 
     session = Path(session)
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
-    streamed = None
-    if rrd is None:  # a forked child reads while this process imports the diagnosis (core.forked)
-        with started(open_labelled, session, window_s=window_s, host=True, what=f"reading {session}",
-                     meanwhile=not _diagnosis_loaded()) as reading:  # fmt: skip
-            if reading.forked:
-                _load_diagnosis()
-            streamed = reading.result()
-    data = streamed if streamed is not None else _load_whole(session)  # pose tables, observations: ObsTable
-    if isinstance(data, Session) and not data.poses:
+    table = read_obs_table(session)  # observations JSON, pose tables
+    src = None if table is not None else open_source(session, what="diagnose")
+    if src is not None and not src.poses:
         return _handheld(
-            data, session, model, add, effects_file, window_s, detect_window_s, threshold, heldout
+            src.whole(), session, model, add, effects_file, window_s, detect_window_s, threshold, heldout
         )
+    if rrd is not None and src is not None:
+        src.whole()  # the recording draws the samples
     return _labelled(
-        data,
-        streamed,
-        session,
-        model,
-        add,
-        effects_file,
-        window_s,
-        weighted,
-        gravity_g,
-        heldout,
-        noise_from,
-        rrd,
+        table, src, session, model, add, effects_file, window_s, weighted, gravity_g, heldout, noise_from, rrd
     )
 
 
@@ -116,52 +102,47 @@ def _load_diagnosis() -> None:
     load_solver()
 
 
-def _load_whole(session: Path):
-    """The whole session (flows.stages.load_input), imported here: a streamed MCAP session does
-    not load the stages' readers and importers (~0.12 s of CPU at start-up)."""
-    from accellog.flows.stages import load_input
-
-    return load_input(session)
-
-
 def _sessions(paths: Sequence[str | Path]) -> Iterator[Session]:
-    """The --heldout sessions one by one, whole (flows.stages.as_session, imported only when there
+    """The --heldout sessions one by one, whole (store.source.read_whole, imported only when there
     are some)."""
     if not paths:
         return
-    from accellog.flows.stages import as_session
+    from accellog.store.source import read_whole
 
     for h in paths:
-        yield as_session(h, "--heldout")
+        yield read_whole(h, what="--heldout")
 
 
 def _labelled(
-    data, streamed, session, model, add, effects_file, window_s, weighted, gravity_g, heldout, noise_from, rrd
+    table, src, session, model, add, effects_file, window_s, weighted, gravity_g, heldout, noise_from, rrd
 ) -> DiagnoseOutcome:
+    """A labelled session (src: its observations and host clock points in one pass, read by a forked
+    child while this process imports the diagnosis) or an observation table."""
+    from accellog.calibrate.observe.segment import observations, observe_riding
+    from accellog.store.stream import HostClock
+
+    obs, host = table, None
+    if src is not None:
+        with started(observe_riding, src, window_s=window_s, rider=lambda _s: HostClock(),
+                     what=f"reading {session}", meanwhile=not _diagnosis_loaded()) as reading:  # fmt: skip
+            if reading.forked:
+                _load_diagnosis()
+            obs, clock, src = reading.result()
+        host = clock.result() if clock is not None else None
     from accellog.calibrate.diagnosis import diagnose as dg
     from accellog.calibrate.model.compose import build_model
-    from accellog.calibrate.observe.segment import observations
 
     m = build_model(model, add=list(add), effects_file=effects_file)
-    host = None
-    if isinstance(data, ObsTable):
-        obs = data
-    elif streamed is not None:  # an MCAP session, chunk by chunk (bounded memory)
-        obs, host = streamed.obs, streamed.host_clock
-    else:
-        obs = observations(data, window_s=window_s)
-        if data.host_time_s is not None and np.all(np.isfinite(data.host_time_s)) and data.n > 2:
-            host = (data.t_s, data.host_time_s)
     helds = [observations(h, window_s=window_s) for h in _sessions(heldout)]
     if noise_from is not None:
-        obs, helds = _noise_floored(obs, helds, data, noise_from)
+        obs, helds = _noise_floored(obs, helds, src, noise_from)
     d = dg.diagnose(obs, m, weighted=weighted, gravity_g=gravity_g, host_time=host, heldout=helds)
     if rrd is not None:
-        _write_rrd(rrd, data, d, obs)
+        _write_rrd(rrd, src, d, obs)
     return DiagnoseOutcome(str(session), d)
 
 
-def _noise_floored(obs, helds, data, noise_from):
+def _noise_floored(obs, helds, src, noise_from):
     """Floor every window's sigma by the calibration's white noise (Allan) at the session's rate."""
     from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.calibrate.noise.noise_model import floor_obs_sigma
@@ -172,19 +153,18 @@ def _noise_floored(obs, helds, data, noise_from):
             "no noise section: add one with `accellog noise STILL.mcap --cal C -o C2`",
             where=str(noise_from),
         )
-    meta = getattr(data, "meta", None)
-    rate = meta.sample_rate_hz if meta is not None else None
+    rate = src.meta.sample_rate_hz if src is not None else None
     return floor_obs_sigma(obs, section, rate), [floor_obs_sigma(h, section, rate) for h in helds]
 
 
-def _write_rrd(rrd, data, d, obs) -> None:
+def _write_rrd(rrd, src, d, obs) -> None:
     from accellog.present.residual_views import log_diagnosis_residuals
     from accellog.present.rrd.recording import RunRecording
     from accellog.present.views import log_diagnosis, log_session
 
     with RunRecording(f"save:{rrd}") as rec:
-        if not isinstance(data, ObsTable):
-            log_session(rec, data)
+        if src is not None:
+            log_session(rec, src.whole())
         log_diagnosis(rec, d, obs)
         log_diagnosis_residuals(rec, d, obs)
         rec.log_series(

@@ -8,25 +8,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from accellog.core.errors import InputError
-from accellog.core.session import Session
 from accellog.flows.replay import compare as compare_fn
 from accellog.flows.replay import replay as replay_fn
-from accellog.flows.stages import load_input
-from accellog.flows.stream_input import can_stream
 from accellog.present.rrd.offload import open_recording
-
-
-def load_session_file(path: Path):
-    """A session file to replay: the path itself when it streams (a finished accellog MCAP file,
-    flows.replay_input), else the Session load_input reads (CSV, ROS 2 bag, damaged MCAP)."""
-    if not path.is_file():
-        raise InputError("no such file", where=str(path))
-    if can_stream(path):
-        return path
-    data = load_input(path)
-    if not isinstance(data, Session):
-        raise InputError("replay needs a recorded session with samples, not a pose table", where=str(path))
-    return data
+from accellog.store.source import open_source
 
 
 def sink_option(rrd: Path | None, rerun: str | None) -> str | None:
@@ -61,7 +46,7 @@ def run_replay(
 ):
     """Replay or compare a session file into the sink (None: no recording); full_rate: every sample
     in the recording instead of display envelopes."""
-    s = load_session_file(session)
+    s = open_source(session, what="replay")  # a bad input is refused before a recording opens
     cals = list(cal or [])
     rec = (
         open_recording(  # a child process's when the command started one (present.rrd.offload)

@@ -32,9 +32,9 @@ def run_magcal(
     path: str | os.PathLike, form: str = "sym", expected_field_uT: float | None = None
 ) -> tuple[MagCalibration, Session]:
     """Fit the magnetometer of the session at ``path``; returns the calibration and the session."""
-    from accellog.flows.stages import as_session
+    from accellog.store.source import open_source
 
-    s = as_session(path, "magcal")
+    s = open_source(path, what="magcal").whole()
     if s.mag_uT is None or s.mag_t_s is None or s.mag_uT.shape[0] == 0:
         raise InputError(
             "session has no magnetometer samples (record with the AK8963 enabled)", where=str(Path(path))

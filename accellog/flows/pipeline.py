@@ -29,7 +29,6 @@ from accellog.flows.stages import (
     GRAVITY_CONVENTIONS,
     DriftOutcome,
     FitOutcome,
-    as_session,
     load_input,
     run_drift,
     run_evaluate,
@@ -309,7 +308,13 @@ class _Inputs:
         return self._cache[role]
 
     def session(self, role: str, what: str) -> Session:
-        return as_session(self.get(role), what)
+        x = self.get(role)
+        if isinstance(x, ObsTable):
+            raise InputError(
+                f"{what} needs a recorded session (samples), not a pose table / observations",
+                where=str(self.files[role]),
+            )
+        return x
 
 
 def _fit_models(spec: dict, inp: _Inputs, res: PipelineResult, ef) -> None:

@@ -1,7 +1,7 @@
 """Replay a recorded session through online correction + integration, paced in sensor time.
 
-The MCAP file is only read, chunk group by chunk group (``flows.replay_input``: memory flat in the
-session length); the samples are fed batch by batch through ``accellog.navigate.online.OnlineIntegrator``
+The session is a ``store.source.Source`` (an MCAP file read chunk group by chunk group: memory flat
+in the session length; anything else, or a calibration reading dT/dt, in memory); the samples are fed batch by batch through ``accellog.navigate.online.OnlineIntegrator``
 (one per track: the raw reading and each calibration) and logged to a ``RunRecording`` (or one in a
 child process: present.rrd.offload) as they go (long series as min/max display envelopes, tracks
 every k-th sample), sleeping so that sensor time advances ``speed`` times faster than wall time
@@ -28,14 +28,16 @@ from typing import Any
 
 import numpy as np
 
+from accellog.calibrate.model.session_drivers import BlockDrivers, needs_whole_series
 from accellog.core.errors import InputError
 from accellog.core.session import Session
-from accellog.flows.replay_input import batches, open_replay_input
+from accellog.navigate.blocks import mean_reading
 from accellog.navigate.online import OnlineIntegrator
 from accellog.present.rrd.entities import AXES, AXIS_COLORS, TRACKS, slug
 from accellog.present.rrd.envelope import ENVELOPE_BUCKETS
 from accellog.present.rrd.offload import Recording
-from accellog.store.stream import closed_after
+from accellog.store.source import Source, open_source
+from accellog.store.stream import ImuBlock, closed_after
 
 MAX_BATCH_S = 60.0
 """Sensor seconds per batch when replaying as fast as possible (columnar logging)."""
@@ -230,7 +232,7 @@ def _tracks(cal_objs: list, labels, up: np.ndarray, g_local: float, include_raw:
 
 
 def replay(
-    session: Session | str | os.PathLike,
+    session: Session | Source | str | os.PathLike,
     *,
     cals: Sequence[Any] = (),
     labels: Sequence[str] | None = None,
@@ -245,8 +247,8 @@ def replay(
 ) -> ReplayResult:
     """Replay a session (path or Session) through online correction + integration.
 
-    A session file is streamed block by block (flows.replay_input: memory bounded by one chunk group
-    plus the display series, whatever the session length). cals: Calibration objects or JSON paths
+    A session file is streamed block by block (store.source: memory bounded by one chunk group
+    plus the display series, whatever the session length; its time stamps checked first). cals: Calibration objects or JSON paths
     (one track each, after the raw track when include_raw). speed: sensor seconds per wall second
     (None/'max': no pacing). recording: where to log (raw and calibrated accel and temperature as
     display envelopes, poses, events, decimated tracks, final table); None logs nothing.
@@ -256,11 +258,17 @@ def replay(
     cal_objs = [_load_cal(c) for c in cals]
     if labels is not None and len(labels) != len(cal_objs):
         raise InputError(f"{len(labels)} labels for {len(cal_objs)} calibrations")
-    src = open_replay_input(session, sorted({d for c in cal_objs for d in c.model.required_drivers}))
+    src = open_source(session, what="replay")
+    if needs_whole_series({d for c in cal_objs for d in c.model.required_drivers}):
+        src.whole()
+    src.check()  # a replay shows its samples as it goes: the stamps are checked before
+    n_est, t0_s, span_s = src.extent()
+    if n_est < 2:
+        raise InputError(f"session has {n_est} samples: nothing to replay", where=src.where)
     up = parse_up(up_sensor)
     notes: list[str] = []
     if up is None:
-        up, note = _infer_up(src.poses, src.mean_accel_g)
+        up, note = _infer_up(src.poses, lambda: mean_reading(src))
         if note:
             notes.append(note)
     g_local = float(cal_objs[0].local_gravity_mps2) if cal_objs else float(src.meta.local_gravity_mps2)
@@ -271,10 +279,10 @@ def replay(
             rec.log_poses(src.poses)
         if src.events:
             rec.log_events(src.events)
-        rec.begin_batches(src.t0_s, src.t0_s + src.span_s, src.n)
+        rec.begin_batches(t0_s, t0_s + span_s, n_est)
     if batch_s is None:
         batch_s = MAX_BATCH_S if speed_f is None else max(speed_f / PACED_UPDATES_PER_S, 1e-3)
-    n, t_end = _run(src, tracks, rec, speed_f, batch_s, sleep, clock)
+    n, t_end = _run(src, (n_est, t0_s), tracks, rec, speed_f, batch_s, sleep, clock)
     if n < 2:
         raise InputError(f"session has {n} samples: nothing to replay", where=src.where)
     results = []
@@ -289,7 +297,7 @@ def replay(
         session=str(src.where),
         n=n,
         t_end_s=t_end,
-        duration_s=t_end - src.t0_s,
+        duration_s=t_end - t0_s,
         wall_s=clock() - t_wall0,
         speed=speed_f,
         up_sensor=up,
@@ -303,15 +311,17 @@ def replay(
     return res
 
 
-def _run(src, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float]:
+def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float]:
     """Feed every batch to every track (and the recording), paced when speed_f; returns the number
     of samples and the last sample time (s). Tracks are logged every k-th sample plus the last one,
-    k = n / (2 ENVELOPE_BUCKETS) (smooth double integrals: no spike to lose)."""
-    t0 = src.t0_s
+    k = n / (2 ENVELOPE_BUCKETS) (smooth double integrals: no spike to lose); extent: (samples
+    estimated, first time s)."""
+    n_est, t0 = extent
     t_pace0 = clock()
     last_3d = clock()
-    stride = max(1, src.n // 20_000)  # 3D strip
-    slow = max(1, src.n // (2 * ENVELOPE_BUCKETS))  # displacement time series
+    stride = max(1, n_est // 20_000)  # 3D strip
+    slow = max(1, n_est // (2 * ENVELOPE_BUCKETS))  # displacement time series
+    drivers = BlockDrivers(src.poses, src.session)
     n, t_end = 0, t0
     with closed_after(batches(src.blocks(), t0, batch_s)) as cut:
         for b in cut:
@@ -326,7 +336,7 @@ def _run(src, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float]:
                 if b.temp_degC is not None:
                     rec.log_temperature(tb, b.temp_degC)
             for tr in tracks:
-                step = tr.integ.push(tb, b.accel_g, src.drivers(b, n, tr.needed))
+                step = tr.integ.push(tb, b.accel_g, drivers(b, n, tr.needed))
                 if rec is None:  # the displacement is read from the integrator at the end
                     continue
                 d = tr.drift.apply(tb, step.disp_m) if tr.drift is not None else step.disp_m
@@ -355,7 +365,7 @@ def _log_track_rows(rec: Recording, tr: _Track, t_s: np.ndarray, disp_m: np.ndar
 
 
 def compare(
-    test_session: Session | str | os.PathLike,
+    test_session: Session | Source | str | os.PathLike,
     cals: Sequence[Any],
     *,
     labels: Sequence[str] | None = None,
@@ -375,3 +385,19 @@ def compare(
         up_sensor=up_sensor,
         include_raw=include_raw,
     )
+
+
+def batches(blocks, t0_s: float, batch_s: float):
+    """The blocks cut where floor((t - t0) / batch_s) changes: batch k holds t0 + k batch_s <= t <
+    t0 + (k+1) batch_s (s)."""
+    for b in blocks:
+        k = np.floor((b.t_s - t0_s) / batch_s)
+        cuts = np.r_[0, np.flatnonzero(k[1:] != k[:-1]) + 1, b.n]
+        for i0, i1 in zip(cuts[:-1].tolist(), cuts[1:].tolist(), strict=True):
+            sl = slice(i0, i1)
+            yield ImuBlock(b.meta, b.t_s[sl], b.sample_index[sl], b.accel_g[sl], _cut(b.gyro_dps, sl),
+                           _cut(b.temp_degC, sl))  # fmt: skip
+
+
+def _cut(a, sl: slice):
+    return None if a is None else a[sl]

@@ -1,12 +1,18 @@
-"""Batch stages as plain functions (each returns a result object; the CLI presents it).
+"""The batch stages as plain functions, each returning a typed result (the CLI presents it).
 
-- `load_input(path)`        .mcap / capstone or imucal CSV / generic CSV -> Session; pose tables
-                            (capstone six_position_data) and observation JSON -> ObsTable
-                            (accellog.flows.inputs)
-- `run_fit(...)`            -> FitOutcome (ObsTable, FitResult, Calibration); its input (a path, a
-                            Session or an ObsTable) resolved once by `fit_input` into a FitInput
+Every stage opens its session input once (``store.source.open_source``: a path, a Session or a
+Source; a finished MCAP file streams chunk by chunk, anything else is one block in memory) and makes
+its passes over it; observation tables (observations JSON, capstone pose tables) are read by
+``calibrate.observe.obs_file.read_obs_table``.
+
+- `load_input(path)`        -> Session, or ObsTable for an observation table
+- `run_fit(...)`            -> FitOutcome (ObsTable, FitResult, Calibration)
+- `run_segment(...)`        -> SegmentResult (per-pose statistics, windowed observations)
 - `run_evaluate(...)`       -> list[Evaluation] (raw reading first when include_raw)
+- `run_evaluate_report(...)`-> EvaluationReport: one static hold (the seed's tables 4 and 5), hold
+                               by hold for several labelled holds, or per detected interval (hand-held)
 - `run_drift(...)`          -> DriftOutcome (calibration + drift model, before/after on the fit session)
+- `run_integrate(...)`      -> Integration: v(t), d(t) of a static session (m/s, m)
 - `run_apply(...)` (accellog.flows.apply) -> Path of an MCAP copy with /derived/accel_calibrated (g)
 """
 
@@ -14,64 +20,72 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from accellog.calibrate.calfile.calibration import Calibration, load_calibration, source_entry
+from accellog.calibrate.calfile.calibration import Calibration, as_calibration, load_calibration, source_entry
 from accellog.calibrate.calfile.sections import DetectedInterval, DeviceInfo, SensorInfo, SourceFile
-from accellog.calibrate.gyro.calibrate import (
-    calibrate_gyro,
-    gyro_full_scale_dps,
-    warn_clipped_moves,
-)
+from accellog.calibrate.gyro.calibrate import gyro_full_scale_dps, warn_clipped_moves
 from accellog.calibrate.gyro.model import GyroCalibration
+from accellog.calibrate.gyro.stream import FirstPass, calibrate_blocks, first_pass
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.fit import fit_model, fit_orientation_free
 from accellog.calibrate.observe.detect import detect_static, with_labels
 from accellog.calibrate.observe.label_check import relabel_holds
-from accellog.calibrate.observe.segment import check_coverage, observations
+from accellog.calibrate.observe.obs_file import obs_to_dict, read_obs_table
+from accellog.calibrate.observe.segment import PoseStats, check_coverage, observations, observe_riding
 from accellog.core.errors import AccellogError, InputError, ModelError
 from accellog.core.forked import started
 from accellog.core.heap import trim_heap
 from accellog.core.jsonio import JsonResult
 from accellog.core.notices import note
 from accellog.core.numeric import load_solver, solver_loaded
+from accellog.core.numfmt import format_rows
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
-from accellog.flows.inputs import load_input
-from accellog.flows.stream_input import StreamedSession, can_stream, open_streamed
-from accellog.store.stream import read_labels
+from accellog.store.atomic import atomic_output
+from accellog.store.source import Source, open_source, read_whole
 
-if TYPE_CHECKING:  # run_evaluate/run_drift import these when called (`fit` does without them)
+if TYPE_CHECKING:  # the evaluate stages import these when called (`fit` does without them)
     from accellog.calibrate.calfile.drift_model import DriftModel
-    from accellog.flows.static_input import StaticInput
-    from accellog.navigate.evaluate import Evaluation
+    from accellog.navigate.evaluate import Evaluation, PoseEvaluation
+    from accellog.navigate.handheld_evaluate import HandheldEvaluation
 
 GRAVITY_CONVENTIONS = ("seed", "local")
 """'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
 g_local / g0 in standard g (the physical convention)."""
 
+SessionInput = Session | Source | str | os.PathLike
+
 
 # ------------------------------------------------------------------------------------------ inputs
-# (reading them: accellog.flows.inputs.load_input, imported here for run_fit and the stages' callers)
 
 
-def _path_of(x: Session | ObsTable) -> str | None:
-    """The file a loaded input came from (a pose table keeps its path in ObsTable.session)."""
-    p = x.path if isinstance(x, Session) else x.session
-    return p if p and Path(p).is_file() else None
+def load_input(
+    path: str | os.PathLike, *, n_per_pose: int | None = None, check_times: bool = True
+) -> Session | ObsTable:
+    """Any supported input file whole: an ObsTable for an observation table (obs_file.read_obs_table),
+    else the Session (store.source.read_whole; check_times False: degenerate time stamps are not
+    refused, for tools that report them, e.g. doctor)."""
+    table = read_obs_table(path, n_per_pose=n_per_pose)
+    return table if table is not None else read_whole(path, check_times=check_times)
 
 
-def _source(data: Session | ObsTable, src: str | None, kind: str) -> SourceFile:
-    """Provenance entry of the input; a recovered (truncated) session says what was kept."""
+def _provenance(src: Source | None, table: ObsTable | None) -> SourceFile:
+    """Provenance entry of the input (hashed only when a calibration is built); a recovered
+    (truncated) session says what was kept."""
     from accellog.store.recovery import recovery_info
 
-    entry = source_entry(src or _path_of(data), kind)
-    info = recovery_info(data) if isinstance(data, Session) else None
+    if src is None:
+        p = table.session
+        return source_entry(p if p and Path(p).is_file() else None, "")
+    path = str(src.path) if src.path is not None else src.session.path
+    entry = source_entry(path if path and Path(path).is_file() else None, src.meta.source)
+    info = recovery_info(src.session) if src.in_memory else None
     if info is not None:
         entry = dataclasses.replace(entry, recovered=info.to_dict())
     return entry
@@ -81,6 +95,10 @@ def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
     if gravity not in GRAVITY_CONVENTIONS:
         raise InputError(f"unknown gravity convention {gravity!r}: use 'seed' or 'local'")
     return 1.0 if gravity == "seed" else local_gravity_mps2 / STANDARD_GRAVITY_MPS2
+
+
+def _cal(x: Calibration | str | os.PathLike) -> Calibration:
+    return x if isinstance(x, Calibration) else load_calibration(x)
 
 
 # ------------------------------------------------------------------------------------------ fit
@@ -110,7 +128,6 @@ class FitOutcome(JsonResult):
 
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
         """Recording of the fit (residuals per pose) and, for a session, its samples raw and calibrated."""
-
         from accellog.present import views
         from accellog.present.rrd.offload import open_recording
 
@@ -120,95 +137,8 @@ class FitOutcome(JsonResult):
             views.log_fit(rec, self)
 
 
-def make_obs(
-    data: Session | ObsTable, *, window_s: float = 2.0, trim_s: float = 0.5, min_samples: int = 20
-) -> ObsTable:
-    """ObsTable of a Session (segment.observations) or the table itself."""
-    if isinstance(data, ObsTable):
-        return data
-    return observations(data, window_s=window_s, trim_s=trim_s, min_samples=min_samples)
-
-
-@dataclass
-class FitInput:
-    """run_fit's input resolved once (fit_input), whatever the caller gave: a path, a Session or an
-    ObsTable. Exactly one of obs (observations made or given) and session (samples in memory,
-    segmented by run_fit) is set, unless the caller gives obs for a session."""
-
-    name: str  # the input in messages
-    poses: list  # pose labels ([] for a pose table or observations)
-    local_gravity_mps2: float  # the session's (m/s^2); g0 without a session
-    sensor: SensorInfo
-    device: DeviceInfo | None  # None: no session, the calibration keeps its default
-    source: Callable[[], SourceFile]
-    """source(): the provenance entry, hashed only when a calibration is built (a file that fails
-    to fit is not read twice: a 2 GB truncated file costs its readable head, not a hash of 2 GB)."""
-    obs: ObsTable | None
-    session: Session | None
-    gyro: Callable[[Any, list | None], GyroCalibration | None]
-    """gyro(fit, detected intervals or None): the gyro calibration from the session's holds and moves."""
-
-
-def fit_input(
-    data: Session | ObsTable | str | os.PathLike,
-    obs: ObsTable | None = None,
-    *,
-    whole: bool = False,
-    relabel: bool = False,
-    window_s: float = 2.0,
-    trim_s: float = 0.5,
-    n_per_pose: int | None = None,
-    gyro: bool = False,
-) -> FitInput:
-    """FitInput of data: a labelled accellog MCAP file is streamed (bounded memory: its observations
-    and, with gyro, the gyro calibration's first pass in one pass over the samples) unless the whole
-    session is needed (whole: relabelling, orientation-free) or obs are given; other files are read
-    (load_input); hold labels that contradict gravity are replaced when relabel (a note each)."""
-    src = str(data) if isinstance(data, (str, os.PathLike)) else None
-    if src is not None:
-        if obs is None and not whole and can_stream(src) and read_labels(src)[1]:
-            with started(open_streamed, src, window_s=window_s, trim_s=trim_s, gyro=gyro,
-                         what=f"reading {src}", meanwhile=not solver_loaded()) as reading:  # fmt: skip
-                if reading.forked:
-                    load_solver()  # meanwhile (core.forked); in-process the first fit imports it
-                streamed = reading.result()
-            if streamed is not None:  # None: damaged chunks, read whole (load_input says what it skipped)
-                return _streamed_input(streamed)
-        data = load_input(src, n_per_pose=n_per_pose)
-    if isinstance(data, ObsTable):
-        return FitInput(data.session, [], STANDARD_GRAVITY_MPS2, SensorInfo.empty(), None, lambda: _source(data, src, ""),
-                        data if obs is None else obs, None, lambda fit, detected: None)  # fmt: skip
-    if relabel:
-        data, changes = relabel_holds(data, trim_s=trim_s)
-        for c in changes:
-            note(f"{data.path or 'session'}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
-    session = data
-
-    def whole_gyro(fit, detected) -> GyroCalibration | None:
-        # unlabelled (hand-held) sessions: the gyro is calibrated on the detected static intervals
-        # and the rotations between them (imu_tk style), not skipped
-        return _gyro_calibration(with_labels(session, detected) if detected else session)
-
-    m = session.meta
-    return FitInput(session.path or m.source, session.poses, m.local_gravity_mps2, SensorInfo.from_meta(m),
-                    DeviceInfo.from_key(m.device), lambda: _source(session, src, m.source), obs, session, whole_gyro)  # fmt: skip
-
-
-def _streamed_input(s: StreamedSession) -> FitInput:
-    """FitInput of a file streamed by open_streamed (its observations made in that pass)."""
-
-    def streamed_gyro(fit, detected) -> GyroCalibration | None:
-        fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
-        trim_heap()
-        return s.gyro_calibration()  # the moves, streamed from the file again (holds: in the obs pass)
-
-    m = s.meta
-    return FitInput(s.path, s.poses, m.local_gravity_mps2, SensorInfo.from_meta(m), DeviceInfo.from_key(m.device),
-                    lambda: _source(s, s.path, m.source), s.obs, None, streamed_gyro)  # fmt: skip
-
-
 def run_fit(
-    data: Session | ObsTable | str | os.PathLike,
+    data: SessionInput | ObsTable,
     model: str = "model3",
     *,
     add: Sequence[str] = (),
@@ -227,34 +157,91 @@ def run_fit(
 ) -> FitOutcome:
     """Segment (if needed) and fit one model; returns the calibration with its uncertainties.
 
-    gravity: 'seed' (truth 1 per pose) or 'local' (g_local/g0 standard g). local_gravity_mps2:
-    default the session's (meta.local_gravity_mps2), g0 for pose tables. orientation_free: fit
-    |correct(reading)| = truth_g without pose labels; unlabelled sessions are segmented by
-    detect_static (threshold sweep scored by the orientation-free residual). gyro: also
-    calibrate the gyro from the session's holds and the moves between them (stored in cal.gyro).
-    uncertainty: 'noise' (window noise; scaled by the hold means' Birge ratio when they reject it),
-    'between_hold' (plus the between-hold variance component) or 'jackknife' (leave one hold out);
-    accellog.calibrate.model.variance (fit.uncertainty_note says which). relabel: replace
-    hold labels that contradict the measured gravity direction (each change is a note on stderr).
+    data: a session (path, Session or Source: a labelled MCAP file streams, its observations and the
+    gyro calibration's first pass in one pass), an ObsTable or an observation-table file; obs: the
+    observations of the session, when made already. gravity: 'seed' (truth 1 per pose) or 'local'
+    (g_local/g0 standard g). local_gravity_mps2: default the session's (meta.local_gravity_mps2), g0
+    for pose tables. orientation_free: fit |correct(reading)| = truth_g without pose labels;
+    unlabelled sessions are segmented by detect_static (threshold sweep scored by the
+    orientation-free residual). gyro: also calibrate the gyro from the session's holds and the moves
+    between them (stored in cal.gyro). uncertainty: 'noise' (window noise; scaled by the hold means'
+    Birge ratio when they reject it), 'between_hold' (plus the between-hold variance component) or
+    'jackknife' (leave one hold out); accellog.calibrate.model.variance (fit.uncertainty_note says
+    which). relabel: replace hold labels that contradict the measured gravity direction (each change
+    is a note on stderr).
     """
-    fi = fit_input(data, obs, whole=relabel or orientation_free, relabel=relabel, window_s=window_s,
-                   trim_s=trim_s, n_per_pose=n_per_pose, gyro=gyro)  # fmt: skip
+    table = data if isinstance(data, ObsTable) else obs
+    if table is None and isinstance(data, (str, os.PathLike)):
+        table = read_obs_table(data, n_per_pose=n_per_pose)
+    given = isinstance(data, ObsTable) or (obs is None and table is not None)  # no session
+    src = None if given else open_source(data, what="fit")
+    name = table.session if src is None else src.where
     m = build_model(model, add=list(add), effects_file=effects_file)
-    if not orientation_free and fi.obs is None and not fi.poses:
-        orientation_free, m = True, _orientation_free_model(m, effects_file, fi.name)
+    if not orientation_free and table is None and not src.poses:
+        orientation_free, m = True, _orientation_free_model(m, effects_file, name)
     if local_gravity_mps2 is None:
-        local_gravity_mps2 = fi.local_gravity_mps2
+        local_gravity_mps2 = STANDARD_GRAVITY_MPS2 if src is None else src.meta.local_gravity_mps2
     truth = _truth_g(gravity, float(local_gravity_mps2))
-    detected = None  # static intervals found in an unlabelled session
-    obs = fi.obs
-    if obs is None:
-        obs, detected = _fit_observations(fi.session, m, truth, orientation_free, window_s, trim_s)
-    fit = _fit_obs(obs, m, fi.name, orientation_free, weighted, truth, uncertainty)
-    cal = _calibration(fit, obs, fi, gravity, float(local_gravity_mps2), detected)
-    if gyro:
-        cal.gyro = fi.gyro(fit, detected)
+    detected, first = None, None  # static intervals found in an unlabelled session; the gyro's first pass
+    if table is None and (relabel or orientation_free):
+        src = open_source(_relabelled(src.whole(), trim_s) if relabel else src.whole())
+        table, detected = _fit_observations(src.session, m, truth, orientation_free, window_s, trim_s)
+        if detected:  # hand-held: the gyro is calibrated on the detected static intervals (imu_tk style)
+            src = open_source(with_labels(src.session, detected))
+    elif table is None:
+        table, first, src = _read_observing(src, window_s, trim_s, gyro)
+    fit = _fit_obs(table, m, name, orientation_free, weighted, truth, uncertainty)
+    cal = _calibration(fit, table, src, gravity, float(local_gravity_mps2), detected)
+    if gyro and src is not None:
+        cal.gyro = _gyro(src, fit, first)
     warn_clipped_moves(fit, cal)  # moves left out of the gyro fit: said, and in the file
-    return FitOutcome(obs=obs, fit=fit, cal=cal)
+    return FitOutcome(obs=table, fit=fit, cal=cal)
+
+
+def _relabelled(session: Session, trim_s: float) -> Session:
+    """The session with hold labels that contradict gravity replaced (a note each)."""
+    session, changes = relabel_holds(session, trim_s=trim_s)
+    for c in changes:
+        note(f"{session.path or 'session'}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
+    return session
+
+
+def _read_observing(src: Source, window_s: float, trim_s: float, gyro: bool):
+    """(observations, the gyro calibration's first pass fed along their pass or None, src):
+    segment.observe_riding in a forked child while this process imports the solver (core.forked)."""
+    with started(observe_riding, src, window_s=window_s, trim_s=trim_s, rider=_first_pass if gyro else None,
+                 what=f"reading {src.where}", meanwhile=not solver_loaded()) as reading:  # fmt: skip
+        if reading.forked:
+            load_solver()  # meanwhile; in-process the first fit imports it
+        return reading.result()
+
+
+def _first_pass(src: Source) -> FirstPass | None:
+    """An unfed first pass of _gyro's calibrate_blocks, or None."""
+    if len(src.poses) < 2:
+        return None
+    try:
+        return first_pass(src.poses, full_scale_dps=gyro_full_scale_dps(src.meta))
+    except AccellogError:
+        return None
+
+
+def _gyro(src: Source, fit, first: FirstPass | None) -> GyroCalibration | None:
+    """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
+    session's holds and the moves between them (one pass more; first: the first pass already fed),
+    stored next to the accelerometer's; None when the session has no gyro or < 2 holds."""
+    if len(src.poses) < 2:
+        return None
+    fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
+    trim_heap()
+    fs = gyro_full_scale_dps(src.meta)
+    try:  # in Source.run: a session not read yet (observations given) has its stamps checked here
+        return src.run(lambda s: calibrate_blocks(s, s.poses, full_scale_dps=fs, first=first))
+    except ModelError as exc:  # e.g. a scale fit that did not converge: said, not silent
+        note(f"gyro not calibrated: {exc}")
+        return None
+    except AccellogError:
+        return None
 
 
 def _orientation_free_model(m, effects_file, where: str):
@@ -294,20 +281,22 @@ def _fit_obs(obs, m, name: str, orientation_free: bool, weighted: bool, truth: f
     return with_uncertainty(fit, obs, uncertainty)  # 'noise' too: scaled when the holds reject it
 
 
-def _calibration(fit, obs, fi: FitInput, gravity: str, local_gravity_mps2: float, detected) -> Calibration:
+def _calibration(
+    fit, obs, src: Source | None, gravity: str, local_gravity_mps2: float, detected
+) -> Calibration:
     """The calibration of a fit: sensor, source, device and the detected intervals it used."""
     cal = Calibration.from_fit(
         fit,
         obs=obs,
         gravity_convention=gravity,
         local_gravity_mps2=local_gravity_mps2,
-        sources=[fi.source()],
-        sensor=fi.sensor,
+        sources=[_provenance(src, obs)],
+        sensor=SensorInfo.empty() if src is None else SensorInfo.from_meta(src.meta),
     )
-    if fi.device is not None:
-        cal.device = fi.device
+    if src is not None:
+        cal.device = DeviceInfo.from_key(src.meta.device)
     if detected:  # hand-held: the static intervals the fit used go into the calibration file
-        t = fi.session.t_s
+        t = src.session.t_s
         intervals = tuple(
             DetectedInterval(
                 start_s=p.start_s,
@@ -321,43 +310,39 @@ def _calibration(fit, obs, fi: FitInput, gravity: str, local_gravity_mps2: float
     return cal
 
 
-def _gyro_calibration(session: Session) -> GyroCalibration | None:
-    """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
-    session, stored next to the accelerometer's; None when the session has no gyro or holds."""
-
-    if session.gyro_dps is None or len(session.poses) < 2:
-        return None
-    try:
-        s, fs = session, gyro_full_scale_dps(session.meta)
-        return calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC, full_scale_dps=fs)
-    except ModelError as exc:  # e.g. a scale fit that did not converge: said, not silent
-        note(f"gyro not calibrated: {exc}")
-        return None
-    except AccellogError:
-        return None
+# ------------------------------------------------------------------------------------------ segment
 
 
-# ------------------------------------------------------------------------------------------ evaluate / drift
+@dataclass
+class SegmentResult(JsonResult):
+    """Per-pose statistics and the windowed observation table of one session."""
+
+    session: Source
+    stats: list[PoseStats]
+    obs: ObsTable
+    window_s: float
+
+    def obs_dict(self) -> dict:
+        return obs_to_dict(self.obs)
+
+    def to_dict(self, output: str = "") -> dict:
+        return {"poses": [p.to_dict() for p in self.stats], "n_observations": self.obs.n, "output": output}
 
 
-def as_session(x: Session | StreamedSession | str | os.PathLike, what: str) -> Session:
-    """The whole session of x (a StreamedSession: its file read whole); InputError for a pose table."""
-    if isinstance(x, Session):
-        return x
-    s = load_input(x.path if isinstance(x, StreamedSession) else x)
-    if not isinstance(s, Session):
-        raise InputError(
-            f"{what} needs a recorded session (samples), not a pose table / observations", where=str(x)
-        )
-    return s
+def run_segment(data: SessionInput, *, window_s: float = 2.0, trim_s: float = 0.5) -> SegmentResult:
+    """Statistics of every labelled hold and observations of ~window_s (s), trim_s (s) dropped at
+    both ends, in one pass."""
+    src = open_source(data, what="segment")
+    stats: list[PoseStats] = []
+    table = observations(src, window_s=window_s, trim_s=trim_s, stats_out=stats)
+    return SegmentResult(src, stats, table, window_s)
 
 
-def _cal(x: Calibration | str | os.PathLike) -> Calibration:
-    return x if isinstance(x, Calibration) else load_calibration(x)
+# ------------------------------------------------------------------------------------------ evaluate
 
 
 def run_evaluate(
-    test: StaticInput,
+    test: SessionInput,
     cal: Calibration | str | os.PathLike | Sequence[Calibration],
     *,
     include_raw: bool = True,
@@ -369,18 +354,181 @@ def run_evaluate(
 ) -> list[Evaluation]:
     """Evaluate calibration(s) on a static test session; the raw reading first when include_raw.
     stream: an MCAP file chunk by chunk (its evaluations then keep no series to plot), else in memory."""
-    from accellog.flows.static_input import run_on_blocks
     from accellog.navigate.evaluate import evaluate_blocks, targets
 
     cals = [_cal(c) for c in cal] if isinstance(cal, (list, tuple)) else [_cal(cal)]
-    tgts = targets(cals, labels, include_raw)
-    evs, _data = run_on_blocks(
-        test,
-        lambda src: evaluate_blocks(src, tgts, times_s=times_s, until_s=until_s, max_samples=max_samples),
-        lambda: as_session(test, "evaluate"),
-        stream=stream,
-    )
-    return evs
+    src = open_source(test, what="evaluate")
+    if not stream:
+        src.whole()  # the series are kept for plots
+    return evaluate_blocks(src, targets(cals, labels, include_raw), times_s=times_s, until_s=until_s,
+                           max_samples=max_samples)  # fmt: skip
+
+
+@dataclass
+class EvaluationReport(JsonResult):
+    """`evaluate` of one or more calibrations: ``single`` (one static hold: raw first, then each
+    calibration) or ``poses`` (a session with several labelled holds, evaluated hold by hold)."""
+
+    data: Source
+    cals: list[Calibration]
+    labels: list[str] | None
+    at_s: float
+    single: list[Evaluation] = field(default_factory=list)
+    poses: list[PoseEvaluation] = field(default_factory=list)
+    obs: ObsTable | None = None
+    """The observation windows the pose evaluations judge (multi-pose and hand-held sessions)."""
+    handheld: list[HandheldEvaluation] = field(default_factory=list)
+    """Unlabelled sessions that move: per detected interval, the gravity-norm residual."""
+
+    @property
+    def kind(self) -> str:
+        return "poses" if self.poses else "handheld" if self.handheld else "single"
+
+    def to_dict(self) -> dict:
+        if self.handheld:
+            from accellog.navigate.handheld_evaluate import CANNOT_JUDGE
+
+            return {
+                "kind": "handheld",
+                "raw": self.handheld[0].to_dict(),
+                "calibrated": [h.to_dict() for h in self.handheld[1:]],
+                "cannot_judge": CANNOT_JUDGE,
+            }
+        if self.poses:
+            return {
+                "kind": "poses",
+                "raw": self.poses[0].to_dict(),
+                "calibrated": [p.to_dict() for p in self.poses[1:]],
+            }
+        return {"raw": self.single[0].to_dict(), "calibrated": [e.to_dict() for e in self.single[1:]]}
+
+    def calibrations_by_label(self) -> dict[str, Calibration]:
+        rows = self.poses[1:] if self.poses else self.handheld[1:] if self.handheld else self.single[1:]
+        return dict(zip(self.labels or [r.label for r in rows], self.cals, strict=True))
+
+    def write_rrd(self, path: str | Path) -> None:
+        """The session (raw and calibrated) and the evaluation (tracks, or per-pose residual tables)."""
+
+        from accellog.present import tables, views
+        from accellog.present.residual_views import log_panels, log_residuals_vs_drivers, panels
+        from accellog.present.rrd.offload import open_recording
+
+        with open_recording(f"save:{path}") as rec:
+            if self.data.in_memory:
+                views.log_session(rec, self.data.session, calibrations=self.calibrations_by_label())
+            if self.poses:
+                md = "\n".join(views.table_markdown(tables.pose_eval_table(p)) for p in self.poses)
+                passes = [t for t in (tables.pass_eval_table(p) for p in self.poses) if t is not None]
+                md += "".join("\n" + views.table_markdown(t) for t in passes)
+                md += "".join(f"\n- {f}" for p in self.poses for f in p.flags)
+                rec.log_document("results/poses", md)
+                fits = {p.label: _WindowResiduals(p.window_resid_g) for p in self.poses}
+                log_residuals_vs_drivers(rec, self.obs, fits)
+            elif self.handheld:
+                from accellog.navigate.handheld_evaluate import CANNOT_JUDGE
+
+                md = "\n".join(views.table_markdown(tables.handheld_eval_table(h)) for h in self.handheld)
+                rec.log_document("results/handheld", md + "\n\n" + CANNOT_JUDGE)
+                fits = {h.label: _WindowResiduals(h.resid_g[:, None]) for h in self.handheld}
+                log_panels(rec, panels(self.obs, fits))  # the norm residual against each driver
+            else:
+                views.log_evaluations(rec, self.single)
+
+
+@dataclass
+class _WindowResiduals:
+    """The window residuals of one evaluation, as present.residual_views plots a fit's (g)."""
+
+    residual_g: np.ndarray
+
+
+def run_evaluate_report(
+    test: SessionInput,
+    cal_paths: list,  # calibration files or Calibration objects
+    *,
+    until_s: float | None = None,
+    max_samples: int | None = None,
+    at_s: float = 60.0,
+    stream: bool = True,
+) -> EvaluationReport:
+    """Residual of calibrated static data vs gravity and the displacement, per calibration file.
+
+    An MCAP session streams chunk by chunk when `stream` (memory independent of its length; the
+    .rrd of a run needs the samples: stream=False); other inputs are read whole."""
+    cals = [as_calibration(c) for c in cal_paths]
+    names = [c.model_spec.get("name", "") for c in cals]
+    labels = (
+        [Path(c.path or f"cal{i}").stem for i, c in enumerate(cals)] if len(set(names)) < len(names) else None
+    )  # same-model files apart
+    src = open_source(test, what="evaluate")
+    if not stream:
+        src.whole()  # the .rrd draws the samples
+    try:
+        return _labelled_or_static(src, cals, labels, until_s=until_s, max_samples=max_samples, at_s=at_s)
+    except InputError as exc:
+        return _handheld_report(src, cals, labels, at_s, exc)
+
+
+def _handheld_report(
+    test: Source, cals: list[Calibration], labels, at_s: float, refused: InputError
+) -> EvaluationReport:
+    """A session without pose labels that is not one static hold (it moves, its mean is not 1 g):
+    judged on its detected static intervals with the gravity-norm residual
+    (navigate.handheld_evaluate). `refused` (the single-hold error) is raised again when the session
+    is labelled or fewer than 2 distinct static orientations are found."""
+    from accellog.navigate.handheld_evaluate import detect_intervals, evaluate_handheld
+
+    if test.poses:
+        raise refused
+    try:
+        data = test.whole()
+        obs, intervals = detect_intervals(data)
+    except InputError:
+        raise refused from None
+    g = cals[0].local_gravity_mps2 if cals else data.meta.local_gravity_mps2
+    name = data.path or data.meta.source
+    rep = EvaluationReport(test, cals, labels, at_s, obs=obs)
+    rep.handheld = [
+        evaluate_handheld(obs, intervals, c, session=name, raw_gravity_mps2=g) for c in [None, *cals]
+    ]
+    for h, lab in zip(rep.handheld[1:], labels or [], strict=False):
+        h.label = lab
+    return rep
+
+
+def _labelled_or_static(
+    src: Source, cals: list[Calibration], labels, *, until_s, max_samples, at_s: float
+) -> EvaluationReport:
+    """A labelled multi-pose session hold by hold (its observations), or one static hold."""
+    from accellog.navigate.evaluate import evaluate_blocks, targets
+
+    rep = EvaluationReport(src, cals, labels, at_s)
+    if len(src.poses) > 1:
+        _refuse_cut(len(src.poses), until_s, max_samples, src.where)
+        _pose_evaluations(rep, observations(src), src.meta, src.where)
+        return rep
+    rep.single = evaluate_blocks(src, targets(cals, labels), until_s=until_s, max_samples=max_samples)
+    return rep
+
+
+def _pose_evaluations(rep: EvaluationReport, obs: ObsTable, meta, session: str) -> None:
+    """The raw reading, then each calibration, window by window (gravity of the first calibration)."""
+    from accellog.navigate.evaluate import evaluate_pose_obs
+
+    g = rep.cals[0].local_gravity_mps2 if rep.cals else meta.local_gravity_mps2
+    rep.obs = obs
+    rep.poses = [
+        evaluate_pose_obs(obs, c, at_s=rep.at_s, raw_gravity_mps2=g, session=session)
+        for c in [None, *rep.cals]
+    ]
+
+
+def _refuse_cut(n_poses: int, until_s: float | None, max_samples: int | None, where: str | None) -> None:
+    if until_s is not None or max_samples is not None:
+        raise InputError(
+            f"--until-s/--max-samples cut a single static hold; this session has {n_poses} labelled holds",
+            where=where,
+        )
 
 
 @dataclass
@@ -405,7 +553,6 @@ class DriftOutcome(JsonResult):
 
     def write_rrd(self, path: str | os.PathLike, data: Session | ObsTable | None = None) -> None:
         """Recording of the static session calibrated, with and without the drift model."""
-
         from accellog.present import views
         from accellog.present.rrd.offload import open_recording
 
@@ -416,26 +563,108 @@ class DriftOutcome(JsonResult):
 
 
 def run_drift(
-    static: Session | str | os.PathLike,
+    static: SessionInput,
     cal: Calibration | str | os.PathLike,
     *,
     until_s: float | None = None,
     max_samples: int | None = None,
     stream: bool = True,
 ) -> DriftOutcome:
-    """Fit the displacement-drift model on a calibrated static session (an MCAP file: chunk by chunk)."""
-    from accellog.flows.static_input import run_on_blocks
+    """Fit the displacement-drift model on a calibrated static session (an MCAP file chunk by chunk
+    when stream, else in memory: its evaluation keeps the series to plot)."""
     from accellog.navigate.drift import drift_blocks
 
-    c = _cal(cal)
-    (cal_d, dm, ev), data = run_on_blocks(
-        static,
-        lambda src: drift_blocks(src, c, until_s=until_s, max_samples=max_samples),
-        lambda: as_session(static, "drift"),
-        stream=stream,
-    )
-    if isinstance(data, Session):
-        entry = _source(data, None, "drift")
-        if entry.recovered is not None:  # provenance: the drift was fitted on a recovered (truncated) file
-            cal_d.sources = [*cal_d.sources, entry]
+    src = open_source(static, what="drift")
+    if not stream:
+        src.whole()
+    cal_d, dm, ev = drift_blocks(src, _cal(cal), until_s=until_s, max_samples=max_samples)
+    entry = _provenance(src, None)
+    if entry.recovered is not None:  # provenance: the drift was fitted on a recovered (truncated) file
+        cal_d.sources = [*cal_d.sources, dataclasses.replace(entry, kind="drift")]
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)
+
+
+# ------------------------------------------------------------------------------------------ integrate
+
+
+@dataclass
+class Integration(JsonResult):
+    """v(t) (m/s) and d(t) (m) of a static session after a calibration (or of the raw reading);
+    velocity_mps None when the series were streamed to the CSV (run_integrate with output)."""
+
+    session_path: str
+    cal_path: str | None
+    evaluation: Evaluation
+    velocity_mps: np.ndarray | None
+    written: Path | None = None
+
+    def csv_text(self) -> str:
+        """t_s, vx_mps, vy_mps, vz_mps, x_m, y_m, z_m (one row per sample)."""
+
+        ev = self.evaluation
+        rows = format_rows(np.column_stack([ev.t_s, self.velocity_mps, ev.disp_series_m]))
+        return CSV_HEADER + rows.decode("ascii")
+
+    def to_dict(self, output: str = "") -> dict:
+        ev = self.evaluation
+        return {
+            "session": self.session_path,
+            "calibration": self.cal_path,
+            "label": ev.label,
+            "t_end_s": ev.t_end_s,
+            "disp_end_m": ev.disp_end_m.tolist(),
+            "displacement_at_s": {f"{ts:g}": ev.disp_at(ts).tolist() for ts in ev.times_s},
+            "output": output,
+        }
+
+
+CSV_HEADER = "t_s,vx_mps,vy_mps,vz_mps,x_m,y_m,z_m\n"
+
+
+def run_integrate(
+    data: SessionInput,
+    cal_path: Calibration | Path | None = None,
+    *,
+    until_s: float | None = None,
+    output: Path | None = None,
+    stream: bool = True,
+) -> Integration:
+    """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
+    local gravity: a = f g_local - up g_local (m/s^2); v, d by cumulative trapezoid. With output,
+    the CSV (CSV_HEADER, one row per sample) is written atomically as the blocks are integrated (an
+    MCAP file chunk by chunk when stream: memory independent of its length); without output the
+    session is read in memory."""
+    from accellog.navigate.evaluate import Target, evaluate_blocks, targets
+
+    c = as_calibration(cal_path) if cal_path is not None else None
+    cp = c.path if c is not None else None
+    tgts = [Target(c)] if c is not None else targets([])
+    src = open_source(data, what="integrate")
+    if output is None or not stream:
+        src.whole()  # the velocity series is returned
+    vel: list[np.ndarray] = []
+
+    def one_pass(rows=None) -> list[Evaluation]:
+        vel.clear()  # a pass run again (a damaged file read whole) starts afresh
+
+        def sink(_k: int, t: np.ndarray, v: np.ndarray, d: np.ndarray) -> None:
+            if src.in_memory:
+                vel.append(v)
+            if rows is not None:
+                rows(t, v, d)
+
+        return evaluate_blocks(src, tgts, until_s=until_s, on_block=sink)
+
+    if output is None:
+        return Integration(src.where, cp, one_pass()[-1], np.concatenate(vel))
+    path = src.path if src.path is not None else src.session.path
+    with atomic_output(output, inputs=(path, cp)) as tmp, open(tmp, "wb") as f:
+
+        def csv_pass(_src: Source) -> list[Evaluation]:
+            f.seek(0)
+            f.truncate()  # a pass that met damaged chunks wrote rows: the whole session writes them again
+            f.write(CSV_HEADER.encode("ascii"))
+            return one_pass(lambda t, v, d: f.write(format_rows(np.column_stack([t, v, d]))))
+
+        evs = src.run(csv_pass)
+    return Integration(src.where, cp, evs[-1], np.concatenate(vel) if vel else None, Path(output))

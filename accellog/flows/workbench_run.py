@@ -107,10 +107,10 @@ def run_workbench(
     """Run the workbench on one session file, or on several calibration sessions of one sensor
     (fitted together, each candidate judged by leaving one session out: calibrate.loso), see the
     module doc; on_step(Diagnosis) after each step of a labelled session's loop (progress)."""
-    from accellog.flows.stages import as_session
+    from accellog.store.source import open_source
 
     paths = [session] if isinstance(session, (str, Path)) else list(session)
-    datas = [as_session(p, "the workbench") for p in paths]
+    datas = [open_source(p, what="the workbench").whole() for p in paths]
     if len(paths) > 1 and heldout:
         raise InputError(
             "give several calibration sessions (each is left out in turn) or --heldout, not both",
@@ -121,7 +121,7 @@ def run_workbench(
             "several calibration sessions must all have pose labels or all be hand-held (none)",
             where=", ".join(str(p) for p in paths),
         )
-    test = as_session(static, "--static") if static is not None else None
+    test = open_source(static, what="--static").whole() if static is not None else None
     if not datas[0].poses:  # hand-held: detected static intervals, gravity-norm residual
         out = _handheld(datas, paths[0], heldout, model, max_steps, effects_file, test, at_s, output, rrd)
     else:
@@ -138,13 +138,13 @@ def _labelled(
 ) -> WorkbenchOutcome:
     from accellog.calibrate.diagnosis.loso import concat_obs
     from accellog.calibrate.observe.segment import observations
-    from accellog.flows.stages import as_session
     from accellog.flows.workbench import discover, ladder_rows, steps_for
+    from accellog.store.source import open_source
 
     data = datas[0]
     parts = [observations(d) for d in datas]
     obs = concat_obs(parts) if len(parts) > 1 else parts[0]
-    helds = [observations(as_session(h, "--heldout")) for h in heldout]
+    helds = [observations(open_source(h, what="--heldout").whole()) for h in heldout]
     host = None  # the host clock of one session (several sessions: not one clock)
     if (
         len(datas) == 1
@@ -250,10 +250,10 @@ def _handheld(
     (labelled or not) are judged on their gravity norm."""
     from accellog.calibrate.diagnosis.handheld import norm_obs
     from accellog.flows.handheld_workbench import discover_handheld
-    from accellog.flows.stages import as_session
+    from accellog.store.source import open_source
 
     data = datas[0]
-    helds = [norm_obs(as_session(h, "--heldout")) for h in heldout]
+    helds = [norm_obs(open_source(h, what="--heldout").whole()) for h in heldout]
     start = None if model == "model3" else model  # model3's cross_axis is not identifiable here
     found = discover_handheld(
         data,

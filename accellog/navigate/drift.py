@@ -13,8 +13,8 @@ propagated from white acceleration noise of variance sigma_a^2 per sample (infla
 autocorrelation time tau): Cov(d(s), d(t)) = sigma_a^2 tau dt (m^2 M / 2 - m^3 / 6), m = min(s,t),
 M = max(s,t), evaluated on a decimated time grid. Bias instability and flicker are not included.
 
-The fit runs on the session's blocks (navigate.blocks: a file chunk by chunk, a session in memory as
-one block) in two passes (drift_blocks), memory independent of the session length.
+The fit runs on the session's blocks (a ``store.source.Source``: a file chunk by chunk, anything else
+as one block in memory) in two passes (drift_blocks), memory independent of the session length.
 
 LIMITS (stated in every output): a residual-bias model for a sensor at rest in the orientation it
 was fitted in; it is not a calibration of the sensor and is invalid once the sensor moves or turns,
@@ -30,13 +30,15 @@ import numpy as np
 
 from accellog.calibrate.calfile.calibration import Calibration
 from accellog.calibrate.calfile.drift_model import DriftModel
+from accellog.calibrate.model.session_drivers import needs_whole_series
 from accellog.core.errors import InputError
 from accellog.core.session import Session
 from accellog.core.timeseries import sorted_unique
-from accellog.navigate.blocks import Blocks, checked_blocks, session_blocks
+from accellog.navigate.blocks import checked_blocks
 from accellog.navigate.evaluate import Target, evaluate_blocks
 from accellog.navigate.evaluation import Evaluation, block_residual, drift_result, eval_context
 from accellog.navigate.stream_sums import Integrator, ResidualSums
+from accellog.store.source import Source, open_source
 
 
 def _design(t: np.ndarray) -> np.ndarray:
@@ -261,15 +263,16 @@ def fit_drift(
 
 
 def drift_blocks(
-    src: Blocks,
+    src: Source,
     cal: Calibration,
     *,
     up_sensor: Sequence[float] | None = None,
     until_s: float | None = None,
     max_samples: int | None = None,
-) -> tuple[Calibration, DriftModel, Evaluation] | None:
+) -> tuple[Calibration, DriftModel, Evaluation]:
     """(cal + drift, drift, evaluation of cal + drift on the session) in two passes over the
-    session's blocks. None: a file with damaged chunks or a model reading dT/dt (evaluate_blocks).
+    session's blocks (one Source.run: a damaged file read whole runs both again; a model reading
+    dT/dt: the whole session in memory).
 
     1. evaluate_blocks of the calibration without its drift model (the checks, the file's
        time-stamp check, the orientation): its displacement d(t) into DriftFit (normal equations of
@@ -285,13 +288,17 @@ def drift_blocks(
     The median interval is exact: IntervalCount keeps every distinct float dt with its count; its
     memory is the number of distinct intervals, which the clock bounds (integer nanosecond stamps),
     not the number of samples."""
+    opts = dict(up_sensor=up_sensor, until_s=until_s, max_samples=max_samples)
+    return src.run(lambda s: _drift(s, cal, **opts), whole=needs_whole_series(cal.model.required_drivers))
+
+
+def _drift(src: Source, cal: Calibration, *, up_sensor, until_s, max_samples):
+    """drift_blocks' two passes."""
     cal0 = dataclasses.replace(cal, drift=None)  # pass 1 evaluates the calibration alone
     fit = DriftFit()
     sums: list = []
     evs = evaluate_blocks(src, [Target(cal0)], up_sensor=up_sensor, until_s=until_s, max_samples=max_samples,
                           on_block=lambda _k, t, _v, d: fit.add(t, d), sums_out=sums)  # fmt: skip
-    if evs is None:
-        return None
     ev, (acc, st) = evs[0], sums[0]
     up = ev.up_sensor  # inferred in pass 1 when not given (its note is in ev.notes)
     ctx = eval_context(src.where, src.meta, cal, up, [], apply_drift=False)
@@ -318,6 +325,6 @@ def drift_from_session(
     """Fit the drift model on a static session in memory calibrated with `cal`; returns (cal + drift,
     drift): drift_blocks on the session as one block."""
     cal_d, dm, _ev = drift_blocks(
-        session_blocks(session), cal, up_sensor=up_sensor, until_s=until_s, max_samples=max_samples
+        open_source(session), cal, up_sensor=up_sensor, until_s=until_s, max_samples=max_samples
     )
     return cal_d, dm

@@ -1,15 +1,15 @@
 """Evaluate calibrations on a static session in one pass over its blocks (the seed's Tables 4 and 5;
 the formulas: navigate.evaluation).
 
-The session arrives as blocks (``navigate.blocks``: an MCAP file chunk by chunk, a Session in memory
-as one block); a second, cheaper pass first only when the orientation must be inferred from the mean
+The session arrives as a ``store.source.Source`` (an MCAP file chunk by chunk, anything else as one
+block in memory); a second, cheaper pass first only when the orientation must be inferred from the mean
 reading. Each block is cut (until_s, max_samples), checked (finite reading, increasing stamps),
 calibrated (``evaluation.block_residual``, per calibration) and folded into
 ``stream_sums.ResidualSums``; the motion check runs on the 0.5 s windows of the raw reading
 (``stream_motion.MotionCheck``: check_static's verdict in bounded memory). Memory is one block plus
 a few window tables, whatever the session length; a session in memory also keeps its series (t, r,
-d) for plots. A file whose calibration reads dT/dt (a centred 5 s slope) is not cut into blocks:
-``evaluate_blocks`` returns None and the caller feeds the whole session as one block.
+d) for plots. A calibration that reads dT/dt (a centred 5 s slope) is applied to the whole session
+in memory (``session_drivers.needs_whole_series``).
 """
 
 from __future__ import annotations
@@ -20,9 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.model.session_drivers import needs_whole_series
 from accellog.core.errors import InputError
 from accellog.core.session import Session
-from accellog.navigate.blocks import Blocks, checked_blocks, mean_reading, session_blocks
+from accellog.navigate.blocks import checked_blocks, mean_reading
 from accellog.navigate.evaluation import (
     AXES,
     EvalContext,
@@ -37,6 +38,7 @@ from accellog.navigate.evaluation import (
 from accellog.navigate.integrate import DEFAULT_TIMES_S
 from accellog.navigate.stream_motion import MotionCheck
 from accellog.navigate.stream_sums import ResidualSums
+from accellog.store.source import Source, open_source
 
 BlockSink = Callable[[int, np.ndarray, np.ndarray, np.ndarray], None]
 """on_block(evaluation index, t_s, v_mps (n,3), d_m (n,3)) receives every block's integration."""
@@ -65,7 +67,7 @@ def targets(
 
 
 def evaluate_blocks(
-    src: Blocks,
+    src: Source,
     tgts: Sequence[Target],
     *,
     up_sensor: Sequence[float] | None = None,
@@ -76,19 +78,18 @@ def evaluate_blocks(
     check_moving: bool = True,
     on_block: BlockSink | None = None,
     sums_out: list[tuple[ResidualSums, dict]] | None = None,
-) -> list[Evaluation] | None:
-    """One Evaluation per target (module doc). None: a file with damaged chunks or a model reading
-    dT/dt (the caller feeds the whole session). sums_out receives each evaluation's (ResidualSums,
-    its finish() statistics)."""
-    if not src.can_take([t.cal for t in tgts if t.cal is not None]):
-        return None
+) -> list[Evaluation]:
+    """One Evaluation per target (module doc); sums_out receives each evaluation's (ResidualSums,
+    its finish() statistics). on_block and sums_out see a pass again when the source reads a
+    damaged file whole (store.source.Source.run): they must start afresh at its first block."""
     opts = dict(up_sensor=up_sensor, times_s=times_s, until_s=until_s, max_samples=max_samples,
                 window_s=window_s, check_moving=check_moving, on_block=on_block, sums_out=sums_out)  # fmt: skip
-    return src.checked(lambda: _evaluate(src, tgts, **opts))
+    whole = needs_whole_series({d for t in tgts if t.cal is not None for d in t.cal.model.required_drivers})
+    return src.run(lambda s: _evaluate(s, tgts, **opts), whole=whole)
 
 
 def _evaluate(
-    src: Blocks, tgts, *, up_sensor, times_s, until_s, max_samples, window_s, check_moving, on_block, sums_out
+    src: Source, tgts, *, up_sensor, times_s, until_s, max_samples, window_s, check_moving, on_block, sums_out
 ) -> list[Evaluation]:
     """evaluate_blocks' pass."""
     where, meta = src.where, src.meta
@@ -128,7 +129,7 @@ def _evaluate(
     ]
 
 
-def _up(src: Blocks, up_sensor, notes: list[str]) -> np.ndarray:
+def _up(src: Source, up_sensor, notes: list[str]) -> np.ndarray:
     """The given up vector, the single pose label's, or the one inferred from the mean reading."""
     if up_sensor is not None:
         return np.asarray(up_sensor, float)
@@ -162,7 +163,7 @@ def evaluate(
     block). until_s / max_samples cut the session first (the seed used the first 10,800 samples of
     its 300 s final test). A drift model is applied only when its orientation matches up_sensor."""
     tgt = Target(cal, label, local_gravity_mps2, raw_truth_g, apply_drift)
-    evs = evaluate_blocks(session_blocks(session), [tgt], up_sensor=up_sensor, times_s=times_s, until_s=until_s,
+    evs = evaluate_blocks(open_source(session), [tgt], up_sensor=up_sensor, times_s=times_s, until_s=until_s,
                           max_samples=max_samples, window_s=window_s, check_moving=check_moving)  # fmt: skip
     return evs[0]
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from accellog.calibrate.gyro.calibrate import calibrate_gyro, gyro_full_scale_dps
-from accellog.calibrate.gyro.stream import RateBlock, calibrate_blocks, stream_calibrate_gyro
+from accellog.calibrate.gyro.stream import RateBlock, calibrate_blocks
 from accellog.core.errors import InputError
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session
@@ -86,8 +86,8 @@ def test_a_hold_labelled_past_the_end(sessions):
 
 
 def test_the_file_is_read_in_its_chunk_groups(sessions, monkeypatch):
-    """stream_calibrate_gyro feeds the file's chunk groups: many of them here, two passes."""
-    from accellog.calibrate.gyro import stream
+    """calibrate_blocks on a file's Source reads its chunk groups: many of them here, two passes."""
+    from accellog.store import source as stream
     from accellog.store.mcap import fastread
 
     monkeypatch.setattr(fastread, "_GROUP_BYTES", 8 << 10)
@@ -102,7 +102,7 @@ def test_the_file_is_read_in_its_chunk_groups(sessions, monkeypatch):
 
     monkeypatch.setattr(stream, "iter_imu", counted)
     s = read_session(sessions["warm"])
-    cal = stream_calibrate_gyro(sessions["warm"], s.poses)
+    cal = calibrate_blocks(stream.open_source(sessions["warm"]), s.poses)
     assert len(seen) == 2 and len(seen[0]) > 10 and len(seen[1]) > 10 and sum(seen[0]) == s.t_s.size
     assert cal.effects == ["bias", "temp_bias", "scale", "cross_axis"]
     assert cal.rotation_rms_deg < 1.0 and np.all(np.abs(cal.matrix - np.eye(3)) < 0.15)

@@ -11,10 +11,11 @@ import pytest
 
 from accellog.calibrate.gyro.calibrate import calibrate_gyro, gyro_full_scale_dps
 from accellog.calibrate.gyro.fit import CLIP_NEAR, clipped_in_moves, pose_times
-from accellog.calibrate.gyro.stream import stream_calibrate_gyro
+from accellog.calibrate.gyro.stream import calibrate_blocks
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session
+from accellog.store.source import open_source
 
 # every move turns 90 degrees except +y -> -y, which turns 180
 PROTOCOL = "+z,+x,+y,-x,-y,-z,+y,-y,+x"
@@ -67,10 +68,12 @@ def test_leaving_the_clipped_move_out_recovers_the_chip(sessions):
 
 
 def test_streamed_file_leaves_out_the_flip_too(sessions):
-    """The file read in its chunk groups (stream_calibrate_gyro) leaves the flip out as well and
+    """The file read in its chunk groups (calibrate_blocks on its Source) leaves the flip out as well and
     recovers the chip the slow session shows."""
     s = read_session(sessions["fast"])
-    streamed = stream_calibrate_gyro(sessions["fast"], s.poses, full_scale_dps=gyro_full_scale_dps(s.meta))
+    streamed = calibrate_blocks(
+        open_source(sessions["fast"]), s.poses, full_scale_dps=gyro_full_scale_dps(s.meta)
+    )
     ref = _gyro(sessions["slow"], True)
     assert streamed.clipped_moves == 1 and "scale" in streamed.effects
     sig = np.hypot(ref.matrix_sigma, streamed.matrix_sigma)

@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from accellog.calibrate.observe.stream_segment import stream_check_timestamps
+from accellog.calibrate.observe.segment import observations
 from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.flows.simulate import Scenario, simulate
-from accellog.flows.stages import load_input, run_fit
-from accellog.flows.stream_input import can_stream, open_streamed
+from accellog.flows.stages import run_fit
+from accellog.store import source
 from accellog.store.mcap import fastread
 from accellog.store.reader import read_session
 
@@ -46,26 +45,26 @@ def _close(a, b, path="", tol=1e-12) -> None:
         assert a == b, path
 
 
-def test_open_streamed_reads_a_good_file_once(recorded, monkeypatch):
+def test_a_good_file_is_read_once(recorded, monkeypatch):
     """The time-stamp checks ride on the observation pass: one pass over the samples, and the same
     observations as with the checks in a pass of their own."""
-    from accellog.calibrate.observe import stream_segment
-    from accellog.flows import stream_input
-
     passes = []
-    real = stream_segment.iter_imu
-    monkeypatch.setattr(stream_segment, "iter_imu", lambda p: passes.append(p) or real(p))
-    one = open_streamed(recorded, stats=True)
+    real = source.iter_imu
+    monkeypatch.setattr(source, "iter_imu", lambda p: passes.append(p) or real(p))
+    stats = []
+    one = observations(source.open_source(recorded), stats_out=stats)
     assert len(passes) == 1
-    two = stream_input._open_two_passes(Path(recorded), 2.0, 0.5, True, [], True)
+    src = source.open_source(recorded)
+    src.check()
+    two = observations(src)
     assert len(passes) == 3
-    np.testing.assert_array_equal(one.obs.meas_g, two.obs.meas_g)
-    assert len(one.stats) == len(two.stats) == len(one.poses)
+    np.testing.assert_array_equal(one.meas_g, two.meas_g)
+    assert len(stats) == len(src.poses) == 6
 
 
 def test_fit_streams_and_matches_whole_session(recorded, small_groups, tmp_path):
-    assert can_stream(recorded)
-    whole = run_fit(load_input(recorded))  # a Session: the whole-session path
+    assert not source.open_source(recorded).in_memory
+    whole = run_fit(read_session(recorded))  # a Session: one block in memory
     streamed = run_fit(recorded)  # a path: streamed
     assert type(streamed.obs) is type(whole.obs)
     _close(json.loads(whole.cal.to_json()), json.loads(streamed.cal.to_json()))
@@ -77,11 +76,11 @@ def test_fit_streams_and_matches_whole_session(recorded, small_groups, tmp_path)
 
 @pytest.mark.parametrize("i", [700, 1, 2999, None])
 def test_stream_time_checks_equal_whole_session(recorded, small_groups, tmp_path, i):
-    from accellog.calibrate.observe.label_check import check_timestamps
+    from accellog.store.source import check_timestamps
     from accellog.store.stream import iter_imu
     from accellog.store.writer import write_session
 
-    stream_check_timestamps(recorded)  # a good session passes
+    source.open_source(recorded).check()  # a good session passes
     s = read_session(recorded)
     if i is None:  # the first sample of the second block repeats the last of the first
         i = next(iter(iter_imu(write_session(tmp_path / "ok.mcap", s, chunk_size=8 * 1024)))).n
@@ -92,22 +91,21 @@ def test_stream_time_checks_equal_whole_session(recorded, small_groups, tmp_path
     with pytest.raises(InputError) as whole:
         check_timestamps(s, where=str(bad))
     with pytest.raises(InputError) as streamed:
-        stream_check_timestamps(bad)
+        source.open_source(bad).check()
     assert f"duplicated time stamp at sample {i}" in str(whole.value)
     assert str(streamed.value) == str(whole.value)
     with pytest.raises(InputError) as opened:  # the checks taken in the observation pass
-        open_streamed(bad)
+        observations(bad)
     assert str(opened.value) == str(whole.value)
     assert main(["fit", str(bad), "-o", str(tmp_path / "c.json")]) not in (0, None)
     assert not (tmp_path / "c.json").exists()
 
 
 def test_segment_streams(recorded, small_groups):
-    from accellog.flows.static_stages import run_segment
-    from accellog.flows.stream_input import StreamedSession
+    from accellog.flows.stages import run_segment
 
     res = run_segment(recorded)
-    assert isinstance(res.session, StreamedSession)
+    assert not res.session.in_memory
     assert len(res.stats) == 6 and res.obs.n == sum(1 for _ in res.obs.t_s) >= 6
     assert [st.name for st in res.stats] == res.obs.pose_names
     for st in res.stats:  # each hold's statistics agree with its rows (a 3 s hold, 2 s windows: one)
@@ -134,11 +132,9 @@ def test_host_clock_points_equal_whole_session(recorded, small_groups):
 
 
 def test_diagnose_streams_and_matches_whole_session(recorded, small_groups, monkeypatch, capsys):
-    from accellog.flows import stream_input
-
     assert main(["diagnose", str(recorded), "--json"]) in (0, None)
     streamed = json.loads(capsys.readouterr().out)
-    monkeypatch.setattr(stream_input, "can_stream", lambda p: False)  # the whole-session path
+    monkeypatch.setattr(source, "_streams", lambda p: False)  # read whole, one block
     assert main(["diagnose", str(recorded), "--json"]) in (0, None)
     whole = json.loads(capsys.readouterr().out)
     assert streamed["clock"] is not None

@@ -78,16 +78,17 @@ def test_yaw_per_face_equals_per_row():
 
 
 def test_host_clock_taken_in_the_observation_pass(tmp_path):
-    """open_labelled(host=True) takes the host clock points in its observation pass: the same
-    points as a pass of their own (store.stream.read_host_clock)."""
-    from accellog.flows.stream_input import open_labelled
-    from accellog.store.stream import read_host_clock
+    """observe_riding with a HostClock takes the host clock points in the observation pass (as
+    diagnose does): the same points as a pass of their own (store.stream.read_host_clock)."""
+    from accellog.calibrate.observe.segment import observe_riding
+    from accellog.store.source import open_source
+    from accellog.store.stream import HostClock, read_host_clock
 
     model = build_model("model3")
     s = synthetic_session(model, true_theta(model), hold_s=4.0, rate_hz=100.0, eps_clock=20e-6, seed=4)
     path = write_session(tmp_path / "s.mcap", s)
     want = read_host_clock(path)
-    got = open_labelled(path, host=True).host_clock
+    got = observe_riding(open_source(path), rider=lambda _s: HostClock())[1].result()
     assert want is not None and want[0].size > 5
     assert all(np.array_equal(w, g) for w, g in zip(want, got, strict=True))
 
@@ -95,12 +96,12 @@ def test_host_clock_taken_in_the_observation_pass(tmp_path):
 def test_fit_takes_the_gyro_first_pass_in_the_observation_pass(tmp_path, monkeypatch):
     """`fit` on a labelled MCAP file reads the samples twice (observations + the gyro's bias
     windows, then the gyro's moves), not three times, and its gyro calibration is the one of
-    stream_calibrate_gyro's own passes, exactly (many small blocks: windows span them)."""
+    calibrate_blocks' own passes on the file, exactly (many small blocks: windows span them)."""
     from accellog.calibrate.gyro import stream as stream_gyro
     from accellog.calibrate.gyro.calibrate import gyro_full_scale_dps
-    from accellog.calibrate.observe import stream_segment
     from accellog.flows.simulate import Scenario, simulate
     from accellog.flows.stages import run_fit
+    from accellog.store import source
     from accellog.store.mcap import fastread
     from accellog.store.stream import read_labels
 
@@ -108,11 +109,12 @@ def test_fit_takes_the_gyro_first_pass_in_the_observation_pass(tmp_path, monkeyp
     simulate(Scenario(protocol="six", hold_s=3.0, move_s=1.0, sample_rate_hz=500.0), path)
     monkeypatch.setattr(fastread, "_GROUP_BYTES", 32 << 10)
     meta, poses, _ = read_labels(path)
-    want = stream_gyro.stream_calibrate_gyro(path, poses, full_scale_dps=gyro_full_scale_dps(meta))
+    want = stream_gyro.calibrate_blocks(
+        source.open_source(path), poses, full_scale_dps=gyro_full_scale_dps(meta)
+    )
     passes = []
-    for mod in (stream_segment, stream_gyro):
-        real = mod.iter_imu
-        monkeypatch.setattr(mod, "iter_imu", lambda p, real=real: passes.append(p) or real(p))
+    real = source.iter_imu
+    monkeypatch.setattr(source, "iter_imu", lambda p: passes.append(p) or real(p))
     got = run_fit(str(path)).cal.gyro
     assert len(passes) == 2
     assert want is not None and got is not None and got.to_dict() == want.to_dict()

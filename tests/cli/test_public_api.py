@@ -47,8 +47,7 @@ def test_typed_results_serialise_to_strict_json(tmp_path):
     import json
     import math
 
-    from accellog.flows.stages import run_fit
-    from accellog.flows.static_stages import run_segment
+    from accellog.flows.stages import run_fit, run_segment
 
     sc = al.Scenario(protocol="six", hold_s=4.0, sample_rate_hz=200.0, seed=4)
     al.simulate(sc, tmp_path / "s.mcap")

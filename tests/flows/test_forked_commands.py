@@ -8,9 +8,10 @@ import os
 
 import pytest
 
+from accellog.calibrate.observe import segment
 from accellog.cli import main
 from accellog.core import forked
-from accellog.flows import diagnose_run, stages, stream_input
+from accellog.flows import diagnose_run, stages
 from accellog.flows.simulate import Scenario, simulate
 
 
@@ -29,7 +30,7 @@ def sessions(tmp_path_factory):
 def _readers(monkeypatch, tmp_path):
     """Record the pid of every process that streams a session (a file: the child's list is its own)."""
     log = tmp_path / "pids"
-    for module, name in ((stream_input, "open_labelled"), (stages, "open_streamed")):
+    for module, name in ((segment, "observe_riding"), (stages, "observe_riding")):
         real = getattr(module, name)
 
         def logged(*a, _real=real, **k):

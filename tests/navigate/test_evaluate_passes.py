@@ -18,7 +18,7 @@ from accellog.calibrate.model.fit import fit_model
 from accellog.calibrate.observe.segment import observations
 from accellog.cli import main
 from accellog.core.protocol import six_position
-from accellog.flows.static_stages import run_evaluate_report
+from accellog.flows.stages import run_evaluate_report
 from accellog.store.writer import write_session
 
 TB = np.array([3e-4, -2e-4, 2.5e-4])

@@ -155,7 +155,7 @@ def test_arange_above_is_numpys_arange_from_lo():
 def test_time_stamp_error_comes_first_in_the_merged_pass(tmp_path, sessions, capsys, cut):
     """The time-stamp check runs inside the first streamed pass: a duplicated stamp late in the file
     is still reported before a NaN reading early on (and after a cut), as by the whole-session path."""
-    from accellog.flows.static_stages import run_evaluate_report, run_integrate
+    from accellog.flows.stages import run_evaluate_report, run_integrate
 
     s = synth_session(poses=["+z"], hold_s=30.0, move_s=0.0, rate_hz=1000.0, seed=8)
     s.accel_g[5_000, 1] = np.nan
@@ -180,9 +180,8 @@ def test_time_stamp_error_comes_first_in_the_merged_pass(tmp_path, sessions, cap
 def test_merged_check_keeps_the_readers_own_refusal_first(monkeypatch, sessions, good_blocks):
     """A reader error mid-file (after a cut, or before any block) is raised as the separate
     time-stamp pass raised it, not replaced by the check's 'session has 0 samples'."""
-    from accellog.navigate import blocks as se
     from accellog.navigate.evaluate import evaluate_blocks, targets
-    from accellog.store.stream import read_labels
+    from accellog.store import source as se
 
     path = sessions / "drift.mcap"
     real = se.iter_imu
@@ -194,6 +193,5 @@ def test_merged_check_keeps_the_readers_own_refusal_first(monkeypatch, sessions,
             yield b
 
     monkeypatch.setattr(se, "iter_imu", failing)
-    meta, poses, _ = read_labels(path)
     with pytest.raises(InputError, match="reader says no"):
-        evaluate_blocks(se.file_blocks(path, meta, poses), targets([]), until_s=1.0)
+        evaluate_blocks(se.open_source(path), targets([]), until_s=1.0)

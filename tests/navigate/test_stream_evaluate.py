@@ -17,8 +17,7 @@ from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.core.jsonio import dumps
 from accellog.flows.simulate import Scenario, simulate
-from accellog.flows.static_stages import run_evaluate_report
-from accellog.flows.stream_input import StreamedSession
+from accellog.flows.stages import run_evaluate_report
 from accellog.navigate.stream_sums import AutocorrTime, ResidualSums
 from accellog.store.stream import iter_imu
 from accellog.store.writer import write_session
@@ -106,20 +105,20 @@ def test_evaluate_in_many_blocks_equals_one_block(sessions, cut):
     cals = [d / "m3.json", d / "tb.json", d / "m3d.json"]
     streamed = run_evaluate_report(d / "test.mcap", cals, **cut)
     whole = run_evaluate_report(d / "test.mcap", cals, stream=False, **cut)
-    assert isinstance(streamed.data, StreamedSession) and streamed.single[0].t_s is None
+    assert not streamed.data.in_memory and streamed.single[0].t_s is None
     assert whole.single[0].t_s is not None
     assert streamed.single[-1].drift_applied
     assert_json_close(whole.to_dict(), streamed.to_dict())
 
 
 def test_evaluate_takes_an_opened_streamed_session_in_memory_too(sessions):
-    """run_evaluate on a StreamedSession (e.g. reused from an earlier stage) with stream=False reads
+    """run_evaluate on an opened Source (e.g. reused from an earlier stage) with stream=False reads
     its file whole: the same evaluation as from the path."""
     from accellog.flows.stages import run_evaluate
-    from accellog.flows.stream_input import open_streamed
+    from accellog.store.source import open_source
 
     d = sessions
-    opened = open_streamed(d / "test.mcap", observe=False)
+    opened = open_source(d / "test.mcap")
     got = run_evaluate(opened, d / "m3.json", stream=False)
     want = run_evaluate(d / "test.mcap", d / "m3.json", stream=False)
     assert got[-1].t_s is not None
@@ -130,7 +129,7 @@ def test_streamed_per_pose_evaluate_equals_whole_session(sessions):
     d = sessions
     streamed = run_evaluate_report(d / "poses.mcap", [d / "m3.json"])
     whole = run_evaluate_report(d / "poses.mcap", [d / "m3.json"], stream=False)
-    assert isinstance(streamed.data, StreamedSession) and streamed.kind == "poses"
+    assert not streamed.data.in_memory and streamed.kind == "poses"
     assert_json_close(whole.to_dict(), streamed.to_dict())
 
 
@@ -139,7 +138,7 @@ def test_integrate_csv_in_many_blocks_equals_one_block(sessions, capsys):
     args = ["integrate", str(d / "test.mcap"), "--cal", str(d / "m3.json"), "--json"]
     assert main([*args, "-o", str(d / "s.csv")]) == 0
     streamed = json.loads(capsys.readouterr().out)
-    from accellog.flows.static_stages import run_integrate
+    from accellog.flows.stages import run_integrate
 
     whole = run_integrate(d / "test.mcap", d / "m3.json", stream=False)
     (d / "w.csv").write_text(whole.csv_text())

@@ -68,11 +68,11 @@ def test_unfinished_file_falls_back_to_read_session(recorded, tmp_path):
 
 
 def test_stream_observations_refuse_as_observations(recorded):
-    from accellog.calibrate.observe.stream_segment import stream_observations
+    from accellog.calibrate.observe.segment import observations
     from accellog.core.errors import InputError
 
     with pytest.raises(InputError, match=r"has \d+ samples after trimming 1.5 s"):
-        stream_observations(recorded, trim_s=1.5)
+        observations(recorded, trim_s=1.5)
 
 
 def test_labels_read_only_the_chunks_that_hold_them(recorded, tmp_path):
@@ -112,16 +112,19 @@ def test_stream_observations_refuse_a_moving_hold(recorded):
     import dataclasses
     import re
 
-    from accellog.calibrate.observe.stream_segment import stream_observations
+    from accellog.calibrate.observe.segment import observations
     from accellog.core.errors import InputError
+    from accellog.store.source import open_source
 
-    meta, poses, events = read_labels(recorded)
+    src = open_source(recorded)
+    poses = src.poses
     poses = sorted(poses, key=lambda p: p.start_s)
     poses[2] = dataclasses.replace(poses[2], end_s=poses[3].start_s - 0.05)  # into the move
     with pytest.raises(
         InputError, match=rf"pose {re.escape(repr(poses[2].name))} is labelled static but moves at t = \d"
     ):
-        stream_observations(recorded, labels=(meta, poses, events), check_units=False)
+        src.poses = poses
+        observations(src, check_units=False)
 
 
 def test_rows_grow_past_their_capacity():

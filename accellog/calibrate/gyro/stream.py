@@ -1,6 +1,7 @@
 """Gyro calibration of a session fed block by block: the one implementation of the stage (the fits
-on its sums: ``gyro.fit``). ``stream_calibrate_gyro`` feeds it the chunk groups of an MCAP file
-without loading it; ``calibrate.calibrate_gyro`` feeds it whole arrays as one block. Memory: one
+on its sums: ``gyro.fit``). ``blocks`` is a pass factory: a ``store.source.Source`` (an MCAP file
+chunk group by chunk group, without loading it; a Session as one block); ``calibrate.calibrate_gyro``
+feeds it whole arrays as one block. Memory: one
 block plus O(windows + coarse blocks + the fine blocks of one hold pair), the coarse blocks being
 the 10 ms blocks of the moves and one per hold: bounded by the moves, not by the session length.
 
@@ -29,7 +30,6 @@ blocks (~1e-16 relative).
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -48,7 +48,7 @@ from accellog.calibrate.gyro.rotation import coarse_plan, fine_pieces
 from accellog.core.errors import InputError
 from accellog.core.heap import trim_heap
 from accellog.core.session import PoseLabel
-from accellog.store.stream import ImuBlock, closed_after, iter_imu
+from accellog.store.stream import ImuBlock, closed_after
 
 _BLOCK_S = 0.01
 """Fine block length (s)."""
@@ -65,35 +65,6 @@ class RateBlock(NamedTuple):
 
 Blocks = Callable[[], Iterable[RateBlock | ImuBlock]]
 """A session's blocks in time order: a fresh iteration of them per call (one call per pass)."""
-
-
-def stream_calibrate_gyro(
-    path: str | Path,
-    poses: Sequence[PoseLabel],
-    *,
-    model: str = "full",
-    reference: str = "gravity",
-    t_ref_degC: float = 25.0,
-    window_s: float = 1.0,
-    min_temp_span_degC: float = 2.0,
-    trim_s: float = 0.2,
-    full_scale_dps: float | None = None,
-    first: FirstPass | None = None,
-) -> GyroCalibration | None:
-    """calibrate_blocks on the chunk groups of the session in path; None when it records no gyro
-    rate. first: step 1 already fed every block of the file (first_pass with the same arguments)."""
-    return calibrate_blocks(
-        lambda: iter_imu(path),
-        poses,
-        model=model,
-        reference=reference,
-        t_ref_degC=t_ref_degC,
-        window_s=window_s,
-        min_temp_span_degC=min_temp_span_degC,
-        trim_s=trim_s,
-        full_scale_dps=full_scale_dps,
-        first=first,
-    )
 
 
 def calibrate_blocks(
@@ -179,8 +150,8 @@ def first_pass(
     trim_s: float = 0.2,
     full_scale_dps: float | None = None,
 ) -> FirstPass:
-    """Step 1 of stream_calibrate_gyro with these arguments, to be fed a pass's blocks (add) and
-    handed to it as first; InputError as stream_calibrate_gyro (no static holds)."""
+    """Step 1 of calibrate_blocks with these arguments, to be fed a pass's blocks (add) and
+    handed to it as first; InputError as calibrate_blocks (no static holds)."""
     return _plan(poses, model, reference, window_s, trim_s, full_scale_dps)[2]
 
 

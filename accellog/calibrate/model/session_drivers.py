@@ -3,9 +3,47 @@ t_s (s), temp_degC, dtemp_degC_per_s (a centred local slope) and t_in_pose_s (s)
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from accellog.core.session import Session
+
+WHOLE_SERIES_DRIVERS = frozenset({"dtemp_degC_per_s"})
+"""Drivers computed over a centred span of samples (a 5 s slope needs samples on both sides of a
+block edge): a model reading one is applied to the whole session in memory."""
+
+
+def needs_whole_series(drivers) -> bool:
+    """Whether a model reading these drivers must see the whole series at once."""
+    return not WHOLE_SERIES_DRIVERS.isdisjoint(drivers)
+
+
+class BlockDrivers:
+    """The driver signals of a session's consecutive blocks (a replay's batches): every pointwise
+    driver computed on the block (the values session_drivers gives on the whole session), the
+    WHOLE_SERIES_DRIVERS computed once on the whole session (which must then be given) and sliced."""
+
+    def __init__(self, poses, session: Session | None = None) -> None:
+        self.poses, self.session = poses, session
+        self._whole: dict[str, np.ndarray] = {}
+
+    def __call__(self, b, i0: int, needed) -> dict[str, np.ndarray]:
+        """The needed drivers of block b (t_s, temp_degC), whose first sample is sample i0."""
+        if not needed:
+            return {}
+        local = [k for k in needed if k not in WHOLE_SERIES_DRIVERS]
+        view = SimpleNamespace(t_s=b.t_s, temp_degC=b.temp_degC, poses=self.poses)
+        out = session_drivers(view, local) if local else {}
+        whole = [k for k in needed if k in WHOLE_SERIES_DRIVERS]
+        if whole:
+            if self.session is None:
+                raise ValueError(f"{whole} need the whole session in memory")
+            missing = [k for k in whole if k not in self._whole]
+            if missing:
+                self._whole.update(session_drivers(self.session, missing))
+            out.update({k: self._whole[k][i0 : i0 + b.n] for k in whole if k in self._whole})
+        return out
 
 
 def rate_of_change(t_s: np.ndarray, y: np.ndarray, span_s: float = 5.0) -> np.ndarray:

@@ -8,9 +8,6 @@ hold therefore lies within a few degrees of its label's u:
 
 A hold labelled '+z' that is really '-z' gives 180 deg; the likely true label is the axis pose
 (or combined face pose) nearest to m. ``relabel_holds`` applies those likely labels (``--relabel``).
-
-``check_timestamps`` refuses degenerate sessions: fewer than 2 samples, zero duration, duplicated
-or decreasing sample times (named by sample index and time).
 """
 
 from __future__ import annotations
@@ -140,27 +137,3 @@ def relabel_holds(
         up = tuple(float(v) for v in _CANDIDATES[b.likely])
         poses.append(PoseLabel(b.likely, p.start_s, p.end_s, up, None, 100 + p.hold_index))
     return dataclasses.replace(session, poses=poses), bad
-
-
-def check_timestamps(session: Session, where: str | None = None) -> None:
-    """InputError for a degenerate session: < 2 samples, zero duration, duplicated or decreasing
-    sample times (the first offending sample is named by index and time)."""
-    t = np.asarray(session.t_s, float)
-    if t.size < 2:
-        raise InputError(f"session has {t.size} sample(s): nothing to calibrate", where=where)
-    bad_t = ~np.isfinite(t)
-    if bad_t.any():
-        i = int(np.argmax(bad_t))
-        raise InputError(f"sample {i} has a non-finite time stamp", where=where)
-    if not t[-1] > t[0]:
-        raise InputError(f"session has zero duration ({t.size} samples at t = {t[0]:g} s)", where=where)
-    dt = np.diff(t)
-    bad = dt <= 0
-    if bad.any():
-        i = int(np.argmax(bad)) + 1
-        kind = "duplicated" if dt[i - 1] == 0 else "decreasing"
-        raise InputError(
-            f"{kind} time stamp at sample {i}: t = {t[i]:.6f} s after {t[i - 1]:.6f} s "
-            f"({int(bad.sum())} non-increasing steps)",
-            where=where,
-        )

@@ -1,6 +1,13 @@
-"""Observation files (the segment stage's artifact): ObsTable <-> JSON with a format name and version."""
+"""Observation tables read from files: the segment stage's artifact (ObsTable <-> JSON with a format
+name and version) and the capstone pose tables (six_position_data: one row of means per pose).
+
+``read_obs_table`` is the one reader of both; a session file (samples) is store.source's.
+"""
 
 from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -61,3 +68,32 @@ def obs_from_dict(d: dict, where: str | None = None) -> ObsTable:
         if v is None or v.shape[0] != n:
             raise InputError(f"observations field {k!r} missing or not {n} rows", where=where)
     return obs
+
+
+CAPSTONE_SAMPLES_PER_POSE = 5400
+"""30 s at ~180 Hz: the capstone protocol (its pose tables carry no sample count)."""
+
+
+def read_obs_table(path: str | os.PathLike, *, n_per_pose: int | None = None) -> ObsTable | None:
+    """The ObsTable of an observations JSON or a capstone pose table (n_per_pose samples behind each
+    mean, default CAPSTONE_SAMPLES_PER_POSE); None for any other file (a session: store.source)."""
+    from accellog.calibrate.observe.segment import obs_from_pose_means
+    from accellog.core.textin import read_json
+    from accellog.store.importers import load_capstone_pose_table
+    from accellog.store.source import text_kind
+
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".json" and p.exists():
+        d = read_json(p)
+        if isinstance(d, dict) and d.get("format") == OBS_FORMAT:
+            return obs_from_dict(d, where=str(p))
+        raise InputError(
+            f"JSON input must be an observations file ('{OBS_FORMAT}', written by `accellog segment -o`)",
+            where=str(p),
+        )
+    if suffix in (".csv", ".txt") and p.exists() and text_kind(p) == "pose_table":
+        pt = load_capstone_pose_table(p)
+        n = CAPSTONE_SAMPLES_PER_POSE if n_per_pose is None else n_per_pose
+        return obs_from_pose_means(pt.truth_g, pt.mean_g, pt.std_g, n, names=pt.names, session=str(p))
+    return None

@@ -1,8 +1,8 @@
 """Stage 'segment' of a session in memory: static holds -> observation tables and statistics for fitting.
 
-``observations`` and ``pose_stats`` check the whole Session's samples (none, degenerate time
-stamps) and hand it, as a single block, to the one implementation of the stage,
-``stream_segment.segment_blocks`` (which also streams files chunk by chunk): each labelled hold
+``observations`` and ``pose_stats`` take a Session, a file or a ``store.source.Source`` and hand its
+one pass (a file chunk by chunk, a Session checked and as a single block) to the one implementation
+of the stage, ``stream_segment.segment_blocks``: each labelled hold
 [start_s, end_s) is trimmed by trim_s at both ends (the hand that turned the cube is still
 settling) and cut into windows of about window_s; each window gives one observation
 
@@ -20,7 +20,9 @@ than a few degrees). Pose tables (the seed's summaries) give observations by ``o
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +36,6 @@ from accellog.calibrate.observe.holds import (
     session_where,
     window_stats,
 )
-from accellog.calibrate.observe.label_check import check_timestamps
 from accellog.calibrate.observe.motion import (
     MOVING_MEAN_SHIFT_G,
     MOVING_STD_FACTOR,
@@ -48,6 +49,8 @@ from accellog.calibrate.observe.motion import (
 from accellog.calibrate.observe.stream_segment import segment_blocks
 from accellog.core.errors import InputError, ModelError
 from accellog.core.session import POSE_UP_VECTORS, ObsTable, Session
+from accellog.store.source import Source, check_timestamps, open_source
+from accellog.store.stream import closed_after
 
 __all__ = [  # the stage's names, wherever they live (callers import them from here)
     "MIN_WINDOW_SAMPLES", "MOVING_MEAN_SHIFT_G", "MOVING_STD_FACTOR", "UNIT_NORM_RANGE_G", "PoseStats",
@@ -65,17 +68,31 @@ def pose_name_for_up(up: np.ndarray) -> str:
     return "up(" + ",".join(f"{v:.3f}" for v in up) + ")"
 
 
-def _one_block(session: Session, where: str) -> list[Session]:
-    """The session as the single block segment_blocks reads (it has t_s, accel_g, temp_degC),
-    after the checks of its samples: none while labelled, degenerate time stamps."""
-    if session.n == 0 and session.poses:
-        raise InputError("session has no samples", where=where)
-    check_timestamps(session, where=where)
-    return [session]
+def _segment(data, window_s: float | None, trim_s: float, stats_out: list | None, on_block, **checks):
+    """segment_blocks over one Source.run pass (module doc); a Session's samples checked first."""
+    src = open_source(data, what="segment")
+    if window_s is not None:
+        check_window(window_s, src.meta.sample_rate_hz, src.where)
+
+    def one_pass(s: Source) -> ObsTable | None:
+        if stats_out is not None:
+            stats_out.clear()  # a pass run again (a damaged file read whole) starts afresh
+        whole = s.in_memory
+        if whole:
+            name = s.session.path or s.meta.source
+            if s.session.n == 0 and s.poses:
+                raise InputError("session has no samples", where=s.where)
+            check_timestamps(s.session, where=s.where)
+        with closed_after(s.blocks()) as blocks:
+            return segment_blocks(s.meta, s.poses, blocks, window_s, trim_s, where=s.where,
+                                  name=name if whole else None, events=s.events, stats_out=stats_out,
+                                  on_block=on_block, release=not whole, threaded=not whole, **checks)  # fmt: skip
+
+    return src.run(one_pass)
 
 
 def pose_stats(
-    session: Session,
+    data: Session | Source | str | os.PathLike,
     *,
     trim_s: float = 0.5,
     min_samples: int = 20,
@@ -83,32 +100,56 @@ def pose_stats(
     check_moving: bool = True,
 ) -> list[PoseStats]:
     """Per-hold statistics (mean, std, autocorrelation-aware sem, tau, temperature, times)."""
-    where = session_where(session)
     out: list[PoseStats] = []
-    segment_blocks(session.meta, session.poses, _one_block(session, where), None, trim_s, where=where,
-                   events=session.events, min_samples=min_samples, check_units=check_units,
-                   check_moving=check_moving, stats_out=out, release=False, threaded=False)  # fmt: skip
+    _segment(data, None, trim_s, out, None, min_samples=min_samples, check_units=check_units,
+             check_moving=check_moving)  # fmt: skip
     return out
 
 
 def observations(
-    session: Session,
+    data: Session | Source | str | os.PathLike,
     window_s: float = 2.0,
     trim_s: float = 0.5,
     *,
     min_samples: int = 20,
     check_units: bool = True,
     check_moving: bool = True,
+    stats_out: list[PoseStats] | None = None,
+    on_block: Callable | None = None,
 ) -> ObsTable:
     """ObsTable with one row per window of about window_s in every trimmed hold (holds.hold_rows:
     meas_g = window mean, sigma_g = std_window sqrt(tau_hold / n_window), t_s = mean sample time
-    of the window, temperature and its slope, the label's nominal orientation)."""
-    where = session_where(session)
-    check_window(window_s, session.meta.sample_rate_hz, where)
-    return segment_blocks(session.meta, session.poses, _one_block(session, where), window_s, trim_s,
-                          where=where, name=session.path or session.meta.source, events=session.events,
-                          min_samples=min_samples, check_units=check_units, check_moving=check_moving,
-                          release=False, threaded=False)  # fmt: skip
+    of the window, temperature and its slope, the label's nominal orientation) of a session in
+    memory or a file (store.source: chunk by chunk). stats_out receives every hold's PoseStats;
+    on_block(block) sees every block of the pass (it sees a pass again when a damaged file is
+    read whole: it must start afresh at the first block)."""
+    return _segment(data, window_s, trim_s, stats_out, on_block, min_samples=min_samples,
+                    check_units=check_units, check_moving=check_moving)  # fmt: skip
+
+
+def observe_riding(
+    src: Source, *, window_s: float = 2.0, trim_s: float = 0.5, rider: Callable | None = None
+) -> tuple[ObsTable, Any, Source]:
+    """(observations, the rider, src) of one pass: rider(src), made afresh at each pass, is fed every
+    block (add(block)) along the observation pass, e.g. the gyro calibration's first pass or the host
+    clock points; a rider that fails is dropped (None: its owner then makes its own pass and says
+    why). src is returned: from a forked child (core.forked) it is the one that read the file (read
+    whole there when its chunks were damaged)."""
+
+    def one_pass(s: Source):
+        box = [rider(s) if rider is not None else None]
+
+        def ride(b) -> None:
+            if box[0] is not None:
+                try:
+                    box[0].add(b)
+                except Exception:
+                    box[0] = None
+
+        return observations(s, window_s=window_s, trim_s=trim_s, on_block=ride), box[0]
+
+    table, fed = src.run(one_pass)
+    return table, fed, src
 
 
 def obs_from_pose_means(

@@ -1,7 +1,7 @@
 """Stage 'segment': the observation table (and per-hold statistics) of a session's labelled holds,
-made from its samples as blocks in time order (``segment_blocks``): an MCAP file chunk by chunk
-(``stream_observations``: memory bounded by the two longest holds plus one chunk group, whatever the
-session length) or a whole Session in memory as a single block (``segment.observations``).
+made from its samples as blocks in time order (``segment_blocks``, called by ``segment.observations``
+over a ``store.source.Source``): an MCAP file chunk by chunk (memory bounded by the two longest holds
+plus one chunk group, whatever the session length) or a whole Session in memory as a single block.
 
 The labels are checked first (``holds.checked_labels``); the samples then pass and each trimmed
 hold [start + trim_s, end - trim_s) is gathered until it ends, checked (``holds.check_hold``: unit
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Iterable, Sequence
-from pathlib import Path
 
 import numpy as np
 
@@ -41,7 +40,6 @@ from accellog.calibrate.observe.window_spill import WindowSpill, median
 from accellog.core.errors import InputError
 from accellog.core.heap import trim_heap
 from accellog.core.session import ObsTable, PoseLabel, SessionMeta
-from accellog.store.stream import closed_after, iter_imu, read_labels
 
 
 def segment_blocks(
@@ -214,30 +212,6 @@ def _joined(parts: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray | No
     return t, acc, temp
 
 
-def stream_observations(
-    path: str | Path,
-    window_s: float = 2.0,
-    trim_s: float = 0.5,
-    *,
-    min_samples: int = 20,
-    check_units: bool = True,
-    check_moving: bool = True,
-    stats_out: list[PoseStats] | None = None,
-    labels: tuple[SessionMeta, list[PoseLabel], list] | None = None,
-    on_block=None,
-) -> ObsTable:
-    """segment_blocks on the file's samples chunk by chunk (module doc): bounded memory; labels:
-    read_labels(path) when the caller has it already; the other arguments as segment_blocks."""
-    where = str(path)
-    check_window(window_s, 0.0, where)  # before reading: at most the chip's highest rate
-    meta, poses, events = labels if labels is not None else read_labels(path)
-    with closed_after(iter_imu(path)) as blocks:  # closed here also on an error (store.stream)
-        return segment_blocks(
-            meta, poses, blocks, window_s, trim_s, where=where, events=events, min_samples=min_samples,
-            check_units=check_units, check_moving=check_moving, stats_out=stats_out, on_block=on_block,
-        )  # fmt: skip
-
-
 def _most_windows(p: PoseLabel, trim_s: float, window_s: float) -> int:
     """An upper bound on the windows of window_s in the trimmed hold (rows of observations, or of
     static_windows for 0.5 s): its samples span less than the trimmed label."""
@@ -353,63 +327,3 @@ class _HoldGatherer:
             yield self.labels[self.k], self.parts
             self.parts = []
             self.k += 1
-
-
-def stream_check_timestamps(path: str | Path) -> None:
-    """label_check.check_timestamps on the file's samples, block by block (the same messages)."""
-    check = TimestampCheck()
-    with closed_after(iter_imu(path)) as blocks:
-        for b in blocks:
-            check.add(b.t_s)
-    check.finish(path)
-
-
-class TimestampCheck:
-    """stream_check_timestamps fed block by block (a pass that reads the samples anyway runs it)."""
-
-    def __init__(self) -> None:
-        self.n, self.t0, self.t_last, self.bad_n = 0, np.nan, np.nan, 0
-        self.nonfinite = self.first_bad = None  # index of the first non-finite stamp / (i, t_i, t_i-1)
-
-    def add(self, t_s: np.ndarray) -> None:
-        t, n = np.asarray(t_s, float), self.n
-        fin = ~np.isfinite(t)
-        if self.nonfinite is None and fin.any():
-            self.nonfinite = n + int(np.argmax(fin))
-        if n and t.size and not t[0] > self.t_last:  # the step from the previous block (NaN: not bad)
-            self.bad_n += int(t[0] <= self.t_last)
-            if self.first_bad is None and t[0] <= self.t_last:
-                self.first_bad = (n, t[0], self.t_last)
-        bad = t[1:] <= t[:-1]
-        nb = int(np.count_nonzero(bad))
-        if nb:
-            self.bad_n += nb
-            if self.first_bad is None:
-                j = int(np.argmax(bad)) + 1
-                self.first_bad = (n + j, t[j], t[j - 1])
-        if not n and t.size:
-            self.t0 = t[0]
-        self.n += t.size
-        if t.size:
-            self.t_last = t[-1]
-
-    def finish(self, path: str | Path) -> None:
-        """InputError (one line) when the stamps fed are not a session's; else nothing."""
-        where, n, t0 = str(path), self.n, self.t0
-        if n < 2:  # no samples to hold: read_session names a file that is not a session at all
-            from accellog.store.reader import read_session
-
-            read_session(path)
-            raise InputError(f"session has {n} sample(s): nothing to calibrate", where=where)
-        if self.nonfinite is not None:
-            raise InputError(f"sample {self.nonfinite} has a non-finite time stamp", where=where)
-        if not self.t_last > t0:
-            raise InputError(f"session has zero duration ({n} samples at t = {t0:g} s)", where=where)
-        if self.first_bad is not None:
-            i, ti, tp = self.first_bad
-            kind = "duplicated" if ti == tp else "decreasing"
-            raise InputError(
-                f"{kind} time stamp at sample {i}: t = {ti:.6f} s after {tp:.6f} s "
-                f"({self.bad_n} non-increasing steps)",
-                where=where,
-            )
