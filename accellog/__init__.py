@@ -12,6 +12,9 @@ from the ``TYPE_CHECKING`` imports below, so they see the real types::
     cal = al.Calibration.from_fit(fit, obs=obs)
     cal.save("cal.json")
     print(al.diagnose(obs, al.build_model("model3")).verdict)
+
+A user effects file (``--effects-file``) starts ``from accellog import Effect, per_axis``: the stable
+plugin API (docs/effects.md).
 """
 
 from __future__ import annotations
@@ -23,9 +26,10 @@ from accellog.core.version import __version__
 
 if TYPE_CHECKING:  # the same names as _API, for type checkers (tests/cli/test_public_api.py checks both)
     from accellog.calibrate.calfile.calibration import Calibration, load_calibration
-    from accellog.calibrate.diagnosis.diagnose import diagnose
-    from accellog.calibrate.model.compose import build_model
-    from accellog.calibrate.model.fit import fit_model, fit_orientation_free
+    from accellog.calibrate.diagnosis.diagnose import Diagnosis, diagnose
+    from accellog.calibrate.model.compose import Model, build_model
+    from accellog.calibrate.model.effects import Effect, Param, per_axis
+    from accellog.calibrate.model.fit import FitResult, fit_model, fit_orientation_free
     from accellog.calibrate.observe.detect import detect_static
     from accellog.calibrate.observe.segment import observations
     from accellog.core.errors import AccellogError, DeviceError, InputError, ModelError
@@ -33,11 +37,12 @@ if TYPE_CHECKING:  # the same names as _API, for type checkers (tests/cli/test_p
     from accellog.flows.pipeline import run_pipeline
     from accellog.flows.simulate import Scenario, simulate
     from accellog.flows.stages import run_fit
-    from accellog.flows.workbench import discover
+    from accellog.flows.workbench import Discovery, discover
     from accellog.navigate.evaluate import evaluate, evaluate_poses
+    from accellog.navigate.evaluation import Evaluation
     from accellog.navigate.strapdown import strapdown
     from accellog.present.rrd.recording import RunRecording
-    from accellog.store.importers import import_capstone, import_csv, import_imucal
+    from accellog.store.importers import import_capstone, import_csv, import_imucal, import_ros2
     from accellog.store.reader import read_session
     from accellog.store.writer import SessionWriter, write_session
 
@@ -58,18 +63,26 @@ _API = {
     "import_csv": "accellog.store.importers",
     "import_capstone": "accellog.store.importers",
     "import_imucal": "accellog.store.importers",
+    "import_ros2": "accellog.store.importers",
     # calibrate
     "observations": "accellog.calibrate.observe.segment",
     "detect_static": "accellog.calibrate.observe.detect",
+    "Effect": "accellog.calibrate.model.effects",  # the effects-file API (stable: docs/effects.md)
+    "Param": "accellog.calibrate.model.effects",
+    "per_axis": "accellog.calibrate.model.effects",
     "build_model": "accellog.calibrate.model.compose",
+    "Model": "accellog.calibrate.model.compose",
     "fit_model": "accellog.calibrate.model.fit",
     "fit_orientation_free": "accellog.calibrate.model.fit",
+    "FitResult": "accellog.calibrate.model.fit",
     "Calibration": "accellog.calibrate.calfile.calibration",
     "load_calibration": "accellog.calibrate.calfile.calibration",
     "diagnose": "accellog.calibrate.diagnosis.diagnose",
+    "Diagnosis": "accellog.calibrate.diagnosis.diagnose",
     # navigate
     "evaluate": "accellog.navigate.evaluate",
     "evaluate_poses": "accellog.navigate.evaluate",
+    "Evaluation": "accellog.navigate.evaluation",
     "strapdown": "accellog.navigate.strapdown",
     # flows
     "Scenario": "accellog.flows.simulate",
@@ -77,6 +90,7 @@ _API = {
     "run_fit": "accellog.flows.stages",
     "run_pipeline": "accellog.flows.pipeline",
     "discover": "accellog.flows.workbench",
+    "Discovery": "accellog.flows.workbench",
     # present
     "RunRecording": "accellog.present.rrd.recording",
 }
@@ -85,9 +99,16 @@ __all__ = [
     "AccellogError",
     "Calibration",
     "DeviceError",
+    "Diagnosis",
+    "Discovery",
+    "Effect",
+    "Evaluation",
+    "FitResult",
     "InputError",
+    "Model",
     "ModelError",
     "ObsTable",
+    "Param",
     "PoseLabel",
     "RunRecording",
     "Scenario",
@@ -106,8 +127,10 @@ __all__ = [
     "import_capstone",
     "import_csv",
     "import_imucal",
+    "import_ros2",
     "load_calibration",
     "observations",
+    "per_axis",
     "read_session",
     "run_fit",
     "run_pipeline",

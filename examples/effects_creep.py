@@ -7,7 +7,7 @@ Load with `accellog diagnose S.mcap --model model3 --effects-file examples/effec
 
 import numpy as np
 
-from accellog.calibrate.model.effects import Effect, per_axis
+from accellog import Effect, per_axis
 
 
 def creep(p, f_g, drivers):

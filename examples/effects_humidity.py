@@ -7,7 +7,7 @@ pass the signal as drivers={"humidity_pct": array aligned with the observation r
 
 import numpy as np
 
-from accellog.calibrate.model.effects import Effect, per_axis
+from accellog import Effect, per_axis
 
 
 def humidity_bias(p, f_g, drivers):

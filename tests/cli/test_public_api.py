@@ -17,6 +17,33 @@ def test_every_public_name_resolves():
     assert set(dir(al)) == set(al.__all__)
 
 
+def test_plugin_api_and_result_types_are_exported():
+    """The names of issue #41 part 5 come from `accellog` and are the defining modules' objects."""
+    from accellog import (
+        Diagnosis,
+        Discovery,
+        Effect,
+        Evaluation,
+        FitResult,
+        Model,
+        Param,
+        import_ros2,
+        per_axis,
+    )
+    from accellog.calibrate.diagnosis import diagnose
+    from accellog.calibrate.model import compose, effects, fit
+    from accellog.flows import workbench
+    from accellog.navigate import evaluation
+    from accellog.store import importers
+    from accellog.store.importers import ros2
+
+    assert (Effect, Param, per_axis) == (effects.Effect, effects.Param, effects.per_axis)
+    assert (FitResult, Model, Diagnosis) == (fit.FitResult, compose.Model, diagnose.Diagnosis)
+    assert (Evaluation, Discovery) == (evaluation.Evaluation, workbench.Discovery)
+    assert import_ros2 is ros2.import_ros2 is importers.import_ros2  # beside the other importers
+    assert per_axis("c", "g/s")[2] == Param("c_z", "g/s")
+
+
 def test_import_accellog_loads_no_heavy_module():
     code = "import sys, accellog; print(' '.join(m for m in ('numpy', 'scipy', 'rerun', 'mcap') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
@@ -39,7 +66,9 @@ def test_notebook_example(tmp_path):
     model, _ = build_sensor_model(sc)
     z = (fit.b - model.accel.bias_g) / fit.sigma[[fit.param_names.index(f"b_{a}") for a in "xyz"]]
     assert np.all(np.abs(z) < 5), z  # the chip's bias (g) within its 1-sigma, up to 5 sigma
-    assert isinstance(al.diagnose(obs, al.build_model("model3")).verdict, str)
+    assert isinstance(fit, al.FitResult) and isinstance(al.build_model("model3"), al.Model)
+    diagnosis = al.diagnose(obs, al.build_model("model3"))
+    assert isinstance(diagnosis, al.Diagnosis) and isinstance(diagnosis.verdict, str)
 
 
 def test_typed_results_serialise_to_strict_json(tmp_path):

@@ -18,7 +18,9 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import re
 import types
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -292,9 +294,7 @@ def load_effects_file(path: str | Path, *, expect_sha256: str | None = None) -> 
     out: dict[str, Effect] = {}
     for e in found:
         if not isinstance(e, Effect):
-            raise InputError(
-                f"EFFECTS contains {e!r}, not an accellog.calibrate.model.effects.Effect", where=str(p)
-            )
+            raise InputError(f"EFFECTS contains {e!r}, not an accellog.Effect", where=str(p))
         if e.contribution is None or not callable(e.contribution):
             raise InputError(f"effect {e.name!r} has no callable contribution(p, f_g, drivers)", where=str(p))
         if e.name in LIBRARY or e.name in PRESETS:
@@ -308,12 +308,15 @@ def load_effects_file(path: str | Path, *, expect_sha256: str | None = None) -> 
 
 def _exec_user_module(data: bytes, p: Path) -> types.ModuleType:
     """Execute source bytes as a module named after the file; any failure (SystemExit and
-    os._exit included) becomes one InputError with the line in the file."""
+    os._exit included) becomes one InputError with the line in the file. A DeprecationWarning the
+    file's own lines raise (an old import path, e.g. ``from accellog.effects import Effect``) is
+    shown: Python hides those outside ``__main__``, and the file's author is the one to act on it."""
     mod = types.ModuleType(f"accellog_user_effects_{p.stem}")
     mod.__file__ = str(p)
     try:
         code = compile(data, str(p), "exec")
-        with _no_process_exit():
+        with _no_process_exit(), warnings.catch_warnings():
+            warnings.filterwarnings("default", category=DeprecationWarning, module=re.escape(mod.__name__))
             exec(code, mod.__dict__)
     except KeyboardInterrupt:
         raise

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from accellog.store.importers.capstone import PoseTable, import_capstone, load_capstone_pose_table
     from accellog.store.importers.csv import CsvOptions, import_csv, import_csv_to_mcap
     from accellog.store.importers.imucal import import_imucal
+    from accellog.store.importers.ros2 import import_ros2
 
 # each name loaded from its module on first use: a sibling module (ros2.is_ros2_bag, asked by every
 # streamed command) is reached without loading the CSV/capstone/imucal importers
@@ -30,6 +31,7 @@ _WHERE = {
     "import_capstone": "capstone",
     "load_capstone_pose_table": "capstone",
     "import_imucal": "imucal",
+    "import_ros2": "ros2",
 }
 
 __all__ = [
@@ -40,6 +42,7 @@ __all__ = [
     "import_csv_to_mcap",
     "import_file",
     "import_imucal",
+    "import_ros2",
     "load_capstone_pose_table",
 ]
 
