@@ -323,7 +323,9 @@ def test_fault_keys_of_the_old_flat_form_still_work(tmp_path):
     with pytest.warns(DeprecationWarning, match=r"Scenario\(i2c_error_rate=0.02, disconnect_s=0.5\)"):
         old = Scenario(protocol="+z", i2c_error_rate=0.02, disconnect_s=0.5)
     assert old == new and old.to_json() == new.to_json()
-    with pytest.warns(DeprecationWarning, match=r"Scenario.disconnect_s: deprecated, read Scenario.faults.disconnect_s"):
+    with pytest.warns(
+        DeprecationWarning, match=r"Scenario.disconnect_s: deprecated, read Scenario.faults.disconnect_s"
+    ):
         assert old.disconnect_s == 0.5
     with pytest.warns(DeprecationWarning):
         old.host_stall_s = 0.1
