@@ -2,7 +2,12 @@
 ``delay_s``, a spinner ("accellog fit: working") appears on stderr; the next thing the command
 prints removes it first, and the wait starts again. Only when stdout and stderr are terminals and
 --json was not given (accellog.cli.progress.wanted); commands with their own progress bar keep the
-spinner away by drawing (every draw counts as output)."""
+spinner away by drawing (every draw counts as output).
+
+The spinner is rich's (``Spinner`` in a transient ``Live``, what ``Console.status`` builds) with the
+redirection off: ``Console.status`` cannot turn it off and, on a terminal, would send the command's
+stdout through the console onto stderr (tests/cli/test_cli_talks.py). rich has no "after a silence"
+display, hence the timer and the write hook."""
 
 from __future__ import annotations
 

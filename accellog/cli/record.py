@@ -172,7 +172,7 @@ def simulate(
             "--fault",
             help="Inject a fault (repeatable), KEY=VALUE: i2c_error_rate (0..1 per transaction), "
             "fifo_glitch_rate (0..1 per FIFO read), host_stall_s + host_stall_every_s (s), "
-            "disconnect_at_s + disconnect_s (s). The same keys work in a scenario TOML.",
+            "disconnect_at_s + disconnect_s (s). The same keys go in a scenario TOML's [faults] table.",
         ),
     ] = None,
     force: ForceOpt = False,
@@ -180,7 +180,7 @@ def simulate(
 ) -> None:
     """Write a whole simulated session (emulated chip, simulated clock) without waiting.
 
-    Faults to rehearse a flaky setup (--fault KEY=VALUE or scenario keys): i2c_error_rate,
+    Faults to rehearse a flaky setup (--fault KEY=VALUE or a scenario's [faults]): i2c_error_rate,
     fifo_glitch_rate, host_stall_s, host_stall_every_s, disconnect_at_s, disconnect_s; every lost
     sample is counted in the session's events.
 

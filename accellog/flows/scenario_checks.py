@@ -1,6 +1,7 @@
-"""The checks of a simulated scenario that come before any work (accellog.flows.simulate): every number
-finite, seeds >= 0, a local gravity on Earth, and a session that can run: at most MAX_SESSION_S long,
-its die temperature inside the MPU-9250's operating range all along, no disconnect longer than it.
+"""The checks of a simulated scenario that come before any work (accellog.flows.simulate): each key's
+type, every number finite, seeds >= 0, a local gravity on Earth, and a session that can run: at most
+MAX_SESSION_S long, its die temperature inside the MPU-9250's operating range all along, no
+disconnect longer than it.
 """
 
 from __future__ import annotations
@@ -29,6 +30,36 @@ def finite_numbers(value: Any) -> bool:
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return math.isfinite(value)
     return True
+
+
+_FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s"}
+_INT_KEYS = {"accel_range_g", "gyro_range_dps", "chip_seed", "seed"}
+_STR_KEYS = {"protocol", "errors", "gyro_errors", "motion", "robot_path"}
+_TABLE_KEYS = {"set", "temperature", "magnetometer", "faults"}
+
+
+def check_type(key: str, value: Any, where: str) -> None:
+    """One-line InputError when a scenario value has the wrong type (TOML is typed; the fault keys
+    are FaultPlan.from_mapping's to check)."""
+
+    def bad(expected: str) -> InputError:
+        return InputError(f"scenario key {key!r} must be {expected}, got {value!r}", where=where)
+
+    is_num = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if key in _FLOAT_KEYS and not is_num:
+        raise bad("a number")
+    if key in _INT_KEYS and (not isinstance(value, int) or isinstance(value, bool)):
+        raise bad("an integer")
+    if key in _STR_KEYS and not isinstance(value, str):
+        raise bad("a string")
+    if key in _TABLE_KEYS and not isinstance(value, dict):
+        raise bad("a table")
+    if key == "fixture_tilt_deg" and not (
+        isinstance(value, (list, tuple))
+        and len(value) == 2
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    ):
+        raise bad("two numbers [about x, about y] in degrees")
 
 
 def check_numbers(sc: Any, where: str) -> None:

@@ -20,8 +20,9 @@ local_gravity_mps2 = 9.80665
 fixture_tilt_deg = [0.0, 0.0]
 [set]                       # overrides of AccelErrors fields, e.g.
 temp_bias_g_per_degC = [0.001, -0.0005, 0.0008]
-i2c_error_rate = 0.0        # faults (all off by default; accellog.acquire.emulator.faults):
-fifo_glitch_rate = 0.0      #   probability per transaction / per FIFO read (0..1)
+[faults]                    # all off by default (accellog.acquire.emulator.faults.FaultPlan):
+i2c_error_rate = 0.0        #   probability per transaction / per FIFO read (0..1)
+fifo_glitch_rate = 0.0
 host_stall_s = 0.0          #   host pauses this long (s) ...
 host_stall_every_s = 0.0    #   ... every this many seconds
 disconnect_at_s = 0.0       #   bus cut at this time (s) ...
@@ -36,12 +37,19 @@ T_start = 25.0
 T_end = 40.0
 tau_s = 300.0
 ```
+
+The fault keys at the top level (``i2c_error_rate = 0.01``, and ``Scenario(i2c_error_rate=0.01)``)
+are the form before the [faults] table: still read, with a DeprecationWarning (and a note on the
+command line).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
+import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -59,6 +67,7 @@ from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, Sens
 from accellog.acquire.emulator.temperature import TemperaturePath
 from accellog.acquire.recorder import Recorder, session_meta
 from accellog.core.errors import InputError
+from accellog.core.notices import note
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
 from accellog.core.textin import read_text, toml_loads
@@ -68,6 +77,7 @@ from accellog.flows.scenario_checks import (
     check_accel_errors,
     check_numbers,
     check_session_runs,
+    check_type,
 )
 from accellog.store.atomic import AtomicOutput, check_output
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
@@ -100,13 +110,13 @@ class Scenario:
     """'demo' (a 64 s closed loop with ramps, a banked turn and 9 stops) or 'long' (10 min)."""
     magnetometer: dict[str, Any] = field(default_factory=dict)
     """Empty: no magnetometer readout. Else keys field_uT, hard_iron_uT, soft_iron, noise_uT (emulator)."""
-    # fault injection (accellog.acquire.emulator.faults): all off by default
-    i2c_error_rate: float = 0.0
-    fifo_glitch_rate: float = 0.0
-    host_stall_s: float = 0.0
-    host_stall_every_s: float = 0.0
-    disconnect_at_s: float = 0.0
-    disconnect_s: float = 0.0
+    faults: FaultPlan = field(default_factory=FaultPlan)
+    """What goes wrong during the recording (accellog.acquire.emulator.faults), all off by default:
+    a FaultPlan, or a mapping {key: number} that becomes one (checked); TOML: the [faults] table."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.faults, Mapping):
+            self.faults = FaultPlan.from_mapping(dict(self.faults))
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Scenario:
@@ -122,11 +132,23 @@ class Scenario:
     @classmethod
     def from_dict(cls, data: dict[str, Any], where: str = "scenario") -> Scenario:
         names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - names)
+        flat = [k for k in FaultPlan.names() if k in data]  # the form before [faults] (module doc)
+        unknown = sorted(set(data) - names - set(flat))
         if unknown:
             raise InputError(f"unknown scenario key(s) {unknown}; known: {sorted(names)}", where=where)
         for key, value in data.items():
-            _check_type(key, value, where)
+            check_type(key, value, where)
+        data = dict(data)
+        if flat:
+            if "faults" in data:
+                raise InputError(f"fault keys {flat} both at the top level and in [faults]", where=where)
+            _deprecated(
+                f"fault keys at the top level of a scenario ({', '.join(flat)})", _IN_TABLE, stacklevel=2
+            )
+            note(f"{where}: fault keys at the top level ({', '.join(flat)}) are deprecated: {_IN_TABLE}")
+            data["faults"] = FaultPlan.from_mapping({k: data.pop(k) for k in flat}, where=where)
+        elif "faults" in data:
+            data["faults"] = FaultPlan.from_mapping(data["faults"], where=f"{where} [faults]")
         sc = cls(**data)
         sc.validate(where)
         return sc
@@ -168,11 +190,10 @@ class Scenario:
                 raise InputError(str(exc), where=where) from None
             raise
 
-    def fault_plan(self, where: str = "scenario"):
-        """The scenario's FaultPlan (validated: rates 0..1, times >= 0)."""
-        from accellog.acquire.emulator.faults import FaultPlan
-
-        return FaultPlan.from_mapping({k: getattr(self, k) for k in FaultPlan.names()}, where=where)
+    def fault_plan(self, where: str = "scenario") -> FaultPlan:
+        """The scenario's faults, checked (rates 0..1, times >= 0, stalls shorter than their period)."""
+        faults = self.faults.to_dict() if isinstance(self.faults, FaultPlan) else dict(self.faults)
+        return FaultPlan.from_mapping(faults, where=where)
 
     @property
     def sample_rate_div(self) -> int:
@@ -182,41 +203,47 @@ class Scenario:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
 
-_FAULT_KEYS = {
-    "i2c_error_rate",
-    "fifo_glitch_rate",
-    "host_stall_s",
-    "host_stall_every_s",
-    "disconnect_at_s",
-    "disconnect_s",
-}
-_FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s", *_FAULT_KEYS}
-_INT_KEYS = {"accel_range_g", "gyro_range_dps", "chip_seed", "seed"}
-_STR_KEYS = {"protocol", "errors", "gyro_errors", "motion", "robot_path"}
-_TABLE_KEYS = {"set", "temperature", "magnetometer"}
+_IN_TABLE = "put them in a 'faults' table ([faults] in TOML)"
 
 
-def _check_type(key: str, value: Any, where: str) -> None:
-    """One-line InputError when a scenario value has the wrong type (TOML is typed)."""
+def _deprecated(what: str, instead: str, stacklevel: int) -> None:
+    warnings.warn(f"{what}: deprecated, {instead}", DeprecationWarning, stacklevel=stacklevel + 1)
 
-    def bad(expected: str) -> InputError:
-        return InputError(f"scenario key {key!r} must be {expected}, got {value!r}", where=where)
 
-    is_num = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if key in _FLOAT_KEYS and not is_num:
-        raise bad("a number")
-    if key in _INT_KEYS and (not isinstance(value, int) or isinstance(value, bool)):
-        raise bad("an integer")
-    if key in _STR_KEYS and not isinstance(value, str):
-        raise bad("a string")
-    if key in _TABLE_KEYS and not isinstance(value, dict):
-        raise bad("a table")
-    if key == "fixture_tilt_deg" and not (
-        isinstance(value, (list, tuple))
-        and len(value) == 2
-        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-    ):
-        raise bad("two numbers [about x, about y] in degrees")
+def _flat_fault_keywords(init):
+    """Scenario(i2c_error_rate=...): the keywords before Scenario.faults, deprecated (module doc)."""
+
+    @functools.wraps(init)
+    def __init__(self, *args, **kw) -> None:
+        flat = {k: kw.pop(k) for k in FaultPlan.names() if k in kw}
+        if flat:
+            if "faults" in kw:
+                raise TypeError(f"Scenario(): fault keys {list(flat)} both as keywords and in faults=")
+            given = ", ".join(f"{k}={v!r}" for k, v in flat.items())
+            _deprecated(f"Scenario({given})", f"use Scenario(faults={flat!r})", stacklevel=2)
+            kw["faults"] = flat
+        init(self, *args, **kw)
+
+    return __init__
+
+
+def _flat_fault_attribute(name: str) -> property:
+    """sc.<fault key>, read or set: the attribute before Scenario.faults, deprecated."""
+
+    def get(self):
+        _deprecated(f"Scenario.{name}", f"read Scenario.faults.{name}", stacklevel=2)
+        return getattr(self.faults, name)
+
+    def set_(self, value) -> None:
+        _deprecated(f"Scenario.{name}", "set Scenario.faults (a FaultPlan or a mapping)", stacklevel=2)
+        self.faults = FaultPlan.from_mapping({**self.fault_plan().to_dict(), name: value})
+
+    return property(get, set_, doc=f"Deprecated: Scenario.faults.{name}.")
+
+
+Scenario.__init__ = _flat_fault_keywords(Scenario.__init__)  # type: ignore[method-assign]
+for _name in FaultPlan.names():
+    setattr(Scenario, _name, _flat_fault_attribute(_name))
 
 
 def build_sensor_model(sc: Scenario):
@@ -422,6 +449,7 @@ def scenario_from_options(
         sc.set[key.strip()] = nums if len(nums) > 1 else nums[0]
     if temperature:
         sc.temperature = parse_temperature_option(temperature)
+    given: dict[str, float] = {}
     for item in faults or []:
         key, sep, val = item.partition("=")
         try:
@@ -431,9 +459,9 @@ def scenario_from_options(
         if not sep or value is None:
             raise InputError(f"--fault {item!r}: use KEY=NUMBER, e.g. --fault i2c_error_rate=0.01")
         FaultPlan.from_mapping({key.strip(): value}, where="--fault")
-        setattr(sc, key.strip(), value)
-    if faults:
-        sc.fault_plan(where="--fault")
+        given[key.strip()] = value
+    if given:
+        sc.faults = FaultPlan.from_mapping({**sc.fault_plan().to_dict(), **given}, where="--fault")
     sc.validate()
     return sc
 

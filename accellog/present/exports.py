@@ -22,6 +22,7 @@ import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+import yaml
 
 from accellog.calibrate.calfile.calibration import Calibration
 from accellog.calibrate.noise.imu_noise import NoiseCharacterisation
@@ -137,28 +138,35 @@ def _params_ardupilot(cal: Calibration, rot: str, device_id: int | None) -> Expo
     return Export("ardupilot", "\n".join(lines) + "\n", vals, units, lost, notes)
 
 
-def _yaml_value(v) -> str:
-    if v is None:
-        return "null"
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float, np.floating)):
-        return f"{float(v):.9g}" if math.isfinite(float(v)) else ".nan"
+class _Dumper(yaml.SafeDumper):
+    """PyYAML's safe dumper, lists in flow style (``S: [1.0, 0.0, ...]``), mappings in block style."""
+
+
+_Dumper.add_representer(
+    list, lambda dumper, v: dumper.represent_sequence("tag:yaml.org,2002:seq", v, flow_style=True)
+)
+
+
+def _builtin(v):
+    """``v`` with numpy scalars as Python's and every sequence (list, tuple, array, nested) as one flat
+    row-major list: the types safe_dump writes, the shapes the exports have always had."""
+    if isinstance(v, dict):
+        return {k: _builtin(x) for k, x in v.items()}
     if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_yaml_value(x) for x in np.asarray(v, dtype=object).ravel().tolist()) + "]"
-    return '"' + str(v).replace('"', "'") + '"'
+        return [_builtin(x) for x in np.asarray(v, dtype=object).ravel().tolist()]
+    return v.item() if isinstance(v, np.generic) else v
 
 
-def _yaml(d: dict, indent: int = 0, comments: dict | None = None) -> list[str]:
-    out = []
-    for k, v in d.items():
-        note = f"  # {comments[k]}" if comments and k in comments else ""
-        if isinstance(v, dict):
-            out.append(" " * indent + f"{k}:")
-            out += _yaml(v, indent + 2, comments)
-        else:
-            out.append(" " * indent + f"{k}: {_yaml_value(v)}{note}")
-    return out
+def _yaml(d: dict, comments: dict | None = None) -> list[str]:
+    """``d`` as YAML lines, keys in order, floats as repr (a reload gives the same float64);
+    ``comments[k]`` goes after top-level key ``k``'s line (a scalar's: one line each)."""
+    text = yaml.dump(_builtin(d), Dumper=_Dumper, sort_keys=False, default_flow_style=False, width=1 << 30)
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        key = line.split(":", 1)[0]
+        if comments and key in comments and not line.startswith(" "):
+            lines[i] = f"{line}  # {comments[key]}"
+    return lines
 
 
 def _raw_error_mps2(cal: Calibration) -> float:
@@ -203,9 +211,7 @@ def _kalibr(cal: Calibration, noise: NoiseCharacterisation | None, topic: str) -
     title = (
         f"Kalibr IMU configuration (accellog export), noise from {noise.source} ({noise.duration_s:.0f} s)"
     )
-    return Export(
-        "kalibr", "\n".join(_header(title, lost) + _yaml(vals, 0, comments)) + "\n", vals, units, lost
-    )
+    return Export("kalibr", "\n".join(_header(title, lost) + _yaml(vals, comments)) + "\n", vals, units, lost)
 
 
 def _imu_calib(cal: Calibration) -> Export:

@@ -523,7 +523,7 @@ SCENARIO_BAD = {
     "bad_temperature": ('temperature = {kind = "sauna"}\n', ("temperature",)),
     "bad_range": ("accel_range_g = 3\n", ("accel_range_g",)),
     "fault_rate_above_1": ("i2c_error_rate = 1.5\n", ("i2c_error_rate",)),
-    "fault_negative_stall": ("host_stall_s = -0.1\n", ("host_stall_s",)),
+    "fault_negative_stall": ("[faults]\nhost_stall_s = -0.1\n", ("host_stall_s", "faults")),
     "fault_unknown_in_table": ("[faults]\nbogus = 1\n", ("faults",)),
     "binary": ("\x00\x01", ()),
 }

@@ -275,7 +275,7 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
         ("noise_uT", ">= 0"),
     ),
     "scenario-stall-rate": (
-        _scenario("host_stall_s = 1.0\nhost_stall_every_s = 0.5\n"),
+        _scenario("[faults]\nhost_stall_s = 1.0\nhost_stall_every_s = 0.5\n"),
         ("sc.toml", "host_stall_s"),
     ),
     "scenario-deep-toml": (
@@ -468,7 +468,7 @@ def test_a_valid_scenario_at_the_limits_still_runs(tmp_path):
     shorter than its period, the coldest and hottest operating temperatures."""
     (tmp_path / "sc.toml").write_text(
         "hold_s = 1.0\nmove_s = 0.5\nlabel_margin_s = 0.49\nprotocol = '+z'\nsample_rate_hz = 200.0\n"
-        "host_stall_s = 0.01\nhost_stall_every_s = 0.011\n"
+        "[faults]\nhost_stall_s = 0.01\nhost_stall_every_s = 0.011\n"
         "[temperature]\nkind = 'ramp'\nT0 = -40.0\nrate_degC_per_s = 60.0\n"
     )
     assert main(["simulate", "--scenario", str(tmp_path / "sc.toml"), "-o", str(tmp_path / "s.mcap")]) == 0
@@ -650,8 +650,12 @@ def test_door_in_a_real_process(good, tmp_path):
         assert _snapshot(tmp_path) == before
 
 
-_SCENARIO_KEYS = sorted(f.name for f in dataclasses.fields(Scenario))
+_SCENARIO_KEYS = sorted(
+    [*(f.name for f in dataclasses.fields(Scenario)), "i2c_error_rate"]
+)  # + old flat form
 _TABLE_KEYS = [
+    "i2c_error_rate",
+    "host_stall_s",
     "kind",
     "T",
     "T0",

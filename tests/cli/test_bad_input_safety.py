@@ -281,12 +281,14 @@ def test_fault_injection_counts_every_lost_sample(tmp_path):
         hold_s=4.0,
         move_s=1.0,
         sample_rate_hz=500.0,
-        i2c_error_rate=0.02,
-        fifo_glitch_rate=0.02,
-        host_stall_s=0.2,
-        host_stall_every_s=3.0,
-        disconnect_at_s=5.0,
-        disconnect_s=0.5,
+        faults={
+            "i2c_error_rate": 0.02,
+            "fifo_glitch_rate": 0.02,
+            "host_stall_s": 0.2,
+            "host_stall_every_s": 3.0,
+            "disconnect_at_s": 5.0,
+            "disconnect_s": 0.5,
+        },
     )
     summary = simulate(sc, tmp_path / "f.mcap")
     s = read_session(tmp_path / "f.mcap")
@@ -297,7 +299,7 @@ def test_fault_injection_counts_every_lost_sample(tmp_path):
     # every sample the session lacks is an accounted loss (sample_index gaps == counted losses)
     gaps = int(np.sum(np.diff(s.sample_index) - 1))
     assert gaps == lost
-    assert json.loads(s.meta.extra["scenario"])["disconnect_s"] == 0.5
+    assert json.loads(s.meta.extra["scenario"])["faults"]["disconnect_s"] == 0.5
 
 
 def test_fault_keys_in_help_and_validation(capsys):
@@ -305,8 +307,41 @@ def test_fault_keys_in_help_and_validation(capsys):
     out = " ".join(capsys.readouterr().out.split())
     for key in ("i2c_error_rate", "fifo_glitch_rate", "host_stall_s", "disconnect_s"):
         assert key in out
-    with pytest.raises(InputError, match="i2c_error_rate"):
-        Scenario.from_dict({"i2c_error_rate": 2.0})
+    with pytest.raises(InputError, match=r"scenario \[faults\]: fault key 'i2c_error_rate' = 2"):
+        Scenario.from_dict({"faults": {"i2c_error_rate": 2.0}})
+
+
+def test_fault_keys_of_the_old_flat_form_still_work(tmp_path):
+    """Before Scenario.faults the fault keys were Scenario's own: as keywords, attributes and TOML
+    keys at the top level they still give the same scenario, with a DeprecationWarning (and a note
+    for the command line)."""
+    from accellog.acquire.emulator.faults import FaultPlan
+    from accellog.core import notices
+
+    new = Scenario(protocol="+z", faults={"i2c_error_rate": 0.02, "disconnect_s": 0.5})
+    assert new.faults == FaultPlan(i2c_error_rate=0.02, disconnect_s=0.5)
+    with pytest.warns(DeprecationWarning, match=r"Scenario\(i2c_error_rate=0.02, disconnect_s=0.5\)"):
+        old = Scenario(protocol="+z", i2c_error_rate=0.02, disconnect_s=0.5)
+    assert old == new and old.to_json() == new.to_json()
+    with pytest.warns(
+        DeprecationWarning, match=r"Scenario.disconnect_s: deprecated, read Scenario.faults.disconnect_s"
+    ):
+        assert old.disconnect_s == 0.5
+    with pytest.warns(DeprecationWarning):
+        old.host_stall_s = 0.1
+    assert old.faults == FaultPlan(i2c_error_rate=0.02, host_stall_s=0.1, disconnect_s=0.5)
+    with pytest.raises(TypeError, match="both"):
+        Scenario(i2c_error_rate=0.02, faults={"disconnect_s": 0.5})
+    toml_old, toml_new = tmp_path / "old.toml", tmp_path / "new.toml"
+    toml_old.write_text('protocol = "+z"\ni2c_error_rate = 0.02\ndisconnect_s = 0.5\n')
+    toml_new.write_text('protocol = "+z"\n[faults]\ni2c_error_rate = 0.02\ndisconnect_s = 0.5\n')
+    notices.take()
+    assert Scenario.from_toml(toml_new) == new and not notices.take()
+    with pytest.warns(DeprecationWarning, match="top level"):
+        assert Scenario.from_toml(toml_old) == new
+    assert any("[faults]" in n for n in notices.take())
+    with pytest.raises(InputError, match="both at the top level and in"):
+        Scenario.from_dict({"i2c_error_rate": 0.02, "faults": {"disconnect_s": 0.5}})
 
 
 def test_long_poll_makes_progress_and_no_overflow_at_start(tmp_path):

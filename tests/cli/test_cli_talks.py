@@ -238,6 +238,24 @@ def test_busy_spinner_after_silence_and_gone_before_output(capsys):
     assert "table" in capsys.readouterr().out
 
 
+def test_busy_spinner_keeps_stdout_on_stdout(capsys, monkeypatch):
+    """On a terminal the spinner draws on stderr and the command's stdout stays stdout: rich's
+    Console.status would redirect it into the console (stderr) while the spinner is up."""
+    import time
+
+    from accellog.cli.busy import Busy
+
+    monkeypatch.setenv("TTY_COMPATIBLE", "1")  # rich treats the captured stderr as a terminal
+    with Busy("accellog fit", delay_s=0.05) as busy:
+        time.sleep(0.3)
+        assert busy._status is not None
+        print("table")
+        time.sleep(0.2)  # the spinner is back after 0.05 s of silence
+        print("row")
+    out, err = capsys.readouterr()
+    assert out == "table\nrow\n" and "table" not in err and "accellog fit: working" in err
+
+
 @pytest.mark.parametrize(
     ("argv", "busy"),
     [(["fit", "x.mcap", "-o", "c.json"], True), (["fit", "x.mcap", "--json"], False), (["record"], False),

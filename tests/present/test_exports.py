@@ -90,6 +90,8 @@ def test_kalibr_and_ros_yaml(fitted, tmp_path, capsys):
     # emulator: 300 ug/sqrt(Hz) one-sided -> two-sided density sigma_c = 300e-6 g0 / sqrt(2) before the DLPF
     assert 0.3 < y["accelerometer_noise_density"] / (300e-6 * G0 / np.sqrt(2)) < 1.2
     assert 0 < y["accelerometer_random_walk"] < 1e-2 and 0 < y["gyroscope_noise_density"] < 1e-2
+    lines = out.read_text().splitlines()  # units stay as comments on the value's line
+    assert any(ln.startswith("update_rate: ") and ln.endswith("  # Hz") for ln in lines)
     units = json.loads(stdout)["units"]
     assert units["accelerometer_random_walk"] == "m/s^3/sqrt(Hz)"
     out = tmp_path / "ros.yaml"
@@ -103,3 +105,6 @@ def test_kalibr_and_ros_yaml(fitted, tmp_path, capsys):
     assert _run(["export", cals["model3"], "--to", "yaml", "-o", out], capsys)[0] == 0
     plain = YAML(typ="safe").load(out.read_text())
     assert plain["params"] and len(plain["S"]) == 9
+    # floats are written as repr: the reload is the calibration's float64, bit for bit
+    assert plain["S"] == np.asarray(cal.S_b()[0]).ravel().tolist()
+    assert [p["value"] for p in plain["params"].values()] == [float(v) for v in cal.theta]

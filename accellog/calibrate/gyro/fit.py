@@ -36,17 +36,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from accellog.calibrate.gyro.model import PARAM_NAMES, GyroCalibration
-from accellog.calibrate.gyro.rotation import (
-    DEG_PER_RAD,
-    quat_conj_rows,
-    relative_rotations,
-    rotate_inverse_rows,
-    rotvec_deg,
-)
+from accellog.calibrate.gyro.rotation import relative_rotations
 from accellog.core.errors import InputError, ModelError
 from accellog.core.numeric import least_squares
-from accellog.core.rotations import quat_conjugate, quat_multiply
+from accellog.core.rotations import quat_conjugate, quat_multiply, quat_to_rotvec, rotate_inverse
 from accellog.core.session import PoseLabel
+
+DEG_PER_RAD = 180.0 / np.pi
 
 
 def hold_intervals(holds: Sequence[PoseLabel] | np.ndarray) -> np.ndarray:
@@ -134,7 +130,7 @@ def _residuals(phi, c, at, known: list[PoseLabel], reference: str, rows: np.ndar
     gyro matrices m ((3,3) or (P,3,3)); three rows a move (module doc)."""
     if reference == "orientation":
         qn = np.array([p.q_sensor_to_world for p in known], float)
-        dq_nom_c = quat_conj_rows(quat_multiply(quat_conjugate(qn[:-1]), qn[1:]))
+        dq_nom_c = quat_conjugate(quat_multiply(quat_conjugate(qn[:-1]), qn[1:]))
     else:
         up = np.array([p.up_sensor for p in known], float)
         up /= np.linalg.norm(up, axis=1, keepdims=True)
@@ -142,11 +138,13 @@ def _residuals(phi, c, at, known: list[PoseLabel], reference: str, rows: np.ndar
     def forward(m: np.ndarray) -> np.ndarray:
         dq_int = relative_rotations(phi, c, at, m)
         if reference == "orientation":
-            return rotvec_deg(quat_multiply(dq_nom_c, dq_int)).reshape((*dq_int.shape[:-2], -1))[..., rows]
+            return (quat_to_rotvec(quat_multiply(dq_nom_c, dq_int)) * DEG_PER_RAD).reshape(
+                (*dq_int.shape[:-2], -1)
+            )[..., rows]
         # up_a (world-fixed) seen from the sensor at hold b: v_b = dq_int^-1 v_a; the difference of
         # unit vectors is the tilt error in rad for small errors (and, unlike a cross product,
         # it does not vanish for a vector pointing the opposite way)
-        pred = rotate_inverse_rows(dq_int, up[:-1])
+        pred = rotate_inverse(dq_int, up[:-1])
         return ((pred - up[1:]) * DEG_PER_RAD).reshape((*dq_int.shape[:-2], -1))[..., rows]
 
     return forward

@@ -15,8 +15,8 @@ so a gyro matrix correction applies to the blocks instead of every sample. A coa
 merges the fine blocks b_1..b_n of a static hold also carries their second-order term
 c = 1/2 sum_{i<j} b_i x b_j, so that exp(b_1) ... exp(b_n) = exp(phi + c) + O(|b|^3)
 (Baker-Campbell-Hausdorff; the product the dense integration forms); corrected by M, a block's
-rotation vector is M^-1 phi + det(M^-1) M^T c. The quaternion helpers are the arithmetic of
-accellog.core.rotations written so that a complex step propagates through them.
+rotation vector is M^-1 phi + det(M^-1) M^T c. The quaternion arithmetic is accellog.core.rotations
+(complex-step safe, so the fit's Jacobian goes through it exactly).
 """
 
 from __future__ import annotations
@@ -25,10 +25,14 @@ import itertools
 
 import numpy as np
 
-from accellog.core.rotations import quat_multiply
+from accellog.core.rotations import (
+    prefix_quat_product,
+    quat_conjugate,
+    quat_from_rotvec,
+    quat_multiply,
+    quat_normalize,
+)
 from accellog.core.timeseries import sorted_unique
-
-DEG_PER_RAD = 180.0 / np.pi
 
 
 def _pair_fine(t, a: int, b: int, block_s: float) -> np.ndarray:
@@ -77,38 +81,6 @@ def coarse_plan(t, mids: np.ndarray, ends: np.ndarray, starts: np.ndarray, block
     return np.concatenate(coarse), np.concatenate(at)[:-1], n_fine
 
 
-# complex-safe quaternion helpers: the same arithmetic as accellog.core.rotations, written so that
-# a complex step (x + i h) propagates through them (the Jacobian of the gyro matrix fit is exact to rounding)
-
-
-def _qexp(phi: np.ndarray) -> np.ndarray:
-    """Quaternions (...,4) from rotation vectors (...,3) (rad): (cos a/2, sin(a/2)/a phi)."""
-    a = np.sqrt((phi * phi).sum(axis=-1, keepdims=True))
-    big = a.real > 1e-12
-    safe = np.where(big, a, 1.0)
-    k = np.where(big, np.sin(0.5 * safe) / safe, 0.5 - a * a / 48.0)
-    return np.concatenate([np.cos(0.5 * a), k * phi], axis=-1)
-
-
-def _qnormalize(q: np.ndarray) -> np.ndarray:
-    return q / np.sqrt((q * q).sum(axis=-1, keepdims=True))
-
-
-def quat_conj_rows(q: np.ndarray) -> np.ndarray:
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def _prefix_product(dq: np.ndarray) -> np.ndarray:
-    """Inclusive prefix product along axis -2 (Hillis-Steele scan, as rotations.prefix_quat_product)."""
-    out = dq.copy()
-    n = out.shape[-2]
-    d = 1
-    while d < n:
-        out[..., d:, :] = quat_multiply(out[..., :-d, :], out[..., d:, :])
-        d *= 2
-    return out
-
-
 def relative_rotations(
     phi: np.ndarray, c: np.ndarray, at: np.ndarray, m: np.ndarray, budget: int = 1 << 10
 ) -> np.ndarray:
@@ -129,37 +101,8 @@ def relative_rotations(
         ph = phi[lo:hi] @ m_inv_t + (c[lo:hi] @ m) / det
         ident = np.zeros((*ph.shape[:-2], 1, 4), ph.dtype)
         ident[..., 0] = 1.0
-        q = _qnormalize(_prefix_product(np.concatenate([ident, _qexp(ph)], axis=-2)))
+        q = quat_normalize(prefix_quat_product(np.concatenate([ident, quat_from_rotvec(ph)], axis=-2)))
         a = at[i : j + 1] - lo
-        out.append(_qnormalize(quat_multiply(quat_conj_rows(q[..., a[:-1], :]), q[..., a[1:], :])))
+        out.append(quat_normalize(quat_multiply(quat_conjugate(q[..., a[:-1], :]), q[..., a[1:], :])))
         i = j
     return np.concatenate(out, axis=-2)
-
-
-def rotate_inverse_rows(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """World vectors v (K,3) into the sensor frame by q (...,K,4): R(q)^T v."""
-    q = _qnormalize(q)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
-    return np.stack(
-        [
-            (1 - 2 * (y * y + z * z)) * v0 + 2 * (x * y + w * z) * v1 + 2 * (x * z - w * y) * v2,
-            2 * (x * y - w * z) * v0 + (1 - 2 * (x * x + z * z)) * v1 + 2 * (y * z + w * x) * v2,
-            2 * (x * z + w * y) * v0 + 2 * (y * z - w * x) * v1 + (1 - 2 * (x * x + y * y)) * v2,
-        ],
-        axis=-1,
-    )
-
-
-def rotvec_deg(q: np.ndarray) -> np.ndarray:
-    """Rotation vectors (deg) of unit quaternions (...,K,4), shortest arc."""
-    q = q * np.where(q[..., :1].real < 0, -1.0, 1.0)
-    s = np.sqrt((q[..., 1:] * q[..., 1:]).sum(axis=-1))
-    w = q[..., 0]
-    fwd = w.real > 0.5 * np.abs(s)
-    ang = np.where(
-        fwd, 2.0 * np.arctan(s / np.where(fwd, w, 1.0)), np.pi - 2.0 * np.arctan(w / np.where(fwd, 1.0, s))
-    )
-    tiny = np.abs(s) <= 1e-12
-    k = np.where(tiny, 2.0 / np.where(tiny, w, 1.0), ang / np.where(tiny, 1.0, s))
-    return DEG_PER_RAD * k[..., None] * q[..., 1:]
