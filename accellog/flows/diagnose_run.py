@@ -185,9 +185,9 @@ def _handheld(
         HANDHELD_START,
         detect_holds,
         diagnose_handheld,
-        norm_choice,
         norm_obs,
     )
+    from accellog.calibrate.diagnosis.strategy import NORM
     from accellog.calibrate.model.compose import build_model
 
     name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
@@ -196,5 +196,5 @@ def _handheld(
     d = diagnose_handheld(obs, m)
     if heldout:
         helds = [norm_obs(h, window_s=window_s) for h in _sessions(heldout)]
-        norm_choice(d, obs, helds)
+        NORM.choose(d, obs, helds)
     return DiagnoseOutcome(str(session), d, det)

@@ -23,6 +23,7 @@ from accellog.core.session import ObsTable, Session
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.ladder import LadderRow
+    from accellog.calibrate.diagnosis.strategy import Strategy
 
 BASE_STEPS = ("model1", "model2")
 
@@ -96,15 +97,26 @@ def discover(
     host_time: tuple[np.ndarray, np.ndarray] | None = None,
     on_step: Callable[[object], None] | None = None,
     sessions: Sequence[ObsTable] | None = None,
+    strategy: Strategy | None = None,
+    found: Discovery | None = None,
 ) -> Discovery:
     """Diagnose `start`, add the significant candidate that predicts unseen data best (held-out
     sessions if given, else blocked validation over temperature and time), repeat while one
     improves out of sample. on_step(Diagnosis) is called after each step (its .choice: the
     out-of-sample judgement). sessions: the windows of each of several calibration sessions (obs
     is then their concatenation, calibrate.loso.concat_obs): candidates are judged by leaving one
-    session out (calibrate.loso) instead."""
+    session out (calibrate.loso) instead. strategy: the residual judged (calibrate.diagnosis.strategy:
+    LABELLED per axis, the default, or NORM, the gravity norm of a hand-held session); found: the
+    Discovery to fill (a HandheldDiscovery), default a new one."""
+    from accellog.calibrate.diagnosis.strategy import LABELLED
+
+    held = [heldout] if isinstance(heldout, ObsTable) else list(heldout or [])
+    found = found if found is not None else Discovery(start=start)
     with small_problem_threads():
-        return _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step, sessions)
+        _search(found, obs, held, list(sessions or []), strategy or LABELLED, max_steps, effects_file, host_time,
+                on_step)  # fmt: skip
+    found.verdict, found.advice = final_verdict(found, strategy or LABELLED)
+    return found
 
 
 def small_problem_threads():
@@ -115,30 +127,21 @@ def small_problem_threads():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step, parts=None) -> Discovery:
-    from accellog.calibrate.diagnosis.choose import choose_effect
-    from accellog.calibrate.diagnosis.diagnose import default_candidates, diagnose, heldout_stats
-    from accellog.calibrate.diagnosis.loso import loso_score, loso_stats, mean_stats
-    from accellog.calibrate.diagnosis.transfer import heldout_score
+def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file, host_time, on_step) -> None:
+    """discover's forward loop, backward steps, held-out statistics and proxies (module doc)."""
+    from accellog.calibrate.diagnosis.diagnose import default_candidates
     from accellog.calibrate.model.compose import build_model
-    from accellog.calibrate.model.fit import fit_model
-    from accellog.flows.workbench_prune import backward_step, proxy_stats, scorer
+    from accellog.flows.workbench_prune import backward_step, proxy_stats
 
-    held = [heldout] if isinstance(heldout, ObsTable) else list(heldout or [])
-    parts = list(parts or [])
+    start = out.start
     model = build_model(start, effects_file=effects_file)
-    out = Discovery(start=start)
-    scores = scorer(obs, held, parts)
-
-    def loso_scores(fits):
-        return {n: loso_score(parts, r.model, fit_model, heldout_score) for n, r in fits.items()}
-
+    scores = strategy.scores(obs, held, parts)
     gone: set[str] = set()
-    for _ in range(max_steps + len(out.dropped) + 1):
+    for _ in range(max_steps + 1):
         cands = [c for c in default_candidates(model) if c not in gone]
-        d = diagnose(obs, model, candidates=cands, host_time=host_time, heldout=held)
-        if len(parts) > 1:
-            d.choice = choose_effect(d.fit, d.candidates, d.fits, obs, scores=loso_scores)
+        d = strategy.diagnose(obs, model, candidates=cands, host_time=host_time, heldout=held)
+        if len(parts) > 1 or (d.choice is None and len(out.added) < max_steps):
+            strategy.choose(d, obs, held, parts)
         out.diagnoses.append(d)
         if on_step is not None:
             on_step(d)
@@ -152,45 +155,45 @@ def _discover(obs, start, heldout, max_steps, effects_file, host_time, on_step, 
         out.added.append(ch.chosen)
         model = model.with_terms([ch.chosen])
         full = d.fits.get(ch.chosen)
-        while (drop := backward_step(out.added, start, effects_file, obs, scores, full)) is not None:
+        while (
+            drop := backward_step(out.added, start, effects_file, obs, scores, full, strategy.fit)
+        ) is not None:
             out.added.remove(drop[0])
             out.dropped.append({"effect": drop[0], "why": drop[1]})
             gone.add(drop[0])
             model, full = build_model(start, add=out.added, effects_file=effects_file), None
-    # a tie is resolved when every alternative ended up in the model too
 
     def stats_of(name: str) -> dict | None:
-        m = build_model(name, effects_file=effects_file)
-        if len(parts) > 1:
-            out.loso = loso_stats(parts, m, fit_model, heldout_stats)
-            return mean_stats(out.loso)
-        if not held:
-            return None
-        final = fit_model(obs, m)
-        stats = [heldout_stats(final, h) for h in held]
-        return {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
+        stats, per = strategy.final_stats(obs, build_model(name, effects_file=effects_file), held, parts)
+        if per is not None:
+            out.loso = per
+        return stats
 
     out.heldout = stats_of(out.final_model)
-    proxies = proxy_stats(out, stats_of)
-    out.dropped += [{"effect": e, "why": why, "proxy": True} for e, why in proxies]
+    out.dropped += [{"effect": e, "why": why, "proxy": True} for e, why in proxy_stats(out, stats_of)]
     # a tie is resolved when every alternative ended up in the model too (or its choice was dropped)
     out.undecided = [
         g
         for g in ([g[0], *[e for e in g[1:] if e not in out.added]] for g in out.undecided)
         if len(g) > 1 and g[0] in out.added
     ]
-    out.verdict, out.advice = final_verdict(out)
-    return out
 
 
-def final_verdict(found: Discovery) -> tuple[str, list[str]]:
-    """One verdict from all the evidence: the last diagnosis, the held-out session, the ties."""
+def final_verdict(found: Discovery, strategy: Strategy | None = None) -> tuple[str, list[str]]:
+    """One verdict from all the evidence: the last diagnosis, the held-out session, the ties (the
+    gravity norm's words for a NORM search)."""
+    norm = strategy.norm if strategy is not None else ""
     proxies = [x["effect"] for x in getattr(found, "dropped", []) if x.get("proxy")]
     # with proxies dropped the final model is the start model: its diagnosis is the first
     d = found.diagnoses[0] if proxies else found.diagnoses[-1]
+    parts, extra, held_ok = evidence_parts(found, norm=norm, diagnosis=d)
+    if norm:
+        if not parts:
+            return d.verdict.rstrip(".") + held_ok + ".", extra
+        head = f"{d.model.name}: norm chi2/dof {d.fit.chi2_dof:.3g} on the calibration session"
+        return f"{head}; " + "; ".join(parts) + held_ok + ".", extra
     where = "the calibration session" + ("s" if getattr(found, "loso", None) else "")
     fit = f"{d.model.name}: chi2/dof {d.fit.chi2_dof:.3g} on {where}"
-    parts, extra, held_ok = evidence_parts(found, norm="", diagnosis=d)
     advice = [a for a in d.advice if not any(e in a for e in proxies)] + extra
     if not parts and not d.missing:
         return f"{fit}: the model fits to the noise floor; nothing is missing{held_ok}.", advice

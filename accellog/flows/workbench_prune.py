@@ -23,28 +23,13 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from accellog.calibrate.diagnosis.choose import Z_IMPROVE
-from accellog.calibrate.diagnosis.transfer import Score, blocked_scores, heldout_score
+from accellog.calibrate.diagnosis.transfer import Score
 from accellog.calibrate.model.compose import Model, build_model
 from accellog.calibrate.model.fit import FitResult, fit_model
 from accellog.core.errors import ModelError
 from accellog.core.session import ObsTable
 
 ScoreFn = Callable[[dict[str, FitResult]], dict[str, Score]]
-
-
-def scorer(obs: ObsTable, held: Sequence[ObsTable], parts: Sequence[ObsTable]) -> ScoreFn:
-    """Out-of-sample scores of fits by name, with the evidence the loop uses: leave one session
-    out (several calibration sessions), held-out sessions, else blocks of obs."""
-    from accellog.calibrate.diagnosis.loso import loso_score
-
-    def scores(fits: dict[str, FitResult]) -> dict[str, Score]:
-        if len(parts) > 1:
-            return {n: loso_score(parts, r.model, fit_model, heldout_score) for n, r in fits.items()}
-        if held:
-            return {n: heldout_score(r, held) for n, r in fits.items()}
-        return blocked_scores(fits, obs)
-
-    return scores
 
 
 def backward_step(

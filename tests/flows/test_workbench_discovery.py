@@ -20,10 +20,11 @@ import pytest
 from support.discovery import handheld_path, session_obs
 
 from accellog.calibrate.diagnosis.choose import heats_and_cools, new_recording
+from accellog.calibrate.diagnosis.strategy import LABELLED
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.fit import fit_model
 from accellog.flows.workbench import discover
-from accellog.flows.workbench_prune import backward_step, scorer
+from accellog.flows.workbench_prune import backward_step
 from accellog.flows.workbench_run import run_workbench
 
 KW = {"rounds": 3, "hold_s": 8.0}
@@ -66,11 +67,14 @@ def test_backward_step_drops_an_effect_a_later_one_made_redundant(root):
     """temp_bias alone is hidden: model3 + time_drift + temp_bias -> time_drift earns nothing once
     temp_bias is in; temp_bias + time_drift on the two-effect chip keeps both."""
     cal, held = _pair(root, "single")
-    score = scorer(cal, [held], [])
+    score = LABELLED.scores(cal, [held])
     drop = backward_step(["time_drift", "temp_bias"], "model3", None, cal, score)
     assert drop is not None and drop[0] == "time_drift" and "no longer earns its place" in drop[1]
     cal2, held2 = _pair(root, "two")
-    assert backward_step(["time_drift", "temp_bias"], "model3", None, cal2, scorer(cal2, [held2], [])) is None
+    assert (
+        backward_step(["time_drift", "temp_bias"], "model3", None, cal2, LABELLED.scores(cal2, [held2]))
+        is None
+    )
 
 
 def test_tied_choice_is_noted_in_the_calibration_file(root, tmp_path):
