@@ -30,6 +30,19 @@ BASE_STEPS = ("model1", "model2")
 
 HELDOUT_OK = 2.0
 """Above this held-out chi2/dof the model does not transfer: the verdict never says 'nothing is missing'."""
+NOISE_RATIO_OK = 3.0
+"""Nor when the noise-only held-out residual RMS exceeds 3x the noise plus the repeat-free scatter."""
+
+
+def held_out_ok(h: dict) -> bool:
+    """Held-out statistics of a model that transfers: predictive chi2/dof <= HELDOUT_OK and, when
+    judged on a yardstick, residual RMS <= NOISE_RATIO_OK sqrt(noise^2 + scatter^2)."""
+    ok = h["heldout_chi2_dof"] <= HELDOUT_OK
+    if h.get("heldout_scatter_g") is not None:
+        ok = ok and h["heldout_rms_g"] <= NOISE_RATIO_OK * float(
+            np.hypot(h["heldout_noise_g"], h["heldout_scatter_g"])
+        )
+    return bool(ok)
 
 
 @dataclass
@@ -52,6 +65,11 @@ class Discovery:
     make the model transfer: accellog.flows.workbench_prune)."""
     loso: list[dict | None] | None = None
     """With several calibration sessions: the final model's held-out statistics per left-out session."""
+    yardstick: dict | None = None
+    """The between-hold scatter every model was judged with held out (variance.yardstick: from
+    replicate holds of the richest model, or its residual), with its source."""
+    final_diagnosis: object = field(default=None, repr=False)
+    """The diagnosis of the final model when pruning made it another than the last step's."""
 
     @property
     def final_model(self) -> str:
@@ -63,10 +81,8 @@ class Discovery:
 
     @property
     def transfers(self) -> bool | None:
-        """Held-out chi2/dof of the final model <= HELDOUT_OK (None without a held-out session)."""
-        if self.heldout is None:
-            return None
-        return bool(self.heldout["heldout_chi2_dof"] <= HELDOUT_OK)
+        """The final model transfers (None without a held-out session): see held_out_ok."""
+        return None if self.heldout is None else held_out_ok(self.heldout)
 
     def to_json(self) -> dict:
         """JSON-able summary (the workbench's --json keys besides session and ladder)."""
@@ -83,6 +99,7 @@ class Discovery:
             "steps": [c.to_dict() for c in self.choices],
             "advice": list(self.advice),
             "dropped": [dict(d) for d in self.dropped],
+            "yardstick": self.yardstick,
             **({} if self.loso is None else {"heldout_per_session": self.loso}),
         }
 
@@ -131,7 +148,8 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
     """discover's forward loop, backward steps, held-out statistics and proxies (module doc)."""
     from accellog.calibrate.diagnosis.diagnose import default_candidates
     from accellog.calibrate.model.compose import build_model
-    from accellog.flows.workbench_prune import backward_step, proxy_stats
+    from accellog.calibrate.model.variance import yardstick
+    from accellog.flows.workbench_prune import backward_step, prune
 
     start = out.start
     model = build_model(start, effects_file=effects_file)
@@ -163,14 +181,38 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
             gone.add(drop[0])
             model, full = build_model(start, add=out.added, effects_file=effects_file), None
 
+    yard = None  # one yardstick for every model compared: the richest model's repeat-free scatter
+    if held or len(parts) > 1:
+        rich = strategy.fit(obs, build_model(out.final_model, effects_file=effects_file))
+        yard, source = yardstick(rich, obs)
+        out.yardstick = {**yard.to_dict(), "source": source, "model": out.final_model}
+    cache: dict[frozenset, tuple] = {}
+
     def stats_of(name: str) -> dict | None:
-        stats, per = strategy.final_stats(obs, build_model(name, effects_file=effects_file), held, parts)
+        m = build_model(name, effects_file=effects_file)
+        key = frozenset(m.term_names)
+        if key not in cache:
+            stats, per = strategy.final_stats(obs, m, held, parts, scatter=yard)
+            if stats is not None and out.yardstick["source"] != "replicates":
+                stats["heldout_scatter_g"] = 0.0  # no replicates: scatter cannot be told from model error
+            cache[key] = stats, per
+        stats, per = cache[key]
         if per is not None:
             out.loso = per
         return stats
 
     out.heldout = stats_of(out.final_model)
-    out.dropped += [{"effect": e, "why": why, "proxy": True} for e, why in proxy_stats(out, stats_of)]
+    path = ["+".join([start, *out.added[:k]]) for k in range(len(out.added))]  # the models seen before
+    out.dropped += [{"effect": e, "why": why, "proxy": True} for e, why in prune(out, stats_of, path)]
+    out.heldout = stats_of(out.final_model)  # (and the final model's per-session statistics)
+    if out.diagnoses and set(out.diagnoses[-1].model.term_names) != set(
+        build_model(out.final_model, effects_file=effects_file).term_names
+    ):
+        final = next((x for x in out.diagnoses if x.model.name == out.final_model), None)
+        if final is None:  # pruned to a model no step diagnosed: its own diagnosis for the verdict
+            final = strategy.diagnose(obs, build_model(out.final_model, effects_file=effects_file),
+                                      host_time=host_time, heldout=held, validate=False)  # fmt: skip
+        out.final_diagnosis = final
     # a tie is resolved when every alternative ended up in the model too (or its choice was dropped)
     out.undecided = [
         g
@@ -184,8 +226,7 @@ def final_verdict(found: Discovery, strategy: Strategy | None = None) -> tuple[s
     gravity norm's words for a NORM search)."""
     norm = strategy.norm if strategy is not None else ""
     proxies = [x["effect"] for x in getattr(found, "dropped", []) if x.get("proxy")]
-    # with proxies dropped the final model is the start model: its diagnosis is the first
-    d = found.diagnoses[0] if proxies else found.diagnoses[-1]
+    d = found.final_diagnosis or found.diagnoses[-1]  # the final model's (after pruning)
     parts, extra, held_ok = evidence_parts(found, norm=norm, diagnosis=d)
     if norm:
         if not parts:
@@ -238,7 +279,7 @@ def evidence_parts(found, norm: str, diagnosis=None) -> tuple[list[str], list[st
         )
     # still missing, and no library effect was taken at the last step (or none transfers)
     stuck = last is None or last.chosen is None or found.transfers is False
-    if proxies or (d.missing and stuck):
+    if proxies or (d.missing and stuck) or found.transfers is False:
         parts.append(no_library_effect(d, proxies, norm, getattr(found, "obs", None)))
     held_ok = ""
     if found.transfers:  # a model that misses something transfers only within its own scatter

@@ -10,10 +10,13 @@ the loop's own evidence (held-out sessions, leave one session out, or blocks of 
   (s: out-of-sample chi2 per equation; the forward step's own margin), i.e. a later effect has made
   it redundant, or it was a proxy for what the later one explains;
 - proxies, at the end: with evidence from other sessions, a final model that still does not transfer
-  (held-out chi2/dof > HELDOUT_OK) has not found the physics: its added effects only bend what is
-  missing onto library shapes. They are dropped (the calibration keeps the start model's terms) and
-  the verdict says that no library effect explains what is left, names the driver the residual
-  follows (accellog.calibrate.diagnosis.driver_signals) and points to writing a user effect (docs/effects.md).
+  (flows.workbench.held_out_ok) has not found all the physics. Its added effects are judged one by
+  one on the common yardstick (every model with the same repeat-free between-hold scatter,
+  calibrate.model.variance.yardstick): an effect whose removal does not worsen the held-out
+  chi2/dof is dropped as a proxy, one that makes unseen data better stays (the in-library part of
+  what is missing), and no model seen earlier in the search is better held out than the one kept.
+  The verdict says what no library effect explains, names the driver the residual follows
+  (accellog.calibrate.diagnosis.driver_signals) and points to writing a user effect (docs/effects.md).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from accellog.calibrate.diagnosis.choose import Z_IMPROVE
+from accellog.calibrate.diagnosis.driver_signals import MIN_DRIVER_R2
 from accellog.calibrate.diagnosis.transfer import Score
 from accellog.calibrate.model.compose import Model, build_model
 from accellog.calibrate.model.fit import FitResult, fit_model
@@ -81,6 +85,8 @@ def residual_driver(diagnosis, obs: ObsTable | None = None) -> str:
     sigs = getattr(diagnosis, "driver_signals", None) or []
     top = next((s for s in sigs if s.get("significant")), sigs[0] if sigs else None)
     if top is not None:
+        if top["partial_r2"] < MIN_DRIVER_R2:  # a driver is named only when it explains a real share
+            return ""
         return f"{top['signal']} on axis {top['axis']} (partial R^2 = {top['partial_r2']:.2f})"
     if obs is None:
         return ""
@@ -100,7 +106,7 @@ def residual_driver(diagnosis, obs: ObsTable | None = None) -> str:
             c = float(np.corrcoef(fhat[:, i] * (x - np.mean(x)), e)[0, 1]) ** 2
             if c > r2:
                 best, r2 = f"{name} on axis {a}", c
-    return f"{best} (R^2 = {r2:.2f} with the gravity-norm residual)" if best else ""
+    return f"{best} (R^2 = {r2:.2f} with the gravity-norm residual)" if best and r2 >= MIN_DRIVER_R2 else ""
 
 
 def no_library_effect(
@@ -111,26 +117,41 @@ def no_library_effect(
     text = "no library effect explains what is left"
     if proxies:
         text += f" ({', '.join(proxies)} fitted here but did not make the {norm}model transfer: dropped as proxies)"
-    if drv:
-        text += f"; the residual follows {drv}"
+    text += f"; the residual follows {drv}" if drv else "; no single driver signal explains the residual"
     return text + "; write a user effect for it (docs/effects.md) and load it with --effects-file"
 
 
-def proxy_stats(found, stats_of: Callable[[str], dict | None]) -> list[tuple[str, str]]:
-    """Drop the added effects of a discovery whose final model does not transfer (module doc):
-    found.added is emptied, found.heldout becomes the start model's (stats_of(model name)); returns
-    (effect, why) per dropped effect. Nothing happens without out-of-session evidence or when the
-    final model transfers."""
+def prune(found, stats_of: Callable[[str], dict | None], seen: Sequence[str] = ()) -> list[tuple[str, str]]:
+    """When the final model does not transfer: drop, one at a time, the added effect whose removal
+    lowers the held-out chi2/dof on the common yardstick most, while a removal does not raise it
+    (an effect that makes the held-out residual better stays: never all or nothing); then, if a
+    model seen earlier in the search (seen: their names) is better held out, return to it. Returns
+    (effect, why) per dropped effect; found.added shrinks. Nothing happens without out-of-session
+    evidence or when the final model transfers."""
     if not found.added or found.heldout is None or found.transfers is not False:
         return []
-    before = found.heldout["heldout_chi2_dof"]
-    start_stats = stats_of(found.start)
-    after = np.nan if start_stats is None else start_stats["heldout_chi2_dof"]
-    why = (
-        f"a proxy: with it the model still does not transfer (held-out chi2/dof {before:.3g}; "
-        f"{found.start} alone {after:.3g})"
-    )
-    out = [(e, why) for e in found.added]
-    found.added = []
-    found.heldout = start_stats
+    out: list[tuple[str, str]] = []
+    cur = found.heldout
+
+    def chi2(st: dict | None) -> float:
+        return np.inf if st is None else float(st["heldout_chi2_dof"])
+
+    while found.added:
+        trials = {
+            e: stats_of("+".join([found.start, *[a for a in found.added if a != e]])) for e in found.added
+        }
+        e = min(trials, key=lambda k: chi2(trials[k]))
+        if chi2(trials[e]) > chi2(cur):
+            break
+        out.append((e, f"a proxy: without it the held-out chi2/dof is {chi2(trials[e]):.3g}, with it "
+                       f"{chi2(cur):.3g} (the same yardstick): it does not help unseen data"))  # fmt: skip
+        found.added.remove(e)
+        cur = trials[e]
+    best = min(seen, key=lambda n: chi2(stats_of(n)), default=None)
+    if best is not None and chi2(stats_of(best)) < chi2(cur):
+        terms = best.split("+")[1:] if best != found.start else []
+        gone = [e for e in found.added if e not in terms]
+        why = f"an earlier model of the search, {best}, predicts unseen data better ({chi2(stats_of(best)):.3g} vs {chi2(cur):.3g})"
+        out += [(e, why) for e in gone]
+        found.added = [e for e in found.added if e in terms]
     return out

@@ -27,7 +27,7 @@ import numpy as np
 from accellog.calibrate.diagnosis.choose import StepChoice, choose_effect
 from accellog.calibrate.diagnosis.clock import clock_from_host_time
 from accellog.calibrate.diagnosis.cross_validation import cv_compare, cv_scores
-from accellog.calibrate.diagnosis.driver_signals import ALPHA, driver_signals
+from accellog.calibrate.diagnosis.driver_signals import ALPHA, MIN_DRIVER_R2, driver_signals
 from accellog.calibrate.model.compose import Model
 from accellog.calibrate.model.effects import all_effects
 from accellog.calibrate.model.fit import FitResult, fit_model, obs_drivers
@@ -370,11 +370,16 @@ def _verdict(model, base, floor, missing, sig_cands, signals, rows, clock) -> tu
         verdict = (
             f"{head}: residuals are {ratio:.1f}x the noise, but no identifiable library effect explains them."
         )
-        if top is not None:
+        if top is not None and top["partial_r2"] >= MIN_DRIVER_R2:
             advice.append(
                 f"strongest unexplained driver signal: {top['signal']} on axis {top['axis']} "
                 f"(partial R^2 = {top['partial_r2']:.2f}); write a user effect (docs/effects.md) and "
                 "load it with --effects-file"
+            )
+        elif top is not None:
+            advice.append(
+                f"no driver signal explains much of the residual (the strongest, {top['signal']} on axis "
+                f"{top['axis']}, explains {top['partial_r2']:.0%}): record a session whose drivers vary"
             )
     same: dict[str, list[str]] = {}  # one line per reason: temp_bias, temp_scale, ...: needs temp_degC
     for r in rows:

@@ -22,6 +22,9 @@ from accellog.core.session import ObsTable
 
 ALPHA = 1e-3
 """Family-wise false-alarm rate of the candidate tests (Bonferroni over candidates)."""
+MIN_DRIVER_R2 = 0.25
+"""A driver signal is offered as what the residual follows only when it explains at least this
+share of it (partial R^2): a signal explaining 8 % of an untouched recording's residual is not."""
 
 
 def _yaw_deg(obs: ObsTable) -> np.ndarray | None:

@@ -63,14 +63,17 @@ class Strategy:
     blocked_scores: Callable[[dict[str, FitResult], ObsTable], dict[str, Score]]
     rho: Callable[[FitResult, FitResult, Model, ObsTable], float]
 
-    def heldout_stats(self, res: FitResult, heldout: ObsTable) -> dict[str, float]:
-        """heldout_rms_g, heldout_noise_g, heldout_chi2_dof (predictive) and heldout_chi2_dof_noise
-        of res predicting one other session (transfer.predictive_stats on this residual)."""
-        return predictive_stats(res, heldout, norm=self.name == "norm")
+    def heldout_stats(self, res: FitResult, heldout: ObsTable, scatter=None) -> dict[str, float]:
+        """heldout_rms_g, heldout_noise_g, heldout_chi2_dof (predictive; scatter: the common
+        yardstick, variance.yardstick) and heldout_chi2_dof_noise of res predicting one other
+        session (transfer.predictive_stats on this residual)."""
+        return predictive_stats(res, heldout, norm=self.name == "norm", scatter=scatter)
 
-    def mean_heldout_stats(self, res: FitResult, heldout: Sequence[ObsTable]) -> dict[str, float]:
+    def mean_heldout_stats(
+        self, res: FitResult, heldout: Sequence[ObsTable], scatter=None
+    ) -> dict[str, float]:
         """heldout_stats averaged over the held-out sessions."""
-        stats = [self.heldout_stats(res, h) for h in heldout]
+        stats = [self.heldout_stats(res, h, scatter) for h in heldout]
         return {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
 
     def diagnose(self, obs: ObsTable, model: Model, **kw) -> Diagnosis:
@@ -111,17 +114,22 @@ class Strategy:
         return d.choice
 
     def final_stats(
-        self, obs: ObsTable, model: Model, held: Sequence[ObsTable], parts: Sequence[ObsTable] = ()
+        self,
+        obs: ObsTable,
+        model: Model,
+        held: Sequence[ObsTable],
+        parts: Sequence[ObsTable] = (),
+        scatter=None,
     ) -> tuple[dict | None, list[dict | None] | None]:
         """(held-out statistics of model, per left-out session or None): averaged over the
         sessions left out one by one (several calibration sessions), or over the held-out
-        sessions; (None, None) without either."""
+        sessions; (None, None) without either. scatter: the comparison's common yardstick."""
         if len(parts) > 1:
-            per = loso_stats(parts, model, self.fit, self.heldout_stats)
+            per = loso_stats(parts, model, self.fit, lambda r, o: self.heldout_stats(r, o, scatter))
             return mean_stats(per), per
         if not held:
             return None, None
-        return self.mean_heldout_stats(self.fit(obs, model), held), None
+        return self.mean_heldout_stats(self.fit(obs, model), held, scatter), None
 
 
 LABELLED = Strategy("labelled", "", fit_model, diagnose, heldout_score, blocked_scores, canonical_correlation)

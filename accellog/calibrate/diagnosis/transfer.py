@@ -92,7 +92,7 @@ def heldout_score(res: FitResult, heldout: Sequence[ObsTable]) -> Score:
 
 
 def predictive_chi2(
-    res: FitResult, heldout: ObsTable, *, norm: bool | None = None
+    res: FitResult, heldout: ObsTable, *, norm: bool | None = None, scatter=None
 ) -> tuple[float, float, int]:
     """(predictive chi2, noise-only chi2, m equations) of `res` predicting another session.
 
@@ -114,11 +114,15 @@ def predictive_chi2(
     a temperature term) still inflates it: read heldout_chi2_dof beside the calibration's own
     chi2/dof (diagnose) and the noise-only value (predictive_stats). Holds are taken as independent:
     a slow drift common to many holds (flicker bias of 0.3 mg on an emulated hand-held session cut
-    in halves) scores 2.5-3 where independent scatter of the same size scores ~1."""
+    in halves) scores 2.5-3 where independent scatter of the same size scores ~1.
+
+    scatter: a variance.HoldScatter to use instead of res's own (the common yardstick of a model
+    comparison, variance.yardstick: every model judged with the same T_h, so an effect that lowers
+    the held-out residual cannot score worse than its absence)."""
     from accellog.calibrate.model.variance import central_jacobian, hold_covariances, hold_groups, norm_system
 
     norm = res.method == "orientation_free" if norm is None else norm
-    sigma_theta, sc = _calibration_uncertainty(res)
+    sigma_theta, sc = _calibration_uncertainty(res, scatter)
     if norm:
         h = norm_system(res, heldout, weighted=True)
         z, sig, Pw = h.e_g / h.sigma_g, h.sigma_g, h.J
@@ -137,13 +141,18 @@ def predictive_chi2(
     return _woodbury_chi2(z, 1.0 / sig, Pw, sigma_theta, groups, Ts), float(np.sum(z**2)), z.size
 
 
-def _calibration_uncertainty(res: FitResult):
+def _calibration_uncertainty(res: FitResult, scatter=None):
     """(parameter covariance with the between-hold component, HoldScatter or None) of res on its own
-    observations, the scatter from the reference fit (predictive_chi2); kept on res once made."""
+    observations, the scatter given or from the reference fit (predictive_chi2); kept on res."""
     from accellog.calibrate.model.variance import component_cov, estimate_scatter
 
     if res.obs is None:
-        return np.asarray(res.cov, float), None
+        return np.asarray(res.cov, float), scatter
+    if scatter is not None:
+        key = ("_predictive_cal", id(scatter))
+        if key not in res.__dict__:
+            res.__dict__[key] = (component_cov(res, res.obs, scatter), scatter)
+        return res.__dict__[key]
     if "_predictive_cal" not in res.__dict__:
         ref = _reference_fit(res)
         sc = estimate_scatter(ref, res.obs)
@@ -211,25 +220,34 @@ def predictive_heldout_score(
     return Score(kind, chi2 / max(m, 1), m, parts)
 
 
-def predictive_stats(res: FitResult, heldout: ObsTable, *, norm: bool | None = None) -> dict[str, float]:
-    """Held-out statistics of one session: heldout_chi2_dof (predictive, predictive_chi2),
-    heldout_chi2_dof_noise (window noise only), heldout_rms_g (residual RMS, g) and
-    heldout_noise_g (RMS of the window noise, g)."""
+def predictive_stats(
+    res: FitResult, heldout: ObsTable, *, norm: bool | None = None, scatter=None
+) -> dict[str, float]:
+    """Held-out statistics of one session: heldout_chi2_dof (predictive, predictive_chi2; scatter:
+    the common yardstick), heldout_chi2_dof_noise (window noise only), heldout_rms_g (residual RMS,
+    g), heldout_noise_g (RMS of the window noise, g) and, with scatter, heldout_scatter_g (its RMS
+    per equation, g)."""
     from accellog.calibrate.model.variance import norm_system
 
     norm = res.method == "orientation_free" if norm is None else norm
-    c, c0, m = predictive_chi2(res, heldout, norm=norm)
+    c, c0, m = predictive_chi2(res, heldout, norm=norm, scatter=scatter)
     if norm:
         h = norm_system(res, heldout, weighted=True)
         e, sig = h.e_g, h.sigma_g
     else:
         e, sig = predict_residual(res, heldout), np.asarray(heldout.sigma_g, float)
-    return {
+    out = {
         "heldout_rms_g": float(np.sqrt(np.mean(e**2))),
         "heldout_noise_g": float(np.sqrt(np.mean(sig**2))),
         "heldout_chi2_dof": c / max(m, 1),
         "heldout_chi2_dof_noise": c0 / max(m, 1),
     }
+    if scatter is not None:
+        t = scatter.taus  # along (and across, twice): the per-equation mean of T_h's diagonal
+        out["heldout_scatter_g"] = float(
+            np.sqrt(t[0] ** 2 if len(t) == 1 else (t[0] ** 2 + 2 * t[1] ** 2) / 3)
+        )
+    return out
 
 
 def block_groups(x: np.ndarray, k: int = N_BLOCKS) -> list[np.ndarray]:

@@ -155,11 +155,24 @@ def fitted_system(res: FitResult, obs: ObsTable, jacobian: bool = True) -> Fitte
     return FittedSystem(J, np.asarray(res.residual_g, float), sig, w, up)
 
 
-def _hold_means(sysm: FittedSystem, obs: ObsTable) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per hold: (unit vertical u, noise-weighted mean residual (c,), its variance (c,))."""
+def visit_groups(obs: ObsTable) -> list[np.ndarray]:
+    """Row indices of each visit of a pose: a run of consecutive rows with one pose_id (a pose
+    held again later is another visit)."""
+    pid = np.asarray(obs.pose_id)
+    if pid.size == 0:
+        return []
+    cuts = np.flatnonzero(pid[1:] != pid[:-1]) + 1
+    return [np.arange(a, b) for a, b in zip(np.r_[0, cuts], np.r_[cuts, pid.size], strict=True)]
+
+
+def _hold_means(
+    sysm: FittedSystem, obs: ObsTable, visits: bool = False
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per hold (per visit when visits): (unit vertical u, noise-weighted mean residual (c,), its
+    variance (c,))."""
     sig2 = sysm.sigma_g**2
     out = []
-    for g in hold_groups(obs):
+    for g in visit_groups(obs) if visits else hold_groups(obs):
         u = sysm.up[g].mean(axis=0)
         u = u / max(np.linalg.norm(u), 1e-12)
         c = np.sum(1.0 / sig2[g], axis=0)
@@ -209,6 +222,78 @@ def estimate_scatter(res: FitResult, obs: ObsTable, sysm: FittedSystem | None = 
         within += float(np.sum((sysm.e_g[g] - m) ** 2 / sysm.sigma_g[g] ** 2))
     across = float(np.sqrt(taus[1])) if per == 3 else np.nan
     return HoldScatter(float(np.sqrt(taus[0])), across, within + hold_chi2, sysm.e_g.size - k, H)
+
+
+REPEAT_ANGLE_DEG = 10.0
+"""Holds whose verticals lie within this angle are replicates of one orientation."""
+
+
+def repeat_free_scatter(
+    res: FitResult, obs: ObsTable, sysm: FittedSystem | None = None, max_angle_deg: float = REPEAT_ANGLE_DEG
+) -> HoldScatter | None:
+    """Between-hold scatter from what does not repeat and follows no driver: the visit means of the
+    fitted residual are grouped by orientation (verticals within max_angle_deg; each visit of a pose
+    is a hold), their deviations from their orientation's mean are freed of a straight line in the
+    visit's temperature and time (a missing effect that follows a driver differs between visits at
+    other temperatures: model error, not scatter), and what is left enters Paule-Mandel (dof: visits
+    - orientations - regressors, per direction). A residual that repeats at the same orientation
+    (nonlinearity, tilt) cancels in the deviations. None without enough replicates."""
+    sysm = sysm or fitted_system(res, obs, jacobian=False)
+    frames = _hold_means(sysm, obs, visits=True)
+    visits = visit_groups(obs)
+    cos_max = np.cos(np.radians(max_angle_deg))
+    groups: list[list[int]] = []
+    for i, (u, _, _) in enumerate(frames):
+        for g in groups:
+            if float(frames[g[0]][0] @ u) >= cos_max:
+                g.append(i)
+                break
+        else:
+            groups.append([i])
+    reps = [g for g in groups if len(g) > 1]
+    drivers = [np.asarray(obs.t_s, float)]
+    if obs.temp_degC is not None and np.all(np.isfinite(obs.temp_degC)):
+        drivers.append(np.asarray(obs.temp_degC, float))
+    rows, dev = [], []
+    for g in reps:
+        n = len(g)  # plain means: the same centring for the residuals and their drivers
+        mbar = np.mean([frames[i][1] for i in g], axis=0)
+        vsum = np.sum([frames[i][2] for i in g], axis=0)
+        x = np.array([[float(np.mean(d[visits[i]])) for d in drivers] for i in g])
+        rows.append(x - x.mean(axis=0))
+        for i in g:
+            u, m, v = frames[i]
+            dev.append((u, m - mbar, v * (1.0 - 2.0 / n) + vsum / n**2))  # the deviation's noise
+    if not dev:
+        return None
+    X = np.vstack(rows)
+    X = X[:, np.ptp(X, axis=0) > 0] if X.size else X
+    p = X.shape[1]
+    dof = sum(len(g) - 1 for g in reps) - p
+    if dof < 1:
+        return None
+    D = np.array([d for _, d, _ in dev])  # (n, c) deviations
+    if p:
+        coef, *_ = np.linalg.lstsq(X / np.std(X, axis=0), D, rcond=None)
+        D = D - (X / np.std(X, axis=0)) @ coef  # the part that follows temperature or time removed
+    dev = [(u, d, v) for (u, _, v), d in zip(dev, D, strict=True)]
+    taus, chi2 = [], 0.0
+    for m2, v, ndir in _components(dev, sysm.per):
+        t2 = _paule_mandel(m2 / ndir, np.maximum(v / ndir, 1e-300), float(dof))
+        taus.append(t2)
+        chi2 += ndir * float(np.sum((m2 / ndir) / (v / ndir + t2)))
+    across = float(np.sqrt(taus[1])) if sysm.per == 3 else np.nan
+    return HoldScatter(float(np.sqrt(taus[0])), across, chi2, int(dof), len(frames))
+
+
+def yardstick(res: FitResult, obs: ObsTable) -> tuple[HoldScatter, str]:
+    """(the between-hold scatter every model of one comparison is judged with, where it came
+    from): repeat_free_scatter of the richest model's residual, or, without replicate holds, that
+    model's estimate_scatter ('model residual': a missing effect can still inflate it)."""
+    sc = repeat_free_scatter(res, obs)
+    if sc is not None:
+        return sc, "replicates"
+    return estimate_scatter(res, obs), "model residual"
 
 
 def hold_birge(res: FitResult, obs: ObsTable, sysm: FittedSystem | None = None) -> tuple[float, float, int]:
