@@ -1,4 +1,5 @@
-"""`accellog import capstone|imucal|csv FILE -o OUT.mcap`: other tools' recordings -> accellog MCAP."""
+"""`accellog import capstone|imucal|csv|ros2|ulog|dataflash FILE -o OUT.mcap`: other tools' recordings
+-> accellog MCAP."""
 
 import json
 from pathlib import Path
@@ -13,7 +14,8 @@ if TYPE_CHECKING:
     from accellog.core.session import Session
 
 import_app = typer.Typer(
-    help="Import recordings (capstone CSV, imucal, any logger's CSV, ROS 2 bags) into accellog MCAP files.",
+    help="Import recordings (capstone CSV, imucal, any logger's CSV, ROS 2 bags, PX4 ULog, ArduPilot "
+    "DataFlash) into accellog MCAP files.",
     no_args_is_help=True,
 )
 app.add_typer(import_app, name="import", rich_help_panel="1. Record")
@@ -40,12 +42,24 @@ def _facts(session: "Session", src: Path, out: Path) -> dict:
         ),
         "source_unit": session.meta.extra.get("source_unit", ""),
         "gyro": session.gyro_dps is not None,
+        "temperature": session.temp_degC is not None,
         "poses": [p.name for p in session.poses],
         "events": len(session.events),
         "notes": {
             k: v
             for k, v in session.meta.extra.items()
-            if k.startswith(("ros2_topic", "stamp_", "out_of", "dup"))
+            if k.startswith(
+                (
+                    "ros2_topic",
+                    "stamp_",
+                    "out_of",
+                    "dup",
+                    "ulog_",
+                    "dataflash_",
+                    "accel_device",
+                    "gyro_device",
+                )
+            )
         },
     }
 
@@ -279,3 +293,42 @@ def import_ros2_cmd(
     if detect_holds:
         session = label_detected_holds(session)
     _write(session, bag, out, as_json, batch_size, compression, force)
+
+
+ImuOpt = Annotated[int, typer.Option("--imu", min=0, help="IMU instance (0 = the first).")]
+
+
+@import_app.command("ulog")
+def import_ulog_cmd(
+    file: Annotated[Path, typer.Argument(help="PX4 ULog file (.ulg).")],
+    out: OutOpt,
+    imu: ImuOpt = 0,
+    as_json: JsonOpt = False,
+    batch_size: BatchOpt = 500,
+    compression: CompressionOpt = "zstd",
+    force: ForceOpt = False,
+) -> None:
+    """PX4 ULog -> MCAP: sensor_accel instance --imu with its temperature and device_id, the same
+    device's sensor_gyro; m/s^2 -> g, rad/s -> deg/s. Example: `accellog import ulog log.ulg -o s.mcap`."""
+    from accellog.store.importers.ulog import import_ulog
+
+    _check_out(out, file, compression, force)
+    _write(import_ulog(file, imu=imu), file, out, as_json, batch_size, compression, force)
+
+
+@import_app.command("dataflash")
+def import_dataflash_cmd(
+    file: Annotated[Path, typer.Argument(help="ArduPilot DataFlash log (.bin).")],
+    out: OutOpt,
+    imu: ImuOpt = 0,
+    as_json: JsonOpt = False,
+    batch_size: BatchOpt = 500,
+    compression: CompressionOpt = "zstd",
+    force: ForceOpt = False,
+) -> None:
+    """ArduPilot DataFlash log -> MCAP: the IMU messages of instance --imu (AccX..Z, GyrX..Z, T), device
+    ids from INS_ACC_ID / INS_GYR_ID. Example: `accellog import dataflash 00000042.BIN -o s.mcap`."""
+    from accellog.store.importers.dataflash import import_dataflash
+
+    _check_out(out, file, compression, force)
+    _write(import_dataflash(file, imu=imu), file, out, as_json, batch_size, compression, force)

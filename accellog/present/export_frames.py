@@ -7,9 +7,11 @@ force a (|a| = 1 g) the error is
 
     a' - a = (D - K) K^-1 a,    largest over all directions = ||(D - K) K^-1||_2 * g      (m/s^2)
 
-Non-linear model terms (temperature, time): the largest |correct(r; drivers) - correct_linear(r)| over
-the 26 face/edge/corner directions at 1 g, with each driver at the ends of its range (temperature: the
-calibration's observed range, else T_ref +- 10 degC; time: 0-600 s; temperature rate: +-0.05 degC/s).
+Non-linear model terms (temperature, time): the largest |correct(r; drivers) - kept(r; drivers)| over
+the 26 face/edge/corner directions at 1 g, with each driver at the ends of its range (temperature: 7
+points over the calibration's observed range, else T_ref +- 10 degC; time: 0-600 s; temperature rate:
++-0.05 degC/s). kept = S^-1 (r - b - p(dT)) is what the target applies: the linear part, less the
+bias polynomial p(dT) = bT dT + bT2 dT^2 for targets that hold it (PX4 TC_A*, ArduPilot INS_TCAL*).
 
 Gyro (w_meas = M w + b0 + b_T (T - T_ref)): dropping M leaves (M - I) w, up to ||M - I||_2 of the rate
 (relative); dropping b_T leaves |b_T| max|T - T_ref| (deg/s).
@@ -94,32 +96,58 @@ def directions_26() -> np.ndarray:
     return np.array([x / np.linalg.norm(x) for x in v])
 
 
-def nonlinear_loss(cal: Calibration) -> tuple[float, str] | None:
-    """(largest m/s^2, the driver ranges used) of the model's non-linear terms; None when it has none."""
-    extra = [t for t in cal.terms if t not in LINEAR_TERMS]
+def temperature_span(cal: Calibration) -> tuple[tuple[float, float], bool]:
+    """((lo, hi) degC, observed): the calibration's observed temperature range, else T_ref +- 10 degC."""
+    t = cal.temperature
+    ref = t.t_ref_degC if t.t_ref_degC is not None else 25.0
+    rng = t.range_degC
+    return (rng, True) if rng else ((ref - 10.0, ref + 10.0), False)
+
+
+def bias_polynomial_g(cal: Calibration, held: tuple[str, ...]) -> np.ndarray:
+    """(3 orders, 3 axes) g/degC^k: the coefficients of dT, dT^2, dT^3 (dT = T - T_ref) of the
+    bias terms in ``held`` (temp_bias: bT, temp_bias2: bT2); zero where the model lacks them."""
+    c = np.zeros((3, 3))
+    if cal.needs_user_code:
+        return c
+    p = cal.model.params_dict(cal.theta)
+    for k, (term, name) in enumerate((("temp_bias", "bT"), ("temp_bias2", "bT2"))):
+        if term in held and term in cal.terms:
+            c[k] = [p[f"{name}_{a}"] for a in "xyz"]
+    return c
+
+
+def nonlinear_loss(cal: Calibration, held: tuple[str, ...] = ()) -> tuple[float, str] | None:
+    """(largest m/s^2, the driver ranges used) of the model's non-linear terms a target drops: all
+    but the bias polynomial terms in ``held``, which the target applies (bias_polynomial_g) before
+    the linear part; None when nothing is dropped. Temperature: 7 points over its range."""
+    extra = [t for t in cal.terms if t not in LINEAR_TERMS and t not in held]
     if not extra:
         return None
     if cal.needs_user_code:
         return float("nan"), f"user effects {', '.join(extra)} (give --effects-file to size them)"
-    t = cal.temperature
-    ref = t.t_ref_degC if t.t_ref_degC is not None else 25.0
-    rng = t.range_degC or (ref - 10.0, ref + 10.0)
-    ranges = {"temp_degC": rng, "t_s": (0.0, 600.0), "t_in_pose_s": (0.0, 600.0),
-              "dtemp_degC_per_s": (-0.05, 0.05)}  # fmt: skip
+    rng, _ = temperature_span(cal)
+    ref = cal.model.t_ref_degC
+    ranges = {"temp_degC": tuple(np.linspace(rng[0], rng[1], 7)), "t_s": (0.0, 600.0),
+              "t_in_pose_s": (0.0, 600.0), "dtemp_degC_per_s": (-0.05, 0.05)}  # fmt: skip
     S, b = cal.S_b()
+    Sinv = np.linalg.inv(np.asarray(S, float))
+    poly = bias_polynomial_g(cal, held)
     u = directions_26()
     r = u @ np.asarray(S).T + b  # readings (g) of the linear model at these directions
     worst = 0.0
     needed = cal.model.required_drivers
-    for ends in itertools.product(*(ranges.get(d, (0.0, 0.0)) for d in needed)):
+    for ends in itertools.product(*(ranges.get(d, (0.0,)) for d in needed)):
         drv = {d: np.full(len(u), v) for d, v in zip(needed, ends, strict=True)}
-        worst = max(worst, float(np.max(np.linalg.norm(cal.correct(r, drv) - u, axis=1))))
-    used = ", ".join(f"{d} {ranges[d][0]:.3g}..{ranges[d][1]:.3g}" for d in needed if d in ranges)
+        dT = drv.get("temp_degC", np.full(len(u), ref))[0] - ref
+        kept = u - Sinv @ (poly.T @ dT ** np.arange(1, 4))  # what the target applies (g)
+        worst = max(worst, float(np.max(np.linalg.norm(cal.correct(r, drv) - kept, axis=1))))
+    used = ", ".join(f"{d} {ranges[d][0]:.3g}..{ranges[d][-1]:.3g}" for d in needed if d in ranges)
     return worst * cal.mps2_per_unit, f"terms {', '.join(extra)} over {used}"
 
 
-def gyro_losses(cal: Calibration, *, keeps_bias: bool = True) -> list[str]:
-    """What dropping the gyro matrix / temperature bias (and the bias, unless kept) costs."""
+def gyro_losses(cal: Calibration, *, keeps_bias: bool = True, keeps_temp: bool = False) -> list[str]:
+    """What dropping the gyro matrix, the temperature bias (unless kept) and the bias (unless kept) costs."""
     g = cal.gyro
     if g is None:
         return []
@@ -129,7 +157,7 @@ def gyro_losses(cal: Calibration, *, keeps_bias: bool = True) -> list[str]:
     if rel > 0:
         out.append(f"gyro scale/misalignment matrix dropped: up to {100 * rel:.3g} % rate error")
     bt = np.nan_to_num(np.asarray(g.temp_bias_dps_per_degC, float))
-    if np.any(bt != 0):
+    if np.any(bt != 0) and not keeps_temp:
         lo, hi = cal.temperature.range_degC or (g.t_ref_degC - 10.0, g.t_ref_degC + 10.0)
         dT = max(abs(lo - g.t_ref_degC), abs(hi - g.t_ref_degC))
         out.append(

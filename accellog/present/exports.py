@@ -37,6 +37,15 @@ from accellog.present.export_frames import (
     rotation,
     sensor_ids,
 )
+from accellog.present.thermal_params import (
+    HELD_TERMS,
+    PX4_STEP_DEGC,
+    ardupilot_values,
+    px4_values,
+    step_losses,
+    thermal_model,
+    thermal_notes,
+)
 
 TARGETS = ("kalibr", "ros", "px4", "ardupilot", "yaml")
 SUFFIX = {"kalibr": ".yaml", "ros": ".yaml", "px4": ".params", "ardupilot": ".parm", "yaml": ".yaml"}
@@ -63,8 +72,8 @@ def _header(title: str, lost: list[str], notes: list[str] = ()) -> list[str]:
     return lines + ([f"# cannot hold: {x}" for x in lost] or ["# cannot hold: nothing of this calibration"])
 
 
-def _nonlinear(cal: Calibration, target: str) -> list[str]:
-    nl = nonlinear_loss(cal)
+def _nonlinear(cal: Calibration, target: str, held: tuple[str, ...] = ()) -> list[str]:
+    nl = nonlinear_loss(cal, held)
     if nl is None:
         return []
     size, what = nl
@@ -73,31 +82,45 @@ def _nonlinear(cal: Calibration, target: str) -> list[str]:
 
 
 def _autopilot(cal: Calibration, target: str, rot: str, device_id: int | None):
-    """Board-frame offsets o_R and scales diag(K_R), what is lost, notes, sensor ids."""
+    """Board-frame offsets o_R and scales diag(K_R), gyro offsets, the thermal model (None without
+    temperature terms), what is lost, notes, sensor ids."""
     name, num, R = rotation(rot)
     K, o = linear_form(cal)
     K_R, o_R = R @ K @ R.T, R @ o
+    tm = thermal_model(cal, R)
     lost = []
     worst = diagonal_loss_mps2(K_R)
     if worst > 1e-12:
         lost.append(f"cross-axis/misalignment (off-diagonal of K) dropped: up to {worst:.3g} m/s^2 "
                     f"({worst / G0 * 1e3:.3g} mg) at 1 g")  # fmt: skip
-    lost += _nonlinear(cal, target) + gyro_losses(cal)
+    lost += _nonlinear(cal, target, HELD_TERMS) + gyro_losses(cal, keeps_temp=True)
     notes = [f"axes: the chip's, rotated by {name} ({num}), the rotation {target}'s driver applies before "
              "the offsets (--rotation; the board/vehicle rotation after them is unchanged)"]  # fmt: skip
     acc_id, gyr_id, how = sensor_ids(cal, target, device_id)
     id_names = {"px4": "CAL_ACC0_ID", "ardupilot": "INS_ACC_ID"}
     if acc_id is None:
-        lost.append(f"{id_names[target]} not written: {how}; give --device-id (the value your autopilot "
+        also = " and TC_A0_ID / TC_G0_ID" if target == "px4" and tm is not None else ""
+        lost.append(f"{id_names[target]}{also} not written: {how}; give --device-id (the value your autopilot "
                     f"shows), without it {target} treats the sensor as uncalibrated")  # fmt: skip
     else:
         notes.append(f"{id_names[target]} {how}")
+    if tm is not None:
+        notes += thermal_notes(tm, target)
     gb = None if cal.gyro is None else R @ np.deg2rad(np.asarray(cal.gyro.bias_dps, float))
-    return np.diag(K_R), o_R, gb, lost, notes, (acc_id, gyr_id)
+    return np.diag(K_R), o_R, gb, tm, lost, notes, (acc_id, gyr_id)
+
+
+def _px4_step_loss(tm) -> list[str]:
+    """PX4 republishes the thermal offsets only after > 1 degC of change: the error between updates."""
+    acc, gyr = step_losses(tm)
+    parts = ([f"{acc:.3g} m/s^2 ({acc / G0 * 1e3:.3g} mg)"] if tm.has_accel else []) + (
+        [f"{np.rad2deg(gyr):.3g} deg/s"] if tm.has_gyro else [])  # fmt: skip
+    return [f"the thermal offsets between PX4's updates (republished after > {PX4_STEP_DEGC:g} degC of "
+            f"change): up to {' and '.join(parts)}"]  # fmt: skip
 
 
 def _params_px4(cal: Calibration, rot: str, device_id: int | None) -> Export:
-    scale, o, gb, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "px4", rot, device_id)
+    scale, o, gb, tm, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "px4", rot, device_id)
     vals: dict = {} if acc_id is None else {"CAL_ACC0_ID": acc_id}
     for i, ax in enumerate("XYZ"):
         vals[f"CAL_ACC0_{ax}OFF"] = float(o[i])
@@ -106,19 +129,37 @@ def _params_px4(cal: Calibration, rot: str, device_id: int | None) -> Export:
         if gyr_id is not None:
             vals["CAL_GYRO0_ID"] = gyr_id
         vals.update({f"CAL_GYRO0_{ax}OFF": float(gb[i]) for i, ax in enumerate("XYZ")})
+    if tm is not None:
+        vals.update(px4_values(tm, acc_id, gyr_id))
+        lost += _px4_step_loss(tm)
     lines = [
         *_header("Onboard parameters for Vehicle 1 (accellog export; QGroundControl .params format)", lost, notes),
         "#",
         "# Vehicle-Id Component-Id Name Value Type",
         *(f"1\t1\t{k}\t{v}\t6" if isinstance(v, int) else f"1\t1\t{k}\t{v:.9g}\t9" for k, v in vals.items()),
     ]  # fmt: skip
-    units = {k: "id" if k.endswith("_ID") else "m/s^2" if "ACC" in k and k.endswith("OFF")
-             else "rad/s" if k.endswith("OFF") else "1" for k in vals}  # fmt: skip
+    units = {k: _px4_unit(k) for k in vals}
     return Export("px4", "\n".join(lines) + "\n", vals, units, lost, notes)
 
 
+def _px4_unit(k: str) -> str:
+    """Unit of a PX4 parameter this export writes."""
+    if k.endswith("_ID") or k.endswith("_ENABLE"):
+        return "id" if k.endswith("_ID") else "0/1"
+    if k.startswith("TC_"):
+        if k[-4:] in ("TREF", "TMIN", "TMAX"):
+            return "degC"
+        order = int(k.split("_X")[1][0])
+        base = "m/s^2" if k.startswith("TC_A") else "rad/s"
+        return base if order == 0 else f"{base}/degC^{order}"
+    return "m/s^2" if "ACC" in k and k.endswith("OFF") else "rad/s" if k.endswith("OFF") else "1"
+
+
 def _params_ardupilot(cal: Calibration, rot: str, device_id: int | None) -> Export:
-    scale, o, gb, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "ardupilot", rot, device_id)
+    scale, o, gb, tm, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "ardupilot", rot, device_id)
+    thermal: dict = {}
+    if tm is not None:
+        thermal, o, gb = ardupilot_values(tm, o, gb)
     vals: dict = {} if acc_id is None else {"INS_ACC_ID": acc_id}
     vals.update({f"INS_ACCOFFS_{ax}": float(o[i]) for i, ax in enumerate("XYZ")})
     vals.update({f"INS_ACCSCAL_{ax}": float(scale[i]) for i, ax in enumerate("XYZ")})
@@ -126,6 +167,7 @@ def _params_ardupilot(cal: Calibration, rot: str, device_id: int | None) -> Expo
         if gyr_id is not None:
             vals["INS_GYR_ID"] = gyr_id
         vals.update({f"INS_GYROFFS_{ax}": float(gb[i]) for i, ax in enumerate("XYZ")})
+    vals.update(thermal)
     bad = [k for k, v in vals.items() if k.startswith("INS_ACCSCAL") and not 0.8 <= v <= 1.2]
     if bad:
         lost.append(f"{', '.join(bad)} outside ArduPilot's accepted 0.8..1.2")
@@ -133,9 +175,21 @@ def _params_ardupilot(cal: Calibration, rot: str, device_id: int | None) -> Expo
         *_header("ArduPilot parameters (accellog export; Mission Planner / MAVProxy NAME,VALUE format)", lost, notes),
         *(f"{k},{v}" if isinstance(v, int) else f"{k},{v:.9g}" for k, v in vals.items()),
     ]  # fmt: skip
-    units = {k: "id" if k.endswith("_ID") else "m/s/s" if "ACCOFFS" in k else "rad/s" if "GYROFFS" in k
-             else "1" for k in vals}  # fmt: skip
+    units = {k: _ardupilot_unit(k) for k in vals}
     return Export("ardupilot", "\n".join(lines) + "\n", vals, units, lost, notes)
+
+
+def _ardupilot_unit(k: str) -> str:
+    """Unit of an ArduPilot parameter this export writes."""
+    if k.endswith("_ID") or k.endswith("_ENABLE"):
+        return "id" if k.endswith("_ID") else "0/1"
+    if k.endswith(("CALTEMP", "TMIN", "TMAX")):
+        return "degC"
+    if k.startswith("INS_TCAL1_"):
+        order = int(k.split("_")[2][3])
+        base = "m/s/s" if "_ACC" in k else "rad/s"
+        return f"1e-6 {base}/degC^{order}"
+    return "m/s/s" if "ACCOFFS" in k else "rad/s" if "GYROFFS" in k else "1"
 
 
 class _Dumper(yaml.SafeDumper):

@@ -1,7 +1,8 @@
 """Importers: other tools' recordings -> Session (-> MCAP with ``accellog.store.writer.write_session``).
 
 One module per format: capstone, imucal, csv (any logger's CSV: csv_options, csv_blocks, csv_poses),
-ros2 (rosbag2 bags via rosbags). m/s^2 inputs are converted with g0 = 9.80665
+ros2 (rosbag2 bags via rosbags), ulog (PX4 ULog via pyulog) and dataflash (ArduPilot DataFlash via pymavlink),
+the last two sharing autopilot_log. m/s^2 inputs are converted with g0 = 9.80665
 (accel_g = a_mps2 / 9.80665); the source unit and the conversion are recorded in meta.extra, so nothing
 is silently altered. Every bad input raises a one-line InputError naming the file and line.
 """
@@ -18,8 +19,10 @@ if TYPE_CHECKING:
     from accellog.core.session import Session
     from accellog.store.importers.capstone import PoseTable, import_capstone, load_capstone_pose_table
     from accellog.store.importers.csv import CsvOptions, import_csv, import_csv_to_mcap
+    from accellog.store.importers.dataflash import import_dataflash
     from accellog.store.importers.imucal import import_imucal
     from accellog.store.importers.ros2 import import_ros2
+    from accellog.store.importers.ulog import import_ulog
 
 # each name loaded from its module on first use: a sibling module (ros2.is_ros2_bag, asked by every
 # streamed command) is reached without loading the CSV/capstone/imucal importers
@@ -32,6 +35,8 @@ _WHERE = {
     "load_capstone_pose_table": "capstone",
     "import_imucal": "imucal",
     "import_ros2": "ros2",
+    "import_ulog": "ulog",
+    "import_dataflash": "dataflash",
 }
 
 __all__ = [
@@ -40,9 +45,11 @@ __all__ = [
     "import_capstone",
     "import_csv",
     "import_csv_to_mcap",
+    "import_dataflash",
     "import_file",
     "import_imucal",
     "import_ros2",
+    "import_ulog",
     "load_capstone_pose_table",
 ]
 
@@ -54,7 +61,7 @@ def __getattr__(name: str) -> Any:
 
 
 def import_file(kind: str, path: str | Path, **options) -> Session:
-    """Dispatch: kind 'capstone' | 'imucal' | 'csv' | 'ros2' (options passed on)."""
+    """Dispatch: kind 'capstone' | 'imucal' | 'csv' | 'ros2' | 'ulog' | 'dataflash' (options passed on)."""
     if kind == "capstone":
         from accellog.store.importers.capstone import import_capstone
 
@@ -71,4 +78,7 @@ def import_file(kind: str, path: str | Path, **options) -> Session:
         from accellog.store.importers.ros2 import import_ros2
 
         return import_ros2(path, **options)
-    raise InputError(f"unknown import kind {kind!r}: use capstone, imucal, csv or ros2")
+    if kind in ("ulog", "dataflash"):
+        mod = import_module(f"{__name__}.{kind}")
+        return getattr(mod, f"import_{kind}")(path, **options)
+    raise InputError(f"unknown import kind {kind!r}: use capstone, imucal, csv, ros2, ulog or dataflash")

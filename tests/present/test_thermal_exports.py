@@ -1,0 +1,212 @@
+"""The thermal parameters of `export --to px4|ardupilot` run through each firmware's own run-time
+equations, written here from the firmware sources (not from accellog's model), in float32 as the
+firmware computes, over the fitted temperature span and beyond it, against accellog's correction.
+
+PX4 (PX4/PX4-Autopilot):
+- src/modules/temperature_compensation/TemperatureCompensation.cpp, ``calc_thermal_offsets_3D``:
+  delta_temp = measured_temp clipped to [min_temp, max_temp] minus ref_temp;
+  offset[i] = x0[i] + x1[i] dT + x2[i] dT^2 + x3[i] dT^3.
+- src/lib/sensor_calibration/Accelerometer.hpp, ``Correct``:
+  _rotation * ((data - _thermal_offset - _offset).emult(_scale));
+  Gyroscope.hpp, ``Correct``: _rotation * (data - _thermal_offset - _offset).
+ArduPilot (ArduPilot/ardupilot):
+- libraries/AP_InertialSensor/AP_InertialSensor_tempcal.cpp, ``TCal::polynomial_eval``:
+  (c[0] + (c[1] + c[2] tdiff) tdiff) tdiff * 1e-6; ``TCal::correct_sensor``: temperature and cal_temp
+  constrained to [temp_min, temp_max]; v -= P(temperature - 35); v += P(cal_temp - 35).
+- libraries/AP_InertialSensor/AP_InertialSensor_Backend.cpp, ``_rotate_and_correct_accel``: rotate by
+  the sensor orientation, tcal correct_accel(temperature, caltemp_accel), accel -= offset,
+  accel *= scale per axis, rotate to the board; ``_rotate_and_correct_gyro``: the same rotation,
+  correct_gyro(temperature, caltemp_gyro), gyro -= offset.
+The board rotation after the correction is the identity here (it is the same for both sides).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from accellog.calibrate.calfile.calibration import Calibration
+from accellog.calibrate.calfile.sections import TemperatureInfo
+from accellog.calibrate.gyro.model import GyroCalibration
+from accellog.calibrate.model.compose import build_model
+from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
+from accellog.present.export_frames import directions_26, rotation
+from accellog.present.exports import export_calibration
+
+F32 = np.float32
+SPAN = (5.0, 45.0)
+
+
+def _cal(
+    t_ref: float, terms: str = "bias+scale+temp_bias+temp_bias2", extra: dict | None = None
+) -> Calibration:
+    """A calibration with a quadratic bias in temperature (accel) and a linear one (gyro, M = I)."""
+    m = build_model(terms, t_ref_degC=t_ref)
+    vals = {"b_x": 0.021, "b_y": -0.034, "b_z": 0.048, "S_xx": 1.012, "S_yy": 0.986, "S_zz": 1.007,
+            "bT_x": 1.1e-3, "bT_y": -6e-4, "bT_z": 8e-4, "bT2_x": 2e-5, "bT2_y": -1.2e-5, "bT2_z": 1.6e-5,
+            **(extra or {})}  # fmt: skip
+    theta = np.array([vals.get(n, 0.0) for n in m.param_names])
+    gyro = GyroCalibration(
+        bias_dps=np.array([2.1, -3.4, 0.7]),
+        bias_sigma_dps=np.full(3, 0.002),
+        temp_bias_dps_per_degC=np.array([0.05, -0.12, 0.09]),
+        t_ref_degC=t_ref - 3.0,
+    )
+    return Calibration(
+        model_spec=m.to_spec(),
+        param_names=m.param_names,
+        param_units=m.param_units,
+        theta=theta,
+        cov=np.zeros((theta.size, theta.size)),
+        temperature=TemperatureInfo(t_ref_degC=t_ref, mean_degC=25.0, min_degC=SPAN[0], max_degC=SPAN[1]),
+        gyro=gyro,
+    )
+
+
+def _values(text: str, target: str) -> dict[str, np.float32]:
+    """The parameter file as the autopilot loads it: every value a float32."""
+    rows = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
+    pairs = [ln.split("\t")[2:4] if target == "px4" else ln.split(",") for ln in rows]
+    return {k: F32(float(v)) for k, v in pairs}
+
+
+def _vec(p: dict, fmt: str) -> np.ndarray:
+    return np.array([p[fmt.format(i=i, ax=ax)] for i, ax in enumerate("XYZ")], F32)
+
+
+def px4_correct(data: np.ndarray, T: np.ndarray, p: dict, sensor: str) -> np.ndarray:
+    """calc_thermal_offsets_3D then Accelerometer/Gyroscope::Correct (float32, per sample)."""
+    tc, cal = ("TC_A0", "CAL_ACC0") if sensor == "accel" else ("TC_G0", "CAL_GYRO0")
+    x = [_vec(p, f"{tc}_X{k}_{{i}}") for k in range(4)]
+    off = _vec(p, f"{cal}_{{ax}}OFF")
+    scale = _vec(p, f"{cal}_{{ax}}SCALE") if sensor == "accel" else np.ones(3, F32)
+    out = np.empty_like(data, dtype=F32)
+    for n, (d, t) in enumerate(zip(data.astype(F32), T.astype(F32), strict=True)):
+        if t > p[f"{tc}_TMAX"]:
+            dt = p[f"{tc}_TMAX"] - p[f"{tc}_TREF"]
+        elif t < p[f"{tc}_TMIN"]:
+            dt = p[f"{tc}_TMIN"] - p[f"{tc}_TREF"]
+        else:
+            dt = t - p[f"{tc}_TREF"]
+        dt2 = dt * dt
+        dt3 = dt2 * dt
+        thermal = x[0] + x[1] * dt + x[2] * dt2 + x[3] * dt3
+        out[n] = (d - thermal - off) * scale
+    return out
+
+
+def ardupilot_correct(data: np.ndarray, T: np.ndarray, p: dict, sensor: str) -> np.ndarray:
+    """TCal::correct_sensor then the offsets (and scale) of _rotate_and_correct_accel/_gyro (float32)."""
+    kind = "ACC" if sensor == "accel" else "GYR"
+    c = [_vec(p, f"INS_TCAL1_{kind}{k}_{{ax}}") for k in (1, 2, 3)]
+    tmin, tmax = p["INS_TCAL1_TMIN"], p["INS_TCAL1_TMAX"]
+    cal_temp = min(max(p[f"INS_{kind}1_CALTEMP"], tmin), tmax)
+    off = _vec(p, "INS_ACCOFFS_{ax}") if sensor == "accel" else _vec(p, "INS_GYROFFS_{ax}")
+    scale = _vec(p, "INS_ACCSCAL_{ax}") if sensor == "accel" else np.ones(3, F32)
+
+    def poly(tdiff):
+        return (c[0] + (c[1] + c[2] * tdiff) * tdiff) * tdiff * F32(1.0e-6)
+
+    assert p["INS_TCAL1_ENABLE"] == 1
+    out = np.empty_like(data, dtype=F32)
+    for n, (d, t) in enumerate(zip(data.astype(F32), T.astype(F32), strict=True)):
+        t = min(max(t, tmin), tmax)
+        v = d - poly(t - F32(35.0))
+        v = v + poly(cal_temp - F32(35.0))
+        out[n] = (v - off) * scale
+    return out
+
+
+FIRMWARE = {"px4": px4_correct, "ardupilot": ardupilot_correct}
+
+
+def _readings(cal: Calibration, R: np.ndarray, T_grid: np.ndarray):
+    """Raw accel (m/s^2) and gyro (rad/s) readings in the driver-rotated axes for the 26 directions at
+    each temperature, with accellog's corrections of them in the same axes (m/s^2, rad/s)."""
+    u = directions_26()
+    f = np.tile(u, (len(T_grid), 1))
+    T = np.repeat(T_grid, len(u))
+    lo, hi = SPAN
+    reading_g = cal.model.predict(cal.theta, f, {"temp_degC": T})
+    raw_a = G0 * reading_g @ R.T
+    want_a = cal.correct_mps2(reading_g, {"temp_degC": np.clip(T, lo, hi)}) @ R.T
+    w_true = 20.0 * f  # deg/s
+    w_meas = w_true + cal.gyro.bias_at(T)
+    raw_g = np.deg2rad(w_meas) @ R.T
+    want_g = np.deg2rad(cal.gyro.correct(w_meas, np.clip(T, lo, hi))) @ R.T
+    return T, raw_a, want_a, raw_g, want_g
+
+
+@pytest.mark.parametrize("target", ["px4", "ardupilot"])
+@pytest.mark.parametrize("t_ref", [25.0, 52.0])
+@pytest.mark.parametrize("rot", ["ROTATION_NONE", "ROTATION_ROLL_180_YAW_90"])
+def test_firmware_equations_reproduce_the_calibration(target, t_ref, rot):
+    """Inside the span: equal to 1e-6 g and 1e-5 deg/s; outside: the correction at the span's end."""
+    cal = _cal(t_ref)
+    ex = export_calibration(cal, target, rotation=rot, device_id=2621474)
+    p = _values(ex.text, target)
+    _, _, R = rotation(rot)
+    T_grid = np.concatenate([np.linspace(*SPAN, 41), [-10.0, 0.0, 4.9, 45.1, 60.0]])
+    T, raw_a, want_a, raw_g, want_g = _readings(cal, R, T_grid)
+    got_a = FIRMWARE[target](raw_a, T, p, "accel")
+    got_g = FIRMWARE[target](raw_g, T, p, "gyro")
+    assert np.max(np.abs(got_a - want_a)) / G0 < 1e-6
+    assert np.rad2deg(np.max(np.abs(got_g - want_g))) < 1e-5
+    assert not any("temp_bias" in x or "temperature bias" in x for x in ex.cannot_hold), ex.cannot_hold
+
+
+@pytest.mark.parametrize("target", ["px4", "ardupilot"])
+def test_thermal_terms_off_leave_the_temperature_error(target):
+    """The same files with the thermal correction disabled leave the bias curve: the test can fail."""
+    cal = _cal(25.0)
+    p = _values(export_calibration(cal, target, device_id=1).text, target)
+    thermal = ("TC_A0_X", "TC_G0_X", "INS_TCAL1_ACC", "INS_TCAL1_GYR")
+    off = {k: (F32(0.0) if k.startswith(thermal) else v) for k, v in p.items()}
+    T, raw_a, want_a, _, _ = _readings(cal, np.eye(3), np.linspace(*SPAN, 9))
+    err = np.max(np.abs(FIRMWARE[target](raw_a, T, off, "accel") - want_a)) / G0
+    assert err > 1e-3
+
+
+@pytest.mark.parametrize("target", ["px4", "ardupilot"])
+def test_temperature_scale_is_stated_and_covers_the_firmware_error(target):
+    """temp_scale is not held: the header names it, and its stated size covers what remains."""
+    cal = _cal(
+        25.0, "bias+scale+temp_bias+temp_bias2+temp_scale", {"sT_x": 2e-4, "sT_y": -1e-4, "sT_z": 1.5e-4}
+    )
+    ex = export_calibration(cal, target, device_id=1)
+    line = next(x for x in ex.cannot_hold if "temp_scale" in x)
+    assert "temp_bias" not in line
+    stated = float(line.split("up to ")[1].split(" m/s^2")[0])
+    T, raw_a, want_a, _, _ = _readings(cal, np.eye(3), np.linspace(*SPAN, 41))
+    err = np.max(
+        np.linalg.norm(FIRMWARE[target](raw_a, T, _values(ex.text, target), "accel") - want_a, axis=1)
+    )
+    assert 0.5 * stated < err <= 1.01 * stated
+
+
+def test_px4_update_step_is_stated_and_bounds_the_lag():
+    """TemperatureCompensation::update_offsets_accel republishes after fabsf(T - last) > 1 degC:
+    offsets evaluated at the last published temperature stay within the stated size."""
+    cal = _cal(25.0)
+    ex = export_calibration(cal, "px4", device_id=1)
+    line = next(x for x in ex.cannot_hold if "between PX4's updates" in x)
+    stated = float(line.split("up to ")[1].split(" m/s^2")[0])
+    path = np.linspace(*SPAN, 4001)
+    last, published = path[0], []
+    for t in path:
+        if abs(t - last) > 1.0:
+            last = t
+        published.append(last)
+    p = _values(ex.text, "px4")
+    zero = np.zeros((len(path), 3))
+    lag = px4_correct(zero, np.array(published), p, "accel") - px4_correct(zero, path, p, "accel")
+    assert 0.5 * stated < np.max(np.linalg.norm(lag, axis=1)) <= 1.01 * stated
+
+
+def test_ardupilot_writes_caltemp_inside_the_span():
+    """CALTEMP is always written (the firmware clamps an unset -300 to TMIN) and lies in TMIN..TMAX."""
+    for t_ref in (25.0, 52.0, -3.0):
+        v = export_calibration(_cal(t_ref), "ardupilot").values
+        for k in ("INS_ACC1_CALTEMP", "INS_GYR1_CALTEMP"):
+            assert v["INS_TCAL1_TMIN"] <= v[k] <= v["INS_TCAL1_TMAX"]
+        assert (v["INS_TCAL1_TMIN"], v["INS_TCAL1_TMAX"]) == SPAN
