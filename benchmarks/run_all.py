@@ -325,6 +325,16 @@ def _flat(f1h: Callable[[], Fig | None]) -> Callable[[Fig, Fig | None], tuple[st
     return judge
 
 
+def _beside(at_most: float) -> Callable[[Fig, Fig | None], tuple[str, bool]]:
+    """Peak memory (and CPU time) beside the baseline's in the same run: the goal on memory."""
+
+    def judge(f: Fig, b: Fig | None) -> tuple[str, bool]:
+        m = f.peak_mb / b.peak_mb if b else float("nan")
+        return f"memory {m:.2f}x, CPU time {f.cpu_s / b.cpu_s:.2f}x" if b else "-", m <= at_most
+
+    return judge
+
+
 def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
     """The rows of this run (mode: quick / default / full); inputs are made only for chosen rows."""
     quick, full = mode == "quick", mode == "full"
@@ -378,6 +388,13 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
             out.append(Row("scale", f"`fit` {name} (memory flat in the length)", "peak <= 1.25x the 1 h fit",
                            accellog("fit", path, "-o", d / "cal_scale.json"), "`fit` 1 h (row above)", None,
                            _flat(ref)))  # fmt: skip
+    if want("doctor"):
+        for sec in [60, 600 if quick else 3600] + ([86400] if full else []):
+            path = made(d, "fit", sec)
+            name = f"{sec // 60} min" if sec < 3600 else f"{sec // 3600} h"
+            out.append(Row("doctor", f"`doctor` {name} (memory beside `fit`'s)", "peak <= 1.25x `fit` on the same session",
+                           accellog("doctor", path, "--json"), f"`fit` {name}",
+                           accellog("fit", path, "-o", d / "cal_doctor.json"), _beside(1.25)))  # fmt: skip
     if full and want("fleet"):
         fl = fleet_sessions(d, 300)
         run = ("fleet", "run", ROOT / "pipelines" / "fleet.toml", f"{fl}/**/*.mcap", "--force", "-o")
@@ -474,7 +491,7 @@ def main() -> None:
     ap.add_argument(
         "--rows",
         nargs="+",
-        help="only these rows: fit diagnose csv replay ros2 startup noise scale fleet (--full)",
+        help="only these rows: fit diagnose csv replay ros2 startup noise scale doctor fleet (--full)",
     )
     ap.add_argument(
         "--by", choices=["wall", "cpu"], default="wall", help="judge ratios and goals on this time"

@@ -23,16 +23,15 @@ def doctor_cmd(
     strict: Annotated[bool, typer.Option("--strict", help="Exit 1 when any defect is found.")] = False,
 ) -> None:
     """Check a log before calibrating with it."""
-    from accellog.flows.doctor import examine, load_any
+    from accellog.flows.doctor import examine, open_any
     from accellog.present import doctor_view
 
-    s = load_any(file)
-    r = examine(s)
+    r, t_s = examine(open_any(file), keep_times=rrd is not None)
     if rrd is not None:
         from accellog.present.rrd.recording import RunRecording
 
         with RunRecording(f"save:{rrd}", blueprint=None) as rec:
-            doctor_view.log_doctor(rec, r, s.t_s)
+            doctor_view.log_doctor(rec, r, t_s)
     if as_json:
         typer.echo(r.to_json())
     else:

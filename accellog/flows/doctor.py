@@ -9,6 +9,15 @@ of >= 3 consecutive samples at an axis's exact extreme value (a flat top) when t
 than 8 robust standard deviations (1.4826 MAD) from the axis median. Events (gaps, FIFO
 overflows, I2C errors) are counted by kind. Still intervals come from
 ``accellog.calibrate.observe.detect.detect_static``; what they allow decides the supported calibrations.
+
+Memory is flat in the session's length: one pass over ``store.source`` blocks feeds every check
+(``doctor_scan``), a second over the stamps locates gaps and bursts when there are any. Exact as on
+the whole series: counts, locations, extremes, temperature, and the interval quantiles while the
+intervals take <= 2^18 distinct values (any session of <= 2^18 samples; stamps on a grid), else
+rounded to ~1e-12 relative. Three checks need the whole series at once and get every m-th sample
+of a session longer than 2^18 samples (m a power of 2): still intervals (their ends move inward by
+~50 m samples, holds < ~101 m samples are missed), the units' medians and the clip gate's median
+and MAD. A session in memory anyway (CSV, ROS 2 bag, a damaged file) is examined exactly.
 """
 
 from __future__ import annotations
@@ -30,6 +39,9 @@ from accellog.core.plausible import (
     rate_ok,
 )
 from accellog.core.session import Session
+from accellog.flows.doctor_scan import Gaps, Scan, Tally, flat_tops, kept_times
+from accellog.store.source import Source, open_source
+from accellog.store.stream import closed_after
 
 GAP_FACTOR = 1.5
 BURST_FACTOR = 0.25
@@ -84,86 +96,84 @@ class DoctorReport:
         return dumps(self.to_dict())
 
 
-def _where(t: np.ndarray, idx: np.ndarray) -> list[float]:
-    return [float(x) for x in t[idx[:50]]]
-
-
-def timing(t: np.ndarray) -> tuple[dict, list[Finding], np.ndarray]:
-    """Interval statistics and timing findings; also the dt array (s)."""
-    dt = np.diff(t)
-    pos = dt[dt > 0]
-    med = float(np.median(pos)) if pos.size else 0.0
+def timing(scan: Scan, src: Source) -> tuple[dict, list[Finding]]:
+    """Interval statistics and timing findings from the scan's interval tally; gaps and bursts are
+    located in a second pass over the stamps, made only when there are any (or the tally is rounded)."""
+    tally = scan.dt.done()
+    med = tally.where(lambda v: v > 0).median() if tally.count(lambda v: v > 0) else 0.0
     f: list[Finding] = []
     if med <= 0:
-        return {"median": 0.0}, [Finding("timing", "no two samples at distinct times", 1)], dt
-    gaps = np.flatnonzero(dt > GAP_FACTOR * med)
-    if gaps.size:
-        missing = int(np.sum(np.round(dt[gaps] / med) - 1))
-        f.append(Finding("gap", f"{gaps.size} gaps, ~{missing} samples missing, longest {dt[gaps].max():.4g} s",
-                         int(gaps.size), _where(t, gaps)))  # fmt: skip
-    dup = np.flatnonzero(dt == 0)
-    if dup.size:
-        f.append(Finding("duplicate", f"{dup.size} duplicated timestamps", int(dup.size), _where(t, dup + 1)))
-    back = np.flatnonzero(dt < 0)
-    if back.size:
+        return {"median": 0.0}, [Finding("timing", "no two samples at distinct times", 1)]
+    n_dt = tally.n
+    n_gap = tally.count(lambda v: v > GAP_FACTOR * med)
+    n_burst = tally.count(lambda v: (v > 0) & (v < BURST_FACTOR * med))
+    g = Gaps(med, GAP_FACTOR, BURST_FACTOR)
+    if not tally.exact or n_gap or n_burst > max(2, 0.001 * n_dt):
+        with closed_after(src.blocks()) as blocks:
+            for b in blocks:
+                g.add(b.t_s)
+    if g.gaps.count:
+        f.append(Finding("gap", f"{g.gaps.count} gaps, ~{g.missing} samples missing, longest {g.longest_s:.4g} s",
+                         g.gaps.count, g.gaps.t_s))  # fmt: skip
+    if scan.dup.count:
         f.append(
-            Finding(
-                "out_of_order", f"{back.size} timestamps go backwards", int(back.size), _where(t, back + 1)
-            )
+            Finding("duplicate", f"{scan.dup.count} duplicated timestamps", scan.dup.count, scan.dup.t_s)
         )
-    burst = np.flatnonzero((dt > 0) & (dt < BURST_FACTOR * med))
-    if burst.size > max(2, 0.001 * dt.size):
-        f.append(Finding("burst", f"{burst.size} intervals < {BURST_FACTOR:g} x the median (samples arrive in bursts)",
-                         int(burst.size), _where(t, burst + 1)))  # fmt: skip
-    reg = dt[(dt >= BURST_FACTOR * med) & (dt <= GAP_FACTOR * med)]
-    jit = float(1.4826 * np.median(np.abs(reg - med)) / med) if reg.size else 0.0
-    p99 = float(np.percentile(np.abs(reg - med), 99) / med) if reg.size else 0.0
+    if scan.back.count:
+        f.append(Finding("out_of_order", f"{scan.back.count} timestamps go backwards", scan.back.count,
+                         scan.back.t_s))  # fmt: skip
+    if g.bursts.count > max(2, 0.001 * n_dt):
+        f.append(Finding("burst", f"{g.bursts.count} intervals < {BURST_FACTOR:g} x the median (samples arrive in bursts)",
+                         g.bursts.count, g.bursts.t_s))  # fmt: skip
+    reg = tally.where(lambda v: (v >= BURST_FACTOR * med) & (v <= GAP_FACTOR * med))
+    dev = Tally.of(np.abs(reg.values - med), reg.counts)
+    jit = float(1.4826 * dev.median() / med) if reg.n else 0.0
+    p99 = float(dev.percentile(99) / med) if reg.n else 0.0
     if jit > JITTER_LIMIT or p99 > 0.25:
         f.append(Finding("jitter", f"interval jitter {100 * jit:.2g} % (99th pct |dt - median| = {100 * p99:.3g} % "
-                         "of the median): integrate with the real stamps", int(reg.size)))  # fmt: skip
+                         "of the median): integrate with the real stamps", reg.n))  # fmt: skip
     stats = {
         "median": 1e3 * med,
-        "p01": 1e3 * float(np.percentile(dt, 1)),
-        "p99": 1e3 * float(np.percentile(dt, 99)),
-        "max": 1e3 * float(dt.max()),
+        "p01": 1e3 * tally.percentile(1),
+        "p99": 1e3 * tally.percentile(99),
+        "max": 1e3 * float(scan.dt_max),
         "jitter_rel": jit,
     }
-    return stats, f, dt
+    return stats, f
 
 
-def clipping(s: Session) -> list[Finding]:
-    """Saturated samples: 16-bit count limits, or flat tops (>= 3 consecutive at an exact extreme)."""
+def clipping(scan: Scan, thin: Session) -> list[Finding]:
+    """Saturated samples: 16-bit count limits, or flat tops (>= 3 consecutive at an exact extreme
+    lying > 8 robust standard deviations from the axis median; median and MAD of the thinned series)."""
     out: list[Finding] = []
-    for name, counts, values in (("accel", s.accel_counts, s.accel_g), ("gyro", s.gyro_counts, s.gyro_dps)):
-        if values is None:
+    for name, _, key in Scan.SENSORS:
+        if not scan.has[name]:
             continue
-        if counts is not None:
-            hit = np.flatnonzero(np.any((counts >= 32767) | (counts <= -32768), axis=1))
+        if scan.counted[name]:
+            count, where = scan.sat[name].count, scan.sat[name].t_s
         else:
-            flat = np.zeros(values.shape[0], bool)
+            values, kept = getattr(thin, key), []
             for k in range(3):
                 v = values[:, k]
                 med = float(np.median(v))
                 spread = 1.4826 * float(np.median(np.abs(v - med)))
-                for ext in (v.max(), v.min()):
-                    if abs(ext - med) <= 8.0 * spread:  # a constant axis or quantised noise, not a clip
-                        continue
-                    at = (v == ext).astype(np.int8)
-                    run3 = np.convolve(at, np.ones(3, np.int8), mode="valid") == 3
-                    if run3.any():
-                        idx = np.flatnonzero(run3)
-                        flat[idx] = flat[idx + 1] = flat[idx + 2] = True
-            hit = np.flatnonzero(flat)
-        if hit.size:
-            out.append(Finding("clipping", f"{name}: {hit.size} samples at full scale or a flat top",
-                               int(hit.size), _where(s.t_s, hit)))  # fmt: skip
+                for e in scan.ext[name][2 * k : 2 * k + 2]:
+                    if e.value is not None and not abs(e.value - med) <= 8.0 * spread:
+                        kept.append(e)  # else a constant axis or quantised noise, not a clip
+            count, where = flat_tops(kept, kept_times)
+        if count:
+            out.append(
+                Finding("clipping", f"{name}: {count} samples at full scale or a flat top", count, where)
+            )
     return out
 
 
-def units(s: Session, rate_hz: float) -> list[Finding]:
+def units(scan: Scan, s: Session, m: int, rate_hz: float) -> list[Finding]:
     """Implausible rate or units (thresholds: accellog.core.plausible): a rate outside 1 Hz .. 100 kHz
     (with the time unit that would fix it), a median |accel| far from 1 g (and the unit it looks
-    like), gyro values stored as deg/s that only make sense as raw counts."""
+    like), gyro values stored as deg/s that only make sense as raw counts. s: the scan's series,
+    every m-th sample; the medians take every max(1, n // 200000)-th sample of the n (at least every
+    m-th)."""
     out: list[Finding] = []
     if rate_hz > 0 and not rate_ok(rate_hz):
         m = re.search(r" in (s|ms|us|ns)$", s.meta.extra.get("time_source", ""))
@@ -178,7 +188,7 @@ def units(s: Session, rate_hz: float) -> list[Finding]:
         out.append(
             Finding("rate", f"sample rate {rate_hz:.3g} Hz is not an IMU rate (1 Hz .. 100 kHz): {fix}", 1)
         )
-    step = max(1, s.n // 200_000)
+    step = max(1, scan.n // 200_000 // m)
     if s.n:
         med = float(np.median(np.linalg.norm(s.accel_g[::step], axis=1)))
         if not 0.5 <= med <= 2.0:
@@ -192,8 +202,8 @@ def units(s: Session, rate_hz: float) -> list[Finding]:
             out.append(
                 Finding("unit", f"accel: median |a| {med:.4g} g (a recording reads ~1 g at rest): {looks}", 1)
             )
-    if s.n and s.gyro_dps is not None and s.gyro_counts is None:
-        why = gyro_counts_evidence(s.gyro_dps[::step], s.accel_counts is not None)
+    if s.n and s.gyro_dps is not None and not scan.counted["gyro"]:
+        why = gyro_counts_evidence(s.gyro_dps[::step], scan.counted["accel"])
         if why:
             out.append(Finding("unit", f"gyro: values stored as deg/s {why}: they look like raw counts: "
                                "re-import with --gyro-unit counts --gyro-lsb-per-dps LSB", 1))  # fmt: skip
@@ -210,7 +220,10 @@ def _distinct(up: np.ndarray, angle_deg: float = 10.0) -> int:
 
 
 def still(s: Session) -> list[dict]:
-    """Still intervals (detect_static; none when the log is too short or never still)."""
+    """Still intervals (detect_static; none when the log is too short or never still). s: the whole
+    series, or every m-th sample of a long one (doctor_scan.Thinned): detect_static's 101-sample
+    window then spans 101 m samples, intervals lose ~50 m samples at each end and holds shorter than
+    ~101 m samples are missed."""
     from accellog.calibrate.observe.detect import detect_static
 
     try:
@@ -225,19 +238,19 @@ def still(s: Session) -> list[dict]:
     return out
 
 
-def supports(s: Session, holds: list[dict], n_dir: int) -> list[Support]:
+def supports(poses: list, has_gyro: bool, holds: list[dict], n_dir: int) -> list[Support]:
     """Which accellog calibrations the log supports, and what is missing for the others."""
-    faces = {p.name for p in s.poses}
+    faces = {p.name for p in poses}
     longest = max((h["end_s"] - h["start_s"] for h in holds), default=0.0)
     temps = [h["temp_degC"] for h in holds if h["temp_degC"] is not None]
     span = (max(temps) - min(temps)) if temps else 0.0
     return [
         Support("model3 on labelled poses (fit)", len(faces) >= 6,
-                f"{len(s.poses)} labelled holds, {len(faces)} distinct names (needs >= 6 faces)"),
+                f"{len(poses)} labelled holds, {len(faces)} distinct names (needs >= 6 faces)"),
         Support("orientation-free bias+scale+misalignment_tri (fit --orientation-free)", n_dir >= 9,
                 f"{n_dir} distinct still orientations (needs >= 9)"),
-        Support("gyro bias", s.gyro_dps is not None and len(holds) >= 2,
-                "no gyro" if s.gyro_dps is None else f"{len(holds)} still intervals (needs >= 2)"),
+        Support("gyro bias", has_gyro and len(holds) >= 2,
+                "no gyro" if not has_gyro else f"{len(holds)} still intervals (needs >= 2)"),
         Support("temperature terms (temp_bias)", span >= 1.0,
                 f"still-interval temperatures span {span:.2g} degC (needs >= 1; 3 for temp_scale)"),
         Support("noise density (export --to kalibr)", longest >= 60.0, f"longest still interval {longest:.0f} s (needs >= 60)"),
@@ -246,15 +259,30 @@ def supports(s: Session, holds: list[dict], n_dir: int) -> list[Support]:
     ]  # fmt: skip
 
 
-def examine(s: Session) -> DoctorReport:
-    """The doctor's report on a loaded session."""
-    t = s.t_s
-    stats, findings, _ = timing(t)
-    findings += units(s, 1e3 / stats["median"] if stats.get("median") else 0.0)
-    findings += clipping(s)
+def examine(x: Source | Session, *, keep_times: bool = False) -> tuple[DoctorReport, np.ndarray | None]:
+    """The doctor's report on a session (one pass over its blocks, a second over the stamps only when
+    there are gaps or bursts to locate; memory flat in the length: accellog.flows.doctor_scan), and
+    with keep_times every sample time (s; for the --rrd interval plot)."""
+    src = open_source(x, what="doctor", check_times=False)
+    return src.run(lambda s: _examine(s, keep_times))
+
+
+def _examine(src: Source, keep_times: bool) -> tuple[DoctorReport, np.ndarray | None]:
+    scan = Scan(bounded=not src.in_memory, keep_times=keep_times and not src.in_memory)
+    with closed_after(src.blocks()) as blocks:
+        for b in blocks:
+            scan.add(b)
+    path = (src.session.path if src.in_memory else None) or src.where
+    thin, m = src.session, 1
+    if thin is None:
+        thin, m = scan.thin.session(src.meta, src.poses, src.events, path), scan.thin.m
+    stats, findings = timing(scan, src)
+    rate_hz = 1e3 / stats["median"] if stats.get("median") else 0.0
+    findings += units(scan, thin, m, rate_hz)
+    findings += clipping(scan, thin)
     ev: dict[str, int] = {}
     lost = 0
-    for e in s.events:
+    for e in src.events:
         ev[e.kind] = ev.get(e.kind, 0) + 1
         lost += e.lost_samples
     bad_ev = {
@@ -264,18 +292,18 @@ def examine(s: Session) -> DoctorReport:
         detail = ", ".join(f"{v} {k}" for k, v in bad_ev.items()) + f"; {lost} samples lost"
         findings.append(Finding("events", detail, sum(bad_ev.values())))
     temp = None
-    if s.temp_degC is not None and s.n:
-        temp = {"min": float(np.min(s.temp_degC)), "max": float(np.max(s.temp_degC)),
-                "span": float(np.ptp(s.temp_degC))}  # fmt: skip
-    holds = still(s)
+    if scan.temp is not None and scan.n:
+        lo, hi = float(scan.temp[0]), float(scan.temp[1])
+        temp = {"min": lo, "max": hi, "span": float(np.float64(hi) - np.float64(lo))}
+    holds = still(thin)
     n_dir = _distinct(np.array([h["up"] for h in holds])) if holds else 0
-    return DoctorReport(
-        path=s.path or "",
-        source=s.meta.source,
-        device=s.meta.device.to_dict(),
-        samples=s.n,
-        duration_s=float(t[-1] - t[0]) if s.n else 0.0,
-        rate_hz=1e3 / stats["median"] if stats.get("median") else 0.0,
+    report = DoctorReport(
+        path=path or "",
+        source=src.meta.source,
+        device=src.meta.device.to_dict(),
+        samples=scan.n,
+        duration_s=float(scan.last - scan.t0) if scan.n else 0.0,
+        rate_hz=rate_hz,
         jitter_rel=stats.get("jitter_rel", 0.0),
         interval_ms=stats,
         temperature_degC=temp,
@@ -283,32 +311,28 @@ def examine(s: Session) -> DoctorReport:
         still_intervals=holds,
         distinct_orientations=n_dir,
         findings=findings,
-        supports=supports(s, holds, n_dir),
+        supports=supports(src.poses, scan.has["gyro"], holds, n_dir),
     )
+    times = None
+    if keep_times:
+        times = src.session.t_s if src.in_memory else np.concatenate(scan.times or [np.empty(0)])
+    return report, times
 
 
-def load_any(path: str | Path) -> Session:
-    """Any input accellog reads as a Session: accellog MCAP, ROS 2 bag (.mcap dir/.db3), CSVs."""
-    from accellog.flows.stages import load_input
+def open_any(path: str | Path) -> Source:
+    """Any input accellog reads as a session (accellog MCAP, ROS 2 bag (.mcap dir/.db3), CSVs), its
+    bad stamps not refused (they are findings here)."""
     from accellog.store.importers.csv_checks import UnitsError
-    from accellog.store.importers.ros2 import import_ros2
 
     p = Path(path)
-    if p.is_dir() or p.suffix == ".db3":
-        return import_ros2(p)
     try:
-        s = load_input(p, check_times=False)  # duplicated / out-of-order times are findings here
+        return open_source(p, what="doctor", check_times=False)
     except InputError as exc:
-        if p.suffix == ".mcap" and _is_ros2(p):
-            return import_ros2(p)
         if p.suffix.lower() == ".csv" and (
             isinstance(exc, UnitsError) or "duplicated timestamp" in str(exc) or "backwards" in str(exc)
         ):
-            return _lenient_csv(p)  # the doctor's job is to report these, not to refuse them
+            return open_source(_lenient_csv(p))  # the doctor's job is to report these, not to refuse them
         raise
-    if not isinstance(s, Session):
-        raise InputError("doctor needs samples, not a pose table or observations", where=str(p))
-    return s
 
 
 def _lenient_csv(p: Path) -> Session:
@@ -317,16 +341,6 @@ def _lenient_csv(p: Path) -> Session:
     return import_csv(p, CsvOptions(strict_time=False, check_units=False))
 
 
-def _is_ros2(p: Path) -> bool:
-    from mcap.reader import make_reader
-
-    try:
-        with open(p, "rb") as f:
-            return make_reader(f).get_header().profile == "ros2"
-    except Exception:  # not an MCAP at all: the original error stands
-        return False
-
-
 def doctor(path: str | Path) -> DoctorReport:
-    """Load ``path`` and examine it."""
-    return examine(load_any(path))
+    """Open ``path`` and examine it."""
+    return examine(open_any(path))[0]

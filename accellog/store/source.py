@@ -55,11 +55,13 @@ class Source:
         session: Session | None = None,
         path: Path | None = None,
         what: str = "this command",
+        check_times: bool = True,
     ) -> None:
         self.where, self.meta, self.poses, self.events = where, meta, list(poses), list(events)
         self.session = session
         self.path = path
         self.what = what
+        self.check_times = check_times  # False: bad stamps are not refused (doctor reports them)
         self._checked = session is not None  # a Session's stamps: checked when it was read
         self._first: _Checked | None = None  # the checked first pass, inside run
         self._running = False  # inside run: a nested run (a stage calling a stage) is the same pass
@@ -76,7 +78,8 @@ class Source:
             return iter(first)
         s = self.session
         if s is not None:
-            block = ImuBlock(s.meta, s.t_s, s.sample_index, s.accel_g, s.gyro_dps, s.temp_degC, s.host_time_s)
+            block = ImuBlock(s.meta, s.t_s, s.sample_index, s.accel_g, s.gyro_dps, s.temp_degC, s.host_time_s,
+                             s.accel_counts, s.gyro_counts)  # fmt: skip
             return iter([block])
         return iter_imu(self.path)
 
@@ -85,7 +88,7 @@ class Source:
     def whole(self) -> Session:
         """The samples in memory (a streamed file is read whole now, its stamps checked)."""
         if self.session is None:
-            s = read_whole(self.path, what=self.what)
+            s = read_whole(self.path, what=self.what, check_times=self.check_times)
             self.session, self.meta, self.poses, self.events = s, s.meta, list(s.poses), list(s.events)
             self._checked = True
         return self.session
@@ -124,7 +127,8 @@ class Source:
             return fn(self)
         for w in caught:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        check.finish(self.where)
+        if self.check_times:
+            check.finish(self.where)
         self._checked = True
         if err is not None:
             raise err
@@ -192,7 +196,7 @@ def open_source(
     x: Session | Source | str | os.PathLike, *, what: str = "this command", check_times: bool = True
 ) -> Source:
     """The Source of a session file or of a Session in memory (module doc). what names the stage in
-    refusals; check_times False: a file read whole is not refused for bad stamps (doctor reports them)."""
+    refusals; check_times False: bad stamps are not refused, read whole or streamed (doctor reports them)."""
     if isinstance(x, Source):
         return x
     if isinstance(x, Session):
@@ -203,9 +207,9 @@ def open_source(
         raise InputError("no such file", where=str(p))
     if _streams(p):
         meta, poses, events = read_labels(p)
-        return Source(str(p), meta, poses, events, path=p, what=what)
+        return Source(str(p), meta, poses, events, path=p, what=what, check_times=check_times)
     s = read_whole(p, what=what, check_times=check_times)
-    return Source(str(p), s.meta, s.poses, s.events, session=s, path=p, what=what)
+    return Source(str(p), s.meta, s.poses, s.events, session=s, path=p, what=what, check_times=check_times)
 
 
 def _streams(p: Path) -> bool:

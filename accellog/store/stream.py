@@ -46,6 +46,9 @@ class ImuBlock:
     temp_degC: np.ndarray | None
     host_time_s: np.ndarray | None = None
     """Host read time of every sample (s; 0 where the recorder stored none)."""
+    accel_counts: np.ndarray | None = None
+    gyro_counts: np.ndarray | None = None
+    """Raw counts as stored (None where the session stores physical units only; cut blocks drop them)."""
 
     @property
     def n(self) -> int:
@@ -99,6 +102,8 @@ def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
         None if s.gyro_dps is None else s.gyro_dps[rest],
         None if s.temp_degC is None else s.temp_degC[rest],
         None if s.host_time_s is None else s.host_time_s[rest],
+        None if s.accel_counts is None else s.accel_counts[rest],
+        None if s.gyro_counts is None else s.gyro_counts[rest],
     )
 
 
@@ -158,7 +163,8 @@ def _block(dec: DecodedBatch, meta: SessionMeta, where: str) -> ImuBlock:
     tc = vec("temp_counts", 1)
     if temp_degC is None and tc is not None:
         temp_degC = temp_counts_to_degC(tc)
-    return ImuBlock(meta, arrays["t_ns"] / NS_PER_S, sample_index, accel_g, gyro_dps, temp_degC, host_s)
+    return ImuBlock(meta, arrays["t_ns"] / NS_PER_S, sample_index, accel_g, gyro_dps, temp_degC, host_s,
+                    vec("accel_counts", 3), gc)  # fmt: skip
 
 
 def read_host_clock(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
