@@ -176,8 +176,8 @@ def units(scan: Scan, s: Session, m: int, rate_hz: float) -> list[Finding]:
     m-th)."""
     out: list[Finding] = []
     if rate_hz > 0 and not rate_ok(rate_hz):
-        m = re.search(r" in (s|ms|us|ns)$", s.meta.extra.get("time_source", ""))
-        declared = m.group(1) if m else "s"
+        unit = re.search(r" in (s|ms|us|ns)$", s.meta.extra.get("time_source", ""))
+        declared = unit.group(1) if unit else "s"
         u = likely_time_unit(1.0 / rate_hz / TIME_UNIT_S[declared], declared)
         fix = (
             f"the stamps look like {TIME_UNIT_NAME[u]} read as {TIME_UNIT_NAME[declared]}: "

@@ -120,21 +120,25 @@ def discover_handheld(
     return found
 
 
-def _stats1(res, obs) -> dict[str, float]:
-    from accellog.calibrate.diagnosis.strategy import NORM
-
-    return NORM.heldout_stats(res, obs)
-
-
 def _ladder(
-    session, obs, start, added, effects_file, static_test, at_s, heldout=(), parts=(), row_loso=None
+    session,
+    obs,
+    start,
+    added,
+    effects_file,
+    static_test,
+    at_s,
+    heldout=(),
+    parts=(),
+    row_loso=None,
+    scatter=None,
 ) -> list[LadderRow]:
     """start, start + e1, start + e1 + e2, ... fitted orientation-free on the detected windows;
     held-out norm statistics (mean over the held-out sessions, or with several calibration sessions
     over the left-out sessions; then each row's per-session statistics are appended to row_loso)."""
     from accellog.calibrate.diagnosis.ladder import ladder_row
     from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
-    from accellog.calibrate.diagnosis.norm_transfer import norm_heldout_stats
+    from accellog.calibrate.diagnosis.strategy import NORM
     from accellog.calibrate.model.fit import fit_orientation_free
     from accellog.flows.stages import run_fit
     from accellog.flows.workbench import add_static_drift
@@ -152,12 +156,14 @@ def _ladder(
         )
         row = ladder_row(fo.fit, added=added[:k], fit=fo)
         if len(parts) > 1:
-            per = loso_stats(parts, fo.fit.model, fit_orientation_free, _stats1)
+            per = loso_stats(
+                parts, fo.fit.model, fit_orientation_free, lambda r, o: NORM.heldout_stats(r, o, scatter)
+            )
             row_loso.append(per)
             for key, v in mean_stats(per).items():
                 setattr(row, key, v)
         elif heldout:
-            for key, v in norm_heldout_stats(fo.fit, heldout).items():
+            for key, v in NORM.mean_heldout_stats(fo.fit, heldout, scatter).items():
                 setattr(row, key, v)
         if static_test is not None:
             add_static_drift(row, static_test, at_s)

@@ -68,6 +68,8 @@ class Discovery:
     yardstick: dict | None = None
     """The between-hold scatter every model was judged with held out (variance.yardstick: from
     replicate holds of the richest model, or its residual), with its source."""
+    scatter: object = field(default=None, repr=False)
+    """The yardstick itself (variance.HoldScatter), for the ladder's held-out columns."""
     final_diagnosis: object = field(default=None, repr=False)
     """The diagnosis of the final model when pruning made it another than the last step's."""
 
@@ -186,6 +188,7 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
         rich = strategy.fit(obs, build_model(out.final_model, effects_file=effects_file))
         yard, source = yardstick(rich, obs)
         out.yardstick = {**yard.to_dict(), "source": source, "model": out.final_model}
+        out.scatter = yard
     cache: dict[frozenset, tuple] = {}
 
     def stats_of(name: str) -> dict | None:
@@ -299,16 +302,17 @@ def ladder_rows(
     effects_file: str | Path | None = None,
     at_s: float = 60.0,
     gyro: bool = True,
+    scatter=None,
 ) -> list[LadderRow]:
     """Fit each step (preset, added effects) and judge it: chi2/dof and RMS on the calibration
-    windows, held-out residual RMS and noise floor (g), |displacement| of the static test at at_s (m).
-    Each row keeps its FitOutcome in .fit (not JSON); gyro: calibrate the gyro with the last step
-    (for the calibration file)."""
+    windows, held-out residual RMS and noise floor (g) and predictive chi2/dof (on scatter: the
+    search's one yardstick), |displacement| of the static test at at_s (m). Each row keeps its
+    FitOutcome in .fit (not JSON); gyro: calibrate the gyro with the last step (for the file)."""
     with small_problem_threads():
-        return _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro)
+        return _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro, scatter)
 
 
-def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro) -> list[LadderRow]:
+def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro, scatter=None):
     from accellog.calibrate.diagnosis.ladder import ladder_row
     from accellog.flows.stages import run_fit
 
@@ -322,7 +326,7 @@ def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at
             obs=obs,
             gyro=gyro and i == len(steps) - 1,
         )
-        row = ladder_row(fo.fit, added=add, heldout=heldout, fit=fo)
+        row = ladder_row(fo.fit, added=add, heldout=heldout, fit=fo, scatter=scatter)
         if static_test is not None:
             add_static_drift(row, static_test, at_s)
         rows.append(row)

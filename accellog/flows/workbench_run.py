@@ -172,8 +172,9 @@ def _labelled(
         effects_file=effects_file,
         at_s=at_s,
         gyro=output is not None or rrd is not None,  # the gyro goes into the calibration file / .rrd
+        scatter=found.scatter,
     )
-    ladder_loso = _loso_rows(rows, parts) if len(parts) > 1 else []
+    ladder_loso = _loso_rows(rows, parts, found.scatter) if len(parts) > 1 else []
     if output is not None:
         with_notes(rows[-1].fit.cal, found).save(output)
     if rrd is not None:
@@ -213,7 +214,7 @@ def with_notes(cal, found):
     return cal
 
 
-def _loso_rows(rows, parts) -> list[list[dict | None]]:
+def _loso_rows(rows, parts, scatter=None) -> list[list[dict | None]]:
     """Each ladder row's model left-one-session-out: per session its held-out statistics; the
     row's heldout_* columns become their mean."""
     from accellog.calibrate.diagnosis.diagnose import heldout_stats
@@ -222,7 +223,7 @@ def _loso_rows(rows, parts) -> list[list[dict | None]]:
 
     out = []
     for r in rows:
-        per = loso_stats(parts, r.fit.fit.model, fit_model, heldout_stats)
+        per = loso_stats(parts, r.fit.fit.model, fit_model, lambda res, o: heldout_stats(res, o, scatter))
         for k, v in mean_stats(per).items():
             setattr(r, k, v)
         out.append(per)

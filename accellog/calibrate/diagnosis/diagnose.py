@@ -408,10 +408,10 @@ def heldout_residual(
     return np.asarray(obs.meas_g, float) - m.predict(res.theta, f, drv)
 
 
-def heldout_stats(res: FitResult, heldout: ObsTable) -> dict[str, float]:
+def heldout_stats(res: FitResult, heldout: ObsTable, scatter=None) -> dict[str, float]:
     """Held-out residual RMS (g), noise floor RMS(sigma_g) (g), heldout_chi2_dof with the predictive
     covariance (window noise + the calibration's parameter covariance + its between-hold scatter:
     calibrate.transfer.predictive_chi2) and heldout_chi2_dof_noise = mean (r / sigma_g)^2."""
     from accellog.calibrate.diagnosis.transfer import predictive_stats
 
-    return predictive_stats(res, heldout, norm=False)
+    return predictive_stats(res, heldout, norm=False, scatter=scatter)

@@ -111,9 +111,11 @@ def ladder_row(
     heldout: ObsTable | None = None,
     fit: Any = None,
     model: str | None = None,
+    scatter=None,
 ) -> LadderRow:
-    """The row of one fitted model; held-out statistics when heldout is given. fit: the object kept
-    with the row (default res); model: display name (default the model's name)."""
+    """The row of one fitted model; held-out statistics when heldout is given (scatter: the
+    search's common yardstick, variance.yardstick). fit: the object kept with the row (default
+    res); model: display name (default the model's name)."""
     row = LadderRow(
         model=model or res.model.name,
         n_params=res.model.n_params,
@@ -125,7 +127,7 @@ def ladder_row(
         residual_g=np.asarray(res.residual_g, dtype=np.float64),
     )
     if heldout is not None:
-        for k, v in heldout_stats(res, heldout).items():
+        for k, v in heldout_stats(res, heldout, scatter).items():
             setattr(row, k, v)
     return row
 

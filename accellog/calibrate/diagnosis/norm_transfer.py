@@ -24,7 +24,6 @@ from accellog.calibrate.diagnosis.transfer import (
     added_columns_correlation,
     blocked_scores,
     loo_chi2,
-    predictive_stats,
 )
 from accellog.calibrate.model.compose import Model
 from accellog.calibrate.model.fit import FitResult, obs_drivers
@@ -54,15 +53,6 @@ def norm_heldout_score(res: FitResult, heldout: Sequence[ObsTable], kind: str = 
         m += e.size
         parts.append(c / max(e.size, 1))
     return Score(kind, chi2 / max(m, 1), m, parts)
-
-
-def norm_heldout_stats(res: FitResult, heldout: Sequence[ObsTable]) -> dict[str, float]:
-    """Held-out norm residual RMS (g), RMS of its projected noise (g), heldout_chi2_dof with the
-    predictive covariance (calibrate.transfer.predictive_chi2 on the norm) and
-    heldout_chi2_dof_noise = mean (e / sigma_n)^2, each averaged over the held-out sessions (the
-    keys of calibrate.diagnose.heldout_stats)."""
-    stats = [predictive_stats(res, h, norm=True) for h in heldout]
-    return {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
 
 
 def _norm_jacobian(res: FitResult, obs: ObsTable) -> np.ndarray:
