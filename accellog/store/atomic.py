@@ -41,13 +41,13 @@ import fcntl
 import os
 import re
 import shutil
-import stat
 import tempfile
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 from accellog.core import notices
 from accellog.core.errors import InputError
+from accellog.core.textin import file_kind
 
 PathLike = str | os.PathLike
 
@@ -118,25 +118,13 @@ def same_file(a: Path, b: Path) -> bool:
         return False
 
 
-_KINDS = (
-    (stat.S_ISDIR, "a directory"),
-    (stat.S_ISCHR, "a character device"),
-    (stat.S_ISBLK, "a block device"),
-    (stat.S_ISFIFO, "a FIFO (named pipe)"),
-    (stat.S_ISSOCK, "a socket"),
-)
-
-
 def special_kind(p: PathLike) -> str | None:
     """What p is when it exists and is not a regular file (after resolving links): 'a directory',
     'a character device', ...; None for a regular file or nothing (a dangling link included)."""
     try:
-        mode = os.stat(p).st_mode
+        return file_kind(os.stat(p).st_mode)
     except (OSError, ValueError):
         return None
-    if stat.S_ISREG(mode):
-        return None
-    return next((name for test, name in _KINDS if test(mode)), "not a regular file")
 
 
 _DECLARED: list[Path] = []

@@ -66,6 +66,12 @@ def _link(d: Path, target: str | Path, name: str = "link.rrd") -> str:
     return str(d / name)
 
 
+def _sparse(p: Path, size: int) -> str:
+    with p.open("wb") as f:
+        f.truncate(size)
+    return str(p)
+
+
 def _pipeline(d: Path, output_dir: str) -> str:
     """A one-input pipeline (fit model3) whose report goes to output_dir."""
     text = '[pipeline]\nname = "t"\ninputs = ["cal"]\n[fit]\ninput = "cal"\nmodels = ["model3"]\n'
@@ -137,6 +143,65 @@ CASES: dict[str, tuple[Case, tuple[str, ...]]] = {
         lambda d: ["run", _pipeline(d, str(d / "abs")), M],
         ("p.toml", "relative path"),
     ),
+    # special files as inputs: refused before a byte is read (a FIFO would block, /dev/zero never end)
+    "cal-fifo": (lambda d: ["evaluate", M, "--cal", _fifo(d, "c.json")], ("calibration file", "FIFO")),
+    "cal-dev-zero": (
+        lambda d: ["evaluate", M, "--cal", _link(d, "/dev/zero", "z.json")],
+        ("character device",),
+    ),
+    "cal-dev-urandom": (
+        lambda d: ["export", _link(d, "/dev/urandom", "u.json"), "--to", "yaml"],
+        ("device",),
+    ),
+    "scenario-fifo": (
+        lambda d: ["simulate", "--scenario", _fifo(d, "s.toml"), "-o", "x.mcap"],
+        ("scenario file", "FIFO"),
+    ),
+    "scenario-dev-zero": (
+        lambda d: ["simulate", "--scenario", _link(d, "/dev/zero", "s.toml"), "-o", "x.mcap"],
+        ("scenario file", "character device"),
+    ),
+    "pipeline-fifo": (lambda d: ["run", _fifo(d, "p.toml"), M], ("pipeline file", "FIFO")),
+    "pipeline-dev-urandom": (
+        lambda d: ["run", _link(d, "/dev/urandom", "p.toml"), M],
+        ("pipeline file", "device"),
+    ),
+    "effects-fifo": (
+        lambda d: ["fit", M, "--add", "x", "--effects-file", _fifo(d, "fx.py"), "-o", "c.json"],
+        ("effects file", "FIFO"),
+    ),
+    "effects-dev-zero": (
+        lambda d: ["fit", M, "--add", "x", "--effects-file", _link(d, "/dev/zero", "fx.py"), "-o", "c.json"],
+        ("effects file", "character device"),
+    ),
+    "effects-directory": (
+        lambda d: [
+            "fit",
+            M,
+            "--add",
+            "x",
+            "--effects-file",
+            str((d / "fx").mkdir() or d / "fx"),
+            "-o",
+            "c.json",
+        ],
+        ("effects file", "directory"),
+    ),
+    "effects-2MiB": (
+        lambda d: [
+            "fit",
+            M,
+            "--add",
+            "x",
+            "--effects-file",
+            _sparse(d / "fx.py", 2 * 1024**2),
+            "-o",
+            "c.json",
+        ],
+        ("effects file", "at most 1 MiB"),
+    ),
+    "report-fifo": (lambda d: ["report", _fifo(d, "r.json")], ("FIFO",)),
+    "obs-fifo": (lambda d: ["fit", _fifo(d, "obs.json"), "-o", "c.json"], ("FIFO",)),
     "pipeline-output-dir-symlink-out": (
         lambda d: ["run", _pipeline(d, (_link(d, d.parent, "up"), "up/escaped")[1]), M],
         ("p.toml", "leads outside"),

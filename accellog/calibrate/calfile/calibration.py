@@ -313,10 +313,10 @@ def read_text(path: str | os.PathLike, what: str = "file", kind: str | None = No
     return textin.read_text(path, what, kind)
 
 
-def read_json(path: str | os.PathLike) -> Any:
+def read_json(path: str | os.PathLike, what: str = "file") -> Any:
     """Parsed strict JSON of at most 32 MiB, nested <= 64 levels, or InputError naming the file
     (and line) when missing, too large or malformed (accellog.core.textin)."""
-    return textin.read_json(path)
+    return textin.read_json(path, what)
 
 
 def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = None) -> Calibration:
@@ -418,7 +418,9 @@ def load_calibration(path: str | os.PathLike, effects_file: Any = None) -> Calib
     (--effects-file), hash-checked before it runs; nothing named inside the calibration is ever
     imported. Without it the calibration still loads and keeps its stored S and b_g, and
     `cal.model` (anything that applies it) raises one ModelError saying what to pass."""
-    cal = calibration_from_dict(read_json(path), where=str(path), effects_file=effects_file)
+    cal = calibration_from_dict(
+        read_json(path, "calibration file"), where=str(path), effects_file=effects_file
+    )
     cal.path = str(path)
     return cal
 
