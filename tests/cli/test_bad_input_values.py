@@ -198,3 +198,99 @@ def test_condition_bound():
     check_S(np.diag([1.0, 1.0, 1.0 / MAX_COND_S]))
     with pytest.raises(InputError, match="condition number"):
         check_S(np.diag([1.0, 1.0, 0.5 / MAX_COND_S]))
+
+
+# ------------------------------------------------------------------- ROS 2 import: the CSV door (item 5)
+def _bag(
+    d: Path, stamp=None, acc=None, temp_garbage_at: int | None = None, imu_garbage_at: int | None = None
+) -> str:
+    from accellog.store.ros2_writer import TEMP_TOPIC, Ros2BagWriter
+
+    n = 200
+    t0 = 1_700_000_000_000_000_000
+    st = t0 + np.arange(n, dtype=np.int64) * 10_000_000 if stamp is None else stamp(t0, n)
+    a = np.tile([0.0, 0.0, 9.80665], (n, 1)) if acc is None else acc(n)
+    with Ros2BagWriter(d / "bag.mcap") as w:
+        w.write_imu(st, a, np.zeros((n, 3)), np.zeros(9), np.zeros(9), log_ns=t0 + np.arange(n) * 10_000_000)
+        tt = t0 + np.arange(5, dtype=np.int64) * 10_000_000
+        w.write_temperature(tt, [25.0] * 5)
+        if temp_garbage_at is not None:  # message index 5 of the temperature topic
+            garbage = b"\x00\x01\x00\x00\xff"
+            w._w.write(w._conn(TEMP_TOPIC, "sensor_msgs/msg/Temperature"), int(tt[-1]) + 1, garbage)
+    return str(d / "bag.mcap")
+
+
+def _swap(i: int):
+    def stamp(t0: int, n: int) -> np.ndarray:
+        s = t0 + np.arange(n, dtype=np.int64) * 10_000_000
+        s[[i, i + 1]] = s[[i + 1, i]]
+        return s
+
+    return stamp
+
+
+def _dup(i: int):
+    def stamp(t0: int, n: int) -> np.ndarray:
+        s = t0 + np.arange(n, dtype=np.int64) * 10_000_000
+        s[i] = s[i - 1]
+        return s
+
+    return stamp
+
+
+def _acc_at(i: int, value: float):
+    def acc(n: int) -> np.ndarray:
+        a = np.tile([0.0, 0.0, 9.80665], (n, 1))
+        a[i, 0] = value
+        return a
+
+    return acc
+
+
+ROS2_CASES: dict[str, tuple[Callable[[Path], str], tuple[str, ...]]] = {
+    "backwards": (lambda d: _bag(d, stamp=_swap(40)), ("/imu/data message 41", "time goes backwards")),
+    "duplicate": (lambda d: _bag(d, stamp=_dup(70)), ("/imu/data message 70", "duplicated timestamp")),
+    "before-1970": (
+        lambda d: _bag(d, stamp=lambda t0, n: np.arange(n, dtype=np.int64) * 10_000_000 - 10**12),
+        ("/imu/data message 0", "out of range"),
+    ),
+    "accel-nan": (lambda d: _bag(d, acc=_acc_at(33, np.nan)), ("/imu/data message 33", "not finite")),
+    "accel-1e300": (lambda d: _bag(d, acc=_acc_at(120, 1e300)), ("/imu/data message 120", "MEMS range")),
+    "temperature-garbage": (
+        lambda d: _bag(d, temp_garbage_at=5),
+        ("/imu/temperature message 5", "cannot decode"),
+    ),
+}
+
+
+@pytest.mark.parametrize("cmd", ["import", "fit"])
+@pytest.mark.parametrize("name", list(ROS2_CASES))
+def test_ros2_refused(name, cmd, tmp_path, capsys):
+    build, needles = ROS2_CASES[name]
+    bag = build(tmp_path)
+    argv = {
+        "import": ["import", "ros2", bag, "-o", str(tmp_path / "out.mcap")],
+        "fit": ["fit", bag, "-o", str(tmp_path / "c.json")],
+    }[cmd]
+    before = _snapshot(tmp_path)
+    capsys.readouterr()
+    t0 = time.process_time()
+    rc = main(argv)
+    cpu_s = time.process_time() - t0
+    err = capsys.readouterr().err.strip()
+    assert rc != 0, f"exit 0: {err}"
+    assert "Traceback" not in err, err
+    assert err.startswith("accellog: error: ") and "\n" not in err, err
+    for n in needles:
+        assert n in err, (n, err)
+    assert _snapshot(tmp_path) == before
+    assert cpu_s < 5.0
+
+
+def test_csv_refuses_an_absurd_acceleration_with_its_line(tmp_path, capsys):
+    rows = ["t,ax,ay,az"] + [f"{i * 0.01:.2f},0.0,0.0,{'1e300' if i == 7 else '1.0'}" for i in range(100)]
+    (tmp_path / "in.csv").write_text("\n".join(rows) + "\n")
+    assert main(["import", "csv", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.mcap")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "in.csv:9" in err and "MEMS range" in err and "\n" not in err, err
+    assert not (tmp_path / "o.mcap").exists()
