@@ -6,7 +6,7 @@ InputError. ``read_bytes`` is the one door; ``read_text`` and ``read_json`` go t
   swap between check and read changes nothing);
 - the file's size is checked against its kind's limit before a byte is read (``MAX_BYTES``: a
   calibration, observation table or artifact is JSON of at most 32 MiB; a scenario or pipeline is
-  TOML of at most 1 MiB, an effects file Python of at most 1 MiB), so a 2 GB file is refused at
+  TOML of at most 1 MiB, an effects file Python and a bag's metadata.yaml at most 1 MiB), so a 2 GB file is refused at
   once, and at most the limit is read even if the file grows meanwhile; JSON with more than MAX_CONTAINERS
   arrays and objects is refused before parsing (``[[],[],...]`` would take ~60 bytes of memory per
   2 bytes of text), so that the parsed value stays within a few hundred MB;
@@ -28,7 +28,7 @@ import tomllib
 from accellog.core.errors import InputError
 
 MiB = 1024 * 1024
-MAX_BYTES = {"JSON": 32 * MiB, "TOML": 1 * MiB, "Python": 1 * MiB}
+MAX_BYTES = {"JSON": 32 * MiB, "TOML": 1 * MiB, "Python": 1 * MiB, "YAML": 1 * MiB}
 MAX_DEPTH = 64
 MAX_CONTAINERS = 1_000_000
 """Arrays + objects in one JSON text (an observation table of 24 h in 2 s windows has ~0.2 M)."""

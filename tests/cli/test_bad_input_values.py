@@ -294,3 +294,45 @@ def test_csv_refuses_an_absurd_acceleration_with_its_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "in.csv:9" in err and "MEMS range" in err and "\n" not in err, err
     assert not (tmp_path / "o.mcap").exists()
+
+
+def _bag_dir(d: Path) -> Path:
+    from accellog.store.ros2_writer import Ros2BagWriter
+
+    n, t0 = 200, 1_700_000_000_000_000_000
+    st = t0 + np.arange(n, dtype=np.int64) * 10_000_000
+    with Ros2BagWriter(d / "bag") as w:
+        w.write_imu(st, np.tile([0.0, 0.0, 9.80665], (n, 1)), np.zeros((n, 3)), np.zeros(9), np.zeros(9))
+    assert (d / "bag" / "metadata.yaml").is_file()
+    return d / "bag"
+
+
+def test_ros2_metadata_over_1MiB_is_refused_unread(tmp_path, capsys):
+    bag = _bag_dir(tmp_path)
+    with (bag / "metadata.yaml").open("ab") as f:
+        f.truncate(100 * 1024**2)  # sparse: 100 MB costs nothing here
+    t0 = time.process_time()
+    assert main(["import", "ros2", str(bag), "-o", str(tmp_path / "o.mcap")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "metadata.yaml" in err and "at most 1 MiB" in err and "\n" not in err, err
+    assert time.process_time() - t0 < 5.0 and not (tmp_path / "o.mcap").exists()
+
+
+def test_ros2_metadata_fifo_is_refused(tmp_path, capsys):
+    import os
+
+    bag = _bag_dir(tmp_path)
+    (bag / "metadata.yaml").unlink()
+    os.mkfifo(bag / "metadata.yaml")
+    assert main(["import", "ros2", str(bag), "-o", str(tmp_path / "o.mcap")]) == 2
+    assert "FIFO" in capsys.readouterr().err
+
+
+def test_ros2_an_absurd_declared_message_count_costs_no_memory(tmp_path, capsys):
+    import re
+
+    bag = _bag_dir(tmp_path)
+    meta = bag / "metadata.yaml"
+    meta.write_text(re.sub(r"message_count: \d+", "message_count: 1000000000000", meta.read_text()))
+    assert main(["import", "ros2", str(bag), "-o", str(tmp_path / "o.mcap"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["samples"] == 200

@@ -22,6 +22,7 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
+from accellog.core.textin import file_kind, read_bytes
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.importers.csv_checks import check_increasing, check_samples
 from accellog.store.importers.ros2_cdr import decode_imu
@@ -44,6 +45,10 @@ def _open(path: Path):
 
     if not path.exists():
         raise InputError("no such file or bag directory", where=str(path))
+    if path.is_dir():  # a regular metadata.yaml of at most 1 MiB before rosbags parses it
+        read_bytes(path / "metadata.yaml", "bag metadata", "YAML")
+    elif (kind := file_kind(path.stat().st_mode)) is not None:
+        raise InputError(f"bag is {kind}, not a regular file (not read)", where=str(path))
     if path.is_file() and path.suffix not in (".mcap", ".db3"):
         raise InputError("not a rosbag2 file: give a bag directory, a .mcap or a .db3 file", where=str(path))
     try:
@@ -151,6 +156,11 @@ def _read_imu_parallel(reader, conns, path: Path, jobs: int):
     return (*cat, frames, first[5], first[6])
 
 
+MAX_PREALLOC = 1 << 22
+"""Messages preallocated from a bag's declared count (64 bytes each: 256 MiB): a count a damaged or
+hostile metadata.yaml inflates costs no more; beyond it the decoded blocks are kept and joined."""
+
+
 def _read_imu(reader, conns, start=None, stop=None, progress=None, path: Path | None = None):
     """Arrays of the IMU messages: stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, covariances.
 
@@ -158,7 +168,7 @@ def _read_imu(reader, conns, start=None, stop=None, progress=None, path: Path | 
     deserialize_cdr one by one for blocks it does not take) into arrays sized from the bag's message
     count; progress(done, total messages) after each block. Memory: the arrays plus one block."""
     total = sum(int(c.msgcount) for c in conns)
-    gather = _Gather(total if start is None and stop is None else 0)
+    gather = _Gather(min(total, MAX_PREALLOC) if start is None and stop is None else 0)
     raws: list[bytes] = []
     logs: list[int] = []
     msgtype = conns[0].msgtype if conns else IMU_TYPE

@@ -78,8 +78,9 @@ class _Stream:
         self.compression = compression
         self.total = sum(int(c.msgcount) for c in conns)
         self.n = 0
-        self.stamp = np.empty(self.total, np.int64)  # filled in place (no join at the end)
-        self.log = np.empty(self.total, np.int64)
+        cap = min(self.total, ros2.MAX_PREALLOC)  # the declared count may be absurd
+        self.stamp = np.empty(cap, np.int64)  # filled in place (no join at the end)
+        self.log = np.empty(cap, np.int64)
         self.frames: set[str] = set()
         self.cov: tuple = (None, None)
         self.writer: SessionWriter | None = None
@@ -114,11 +115,11 @@ class _Stream:
         )
         self.last = int(stamp[-1])
         self.n += stamp.size
-        if self.n > self.stamp.size:  # more messages than the bag's count said: grow
-            self.stamp = np.concatenate([self.stamp[:k], stamp])
-            self.log = np.concatenate([self.log[:k], block[1]])
-        else:
-            self.stamp[k : self.n], self.log[k : self.n] = stamp, block[1]
+        if self.n > self.stamp.size:  # more messages than preallocated: grow geometrically
+            size = max(self.n, 2 * self.stamp.size)
+            self.stamp = np.concatenate([self.stamp[:k], np.empty(size - k, np.int64)])
+            self.log = np.concatenate([self.log[:k], np.empty(size - k, np.int64)])
+        self.stamp[k : self.n], self.log[k : self.n] = stamp, block[1]
         self.frames |= block[4]
         if self.writer is None:
             self.t0 = int(stamp[0])
