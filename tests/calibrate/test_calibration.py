@@ -70,7 +70,7 @@ def test_drivers_from_session():
 
 def test_bad_calibration_files(tmp_path, cal3):
     p = tmp_path / "x.json"
-    with pytest.raises(InputError, match="no such file"):
+    with pytest.raises(InputError, match="no such calibration file"):
         load_calibration(p)
     p.write_text('{"format": "accellog.calibration",\n "params": [1,')
     with pytest.raises(InputError, match=r"x.json:2: not valid JSON"):
