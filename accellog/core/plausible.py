@@ -10,7 +10,8 @@ Used at the door (``accellog import csv`` refuses with the likely fix) and by ``
   MPU-9250 sensitivity (16384 / 8192 / 4096 / 2048 LSB/g);
 - gyro: a median |w| above 2000 deg/s (35 rad/s) is beyond any MEMS range; whole numbers with a
   median |w| above GYRO_INT_DPS (or beside accelerometer counts) are raw counts read as deg/s;
-- time stamps must fit int64 nanoseconds: |t| < MAX_TIME_S (about 292 years).
+- time stamps must fit int64 nanoseconds: |t| < MAX_TIME_S (about 292 years);
+- every sample finite, |a| <= MAX_ACCEL_G and |w| <= MAX_GYRO_DPS (no MEMS part measures beyond).
 """
 
 from __future__ import annotations
@@ -29,6 +30,10 @@ TIME_UNIT_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 TIME_UNIT_NAME = {"s": "seconds", "ms": "milliseconds", "us": "microseconds", "ns": "nanoseconds"}
 MAX_TIME_S = 9.2e9
 """Largest |t| (s) that int64 nanoseconds hold (2**63 ns = 9.22e9 s), with a margin for rounding."""
+MAX_ACCEL_G = 1000.0
+"""Largest |a| (g) of one sample on any axis: high-g MEMS parts reach 400 g; 1e300 is a corrupt value."""
+MAX_GYRO_DPS = 1e5
+"""Largest |w| (deg/s) of one sample on any axis (MEMS gyros reach 4000 deg/s)."""
 GYRO_MAX_DPS = 2000.0
 GYRO_INT_DPS = 20.0
 """Median |w| (deg/s) above which whole-number gyro values are taken for raw counts."""

@@ -1,8 +1,13 @@
-"""Small text inputs (JSON, TOML) read with bounded time and memory, every failure one InputError.
+"""Small text inputs (JSON, TOML, Python) read with bounded time and memory, every failure one
+InputError. ``read_bytes`` is the one door; ``read_text`` and ``read_json`` go through it.
 
+- only a regular file is read: a FIFO, a device (/dev/zero, /dev/urandom), a socket or a directory
+  is refused at once (opened without blocking, checked by fstat on the opened file, so a link or a
+  swap between check and read changes nothing);
 - the file's size is checked against its kind's limit before a byte is read (``MAX_BYTES``: a
   calibration, observation table or artifact is JSON of at most 32 MiB; a scenario or pipeline is
-  TOML of at most 1 MiB), so a 2 GB file is refused at once; JSON with more than MAX_CONTAINERS
+  TOML of at most 1 MiB, an effects file Python and a bag's metadata.yaml at most 1 MiB), so a 2 GB file is refused at
+  once, and at most the limit is read even if the file grows meanwhile; JSON with more than MAX_CONTAINERS
   arrays and objects is refused before parsing (``[[],[],...]`` would take ~60 bytes of memory per
   2 bytes of text), so that the parsed value stays within a few hundred MB;
 - JSON is strict: NaN and Infinity are not JSON (the writers of accellog never produce them);
@@ -14,6 +19,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -22,41 +28,68 @@ import tomllib
 from accellog.core.errors import InputError
 
 MiB = 1024 * 1024
-MAX_BYTES = {"JSON": 32 * MiB, "TOML": 1 * MiB}
+MAX_BYTES = {"JSON": 32 * MiB, "TOML": 1 * MiB, "Python": 1 * MiB, "YAML": 1 * MiB}
 MAX_DEPTH = 64
 MAX_CONTAINERS = 1_000_000
 """Arrays + objects in one JSON text (an observation table of 24 h in 2 s windows has ~0.2 M)."""
 
 
-def check_size(path: str | os.PathLike, kind: str, what: str = "file") -> None:
-    """InputError naming the file when it is larger than MAX_BYTES[kind] (checked without reading)."""
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISFIFO, "a FIFO (named pipe)"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def file_kind(mode: int) -> str | None:
+    """None for a regular file's st_mode, else what it is: 'a directory', 'a character device', ..."""
+    if stat.S_ISREG(mode):
+        return None
+    return next((name for test, name in _KINDS if test(mode)), "not a regular file")
+
+
+def read_bytes(path: str | os.PathLike, what: str = "file", kind: str | None = None) -> bytes:
+    """The bytes of a regular file (at most MAX_BYTES[kind] with `kind`), or InputError naming it
+    when it is missing, not a regular file, too large or unreadable."""
     p = Path(path)
     try:
-        size = p.stat().st_size
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO without a writer must not block the open
     except FileNotFoundError:
         raise InputError(f"no such {what}", where=str(p)) from None
     except OSError as exc:
         raise InputError(f"cannot read: {exc.strerror or exc.__class__.__name__}", where=str(p)) from None
-    limit = MAX_BYTES[kind]
-    if size > limit:
-        raise InputError(
-            f"{what} is {size / MiB:,.1f} MiB; a {kind} input is at most {limit // MiB} MiB (not read)",
-            where=str(p),
-        )
+    try:
+        st = os.fstat(fd)
+        found = file_kind(st.st_mode)
+        if found is not None:
+            raise InputError(f"{what} is {found}, not a regular file (not read)", where=str(p))
+        limit = MAX_BYTES[kind] if kind is not None else None
+        if limit is not None and st.st_size > limit:
+            raise InputError(
+                f"{what} is {st.st_size / MiB:,.1f} MiB; a {kind} input is at most {limit // MiB} MiB (not read)",
+                where=str(p),
+            )
+        with os.fdopen(os.dup(fd), "rb") as f:
+            data = f.read(-1 if limit is None else limit + 1)
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc.__class__.__name__}", where=str(p)) from None
+    finally:
+        os.close(fd)
+    if limit is not None and len(data) > limit:
+        raise InputError(f"{what} grew beyond {limit // MiB} MiB while read (not read)", where=str(p))
+    return data
 
 
 def read_text(path: str | os.PathLike, what: str = "file", kind: str | None = None) -> str:
-    """The text of a file (size-checked first when `kind` is given), or InputError naming it when
-    it is missing, too large or not text."""
-    p = Path(path)
-    if kind is not None:
-        check_size(p, kind, what)
+    """The UTF-8 text of a regular file (read_bytes: bounded by `kind`), or InputError naming it
+    when it is missing, not a regular file, too large or not text."""
+    data = read_bytes(path, what, kind)
     try:
-        return p.read_text()
-    except FileNotFoundError:
-        raise InputError(f"no such {what}", where=str(p)) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read as text: {exc.__class__.__name__}", where=str(p)) from None
+        return data.decode()
+    except UnicodeDecodeError as exc:
+        raise InputError(f"cannot read as text: {exc.__class__.__name__}", where=str(path)) from None
 
 
 def nesting_depth(value: Any, limit: int = MAX_DEPTH) -> int:

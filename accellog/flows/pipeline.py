@@ -38,6 +38,7 @@ from accellog.navigate.evaluate import Evaluation, PoseEvaluation, evaluate_pose
 from accellog.present import tables as report
 from accellog.present import views
 from accellog.present.rrd.offload import open_recording
+from accellog.store.atomic import inside
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.ladder import LadderRow
@@ -204,6 +205,9 @@ def _check_references(spec: dict, text: str, p: Path) -> None:
             f"'evaluate.times_s' must be a non-empty list of times > 0 (s), got {ts!r}",
             where=f"{p}:{_line_of(text, 'evaluate', 'times_s')}",
         )
+    od = spec.get("report", {}).get("output_dir")
+    if od is not None:  # a data file never writes outside its own folder
+        inside(p.parent, od, f"{p}:{_line_of(text, 'report', 'output_dir')}", "report.output_dir")
     gv = spec["fit"].get("gravity", "local")
     if gv not in GRAVITY_CONVENTIONS:
         raise InputError(
@@ -423,13 +427,13 @@ def run_pipeline(
     _evaluate(spec, inp, res)
     if "drift" in spec:
         _drift(spec, inp, res)
-    out_dir = output_dir or report.get("output_dir")
-    if out_dir:
-        _write_outputs(
-            res,
-            Path(out_dir) if Path(out_dir).is_absolute() or output_dir else inp.base / out_dir,
-            [inp.where, *inputs],
+    if output_dir or report.get("output_dir"):
+        od = (
+            Path(output_dir)
+            if output_dir
+            else inside(inp.base, report["output_dir"], str(inp.where or "pipeline"), "report.output_dir")
         )
+        _write_outputs(res, od, [inp.where, *inputs])
     return res
 
 

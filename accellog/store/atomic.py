@@ -5,9 +5,14 @@ flushed to disk (fsync) and renamed into place only when complete, while holding
 advisory lock (``flock`` on ``.NAME.lock`` beside the target) so that a second writer of the same
 path gets a one-line error instead of a corrupt or lost file. Before anything is written:
 
-- the output must not be a directory;
+- the output must be absent or a regular file (through links): never a directory, device, FIFO or
+  socket, and the final rename checks it again (``os.replace`` would replace /dev/null itself);
 - its folder must exist (or be created when the caller asks);
-- it must not be one of the inputs (same file by ``os.path.samefile`` or by resolved path);
+- it must not be one of the inputs: the same file by identity (``os.stat`` device and inode, after
+  resolving links: hard links and symlinks too) or by resolved path (an output not written yet that
+  resolves to an input). The inputs are those the caller passes plus those the command line
+  declared (``declared_inputs``: every input option of the running command), so no writer of a
+  command can replace one of its inputs;
 - with ``overwrite=False`` it must not exist (``record``/``simulate`` without ``--force``); the final
   step then uses ``os.link`` so that even a foreign process creating the file meanwhile is not
   clobbered.
@@ -42,6 +47,7 @@ from pathlib import Path
 
 from accellog.core import notices
 from accellog.core.errors import InputError
+from accellog.core.textin import file_kind
 
 PathLike = str | os.PathLike
 
@@ -91,16 +97,85 @@ def _umask() -> int:
     return mask
 
 
-def _same_file(a: Path, b: Path) -> bool:
+def _identity(p: Path) -> tuple[int, int] | None:
+    """(st_dev, st_ino) of what p names after resolving links; None when it does not exist."""
     try:
-        if a.exists() and b.exists() and os.path.samefile(a, b):
-            return True
-    except OSError:
-        pass
+        st = os.stat(p)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """a and b are one file: the same device and inode (hard and symbolic links), or, for a path
+    that does not exist yet, the same resolved path."""
+    ia = _identity(a)
+    if ia is not None and ia == _identity(b):
+        return True
     try:
         return a.resolve() == b.resolve()
     except (OSError, RuntimeError):
         return False
+
+
+def special_kind(p: PathLike) -> str | None:
+    """What p is when it exists and is not a regular file (after resolving links): 'a directory',
+    'a character device', ...; None for a regular file or nothing (a dangling link included)."""
+    try:
+        return file_kind(os.stat(p).st_mode)
+    except (OSError, ValueError):
+        return None
+
+
+_DECLARED: list[Path] = []
+
+
+@contextlib.contextmanager
+def declared_inputs(paths: Iterable[PathLike | None]) -> Iterator[None]:
+    """While the block runs, every output checked here is also checked against `paths` (the
+    inputs of the running command, declared once by the command line's door)."""
+    added = [Path(p) for p in paths if p is not None]
+    _DECLARED.extend(added)
+    try:
+        yield
+    finally:
+        del _DECLARED[len(_DECLARED) - len(added) :]
+
+
+def refuse_special(p: Path, what: str = "output") -> None:
+    """InputError when p exists and is not a regular file (the message says what it is)."""
+    kind = special_kind(p)
+    if kind == "a directory":
+        raise InputError(f"{what} is a directory; give a file name", where=str(p))
+    if kind is not None:
+        raise InputError(f"{what} is {kind}, not a regular file; give a file name", where=str(p))
+
+
+def refuse_inputs(p: Path, inputs: Iterable[PathLike | None], what: str = "output") -> None:
+    """InputError when p is one of `inputs` or of the declared inputs (see same_file)."""
+    for inp in [*inputs, *_DECLARED]:
+        if inp is not None and same_file(p, Path(inp)):
+            raise InputError(f"{what} is the input file {inp}; choose another name", where=str(p))
+
+
+def inside(base: PathLike, rel: str, where: str, key: str = "path") -> Path:
+    """base / rel for a path named inside a data file (by `key`): refused (InputError at `where`)
+    when rel is absolute, has a '..' part or resolves (through links) outside base. A data file
+    never chooses where outside the folder the user named a file is written."""
+    r = Path(rel)
+    if r.is_absolute() or ".." in r.parts or str(rel).startswith("~"):
+        raise InputError(
+            f"'{key}' = {str(rel)!r} must be a relative path without '..' (inside {base}); "
+            "name another folder on the command line",
+            where=where,
+        )
+    b = Path(base)
+    p = b / r
+    try:
+        p.resolve().relative_to(b.resolve())
+    except ValueError:
+        raise InputError(f"'{key}' = {str(rel)!r} leads outside {base} (a link?)", where=where) from None
+    return p
 
 
 def check_output(
@@ -111,16 +186,14 @@ def check_output(
     mkdir: bool = False,
     what: str = "output",
 ) -> Path:
-    """Refuse an output that is a directory, sits in a missing folder, is an input or (with
-    overwrite=False) already exists: InputError naming the path. Returns the output as a Path."""
+    """Refuse an output that exists and is not a regular file (directory, device, FIFO, socket),
+    sits in a missing folder, is an input (given or declared) or (with overwrite=False) already
+    exists: InputError naming the path. Returns the output as a Path."""
     p = Path(out)
     if str(out) == "" or p.name in ("", ".", ".."):
         raise InputError(f"{what} is not a file name", where=str(out))
-    if p.is_dir():
-        raise InputError(f"{what} is a directory; give a file name", where=str(p))
-    for inp in inputs:
-        if inp is not None and _same_file(p, Path(inp)):
-            raise InputError(f"{what} is the input file {inp}; choose another name", where=str(p))
+    refuse_special(p, what)
+    refuse_inputs(p, inputs, what)
     parent = p.parent
     if not parent.exists():
         if not mkdir:
@@ -288,8 +361,7 @@ class AtomicOutput:
             with open(self.tmp, "rb+") as f:
                 os.fsync(f.fileno())
             if self.overwrite:
-                if self.out.is_dir():
-                    raise InputError(f"{self.what} is a directory; give a file name", where=str(self.out))
+                refuse_special(self.out, self.what)  # os.replace would replace a device node itself
                 os.replace(self.tmp, self.out)
             else:
                 try:
@@ -384,7 +456,7 @@ def check_outputs(
             continue
         p = check_output(out, ins, **kw)
         for q in done:
-            if _same_file(p, q):
+            if same_file(p, q):
                 raise InputError(f"two outputs are the same file ({q})", where=str(p))
         done.append(p)
     return done

@@ -592,7 +592,7 @@ add(
         str(d / "c.json"),
     ],
     "none.py",
-    "not found",
+    "no such effects file",
 )
 add("plugin-not-python", _plugin("\x00\x01binary", ()), "fx.py")
 

@@ -78,6 +78,23 @@ def test_a_path_edited_into_the_calibration_is_not_imported_either(fitted, tmp_p
     assert not marker.exists()
 
 
+@pytest.mark.parametrize("recorded", [None, "missing", "", "abc"])
+def test_a_user_effect_without_a_recorded_hash_runs_no_file(fitted, tmp_path, capsys, recorded):
+    """The hash is null, missing or malformed: nothing could be checked, so --effects-file is not run."""
+    _d, s, cal, fx, marker = fitted
+    doc = json.loads(cal.read_text())
+    if recorded == "missing":
+        del doc["model"]["effects_file_sha256"]
+    else:
+        doc["model"]["effects_file_sha256"] = recorded
+    edited = tmp_path / "edited.json"
+    edited.write_text(json.dumps(doc))
+    assert main(["evaluate", str(s), "--cal", str(edited), "--effects-file", str(fx)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'trojan'" in err[0] and "no valid sha256" in err[0], err
+    assert not marker.exists()
+
+
 def test_a_changed_effects_file_is_refused_before_it_runs(fitted, tmp_path, capsys):
     _d, s, cal, fx, marker = fitted
     changed = tmp_path / "fx.py"

@@ -110,11 +110,13 @@ def test_help_loads_no_library():
 def test_a_command_loads_only_its_module():
     got = _loaded_after(["effects", "--json"])
     loaded = {m for m in got["modules"] if m.startswith("accellog.cli.")}
-    # early: part of accellog.cli itself (helper processes from the raw command line)
+    # early: part of accellog.cli itself (helper processes from the raw command line); option_checks
+    # and path_checks: the door every command passes
     assert loaded == {
         "accellog.cli.app",
         "accellog.cli.early",
         "accellog.cli.option_checks",
+        "accellog.cli.path_checks",
         "accellog.cli.workbench",
     }
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import numpy as np
 import pytest
@@ -43,8 +42,8 @@ def test_streamed_file_reads_back_as_the_in_memory_import(bag, tmp_path, monkeyp
     assert facts["samples"] == b.n and facts["duration_s"] == float(b.t_s[-1] - b.t_s[0])
 
 
-def test_stamps_out_of_order_go_to_the_in_memory_import(tmp_path, capsys):
-    """Streamed: nothing written (None); the CLI then sorts them in memory and says so."""
+def test_stamps_out_of_order_are_refused_naming_topic_and_message(tmp_path, capsys):
+    """As CSV's import refuses a backward step: one line naming the topic and message, nothing written."""
     n = 50
     stamp = START_NS + np.arange(n, dtype=np.int64) * 10_000_000
     stamp[[10, 11]] = stamp[[11, 10]]
@@ -52,11 +51,13 @@ def test_stamps_out_of_order_go_to_the_in_memory_import(tmp_path, capsys):
     with Ros2BagWriter(bag) as w:
         w.write_imu(stamp, np.tile([0, 0, 9.8], (n, 1)), np.zeros((n, 3)), np.zeros(9), np.zeros(9),
                     log_ns=START_NS + np.arange(n) * 10_000_000)  # fmt: skip
-    assert import_ros2_to_mcap(bag, out) is None and not out.exists()
+    with pytest.raises(InputError, match=r"/imu/data message 11: time goes backwards"):
+        import_ros2_to_mcap(bag, out)
     assert list(tmp_path.iterdir()) == [bag]  # no temporary left
-    assert main(["import", "ros2", str(bag), "-o", str(out), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["notes"]["out_of_order_stamps"] == "1 (sorted by stamp)"
-    assert np.all(np.diff(read_session(out).t_s) > 0)
+    assert main(["import", "ros2", str(bag), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("accellog: error: ") and "message 11" in err and "\n" not in err
+    assert list(tmp_path.iterdir()) == [bag]
 
 
 def test_one_message_is_refused_and_nothing_written(tmp_path):

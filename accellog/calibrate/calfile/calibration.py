@@ -38,6 +38,7 @@ import numpy as np
 
 from accellog.calibrate.calfile.drift_model import DriftModel
 from accellog.calibrate.calfile.noise_section import NoiseSection
+from accellog.calibrate.calfile.schema import check_document, check_S, check_values
 from accellog.calibrate.calfile.sections import (
     DeviceInfo,
     FitInfo,
@@ -312,10 +313,10 @@ def read_text(path: str | os.PathLike, what: str = "file", kind: str | None = No
     return textin.read_text(path, what, kind)
 
 
-def read_json(path: str | os.PathLike) -> Any:
+def read_json(path: str | os.PathLike, what: str = "file") -> Any:
     """Parsed strict JSON of at most 32 MiB, nested <= 64 levels, or InputError naming the file
     (and line) when missing, too large or malformed (accellog.core.textin)."""
-    return textin.read_json(path)
+    return textin.read_json(path, what)
 
 
 def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = None) -> Calibration:
@@ -340,6 +341,7 @@ def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = 
             f"calibration format_version {ver!r} is not supported (this accellog reads <= {FORMAT_VERSION})",
             where=where,
         )
+    check_document(d, where)
     try:
         params = d["params"]
         names = [str(p["name"]) for p in params]
@@ -354,11 +356,6 @@ def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = 
         raise InputError(
             f"calibration file is missing or has a malformed field: {exc}", where=where
         ) from None
-    k = theta.size
-    if cov.shape != (k, k):
-        raise InputError(f"covariance is {cov.shape}, expected ({k}, {k}) for {k} parameters", where=where)
-    if not np.isfinite(theta).all():
-        raise InputError("calibration parameters contain NaN/null values", where=where)
     if not (truth_g > 0 and lg > 0):
         raise InputError(f"gravity truth_g {truth_g} and local_gravity_mps2 {lg} must be > 0", where=where)
     check_values(names, theta, cov, truth_g=truth_g, local_gravity_mps2=lg, where=where)
@@ -388,6 +385,7 @@ def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = 
     )
     if cal.needs_user_code:
         cal.stored_S_b = _stored_S_b(d, where)
+        check_S(cal.stored_S_b[0], where)
         return cal
     try:
         model = cal.model
@@ -397,67 +395,13 @@ def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = 
         raise InputError(
             f"parameter names {names} do not match model {model.name!r} ({model.param_names})", where=where
         )
+    check_S(model.S_b(theta)[0], where)
     return cal
 
 
-# Physical plausibility of a stored calibration of a MEMS accelerometer (datasheet: bias within
-# +-80 mg, scale within +-3 %, cross-axis within +-2 %): limits ~10x wider, so only absurd files fail.
-SANITY_LIMITS = {
-    "bias_g": 1.0,
-    "scale_dev": 0.5,
-    "cross": 0.3,
-    "gravity_mps2": (9.7, 9.9),
-    "truth_g": (0.98, 1.02),
-}
-
-
-def check_values(
-    names: list[str],
-    theta: np.ndarray,
-    cov: np.ndarray,
-    *,
-    truth_g: float,
-    local_gravity_mps2: float,
-    where: str | None = None,
-) -> None:
-    """InputError naming the first absurd value: |b_i| > 1 g, |S_ii - 1| > 0.5, |S_ij| > 0.3,
-    a non-finite or negative variance, gravity outside 9.7-9.9 m/s^2 or truth_g outside 0.98-1.02."""
-    lim = SANITY_LIMITS
-    for n, v in zip(names, theta, strict=True):
-        bad = None
-        if n in ("b_x", "b_y", "b_z") and abs(v) > lim["bias_g"]:
-            bad = f"|{n}| > {lim['bias_g']:g} g"
-        elif n in ("S_xx", "S_yy", "S_zz") and abs(v - 1.0) > lim["scale_dev"]:
-            bad = f"{n} outside 1 +- {lim['scale_dev']:g}"
-        elif n.startswith("S_") and len(n) == 4 and n[2] != n[3] and abs(v) > lim["cross"]:
-            bad = f"|{n}| > {lim['cross']:g}"
-        elif abs(v) > 1e6:
-            bad = f"|{n}| > 1e6"
-        if bad:
-            raise InputError(
-                f"absurd calibration value {n} = {v:.6g} ({bad}); refit this calibration", where=where
-            )
-    d = np.diag(cov) if cov.ndim == 2 else np.array([])
-    if not np.isfinite(cov).all() or (d < 0).any():
-        k = int(np.argmax(~np.isfinite(d) | (d < 0))) if d.size else 0
-        name = names[k] if k < len(names) else "?"
-        raise InputError(f"covariance is not finite or has a negative variance (at {name})", where=where)
-    lo, hi = lim["gravity_mps2"]
-    if not lo <= local_gravity_mps2 <= hi:
-        raise InputError(
-            f"local_gravity_mps2 = {local_gravity_mps2:g} is not a gravity on Earth ({lo}-{hi} m/s^2)",
-            where=where,
-        )
-    lo, hi = lim["truth_g"]
-    if not lo <= truth_g <= hi:
-        raise InputError(f"gravity truth_g = {truth_g:g} outside {lo}-{hi}", where=where)
-
-
 def _stored_S_b(d: dict, where: str | None) -> tuple[np.ndarray, np.ndarray]:
-    """S and b_g as stored, for a model with user effects whose code was not given."""
-    unknown = [t for t in d["model"].get("terms", []) if t not in LIBRARY]
-    if not d["model"].get("effects_file"):
-        raise InputError(f"model names unknown effect(s) {', '.join(map(repr, unknown))}", where=where)
+    """S and b_g as stored, for a model with user effects whose code was not given (the schema
+    checked that the model records their file and its hash)."""
     try:
         S, b = np.asarray(d["S"], float), np.asarray(d["b_g"], float)
     except (KeyError, TypeError, ValueError):
@@ -474,7 +418,9 @@ def load_calibration(path: str | os.PathLike, effects_file: Any = None) -> Calib
     (--effects-file), hash-checked before it runs; nothing named inside the calibration is ever
     imported. Without it the calibration still loads and keeps its stored S and b_g, and
     `cal.model` (anything that applies it) raises one ModelError saying what to pass."""
-    cal = calibration_from_dict(read_json(path), where=str(path), effects_file=effects_file)
+    cal = calibration_from_dict(
+        read_json(path, "calibration file"), where=str(path), effects_file=effects_file
+    )
     cal.path = str(path)
     return cal
 

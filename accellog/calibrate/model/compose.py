@@ -15,6 +15,7 @@ user terms by fixed-point iteration.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -396,21 +397,34 @@ def model_from_spec(spec: Mapping, effects_file: str | Path | EffectsFile | None
     return Model(terms, effects_file=ef, t_ref_degC=t_ref, name=spec.get("name"))
 
 
+def check_effects_hash(user_terms: Sequence[str], want: object) -> None:
+    """ModelError unless a spec with user terms records the SHA-256 of their file (64 hex digits):
+    without it no file could be checked before it runs, so none is run (null, missing or malformed)."""
+    if not (isinstance(want, str) and re.fullmatch(r"[0-9a-f]{64}", want)):
+        names = ", ".join(repr(t) for t in user_terms)
+        raise ModelError(
+            f"this calibration's model uses user effect(s) {names} but records no valid sha256 of "
+            f"their effects file (effects_file_sha256 = {want!r}): no file is run for it; refit with "
+            "--effects-file F.py"
+        )
+
+
 def _user_effects(user_terms, recorded, want, given) -> EffectsFile:
-    """The user's effects file for a spec with user terms: given by the user, hash-checked first."""
+    """The user's effects file for a spec with user terms: given by the user, hash-checked first
+    (check_effects_hash: a spec without a valid recorded hash runs nothing)."""
     names = ", ".join(repr(t) for t in user_terms) or "(none named)"
-    h = f"sha256 {want[:16]}…" if isinstance(want, str) and want else "no recorded sha256"
+    check_effects_hash(user_terms, want)
     if given is None:
         raise ModelError(
             f"this calibration's model uses user effect(s) {names} from an effects file "
-            f"(recorded as {Path(str(recorded)).name!r}, {h}); accellog never runs code named inside a "
-            "data file: pass --effects-file F.py to run that file"
+            f"(recorded as {Path(str(recorded)).name!r}, sha256 {want[:16]}…); accellog never runs code "
+            "named inside a data file: pass --effects-file F.py to run that file"
         )
     if isinstance(given, EffectsFile):
-        if want and given.sha256 != want:
+        if given.sha256 != want:
             raise ModelError(
                 f"effects file {given.path} has sha256 {given.sha256[:16]}…, the calibration was fitted "
                 f"with {want[:16]}…: pass the file it was fitted with, or refit"
             )
         return given
-    return load_effects_file(given, expect_sha256=want if isinstance(want, str) and want else None)
+    return load_effects_file(given, expect_sha256=want)

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from accellog.core.errors import InputError
+from accellog.core.textin import read_bytes
 
 AXES = ("x", "y", "z")
 
@@ -258,10 +259,6 @@ class EffectsFile:
     effects: dict[str, Effect] = field(default_factory=dict)
 
 
-MAX_EFFECTS_FILE_BYTES = 1 << 20
-"""An effects file is source code: one over 1 MiB is refused before it is read whole."""
-
-
 def load_effects_file(path: str | Path, *, expect_sha256: str | None = None) -> EffectsFile:
     """Run a user's Python file and collect its effects: a module-level list ``EFFECTS`` if
     present, else every module-level `Effect` instance. Each must define `contribution`.
@@ -271,15 +268,7 @@ def load_effects_file(path: str | Path, *, expect_sha256: str | None = None) -> 
     are read once; with `expect_sha256` (the hash a calibration recorded) they are hashed and
     compared *before* anything is executed, and the same bytes are what runs."""
     p = Path(path)
-    if not p.is_file():
-        raise InputError("effects file not found", where=str(p))
-    if p.stat().st_size > MAX_EFFECTS_FILE_BYTES:
-        raise InputError(
-            f"effects file is {p.stat().st_size:,} bytes; over the {MAX_EFFECTS_FILE_BYTES:,}-byte limit "
-            "for Python source",
-            where=str(p),
-        )
-    data = p.read_bytes()
+    data = read_bytes(p, "effects file", "Python")  # a regular file of at most 1 MiB of source
     sha = hashlib.sha256(data).hexdigest()
     if expect_sha256 is not None and sha != expect_sha256:
         raise InputError(

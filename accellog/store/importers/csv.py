@@ -28,8 +28,10 @@ from accellog.store.importers.csv_blocks import BLOCK_BYTES, Block, BlockReader,
 from accellog.store.importers.csv_checks import (
     check_accel,
     check_gyro,
+    check_increasing,
     check_offsets,
     check_rate,
+    check_samples,
     check_time_range,
 )
 from accellog.store.importers.csv_options import FIELDS, GROUPS, TIME_UNITS, CsvOptions
@@ -147,6 +149,7 @@ class CsvImport:
                 quat = _stack(block, ("qw", "qx", "qy", "qz"))
                 runs.feed(block.cols["pose"], t_s, true, quat, block.line_of)
             ch = self._convert(block, t_s)
+            check_samples(ch.accel_g, ch.gyro_dps, lambda i, b=block: f"{self.path}:{b.line_of(i)}")
             n, t_prev = block.n, (float(t_s[-1]), block.line_of(block.n - 1))
             del block, t_s  # what the chunk does not use is freed before the chunk waits to be written
             yield ch
@@ -178,16 +181,7 @@ class CsvImport:
         return (t - t0) / _T_DIV[self.opts.time_unit] if t0 or self.opts.time_unit != "s" else t, t0
 
     def _check_time(self, block: Block, t_s: np.ndarray, prev) -> None:
-        d = np.diff(t_s) if prev is None else np.diff(t_s, prepend=prev[0])
-        bad = np.flatnonzero(d <= 0)
-        if not bad.size:
-            return
-        i = int(bad[0]) + (1 if prev is None else 0)
-        before = float(t_s[i - 1]) if i > 0 else prev[0]
-        where = f"{self.path}:{block.line_of(i)}"
-        if t_s[i] == before:
-            raise InputError(f"duplicated timestamp ({before:.9g} s, as on the line before)", where=where)
-        raise InputError(f"time goes backwards ({before:.9g} s -> {t_s[i]:.9g} s)", where=where)
+        check_increasing(t_s, lambda i: f"{self.path}:{block.line_of(i)}", None if prev is None else prev[0])
 
     def _check_units(self, block: Block, dt_s: float) -> None:
         """Units and rate judged on the first rows (up to _HEAD_ROWS) of the file (csv_checks)."""

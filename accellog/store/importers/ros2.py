@@ -22,7 +22,9 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
+from accellog.core.textin import file_kind, read_bytes
 from accellog.core.units import STANDARD_GRAVITY_MPS2
+from accellog.store.importers.csv_checks import check_increasing, check_samples
 from accellog.store.importers.ros2_cdr import decode_imu
 
 IMU_TYPE = "sensor_msgs/msg/Imu"
@@ -43,6 +45,10 @@ def _open(path: Path):
 
     if not path.exists():
         raise InputError("no such file or bag directory", where=str(path))
+    if path.is_dir():  # a regular metadata.yaml of at most 1 MiB before rosbags parses it
+        read_bytes(path / "metadata.yaml", "bag metadata", "YAML")
+    elif (kind := file_kind(path.stat().st_mode)) is not None:
+        raise InputError(f"bag is {kind}, not a regular file (not read)", where=str(path))
     if path.is_file() and path.suffix not in (".mcap", ".db3"):
         raise InputError("not a rosbag2 file: give a bag directory, a .mcap or a .db3 file", where=str(path))
     try:
@@ -128,7 +134,7 @@ def _read_range(path: str, topic: str, start: int, stop: int):
     reader = _open(Path(path))
     try:
         conns = [c for c in reader.connections if c.topic == topic and c.msgtype == IMU_TYPE]
-        return _read_imu(reader, conns, start, stop)
+        return _read_imu(reader, conns, start, stop, path=Path(path))
     finally:
         reader.close()
 
@@ -150,27 +156,33 @@ def _read_imu_parallel(reader, conns, path: Path, jobs: int):
     return (*cat, frames, first[5], first[6])
 
 
-def _read_imu(reader, conns, start=None, stop=None, progress=None):
+MAX_PREALLOC = 1 << 22
+"""Messages preallocated from a bag's declared count (64 bytes each: 256 MiB): a count a damaged or
+hostile metadata.yaml inflates costs no more; beyond it the decoded blocks are kept and joined."""
+
+
+def _read_imu(reader, conns, start=None, stop=None, progress=None, path: Path | None = None):
     """Arrays of the IMU messages: stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, covariances.
 
     Raw messages are gathered _BLOCK at a time and decoded together (ros2_cdr.decode_imu; rosbags'
     deserialize_cdr one by one for blocks it does not take) into arrays sized from the bag's message
     count; progress(done, total messages) after each block. Memory: the arrays plus one block."""
     total = sum(int(c.msgcount) for c in conns)
-    gather = _Gather(total if start is None and stop is None else 0)
+    gather = _Gather(min(total, MAX_PREALLOC) if start is None and stop is None else 0)
     raws: list[bytes] = []
     logs: list[int] = []
     msgtype = conns[0].msgtype if conns else IMU_TYPE
+    label = f"{path}: {conns[0].topic}" if conns else str(path)
     for _conn, t_log, raw in _messages(reader, conns, start, stop):
         raws.append(raw)
         logs.append(t_log)
         if len(raws) == _BLOCK:
-            gather.add(_decode_block(reader, msgtype, raws, logs))
+            gather.add(_decode_block(reader, msgtype, raws, logs, label, gather.n))
             raws, logs = [], []
             if progress is not None:
                 progress(gather.n, total)
     if raws or not gather.n:
-        gather.add(_decode_block(reader, msgtype, raws, logs))
+        gather.add(_decode_block(reader, msgtype, raws, logs, label, gather.n))
     return gather.result()
 
 
@@ -206,43 +218,79 @@ class _Gather:
         return (*cat, self.frames, *self.cov)
 
 
-def _decode_block(reader, msgtype: str, raws: list, logs: list) -> tuple:
-    """(stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, cov accel, cov gyro) of one block."""
+def _decode_block(reader, msgtype: str, raws: list, logs: list, label: str = "", first: int = 0) -> tuple:
+    """(stamp ns, log ns, accel m/s^2, gyro rad/s, frame ids, cov accel, cov gyro) of one block
+    (messages first, first+1, ...: a message that does not decode is an InputError at
+    '{label} message {index}')."""
     log = np.asarray(logs, dtype=np.int64)
     fast = decode_imu(raws)
     if fast is not None:
         stamp, acc, gyr, frames, cov_a, cov_g = fast
         return stamp, log, acc, gyr, frames, cov_a, cov_g
     des = reader.typestore.deserialize_cdr
-    rows, frames, first = [], set(), None
-    for raw in raws:
-        m = des(raw, msgtype)
-        st, la, av = m.header.stamp, m.linear_acceleration, m.angular_velocity
-        rows.append((st.sec, st.nanosec, la.x, la.y, la.z, av.x, av.y, av.z))
+    rows, frames, head = [], set(), None
+    for j, raw in enumerate(raws):
+        try:
+            m = des(raw, msgtype)
+            st, la, av = m.header.stamp, m.linear_acceleration, m.angular_velocity
+            rows.append((st.sec, st.nanosec, la.x, la.y, la.z, av.x, av.y, av.z))
+        except Exception as exc:
+            raise InputError(
+                f"cannot decode {msgtype} ({type(exc).__name__}: {exc})", where=f"{label} message {first + j}"
+            ) from None
         frames.add(m.header.frame_id)
-        first = first or m
+        head = head or m
     if not rows:
         return np.empty(0, np.int64), log, np.empty((0, 3)), np.empty((0, 3)), frames, None, None
     ints = np.array([r[:2] for r in rows], dtype=np.int64)
     vals = np.array([r[2:] for r in rows], dtype=np.float64)
-    cov_a = np.array(first.linear_acceleration_covariance)
-    cov_g = np.array(first.angular_velocity_covariance)
+    cov_a = np.array(head.linear_acceleration_covariance)
+    cov_g = np.array(head.angular_velocity_covariance)
     return ints[:, 0] * 1_000_000_000 + ints[:, 1], log, vals[:, :3], vals[:, 3:], frames, cov_a, cov_g
 
 
-def _read_scalar(reader, conns, kind: str):
+def _read_scalar(reader, conns, kind: str, path: Path):
+    """(stamp ns, values) of the temperature (kind 'temp', degC) or magnetometer (T) messages; a
+    message that does not decode is one InputError naming its topic and index."""
     t, v = [], []
     des = reader.typestore.deserialize_cdr
-    for conn, t_log, raw in _messages(reader, conns):
-        m = des(raw, conn.msgtype)
-        st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+    for i, (conn, t_log, raw) in enumerate(_messages(reader, conns)):
+        try:
+            m = des(raw, conn.msgtype)
+            st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+            if kind == "temp":
+                v.append(float(m.temperature))
+            else:
+                f = m.magnetic_field
+                v.append((float(f.x), float(f.y), float(f.z)))
+        except Exception as exc:
+            raise InputError(
+                f"cannot decode {conn.msgtype} ({type(exc).__name__}: {exc})",
+                where=f"{path}: {conn.topic} message {i}",
+            ) from None
         t.append(st or t_log)
-        if kind == "temp":
-            v.append(m.temperature)
-        else:
-            f = m.magnetic_field
-            v.append((f.x, f.y, f.z))
     return np.asarray(t, np.int64), np.asarray(v, float)
+
+
+def check_imu(
+    path: Path, topic: str, stamp, acc_mps2, gyr_radps, first: int = 0, prev: int | None = None
+) -> None:
+    """The importers' door (store.importers.csv_checks) for IMU messages first, first+1, ... of
+    ``topic``: stamps (ns) not negative and strictly increasing (prev: the last stamp before),
+    accelerations and rates finite and within any MEMS range; InputError naming topic and index."""
+
+    def where_of(i: int) -> str:
+        return f"{path}: {topic} message {first + i}"
+
+    neg = np.flatnonzero(stamp < 0)
+    if neg.size:
+        raise InputError(
+            f"header stamp {int(stamp[neg[0]])} ns is before 1970 (out of range)", where=where_of(int(neg[0]))
+        )
+    base = int(stamp[0]) if prev is None else prev
+    check_increasing((stamp - base) / 1e9, where_of, None if prev is None else 0.0)
+    if acc_mps2 is not None:
+        check_samples(acc_mps2 / STANDARD_GRAVITY_MPS2, np.rad2deg(gyr_radps), where_of)
 
 
 def _stamp_report(stamp: np.ndarray, log: np.ndarray) -> dict[str, str]:
@@ -298,9 +346,9 @@ def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs, progress=No
         if jobs > 1 and len(imu) == 1 and "fork" in multiprocessing.get_all_start_methods():
             arrays = _read_imu_parallel(reader, imu, path, jobs)
         else:
-            arrays = _read_imu(reader, imu, progress=progress)
-        temp = (tc[0].topic, *_read_scalar(reader, tc, "temp")) if tc else None
-        mag = (mc[0].topic, *_read_scalar(reader, mc, "mag")) if mc else None
+            arrays = _read_imu(reader, imu, progress=progress, path=path)
+        temp = (tc[0].topic, *_read_scalar(reader, tc, "temp", path)) if tc else None
+        mag = (mc[0].topic, *_read_scalar(reader, mc, "mag", path)) if mc else None
     except InputError:
         raise
     except Exception as exc:
@@ -311,7 +359,7 @@ def _read_bag(path: Path, topic, temperature_topic, mag_topic, jobs, progress=No
 
 
 def _provenance(path: Path, topic: str, arrays) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """Stamps (sorted, stable), accel, gyro and meta.extra: time source, stamp/log agreement, order."""
+    """Stamps (checked: check_imu), accel, gyro and meta.extra: time source, stamp/log agreement."""
     stamp, log, acc, gyr, frames, cov_a, cov_g = arrays
     extra = {
         "source_file": path.name,
@@ -326,14 +374,7 @@ def _provenance(path: Path, topic: str, arrays) -> tuple[np.ndarray, np.ndarray,
         extra["time_source"] = "bag log time (every header stamp is zero)"
     else:
         extra.update(_stamp_report(stamp, log))
-    back = int(np.count_nonzero(np.diff(stamp) < 0))
-    if back:
-        order = np.argsort(stamp, kind="stable")
-        extra["out_of_order_stamps"] = f"{back} (sorted by stamp)"
-        stamp, acc, gyr = stamp[order], acc[order], gyr[order]
-    dup = int(np.count_nonzero(np.diff(stamp) == 0))
-    if dup:
-        extra["duplicated_stamps"] = str(dup)
+    check_imu(path, topic, stamp, acc, gyr)
     if cov_a is not None:
         extra["ros2_linear_acceleration_covariance"] = ",".join(f"{v:.6g}" for v in cov_a)
         extra["ros2_angular_velocity_covariance"] = ",".join(f"{v:.6g}" for v in cov_g)

@@ -26,7 +26,7 @@ from accellog.store.writer import SessionWriter
 
 
 class _Unordered(Exception):
-    """Stamps that the streamed import cannot take (out of order, or zero)."""
+    """Stamps that the streamed import cannot take (zero: the in-memory import may use log time)."""
 
 
 def import_ros2_to_mcap(
@@ -43,14 +43,14 @@ def import_ros2_to_mcap(
 ) -> dict | None:
     """Import the bag's IMU topic (+ temperature, magnetometer; see ros2.import_ros2) into ``out``
     (atomic); the facts the CLI prints (as for a Session), or None when the stamps need the in-memory
-    import (out of order or zero: nothing written)."""
+    import (zero stamps: nothing written). Stamps and samples pass ros2.check_imu as they stream."""
     path, out = Path(path), Path(out)
     reader = ros2._open(path)
     ao = AtomicOutput(out, inputs=(path,), overwrite=overwrite)
     try:
         imu, tc, mc = ros2._topics(reader.connections, path, topic, temperature_topic, mag_topic)
-        temp = (tc[0].topic, *ros2._read_scalar(reader, tc, "temp")) if tc else None
-        mag = (mc[0].topic, *ros2._read_scalar(reader, mc, "mag")) if mc else None
+        temp = (tc[0].topic, *ros2._read_scalar(reader, tc, "temp", path)) if tc else None
+        mag = (mc[0].topic, *ros2._read_scalar(reader, mc, "mag", path)) if mc else None
         job = _Stream(reader, imu, path, ao, temp, batch_size, compression)
         try:
             job.run(progress)
@@ -78,8 +78,9 @@ class _Stream:
         self.compression = compression
         self.total = sum(int(c.msgcount) for c in conns)
         self.n = 0
-        self.stamp = np.empty(self.total, np.int64)  # filled in place (no join at the end)
-        self.log = np.empty(self.total, np.int64)
+        cap = min(self.total, ros2.MAX_PREALLOC)  # the declared count may be absurd
+        self.stamp = np.empty(cap, np.int64)  # filled in place (no join at the end)
+        self.log = np.empty(cap, np.int64)
         self.frames: set[str] = set()
         self.cov: tuple = (None, None)
         self.writer: SessionWriter | None = None
@@ -90,31 +91,35 @@ class _Stream:
         raws: list[bytes] = []
         logs: list[int] = []
         msgtype = self.conns[0].msgtype
+        label = f"{self.path}: {self.conns[0].topic}"
         for _conn, t_log, raw in ros2._messages(self.reader, self.conns):
             raws.append(raw)
             logs.append(t_log)
             if len(raws) == self.block:
-                self._write(ros2._decode_block(self.reader, msgtype, raws, logs))
+                self._write(ros2._decode_block(self.reader, msgtype, raws, logs, label, self.n))
                 raws, logs = [], []
                 if progress is not None:
                     progress(self.n, self.total)
         if raws:
-            self._write(ros2._decode_block(self.reader, msgtype, raws, logs))
+            self._write(ros2._decode_block(self.reader, msgtype, raws, logs, label, self.n))
 
     def _write(self, block: tuple) -> None:
         stamp, _log, acc, gyr = block[:4]
         if not stamp.size:
             return
-        if stamp[0] < self.last or np.any(np.diff(stamp) < 0) or not stamp[0]:
-            raise _Unordered
-        self.last = int(stamp[-1])
+        if self.writer is None and not stamp[0]:
+            raise _Unordered  # zero stamps: the in-memory import decides (log time when all are zero)
         k = self.n
+        ros2.check_imu(
+            self.path, self.conns[0].topic, stamp, acc, gyr, k, None if self.writer is None else self.last
+        )
+        self.last = int(stamp[-1])
         self.n += stamp.size
-        if self.n > self.stamp.size:  # more messages than the bag's count said: grow
-            self.stamp = np.concatenate([self.stamp[:k], stamp])
-            self.log = np.concatenate([self.log[:k], block[1]])
-        else:
-            self.stamp[k : self.n], self.log[k : self.n] = stamp, block[1]
+        if self.n > self.stamp.size:  # more messages than preallocated: grow geometrically
+            size = max(self.n, 2 * self.stamp.size)
+            self.stamp = np.concatenate([self.stamp[:k], np.empty(size - k, np.int64)])
+            self.log = np.concatenate([self.log[:k], np.empty(size - k, np.int64)])
+        self.stamp[k : self.n], self.log[k : self.n] = stamp, block[1]
         self.frames |= block[4]
         if self.writer is None:
             self.t0 = int(stamp[0])
