@@ -179,22 +179,16 @@ def _write_rrd(rrd, src, d, obs) -> None:
 def _handheld(
     data, session, model, add, effects_file, window_s, detect_window_s, threshold, heldout
 ) -> DiagnoseOutcome:
-    """An unlabelled session: detected static intervals, gravity-norm residual; held-out sessions
-    judge the significant candidates on their gravity norm (d.choice)."""
-    from accellog.calibrate.diagnosis.handheld import (
-        HANDHELD_START,
-        detect_holds,
-        diagnose_handheld,
-        norm_obs,
-    )
+    """An unlabelled session: detected static intervals, gravity-norm residual; the significant
+    candidates judged out of sample on the gravity norm (held-out sessions, else blocks of the
+    session: d.choice), by the workbench's ranking and tie rule."""
+    from accellog.calibrate.diagnosis.handheld import HANDHELD_START, detect_holds, norm_obs
     from accellog.calibrate.diagnosis.strategy import NORM
     from accellog.calibrate.model.compose import build_model
 
     name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
     m = build_model(name, add=list(add), effects_file=effects_file)
     obs, det = detect_holds(data, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)
-    d = diagnose_handheld(obs, m)
-    if heldout:
-        helds = [norm_obs(h, window_s=window_s) for h in _sessions(heldout)]
-        NORM.choose(d, obs, helds)
+    helds = [norm_obs(h, window_s=window_s) for h in _sessions(heldout)]
+    d = NORM.diagnose(obs, m, heldout=helds)  # judged out of sample, as the workbench's steps are
     return DiagnoseOutcome(str(session), d, det)

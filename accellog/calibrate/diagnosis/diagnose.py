@@ -146,7 +146,7 @@ def diagnose(
     n_tests = max(1, sum(1 for c in cands if lib[c].static))
     rows, fits, clock = _candidate_rows(cands, obs, model, base, cv_b_all, drv, fit_kw, host_time, n_tests)
     choice = choose_effect(base, rows, fits, obs, heldout) if validate else None
-    _rank_rows(rows, choice)
+    rank_rows(rows, choice)
     signals = driver_signals(base, obs, drv)
     sig_cands = [r for r in rows if r.get("significant") and r["effect"] != "clock"]
     if len(sig_cands) > 1:
@@ -159,7 +159,7 @@ def diagnose(
     verdict, advice = _verdict(model, base, floor, missing, sig_cands, signals, rows, clock)
     trim_heap()
     if choice is not None:
-        verdict, advice = _with_choice(verdict, advice, choice, sig_cands)
+        verdict, advice = with_choice(verdict, advice, choice, sig_cands)
     return Diagnosis(
         model=model,
         fit=base,
@@ -262,7 +262,7 @@ def _candidate_stats(name, cm, cr, model, base, obs, cv_b_all, n_tests) -> dict:
     )
 
 
-def _rank_rows(rows: list[dict], choice: StepChoice | None) -> None:
+def rank_rows(rows: list[dict], choice: StepChoice | None) -> None:
     """Attach the out-of-sample scores and sort in place: significant first, the chosen one
     (out-of-sample evidence) first among them, then by the out-of-sample score, then by dBIC
     (identifiable), then the rest; number the rows 1.. as 'rank'."""
@@ -314,10 +314,10 @@ def _second_round(sig_cands: list[dict], obs, model, fit_kw, n_tests: int, m_eq:
         )
 
 
-def _with_choice(verdict: str, advice: list[str], choice: StepChoice, sig_cands: list[dict]):
+def with_choice(verdict: str, advice: list[str], choice: StepChoice, sig_cands: list[dict]):
     """Verdict and advice once the out-of-sample evidence has spoken."""
     if sig_cands and choice.chosen is None:
-        head = verdict.split(": residuals are")[0]
+        head = verdict.split(": residuals")[0].split(": something is missing")[0]
         verdict = (
             f"{head}: something is missing, but no significant candidate predicts unseen data better "
             f"({choice.reason}); it may be a proxy: record a session whose drivers vary independently"

@@ -19,7 +19,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from accellog.calibrate.diagnosis.diagnose import ALPHA, DBIC_MIN, Diagnosis, default_candidates
+from accellog.calibrate.diagnosis.diagnose import (
+    ALPHA,
+    DBIC_MIN,
+    Diagnosis,
+    default_candidates,
+    rank_rows,
+    with_choice,
+)
 from accellog.calibrate.model.compose import Model
 from accellog.calibrate.model.effects import all_effects
 from accellog.calibrate.model.fit import fit_orientation_free, obs_drivers
@@ -200,3 +207,17 @@ def norm_obs(session: Session, *, window_s: float = 2.0, detect_window_s: float 
     if session.poses:
         return observations(session, window_s=window_s)
     return detect_holds(session, window_s=detect_window_s, obs_window_s=window_s)[0]
+
+
+def settle_choice(d: Diagnosis, obs: ObsTable) -> None:
+    """A hand-held diagnosis once its out-of-sample choice (d.choice) has spoken, by diagnose's one
+    rule: the chosen candidate first and as `best`, the verdict naming it (or saying that no
+    significant candidate predicts unseen data better), ties named with what separates them."""
+    ch = d.choice
+    rank_rows(d.candidates, ch)
+    sig = [r for r in d.candidates if r.get("significant")]
+    d.best = ch.chosen
+    verdict, advice = _handheld_verdict(
+        obs, d.model, d.fit, d.candidates, sig if ch.chosen else [], d.missing
+    )
+    d.verdict, d.advice = with_choice(verdict, advice, ch, sig)

@@ -28,7 +28,7 @@ import numpy as np
 
 from accellog.calibrate.diagnosis.choose import StepChoice, choose_effect
 from accellog.calibrate.diagnosis.diagnose import Diagnosis, diagnose
-from accellog.calibrate.diagnosis.handheld import diagnose_handheld
+from accellog.calibrate.diagnosis.handheld import diagnose_handheld, settle_choice
 from accellog.calibrate.diagnosis.loso import loso_score, loso_stats, mean_stats
 from accellog.calibrate.diagnosis.norm_transfer import (
     norm_blocked_scores,
@@ -77,11 +77,17 @@ class Strategy:
         return {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
 
     def diagnose(self, obs: ObsTable, model: Model, **kw) -> Diagnosis:
-        """The diagnosis of model on obs (labelled: diagnose.diagnose with its keywords; norm:
-        handheld.diagnose_handheld, which takes candidates only)."""
-        if self.name == "norm":
-            return self.diagnose_fn(obs, model, candidates=kw.get("candidates"))
-        return self.diagnose_fn(obs, model, **kw)
+        """The diagnosis of model on obs, its significant candidates judged out of sample unless
+        validate=False (heldout: held-out sessions, else blocks of obs) by one ranking and one tie
+        rule (labelled: diagnose.diagnose with its keywords; norm: handheld.diagnose_handheld, then
+        choose and handheld.settle_choice)."""
+        if self.name != "norm":
+            return self.diagnose_fn(obs, model, **kw)
+        d = self.diagnose_fn(obs, model, candidates=kw.get("candidates"))
+        if kw.get("validate", True):
+            self.choose(d, obs, kw.get("heldout") or [])
+            settle_choice(d, obs)
+        return d
 
     def scores(self, obs: ObsTable, held: Sequence[ObsTable], parts: Sequence[ObsTable] = ()) -> ScoreFn:
         """Out-of-sample scores of fits by name ('' = the base model): leave one session out with
