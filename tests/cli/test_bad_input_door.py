@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.refusal import assert_refused, snapshot
 from support.sessions import synth_session
 
 from accellog.calibrate.calfile.calibration import calibration_from_dict, load_calibration
@@ -41,16 +42,6 @@ def good(tmp_path_factory) -> dict[str, Path]:
     cal = d / "cal.json"
     assert main(["fit", str(mcap), "--model", "model3", "-o", str(cal)]) == 0
     return {"mcap": mcap, "cal": cal}
-
-
-def _snapshot(d: Path) -> dict[str, tuple]:
-    """Name -> (size, mtime_ns, first 64 KiB) of every entry (big sparse inputs are not read whole)."""
-    out = {}
-    for p in sorted(d.rglob("*")):
-        st_ = p.lstat()
-        head = p.open("rb").read(65536) if p.is_file() else None
-        out[str(p.relative_to(d))] = (st_.st_size, st_.st_mtime_ns, head)
-    return out
 
 
 def _cal(good: dict, d: Path, edit: Callable[[dict], object], name: str = "badcal.json") -> Path:
@@ -447,20 +438,7 @@ def test_refused_at_the_door(name, good, tmp_path, capsys):
     build, needles = CASES[name]
     d = tmp_path / "case"
     d.mkdir()
-    argv = build(d, good)
-    before = _snapshot(d)
-    capsys.readouterr()
-    t0 = time.process_time()
-    rc = main(argv)
-    cpu_s = time.process_time() - t0
-    err = capsys.readouterr().err.strip()
-    assert rc != 0, f"exit 0: {err}"
-    assert "Traceback" not in err, err
-    assert err.startswith("accellog: error: ") and "\n" not in err, err
-    for n in needles:
-        assert n in err, (n, err)
-    assert _snapshot(d) == before, "files were written, changed or left behind"
-    assert cpu_s < 5.0, f"{cpu_s:.1f} s of CPU before the refusal"
+    assert_refused(build(d, good), d, capsys, needles)
 
 
 def test_a_valid_scenario_at_the_limits_still_runs(tmp_path):
@@ -605,7 +583,7 @@ def test_truncated_without_labels_says_truncated_and_zero_tails_cost_nothing(
     cut_head, tmp_path, capsys, tail, cmd
 ):
     src = _sparse(tmp_path / "cut.mcap", len(cut_head) + tail, cut_head)
-    before = _snapshot(tmp_path)
+    before = snapshot(tmp_path)
     capsys.readouterr()
     t0 = time.process_time()
     rc = main([cmd, str(src), "-o", str(tmp_path / "o.json")])
@@ -616,7 +594,7 @@ def test_truncated_without_labels_says_truncated_and_zero_tails_cost_nothing(
     assert "cut.mcap" in err and "truncated" in err, err
     if tail and cmd == "segment":
         assert "zero-filled space at byte" in err and "MiB not read" in err, err
-    assert _snapshot(tmp_path) == before
+    assert snapshot(tmp_path) == before
     assert cpu_s < 5.0, f"{cpu_s:.1f} s of CPU"
 
 
@@ -641,13 +619,13 @@ def test_door_in_a_real_process(good, tmp_path):
         ["evaluate", str(good["mcap"]), "--cal", str(_write(tmp_path / "deep.json", _deep(100_000)))],
     ]
     for argv in cases:
-        before = _snapshot(tmp_path)
+        before = snapshot(tmp_path)
         p = subprocess.run(
             [sys.executable, "-m", "accellog", *argv], capture_output=True, text=True, timeout=60
         )
         err = p.stderr.strip()
         assert p.returncode == 2 and err.startswith("accellog: error: ") and "\n" not in err, err
-        assert _snapshot(tmp_path) == before
+        assert snapshot(tmp_path) == before
 
 
 _SCENARIO_KEYS = sorted(
