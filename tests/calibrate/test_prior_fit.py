@@ -40,7 +40,7 @@ def lab_and_truth(seed: int = 3):
 
 
 def test_prior_moves_the_seen_biases_and_keeps_the_unseen_terms():
-    m, lab, th, aged = lab_and_truth()
+    m, lab, _, aged = lab_and_truth()
     obs = synthetic_obs(m, aged, protocol=level_stops(), hold_s=8.0, windows_per_hold=4, seed=5)
     obs.up_sensor = obs.meas_g / np.linalg.norm(obs.meas_g, axis=1, keepdims=True)  # unlabelled
     obs.q_sensor_to_world = None
