@@ -380,14 +380,12 @@ def _one_device(srcs: Sequence[Source], prior: Calibration | None) -> None:
 
 
 def _field_gyro(srcs: Sequence[Source], fit) -> GyroCalibration | None:
-    """The gyro bias at every stop and its temperature curve, of one session (_gyro) or pooled
-    over several (calibrate.gyro.fit.pooled_stops)."""
-    cals = [c for c in (_gyro(src, fit, None) for src in srcs) if c is not None]
-    if len(cals) < 2:
-        return cals[0] if cals else None
-    from accellog.calibrate.gyro.fit import pooled_stops
-
-    return pooled_stops(cals)
+    """The gyro calibration (_gyro) of the session with the most stops; with several sessions the
+    others are not pooled into it (said in a note)."""
+    best = max(srcs, key=lambda s: len(s.poses))
+    if len(srcs) > 1:
+        note(f"gyro: calibrated from the stops of {best.where} only (not pooled over the sessions)")
+    return _gyro(best, fit, None)
 
 
 # ------------------------------------------------------------------------------------------ segment
