@@ -22,6 +22,28 @@ RrdOpt = Annotated[
 ]
 
 
+SessionsArg = Annotated[
+    list[Path],
+    typer.Argument(
+        help="Calibration session (.mcap), pose table CSV or observations JSON; several unlabelled "
+        "sessions of one device are pooled (their stops)."
+    ),
+]
+
+PriorOpt = Annotated[
+    Path | None,
+    typer.Option(help="A calibration of this device (the lab's): the sessions' stops update it."),
+]
+
+AgingOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        help="EFFECT=SIGMA: how far the effect's parameters may have moved since the prior (its "
+        "units; repeatable; default bias=0.01 scale=0.002 cross_axis=0.0005 misalignment_tri=0.0005)."
+    ),
+]
+
+
 def _save_outcome(out, data, output: Path, rrd: Path | None, json_out: bool, inputs: tuple) -> bool:
     """Write the .rrd (if asked) first, so that an error there leaves no calibration behind, then the
     calibration (never over one of ``inputs``); with --json print the result; True when printed."""
@@ -71,9 +93,7 @@ def segment(
 
 @app.command(rich_help_panel="2. Calibrate")
 def fit(
-    session: Annotated[
-        Path, typer.Argument(help="Calibration session (.mcap), pose table CSV or observations JSON.")
-    ],
+    sessions: SessionsArg,
     output: Annotated[Path, typer.Option("-o", "--output", help="Calibration JSON to write.")],
     model: Annotated[
         str, typer.Option("--model", "-m", help="model1 | model2 | model3 | effect+effect...")
@@ -108,21 +128,27 @@ def fit(
         bool,
         typer.Option("--relabel", help="Replace hold labels that contradict the measured gravity direction."),
     ] = False,
+    prior: PriorOpt = None,
+    aging: AgingOpt = None,
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma).
 
     Examples: `accellog fit cal.mcap -o cal.json` (model3); `accellog fit cal.mcap -m model3 --add
     temp_bias -o cal.json --rrd fit.rrd`; a session without pose labels (hand-held) is fitted
-    orientation-free: `accellog fit hand.mcap -o cal.json`.
+    orientation-free: `accellog fit hand.mcap -o cal.json`; a robot's runs update the lab calibration:
+    `accellog fit run1.mcap run2.mcap --prior lab.json -o field.json`.
     """
+    from accellog.calibrate.model.prior import source_line
     from accellog.flows.stages import load_input, run_fit
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 
-    check_outputs([output, rrd], [session, effects_file], mkdir=True)
-    data = load_input(session) if rrd is not None else session  # a path: run_fit may stream it
+    check_outputs([output, rrd], [*sessions, effects_file, prior], mkdir=True)
+    if len(sessions) > 1 and rrd is not None:
+        raise InputError("--rrd draws one session: give one session with it")
+    data = load_input(sessions[0]) if rrd is not None else sessions[0]  # a path: run_fit may stream it
     out = run_fit(
-        data,
+        sessions if len(sessions) > 1 else data,
         model,
         add=add or [],
         effects_file=effects_file,
@@ -134,15 +160,35 @@ def fit(
         trim_s=trim_s,
         uncertainty=uncertainty,
         relabel=relabel,
+        prior=prior,
+        aging=_aging(aging),
     )
-    if _save_outcome(out, data, output, rrd, json_out, inputs=(session, effects_file)):
+    if _save_outcome(out, data, output, rrd, json_out, inputs=(*sessions, effects_file, prior)):
         return
     _console.print(report.params_table(out.cal))
+    for row in out.fit.prior_sources or []:
+        _console.print(source_line(row))
     if out.fit.uncertainty_note:
         _console.print(f"1σ: {out.fit.uncertainty_note}")
     for w in out.fit.warnings:
         _console.print(f"[yellow]warning:[/] {w}")
     _console.print(f"wrote {output}")
+
+
+def _aging(items: list[str] | None) -> dict[str, float] | None:
+    """--aging EFFECT=SIGMA options as {effect: sigma} (None: the defaults)."""
+    if not items:
+        return None
+    out = {}
+    for it in items:
+        name, _, val = it.partition("=")
+        try:
+            out[name.strip()] = float(val)
+        except ValueError:
+            raise InputError(f"--aging {it!r}: give EFFECT=SIGMA, e.g. bias=0.01") from None
+        if not out[name.strip()] >= 0:
+            raise InputError(f"--aging {it!r}: the sigma must be >= 0")
+    return out
 
 
 @app.command(name="evaluate", rich_help_panel="2. Calibrate")

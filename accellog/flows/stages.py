@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -154,6 +154,8 @@ def run_fit(
     gyro: bool = True,
     uncertainty: str = "noise",
     relabel: bool = False,
+    prior: Calibration | str | os.PathLike | None = None,
+    aging: Mapping[str, float] | None = None,
 ) -> FitOutcome:
     """Segment (if needed) and fit one model; returns the calibration with its uncertainties.
 
@@ -169,29 +171,37 @@ def run_fit(
     'jackknife' (leave one hold out); accellog.calibrate.model.variance (fit.uncertainty_note says
     which). relabel: replace hold labels that contradict the measured gravity direction (each change
     is a note on stderr).
+
+    prior: a calibration of the device (the lab's): the stops of the unlabelled session(s) update it
+    (a Bayesian update, calibrate.model.prior; aging: how far each effect may have moved since, per
+    effect, default prior.AGING); data may then be several sessions of one device (a list), their
+    stops pooled (_field_fit).
     """
+    field = dict(model=model, add=add, effects_file=effects_file, aging=aging, gravity=gravity, weighted=weighted,
+                 local_gravity_mps2=local_gravity_mps2, window_s=window_s, gyro=gyro, uncertainty=uncertainty)  # fmt: skip
+    if prior is not None or isinstance(data, (list, tuple)):
+        many = list(data) if isinstance(data, (list, tuple)) else [data]
+        return _field_fit(many, None if prior is None else _cal(prior), **field)
     table = data if isinstance(data, ObsTable) else obs
     if table is None and isinstance(data, (str, os.PathLike)):
         table = read_obs_table(data, n_per_pose=n_per_pose)
     given = isinstance(data, ObsTable) or (obs is None and table is not None)  # no session
     src = None if given else open_source(data, what="fit")
     name = table.session if src is None else src.where
+    if table is None and not src.poses:  # unlabelled (hand-held, a robot's run): its stops are detected
+        return _field_fit([src], None, **field)
     m = build_model(model, add=list(add), effects_file=effects_file)
-    if not orientation_free and table is None and not src.poses:
-        orientation_free, m = True, _orientation_free_model(m, effects_file, name)
     if local_gravity_mps2 is None:
         local_gravity_mps2 = STANDARD_GRAVITY_MPS2 if src is None else src.meta.local_gravity_mps2
     truth = _truth_g(gravity, float(local_gravity_mps2))
-    detected, first = None, None  # static intervals found in an unlabelled session; the gyro's first pass
+    first = None  # the gyro's first pass
     if table is None and (relabel or orientation_free):
         src = open_source(_relabelled(src.whole(), trim_s) if relabel else src.whole())
-        table, detected = _fit_observations(src.session, m, truth, orientation_free, window_s, trim_s)
-        if detected:  # hand-held: the gyro is calibrated on the detected static intervals (imu_tk style)
-            src = open_source(with_labels(src.session, detected))
+        table = observations(src.session, window_s=window_s, trim_s=trim_s)
     elif table is None:
         table, first, src = _read_observing(src, window_s, trim_s, gyro)
     fit = _fit_obs(table, m, name, orientation_free, weighted, truth, uncertainty)
-    cal = _calibration(fit, table, src, gravity, float(local_gravity_mps2), detected)
+    cal = _calibration(fit, table, src, gravity, float(local_gravity_mps2), None)
     if gyro and src is not None:
         cal.gyro = _gyro(src, fit, first)
     warn_clipped_moves(fit, cal)  # moves left out of the gyro fit: said, and in the file
@@ -253,22 +263,6 @@ def _orientation_free_model(m, effects_file, where: str):
     return build_model("+".join(dict.fromkeys(terms)), effects_file=effects_file) if swap else m
 
 
-def _fit_observations(
-    session: Session, m, truth: float, orientation_free: bool, window_s: float, trim_s: float
-):
-    """(obs, detected static intervals or None): windowed observations of the holds, or of the static
-    intervals detect_static finds in an unlabelled session for an orientation-free fit."""
-    if not (orientation_free and not session.poses):
-        return observations(session, window_s=window_s, trim_s=trim_s), None
-
-    def cost(labels) -> float:
-        o = observations(with_labels(session, labels), window_s=window_s, trim_s=0.0, check_units=False)
-        return fit_orientation_free(o, m, weighted=False, gravity_g=truth).rms_g
-
-    detected = detect_static(session, cost=cost)
-    return observations(with_labels(session, detected), window_s=window_s, trim_s=0.0), detected
-
-
 def _fit_obs(obs, m, name: str, orientation_free: bool, weighted: bool, truth: float, uncertainty: str):
     """The fit (orientation-free, or labelled after the pose coverage check), with the uncertainty asked."""
     if orientation_free:
@@ -308,6 +302,90 @@ def _calibration(
         )
         cal.fit = dataclasses.replace(cal.fit, detected_intervals=intervals)
     return cal
+
+
+def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, aging, gravity, weighted,
+               local_gravity_mps2, window_s, gyro, uncertainty) -> FitOutcome:  # fmt: skip
+    """run_fit of unlabelled field sessions of one device (a robot's run, a drone between flights):
+    the still intervals of each detected (moves ignored), their observations pooled, fitted
+    orientation-free with the prior (or, without one, only what the stops identify)."""
+    from accellog.calibrate.diagnosis.loso import concat_obs
+    from accellog.calibrate.model.prior import Prior
+
+    srcs = [open_source(x, what="fit") for x in inputs]
+    _one_device(srcs, prior)
+    if prior is not None:
+        m, gravity = prior.model, prior.gravity_convention
+        pri = Prior.of(prior.param_names, prior.theta, prior.cov, m, aging=aging, what=prior.path or "prior")
+    else:
+        m, pri = _orientation_free_model(build_model(model, add=list(add), effects_file=effects_file),
+                                         effects_file, srcs[0].where), None  # fmt: skip
+    lg = float(srcs[0].meta.local_gravity_mps2 if local_gravity_mps2 is None else local_gravity_mps2)
+    truth = _truth_g(gravity, lg)
+    parts, found = [], []
+    for src in srcs:
+        session = src.whole()
+        if session.poses:  # a labelled session: its holds are the stops
+            parts.append(observations(session, window_s=window_s, trim_s=0.5))
+            found.append((src, None))
+            continue
+        detected = detect_static(session, min_poses=1, cost=lambda lab, s=session: _stop_fit(
+            observations(with_labels(s, lab), window_s=window_s, trim_s=0.0, check_units=False),
+            m, truth, pri, False).rms_g)  # fmt: skip
+        parts.append(observations(with_labels(session, detected), window_s=window_s, trim_s=0.0))
+        found.append((open_source(with_labels(session, detected)), detected))
+    obs = concat_obs(parts) if len(parts) > 1 else parts[0]
+    fit = _stop_fit(obs, m, truth, pri, weighted, uncertainty, note_what=True)
+    cal = _calibration(fit, obs, found[0][0], gravity, lg, found[0][1] if len(found) == 1 else None)
+    cal.sources = [_provenance(src, None) for src, _ in found]
+    if gyro:
+        cal.gyro = _field_gyro([src for src, _ in found], fit)
+    return FitOutcome(obs=obs, fit=fit, cal=cal)
+
+
+def _stop_fit(obs: ObsTable, m, truth: float, prior, weighted: bool = True, uncertainty: str = "noise",
+              note_what: bool = False):  # fmt: skip
+    """The orientation-free fit of the stops: with the prior, or of the terms they identify
+    (calibrate.model.identifiability.identify_stops; the rest held at nominal, said in a note)."""
+    from accellog.calibrate.model.identifiability import identify_stops
+    from accellog.calibrate.model.variance import with_uncertainty
+
+    start = None if prior is None else prior.theta
+    ident = identify_stops(obs, m, start)
+    fixed = ident.unfitted if prior is None else ()
+    fit = fit_orientation_free(obs, m, weighted=weighted or prior is not None, gravity_g=truth, prior=prior,
+                               fixed=fixed)  # fmt: skip
+    fit = with_uncertainty(fit, obs, uncertainty)
+    if prior is not None:
+        fit.prior_sources = prior.sources(fit.theta, fit.cov)
+    fit.identification = ident
+    if note_what:
+        for line in ident.lines(prior is not None):
+            note(f"{obs.session or 'stops'}: {line}")
+    return fit
+
+
+def _one_device(srcs: Sequence[Source], prior: Calibration | None) -> None:
+    """Refuse (InputError, one line) sessions of different devices, or of another device than the prior's."""
+    first = DeviceInfo.from_key(srcs[0].meta.device).key
+    for src in srcs[1:]:
+        diff = first.conflicts(DeviceInfo.from_key(src.meta.device).key)
+        if diff:
+            raise InputError(f"{src.where} is another device than {srcs[0].where}: {'; '.join(diff)}")
+    diff = [] if prior is None else prior.device_conflicts(first)
+    if diff:
+        raise InputError(
+            f"{srcs[0].where} is another device than the prior's ({prior.path}): {'; '.join(diff)}"
+        )
+
+
+def _field_gyro(srcs: Sequence[Source], fit) -> GyroCalibration | None:
+    """The gyro calibration (_gyro) of the session with the most stops; with several sessions the
+    others are not pooled into it (said in a note)."""
+    best = max(srcs, key=lambda s: len(s.poses))
+    if len(srcs) > 1:
+        note(f"gyro: calibrated from the stops of {best.where} only (not pooled over the sessions)")
+    return _gyro(best, fit, None)
 
 
 # ------------------------------------------------------------------------------------------ segment

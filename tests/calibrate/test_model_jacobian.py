@@ -11,8 +11,9 @@ from support.synthetic import cube_poses, synthetic_obs, true_theta
 from accellog.calibrate.diagnosis.handheld import HANDHELD_START
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.effects import LIBRARY
-from accellog.calibrate.model.fit import _numjac, _Problem, _steps, obs_drivers
+from accellog.calibrate.model.fit import _Problem, _steps, obs_drivers
 from accellog.calibrate.model.jacobian import norm_jacobian, numeric_columns, predict_jacobian
+from accellog.calibrate.model.residual_fns import numjac
 
 EFFECTS = [e for e in LIBRARY if LIBRARY[e].static and e not in ("misalignment_tri", "cross_axis")]
 
@@ -50,7 +51,7 @@ def test_labelled_columns_match_differences(effect):
     assert np.abs(J[..., keep] - Jn[..., keep]).max() < 1e-7 * np.abs(Jn).max()
     # the fit's Jacobian (analytic columns + differences for fixture_tilt) equals all-differences
     prob = _Problem(m, obs, drv, 1.0 / obs.sigma_g, 1.0, obs.q_sensor_to_world)
-    Jf = _numjac(prob.resid, th, _steps(m, th))
+    Jf = numjac(prob.resid, th, _steps(m, th))
     Jr = _central(prob.resid, th, _steps(m, th))
     assert np.abs(Jf - Jr).max() < 1e-7 * np.abs(Jr).max()
 

@@ -21,8 +21,9 @@ naming the parameters and the poses or signals that are missing.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -35,8 +36,10 @@ from accellog.calibrate.model.identifiability import (
     rank_check,
 )
 from accellog.calibrate.model.jacobian import norm_jacobian, numeric_columns, predict_jacobian
+from accellog.calibrate.model.prior import Prior
+from accellog.calibrate.model.residual_fns import numjac, restricted, with_prior
 from accellog.core.errors import InputError, ModelError
-from accellog.core.numeric import chi2_sf, jacobian_array, least_squares
+from accellog.core.numeric import chi2_sf, least_squares
 from accellog.core.session import ObsTable
 
 
@@ -96,6 +99,12 @@ class FitResult:
     gravity norm), when a hold-scatter method was used."""
     uncertainty_note: str = ""
     """Which 1-sigma cov/sigma are, in words (set by accellog.calibrate.model.variance.with_uncertainty)."""
+    fixed: list[str] = field(default_factory=list)
+    """Parameters held at their start values (not identifiable from the data; sigma 0)."""
+    prior_sources: list[dict] | None = None
+    """With a prior (calibrate.model.prior.Prior.sources): per parameter which source determined it."""
+    identification: Any = None
+    """What the stops identified (calibrate.model.identifiability.StopIdentification), field fits."""
     obs: ObsTable | None = field(default=None, repr=False, compare=False)
     """The observations fitted (held-out scores take the session's between-hold scatter from them)."""
     _recompute: Callable[[], np.ndarray] | None = field(default=None, init=False, repr=False, compare=False)
@@ -134,6 +143,9 @@ class FitResult:
             "uncertainty": self.uncertainty,
             "between_hold_g": self.between_hold_g,
             "uncertainty_note": self.uncertainty_note,
+            **({"fixed": list(self.fixed)} if self.fixed else {}),
+            **({"prior_sources": self.prior_sources} if self.prior_sources is not None else {}),
+            **({"identification": self.identification.to_dict()} if self.identification is not None else {}),
         }
 
 
@@ -177,31 +189,6 @@ def _checked(
     return meas, drv, sig_ok
 
 
-def _numjac(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Jacobian of fun: `fun.analytic(theta) -> (J, columns left to differences)` when offered
-    (calibrate.model.jacobian), else central differences, column by column into one array."""
-    analytic = getattr(fun, "analytic", None) or getattr(getattr(fun, "__self__", None), "analytic", None)
-    got = analytic(theta) if analytic is not None else None
-    if got is not None:
-        out, todo = got
-        for k in todo:
-            tp, tm = theta.copy(), theta.copy()
-            tp[k] += steps[k]
-            tm[k] -= steps[k]
-            out[:, k] = (fun(tp) - fun(tm)) / (2.0 * steps[k])
-        return out
-    out = None
-    for k in range(theta.size):
-        tp = theta.copy()
-        tm = theta.copy()
-        tp[k] += steps[k]
-        tm[k] -= steps[k]
-        col = (fun(tp) - fun(tm)) / (2.0 * steps[k])
-        out = jacobian_array(col.size, theta.size) if out is None else out
-        out[:, k] = col
-    return out if out is not None else np.zeros((fun(theta).size, 0))
-
-
 @dataclass
 class _Problem:
     model: Model
@@ -235,12 +222,15 @@ def _steps(model: Model, theta: np.ndarray) -> np.ndarray:
     return np.maximum(1e-4 * model.param_typical, 1e-7 * np.abs(theta))
 
 
-def _solve(fun, theta0: np.ndarray, model: Model, what: str) -> np.ndarray:
-    """min sum fun(theta)^2 from theta0: scipy's Levenberg-Marquardt (core.numeric.least_squares) with
-    the central-difference Jacobian, parameters scaled by their typical size; ModelError naming
-    `what` if it does not converge."""
-    jac = lambda th: _numjac(fun, th, _steps(model, th))  # noqa: E731
-    return least_squares(fun, theta0, what=what, jac=jac, x_scale=model.param_typical).x
+def _solve(fun, theta0: np.ndarray, model: Model, what: str, free: np.ndarray | None = None) -> np.ndarray:
+    """min sum fun(theta)^2 from theta0 over the free parameters (all by default; the others stay at
+    theta0): scipy's Levenberg-Marquardt (core.numeric.least_squares) with the central-difference
+    Jacobian, parameters scaled by their typical size; ModelError naming `what` if it does not converge."""
+    free = np.ones(theta0.size, bool) if free is None else free
+    sub = restricted(fun, theta0, free) if not free.all() else fun
+    full = getattr(sub, "full", lambda x: x)
+    jac = lambda x: numjac(sub, x, _steps(model, full(x))[free])  # noqa: E731
+    return full(least_squares(sub, theta0[free], what=what, jac=jac, x_scale=model.param_typical[free]).x)
 
 
 def _warmup_init(problem: _Problem, theta0: np.ndarray, wfun) -> np.ndarray:
@@ -258,7 +248,7 @@ def _warmup_init(problem: _Problem, theta0: np.ndarray, wfun) -> np.ndarray:
             t2[free] = x
             return wfun(t2)
 
-        J = _numjac(f_sub, th[free], _steps(problem.model, th)[free])
+        J = numjac(f_sub, th[free], _steps(problem.model, th)[free])
         x, *_ = np.linalg.lstsq(J, -f_sub(th[free]), rcond=None)
         th[free] += x
         c = float(np.sum(wfun(th) ** 2))
@@ -292,7 +282,7 @@ def fit_model(
         # at theta0 a nonlinear parameter (tau of a zero warm-up amplitude) has no effect at all.
         probe = model.initial_theta()
         probe = np.where(probe == 0.0, 0.5 * model.param_typical, probe)
-        rank_check(_numjac(prob.resid, probe, _steps(model, probe)), model, obs, drv, overwrite=True)
+        rank_check(numjac(prob.resid, probe, _steps(model, probe)), model, obs, drv, overwrite=True)
     if "tau_warmup_s" in model.index and theta0 is None:
         th0 = _warmup_init(prob, th0, prob.resid)
     theta = _solve(prob.resid, th0, model, f"fit of {model.name}")
@@ -303,7 +293,7 @@ def _result(prob: _Problem, theta: np.ndarray, weighted: bool, sig_ok: bool, met
     model, obs = prob.model, prob.obs
     pred, f = prob.predicted(theta)
     res = np.asarray(obs.meas_g, float) - pred
-    J = _numjac(prob.resid, theta, _steps(model, theta))
+    J = numjac(prob.resid, theta, _steps(model, theta))
     n_eq = res.size
     k = model.n_params
     dof = n_eq - k
@@ -361,7 +351,7 @@ def _jacobian_of(prob: _Problem, theta: np.ndarray, weighted: bool) -> Callable[
 
     def jac() -> np.ndarray:
         w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(np.asarray(obs.meas_g, float))
-        return _numjac(_Problem(model, obs, drv, w, g, q).resid, theta, _steps(model, theta))
+        return numjac(_Problem(model, obs, drv, w, g, q).resid, theta, _steps(model, theta))
 
     return jac
 
@@ -373,20 +363,33 @@ def fit_orientation_free(
     weighted: bool = True,
     gravity_g: float = 1.0,
     drivers: Mapping[str, np.ndarray] | None = None,
+    prior: Prior | None = None,
+    fixed: Sequence[str] = (),
 ) -> FitResult:
     """Fit without pose labels (imu_tk / ArduPilot): minimise sum ((|f_r| - g) / sigma_r)^2 with
     f_r = model.correct(theta, meas_r); sigma_r = |(f_r/|f_r|) . sigma_r| (projected noise).
 
     The rotation of the sensor frame is unobservable, so full cross_axis (6) cannot be fitted: use
     misalignment_tri (3). Needs >= 9 well-spread orientations for bias+scale+misalignment_tri.
+    prior (calibrate.model.prior, weighted fits only): its whitened rows W (theta - theta_p) join the
+    residuals and the fit starts at theta_p, so what the norm cannot see (cross_axis, fixture_tilt,
+    b_z against S_zz on level stops) stays at the prior's values; FitResult.prior_sources says per
+    parameter which source determined it. fixed: parameter names held at the start values (the
+    terms calibrate.model.identifiability.identify_stops finds the stops cannot see), sigma 0.
     """
-    if model.has("fixture_tilt"):
+    if prior is None and model.has("fixture_tilt"):
         raise ModelError("fixture_tilt needs pose labels: the orientation-free fit cannot use it")
-    if model.has("cross_axis"):
+    if prior is None and model.has("cross_axis"):
         raise ModelError(
             "an orientation-free fit cannot determine all 6 cross_axis terms (3 of them are a rotation "
             "of the frame): use misalignment_tri instead, e.g. 'bias+scale+misalignment_tri'"
         )
+    if prior is not None and (list(prior.names) != model.param_names or not weighted):
+        raise ModelError(f"{prior.what}: a prior needs a weighted fit of its own parameters")
+    unknown = sorted(set(fixed) - set(model.param_names))
+    if unknown:
+        raise ModelError(f"cannot hold {', '.join(unknown)} fixed: not parameters of {model.name}")
+    free = np.array([p not in set(fixed) for p in model.param_names])
     meas, drv, sig_ok = _checked(obs, model, weighted, drivers)
     if sig_ok:
         dirs = meas / np.linalg.norm(meas, axis=1, keepdims=True)
@@ -395,7 +398,7 @@ def fit_orientation_free(
         sig_n = np.ones(obs.n)
     wn = 1.0 / sig_n if weighted else np.ones(obs.n)
 
-    def fun(theta):
+    def norm(theta):
         f = model.correct(theta, meas, drv)
         return (np.linalg.norm(f, axis=1) - gravity_g) * wn
 
@@ -403,29 +406,36 @@ def fit_orientation_free(
         J = norm_jacobian(model, theta, meas, drv)
         return None if J is None else (J * wn[:, None], numeric_columns(model))
 
-    fun.analytic = analytic
-    th0 = model.initial_theta()
-    _norm_rank_check(fun, th0, model, obs)
-    theta = _solve(fun, th0, model, f"orientation-free fit of {model.name}")
+    norm.analytic = analytic
+    fun = with_prior(norm, prior)
+    th0 = model.initial_theta() if prior is None else prior.theta.copy()
+    if prior is None:
+        _norm_rank_check(restricted(fun, th0, free), th0, model, obs, free)
+    theta = _solve(fun, th0, model, f"orientation-free fit of {model.name}", free)
     w = 1.0 / np.asarray(obs.sigma_g, float) if weighted else np.ones_like(meas)
     prob = _Problem(model, _implied_truth(obs, model, theta, drv, gravity_g), drv, w, float(gravity_g), None)
     out = _result(prob, theta, weighted, sig_ok, method="orientation_free")
-    _norm_statistics(out, fun, theta, weighted, sig_ok, wn, sig_n)
+    _norm_statistics(out, (norm, fun), theta, weighted, sig_ok, (wn, sig_n), free)
+    out.fixed = [p for p in model.param_names if p in set(fixed)]
+    if prior is not None:
+        out.prior_sources = prior.sources(theta, out.cov)
     return out
 
 
-def _norm_rank_check(fun, th0: np.ndarray, model: Model, obs: ObsTable) -> None:
-    """Refuse (ModelError) a norm fit with fewer rows than parameters or a rank-deficient Jacobian."""
-    J0 = _numjac(fun, th0, _steps(model, th0))
+def _norm_rank_check(sub, th0: np.ndarray, model: Model, obs: ObsTable, free: np.ndarray) -> None:
+    """Refuse (ModelError) a norm fit of the free parameters (sub: _restricted) with fewer rows
+    than parameters or a rank-deficient Jacobian."""
+    names = [p for p, f in zip(model.param_names, free, strict=True) if f]
+    J0 = numjac(sub, th0[free], _steps(model, th0)[free])
     if J0.shape[0] < J0.shape[1]:
         raise ModelError(
-            f"orientation-free fit of {model.name} needs >= {model.n_params} distinct static "
+            f"orientation-free fit of {model.name} needs >= {len(names)} distinct static "
             f"orientations, have {obs.n}"
         )
     norms = np.linalg.norm(J0, axis=0)
     _, s, vt = np.linalg.svd(J0 / np.where(norms > 0, norms, 1.0), full_matrices=False)
     if np.any(norms == 0) or s[-1] < 1e-7 * s[0]:
-        bad = [model.param_names[k] for k in np.flatnonzero((norms == 0) | (np.abs(vt[-1]) > 0.2))]
+        bad = [names[k] for k in np.flatnonzero((norms == 0) | (np.abs(vt[-1]) > 0.2))]
         from accellog.calibrate.model.identifiability import NORM_ONLY_LABELLED, norm_blind_params
 
         blind = norm_blind_params(model)  # more orientations would not help these
@@ -446,21 +456,25 @@ def _implied_truth(obs: ObsTable, model: Model, theta: np.ndarray, drv, gravity_
     return dataclasses.replace(obs, up_sensor=up, q_sensor_to_world=None)
 
 
-def _norm_statistics(out: FitResult, fun, theta, weighted: bool, sig_ok: bool, wn, sig_n) -> None:
-    """Covariance, chi2 and acceptance checks of `out` from the norm residuals fun (the quantity
-    actually fitted; wn, sig_n: weight and projected sigma per row), replacing the labelled-style ones."""
-    model, n = out.model, out.n_obs
-    J = _numjac(fun, theta, _steps(model, theta))
-    cov = np.linalg.pinv(J.T @ J)
-    r = fun(theta)
-    dof = n - model.n_params
+def _norm_statistics(out: FitResult, funs, theta, weighted: bool, sig_ok: bool, weights, free) -> None:
+    """Covariance, chi2 and acceptance checks of `out` from the residuals actually fitted (funs: the
+    norm rows and the whole objective, with a prior's rows; weights: (wn, sig_n), weight and
+    projected sigma per row; free: the parameters fitted, a fixed one has sigma 0), replacing the
+    labelled-style ones of _result."""
+    (norm, fun), (wn, sig_n) = funs, weights
+    model = out.model
+    J = numjac(fun, theta, _steps(model, theta))[:, free]
+    cov = np.zeros((theta.size, theta.size))
+    cov[np.ix_(free, free)] = np.linalg.pinv(J.T @ J)
+    r, rr = norm(theta), fun(theta)
+    dof = rr.size - int(free.sum())
     if not weighted:
         cov = cov * (float(r @ r) / dof if dof > 0 else np.nan)
     out.cov = cov
     out.sigma = np.sqrt(np.clip(np.diag(cov), 0, None))
     out.dof = dof
     if sig_ok:
-        out.chi2 = float(np.sum((r / wn / sig_n) ** 2))
+        out.chi2 = float(np.sum((r / wn / sig_n) ** 2) + np.sum(rr[r.size :] ** 2))
         out.chi2_dof = out.chi2 / dof if dof > 0 else np.nan
         out.p_value = _chi2_sf(out.chi2, dof)
     scale = max(1.0, out.chi2_dof) if weighted and np.isfinite(out.chi2_dof) else 1.0
