@@ -188,20 +188,22 @@ def run_fit(
     given = isinstance(data, ObsTable) or (obs is None and table is not None)  # no session
     src = None if given else open_source(data, what="fit")
     name = table.session if src is None else src.where
-    if table is None and not src.poses:  # unlabelled (hand-held, a robot's run): its stops are detected
-        return _field_fit([src], None, **field)
     m = build_model(model, add=list(add), effects_file=effects_file)
+    if not orientation_free and table is None and not src.poses:
+        orientation_free, m = True, _orientation_free_model(m, effects_file, name)
     if local_gravity_mps2 is None:
         local_gravity_mps2 = STANDARD_GRAVITY_MPS2 if src is None else src.meta.local_gravity_mps2
     truth = _truth_g(gravity, float(local_gravity_mps2))
-    first = None  # the gyro's first pass
+    detected, first = None, None  # static intervals found in an unlabelled session; the gyro's first pass
     if table is None and (relabel or orientation_free):
         src = open_source(_relabelled(src.whole(), trim_s) if relabel else src.whole())
-        table = observations(src.session, window_s=window_s, trim_s=trim_s)
+        table, detected = _fit_observations(src.session, m, truth, orientation_free, window_s, trim_s)
+        if detected:  # hand-held: the gyro is calibrated on the detected static intervals (imu_tk style)
+            src = open_source(with_labels(src.session, detected))
     elif table is None:
         table, first, src = _read_observing(src, window_s, trim_s, gyro)
     fit = _fit_obs(table, m, name, orientation_free, weighted, truth, uncertainty)
-    cal = _calibration(fit, table, src, gravity, float(local_gravity_mps2), None)
+    cal = _calibration(fit, table, src, gravity, float(local_gravity_mps2), detected)
     if gyro and src is not None:
         cal.gyro = _gyro(src, fit, first)
     warn_clipped_moves(fit, cal)  # moves left out of the gyro fit: said, and in the file
@@ -261,6 +263,30 @@ def _orientation_free_model(m, effects_file, where: str):
     swap = " with misalignment_tri for cross_axis" if terms != list(m.terms) else ""
     note(f"{where}: no pose labels: fitted orientation-free (|f| = g on the detected still intervals){swap}")
     return build_model("+".join(dict.fromkeys(terms)), effects_file=effects_file) if swap else m
+
+
+def _fit_observations(
+    session: Session, m, truth: float, orientation_free: bool, window_s: float, trim_s: float
+):
+    """(obs, detected static intervals or None): windowed observations of the holds, or of the static
+    intervals detect_static finds in an unlabelled session for an orientation-free fit (too few
+    distinct orientations: refused, with the option that updates a lab calibration instead)."""
+    if not (orientation_free and not session.poses):
+        return observations(session, window_s=window_s, trim_s=trim_s), None
+
+    def cost(labels) -> float:
+        o = observations(with_labels(session, labels), window_s=window_s, trim_s=0.0, check_units=False)
+        return fit_orientation_free(o, m, weighted=False, gravity_g=truth).rms_g
+
+    try:
+        detected = detect_static(session, cost=cost)
+    except InputError as exc:
+        if "distinct static orientations" not in str(exc):
+            raise
+        raise InputError(
+            f"{exc}; or give --prior LAB.json to update a lab calibration from these stops"
+        ) from None
+    return observations(with_labels(session, detected), window_s=window_s, trim_s=0.0), detected
 
 
 def _fit_obs(obs, m, name: str, orientation_free: bool, weighted: bool, truth: float, uncertainty: str):
