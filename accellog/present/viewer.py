@@ -92,6 +92,20 @@ def wait_port(port: int, timeout_s: float, proc: subprocess.Popen | None = None)
     raise InputError(f"nothing listens on 127.0.0.1:{port} after {timeout_s:g} s")
 
 
+def require_display() -> None:
+    """InputError (one line) when the native viewer has no display to open on (Linux without
+    $DISPLAY or $WAYLAND_DISPLAY): it would start, fail and leave the command silent."""
+    import sys
+
+    if sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
+        raise InputError(
+            "no display for the native viewer (DISPLAY is not set): use --web (prints a URL to open) "
+            "or --screenshot PNG"
+        )
+
+
 def rerun_env() -> dict[str, str]:
     """Environment for rerun processes: analytics off."""
     return dict(os.environ, RERUN_ANALYTICS="0")
@@ -227,6 +241,19 @@ class DevToolsTimeout(InputError):
     """Chromium did not answer a DevTools command in time (the page may still be busy drawing)."""
 
 
+@contextlib.contextmanager
+def _one_line(what: str) -> Iterator[None]:
+    """A broken DevTools connection (chromium crashed, or closed the socket) as one InputError line."""
+    from websockets.exceptions import WebSocketException
+
+    try:
+        yield
+    except (WebSocketException, ConnectionError) as exc:
+        raise InputError(
+            f"chromium closed the DevTools connection while waiting for {what} ({exc})"
+        ) from None
+
+
 class Chromium:
     """Headless Chromium driven over the DevTools protocol (127.0.0.1, throw-away profile);
     timeout_s bounds the start and each command unless the command gives its own."""
@@ -297,7 +324,11 @@ class Chromium:
                 time.sleep(0.1)
         if ws_url is None:
             raise InputError("chromium opened no page")
-        self._ws = self._stack.enter_context(connect(ws_url, max_size=None, open_timeout=self.timeout_s))
+        # no keepalive pings: a software-rendered page keeps chromium's DevTools thread busy for
+        # longer than websockets' default 20 s ping timeout, which would end the connection
+        self._ws = self._stack.enter_context(
+            connect(ws_url, max_size=None, open_timeout=self.timeout_s, ping_interval=None, close_timeout=2)
+        )
         w, h = self.size
         self.call("Emulation.setDeviceMetricsOverride", width=w, height=h, deviceScaleFactor=1, mobile=False)
         self.call("Page.enable")
@@ -311,14 +342,15 @@ class Chromium:
         self._id += 1
         my_id = self._id
         wait = self.timeout_s if timeout_s is None else max(float(timeout_s), 0.01)
-        self._ws.send(json.dumps({"id": my_id, "method": method, "params": params}))
+        with _one_line(method):
+            self._ws.send(json.dumps({"id": my_id, "method": method, "params": params}))
         end = time.monotonic() + wait
         while True:
             left = end - time.monotonic()
             if left <= 0:
                 raise DevToolsTimeout(f"chromium did not answer {method} within {wait:g} s")
             try:
-                msg = json.loads(self._ws.recv(timeout=left))
+                msg = self._recv(left, f"the answer to {method}")
             except TimeoutError:
                 raise DevToolsTimeout(f"chromium did not answer {method} within {wait:g} s") from None
             self._handle(msg)
@@ -334,7 +366,14 @@ class Chromium:
         end = time.monotonic() + load_timeout_s
         while "Page.loadEventFired" not in self._events and time.monotonic() < end:
             with contextlib.suppress(TimeoutError):
-                self._handle(json.loads(self._ws.recv(timeout=max(0.01, end - time.monotonic()))))
+                self._handle(self._recv(max(0.01, end - time.monotonic())))
+
+    def _recv(self, timeout_s: float, what: str = "the page to load") -> dict:
+        """The next DevTools message (TimeoutError after timeout_s; InputError when chromium has
+        closed the connection)."""
+        assert self._ws is not None
+        with _one_line(what):
+            return json.loads(self._ws.recv(timeout=timeout_s))
 
     def _handle(self, msg: dict) -> None:
         if "method" in msg:
@@ -419,9 +458,12 @@ def screenshot_url(
     if not out.parent.is_dir():
         raise InputError("folder does not exist", where=str(out.parent))
     _require("PIL", "pillow")
-    with Chromium(size=size, timeout_s=max(deadline - time.monotonic(), 1.0)) as ch:
-        ch.navigate(url, load_timeout_s=max(min(20.0, deadline - time.monotonic()), 0.1))
-        shot = _settled_capture(ch, deadline, min_wait_s, settle_s)
+    try:
+        with Chromium(size=size, timeout_s=max(deadline - time.monotonic(), 1.0)) as ch:
+            ch.navigate(url, load_timeout_s=max(min(20.0, deadline - time.monotonic()), 0.1))
+            shot = _settled_capture(ch, deadline, min_wait_s, settle_s)
+    except OSError as exc:  # the browser's DevTools port refused or reset: one line, not a traceback
+        raise InputError(f"chromium's DevTools port failed: {exc}; nothing written", where=str(out)) from None
     if shot is None:
         raise InputError(
             f"the viewer did not draw a stable picture within {wait_s:.0f} s; nothing written "
