@@ -9,18 +9,15 @@ real time until the viewer has drawn the recording and saves a PNG. Nothing here
 
 from __future__ import annotations
 
-import atexit
 import base64
 import contextlib
 import io
 import json
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import tempfile
-import threading
 import time
 import urllib.parse
 import urllib.request
@@ -32,6 +29,7 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.present.rrd.tabs import tab_view_files
+from accellog.present.viewer_children import start_child, stop_process
 from accellog.store.atomic import write_bytes_atomic
 
 CHROMIUM_CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "chrome")
@@ -109,85 +107,6 @@ def require_display() -> None:
 def rerun_env() -> dict[str, str]:
     """Environment for rerun processes: analytics off."""
     return dict(os.environ, RERUN_ANALYTICS="0")
-
-
-# Children (rerun server, chromium) run in their own process group (start_new_session) so that one
-# killpg ends them with all their helpers. They are ended on every exit path of this process:
-# normal return and exceptions (context managers), SIGTERM/SIGHUP (handlers installed with the first
-# child turn the signal into SystemExit after ending the children) and interpreter exit (atexit).
-_CHILDREN: set[subprocess.Popen] = set()
-_FOLDERS: dict[int, str] = {}  # child pid -> its throw-away folder, removed when the child is stopped
-_HANDLED = (signal.SIGTERM, signal.SIGHUP)
-_installed = False
-
-
-def start_child(cmd: list[str], *, folder: str | None = None, **kw) -> subprocess.Popen:
-    """Popen in a new process group (stdout/stderr discarded), ended on every exit path; folder
-    (e.g. a browser profile) is removed whenever the child is stopped, signals included."""
-    _install_exit_guards()
-    try:
-        proc = subprocess.Popen(
-            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, **kw
-        )
-    except BaseException:
-        if folder is not None:
-            shutil.rmtree(folder, ignore_errors=True)
-        raise
-    _CHILDREN.add(proc)
-    if folder is not None:
-        _FOLDERS[proc.pid] = folder
-    return proc
-
-
-def end_children() -> None:
-    """Stop every child still running (process groups: SIGTERM, then SIGKILL after 5 s)."""
-    for proc in list(_CHILDREN):
-        with contextlib.suppress(Exception):
-            stop_process(proc)
-
-
-def _on_signal(signum, _frame) -> None:
-    end_children()
-    raise SystemExit(128 + signum)
-
-
-def _install_exit_guards() -> None:
-    global _installed
-    if _installed:
-        return
-    _installed = True
-    atexit.register(end_children)
-    if threading.current_thread() is not threading.main_thread():
-        return
-    for sig in _HANDLED:
-        if signal.getsignal(sig) in (signal.SIG_DFL, None):
-            signal.signal(sig, _on_signal)
-
-
-def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
-    """Terminate a process we started (its own process group), then kill it if it lingers; kill the
-    helpers left in its group and remove its folder."""
-    _CHILDREN.discard(proc)
-    if proc.poll() is None:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGTERM)
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            proc.wait(timeout_s)
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(proc.pid, signal.SIGKILL)  # the process if it lingers, and helpers left in its group
-    proc.wait()
-    folder = _FOLDERS.pop(proc.pid, None)
-    if folder is not None:
-        _remove_folder(folder)
-
-
-def _remove_folder(folder: str, timeout_s: float = 2.0) -> None:
-    """rmtree, again while helpers that were just killed may still have been writing into it."""
-    end = time.monotonic() + timeout_s
-    shutil.rmtree(folder, ignore_errors=True)
-    while os.path.exists(folder) and time.monotonic() < end:
-        time.sleep(0.05)
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 @dataclass
