@@ -188,9 +188,9 @@ def search_table(trail, norm: str = "") -> Table:
     of it, its held-out residual on the common yardstick (chi2/dof, RMS in mg) with a log-scale bar
     (the falling curve), and why."""
     held = any(r.heldout is not None for r in trail)
+    what = f"held-out {norm}residual" if held else f"out-of-sample {norm}chi2/eq (no held-out session)"
     t = Table(
-        title=f"the search, step by step: held-out {norm}residual of every model tried"
-        + (" (one yardstick for all)" if held else " (out-of-sample chi2/eq: no held-out session)")
+        title=f"the search, step by step: {what} of every model tried" + (" (one yardstick)" if held else "")
     )
     for c, just in (("step", "right"), ("change", "left"), ("what became of it", "left")):
         t.add_column(c, justify=just, no_wrap=True)

@@ -58,7 +58,9 @@ def log_search(rec, trail, ladder: Sequence = ()) -> None:
     lo = float(np.nanmin(logv)) if ok.any() else 0.0
     hi = float(np.nanmax(logv)) if ok.any() else 1.0
     ticks = np.arange(np.floor(lo - 0.5), np.ceil(hi) + 0.5)
-    bottom, top = float(ticks[0]), float(max(ticks[-1], ticks[0] + 1.0))
+    bottom = float(ticks[0])
+    top = max(hi + 0.3 * (hi - bottom), bottom + 1.0)  # room over the highest bar for its values
+    ticks = ticks[ticks <= top]
 
     def sy(v):
         return (top - np.asarray(v, float)) / (top - bottom) * H
@@ -104,7 +106,11 @@ def log_search(rec, trail, ladder: Sequence = ()) -> None:
         f"{SEARCH}/labels", rr.Points2D(pos, labels=txt, radii=0.1, colors=[(210, 210, 210)] * len(txt)), ROLE
     )
     caption = f"{what} of every model the search tried (log scale); line: the models it walked through"
-    rec.log_static(f"{SEARCH}/legend", rr.Points2D([[W / 2, -22.0]], labels=[caption], radii=0.1), ROLE)
+    rec.log_static(
+        f"{SEARCH}/legend",
+        rr.Points2D([[W / 2, -22.0]], labels=[caption], colors=[(210, 210, 210)], radii=0.1),
+        ROLE,
+    )
     rec.log_document("search", search_markdown(trail))
 
 

@@ -116,7 +116,7 @@ def log_bar_groups(
                 strips.append(strip)
                 radii.append(r)
                 cols.append(colors[j])
-                tops.append([x, float(sy(max(v[g, j], base))) - 8.0])
+                tops.append([x, float(sy(max(v[g, j], base))) - 22.0])
                 shown.append(f"{raw[g, j]:.3g}")
     rec.log_static(
         f"{entity}/frame",
@@ -131,7 +131,7 @@ def log_bar_groups(
         rec.log_static(
             f"{entity}/bars", rr.LineStrips2D(strips, colors=cols, radii=radii, draw_order=-1.0), BARS2D
         )
-    if log10 and bw >= 45.0:  # a log scale is read by its values (where they fit)
+    if log10 and bw >= 100.0:  # a log scale is read by its values (where they fit)
         _values(rec, f"{entity}/values", tops, shown)
     two_rows = len(groups) > 4 and max(len(g) for g in groups) * 7 > slot
     pos = [[(g + 0.5) * slot, H + 14 + (12 if two_rows and g % 2 else 0)] for g in range(len(groups))]
