@@ -157,6 +157,8 @@ def view(
 
     if not recording.is_file():
         raise InputError("no such .rrd file", where=str(recording))
+    if screenshot is None and not web:
+        viewer.require_display()
     if screenshot is not None:
         stats = viewer.screenshot_rrd(recording, screenshot, size=(width, height), wait_s=wait_s, tab=tab)
         _console.print(f"{screenshot}: {stats.colors} colours, {100 * stats.non_background:.0f}% drawn")

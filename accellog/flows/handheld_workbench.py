@@ -62,6 +62,7 @@ class HandheldDiscovery(JsonResult, Discovery):
             "steps": [c.to_dict() for c in self.choices],
             "advice": list(self.advice),
             "dropped": [dict(d) for d in self.dropped],
+            "trail": [t.to_dict() for t in self.trail],
             **({} if self.loso is None else {"heldout_per_session": self.loso}),
             "cannot_identify": self.cannot_identify,
             "detected": self.detection.to_dict(),

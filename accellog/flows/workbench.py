@@ -72,6 +72,9 @@ class Discovery:
     """The yardstick itself (variance.HoldScatter), for the ladder's held-out columns."""
     final_diagnosis: object = field(default=None, repr=False)
     """The diagnosis of the final model when pruning made it another than the last step's."""
+    trail: list = field(default_factory=list)
+    """Every model the search tried, in order, with its held-out residual on the yardstick
+    (accellog.flows.workbench_trail.TrailStep: kept, dropped, tied, rejected, removed)."""
 
     @property
     def final_model(self) -> str:
@@ -102,6 +105,7 @@ class Discovery:
             "advice": list(self.advice),
             "dropped": [dict(d) for d in self.dropped],
             "yardstick": self.yardstick,
+            "trail": [t.to_dict() for t in self.trail],
             **({} if self.loso is None else {"heldout_per_session": self.loso}),
         }
 
@@ -151,7 +155,8 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
     from accellog.calibrate.diagnosis.diagnose import default_candidates
     from accellog.calibrate.model.compose import build_model
     from accellog.calibrate.model.variance import yardstick
-    from accellog.flows.workbench_prune import backward_step, prune
+    from accellog.flows import workbench_trail as trail
+    from accellog.flows.workbench_prune import backward_step
 
     start = out.start
     model = build_model(start, effects_file=effects_file)
@@ -166,13 +171,16 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
         if on_step is not None:
             on_step(d)
         ch = d.choice if len(out.added) < max_steps else None
+        trail.note_start(out, ch)
         if ch is not None:
             out.choices.append(ch)
         if ch is None or ch.chosen is None or ch.chosen in out.added:
+            trail.note_rejected(out, ch)
             break
         if ch.undecided:
             out.undecided.append([ch.chosen, *ch.undecided])
         out.added.append(ch.chosen)
+        trail.note_added(out, ch)
         model = model.with_terms([ch.chosen])
         full = d.fits.get(ch.chosen)
         while (
@@ -180,6 +188,7 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
         ) is not None:
             out.added.remove(drop[0])
             out.dropped.append({"effect": drop[0], "why": drop[1]})
+            trail.note_removed(out, drop[0], "backward", drop[1])
             gone.add(drop[0])
             model, full = build_model(start, add=out.added, effects_file=effects_file), None
 
@@ -205,8 +214,7 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
         return stats
 
     out.heldout = stats_of(out.final_model)
-    path = ["+".join([start, *out.added[:k]]) for k in range(len(out.added))]  # the models seen before
-    out.dropped += [{"effect": e, "why": why, "proxy": True} for e, why in prune(out, stats_of, path)]
+    _prune(out, stats_of, yard is not None)
     out.heldout = stats_of(out.final_model)  # (and the final model's per-session statistics)
     if out.diagnoses and set(out.diagnoses[-1].model.term_names) != set(
         build_model(out.final_model, effects_file=effects_file).term_names
@@ -222,6 +230,21 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
         for g in ([g[0], *[e for e in g[1:] if e not in out.added]] for g in out.undecided)
         if len(g) > 1 and g[0] in out.added
     ]
+
+
+def _prune(out: Discovery, stats_of, judged: bool) -> None:
+    """workbench_prune.prune on the models the search walked through, each proxy removed also a
+    trail row; then every trail row's held-out statistics (judged: on the common yardstick)."""
+    from accellog.flows.workbench_prune import prune
+    from accellog.flows.workbench_trail import finish_trail, note_removed
+
+    path = ["+".join([out.start, *out.added[:k]]) for k in range(len(out.added))]  # the models seen before
+    left = list(out.added)  # as pruning removes them, one trail row each
+    for e, why in prune(out, stats_of, path):
+        out.dropped.append({"effect": e, "why": why, "proxy": True})
+        left.remove(e)
+        note_removed(out, e, "proxy", why, left)
+    finish_trail(out, stats_of if judged else None)
 
 
 def final_verdict(found: Discovery, strategy: Strategy | None = None) -> tuple[str, list[str]]:

@@ -232,7 +232,6 @@ def _loso_rows(rows, parts, scatter=None) -> list[list[dict | None]]:
 
 def _write_rrd(rrd, data, found, rows, obs) -> None:
     from accellog.flows.workbench import log_ladder
-    from accellog.present.residual_views import log_workbench_residuals
     from accellog.present.rrd.recording import RunRecording
     from accellog.present.views import log_diagnosis, log_session
 
@@ -241,7 +240,22 @@ def _write_rrd(rrd, data, found, rows, obs) -> None:
         for i, d in enumerate(found.diagnoses, 1):
             log_diagnosis(rec, d, obs, label=f"step {i}")
         log_ladder(rec, rows, obs)
-        log_workbench_residuals(rec, obs, found.diagnoses[0].fit, rows[-1].fit.fit)
+        log_story(rec, found, rows, obs, rows[-1].fit.fit)
+
+
+def log_story(rec, found, rows, obs, final_fit) -> None:
+    """What carries a workbench recording: the search (every model tried, its held-out residual) and
+    the residual against the driver it follows, start model (before) and final model (after), each
+    in its ladder step's colour."""
+    from accellog.present.residual_views import followed_driver, log_workbench_residuals
+    from accellog.present.rrd.logs import step_color
+    from accellog.present.search_views import log_search
+
+    log_search(rec, found.trail, rows)
+    first = next((i for i, r in enumerate(rows) if not r.added and r.model == found.start), 0)
+    colors = (step_color(first), step_color(len(rows) - 1))
+    start = found.diagnoses[0]
+    log_workbench_residuals(rec, obs, start.fit, final_fit, colors, followed_driver(start))
 
 
 def _handheld(
@@ -278,7 +292,6 @@ def _handheld(
         with_notes(cal, found).save(output)
     if rrd is not None:
         from accellog.present.detection_views import log_detection
-        from accellog.present.residual_views import log_workbench_residuals
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_session
 
@@ -286,7 +299,7 @@ def _handheld(
             log_session(rec, data)
             log_detection(rec, found.detection)
             rec.log_ladder(found.ladder)
-            log_workbench_residuals(rec, found.obs, found.diagnoses[0].fit, found.diagnoses[-1].fit)
+            log_story(rec, found, found.ladder, found.obs, found.diagnoses[-1].fit)
     return WorkbenchOutcome(
         str(session),
         found,

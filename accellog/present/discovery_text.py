@@ -150,8 +150,68 @@ def ladder_table(ladder, title: str) -> Table:
     return table(ladder, title=title)
 
 
+TRAIL_STATUS = {
+    "start": "start",
+    "kept": "kept",
+    "dropped": "added, dropped later",
+    "tied": "tied, not taken",
+    "rejected": "rejected",
+    "backward": "removed (backward step)",
+    "proxy": "removed (proxy)",
+}
+"""How the search trail's statuses (accellog.flows.workbench_trail) read in the text and the .rrd."""
+BAR_CELLS = 24
+
+
+def log_bars(values: Sequence[float | None], cells: int = BAR_CELLS) -> list[str]:
+    """Text bars on a log scale: from a floor a decade below the smallest value (so a value near 1
+    still has a bar) to the largest, `cells` characters; '' where there is no value.
+
+        n(v) = 1 + (cells - 1) (log10 v - floor) / (log10 max - floor),  floor = floor(log10 min) - 1
+    """
+    ok = [float(v) for v in values if v is not None and np.isfinite(v) and v > 0]
+    if not ok:
+        return ["" for _ in values]
+    floor = np.floor(np.log10(min(ok))) - 1.0
+    span = max(np.log10(max(ok)) - floor, 1e-12)
+    out = []
+    for v in values:
+        if v is None or not np.isfinite(v) or v <= 0:
+            out.append("")
+            continue
+        out.append("█" * round(1 + (cells - 1) * (np.log10(v) - floor) / span))
+    return out
+
+
+def search_table(trail, norm: str = "") -> Table:
+    """Every model the workbench's search tried (TrailStep rows, in order): the change, what became
+    of it, its held-out residual on the common yardstick (chi2/dof, RMS in mg) with a log-scale bar
+    (the falling curve), and why."""
+    held = any(r.heldout is not None for r in trail)
+    what = f"held-out {norm}residual" if held else f"out-of-sample {norm}chi2/eq (no held-out session)"
+    t = Table(
+        title=f"the search, step by step: {what} of every model tried" + (" (one yardstick)" if held else "")
+    )
+    for c, just in (("step", "right"), ("change", "left"), ("what became of it", "left")):
+        t.add_column(c, justify=just, no_wrap=True)
+    if held:
+        t.add_column("held-out χ²/dof", justify="right", no_wrap=True)
+        t.add_column("held-out RMS (mg)", justify="right", no_wrap=True)
+    else:
+        t.add_column("OOS χ²/eq", justify="right", no_wrap=True)
+    t.add_column("log scale", no_wrap=True)
+    t.add_column("why", overflow="fold", ratio=1)
+    vals = [r.heldout_chi2_dof if held else r.score for r in trail]
+    for r, v, bar in zip(trail, vals, log_bars(vals), strict=True):
+        status = TRAIL_STATUS.get(r.status, r.status) + (" = final" if r.final else "")
+        style = "bold green" if r.final else ("dim" if not r.on_path else "")
+        nums = [_fmt(v), _fmt(r.heldout_rms_mg)] if held else [_fmt(v)]
+        t.add_row(str(r.step), escape(r.change), status, *nums, bar, escape(r.why), style=style)
+    return t
+
+
 def print_workbench(out, con: Console) -> None:
-    """The workbench's verdict, advice and ladder (a WorkbenchOutcome)."""
+    """The workbench's verdict, advice, the search trail and the ladder (a WorkbenchOutcome)."""
     if out.handheld:
         _print_handheld(out, con)
     else:
@@ -159,6 +219,8 @@ def print_workbench(out, con: Console) -> None:
         con.print(("[bold green]OK[/] " if out.ok else "[bold red]CHECK[/] ") + escape(found.verdict))
         for a in found.advice:
             con.print(f"advice: {escape(a)}")
+        if found.trail:
+            con.print(search_table(found.trail))
         con.print(ladder_table(out.ladder, title="watch the error fall: each step of model building"))
     loso = out.loso_dict()
     if loso is not None:
@@ -192,6 +254,8 @@ def _print_handheld(out, con: Console) -> None:
         con.print(f"advice: {escape(a)}")
     for a in found.cannot_identify:
         con.print(f"cannot identify: {escape(a)}")
+    if found.trail:
+        con.print(search_table(found.trail, norm="gravity-norm "))
     con.print(
         ladder_table(out.ladder, title="hand-held: each step of model building (gravity-norm residual)")
     )

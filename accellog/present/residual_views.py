@@ -1,16 +1,17 @@
 """Where the model fails: window residuals against each driver signal, in a Rerun recording.
 
-One scatter plot per (driver, model): x = the driver (temperature in degC, its rate in degC/s,
-time in s, time in pose in s, the reading f_i and f_i f_j in g), y = the window residual per axis (mg, axis colours x red, y green,
-z blue), passes kept apart (heating windows filled, cooling windows lighter, so a hysteresis or a
-heat/cool disagreement is not averaged away), and the candidate's predicted contribution drawn
-over the residual it explains (a line per axis). Rerun has no x-y plot with axes yet, so each plot
-is a 2D view with its own frame, zero line and tick labels; all models of one driver share the y
-scale (mg) so 'before' and 'after' compare at a glance. One more plot per model puts the windows
-by pose (`residual_vs/pose/...`): x = the pose, labelled with its name (not an index), every window
-kept (a per-pose mean would let heating and cooling passes cancel).
+One plot per (driver, axis): x = the driver (temperature in degC, its rate in degC/s, time in s,
+time in pose in s, the reading f_i and f_i f_j in g), y = the window residual on that axis (mg), every
+fit overlaid in its own colour (the calibration's colour in every panel: a workbench's start model
+is 'before', its final model 'after'), passes kept apart (heating windows filled, cooling windows
+lighter, so a hysteresis or a heat/cool disagreement is not averaged away), and what the added
+effects predict drawn over the residual they explain (darker dots). Rerun has no x-y plot with
+axes yet, so each plot is a 2D view with its own frame, zero line, tick labels and legend; the
+plots are wide (W x H view units) for wide views. One more plot per axis puts the windows by pose
+(`residual_vs/pose/...`): x = the pose, labelled with its name, every window kept (a per-pose
+mean would let heating and cooling passes cancel).
 
-    contribution of a candidate = predict(model + effect) - predict(model), per window (mg)
+    contribution of the added effects = predict(final model) - predict(start model), per window (mg)
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ import numpy as np
 
 from accellog.calibrate.model.fit import FitResult, obs_drivers
 from accellog.core.session import ObsTable
-from accellog.present.rrd.entities import AXIS_COLORS, slug
+from accellog.present.rrd.bars2d import nice_ticks
+from accellog.present.rrd.entities import AXES, TRACK_COLORS, slug
 
 SCATTER = "residual_vs"
 """Entity root of the residual-vs-driver plots (role 'scatter2d' in the blueprint)."""
@@ -55,14 +57,19 @@ def driver_values(obs: ObsTable) -> dict[str, np.ndarray]:
     return drv
 
 
-W, H = 400.0, 240.0
-"""Plot frame in view units (x: driver range, y: residual range)."""
+W, H = 1200.0, 200.0
+"""Plot frame in view units (x: driver range, y: residual range): wide, as the views that show it."""
+FRAME = "frame_"
+"""Entity of a plot's frame, ticks and legend: ``residual_vs/{driver}/frame_{axis}`` (the fits'
+points are at ``residual_vs/{driver}/{label}/{axis}``); role ``scatter2d`` (``scatter2d_main``: the
+driver the residual follows, given its own tab)."""
+BOUNDS = (-90.0, W + 10.0, -H / 2 - 40.0, H / 2 + 54.0)
+"""What a view of one plot shows (x0, x1, y0, y1 in view units): the frame and its labels."""
 
 
 @dataclass
 class Panel:
-    """One scatter plot: residuals (mg; (n, 3) per axis, or (n, 1) the gravity norm) of `label`
-    against driver `driver`."""
+    """One fit's residuals (mg; (n, 3) per axis, or (n, 1) the gravity norm) against driver `driver`."""
 
     driver: str
     label: str
@@ -97,79 +104,106 @@ def contribution_g(base: FitResult, with_effect: FitResult, obs: ObsTable) -> np
     return np.asarray(with_effect.predicted_g) - np.asarray(base.predicted_g)
 
 
-def _ticks(lo: float, hi: float) -> list[float]:
-    return [lo, 0.5 * (lo + hi), hi]
+def fit_colors(labels, colors: Mapping[str, tuple[int, int, int]] | None = None) -> dict:
+    """Colour per fit: the caller's (a calibration's colour in every panel of a recording, e.g. its
+    ladder step's), else the track colours in order."""
+    given = dict(colors or {})
+    return {k: tuple(given.get(k, TRACK_COLORS[i % len(TRACK_COLORS)])) for i, k in enumerate(labels)}
 
 
-def log_panels(rec, items: list[Panel]) -> None:
-    """Log the panels (one 2D view each, grouped per driver in the blueprint)."""
+def _light(rgb) -> np.ndarray:
+    c = np.asarray(rgb, float)
+    return (c + (255.0 - c) * 0.55).astype(np.uint8)
+
+
+def _frame(rec, ent: str, role: str, x_ticks: list[tuple[float, str]], y_max: float, legend, width=W) -> None:
+    """Frame, zero line, tick labels (x below, y on the left in mg) and a coloured legend above."""
+    import rerun as rr
+
+    box = [[0, -H / 2], [width, -H / 2], [width, H / 2], [0, H / 2], [0, -H / 2]]
+    rec.log_static(
+        f"{ent}/frame",
+        rr.LineStrips2D([box, [[0, 0], [width, 0]]], colors=[(150, 150, 150), (110, 110, 110)], radii=0.6),
+        role,
+    )
+    ys = [y_max, y_max / 2, 0.0, -y_max / 2, -y_max]
+    pos = [[x, H / 2 + 16 + (14 if len(x_ticks) > 12 and k % 2 else 0)] for k, (x, _) in enumerate(x_ticks)]
+    pos += [[-48.0, -y / y_max * (H / 2)] for y in ys]
+    txt = [t for _, t in x_ticks] + [f"{y:+.3g} mg" if y else "0" for y in ys]
+    rec.log_static(
+        f"{ent}/ticks", rr.Points2D(pos, labels=txt, radii=0.1, colors=[(200, 200, 200)] * len(txt)), role
+    )
+    step = width / max(len(legend), 1)
+    rec.log_static(
+        f"{ent}/legend",
+        rr.Points2D(
+            [[(j + 0.5) * step, -H / 2 - 18] for j in range(len(legend))],
+            labels=[t for t, _ in legend],
+            colors=[c for _, c in legend],
+            radii=0.1,
+        ),
+        role,
+    )
+
+
+def _legend(labels, colors, axis: str, lines: bool) -> list[tuple[str, tuple]]:
+    what = "residual" if axis == "norm" else f"residual {axis}"
+    out = [(f"{k}: {what} (light: cooling)", colors[k]) for k in labels]
+    dark = tuple(int(0.5 * v) for v in colors[labels[0]])
+    return out + ([("dark dots: what the added effects predict", dark)] if lines else [])
+
+
+def log_panels(
+    rec, items: list[Panel], colors: Mapping[str, tuple[int, int, int]] | None = None, main: str | None = None
+) -> None:
+    """Log the panels: per driver and axis one plot with every fit's residuals overlaid in its own
+    colour (colors: label -> RGB, see fit_colors), one y scale per axis (mg); main: the driver the
+    residual follows (role scatter2d_main: its own tab in the blueprint)."""
     import rerun as rr
 
     by_driver: dict[str, list[Panel]] = {}
     for p in items:
         by_driver.setdefault(p.driver, []).append(p)
     for d, ps in by_driver.items():
+        role = "scatter2d_main" if d == main else "scatter2d"
+        cols = fit_colors([p.label for p in ps], colors)
         x_lo = float(min(np.min(p.x) for p in ps))
         x_hi = float(max(np.max(p.x) for p in ps))
-        ys = [np.abs(p.residual_mg) for p in ps] + [
-            np.abs(p.contribution_mg) for p in ps if p.contribution_mg is not None
-        ]
-        y_max = max(float(max(np.max(y) for y in ys)), 1e-6)
 
         def sx(x, lo=x_lo, hi=x_hi):
             return (np.asarray(x, float) - lo) / max(hi - lo, 1e-12) * W
 
-        def sy(y, m=y_max):
-            return -np.asarray(y, float) / m * (H / 2)  # view y grows downwards: positive residual up
-
-        for p in ps:
-            ent = f"{SCATTER}/{slug(d)}/{slug(p.label)}"
-            frame = [[0, -H / 2], [W, -H / 2], [W, H / 2], [0, H / 2], [0, -H / 2]]
-            rec.log_static(
-                f"{ent}/frame",
-                rr.LineStrips2D(
-                    [frame, [[0, 0], [W, 0]]], colors=[(150, 150, 150), (110, 110, 110)], radii=0.6
-                ),
-                "scatter2d",
-            )
-            tick_pos = [[sx(v), H / 2 + 14] for v in _ticks(x_lo, x_hi)]
-            tick_pos += [[-8, float(sy(v))] for v in (y_max, 0.0, -y_max)]
-            tick_txt = [f"{v:.3g}" for v in _ticks(x_lo, x_hi)] + [
-                f"{v:+.3g} mg" for v in (y_max, 0.0, -y_max)
-            ]
-            rec.log_static(
-                f"{ent}/ticks",
-                rr.Points2D(tick_pos, labels=tick_txt, radii=0.1, colors=[(200, 200, 200)] * len(tick_txt)),
-                "scatter2d",
-            )
-            axes = "xyz" if p.residual_mg.shape[1] == 3 else ("norm",)
-            legend = (
-                "x red, y green, z blue (light: cooling); lines: what the added effects predict"
-                if len(axes) == 3
-                else "gravity-norm residual |f| - g per window (light: cooling)"
-            )
-            rec.log_static(
-                f"{ent}/legend", rr.Points2D([[W / 2, -H / 2 - 12]], labels=[legend], radii=0.1), "scatter2d"
-            )
-            for i, a in enumerate(axes):
-                col = np.array(AXIS_COLORS[i] if len(axes) == 3 else (230, 230, 230))
-                light = (col + (255 - col) * 0.6).astype(int) if len(axes) == 3 else np.array([130, 130, 130])
-                colors = np.where(p.heating[:, None], col, light).astype(np.uint8)
-                pts = np.column_stack([sx(p.x), sy(p.residual_mg[:, i])])
-                rec.log_static(f"{ent}/{a}", rr.Points2D(pts, colors=colors, radii=2.2), "scatter2d")
-                if p.contribution_mg is not None:
-                    o = np.argsort(p.x, kind="stable")
-                    line = np.column_stack([sx(p.x[o]), sy(p.contribution_mg[o, i])])
-                    rec.log_static(
-                        f"{ent}/contribution_{a}",
-                        rr.LineStrips2D([line], colors=[tuple(int(c) for c in col)], radii=1.0),
-                        "scatter2d",
-                    )
+        ticks = [float(v) for v in nice_ticks(x_lo, x_hi) if x_lo <= v <= x_hi] or [x_lo, x_hi]
+        x_ticks = [(float(sx(v)), f"{v:g}") for v in ticks]
+        axes = AXES if ps[0].residual_mg.shape[1] == 3 else ("norm",)
+        for i, a in enumerate(axes):
+            ys = [np.abs(p.residual_mg[:, i]) for p in ps]
+            ys += [np.abs(p.contribution_mg[:, i]) for p in ps if p.contribution_mg is not None]
+            y_max = float(nice_ticks(0.0, max(float(max(np.max(y) for y in ys)), 1e-6), n=3)[-1])
+            lines = any(p.contribution_mg is not None for p in ps)
+            legend = _legend([p.label for p in ps], cols, a, lines)
+            _frame(rec, f"{SCATTER}/{slug(d)}/{FRAME}{a}", role, x_ticks, y_max, legend)
+            for p in ps:
+                ent = f"{SCATTER}/{slug(d)}/{slug(p.label)}"
+                col = np.asarray(cols[p.label], np.uint8)
+                shade = np.where(p.heating[:, None], col, _light(col)).astype(np.uint8)
+                pts = np.column_stack([sx(p.x), -p.residual_mg[:, i] / y_max * (H / 2)])
+                rec.log_static(f"{ent}/{a}", rr.Points2D(pts, colors=shade, radii=4.0), role)
+                if p.contribution_mg is not None:  # dots: a line would zigzag between poses
+                    c = np.column_stack([sx(p.x), -p.contribution_mg[:, i] / y_max * (H / 2)])
+                    dark = tuple(int(v) for v in (0.5 * col))
+                    rec.log_static(f"{ent}/contribution_{a}", rr.Points2D(c, colors=[dark], radii=1.8), role)
 
 
-def log_pose_panels(rec, obs: ObsTable, fits: Mapping[str, FitResult]) -> None:
-    """Window residuals (mg) by pose, one 2D view per fit: pose k at x slot k (its name below the
-    frame), axes side by side (x, y, z at k - 0.25, k, k + 0.25), cooling windows lighter."""
+def log_pose_panels(
+    rec,
+    obs: ObsTable,
+    fits: Mapping[str, FitResult],
+    colors: Mapping[str, tuple[int, int, int]] | None = None,
+) -> None:
+    """Window residuals (mg) by pose, per axis one plot with the fits side by side at each pose
+    (pose k at x slot k, its name below the frame, alternating rows), every window kept, cooling
+    windows lighter; each fit in its colour (fit_colors)."""
     import rerun as rr
 
     pid = np.asarray(obs.pose_id, int)
@@ -179,45 +213,28 @@ def log_pose_panels(rec, obs: ObsTable, fits: Mapping[str, FitResult]) -> None:
     used = np.unique(pid)
     slot = {int(p): i for i, p in enumerate(used)}
     xs = np.array([slot[int(p)] for p in pid], float)
-    width = max(W, 30.0 * used.size)
-    y_max = max(max(float(np.max(np.abs(r.residual_g))) * 1e3 for r in fits.values()), 1e-6)
     rate = obs_drivers(obs).get("dtemp_degC_per_s", np.zeros(obs.n))
+    cols = fit_colors(list(fits), colors)
+    n = len(fits)
 
     def sx(x):
-        return (np.asarray(x, float) + 0.5) / used.size * width
+        return (np.asarray(x, float) + 0.5) / used.size * W
 
-    def sy(y):
-        return -np.asarray(y, float) / y_max * (H / 2)
-
-    for label, res in fits.items():
-        ent = f"{SCATTER}/pose/{slug(label)}"
-        frame = [[0, -H / 2], [width, -H / 2], [width, H / 2], [0, H / 2], [0, -H / 2]]
-        rec.log_static(
-            f"{ent}/frame",
-            rr.LineStrips2D(
-                [frame, [[0, 0], [width, 0]]], colors=[(150, 150, 150), (110, 110, 110)], radii=0.6
-            ),
-            "scatter2d",
-        )
-        pos = [[float(sx(i)), H / 2 + 10 + 10 * (i % 2)] for i in range(used.size)]
-        pos += [[-8, float(sy(v))] for v in (y_max, 0.0, -y_max)]
-        txt = [names[int(p)] for p in used] + [f"{v:+.3g} mg" for v in (y_max, 0.0, -y_max)]
-        rec.log_static(
-            f"{ent}/ticks",
-            rr.Points2D(pos, labels=txt, radii=0.1, colors=[(200, 200, 200)] * len(txt)),
-            "scatter2d",
-        )
-        legend = "window residuals by pose: x red, y green, z blue (light: cooling)"
-        rec.log_static(
-            f"{ent}/legend", rr.Points2D([[width / 2, -H / 2 - 12]], labels=[legend], radii=0.1), "scatter2d"
-        )
-        r_mg = 1e3 * np.asarray(res.residual_g, float)
-        for i, a in enumerate("xyz"):
-            col = np.array(AXIS_COLORS[i])
-            light = (col + (255 - col) * 0.6).astype(int)
-            colors = np.where((rate >= 0)[:, None], col, light).astype(np.uint8)
-            pts = np.column_stack([sx(xs + 0.25 * (i - 1)), sy(r_mg[:, i])])
-            rec.log_static(f"{ent}/{a}", rr.Points2D(pts, colors=colors, radii=2.2), "scatter2d")
+    x_ticks = [(float(sx(i)), names[int(p)]) for i, p in enumerate(used)]
+    for i, a in enumerate(AXES):
+        y_max = max(float(np.max(np.abs(r.residual_g[:, i]))) * 1e3 for r in fits.values())
+        y_max = float(nice_ticks(0.0, max(y_max, 1e-6), n=3)[-1])
+        ent = f"{SCATTER}/pose/{FRAME}{a}"
+        _frame(rec, ent, "scatter2d", x_ticks, y_max, _legend(list(fits), cols, a, False))
+        for j, (label, res) in enumerate(fits.items()):
+            col = np.asarray(cols[label], np.uint8)
+            shade = np.where((rate >= 0)[:, None], col, _light(col)).astype(np.uint8)
+            off = 0.0 if n == 1 else 0.5 * (j / (n - 1) - 0.5)
+            r_mg = 1e3 * np.asarray(res.residual_g, float)[:, i]
+            pts = np.column_stack([sx(xs + off), -r_mg / y_max * (H / 2)])
+            rec.log_static(
+                f"{SCATTER}/pose/{slug(label)}/{a}", rr.Points2D(pts, colors=shade, radii=4.0), "scatter2d"
+            )
 
 
 def log_residuals_vs_drivers(
@@ -225,11 +242,13 @@ def log_residuals_vs_drivers(
     obs: ObsTable,
     fits: Mapping[str, FitResult],
     contributions: Mapping[str, np.ndarray] | None = None,
+    colors: Mapping[str, tuple[int, int, int]] | None = None,
+    main: str | None = None,
 ) -> None:
     """Residual-vs-driver plots of the labelled fits (e.g. {'before: model3': ..., 'after: ...': ...}),
-    and the window residuals by pose (named)."""
-    log_panels(rec, panels(obs, fits, contributions))
-    log_pose_panels(rec, obs, fits)
+    and the window residuals by pose (named); colors and main: see log_panels."""
+    log_panels(rec, panels(obs, fits, contributions), colors, main)
+    log_pose_panels(rec, obs, fits, colors)
 
 
 def log_diagnosis_residuals(rec, diag, obs: ObsTable) -> None:
@@ -245,12 +264,32 @@ def log_diagnosis_residuals(rec, diag, obs: ObsTable) -> None:
     log_residuals_vs_drivers(rec, obs, fits, contrib)
 
 
-def log_workbench_residuals(rec, obs: ObsTable, start: FitResult, final: FitResult) -> None:
-    """workbench --rrd: residuals of the start model (with what the added effects predict drawn
-    over them) and of the final model, against each driver."""
+def log_workbench_residuals(
+    rec,
+    obs: ObsTable,
+    start: FitResult,
+    final: FitResult,
+    colors: tuple[tuple[int, int, int], tuple[int, int, int]] | None = None,
+    follows: str | None = None,
+) -> None:
+    """workbench --rrd: residuals of the start model (before, with what the added effects predict
+    drawn over them) and of the final model (after), against each driver; colors: (start, final),
+    e.g. their ladder steps' colours; follows: the driver the start model's residual follows (its
+    own tab), default the temperature when it varies."""
     fits = {f"start {start.model.name}": start}
     contrib = None
     if final.model.name != start.model.name:
         fits[f"final {final.model.name}"] = final
         contrib = {f"start {start.model.name}": contribution_g(start, final, obs)}
-    log_residuals_vs_drivers(rec, obs, fits, contrib)
+    cols = None if colors is None else dict(zip(fits, colors, strict=False))
+    main = follows if follows in DRIVERS else ("temp_degC" if follows is None else None)
+    log_residuals_vs_drivers(rec, obs, fits, contrib, cols, main)
+
+
+def followed_driver(diagnosis) -> str | None:
+    """The driver of DRIVERS the residual of a diagnosis follows most (its strongest significant
+    driver signal), None when no plotted driver is significant."""
+    for s in getattr(diagnosis, "driver_signals", None) or []:
+        if s.get("significant") and s.get("signal") in DRIVERS:
+            return str(s["signal"])
+    return None

@@ -133,7 +133,8 @@ def drift_table(
 
 def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Table:
     """The one table of the model ladder: model, params, chi2/dof and RMS (mg) on the calibration
-    data; held-out RMS and noise floor (mg), static-test drift (m) and warnings when any row has them."""
+    data; held-out RMS and noise floor (mg), held-out chi2/dof, static-test drift (m) and warnings
+    when any row has them."""
 
     def mg(v: float | None) -> str:
         return "-" if v is None else f"{v * 1000:.3g}"
@@ -142,15 +143,18 @@ def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Tabl
         return "-" if v is None else f"{v:.3g}"
 
     held = any(r.heldout_rms_g is not None for r in rows)
+    chi = any(getattr(r, "heldout_chi2_dof", None) is not None for r in rows)
     ats = sorted({r.drift_at_s for r in rows if r.drift_at_s is not None})
     warn = any(r.warnings for r in rows)
     cols = ["model", "params", "χ²/dof (fit)", "RMS (mg)"]
     cols += ["held-out RMS (mg)", "noise floor (mg)"] if held else []
+    cols += ["held-out χ²/dof"] if chi else []
     cols += [f"{a:g} s drift (m)" for a in ats] + (["warnings"] if warn else [])
     body = []
     for r in rows:
         cells = [r.model, str(r.n_params), num(r.chi2_dof), mg(r.rms_g)]
         cells += [mg(r.heldout_rms_g), mg(r.heldout_noise_g)] if held else []
+        cells += [num(r.heldout_chi2_dof)] if chi else []
         cells += [num(r.drift_m) if r.drift_at_s == a else "-" for a in ats]
         cells += [str(len(r.warnings))] if warn else []
         body.append(cells)

@@ -9,18 +9,15 @@ real time until the viewer has drawn the recording and saves a PNG. Nothing here
 
 from __future__ import annotations
 
-import atexit
 import base64
 import contextlib
 import io
 import json
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import tempfile
-import threading
 import time
 import urllib.parse
 import urllib.request
@@ -32,6 +29,7 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.present.rrd.tabs import tab_view_files
+from accellog.present.viewer_children import start_child, stop_process
 from accellog.store.atomic import write_bytes_atomic
 
 CHROMIUM_CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "chrome")
@@ -92,88 +90,23 @@ def wait_port(port: int, timeout_s: float, proc: subprocess.Popen | None = None)
     raise InputError(f"nothing listens on 127.0.0.1:{port} after {timeout_s:g} s")
 
 
+def require_display() -> None:
+    """InputError (one line) when the native viewer has no display to open on (Linux without
+    $DISPLAY or $WAYLAND_DISPLAY): it would start, fail and leave the command silent."""
+    import sys
+
+    if sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
+        raise InputError(
+            "no display for the native viewer (DISPLAY is not set): use --web (prints a URL to open) "
+            "or --screenshot PNG"
+        )
+
+
 def rerun_env() -> dict[str, str]:
     """Environment for rerun processes: analytics off."""
     return dict(os.environ, RERUN_ANALYTICS="0")
-
-
-# Children (rerun server, chromium) run in their own process group (start_new_session) so that one
-# killpg ends them with all their helpers. They are ended on every exit path of this process:
-# normal return and exceptions (context managers), SIGTERM/SIGHUP (handlers installed with the first
-# child turn the signal into SystemExit after ending the children) and interpreter exit (atexit).
-_CHILDREN: set[subprocess.Popen] = set()
-_FOLDERS: dict[int, str] = {}  # child pid -> its throw-away folder, removed when the child is stopped
-_HANDLED = (signal.SIGTERM, signal.SIGHUP)
-_installed = False
-
-
-def start_child(cmd: list[str], *, folder: str | None = None, **kw) -> subprocess.Popen:
-    """Popen in a new process group (stdout/stderr discarded), ended on every exit path; folder
-    (e.g. a browser profile) is removed whenever the child is stopped, signals included."""
-    _install_exit_guards()
-    try:
-        proc = subprocess.Popen(
-            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, **kw
-        )
-    except BaseException:
-        if folder is not None:
-            shutil.rmtree(folder, ignore_errors=True)
-        raise
-    _CHILDREN.add(proc)
-    if folder is not None:
-        _FOLDERS[proc.pid] = folder
-    return proc
-
-
-def end_children() -> None:
-    """Stop every child still running (process groups: SIGTERM, then SIGKILL after 5 s)."""
-    for proc in list(_CHILDREN):
-        with contextlib.suppress(Exception):
-            stop_process(proc)
-
-
-def _on_signal(signum, _frame) -> None:
-    end_children()
-    raise SystemExit(128 + signum)
-
-
-def _install_exit_guards() -> None:
-    global _installed
-    if _installed:
-        return
-    _installed = True
-    atexit.register(end_children)
-    if threading.current_thread() is not threading.main_thread():
-        return
-    for sig in _HANDLED:
-        if signal.getsignal(sig) in (signal.SIG_DFL, None):
-            signal.signal(sig, _on_signal)
-
-
-def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
-    """Terminate a process we started (its own process group), then kill it if it lingers; kill the
-    helpers left in its group and remove its folder."""
-    _CHILDREN.discard(proc)
-    if proc.poll() is None:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGTERM)
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            proc.wait(timeout_s)
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(proc.pid, signal.SIGKILL)  # the process if it lingers, and helpers left in its group
-    proc.wait()
-    folder = _FOLDERS.pop(proc.pid, None)
-    if folder is not None:
-        _remove_folder(folder)
-
-
-def _remove_folder(folder: str, timeout_s: float = 2.0) -> None:
-    """rmtree, again while helpers that were just killed may still have been writing into it."""
-    end = time.monotonic() + timeout_s
-    shutil.rmtree(folder, ignore_errors=True)
-    while os.path.exists(folder) and time.monotonic() < end:
-        time.sleep(0.05)
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 @dataclass
@@ -225,6 +158,19 @@ def serve_rrd(
 
 class DevToolsTimeout(InputError):
     """Chromium did not answer a DevTools command in time (the page may still be busy drawing)."""
+
+
+@contextlib.contextmanager
+def _one_line(what: str) -> Iterator[None]:
+    """A broken DevTools connection (chromium crashed, or closed the socket) as one InputError line."""
+    from websockets.exceptions import WebSocketException
+
+    try:
+        yield
+    except (WebSocketException, ConnectionError) as exc:
+        raise InputError(
+            f"chromium closed the DevTools connection while waiting for {what} ({exc})"
+        ) from None
 
 
 class Chromium:
@@ -297,7 +243,11 @@ class Chromium:
                 time.sleep(0.1)
         if ws_url is None:
             raise InputError("chromium opened no page")
-        self._ws = self._stack.enter_context(connect(ws_url, max_size=None, open_timeout=self.timeout_s))
+        # no keepalive pings: a software-rendered page keeps chromium's DevTools thread busy for
+        # longer than websockets' default 20 s ping timeout, which would end the connection
+        self._ws = self._stack.enter_context(
+            connect(ws_url, max_size=None, open_timeout=self.timeout_s, ping_interval=None, close_timeout=2)
+        )
         w, h = self.size
         self.call("Emulation.setDeviceMetricsOverride", width=w, height=h, deviceScaleFactor=1, mobile=False)
         self.call("Page.enable")
@@ -311,14 +261,15 @@ class Chromium:
         self._id += 1
         my_id = self._id
         wait = self.timeout_s if timeout_s is None else max(float(timeout_s), 0.01)
-        self._ws.send(json.dumps({"id": my_id, "method": method, "params": params}))
+        with _one_line(method):
+            self._ws.send(json.dumps({"id": my_id, "method": method, "params": params}))
         end = time.monotonic() + wait
         while True:
             left = end - time.monotonic()
             if left <= 0:
                 raise DevToolsTimeout(f"chromium did not answer {method} within {wait:g} s")
             try:
-                msg = json.loads(self._ws.recv(timeout=left))
+                msg = self._recv(left, f"the answer to {method}")
             except TimeoutError:
                 raise DevToolsTimeout(f"chromium did not answer {method} within {wait:g} s") from None
             self._handle(msg)
@@ -334,7 +285,14 @@ class Chromium:
         end = time.monotonic() + load_timeout_s
         while "Page.loadEventFired" not in self._events and time.monotonic() < end:
             with contextlib.suppress(TimeoutError):
-                self._handle(json.loads(self._ws.recv(timeout=max(0.01, end - time.monotonic()))))
+                self._handle(self._recv(max(0.01, end - time.monotonic())))
+
+    def _recv(self, timeout_s: float, what: str = "the page to load") -> dict:
+        """The next DevTools message (TimeoutError after timeout_s; InputError when chromium has
+        closed the connection)."""
+        assert self._ws is not None
+        with _one_line(what):
+            return json.loads(self._ws.recv(timeout=timeout_s))
 
     def _handle(self, msg: dict) -> None:
         if "method" in msg:
@@ -419,9 +377,12 @@ def screenshot_url(
     if not out.parent.is_dir():
         raise InputError("folder does not exist", where=str(out.parent))
     _require("PIL", "pillow")
-    with Chromium(size=size, timeout_s=max(deadline - time.monotonic(), 1.0)) as ch:
-        ch.navigate(url, load_timeout_s=max(min(20.0, deadline - time.monotonic()), 0.1))
-        shot = _settled_capture(ch, deadline, min_wait_s, settle_s)
+    try:
+        with Chromium(size=size, timeout_s=max(deadline - time.monotonic(), 1.0)) as ch:
+            ch.navigate(url, load_timeout_s=max(min(20.0, deadline - time.monotonic()), 0.1))
+            shot = _settled_capture(ch, deadline, min_wait_s, settle_s)
+    except OSError as exc:  # the browser's DevTools port refused or reset: one line, not a traceback
+        raise InputError(f"chromium's DevTools port failed: {exc}; nothing written", where=str(out)) from None
     if shot is None:
         raise InputError(
             f"the viewer did not draw a stable picture within {wait_s:.0f} s; nothing written "

@@ -46,6 +46,7 @@ def sessions(tmp_path_factory):
         "heldout": _sc(2, HOT2, **tb),
         "clean": _sc(3, HOT),
         "clean_heldout": _sc(4, HOT2),
+        "flip_heldout": _sc(5, HOT2, temp_bias_g_per_degC=[-0.0012, 0.0008, -0.001]),
     }
     for name, sc in paths.items():
         simulate(sc, d / f"{name}.mcap")
@@ -102,9 +103,12 @@ def test_pose_table_is_refused_with_one_line(tmp_path, capsys):
 
 
 def test_workbench_rrd_shows_residuals_against_temperature(sessions, capsys):
-    """The .rrd read back: residual-vs-temperature plots of the start model (sloped: the residual
-    follows temperature) and of the final model (flat), one 2D view each, with the added effect's
-    prediction drawn over the start model's residual."""
+    """The .rrd read back: per axis one residual-vs-temperature plot with the start model (sloped:
+    the residual follows temperature) and the final model (flat) overlaid, each in its ladder step's
+    colour, the added effect's prediction drawn over the start model's residual; temperature, the
+    driver the residual follows, has its own tab."""
+    from accellog.present.rrd.logs import step_color
+
     d = sessions
     rrd = d / "wb_residuals.rrd"
     args = ["workbench", str(d / "hidden.mcap"), "--heldout", str(d / "heldout.mcap"), "--rrd", str(rrd)]
@@ -112,11 +116,19 @@ def test_workbench_rrd_shows_residuals_against_temperature(sessions, capsys):
     capsys.readouterr()
     r = load_rrd(rrd)
     root = "/residual_vs/temp_degC"
-    plots = sorted({e.split("/")[3] for e in r.entities if e.startswith(root + "/")})
+    plots = sorted(
+        {e.split("/")[3] for e in r.entities if e.startswith(root + "/")} - {"frame_x", "frame_y", "frame_z"}
+    )
     assert plots == ["final_model3_temp_bias", "start_model3"], plots
-    views = {v["origin"]: v for v in r.views() if v["class"] == "2D"}
-    assert {f"{root}/{p}" for p in plots} <= set(views), views.keys()
-    assert "residual (mg) vs temp_degC" in views[f"{root}/start_model3"]["name"]
+    views = [v for v in r.views() if v["class"] == "2D" and v["origin"] == root]
+    by_axis = {v["name"].split()[1]: v for v in views if v["name"].startswith("residual ")}
+    assert set(by_axis) == {"x", "y", "z"}, [v["name"] for v in views]
+    x_view = by_axis["x"]
+    assert "vs temperature (degC)" in x_view["name"]
+    assert {f"{root}/start_model3/x", f"{root}/final_model3_temp_bias/x"} <= set(x_view["contents"])
+    assert f"{root}/start_model3/y" not in x_view["contents"]  # one axis per plot
+    names = {c.get("ContainerBlueprint:display_name", [None])[0] for c in r.blueprint.values()}
+    assert "residual vs temperature (degC): before / after" in names and "the search" in names
 
     def slope(plot: str) -> float:
         """|least-squares slope| of the plotted residual (view units) against plotted x, axis x."""
@@ -125,6 +137,58 @@ def test_workbench_rrd_shows_residuals_against_temperature(sessions, capsys):
 
     assert slope("start_model3") > 20 * slope("final_model3_temp_bias")
     assert f"{root}/start_model3/contribution_x" in r.entities
+    # the same calibration, the same colour: start = ladder step 2 (model3), final = step 3
+    start = {tuple(c) for c in _rgb(r.static(f"{root}/start_model3/x", "Points2D:colors"))}
+    final = {tuple(c) for c in _rgb(r.static(f"{root}/final_model3_temp_bias/x", "Points2D:colors"))}
+    assert step_color(2) in start and step_color(3) in final and not start & final
+
+
+def test_a_search_that_ends_at_the_start_shows_what_it_tried(sessions, capsys):
+    """The held-out session's temperature coefficient has the other sign: no effect predicts it
+    better, the start model is written, and the text and .rrd still name the candidates tried,
+    each with its held-out residual and why it was not taken."""
+    d = sessions
+    rrd = d / "wb_flip.rrd"
+    args = ["workbench", str(d / "hidden.mcap"), "--heldout", str(d / "flip_heldout.mcap"), "--rrd", str(rrd)]
+    main([*args, "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert out["final_model"] == "model3"
+    tried = [t for t in out["trail"] if t["status"] == "rejected"]
+    assert "+temp_bias" in [t["change"] for t in tried]
+    assert all(
+        t["heldout_chi2_dof"] is not None and "does not predict unseen data better" in t["why"] for t in tried
+    )
+    labels = load_rrd(rrd).static("/charts/search/labels", "Points2D:labels")
+    assert "+temp_bias" in " ".join(labels) and "rejected" in labels and "start = final" in labels
+
+
+def _rgb(packed) -> list[tuple[int, int, int]]:
+    """RGB of rerun's packed 0xRRGGBBAA colours."""
+    return [((c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255) for c in packed]
+
+
+def test_workbench_shows_every_step_tried(sessions, capsys):
+    """The text and the .rrd show each model the search tried with its held-out residual on the
+    common yardstick: the start model, the added effect (kept, final) and the curve between them."""
+    d = sessions
+    rrd = d / "wb_search.rrd"
+    args = ["workbench", str(d / "hidden.mcap"), "--heldout", str(d / "heldout.mcap"), "--rrd", str(rrd)]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "the search, step by step" in text and "kept = final" in text
+    assert main([*args[:-2], "--json"]) == 0
+    trail = json.loads(capsys.readouterr().out)["trail"]
+    assert [(t["change"], t["status"]) for t in trail[:2]] == [("model3", "start"), ("+temp_bias", "kept")]
+    assert trail[1]["final"] and trail[1]["heldout_chi2_dof"] < 0.1 * trail[0]["heldout_chi2_dof"]
+    r = load_rrd(rrd)
+    labels = r.static("/charts/search/labels", "Points2D:labels")
+    assert labels[:4] == ["0 model3", "start", "1 +temp_bias", "kept = final"]
+    assert (
+        f"{trail[1]['heldout_chi2_dof']:.3g}" in labels and f"{trail[0]['heldout_rms_mg']:.3g} mg" in labels
+    )
+    path = np.asarray(r.static("/charts/search/path", "LineStrips2D:strips")[0], float)
+    assert path[1, 1] > path[0, 1]  # the curve falls (view y grows downwards)
+    assert "/docs/search" in r.entities
 
 
 def test_workbench_rrd_residuals_by_pose_are_named(sessions, capsys):
@@ -139,9 +203,9 @@ def test_workbench_rrd_residuals_by_pose_are_named(sessions, capsys):
     capsys.readouterr()
     r = load_rrd(rrd)
     names = [p.name for p in read_session(d / "hidden.mcap").poses]
-    labels = r.static("/residual_vs/pose/start_model3/ticks", "Points2D:labels")
+    labels = r.static("/residual_vs/pose/frame_x/ticks", "Points2D:labels")
     assert labels[: len(names)] == names, labels[:5]
     pts = np.asarray(r.static("/residual_vs/pose/final_model3_temp_bias/x", "Points2D:positions"), float)
     assert len(pts) >= 2 * len(names)  # several windows per hold, none averaged away
-    views = {v["origin"]: v for v in r.views() if v["class"] == "2D"}
-    assert "/residual_vs/pose/start_model3" in views
+    views = [v for v in r.views() if v["class"] == "2D" and v["origin"] == "/residual_vs/pose"]
+    assert len(views) == 3 and any("/residual_vs/pose/start_model3/x" in v["contents"] for v in views)

@@ -220,3 +220,22 @@ def test_coinciding_3d_labels_are_merged(tmp_path: Path) -> None:
     )
     # the strips keep their names in the data but do not draw them (the final point carries them)
     assert r.static("/world/tracks/test/far", "LineStrips3D:show_labels") == [False]
+
+
+def test_log_ladder_bars_near_one_are_visible_and_show_their_values(tmp_path: Path) -> None:
+    """On the log scale a chi2/dof of 0.9 is a bar (from a floor below the smallest value), not a
+    sliver at 1, and each bar's value is written over it when there is room."""
+    from accellog.present.rrd.bars2d import H, log_bar_groups
+
+    out = tmp_path / "bars.rrd"
+    with RunRecording(f"save:{out}") as rec:
+        log_bar_groups(rec, "charts/t", ["chi2/dof"], ["a", "b"], [(1, 2, 3), (4, 5, 6)], np.array([[547.0, 0.9]]),
+                       log10=True)  # fmt: skip
+    r = load_rrd(out)
+    strips = r.static("/charts/t/bars", "LineStrips2D:strips")
+    radii = r.static("/charts/t/bars", "LineStrips2D:radii")
+    length = [abs(s[-1][1] - s[0][1]) + 2 * rad for s, rad in zip(strips, radii, strict=True)]
+    assert length[1] > 0.1 * H and length[0] > 2 * length[1]
+    assert r.static("/charts/t/values", "Points2D:labels") == ["547", "0.9"]
+    ticks = r.static("/charts/t/ticks", "Points2D:labels")
+    assert "0.1" in ticks and "1000" in ticks  # whole decades from below 0.9 to above 547

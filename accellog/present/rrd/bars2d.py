@@ -7,7 +7,9 @@ Layout in view units: the frame spans x 0..W, y 0..H (y grows downwards: larger 
 group g and series j sit at x = (g + 0.1 + 0.8 (j + 0.5) / n_series) W / n_groups (W: the frame's width).
 
     y(v) = (top - v) / (top - bottom) H,  top/bottom: the outer "nice" ticks (1-2-5 steps) around
-    min(0, values) .. max(0, values); log10=True plots log10(value) (ticks 10^k, bars from 1).
+    min(0, values) .. max(0, values); log10=True plots log10(value): ticks 10^k, bars from a floor
+    at least half a decade below the smallest value (a value near 1 has a bar, not a line at 1),
+    each bar's value written over it.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ def nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
     return np.round(np.arange(first, last + 0.5 * step, step), 12)
 
 
-def _bar(x: float, y0: float, y1: float, r: float) -> tuple[list[list[float]], float]:
+def bar_strip(x: float, y0: float, y1: float, r: float) -> tuple[list[list[float]], float]:
     """A filled bar from y0 to y1 centred on x, r wide on each side, as one line strip and its
     radius (2D boxes are drawn as outlines; a line of radius r is a bar with round caps, so the
     strip is shortened by r at both ends). A bar shorter than 2 r lies flat: a horizontal strip of
@@ -49,6 +51,25 @@ def _bar(x: float, y0: float, y1: float, r: float) -> tuple[list[list[float]], f
     yc = 0.5 * (y0 + y1)
     half = max(r - rr, 0.1)
     return [[x - half, yc], [x + half, yc]], rr
+
+
+def _scale(data: np.ndarray, log10: bool) -> tuple[np.ndarray, float]:
+    """(y ticks, where bars start): with log10 whole decades from half a decade or more below the
+    smallest value (every bar has a length), else 1-2-5 ticks around 0 and the values."""
+    if log10:
+        ticks = np.arange(np.floor(float(data.min()) - 0.5), np.ceil(float(data.max())) + 0.5)
+        return ticks, float(ticks[0])
+    return nice_ticks(min(0.0, float(data.min())), max(0.0, float(data.max()))), 0.0
+
+
+def _values(rec, entity: str, pos: list, text: list[str]) -> None:
+    """Each bar's value written over it."""
+    import rerun as rr
+
+    if pos:
+        rec.log_static(
+            entity, rr.Points2D(pos, labels=text, radii=0.1, colors=[(220, 220, 220)] * len(pos)), BARS2D
+        )
 
 
 def _tick_text(v: float, log10: bool, unit: str) -> str:
@@ -73,12 +94,12 @@ def log_bar_groups(
     width: of the frame in view units (its height is H; a wide view wants a wide frame)."""
     import rerun as rr
 
-    v = np.asarray(values, dtype=np.float64).reshape(len(groups), len(series))
+    raw = np.asarray(values, dtype=np.float64).reshape(len(groups), len(series))
+    v = raw
     if log10:
-        v = np.where(v > 0, np.log10(np.where(v > 0, v, 1.0)), np.nan)
+        v = np.where(raw > 0, np.log10(np.where(raw > 0, raw, 1.0)), np.nan)
     ok = np.isfinite(v)
-    data = v[ok] if ok.any() else np.zeros(1)
-    ticks = nice_ticks(min(0.0, float(data.min())), max(0.0, float(data.max())))
+    ticks, base = _scale(v[ok] if ok.any() else np.zeros(1), log10)
     top, bottom = float(ticks[-1]), float(ticks[0])
 
     def sy(x):
@@ -86,19 +107,21 @@ def log_bar_groups(
 
     slot = width / len(groups)
     bw = 0.8 * slot / len(series)
-    strips, radii, cols = [], [], []
+    strips, radii, cols, tops, shown = [], [], [], [], []
     for g in range(len(groups)):
         for j in range(len(series)):
             if ok[g, j]:
                 x = g * slot + 0.1 * slot + (j + 0.5) * bw
-                strip, r = _bar(x, float(sy(0.0)), float(sy(v[g, j])), 0.42 * bw)
+                strip, r = bar_strip(x, float(sy(base)), float(sy(v[g, j])), 0.42 * bw)
                 strips.append(strip)
                 radii.append(r)
                 cols.append(colors[j])
+                tops.append([x, float(sy(max(v[g, j], base))) - 22.0])
+                shown.append(f"{raw[g, j]:.3g}")
     rec.log_static(
         f"{entity}/frame",
         rr.LineStrips2D(
-            [[[0, 0], [width, 0], [width, H], [0, H], [0, 0]], [[0, sy(0.0)], [width, sy(0.0)]]],
+            [[[0, 0], [width, 0], [width, H], [0, H], [0, 0]], [[0, sy(base)], [width, sy(base)]]],
             colors=[_GREY, (90, 90, 90)],
             radii=0.6,
         ),
@@ -108,6 +131,8 @@ def log_bar_groups(
         rec.log_static(
             f"{entity}/bars", rr.LineStrips2D(strips, colors=cols, radii=radii, draw_order=-1.0), BARS2D
         )
+    if log10 and bw >= 100.0:  # a log scale is read by its values (where they fit)
+        _values(rec, f"{entity}/values", tops, shown)
     two_rows = len(groups) > 4 and max(len(g) for g in groups) * 7 > slot
     pos = [[(g + 0.5) * slot, H + 14 + (12 if two_rows and g % 2 else 0)] for g in range(len(groups))]
     pos += [[-34.0, float(sy(t))] for t in ticks]

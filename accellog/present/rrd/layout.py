@@ -17,6 +17,9 @@ from accellog.present.rrd.entities import (
     TRACKS,
 )
 
+LEGEND_MAX_POSES = 6
+"""With more holds than this, a sample view hides its legend (one line per hold) and names its colours."""
+
 
 def time_panel():
     """Time panel on sensor_time, following new data, collapsed (shared by every blueprint)."""
@@ -42,8 +45,77 @@ def build_blueprint(entities: Mapping[str, str]):
     ]
     if "textlog" in roles:
         texts.append(rrb.TextLogView(origin="/", name="events and poses"))
-    root = _arrange(_sample_views(roles), track_views, world, _chart_views(roles), texts)
+    story = _story_tabs(roles)  # a workbench: the search, the residual it removed first, every driver
+    root = _arrange(_sample_views(roles), track_views, world, _chart_views(roles, scatter=not story), texts)
+    if story:
+        root = rrb.Tabs(*story, rrb.Vertical(root, name="session and ladder"))
     return rrb.Blueprint(root, time_panel(), collapse_panels=True)
+
+
+def _story_tabs(roles: Mapping[str, list[str]]) -> list:
+    """A workbench recording's own tabs: the search (every model tried, its held-out residual) over
+    the ladder, and the residual against the driver it follows, before and after, per axis."""
+    import rerun.blueprint as rrb
+
+    tabs = []
+    if "search2d" in roles:
+        search = rrb.Spatial2DView(
+            origin=f"/{CHARTS}/search",
+            name="the search: the error of every model tried, held out when a held-out session is given (log scale)",
+            visual_bounds=rrb.VisualBounds2D(x_range=(-80.0, 1210.0), y_range=(-50.0, 400.0)),
+        )
+        views = [search, ladder_bars_view()] if "ladder_bar" in roles else [search]
+        tabs.append(rrb.Vertical(*views, row_shares=[3, 2][: len(views)], name="the search"))
+    main = _scatter_views(roles, "scatter2d_main")
+    tabs += [rrb.Vertical(*vs, name=f"residual vs {d}: before / after") for d, vs in main.items()]
+    every = {**main, **_scatter_views(roles, "scatter2d")}
+    if tabs and every:  # each driver as large as the first, one tab each
+        tabs.append(rrb.Tabs(*(rrb.Vertical(*vs, name=f"residual vs {d}") for d, vs in every.items()),
+                             name="residual vs every driver"))  # fmt: skip
+    return tabs
+
+
+def _scatter_views(roles: Mapping[str, list[str]], role: str) -> dict[str, list]:
+    """Residual-vs-driver plots (present.residual_views): driver title -> one 2D view per axis, its
+    frame and every fit's points and lines on that axis."""
+    import rerun.blueprint as rrb
+
+    from accellog.present.residual_views import BOUNDS, DRIVERS, FRAME
+
+    frames: dict[str, list[str]] = {}  # driver -> axes (logged order)
+    members: dict[tuple[str, str], list[str]] = {}  # (driver, axis) -> the fits' entities
+    for ent in roles.get(role, []):
+        parts = ent.split("/")
+        if len(parts) < 4:
+            continue
+        d, leaf = parts[1], parts[2]
+        if leaf.startswith(FRAME):
+            axes = frames.setdefault(d, [])
+            if leaf[len(FRAME) :] not in axes:
+                axes.append(leaf[len(FRAME) :])
+        else:
+            members.setdefault((d, parts[3].removeprefix("contribution_")), []).append(ent)
+    out = {}
+    bounds = rrb.VisualBounds2D(x_range=BOUNDS[:2], y_range=BOUNDS[2:])
+    for d, axes in frames.items():
+        title = DRIVERS.get(d, "pose" if d == "pose" else d)
+        out[title] = [
+            rrb.Spatial2DView(
+                origin=f"/{_scatter_root(d)}",
+                contents=[f"/{_scatter_root(d)}/{FRAME}{a}/**", *(f"/{e}" for e in members.get((d, a), []))],
+                name=f"residual {a} (mg) vs {title}",
+                visual_bounds=bounds,
+            )
+            for a in axes
+        ]
+    return out
+
+
+def _scatter_root(driver: str) -> str:
+    """Entity root of one driver's residual plots."""
+    from accellog.present.residual_views import SCATTER
+
+    return f"{SCATTER}/{driver}"
 
 
 def _sample_views(roles: Mapping[str, list[str]]) -> list:
@@ -52,11 +124,17 @@ def _sample_views(roles: Mapping[str, list[str]]) -> list:
     import rerun.blueprint as rrb
 
     has_poses = "poses" in roles
+    many = len(roles.get("poses", [])) > LEGEND_MAX_POSES
     samples = []
     for ent in [e for r, es in roles.items() if r.startswith("samples:") for e in es]:  # logged order
         contents = ["$origin/**"] + ([f"/{POSES_ACTIVE}/**"] if has_poses else [])
         contents += [f"/{e}" for e in roles.get("detected", [])]  # detected still intervals (hand-held)
-        samples.append(rrb.TimeSeriesView(origin=f"/{ent}", contents=contents, name=ent.replace("/", " ")))
+        name = ent.replace("/", " ")
+        legend = None
+        if many:  # a legend of 24 pose names hides the plot: the colours are said in the title instead
+            name += ": x red, y green, z blue; grey steps: holds (named in 'events and poses')"
+            legend = rrb.PlotLegend(visible=False)
+        samples.append(rrb.TimeSeriesView(origin=f"/{ent}", contents=contents, name=name, plot_legend=legend))
     if "temperature" in roles or "lost" in roles:
         samples.append(
             rrb.TimeSeriesView(
@@ -68,25 +146,17 @@ def _sample_views(roles: Mapping[str, list[str]]) -> list:
     return samples
 
 
-def _chart_views(roles: Mapping[str, list[str]]) -> list:
-    """Residual-vs-driver plots (one column per driver), residual bars per model, ladder bars and steps."""
+def _chart_views(roles: Mapping[str, list[str]], scatter: bool = True) -> list:
+    """Residual-vs-driver plots (one column per driver; scatter=False: none, they have tabs of their
+    own), residual bars per model, ladder bars and steps."""
     import rerun.blueprint as rrb
 
     charts = []
-    scatter: dict[str, list[str]] = {}  # residual-vs-driver plots: driver -> plot origins (logged order)
-    for ent in roles.get("scatter2d", []):
-        parts = ent.split("/")
-        origin = "/" + "/".join(parts[:3])
-        if origin not in scatter.setdefault(parts[1], []):
-            scatter[parts[1]].append(origin)
-    for driver, origins in scatter.items():
-        views = [
-            rrb.Spatial2DView(
-                origin=o, name=f"{o.split('/')[-1].replace('_', ' ')}: residual (mg) vs {driver}"
-            )
-            for o in origins
-        ]
-        charts.append(rrb.Vertical(*views, name=f"residual vs {driver}"))
+    plots = (
+        {**_scatter_views(roles, "scatter2d_main"), **_scatter_views(roles, "scatter2d")} if scatter else {}
+    )
+    for title, views in plots.items():
+        charts.append(rrb.Vertical(*views, name=f"residual vs {title}"))
     for model in sorted({e.split("/")[1] for e in roles.get("residual_bar", [])}):
         charts.append(residual_bars_view(model))
     if "ladder_bar" in roles:

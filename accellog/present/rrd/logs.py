@@ -353,9 +353,17 @@ LADDER_BAR_GROUPS = {
 """Group names of the ladder's 2D bar chart (one group per metric of LADDER_METRICS)."""
 
 
+STEP_COLORS = [c for c in TRACK_COLORS if len(set(c)) > 1] + [
+    (240, 220, 80),
+    (110, 220, 200),
+    (250, 150, 190),
+]
+"""Colours of the ladder's steps: never grey (grey is a model the workbench did not keep)."""
+
+
 def step_color(i: int) -> tuple[int, int, int]:
-    """Colour of ladder step i (its bars and its residual series)."""
-    return TRACK_COLORS[i % len(TRACK_COLORS)]
+    """Colour of ladder step i (its bars, its residual series and its calibration in every panel)."""
+    return STEP_COLORS[i % len(STEP_COLORS)]
 
 
 def axis_shades(rgb: tuple[int, int, int]) -> list[tuple[int, int, int]]:

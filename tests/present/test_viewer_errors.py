@@ -1,0 +1,53 @@
+"""The viewer's failures are one line: no display for the native viewer, a DevTools connection that
+chromium closed (e.g. a keepalive timeout on a loaded machine) — never a traceback, never a silent 0."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from accellog.cli import main
+from accellog.core.errors import InputError
+from accellog.present import viewer
+from accellog.present.rrd.recording import RunRecording
+
+
+def test_view_without_a_display_says_so_in_one_line(tmp_path: Path, monkeypatch, capsys) -> None:
+    rrd = tmp_path / "tiny.rrd"
+    with RunRecording(f"save:{rrd}") as rec:
+        rec.log_samples("raw", np.arange(10.0), None, np.zeros((10, 3)), "g")
+    monkeypatch.setattr("sys.platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["view", str(rrd)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("accellog: error: no display") and "--web" in err and "\n" not in err
+    monkeypatch.setenv("DISPLAY", ":0")
+    viewer.require_display()  # a display: nothing to say
+
+
+class _ClosedSocket:
+    """A DevTools socket that chromium has closed (what websockets raises after a ping timeout)."""
+
+    def send(self, _text: str) -> None:
+        pass
+
+    def recv(self, timeout: float):
+        from websockets.exceptions import ConnectionClosedError
+        from websockets.frames import Close
+
+        raise ConnectionClosedError(Close(1011, "keepalive ping timeout"), None)
+
+
+def test_a_closed_devtools_connection_is_one_input_error_line() -> None:
+    pytest.importorskip("websockets")
+    ch = object.__new__(viewer.Chromium)  # no browser: only the socket matters here
+    ch._ws, ch._id, ch._events, ch.timeout_s = _ClosedSocket(), 0, set(), 1.0
+    with pytest.raises(InputError) as err:
+        ch.call("Page.captureScreenshot")
+    text = str(err.value)
+    assert "closed the DevTools connection" in text and "Page.captureScreenshot" in text and "\n" not in text
+    with pytest.raises(InputError, match="closed the DevTools connection"):
+        ch.navigate("about:blank", load_timeout_s=0.5)
