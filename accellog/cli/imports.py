@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 
 from accellog.cli.app import CompressionOpt, app
+from accellog.core.errors import InputError
 
 if TYPE_CHECKING:
     from accellog.core.session import Session
@@ -24,6 +25,14 @@ OutOpt = Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file (wri
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 BatchOpt = Annotated[int, typer.Option("--batch-size", min=1, help="Samples per /imu message.")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
+DetectHoldsOpt = Annotated[
+    bool,
+    typer.Option(
+        "--detect-holds",
+        help="Label the still intervals (detect_static) as the table faces they lie on (+x..-z), when "
+        "all six are found; else the session stays unlabelled.",
+    ),
+]
 
 
 def _facts(session: "Session", src: Path, out: Path) -> dict:
@@ -189,6 +198,7 @@ def import_csv_cmd(
         str, typer.Option("--delimiter", help="Field separator (one character, or tab).")
     ] = ",",
     comment: Annotated[str, typer.Option("--comment", help="Lines starting with this are skipped.")] = "#",
+    detect_holds: DetectHoldsOpt = False,
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
     compression: CompressionOpt = "zstd",
@@ -198,30 +208,38 @@ def import_csv_cmd(
 
     temp in degC; 'pose' names label static holds. Examples: offset-binary counts
     `--unit counts --lsb-per-g 16384 --count-offset 32768 --gyro-unit counts --gyro-lsb-per-dps 131`;
-    no time column `--rate 100` (or a '# rate: 100 Hz' line above the header).
+    no time column `--rate 100` (or a '# rate: 100 Hz' line above the header); a table protocol
+    without a pose column `--detect-holds` (read in memory, as `import ros2 --detect-holds`).
     """
     from accellog.cli.progress import progress_bar, wanted
     from accellog.store.importers.csv import CsvOptions, import_csv_to_mcap
 
-    opts = CsvOptions.make(
-        unit=unit,
-        lsb_per_g=lsb_per_g,
-        count_offset=count_offset,
-        gyro_count_offset=gyro_count_offset,
-        gyro_unit=gyro_unit,
-        gyro_lsb_per_dps=gyro_lsb_per_dps,
-        columns=columns,
-        rate_hz=rate,
-        time_unit=time_unit,
-        delimiter=delimiter,
-        comment=comment,
-    )
+    opts = CsvOptions.make(unit=unit, lsb_per_g=lsb_per_g, count_offset=count_offset,
+                           gyro_count_offset=gyro_count_offset, gyro_unit=gyro_unit,
+                           gyro_lsb_per_dps=gyro_lsb_per_dps, columns=columns, rate_hz=rate,
+                           time_unit=time_unit, delimiter=delimiter, comment=comment)  # fmt: skip
     _check_out(out, file, compression, force)
+    if detect_holds:
+        _write(_labelled_csv(file, opts), file, out, as_json, batch_size, compression, force)
+        return
     with progress_bar("import csv (MB)", show=wanted(as_json)) as bar:
         result = import_csv_to_mcap(
             file, out, opts, batch_size=batch_size, compression=compression, overwrite=force, progress=bar
         )
     _present(result.to_dict(), file, out, as_json)
+
+
+def _labelled_csv(file: Path, opts) -> "Session":
+    """The CSV read whole and labelled with its detected face holds (the ros2 importer's path)."""
+    from accellog.calibrate.observe.detected_holds import label_detected_holds
+    from accellog.store.importers.csv import import_csv
+
+    session = import_csv(file, opts)
+    if session.poses:
+        raise InputError(
+            "--detect-holds is for a file without pose labels: it has a pose column", where=str(file)
+        )
+    return label_detected_holds(session)
 
 
 @import_app.command("ros2")
@@ -242,9 +260,7 @@ def import_ros2_cmd(
     mag_topic: Annotated[
         str | None, typer.Option("--mag-topic", help="sensor_msgs/msg/MagneticField topic.")
     ] = None,
-    detect_holds: Annotated[
-        bool, typer.Option("--detect-holds", help="Label the still intervals (detect_static) as poses.")
-    ] = False,
+    detect_holds: DetectHoldsOpt = False,
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
     compression: CompressionOpt = "zstd",
