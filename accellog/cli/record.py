@@ -47,7 +47,8 @@ class TerminalUI:
         pct = int(100 * min(done_s / pose.hold_s, 1.0))
         if pct // 10 != self._last_hold:
             bar = "#" * (pct // 5) + "-" * (20 - pct // 5)
-            console.print(f"  holding {pose.name} [{bar}] {pct:3d}%", end="\r")
+            # markup off: rich would take "[####---]" for a style tag and drop it
+            console.print(f"  holding {pose.name} [{bar}] {pct:3d}%", end="\r", markup=False, highlight=False)
             self._last_hold = pct // 10
 
     def finished_pose(self, label: "PoseLabel") -> None:
