@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import CompressionOpt, app
+from accellog.cli.app import CompressionOpt, ForceOpt, app
 from accellog.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -24,7 +24,6 @@ app.add_typer(import_app, name="import", rich_help_panel="1. Record")
 OutOpt = Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file (written atomically).")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 BatchOpt = Annotated[int, typer.Option("--batch-size", min=1, help="Samples per /imu message.")]
-ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
 AccelScaleOpt = Annotated[
     float,
     typer.Option(
@@ -150,7 +149,8 @@ def import_imucal_cmd(
     sections: Annotated[
         Path | None,
         typer.Option(
-            "--sections", help="Section list JSON {label: {start, end}} (default <stem>_list.json)."
+            "--sections",
+            help="Section list JSON {label: {start, end}} (default: beside the file, STEM_list.json).",
         ),
     ] = None,
     rate_hz: Annotated[

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import CompressionOpt, app
+from accellog.cli.app import CompressionOpt, ForceOpt, app
 from accellog.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -16,7 +16,6 @@ if TYPE_CHECKING:
     from accellog.core.session import PoseLabel
 
 console = Console(stderr=True)
-ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
 
 
 class TerminalUI:
