@@ -11,13 +11,14 @@ __future__ import annotations`): typer would compile and eval every string annot
 
 from __future__ import annotations
 
+import functools
 import importlib
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 import typer.main
-from typer.core import TyperGroup
+from typer.core import TyperArgument, TyperGroup
 
 try:  # typer >= 0.29 carries its own click (typer._click); earlier ones use the click package
     from typer import _click
@@ -117,6 +118,8 @@ CompressionOpt = Annotated[
     ),
 ]
 
+ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing -o file.")]
+
 EffectsOpt = Annotated[
     Path | None,
     typer.Option(
@@ -128,13 +131,24 @@ EffectsOpt = Annotated[
 ]
 
 
+def _usage_name(p: Any) -> str:
+    """An argument on the usage line as click writes it: SESSION, [SESSION], FILES... (typer 0.29
+    writes a required one as {session})."""
+    name = p.metavar + ("..." if p.nargs != 1 else "")
+    return name if p.required else f"[{name}]"
+
+
 def plain_flags(cmd: Any) -> Any:
     """A click command (group: with the subcommands built) whose on/off flags show no '<bool>'
-    placeholder in the help (typer's rich help prints the metavar; an empty one prints nothing)."""
+    placeholder in the help (typer's rich help prints the metavar; an empty one prints nothing) and
+    whose arguments are named in capitals (SESSION; usage: SESSION, [SESSION], FILES...)."""
     help_opt = cmd.get_help_option(_click.Context(cmd))  # cached by click: the one --help will show
     for p in [*cmd.params, *([help_opt] if help_opt is not None else [])]:
         if getattr(p, "is_flag", False) and p.metavar is None:
             p.metavar = ""
+        if isinstance(p, TyperArgument):
+            p.metavar = p.metavar or (p.name or "arg").upper()
+            p._usage_display_name = functools.partial(_usage_name, p)
     for sub in getattr(cmd, "commands", {}).values():
         plain_flags(sub)
     return cmd

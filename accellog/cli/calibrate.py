@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import CompressionOpt, EffectsOpt, app
+from accellog.cli.app import CompressionOpt, EffectsOpt, ForceOpt, app
 from accellog.core.errors import InputError
 
 _console = Console()
@@ -70,6 +70,7 @@ def segment(
         Path | None, typer.Option("-o", "--output", help="Write observations JSON here.")
     ] = None,
     json_out: JsonOpt = False,
+    force: ForceOpt = False,
 ) -> None:
     """Per-pose statistics (mean, std, autocorrelation-aware sem) and windowed observations."""
     from accellog.calibrate.calfile.calibration import write_json_atomic
@@ -77,7 +78,7 @@ def segment(
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 
-    check_outputs([output], [session], mkdir=True)
+    check_outputs([output], [session])
     res = run_segment(session, window_s=window_s, trim_s=trim_s)
     if output is not None:
         write_json_atomic(output, res.obs_dict(), inputs=(session,))
@@ -130,6 +131,7 @@ def fit(
     ] = False,
     prior: PriorOpt = None,
     aging: AgingOpt = None,
+    force: ForceOpt = False,
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma).
 
@@ -143,7 +145,7 @@ def fit(
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 
-    check_outputs([output, rrd], [*sessions, effects_file, prior], mkdir=True)
+    check_outputs([output, rrd], [*sessions, effects_file, prior])
     if len(sessions) > 1 and rrd is not None:
         raise InputError("--rrd draws one session: give one session with it")
     data = load_input(sessions[0]) if rrd is not None else sessions[0]  # a path: run_fit may stream it
@@ -263,6 +265,7 @@ def drift(
     json_out: JsonOpt = False,
     rrd: RrdOpt = None,
     effects_file: EffectsOpt = None,
+    force: ForceOpt = False,
 ) -> None:
     """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
     from accellog.calibrate.calfile.calibration import load_calibration
@@ -270,7 +273,7 @@ def drift(
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 
-    check_outputs([output, rrd], [static, cal, effects_file], mkdir=True)
+    check_outputs([output, rrd], [static, cal, effects_file])
     c = load_calibration(cal, effects_file)
     data = load_input(static) if rrd is not None else static  # an MCAP file streams (no series to draw)
     out = run_drift(data, c, until_s=until_s, max_samples=max_samples)
@@ -310,6 +313,7 @@ def apply(
         str | None,
         typer.Option("--frame-id", help="--ros2 header frame_id (default: the input bag's, else imu_link)."),
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Copy a session and add /derived/accel_calibrated (g) and /derived/accel_calibrated_mps2.
 
@@ -358,7 +362,7 @@ def run(
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
 
-    check_outputs([rrd], [pipeline, *sessions, effects_file], mkdir=True)
+    check_outputs([rrd], [pipeline, *sessions, effects_file])
     if output_dir is not None and output_dir.exists() and not output_dir.is_dir():
         raise InputError("--output-dir is an existing file, not a folder", where=str(output_dir))
     res = run_pipeline(pipeline, [str(s) for s in sessions], output_dir=output_dir, effects_file=effects_file)
@@ -384,6 +388,7 @@ def integrate(
     until_s: Annotated[float | None, typer.Option(help="Use samples with t <= until_s only.")] = None,
     json_out: JsonOpt = False,
     effects_file: EffectsOpt = None,
+    force: ForceOpt = False,
 ) -> None:
     """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
     local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""

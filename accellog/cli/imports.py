@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import CompressionOpt, app
+from accellog.cli.app import CompressionOpt, ForceOpt, app
+from accellog.core.errors import InputError
 
 if TYPE_CHECKING:
     from accellog.core.session import Session
@@ -23,7 +24,30 @@ app.add_typer(import_app, name="import", rich_help_panel="1. Record")
 OutOpt = Annotated[Path, typer.Option("-o", "--out", help="Output MCAP file (written atomically).")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 BatchOpt = Annotated[int, typer.Option("--batch-size", min=1, help="Samples per /imu message.")]
-ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
+AccelScaleOpt = Annotated[
+    float,
+    typer.Option(
+        "--accel-scale",
+        help="Multiply the g or m/s^2 values (a logger that converted with another range's LSB/g: 4 for a "
+        "+-8 g log printed as +-2 g).",
+    ),
+]
+BadRowsOpt = Annotated[
+    str,
+    typer.Option(
+        "--bad-rows",
+        help="A row that does not parse (a serial glitch): 'refuse' the file, or 'skip' it, each skipped "
+        "row counted as an event of the session with its line.",
+    ),
+]
+DetectHoldsOpt = Annotated[
+    bool,
+    typer.Option(
+        "--detect-holds",
+        help="Label the still intervals (detect_static) as the table faces they lie on (+x..-z), when "
+        "all six are found; else the session stays unlabelled.",
+    ),
+]
 
 
 def _facts(session: "Session", src: Path, out: Path) -> dict:
@@ -125,7 +149,8 @@ def import_imucal_cmd(
     sections: Annotated[
         Path | None,
         typer.Option(
-            "--sections", help="Section list JSON {label: {start, end}} (default <stem>_list.json)."
+            "--sections",
+            help="Section list JSON {label: {start, end}} (default: beside the file, STEM_list.json).",
         ),
     ] = None,
     rate_hz: Annotated[
@@ -154,6 +179,7 @@ def import_csv_cmd(
     lsb_per_g: Annotated[
         float | None, typer.Option("--lsb-per-g", help="Counts per g (needed with --unit counts).")
     ] = None,
+    accel_scale: AccelScaleOpt = 1.0,
     count_offset: Annotated[
         float,
         typer.Option(
@@ -189,6 +215,8 @@ def import_csv_cmd(
         str, typer.Option("--delimiter", help="Field separator (one character, or tab).")
     ] = ",",
     comment: Annotated[str, typer.Option("--comment", help="Lines starting with this are skipped.")] = "#",
+    bad_rows: BadRowsOpt = "refuse",
+    detect_holds: DetectHoldsOpt = False,
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
     compression: CompressionOpt = "zstd",
@@ -198,30 +226,50 @@ def import_csv_cmd(
 
     temp in degC; 'pose' names label static holds. Examples: offset-binary counts
     `--unit counts --lsb-per-g 16384 --count-offset 32768 --gyro-unit counts --gyro-lsb-per-dps 131`;
-    no time column `--rate 100` (or a '# rate: 100 Hz' line above the header).
+    no time column `--rate 100` (or a '# rate: 100 Hz' line above the header); a table protocol
+    without a pose column `--detect-holds` (read in memory, as `import ros2 --detect-holds`).
     """
     from accellog.cli.progress import progress_bar, wanted
     from accellog.store.importers.csv import CsvOptions, import_csv_to_mcap
 
-    opts = CsvOptions.make(
-        unit=unit,
-        lsb_per_g=lsb_per_g,
-        count_offset=count_offset,
-        gyro_count_offset=gyro_count_offset,
-        gyro_unit=gyro_unit,
-        gyro_lsb_per_dps=gyro_lsb_per_dps,
-        columns=columns,
-        rate_hz=rate,
-        time_unit=time_unit,
-        delimiter=delimiter,
-        comment=comment,
-    )
+    opts = CsvOptions.make(unit=unit, lsb_per_g=lsb_per_g, accel_scale=accel_scale, count_offset=count_offset,
+                           gyro_count_offset=gyro_count_offset, gyro_unit=gyro_unit,
+                           gyro_lsb_per_dps=gyro_lsb_per_dps, columns=columns, rate_hz=rate,
+                           time_unit=time_unit, delimiter=delimiter, comment=comment,
+                           bad_rows=bad_rows)  # fmt: skip
     _check_out(out, file, compression, force)
+    if detect_holds:
+        _write(_labelled_csv(file, opts), file, out, as_json, batch_size, compression, force)
+        return
     with progress_bar("import csv (MB)", show=wanted(as_json)) as bar:
         result = import_csv_to_mcap(
             file, out, opts, batch_size=batch_size, compression=compression, overwrite=force, progress=bar
         )
+    _note_skipped(result.skipped_rows)
     _present(result.to_dict(), file, out, as_json)
+
+
+def _note_skipped(details: list[str]) -> None:
+    """One note naming the rows --bad-rows skip dropped (each is an event of the session too)."""
+    from accellog.core.notices import note
+
+    if details:
+        lines = ", ".join(d.split(": ", 1)[0] for d in details[:5]) + (", ..." if len(details) > 5 else "")
+        note(f"{len(details)} row(s) that do not parse skipped ({lines}): each is a 'skipped_row' event")
+
+
+def _labelled_csv(file: Path, opts) -> "Session":
+    """The CSV read whole and labelled with its detected face holds (the ros2 importer's path)."""
+    from accellog.calibrate.observe.detected_holds import label_detected_holds
+    from accellog.store.importers.csv import import_csv
+
+    session = import_csv(file, opts)
+    _note_skipped([e.detail for e in session.events if e.kind == "skipped_row"])
+    if session.poses:
+        raise InputError(
+            "--detect-holds is for a file without pose labels: it has a pose column", where=str(file)
+        )
+    return label_detected_holds(session)
 
 
 @import_app.command("ros2")
@@ -242,9 +290,7 @@ def import_ros2_cmd(
     mag_topic: Annotated[
         str | None, typer.Option("--mag-topic", help="sensor_msgs/msg/MagneticField topic.")
     ] = None,
-    detect_holds: Annotated[
-        bool, typer.Option("--detect-holds", help="Label the still intervals (detect_static) as poses.")
-    ] = False,
+    detect_holds: DetectHoldsOpt = False,
     as_json: JsonOpt = False,
     batch_size: BatchOpt = 500,
     compression: CompressionOpt = "zstd",

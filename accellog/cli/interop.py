@@ -1,5 +1,6 @@
 """`accellog export CAL.json --to kalibr|ros|px4|ardupilot|yaml`: calibrations for other tools."""
 
+import enum
 import json
 from pathlib import Path
 from typing import Annotated
@@ -7,13 +8,17 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import EffectsOpt, app
+from accellog.cli.app import EffectsOpt, ForceOpt, app
+from accellog.present.export_targets import TARGETS
+
+Target = enum.Enum("Target", {t: t for t in TARGETS}, type=str)
+"""The --to choices (shell completion offers them)."""
 
 
 @app.command("export", rich_help_panel="2. Calibrate")
 def export_cmd(
     cal: Annotated[Path, typer.Argument(help="Calibration JSON (accellog fit -o).")],
-    to: Annotated[str, typer.Option("--to", help="kalibr | ros | px4 | ardupilot | yaml")],
+    to: Annotated[Target, typer.Option("--to", help="The target's format.")],
     output: Annotated[
         Path | None, typer.Option("-o", "--output", help="Write here (default: stdout).")
     ] = None,
@@ -45,6 +50,7 @@ def export_cmd(
         bool, typer.Option("--json", help="Values, units and what the target cannot hold.")
     ] = False,
     effects_file: EffectsOpt = None,
+    force: ForceOpt = False,
 ) -> None:
     """Write a calibration in another tool's format; the header says what that format cannot hold and
     how large the loss is on this calibration.
@@ -66,7 +72,7 @@ def export_cmd(
         noise = NoiseCharacterisation.from_model(characterise_noise(noise_from))
     else:
         noise = NoiseCharacterisation.from_section(c.noise) if c.noise else None
-    ex = export_calibration(c, to, noise=noise, topic=topic, rotation=rotation, device_id=device_id)
+    ex = export_calibration(c, to.value, noise=noise, topic=topic, rotation=rotation, device_id=device_id)
     if output is not None:
         write_text_atomic(output, ex.text, inputs=(cal, noise_from))
     if as_json:
@@ -76,6 +82,6 @@ def export_cmd(
         typer.echo(ex.text, nl=False)
         return
     console = Console(stderr=True)
-    console.print(f"wrote {output} ({to})")
+    console.print(f"wrote {output} ({to.value})")
     for x in ex.cannot_hold:
         console.print(f"[yellow]cannot hold:[/] {x}", soft_wrap=True)

@@ -5,7 +5,7 @@ from typing import Annotated
 
 import typer
 
-from accellog.cli.app import app
+from accellog.cli.app import ForceOpt, app
 from accellog.core.errors import InputError
 
 
@@ -33,6 +33,7 @@ def magcal_cmd(
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", "-o", help="Where to write that calibration.")] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Ellipsoid fit of the magnetometer: hard iron h and soft iron A with 1-sigma, field strength vs the
     expected local field, residual vs noise, and the residual's trends against time, temperature and rate."""

@@ -5,7 +5,7 @@ from typing import Annotated
 
 import typer
 
-from accellog.cli.app import app
+from accellog.cli.app import ForceOpt, app
 from accellog.core.errors import InputError
 
 
@@ -26,6 +26,7 @@ def noise_cmd(
         Path | None,
         typer.Option("--out", "-o", help="Where to write the calibration with its noise section."),
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Overlapping Allan deviation per axis (accel, gyro) with confidence intervals; fitted white noise,
     bias instability and random walk with 1-sigma, in SI and datasheet units, and the session length each

@@ -46,6 +46,7 @@ OPTION_RANGES: dict[str, tuple[float, float, bool, str]] = {
     "--gravity-g": (0.98, 1.02, False, "g"),
     "--field-uT": (0, 1_000, True, "uT"),
     "--lsb-per-g": (0, 1e6, True, "counts/g"),
+    "--accel-scale": (0, 1e3, True, ""),
     "--gyro-lsb-per-dps": (0, 1e6, True, "counts/(deg/s)"),
     "--k-sigma": (0, 1_000, True, "sigma"),
     "--threshold": (0, _BIG, True, ""),

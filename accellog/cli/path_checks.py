@@ -8,6 +8,10 @@ goes) or when it is the same file as any input of the command (every other path 
 identity after resolving links (``accellog.store.atomic.refuse_inputs``). While the command runs,
 its inputs stay declared (``declared_inputs``): every file it writes, also inside an output folder,
 is checked against them again.
+
+A file output also needs its folder (no folder is created: a missing one is refused, naming it), and
+the file of ``-o`` (``REPLACED_ONLY_WITH_FORCE``) of a command with ``--force`` is not replaced
+without it (``accellog.store.atomic.check_output``, as every importer checks its output).
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from accellog.core.errors import InputError
-from accellog.store.atomic import refuse_inputs, same_file, special_kind
+from accellog.store.atomic import check_output, refuse_inputs, same_file, special_kind
 
 FILE, FOLDER, EITHER = "file", "folder", "file or folder"
 
@@ -29,6 +33,8 @@ OUTPUT_OPTIONS = {
     "ros2": EITHER,  # OUT.mcap or a bag folder
     "output_dir": FOLDER,
 }
+REPLACED_ONLY_WITH_FORCE = ("output", "out")
+"""The -o options: an existing file is replaced only with --force (when the command has one)."""
 OUTPUT_KINDS = {  # (command's function, parameter) whose output is not OUTPUT_OPTIONS' kind
     ("accellog.cli.demo.demo", "out"): FOLDER,
     ("accellog.cli.fleet.run", "out"): FOLDER,
@@ -62,6 +68,9 @@ def check_paths(command: str, names: dict[str, str], kwargs: dict[str, Any]) -> 
         if kind == FOLDER and out.exists() and found is None:
             raise InputError(f"{what} is an existing file, not a folder", where=str(out))
         refuse_inputs(out, inputs, what)
+        if kind == FILE:
+            replace = name not in REPLACED_ONLY_WITH_FORCE or kwargs.get("force", True) is not False
+            check_output(out, inputs, overwrite=replace, what=what)
         for other in seen:
             if same_file(out, other):
                 raise InputError(f"two outputs are the same file ({other})", where=str(out))

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.console import Console
 
-from accellog.cli.app import CompressionOpt, app
+from accellog.cli.app import CompressionOpt, ForceOpt, app
 from accellog.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -16,7 +16,6 @@ if TYPE_CHECKING:
     from accellog.core.session import PoseLabel
 
 console = Console(stderr=True)
-ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing output file.")]
 
 
 class TerminalUI:
@@ -47,7 +46,8 @@ class TerminalUI:
         pct = int(100 * min(done_s / pose.hold_s, 1.0))
         if pct // 10 != self._last_hold:
             bar = "#" * (pct // 5) + "-" * (20 - pct // 5)
-            console.print(f"  holding {pose.name} [{bar}] {pct:3d}%", end="\r")
+            # markup off: rich would take "[####---]" for a style tag and drop it
+            console.print(f"  holding {pose.name} [{bar}] {pct:3d}%", end="\r", markup=False, highlight=False)
             self._last_hold = pct // 10
 
     def finished_pose(self, label: "PoseLabel") -> None:

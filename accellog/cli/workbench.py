@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from accellog.cli.app import app
+from accellog.cli.app import ForceOpt, app
 
 
 @app.command(rich_help_panel="3. Discover")
@@ -150,6 +150,7 @@ def workbench_cmd(
     rrd: Annotated[
         Path | None, typer.Option("--rrd", help="Also write a Rerun recording of the ladder.")
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Diagnose, add the missing effect, refit - until the model fits to the noise; then the ladder
     model1 -> model2 -> model3 -> + each found effect, judged on held-out data and a static test.

@@ -7,7 +7,8 @@ Used at the door (``accellog import csv`` refuses with the likely fix) and by ``
   unit u in {s, ms, us, ns} whose rate 1 / (step * u) lies in that range, closest to
   TYPICAL_RATE_HZ on a log scale, is the likely one;
 - median |a| at rest ~ 1 g (0.5 .. 2 g): ~9.8 means m/s^2, >= 500 means raw counts at the nearest
-  MPU-9250 sensitivity (16384 / 8192 / 4096 / 2048 LSB/g);
+  MPU-9250 sensitivity (16384 / 8192 / 4096 / 2048 LSB/g), ~1 g times a power of 2 a full-scale
+  mismatch (``accel_scale_guess``: a +-8 g log converted as +-2 g reads 0.25 g);
 - gyro: a median |w| above 2000 deg/s (35 rad/s) is beyond any MEMS range; whole numbers with a
   median |w| above GYRO_INT_DPS (or beside accelerometer counts) are raw counts read as deg/s;
 - time stamps must fit int64 nanoseconds: |t| < MAX_TIME_S (about 292 years);
@@ -69,6 +70,18 @@ def accel_unit_guess(median_norm: float) -> tuple[str, float | None] | None:
     if m >= 500:
         return "counts", nearest_accel_lsb(m)
     return None
+
+
+ACCEL_SCALES = (2.0, 4.0, 8.0, 16.0, 0.5, 0.25, 0.125, 0.0625)
+"""Full-scale mismatches: counts of a +-A g range converted with the sensitivity of a +-B g one read
+B/A times the truth (a +-8 g log printed with +-2 g's 16384 LSB/g reads 1/4 g at rest)."""
+
+
+def accel_scale_guess(median_g: float) -> float | None:
+    """The factor k in ACCEL_SCALES that makes a median |a| of ``median_g`` (g) read 0.9 .. 1.1 g at
+    rest (k * median_g), None when none does."""
+    ok = [k for k in ACCEL_SCALES if 0.9 <= k * median_g <= 1.1]
+    return min(ok, key=lambda k: abs(math.log(k * median_g))) if ok else None
 
 
 def nearest_accel_lsb(counts_per_g: float) -> float:

@@ -93,7 +93,8 @@ class Event:
 
     kind: 'gap' (samples missing between sample indices), 'fifo_overflow', 'misaligned',
     'i2c_error', 'retry', 'note', 'recovered' (reader salvaged a truncated file), 'pose_prompt',
-    'damaged' (reader skipped a chunk that failed its CRC; lost_samples counts its IMU samples).
+    'damaged' (reader skipped a chunk that failed its CRC; lost_samples counts its IMU samples),
+    'skipped_row' (an imported CSV row that did not parse, dropped with --bad-rows skip; its line).
     """
 
     t_s: float

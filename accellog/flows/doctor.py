@@ -22,6 +22,7 @@ and MAD. A session in memory anyway (CSV, ROS 2 bag, a damaged file) is examined
 
 from __future__ import annotations
 
+import itertools
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -33,6 +34,7 @@ from accellog.core.jsonio import dumps
 from accellog.core.plausible import (
     TIME_UNIT_NAME,
     TIME_UNIT_S,
+    accel_scale_guess,
     accel_unit_guess,
     gyro_counts_evidence,
     likely_time_unit,
@@ -192,9 +194,11 @@ def units(scan: Scan, s: Session, m: int, rate_hz: float) -> list[Finding]:
     if s.n:
         med = float(np.median(np.linalg.norm(s.accel_g[::step], axis=1)))
         if not 0.5 <= med <= 2.0:
-            guess = accel_unit_guess(med)
+            guess, k = accel_unit_guess(med), accel_scale_guess(med)
             looks = (
-                "no unit makes it ~1 g"
+                f"x{k:g} makes it ~1 g (a full-scale mismatch): re-import with --accel-scale {k:g}"
+                if guess is None and k is not None
+                else "no unit or scale makes it ~1 g"
                 if guess is None
                 else f"the values look like {guess[0]} stored as g: re-import with --unit {guess[0]}"
                 + (f" --lsb-per-g {guess[1]:g}" if guess[1] else "")
@@ -208,6 +212,45 @@ def units(scan: Scan, s: Session, m: int, rate_hz: float) -> list[Finding]:
             out.append(Finding("unit", f"gyro: values stored as deg/s {why}: they look like raw counts: "
                                "re-import with --gyro-unit counts --gyro-lsb-per-dps LSB", 1))  # fmt: skip
     return out
+
+
+GYRO_TURN_MIN_DEG = 20.0
+"""A move between still intervals is used to judge the gyro's scale when gravity turns by more."""
+GYRO_SHORT_FACTOR = 10.0
+"""The gyro integrates to less than 1/this of the turn gravity shows: its values are too small."""
+
+
+def gyro_scale(s: Session, holds: list[dict]) -> list[Finding]:
+    """A gyro that integrates to far less than the turns gravity shows: between consecutive still
+    intervals whose gravity directions differ by theta_k > GYRO_TURN_MIN_DEG, the sensor turned by at
+    least theta_k, so the path integral of |w| dt over the move is >= theta_k with the right unit.
+    r = sum theta_k / sum integral |w| dt > GYRO_SHORT_FACTOR is a defect; r near 180/pi is rad/s
+    stored as deg/s. s: the scan's series (every m-th sample: the integral is a trapezoid over it)."""
+    if s.gyro_dps is None or len(holds) < 2:
+        return []
+    turn_deg = turned_deg = 0.0
+    for a, b in itertools.pairwise(holds):
+        theta = float(np.degrees(np.arccos(np.clip(np.dot(a["up"], b["up"]), -1.0, 1.0))))
+        sl = s.slice_time(a["end_s"], b["start_s"])
+        t, w = s.t_s[sl], s.gyro_dps[sl]
+        if theta <= GYRO_TURN_MIN_DEG or t.shape[0] < 2:
+            continue
+        turn_deg += theta
+        speed = np.linalg.norm(w, axis=1)
+        turned_deg += float(np.sum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t)))
+    if turn_deg == 0.0 or turn_deg <= GYRO_SHORT_FACTOR * turned_deg:
+        return []
+    r = turn_deg / max(turned_deg, 1e-12)
+    fix = (
+        "the values look like rad/s stored as deg/s: re-import with --gyro-unit rad/s"
+        if 20.0 <= r <= 200.0
+        else "check the gyro's unit and scale (--gyro-unit, --gyro-lsb-per-dps)"
+    )
+    detail = (
+        f"gyro: the moves between still intervals turn gravity by {turn_deg:.0f} deg but the gyro "
+        f"integrates to {turned_deg:.3g} deg ({r:.3g}x less): {fix}"
+    )
+    return [Finding("unit", detail, 1)]
 
 
 def _distinct(up: np.ndarray, angle_deg: float = 10.0) -> int:
@@ -278,7 +321,8 @@ def _examine(src: Source, keep_times: bool) -> tuple[DoctorReport, np.ndarray | 
         thin, m = scan.thin.session(src.meta, src.poses, src.events, path), scan.thin.m
     stats, findings = timing(scan, src)
     rate_hz = 1e3 / stats["median"] if stats.get("median") else 0.0
-    findings += units(scan, thin, m, rate_hz)
+    holds = still(thin)
+    findings += units(scan, thin, m, rate_hz) + gyro_scale(thin, holds)
     findings += clipping(scan, thin)
     ev: dict[str, int] = {}
     lost = 0
@@ -286,7 +330,9 @@ def _examine(src: Source, keep_times: bool) -> tuple[DoctorReport, np.ndarray | 
         ev[e.kind] = ev.get(e.kind, 0) + 1
         lost += e.lost_samples
     bad_ev = {
-        k: v for k, v in ev.items() if k in ("gap", "fifo_overflow", "i2c_error", "misaligned", "recovered")
+        k: v
+        for k, v in ev.items()
+        if k in ("gap", "fifo_overflow", "i2c_error", "misaligned", "recovered", "skipped_row")
     }
     if bad_ev:
         detail = ", ".join(f"{v} {k}" for k, v in bad_ev.items()) + f"; {lost} samples lost"
@@ -295,7 +341,6 @@ def _examine(src: Source, keep_times: bool) -> tuple[DoctorReport, np.ndarray | 
     if scan.temp is not None and scan.n:
         lo, hi = float(scan.temp[0]), float(scan.temp[1])
         temp = {"min": lo, "max": hi, "span": float(np.float64(hi) - np.float64(lo))}
-    holds = still(thin)
     n_dir = _distinct(np.array([h["up"] for h in holds])) if holds else 0
     report = DoctorReport(
         path=path or "",

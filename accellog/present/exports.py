@@ -37,6 +37,7 @@ from accellog.present.export_frames import (
     rotation,
     sensor_ids,
 )
+from accellog.present.export_targets import TARGETS
 from accellog.present.thermal_params import (
     HELD_TERMS,
     PX4_STEP_DEGC,
@@ -47,8 +48,6 @@ from accellog.present.thermal_params import (
     thermal_notes,
 )
 
-TARGETS = ("kalibr", "ros", "px4", "ardupilot", "yaml")
-SUFFIX = {"kalibr": ".yaml", "ros": ".yaml", "px4": ".params", "ardupilot": ".parm", "yaml": ".yaml"}
 __all__ = ["TARGETS", "Export", "export_calibration", "linear_form"]
 
 

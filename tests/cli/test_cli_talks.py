@@ -47,7 +47,7 @@ def test_shell_completion_completes_commands_and_options():
     [
         (["fitt"], "accellog: error: No such command 'fitt'. Did you mean 'fit'? (see accellog --help)"),
         (["fit", "x.mcap"], "accellog: error: fit: Missing option '-o' / '--output'. (see accellog fit --help)"),
-        (["import", "ros2"], "accellog: error: import ros2: Missing argument 'bag'. (see accellog import ros2 --help)"),
+        (["import", "ros2"], "accellog: error: import ros2: Missing argument 'BAG'. (see accellog import ros2 --help)"),
     ],
 )  # fmt: skip
 def test_one_error_prefix(argv, line, capsys):

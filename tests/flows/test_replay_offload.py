@@ -279,7 +279,7 @@ def test_other_commands_write_the_recording_in_process_writes(
 ) -> None:
     cal_session = files["test"].with_name("cal.mcap")
     args = {
-        "fit": ["fit", str(cal_session), "-o", str(tmp_path / "c.json")],
+        "fit": ["fit", str(cal_session), "-o", str(tmp_path / "c.json"), "--force"],  # run twice
         "drift": [
             "drift",
             str(files["still"]),
@@ -287,6 +287,7 @@ def test_other_commands_write_the_recording_in_process_writes(
             str(files["model3"]),
             "-o",
             str(tmp_path / "d.json"),
+            "--force",
         ],
         "evaluate": ["evaluate", str(files["still"]), "--cal", str(files["model3"])],
         "track": ["track", str(robot), "--cal", str(files["model3"])],

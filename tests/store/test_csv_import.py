@@ -17,7 +17,7 @@ from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.importers import CsvOptions, import_csv, import_csv_to_mcap
-from accellog.store.importers.csv import read_ahead
+from accellog.store.importers.csv_blocks import read_ahead
 from accellog.store.reader import read_session
 
 _RAW_MAP = "t=timestamp_us,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z,temp=temp_C"

@@ -123,11 +123,30 @@ def detect_static(
         cut = any(e.kind == "recovered" for e in session.events)
         raise InputError(
             f"found at most {max_found} distinct static orientations (need >= {min_poses} for an "
-            f"orientation-free fit): hold the sensor still for >= {min_interval_s:g} s in more orientations"
+            f"orientation-free fit): {_labelling_hint(session, max_found, min_poses, min_interval_s)}"
             + ("; the file is truncated: any pose labels went with its end" if cut else ""),
             where=where,
         )
     return best[1]
+
+
+_TABLE_FACES = 6
+"""A table protocol's distinct orientations (six faces; rotations about the vertical look alike)."""
+
+
+def _labelling_hint(session: Session, found: int, need: int, min_interval_s: float) -> str:
+    """The one thing that makes an unlabelled session fit: labels from the importer (a table protocol:
+    the six faces found) or still holds in more orientations."""
+    more = f"hold the sensor still for >= {min_interval_s:g} s in more orientations"
+    source = session.meta.source
+    kind = source.split(":", 1)[1] if source.startswith("import:") else ""
+    if found < _TABLE_FACES or need <= _TABLE_FACES or kind not in ("csv", "ros2"):
+        return more
+    pose = "give the file a pose column, or " if kind == "csv" else ""
+    return (
+        f"the holds look like a table protocol (rotations about the vertical read as one orientation): "
+        f"{pose}re-import it with `accellog import {kind} ... --detect-holds` to label them as faces"
+    )
 
 
 def with_labels(session: Session, labels: list[PoseLabel]) -> Session:

@@ -12,19 +12,17 @@ while the current one is encoded, compressed and written (``read_ahead``).
 from __future__ import annotations
 
 import math
-import queue
-import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from accellog.core.errors import InputError
-from accellog.core.session import Session, SessionMeta
+from accellog.core.session import Event, Session, SessionMeta
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.atomic import AtomicOutput
-from accellog.store.importers.csv_blocks import BLOCK_BYTES, Block, BlockReader, read_header
+from accellog.store.importers.csv_blocks import BLOCK_BYTES, Block, BlockReader, read_ahead, read_header
 from accellog.store.importers.csv_checks import (
     check_accel,
     check_gyro,
@@ -67,6 +65,8 @@ class CsvImport:
     block_bytes: int = BLOCK_BYTES
     meta: SessionMeta | None = None
     poses: list = field(default_factory=list)
+    events: list = field(default_factory=list)
+    """One Event('skipped_row') per row dropped with bad_rows='skip' (its file line and why)."""
     n: int = 0
 
     def __post_init__(self) -> None:
@@ -133,6 +133,9 @@ class CsvImport:
         t_prev = t0 = None
         t_first_s = dt_s = 0.0
         for block in self.reader:
+            if block.n == 0:  # every line of the block skipped
+                self._skipped(block, np.empty(0), t_prev)
+                continue
             t_s, t0 = self._time(block, t0)
             if self.opts.strict_time and (t_prev is not None or block.n > 1):
                 self._check_time(block, t_s, t_prev)
@@ -148,6 +151,7 @@ class CsvImport:
                 true = _stack(block, ("true_x", "true_y", "true_z"))
                 quat = _stack(block, ("qw", "qx", "qy", "qz"))
                 runs.feed(block.cols["pose"], t_s, true, quat, block.line_of)
+            self._skipped(block, t_s, t_prev)
             ch = self._convert(block, t_s)
             check_samples(ch.accel_g, ch.gyro_dps, lambda i, b=block: f"{self.path}:{b.line_of(i)}")
             n, t_prev = block.n, (float(t_s[-1]), block.line_of(block.n - 1))
@@ -167,6 +171,14 @@ class CsvImport:
             dt = dt_s if dt_s > 0 else 0.0
             self.poses = runs.finish(t_prev[0] + dt)
             self.meta = self.meta.replace(protocol=",".join(p.name for p in self.poses))
+
+    def _skipped(self, block: Block, t_s: np.ndarray, prev) -> None:
+        """An Event per skipped line of the block, at the time of the row before it (s)."""
+        for line, why in block.skipped:
+            i = block.rows_before(line)
+            t = float(t_s[i - 1]) if i > 0 else (prev[0] if prev is not None else 0.0)
+            detail = f"{self.path.name}:{line}: {why}; row skipped (--bad-rows skip)"
+            self.events.append(Event(t, "skipped_row", detail, self.n + i, 1))
 
     def _time(self, block: Block, t0):
         """Block times in s since the session origin (row / rate without a time column)."""
@@ -215,6 +227,10 @@ class CsvImport:
             extra["conversion"] = f"accel_counts = (raw{off}; accel_g = accel_counts / {o.lsb_per_g:g}"
         elif o.unit == "m/s^2":
             extra["conversion"] = "accel_g = a_mps2 / 9.80665 (original: a_mps2 = accel_g * 9.80665)"
+        if o.accel_scale != 1.0:
+            before = extra.get("conversion", "accel_g = a_g").split(" (")[0]
+            extra["accel_scale"] = f"{o.accel_scale:g}"
+            extra["conversion"] = f"{before} * {o.accel_scale:g} (--accel-scale: a full-scale mismatch)"
         if "gx" in self.cols:
             extra["source_gyro_unit"] = o.gyro_unit
             if o.gyro_unit == "rad/s":
@@ -263,6 +279,8 @@ class CsvImport:
             ch.accel_g = ch.accel_counts / o.lsb_per_g
         elif o.unit == "m/s^2":
             ch.accel_g = raw / STANDARD_GRAVITY_MPS2
+        if o.accel_scale != 1.0:
+            ch.accel_g = ch.accel_g * o.accel_scale
         if "gx" in self.cols:
             w = _stack(block, ("gx", "gy", "gz"))
             if o.gyro_unit == "counts":
@@ -289,55 +307,6 @@ def _counts(path: Path, block: Block, raw: np.ndarray, offset: float, what: str)
             f"counts expected but {what} are not integers", where=f"{path}:{block.line_of(int(frac[0]))}"
         )
     return c.astype(np.int32)
-
-
-def read_ahead(items: Iterable, name: str = "read-ahead") -> Iterator:
-    """Yield ``items`` while a second thread already makes the next one (at most one ahead).
-
-    The producer's exception is raised here, at its place in the sequence; leaving the loop early
-    (break, an error, Ctrl-C) stops the producer before this generator returns. Used to parse the next
-    CSV block (pyarrow and numpy release the GIL) while the current one is encoded, compressed and written.
-    """
-    slots = threading.Semaphore(2)  # items alive: the one the consumer holds and the one being made
-    out: queue.SimpleQueue = queue.SimpleQueue()
-    stop = threading.Event()
-    end = object()
-
-    def produce() -> None:
-        it = iter(items)
-        try:
-            while True:
-                while not slots.acquire(timeout=0.05):
-                    if stop.is_set():
-                        return
-                if stop.is_set():
-                    return
-                item = next(it, end)
-                out.put((item, None))
-                if item is end:
-                    return
-        except BaseException as exc:  # handed to the consumer, raised there
-            out.put((end, exc))
-        finally:
-            close = getattr(it, "close", None)
-            if close is not None:
-                close()
-
-    worker = threading.Thread(target=produce, name=name, daemon=True)
-    worker.start()
-    try:
-        while True:
-            item, exc = out.get()
-            if exc is not None:
-                raise exc
-            if item is end:
-                return
-            yield item
-            del item
-            slots.release()
-    finally:
-        stop.set()
-        worker.join()
 
 
 def _options(opts: CsvOptions | None, kw: dict) -> CsvOptions:
@@ -369,6 +338,7 @@ def import_csv(path: str | Path, options: CsvOptions | None = None, **kw) -> Ses
         gyro_counts=cat("gyro_counts"),
         temp_degC=cat("temp_degC"),
         poses=imp.poses,
+        events=list(imp.events),
         path=str(path),
     )
 
@@ -387,6 +357,7 @@ class CsvImportResult:
     accel_storage: str
     gyro: bool
     poses: list[str]
+    skipped_rows: list[str]
     extra: dict[str, str]
 
     def to_dict(self) -> dict:
@@ -452,6 +423,8 @@ def import_csv_to_mcap(
             t_last = float(ch.t_s[-1])
         for p in imp.poses:
             w.write_pose(p)
+        for e in imp.events:
+            w.write_event(e)
         w.update_meta(imp.meta)
         w.close()
     except BaseException:
@@ -461,18 +434,23 @@ def import_csv_to_mcap(
         ao.abort()
         raise
     ao.commit()
+    return _result(imp, path, out, t_last - t_first)
+
+
+def _result(imp: CsvImport, path: Path, out: Path, duration_s: float) -> CsvImportResult:
     m = imp.meta
     return CsvImportResult(
         input=str(path),
         output=str(out),
         source=m.source,
         samples=imp.n,
-        duration_s=t_last - t_first,
+        duration_s=duration_s,
         sample_rate_hz=m.sample_rate_hz,
         source_unit=imp.opts.unit,
         accel_storage=f"counts ({m.accel_lsb_per_g:g} LSB/g)" if m.accel_lsb_per_g else "g (float64)",
         gyro=m.extra.get("source_gyro_unit") is not None,
         poses=[p.name for p in imp.poses],
+        skipped_rows=[e.detail for e in imp.events if e.kind == "skipped_row"],
         extra=dict(m.extra),
     )
 

@@ -4,14 +4,18 @@ Memory is one block (``block_bytes`` of text, default 16 MB) plus its parsed col
 file's length. Line numbers stay exact: a block knows its first line, and rows map to lines in O(1)
 unless the block holds blank or comment lines (then a Python scan of that block, only when asked).
 A block pyarrow refuses, or one with empty/non-finite cells, is re-read line by line in Python to name
-the first bad line (``file:line``), so errors cost time only when there is an error.
+the first bad line (``file:line``), so errors cost time only when there is an error; with
+``bad_rows='skip'`` the bad lines are blanked and listed (``Block.skipped``) instead. ``read_ahead``
+parses the next block on a second thread while the current one is written.
 """
 
 from __future__ import annotations
 
 import math
+import queue
 import re
-from collections.abc import Iterator
+import threading
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -108,6 +112,8 @@ class Block:
     text: bytes
     clean: bool
     comment: bytes
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+    """Lines dropped with bad_rows='skip': (file line, why it is not a row)."""
     _lines: np.ndarray | None = None
 
     def line_of(self, row: int) -> int:
@@ -122,6 +128,13 @@ class Block:
             ]
             self._lines = np.asarray(nos, dtype=np.int64)
         return int(self._lines[row]) if row < self._lines.shape[0] else self.first_line
+
+    def rows_before(self, line: int) -> int:
+        """How many data rows of this block lie on file lines before ``line``."""
+        if self.clean:
+            return max(min(line - self.first_line, self.n), 0)
+        self.line_of(0)
+        return int(np.searchsorted(self._lines, line))
 
 
 class BlockReader:
@@ -187,6 +200,7 @@ class BlockReader:
                 if key in self.int_cols
                 else pa.float64()
             )
+        skip = self.opts.bad_rows == "skip"
         try:
             table = pacsv.read_csv(
                 pa.BufferReader(body),
@@ -201,6 +215,8 @@ class BlockReader:
                 ),
             )
         except (pa.ArrowInvalid, UnicodeDecodeError) as exc:
+            if skip:
+                return self._skip_bad_lines(data, first_line, n_lines, exc)
             self._diagnose(data, first_line)
             where = f"{self.path}:{first_line}"
             raise InputError(f"cannot parse CSV: {str(exc).splitlines()[0]}", where=where) from None
@@ -222,43 +238,115 @@ class BlockReader:
             finite = values if not null else values[~np.isnan(values)]
             bad = bad or not np.isfinite(finite).all()
             cols[key] = values
+        if bad and skip:
+            return self._skip_bad_lines(data, first_line, n_lines, None)
         if bad:
             self._diagnose(data, first_line)
         clean = not has_comment and table.num_rows == n_lines
         return Block(cols, table.num_rows, first_line, data, clean, c)
 
+    def _skip_bad_lines(self, data: bytes, first_line: int, n_lines: int, exc) -> Block:
+        """The block parsed again with its bad lines blanked (their line numbers kept); each one is
+        listed in Block.skipped. A failure no line explains is raised as without skipping."""
+        lines = data.split(b"\n")
+        skipped = []
+        for k, raw in enumerate(lines):
+            why = self._problem(raw)
+            if why is not None:
+                skipped.append((first_line + k, why))
+                lines[k] = b""
+        if not skipped:
+            where = f"{self.path}:{first_line}"
+            reason = "non-finite or empty values" if exc is None else str(exc).splitlines()[0]
+            raise InputError(f"cannot parse CSV: {reason}", where=where)
+        block = self._parse(b"\n".join(lines), first_line, n_lines)
+        block.skipped = skipped + block.skipped
+        return block
+
+    def _problem(self, raw: bytes) -> str | None:
+        """Why one line is not a data row (column count, empty or non-number cells, not UTF-8); None
+        for a good row, a blank line or a comment."""
+        names = self.header.names
+        try:
+            line = raw.decode("utf-8").strip()
+        except UnicodeDecodeError:
+            return "not UTF-8 text"
+        if not line or (self.opts.comment and line.startswith(self.opts.comment)):
+            return None
+        parts = line.split(self.opts.delimiter)
+        if len(parts) != len(names):
+            return f"expected {len(names)} columns ({','.join(names)}), found {len(parts)}"
+        for key, col in self.wanted.items():
+            if key in self.string_cols:
+                continue
+            v = parts[names.index(col)].strip().strip('"')
+            if v == "":
+                if key in OPTIONAL_VALUES:
+                    continue
+                return f"empty value in column {col!r}"
+            try:
+                x = int(v) if key in self.int_cols else float(v)
+            except ValueError:
+                return f"column {col!r}: {v!r} is not {'an integer' if key in self.int_cols else 'a number'}"
+            if not math.isfinite(x):
+                return f"column {col!r}: {v!r} is not a finite number"
+        return None
+
     def _diagnose(self, data: bytes, first_line: int) -> None:
         """Raise InputError at the first bad line of the block (column count, empty or non-number cells)."""
-        names = self.header.names
-        index = {key: names.index(col) for key, col in self.wanted.items()}
-        where = str(self.path)
         for k, raw in enumerate(data.split(b"\n")):
-            no = first_line + k
-            try:
-                line = raw.decode("utf-8").strip()
-            except UnicodeDecodeError:
-                raise InputError("not UTF-8 text", where=f"{where}:{no}") from None
-            if not line or (self.opts.comment and line.startswith(self.opts.comment)):
-                continue
-            parts = line.split(self.opts.delimiter)
-            if len(parts) != len(names):
-                raise InputError(
-                    f"expected {len(names)} columns ({','.join(names)}), found {len(parts)}",
-                    where=f"{where}:{no}",
+            why = self._problem(raw)
+            if why is not None:
+                hint = (
+                    "" if why.startswith("not UTF-8") else " (--bad-rows skip drops such rows, each an event)"
                 )
-            for key, i in index.items():
-                if key in self.string_cols:
-                    continue
-                v = parts[i].strip().strip('"')
-                name = names[i]
-                if v == "":
-                    if key in OPTIONAL_VALUES:
-                        continue
-                    raise InputError(f"empty value in column {name!r}", where=f"{where}:{no}")
-                try:
-                    x = int(v) if key in self.int_cols else float(v)
-                except ValueError:
-                    what = "an integer" if key in self.int_cols else "a number"
-                    raise InputError(f"column {name!r}: {v!r} is not {what}", where=f"{where}:{no}") from None
-                if not math.isfinite(x):
-                    raise InputError(f"column {name!r}: {v!r} is not a finite number", where=f"{where}:{no}")
+                raise InputError(why + hint, where=f"{self.path}:{first_line + k}")
+
+
+def read_ahead(items: Iterable, name: str = "read-ahead") -> Iterator:
+    """Yield ``items`` while a second thread already makes the next one (at most one ahead).
+
+    The producer's exception is raised here, at its place in the sequence; leaving the loop early
+    (break, an error, Ctrl-C) stops the producer before this generator returns. Used to parse the next
+    CSV block (pyarrow and numpy release the GIL) while the current one is encoded, compressed and written.
+    """
+    slots = threading.Semaphore(2)  # items alive: the one the consumer holds and the one being made
+    out: queue.SimpleQueue = queue.SimpleQueue()
+    stop = threading.Event()
+    end = object()
+
+    def produce() -> None:
+        it = iter(items)
+        try:
+            while True:
+                while not slots.acquire(timeout=0.05):
+                    if stop.is_set():
+                        return
+                if stop.is_set():
+                    return
+                item = next(it, end)
+                out.put((item, None))
+                if item is end:
+                    return
+        except BaseException as exc:  # handed to the consumer, raised there
+            out.put((end, exc))
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:
+                close()
+
+    worker = threading.Thread(target=produce, name=name, daemon=True)
+    worker.start()
+    try:
+        while True:
+            item, exc = out.get()
+            if exc is not None:
+                raise exc
+            if item is end:
+                return
+            yield item
+            del item
+            slots.release()
+    finally:
+        stop.set()
+        worker.join()

@@ -21,6 +21,7 @@ from accellog.core.plausible import (
     RATE_MIN_HZ,
     TIME_UNIT_NAME,
     TIME_UNIT_S,
+    accel_scale_guess,
     accel_unit_guess,
     gyro_counts_evidence,
     likely_time_unit,
@@ -197,14 +198,23 @@ def check_accel(path, raw: np.ndarray, o: CsvOptions) -> None:
     the user has not given yet (it never loops back to the options already in use)."""
     m = float(np.median(np.linalg.norm(raw - (o.count_offset if o.unit == "counts" else 0.0), axis=1)))
     to_g = {"g": 1.0, "m/s^2": 1.0 / STANDARD_GRAVITY_MPS2, "counts": 1.0 / (o.lsb_per_g or 1.0)}[o.unit]
+    to_g *= o.accel_scale
     if 0.5 <= m * to_g <= 2.0:
         return
     offset = "" if o.count_offset else offset_hint(raw)
     guess = accel_unit_guess(m)
+    scale = accel_scale_guess(m * to_g) if o.unit != "counts" else None
     if offset:
         lsb = nearest_accel_lsb(float(np.median(np.linalg.norm(raw - _CENTRE, axis=1))))
         why = "they look like offset-binary counts centred on 32768"
         flags = ["--unit counts", "--count-offset 32768", f"--lsb-per-g {o.lsb_per_g or lsb:g}"]
+    elif guess is None and scale is not None:
+        k = scale * o.accel_scale
+        why = (
+            f"x{scale:g} makes it {m * to_g * scale:.3g} g: a full-scale mismatch (the logger converted "
+            "with another range's LSB/g, e.g. +-8 g counts at +-2 g's 16384)"
+        )
+        flags = [f"--accel-scale {k:g}"]
     elif guess is None:
         why, flags = "", []
     elif guess[0] == "counts":

@@ -3,6 +3,7 @@
 Conversions (applied by ``accellog.store.importers.csv``, recorded in the session's meta.extra):
 
     accel_g   = a_g                 | a_mps2 / 9.80665         | (raw - count_offset) / lsb_per_g
+                (times accel_scale for g and m/s^2: a full-scale mismatch of the logger)
     gyro_dps  = w_dps               | w_radps * 180 / pi       | (raw - gyro_offset) / gyro_lsb_per_dps
     t_s       = t * {s: 1, ms: 1e-3, us: 1e-6, ns: 1e-9}       | row / rate_hz (no time column)
 
@@ -22,6 +23,7 @@ from accellog.core.plausible import RATE_MAX_HZ, RATE_MIN_HZ, rate_ok
 
 ACCEL_UNITS = ("g", "m/s^2", "counts")
 GYRO_UNITS = ("deg/s", "rad/s", "counts")
+BAD_ROWS = ("refuse", "skip")
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 _ALIASES = {
     "mps2": "m/s^2",
@@ -91,6 +93,8 @@ class CsvOptions:
     unit: str = "g"
     lsb_per_g: float | None = None
     count_offset: float = 0.0
+    accel_scale: float = 1.0
+    """Multiplies accelerations in g or m/s^2 (a logger that converted with another range's LSB/g)."""
     gyro_unit: str = "deg/s"
     gyro_unit_given: bool = False
     """True when the user named the gyro unit (then whole-number deg/s are taken as they are)."""
@@ -107,6 +111,9 @@ class CsvOptions:
     """Refuse duplicated / backward stamps (False: keep them as they are, for ``accellog doctor``)."""
     check_units: bool = True
     """Refuse implausible units and rates (False: read as declared, for ``accellog doctor``)."""
+    bad_rows: str = "refuse"
+    """A row that does not parse (column count, empty or non-number cell, not UTF-8): 'refuse' the
+    file with its line, or 'skip' it, each skipped row an event of the session (kind 'skipped_row')."""
 
     @classmethod
     def make(cls, *, columns: str | dict | None = None, **kw) -> CsvOptions:
@@ -141,6 +148,10 @@ class CsvOptions:
             raise InputError("--gyro-unit counts needs --gyro-lsb-per-dps (e.g. 131 for +-250 deg/s)")
         if self.gyro_lsb_per_dps is not None and not 0 < self.gyro_lsb_per_dps < math.inf:
             raise InputError(f"--gyro-lsb-per-dps must be a positive number, got {self.gyro_lsb_per_dps:g}")
+        if not (0 < self.accel_scale < math.inf):
+            raise InputError(f"--accel-scale must be a positive number, got {self.accel_scale:g}")
+        if self.accel_scale != 1.0 and self.unit == "counts":
+            raise InputError("--accel-scale is for --unit g or m/s^2: with counts give the right --lsb-per-g")
         for name, v in (
             ("--count-offset", self.count_offset),
             ("--gyro-count-offset", self.gyro_count_offset),
@@ -153,6 +164,8 @@ class CsvOptions:
             raise InputError(
                 "--gyro-count-offset applies to the gyro counts (gx,gy,gz): give --gyro-unit counts"
             )
+        if self.bad_rows not in BAD_ROWS:
+            raise InputError(f"--bad-rows must be one of {', '.join(BAD_ROWS)}, got {self.bad_rows!r}")
         if self.rate_hz is not None and not self.rate_hz > 0:
             raise InputError(f"--rate must be positive, got {self.rate_hz:g}")
         if self.rate_hz is not None and not rate_ok(self.rate_hz):
@@ -187,4 +200,6 @@ class CsvOptions:
             flags.add(f"--gyro-count-offset {self.gyro_count_offset:g}")
         if self.lsb_per_g:
             flags.add(f"--lsb-per-g {self.lsb_per_g:g}")
+        if self.accel_scale != 1.0:
+            flags.add(f"--accel-scale {self.accel_scale:g}")
         return flags
