@@ -135,10 +135,9 @@ def fit(
 ) -> None:
     """Fit an error model to static poses and write a calibration (parameters with 1-sigma).
 
-    Examples: `accellog fit cal.mcap -o cal.json` (model3); `accellog fit cal.mcap -m model3 --add
-    temp_bias -o cal.json --rrd fit.rrd`; a session without pose labels (hand-held) is fitted
-    orientation-free: `accellog fit hand.mcap -o cal.json`; a robot's runs update the lab calibration:
-    `accellog fit run1.mcap run2.mcap --prior lab.json -o field.json`.
+    Examples: `accellog fit cal.mcap -o cal.json`; `accellog fit cal.mcap --add temp_bias -o cal.json
+    --rrd fit.rrd`; hand-held (no labels): orientation-free; a robot's runs update the lab's
+    calibration: `accellog fit run1.mcap run2.mcap --prior lab.json -o field.json`.
     """
     from accellog.calibrate.model.prior import source_line
     from accellog.flows.stages import load_input, run_fit
