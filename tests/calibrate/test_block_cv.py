@@ -19,7 +19,7 @@ from accellog.calibrate.model.fit import fit_model
 
 def _block_cv_dense(res, obs, groups):
     """block_cv as it was: the dense block matrix, eigvalsh and solve on it."""
-    J, r = _whitened(res, obs)
+    J, r, _ = _whitened(res, obs)
     A = np.linalg.pinv(J.T @ J)
     out = []
     for g in groups:

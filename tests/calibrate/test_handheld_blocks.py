@@ -1,7 +1,7 @@
 """Hand-held sessions without a second session: candidates judged by blocks of the temperature range
 and of time on the gravity norm (issue #10: a proxy must not win just because it fits this session).
 
-norm_block_cv must equal the dense hat-matrix form; on a heat-then-cool session (temperature does
+block_cv on the gravity norm must equal the dense hat-matrix form; on a heat-then-cool session (temperature does
 not follow time) the workbench must end at the true temperature effect without a tie, while one
 monotonic warm-up gives "cannot decide" (tests/calibrate/test_handheld.py).
 """
@@ -15,8 +15,7 @@ import numpy as np
 from support.synthetic import cube_poses, synthetic_session, true_theta
 
 from accellog.calibrate.diagnosis.handheld import HANDHELD_START, detect_holds
-from accellog.calibrate.diagnosis.norm_transfer import _norm_jacobian, norm_block_cv, norm_residual
-from accellog.calibrate.diagnosis.transfer import block_groups, blocking_drivers
+from accellog.calibrate.diagnosis.transfer import _whitened, block_cv, block_groups, blocking_drivers
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.fit import fit_orientation_free
 from accellog.cli import main
@@ -33,8 +32,8 @@ def _session(temp_path, seed: int):
 
 
 def _dense(res, obs, groups):
-    e, s = norm_residual(res, obs)
-    J, r = _norm_jacobian(res, obs), e / s
+    J, r, per = _whitened(res, obs, norm=True)
+    assert per == 1
     A = np.linalg.pinv(J.T @ J)
     out = []
     for g in groups:
@@ -53,7 +52,7 @@ def test_norm_block_cv_equals_the_dense_form():
     res = fit_orientation_free(obs, build_model(HANDHELD_START + "+temp_bias"))
     for x in blocking_drivers(obs).values():
         groups = block_groups(x, 5)
-        fast, dense = norm_block_cv(res, obs, groups), _dense(res, obs, groups)
+        fast, dense = block_cv(res, obs, groups, norm=True), _dense(res, obs, groups)
         np.testing.assert_array_equal(np.isinf(fast), np.isinf(dense))
         np.testing.assert_allclose(fast[np.isfinite(dense)], dense[np.isfinite(dense)], rtol=1e-8)
         assert np.all(np.isfinite(fast)) and np.all(fast > 0)

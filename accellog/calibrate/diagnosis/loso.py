@@ -6,7 +6,7 @@ k, for every k in turn:
     score = sum_k chi2_k / sum_k m_k,   chi2_k = sum over session k's equations of (r / sigma)^2
 
 (r: the labelled 3-axis residual, accellog.calibrate.diagnosis.transfer.heldout_score, or the gravity-norm
-residual of hand-held sessions, accellog.calibrate.diagnosis.norm_transfer.norm_heldout_score); per_part
+residual of hand-held sessions, the same with norm=True); per_part
 holds each session's chi2 per equation. It is the held-out test with every session taking a turn,
 so an effect that only stands in for another on one session's driver path does not win.
 """

@@ -14,6 +14,8 @@ these parts:
 - ``rho(res_a, res_b, base, obs)``        the canonical correlation of two candidates' columns
 - ``heldout_stats(res, heldout)``         held-out RMS, noise and predictive chi2/dof of one session
 
+(the last four: accellog.calibrate.diagnosis.transfer with norm=False or norm=True)
+
 and are written once here on top of them: ``scores`` (the out-of-sample evidence: leave one session
 out, held-out sessions, else blocks of one session) and ``choose`` (one step's choice,
 accellog.calibrate.diagnosis.choose).
@@ -30,11 +32,6 @@ from accellog.calibrate.diagnosis.choose import StepChoice, choose_effect
 from accellog.calibrate.diagnosis.diagnose import Diagnosis, diagnose
 from accellog.calibrate.diagnosis.handheld import diagnose_handheld, settle_choice
 from accellog.calibrate.diagnosis.loso import loso_score, loso_stats, mean_stats
-from accellog.calibrate.diagnosis.norm_transfer import (
-    norm_blocked_scores,
-    norm_canonical_correlation,
-    norm_heldout_score,
-)
 from accellog.calibrate.diagnosis.transfer import (
     Score,
     blocked_scores,
@@ -59,15 +56,29 @@ class Strategy:
     """'' or 'norm ': how texts name the residual's chi2 ("held-out norm chi2/dof")."""
     fit: Callable[..., FitResult]
     diagnose_fn: Callable[..., Diagnosis]
-    heldout_score: Callable[[FitResult, Sequence[ObsTable]], Score]
-    blocked_scores: Callable[[dict[str, FitResult], ObsTable], dict[str, Score]]
-    rho: Callable[[FitResult, FitResult, Model, ObsTable], float]
+
+    @property
+    def on_norm(self) -> bool:
+        """True for the gravity-norm residual (transfer's norm=True)."""
+        return self.name == "norm"
+
+    def heldout_score(self, res: FitResult, heldout: Sequence[ObsTable]) -> Score:
+        """chi2 per equation of res predicting other sessions (transfer.heldout_score)."""
+        return heldout_score(res, heldout, norm=self.on_norm)
+
+    def blocked_scores(self, fits: dict[str, FitResult], obs: ObsTable) -> dict[str, Score]:
+        """Blocked validation within one session (transfer.blocked_scores)."""
+        return blocked_scores(fits, obs, norm=self.on_norm)
+
+    def rho(self, res_a: FitResult, res_b: FitResult, base: Model, obs: ObsTable) -> float:
+        """Canonical correlation of two candidates' columns (transfer.canonical_correlation)."""
+        return canonical_correlation(res_a, res_b, base, obs, norm=self.on_norm)
 
     def heldout_stats(self, res: FitResult, heldout: ObsTable, scatter=None) -> dict[str, float]:
         """heldout_rms_g, heldout_noise_g, heldout_chi2_dof (predictive; scatter: the common
         yardstick, variance.yardstick) and heldout_chi2_dof_noise of res predicting one other
         session (transfer.predictive_stats on this residual)."""
-        return predictive_stats(res, heldout, norm=self.name == "norm", scatter=scatter)
+        return predictive_stats(res, heldout, norm=self.on_norm, scatter=scatter)
 
     def mean_heldout_stats(
         self, res: FitResult, heldout: Sequence[ObsTable], scatter=None
@@ -81,7 +92,7 @@ class Strategy:
         validate=False (heldout: held-out sessions, else blocks of obs) by one ranking and one tie
         rule (labelled: diagnose.diagnose with its keywords; norm: handheld.diagnose_handheld, then
         choose and handheld.settle_choice)."""
-        if self.name != "norm":
+        if not self.on_norm:
             return self.diagnose_fn(obs, model, **kw)
         d = self.diagnose_fn(obs, model, candidates=kw.get("candidates"))
         if kw.get("validate", True):
@@ -138,13 +149,5 @@ class Strategy:
         return self.mean_heldout_stats(self.fit(obs, model), held, scatter), None
 
 
-LABELLED = Strategy("labelled", "", fit_model, diagnose, heldout_score, blocked_scores, canonical_correlation)
-NORM = Strategy(
-    "norm",
-    "norm ",
-    fit_orientation_free,
-    diagnose_handheld,
-    norm_heldout_score,
-    norm_blocked_scores,
-    norm_canonical_correlation,
-)
+LABELLED = Strategy("labelled", "", fit_model, diagnose)
+NORM = Strategy("norm", "norm ", fit_orientation_free, diagnose_handheld)

@@ -1,5 +1,12 @@
 """Does a fitted model transfer to data it was not fitted on?  Evidence that exposes a proxy.
 
+Two residuals, each function taking norm=False (labelled: per axis) or norm=True (hand-held, field:
+the gravity norm, which needs no orientation; one equation per window r):
+
+    labelled: z_r = (a'_r - predict(theta; u_r g, drivers_r)) / sigma_r        (3 per window)
+    norm:     z_r = e_r / sigma_n,r,  e_r = |correct(theta; a'_r, drivers_r)| - g,
+              sigma_n,r = |(a'_r / |a'_r|) . sigma_r|   (noise projected on the reading)
+
 A candidate effect can reach chi2/dof ~ 1 on the calibration session by standing in for another
 one (a warm-up in time mimics a bias that follows temperature when temperature follows time). Three
 kinds of out-of-sample evidence, strongest first:
@@ -75,11 +82,33 @@ def predict_residual(res: FitResult, obs: ObsTable, theta: np.ndarray | None = N
     return np.asarray(obs.meas_g, float) - m.predict(th, f, drv)
 
 
-def heldout_score(res: FitResult, heldout: Sequence[ObsTable]) -> Score:
-    """chi2 per equation of `res` predicting every held-out session (pooled) and per session."""
+def norm_residual(res: FitResult, obs: ObsTable) -> tuple[np.ndarray, np.ndarray]:
+    """(e_r, sigma_n,r) in g: the gravity-norm residual of a fitted model on the windows of `obs`
+    and the window noise projected on the reading (module doc)."""
+    f = res.model.correct(res.theta, np.asarray(obs.meas_g, float), obs_drivers(obs))
+    return np.linalg.norm(f, axis=1) - res.gravity_g, _projected_sigma(obs)
+
+
+def _projected_sigma(obs: ObsTable) -> np.ndarray:
+    meas = np.asarray(obs.meas_g, float)
+    dirs = meas / np.linalg.norm(meas, axis=1, keepdims=True)
+    return np.sqrt(np.sum((dirs * np.asarray(obs.sigma_g, float)) ** 2, axis=1))
+
+
+def _heldout_z(res: FitResult, obs: ObsTable, norm: bool) -> np.ndarray:
+    """Whitened residual z of res predicting another session (module doc)."""
+    if norm:
+        e, s = norm_residual(res, obs)
+        return e / s
+    return predict_residual(res, obs) / np.asarray(obs.sigma_g, float)
+
+
+def heldout_score(res: FitResult, heldout: Sequence[ObsTable], *, norm: bool = False) -> Score:
+    """chi2 per equation of `res` predicting every held-out session (pooled) and per session
+    (per_part); norm: the gravity-norm residual."""
     chi2, m, parts = 0.0, 0, []
     for h in heldout:
-        z = predict_residual(res, h) / np.asarray(h.sigma_g, float)
+        z = _heldout_z(res, h, norm)
         c = float(np.sum(z**2))
         chi2 += c
         m += z.size
@@ -256,18 +285,44 @@ def block_groups(x: np.ndarray, k: int = N_BLOCKS) -> list[np.ndarray]:
     return [np.sort(b) for b in np.array_split(order, k) if b.size]
 
 
-def _whitened(res: FitResult, obs: ObsTable) -> tuple[np.ndarray, np.ndarray]:
+def _whitened(res: FitResult, obs: ObsTable, norm: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
+    """(whitened Jacobian, whitened residual, equations per window) of res on its own obs: per axis
+    (the fit's Jacobian, 3), or the gravity norm's (central differences, 1)."""
+    if norm:
+        e, s = norm_residual(res, obs)
+        return _norm_jacobian(res, obs), e / s, 1
     sig = np.asarray(obs.sigma_g, float)
     J = res.jacobian
     if not res.weighted:
         J = J / sig.ravel()[:, None]
-    return J, (res.residual_g / sig).ravel()
+    return J, (res.residual_g / sig).ravel(), 3
 
 
-def block_cv(res: FitResult, obs: ObsTable, groups: Sequence[np.ndarray]) -> np.ndarray:
-    """Chi2 of each block predicted from the others (inf where the others cannot determine it)."""
-    J, r = _whitened(res, obs)
-    return loo_chi2(J, r, groups, tol=1e-6)
+def _norm_jacobian(res: FitResult, obs: ObsTable) -> np.ndarray:
+    """d(e_r / sigma_n,r) / d theta by central differences (n windows x n_params)."""
+    meas, drv, sig = np.asarray(obs.meas_g, float), obs_drivers(obs), _projected_sigma(obs)
+    th = np.asarray(res.theta, float)
+
+    def fun(t):
+        return np.linalg.norm(res.model.correct(t, meas, drv), axis=1) / sig
+
+    cols = []
+    for k in range(th.size):
+        h = 1e-6 * max(abs(th[k]), 1e-3)
+        dp, dm = th.copy(), th.copy()
+        dp[k] += h
+        dm[k] -= h
+        cols.append((fun(dp) - fun(dm)) / (2 * h))
+    return np.column_stack(cols)
+
+
+def block_cv(
+    res: FitResult, obs: ObsTable, groups: Sequence[np.ndarray], *, norm: bool = False
+) -> np.ndarray:
+    """Chi2 of each block predicted from the others (inf where the others cannot determine it);
+    norm: of the gravity-norm residual, one equation per window."""
+    J, r, per = _whitened(res, obs, norm)
+    return loo_chi2(J, r, groups, tol=1e-6, per=per)
 
 
 def loo_chi2(
@@ -313,15 +368,16 @@ def blocking_drivers(obs: ObsTable) -> dict[str, np.ndarray]:
 
 
 def blocked_scores(
-    fits: Mapping[str, FitResult], obs: ObsTable, k: int = N_BLOCKS, *, cv_fn=None, per: int = 3
+    fits: Mapping[str, FitResult], obs: ObsTable, k: int = N_BLOCKS, *, norm: bool = False
 ) -> dict[str, Score]:
     """Blocked validation of several fits of the same observations, compared on the blocks every
-    fit can predict; pooled over the blocking drivers (temperature and time). cv_fn(res, obs,
-    groups) -> chi2 per group (default block_cv, 3 equations per window; the gravity norm's has
-    per = 1)."""
-    cv_fn = cv_fn or block_cv
+    fit can predict; pooled over the blocking drivers (temperature and time); norm: on the gravity
+    norm (exposes a proxy that only fits one hand-held session's warm-up)."""
+    per = 1 if norm else 3
     groups_all = {d: block_groups(x, k) for d, x in blocking_drivers(obs).items()}
-    cv = {name: {d: cv_fn(r, obs, g) for d, g in groups_all.items()} for name, r in fits.items()}
+    cv = {
+        name: {d: block_cv(r, obs, g, norm=norm) for d, g in groups_all.items()} for name, r in fits.items()
+    }
     kinds = "+".join(groups_all)
     out: dict[str, Score] = {}
     ok = {d: np.all([np.isfinite(cv[n][d]) for n in fits], axis=0) for d in groups_all}
@@ -341,9 +397,11 @@ def blocked_scores(
 # collinearity of candidates
 
 
-def _effect_columns(res: FitResult, base: Model, obs: ObsTable) -> tuple[np.ndarray, np.ndarray]:
+def _effect_columns(
+    res: FitResult, base: Model, obs: ObsTable, norm: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Whitened Jacobian columns of the terms not in `base` and of the base's terms."""
-    J, _ = _whitened(res, obs)
+    J = _whitened(res, obs, norm)[0]
     extra = [i for i, n in enumerate(res.model.param_names) if n not in base.index]
     keep = [i for i, n in enumerate(res.model.param_names) if n in base.index]
     return J[:, extra], J[:, keep]
@@ -356,11 +414,14 @@ def _orth(A: np.ndarray) -> np.ndarray:
     return U[:, s > 1e-10 * max(s[0], 1e-300)]
 
 
-def canonical_correlation(res_a: FitResult, res_b: FitResult, base: Model, obs: ObsTable) -> float:
-    """Largest canonical correlation between the columns two candidates add to `base`, after
-    projecting out the base model's columns (1 = one can replace the other on this data)."""
-    Ea, Ba = _effect_columns(res_a, base, obs)
-    Eb, _ = _effect_columns(res_b, base, obs)
+def canonical_correlation(
+    res_a: FitResult, res_b: FitResult, base: Model, obs: ObsTable, *, norm: bool = False
+) -> float:
+    """Largest canonical correlation between the (per-axis or, norm, gravity-norm) residual columns
+    two candidates add to `base`, after projecting out the base model's columns (1 = one can
+    replace the other on this data)."""
+    Ea, Ba = _effect_columns(res_a, base, obs, norm)
+    Eb, _ = _effect_columns(res_b, base, obs, norm)
     return added_columns_correlation(Ea, Eb, Ba)
 
 
