@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from accellog.calibrate.diagnosis.handheld import HANDHELD_START
 from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.effects import HANDHELD_START
 from accellog.calibrate.model.fit import fit_model, fit_orientation_free
 from accellog.calibrate.model.variance import METHODS, refit_jackknife_cov, with_uncertainty
 
@@ -80,7 +80,7 @@ EMULATED_TRUTH = {"bias_g": [0.04, -0.03, 0.06], "scale": [0.02, -0.01, 0.015]}
 
 def run_emulated(n: int, instability_mg: float, workdir: Path) -> dict:
     """As run() on emulated hand-held recordings (module doc); truth b = bias_g, S_ii = 1 + scale."""
-    from accellog.calibrate.diagnosis.handheld import detect_holds
+    from accellog.calibrate.observe.detected_holds import detect_holds
     from accellog.flows.simulate import Scenario, simulate
     from accellog.store.reader import read_session
 

@@ -138,9 +138,10 @@ def main(argv: list[str] | None = None) -> None:
 
 def more(hold_s: float, rate_hz: float) -> None:
     """Leave one session out (three labelled warm-ups) and a hand-held session with a held-out one."""
-    from accellog.calibrate.diagnosis.handheld import HANDHELD_START, detect_holds
     from accellog.calibrate.diagnosis.loso import concat_obs
+    from accellog.calibrate.model.effects import HANDHELD_START
     from accellog.calibrate.model.fit import fit_orientation_free
+    from accellog.calibrate.observe.detected_holds import detect_holds
     from accellog.flows.workbench_run import run_workbench
 
     with tempfile.TemporaryDirectory() as d:

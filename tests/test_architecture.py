@@ -81,6 +81,8 @@ ALLOWED_MODULES = {
     "acquire/driver.py": "one register-level device (probe, configure, FIFO, magnetometer bypass, error "
     "recovery) kept whole so the register protocol reads in one place beside registers.py",
     "acquire/emulator/chip.py": "the emulated chip: the same register protocol as driver.py, kept whole",
+    "calibrate/diagnosis/diagnose.py": "one diagnosis for both residuals (labelled per axis, hand-held on "
+    "the gravity norm): one nested test, one ranking, one verdict rule and choice, side by side",
     "flows/stages.py": "the batch stages in one module (fit, segment, evaluate, drift, integrate), each "
     "opening one Source and making its passes, its typed result beside it: one place per stage",
 }

@@ -3,7 +3,7 @@
 A labelled session (MCAP streamed chunk by chunk when no .rrd is asked for, CSV, pose table or
 observations JSON) goes to accellog.calibrate.diagnosis.diagnose with its observation windows, the host clock
 and the held-out sessions; a session without pose labels (hand-held) to
-accellog.calibrate.diagnosis.handheld on its detected static intervals (gravity-norm residual). The result is
+accellog.calibrate.diagnosis.diagnose.diagnose_handheld on its detected static intervals (gravity-norm residual). The result is
 typed (DiagnoseOutcome); the CLI only presents it.
 """
 
@@ -24,7 +24,7 @@ from accellog.core.session import Session
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.diagnose import Diagnosis
-    from accellog.calibrate.diagnosis.handheld import Detection
+    from accellog.calibrate.observe.detected_holds import Detection
 
 
 @dataclass
@@ -182,9 +182,10 @@ def _handheld(
     """An unlabelled session: detected static intervals, gravity-norm residual; the significant
     candidates judged out of sample on the gravity norm (held-out sessions, else blocks of the
     session: d.choice), by the workbench's ranking and tie rule."""
-    from accellog.calibrate.diagnosis.handheld import HANDHELD_START, detect_holds, norm_obs
     from accellog.calibrate.diagnosis.strategy import NORM
     from accellog.calibrate.model.compose import build_model
+    from accellog.calibrate.model.effects import HANDHELD_START
+    from accellog.calibrate.observe.detected_holds import detect_holds, norm_obs
 
     name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
     m = build_model(name, add=list(add), effects_file=effects_file)

@@ -75,8 +75,8 @@ def pipeline_hash(spec: dict) -> str:
 
 def _heldout(fo) -> tuple[float, float]:
     """Held-out residual RMS and noise floor (g): refit on every other window of each hold, score
-    on the windows left out (same session; see calibrate.diagnose.heldout_stats)."""
-    from accellog.calibrate.diagnosis.diagnose import heldout_stats
+    on the windows left out (same session; see calibrate.diagnosis.transfer.predictive_stats)."""
+    from accellog.calibrate.diagnosis.transfer import predictive_stats
     from accellog.calibrate.model.fit import fit_model
     from accellog.core.session import ObsTable
 
@@ -99,7 +99,7 @@ def _heldout(fo) -> tuple[float, float]:
 
     try:
         res = fit_model(take(~test), fo.fit.model, weighted=fo.fit.weighted, gravity_g=fo.fit.gravity_g)
-        st = heldout_stats(res, take(test))
+        st = predictive_stats(res, take(test), norm=False)
     except AccellogError:
         return float("nan"), float("nan")
     return st["heldout_rms_g"], st["heldout_noise_g"]

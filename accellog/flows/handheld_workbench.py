@@ -1,5 +1,5 @@
 """The workbench on a hand-held session (no pose labels): the detected static intervals
-(accellog.calibrate.diagnosis.handheld.detect_holds) and the orientation-free gravity-norm residual
+(accellog.calibrate.observe.detected_holds.detect_holds) and the orientation-free gravity-norm residual
 
     e_r = |correct(a'_r)| - g
 
@@ -25,8 +25,8 @@ from accellog.core.session import Session
 from accellog.flows.workbench import Discovery, discover, small_problem_threads
 
 if TYPE_CHECKING:
-    from accellog.calibrate.diagnosis.handheld import Detection
     from accellog.calibrate.diagnosis.ladder import LadderRow
+    from accellog.calibrate.observe.detected_holds import Detection
     from accellog.core.session import ObsTable
 
 
@@ -87,13 +87,14 @@ def discover_handheld(
     """Detect the static intervals of an unlabelled session, then the workbench's loop
     (flows.workbench.discover) on the gravity norm (calibrate.diagnosis.strategy.NORM; start:
     HANDHELD_START by default: model3's cross_axis is not identifiable here). heldout: windows of
-    other sessions of the same sensor (calibrate.handheld.norm_obs): each step adds the candidate
+    other sessions of the same sensor (calibrate.observe.detected_holds.norm_obs): each step adds the candidate
     that predicts their gravity norm best, and only if it does. more_sessions: further calibration
     sessions: the fit uses all of them and candidates are judged by leaving one session out
     (calibrate.loso); `detection` is the first session's."""
-    from accellog.calibrate.diagnosis.handheld import HANDHELD_START, detect_holds
     from accellog.calibrate.diagnosis.loso import concat_obs
     from accellog.calibrate.diagnosis.strategy import NORM
+    from accellog.calibrate.model.effects import HANDHELD_START
+    from accellog.calibrate.observe.detected_holds import detect_holds
 
     start = start or HANDHELD_START
     with small_problem_threads():

@@ -217,13 +217,18 @@ def with_notes(cal, found):
 def _loso_rows(rows, parts, scatter=None) -> list[list[dict | None]]:
     """Each ladder row's model left-one-session-out: per session its held-out statistics; the
     row's heldout_* columns become their mean."""
-    from accellog.calibrate.diagnosis.diagnose import heldout_stats
     from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
+    from accellog.calibrate.diagnosis.transfer import predictive_stats
     from accellog.calibrate.model.fit import fit_model
 
     out = []
     for r in rows:
-        per = loso_stats(parts, r.fit.fit.model, fit_model, lambda res, o: heldout_stats(res, o, scatter))
+        per = loso_stats(
+            parts,
+            r.fit.fit.model,
+            fit_model,
+            lambda res, o: predictive_stats(res, o, norm=False, scatter=scatter),
+        )
         for k, v in mean_stats(per).items():
             setattr(r, k, v)
         out.append(per)
@@ -263,7 +268,7 @@ def _handheld(
 ) -> WorkbenchOutcome:
     """The workbench on an unlabelled session (accellog.flows.handheld_workbench); held-out sessions
     (labelled or not) are judged on their gravity norm."""
-    from accellog.calibrate.diagnosis.handheld import norm_obs
+    from accellog.calibrate.observe.detected_holds import norm_obs
     from accellog.flows.handheld_workbench import discover_handheld
     from accellog.store.source import open_source
 

@@ -9,7 +9,7 @@ Per window w of a detected interval (window means a'_w, g; standard errors s_w):
     chi2 = sum_w (e_w / sigma_w)^2,  dof = number of windows
 
 Per interval: mean e (weighted) +- sem, chi2/dof. What the norm cannot judge without orientations
-(a rotation of the sensor frame, the fixture tilt, the sample clock: calibrate.handheld.NORM_BLIND)
+(a rotation of the sensor frame, the fixture tilt, the sample clock: calibrate.diagnosis.diagnose.NORM_BLIND)
 is said in one line, not guessed.
 """
 
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from accellog.calibrate.calfile.calibration import Calibration
-from accellog.calibrate.diagnosis.handheld import NORM_BLIND
+from accellog.calibrate.diagnosis.diagnose import NORM_BLIND
 from accellog.calibrate.model.fit import obs_drivers
 from accellog.calibrate.observe.detect import detect_static, with_labels
 from accellog.calibrate.observe.segment import observations

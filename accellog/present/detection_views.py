@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from accellog.calibrate.diagnosis.handheld import Detection
+    from accellog.calibrate.observe.detected_holds import Detection
 
 
 def _threshold(det: Detection) -> str:

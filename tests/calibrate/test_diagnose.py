@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, synthetic_obs, synthetic_session, true_theta
 
-from accellog.calibrate.diagnosis.diagnose import diagnose, heldout_residual
+from accellog.calibrate.diagnosis.diagnose import diagnose
 from accellog.calibrate.diagnosis.ladder import ladder
+from accellog.calibrate.diagnosis.transfer import predict_residual
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.fit import fit_model
 from accellog.cli import main
@@ -97,7 +98,7 @@ def test_effect_outside_library_shows_in_driver_signals_and_user_term_fixes_it()
     res = fit_model(obs, build_model("model3", add=["pose_creep2"], effects_file=ef))
     assert abs(res.chi2_dof - 1) < 0.3
     held = _obs(truth, th, "24", seed=6)
-    r = heldout_residual(res, held)
+    r = predict_residual(res, held)
     assert np.sqrt(np.mean(r**2)) < 1.2 * np.sqrt(np.mean(held.sigma_g**2))
 
 

@@ -14,10 +14,11 @@ import json
 import numpy as np
 from support.synthetic import cube_poses, synthetic_session, true_theta
 
-from accellog.calibrate.diagnosis.handheld import HANDHELD_START, detect_holds
 from accellog.calibrate.diagnosis.transfer import _whitened, block_cv, block_groups, blocking_drivers
 from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.effects import HANDHELD_START
 from accellog.calibrate.model.fit import fit_orientation_free
+from accellog.calibrate.observe.detected_holds import detect_holds
 from accellog.cli import main
 from accellog.store.writer import write_session
 

@@ -15,10 +15,9 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, synthetic_obs, true_theta
 
-from accellog.calibrate.diagnosis.diagnose import default_candidates
-from accellog.calibrate.diagnosis.handheld import HANDHELD_START, diagnose_handheld
+from accellog.calibrate.diagnosis.diagnose import default_candidates, diagnose_handheld
 from accellog.calibrate.model.compose import build_model
-from accellog.calibrate.model.effects import LIBRARY
+from accellog.calibrate.model.effects import HANDHELD_START, LIBRARY
 from accellog.calibrate.model.fit import fit_model, fit_orientation_free
 from accellog.calibrate.model.identifiability import NORM_ONLY_LABELLED, design_null, norm_blind_reason
 from accellog.core.errors import ModelError

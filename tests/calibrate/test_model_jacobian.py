@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, synthetic_obs, true_theta
 
-from accellog.calibrate.diagnosis.handheld import HANDHELD_START
 from accellog.calibrate.model.compose import build_model
-from accellog.calibrate.model.effects import LIBRARY
+from accellog.calibrate.model.effects import HANDHELD_START, LIBRARY
 from accellog.calibrate.model.fit import _Problem, _steps, obs_drivers
 from accellog.calibrate.model.jacobian import norm_jacobian, numeric_columns, predict_jacobian
 from accellog.calibrate.model.residual_fns import numjac

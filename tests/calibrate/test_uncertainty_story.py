@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from support.synthetic import cube_poses, hold_disturbance, synthetic_obs, true_theta
 
-from accellog.calibrate.diagnosis.handheld import HANDHELD_START
 from accellog.calibrate.diagnosis.transfer import predictive_heldout_score, predictive_stats
 from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.effects import HANDHELD_START
 from accellog.calibrate.model.fit import fit_model, fit_orientation_free
 from accellog.calibrate.model.variance import METHODS, obs_rows, refit_jackknife_cov, with_uncertainty
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from accellog.calibrate.calfile.calibration import load_calibration
-from accellog.calibrate.diagnosis.handheld import HANDHELD_START
+from accellog.calibrate.model.effects import HANDHELD_START
 from accellog.cli import main
 from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session

@@ -10,8 +10,8 @@ import json
 import numpy as np
 from support.synthetic import cube_poses, synthetic_session, true_theta
 
-from accellog.calibrate.diagnosis.handheld import HANDHELD_START
 from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.effects import HANDHELD_START
 from accellog.cli import main
 from accellog.flows.stages import load_input
 from accellog.store.writer import write_session

@@ -15,6 +15,13 @@ The driver-signal view (accellog.calibrate.diagnosis.driver_signals) projects ea
 squares, products, rotation about the vertical, user signals) onto the residual after removing what
 the model can already absorb: dchi2 = (r . c_perp)^2 / |c_perp|^2 per (signal, axis), so an effect
 the library lacks still shows itself. Effects the data cannot reveal are reported with what to record.
+
+A session without pose labels (hand-held, field; diagnose_handheld) observes only the gravity norm
+(imu_tk / ArduPilot): e_r = |correct(theta; a'_r, drivers_r)| - g per window, chi2 = sum (e_r /
+sigma_n,r)^2 (sigma_n: the window noise projected on the reading), candidates fitted by
+fit_orientation_free and judged by the same F test and dBIC. What the norm cannot see is said, not
+guessed (NORM_BLIND): a rotation of the sensor frame (3 of cross_axis's 6 terms: misalignment_tri
+holds the other 3), the fixture tilt and the sample clock.
 """
 
 from __future__ import annotations
@@ -30,8 +37,8 @@ from accellog.calibrate.diagnosis.cross_validation import cv_compare, cv_scores
 from accellog.calibrate.diagnosis.driver_signals import ALPHA, MIN_DRIVER_R2, driver_signals
 from accellog.calibrate.model.compose import Model
 from accellog.calibrate.model.effects import all_effects
-from accellog.calibrate.model.fit import FitResult, fit_model, obs_drivers
-from accellog.calibrate.model.identifiability import checked_advice, effect_requirement
+from accellog.calibrate.model.fit import FitResult, fit_model, fit_orientation_free, obs_drivers
+from accellog.calibrate.model.identifiability import checked_advice, effect_requirement, norm_blind_reason
 from accellog.core.errors import InputError, ModelError
 from accellog.core.heap import trim_heap
 from accellog.core.numeric import f_sf, normal_sf
@@ -224,11 +231,8 @@ def _candidate_stats(name, cm, cr, model, base, obs, cv_b_all, n_tests) -> dict:
     """F test, dBIC, dAIC and leave-one-hold-out CV of fit cr (model cm = model + name) vs base."""
     m_eq = base.residual_g.size
     dk = cm.n_params - model.n_params
-    dchi2 = base.chi2 - cr.chi2
-    F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
-    p = f_sf(F, max(dk, 1), max(cr.dof, 1)) if cr.dof > 0 else np.nan
+    dchi2, F, p, dbic = nested_test(base, cr, dk, m_eq)
     cv_c, cv_b, n_cv = cv_compare(cv_scores(cr, obs), cv_b_all, obs)
-    dbic = -dchi2 + dk * np.log(m_eq)
     daic = -dchi2 + 2 * dk
     sl = cm.slices[name]
     weak = [
@@ -260,6 +264,14 @@ def _candidate_stats(name, cm, cr, model, base, obs, cv_b_all, n_tests) -> dict:
             + (f"; weakly determined: {', '.join(weak)} 1-sigma above typical size" if weak else "")
         ),
     )
+
+
+def nested_test(base: FitResult, cr: FitResult, dk: int, m_eq: int) -> tuple[float, float, float, float]:
+    """(dchi2, F, p, dBIC) of fit cr, dk parameters more than base, over m_eq equations (module doc)."""
+    dchi2 = base.chi2 - cr.chi2
+    F = (dchi2 / max(dk, 1)) / max(cr.chi2 / max(cr.dof, 1), 1e-300)
+    p = f_sf(F, max(dk, 1), max(cr.dof, 1)) if cr.dof > 0 else np.nan
+    return dchi2, F, p, -dchi2 + dk * np.log(m_eq)
 
 
 def rank_rows(rows: list[dict], choice: StepChoice | None) -> None:
@@ -394,24 +406,118 @@ def _verdict(model, base, floor, missing, sig_cands, signals, rows, clock) -> tu
 
 
 # ---------------------------------------------------------------------------------------------
-# held-out judgement (the ladder itself: accellog.calibrate.diagnosis.ladder)
+# hand-held sessions (no pose labels): the gravity norm
 
 
-def heldout_residual(
-    res: FitResult, obs: ObsTable, drivers: Mapping[str, np.ndarray] | None = None
-) -> np.ndarray:
-    """Residual (n,3) g of a fitted model on other observations (same poses labelling)."""
-    m = res.model
-    drv = obs_drivers(obs, drivers)
-    q = None if obs.q_sensor_to_world is None else np.asarray(obs.q_sensor_to_world, float)
-    f = m.truth_g(res.theta, obs.up_sensor, q, res.gravity_g)
-    return np.asarray(obs.meas_g, float) - m.predict(res.theta, f, drv)
+NORM_BLIND = {
+    "cross_axis": "3 of its 6 terms are a rotation of the sensor frame, invisible in |f|: use "
+    "misalignment_tri (the other 3), or record labelled poses",
+    "fixture_tilt": "needs pose labels (the tilt of a fixture is a rotation of every truth)",
+    "clock": "a sample-clock error does not change static readings: supply host timestamps",
+}
+"""Effects the gravity norm cannot identify, with what to do instead."""
 
 
-def heldout_stats(res: FitResult, heldout: ObsTable, scatter=None) -> dict[str, float]:
-    """Held-out residual RMS (g), noise floor RMS(sigma_g) (g), heldout_chi2_dof with the predictive
-    covariance (window noise + the calibration's parameter covariance + its between-hold scatter:
-    calibrate.transfer.predictive_chi2) and heldout_chi2_dof_noise = mean (r / sigma_g)^2."""
-    from accellog.calibrate.diagnosis.transfer import predictive_stats
+def diagnose_handheld(obs: ObsTable, model: Model, *, candidates: Sequence[str] | None = None) -> Diagnosis:
+    """diagnose() for unlabelled holds: the orientation-free fit against the noise, then every
+    library effect the norm can identify as a candidate (model + effect)."""
+    drv = obs_drivers(obs)
+    base = fit_orientation_free(obs, model)
+    lib = all_effects(model.effects_file)
+    cands = list(candidates) if candidates is not None else default_candidates(model)
+    n_tests = max(1, len(cands))
+    rows, fits = [], {}
+    for name in cands:
+        row: dict = {"effect": name, "n_params": len(lib[name].params), "identifiable": False}
+        rows.append(row)
+        why = (
+            NORM_BLIND.get(name)
+            or norm_blind_reason(model, name)
+            or effect_requirement(name, obs, drv, model)
+        )
+        if why is None:
+            try:
+                cr = fit_orientation_free(obs, model.with_terms([name]))
+            except ModelError as exc:
+                why = str(exc)
+        if why is not None:
+            row["reason"] = why
+            continue
+        fits[name] = cr
+        row.update(_norm_candidate_stats(name, cr, model, base, n_tests, obs.n))
+    rank_rows(rows, None)
+    sig = [r for r in rows if r.get("significant")]
+    floor = float(np.sqrt(np.mean(np.asarray(obs.sigma_g, float) ** 2)))
+    base_bad = bool(np.isfinite(base.p_value) and base.p_value < ALPHA and base.dof > 0)
+    missing = base_bad or bool(sig)
+    verdict, advice = _handheld_verdict(obs, model, base, rows, sig, missing)
+    return Diagnosis(
+        model=model,
+        fit=base,
+        noise_floor_g=floor,
+        missing=missing,
+        verdict=verdict,
+        candidates=rows,
+        driver_signals=[],
+        advice=advice,
+        best=sig[0]["effect"] if sig else None,
+        fits=fits,
+    )
 
-    return predictive_stats(res, heldout, norm=False, scatter=scatter)
+
+def _norm_candidate_stats(name: str, cr, model: Model, base, n_tests: int, m_eq: int) -> dict:
+    """F test and dBIC of the norm fit cr (model + name) against base (m_eq = rows)."""
+    dchi2, F, p, dbic = nested_test(base, cr, cr.model.n_params - model.n_params, m_eq)
+    sl = cr.model.slices[name]
+    return dict(
+        identifiable=True,
+        significant=bool(cr.dof > 0 and p < ALPHA / n_tests and dbic < DBIC_MIN),
+        chi2_dof=cr.chi2_dof,
+        delta_chi2=dchi2,
+        delta_chi2_dof=base.chi2_dof - cr.chi2_dof,
+        F=F,
+        p_value=p,
+        delta_bic=float(dbic),
+        params={
+            n: [float(v), float(s)]
+            for n, v, s in zip(cr.model.param_names[sl], cr.theta[sl], cr.sigma[sl], strict=True)
+        },
+        reason=f"norm chi2/dof {base.chi2_dof:.3g} -> {cr.chi2_dof:.3g}, dBIC {dbic:.1f}",
+    )
+
+
+def _handheld_verdict(obs: ObsTable, model: Model, base, rows, sig, missing: bool) -> tuple[str, list[str]]:
+    """Verdict line and advice of diagnose_handheld (what the norm cannot show, listed too)."""
+    head = (
+        f"{model.name} (orientation-free, {obs.n} windows in {len(np.unique(obs.pose_id))} detected holds): "
+        f"norm chi2/dof = {base.chi2_dof:.3g}"
+    )
+    advice = [f"{r['effect']}: {r['reason']}" for r in rows if not r["identifiable"]]
+    listed = {r["effect"] for r in rows}
+    advice += [
+        f"{e}: cannot be identified without orientations: {why}"
+        for e, why in NORM_BLIND.items()
+        if e not in listed and e not in model.term_names
+    ]
+    if sig:
+        verdict = f"{head}: something is missing. Most likely: {sig[0]['effect']} ({sig[0]['reason']})."
+        advice.insert(0, f"refit with --add {sig[0]['effect']}")
+    elif missing:
+        verdict = f"{head}: residuals exceed the noise, but no effect the norm can identify explains them."
+    else:
+        verdict = f"{head}: the model fits to the noise floor of the gravity norm; nothing is missing that the norm can show."
+    return verdict, advice
+
+
+def settle_choice(d: Diagnosis, obs: ObsTable) -> None:
+    """A hand-held diagnosis once its out-of-sample choice (d.choice) has spoken, by diagnose's one
+    rule: the chosen candidate first and as `best`, the verdict naming it (or saying that no
+    significant candidate predicts unseen data better), ties named with what separates them."""
+    ch = d.choice
+    rank_rows(d.candidates, ch)
+    sig = [r for r in d.candidates if r.get("significant")]
+    d.best = ch.chosen
+    verdict, advice = _handheld_verdict(
+        obs, d.model, d.fit, d.candidates, sig if ch.chosen else [], d.missing
+    )
+    d.verdict, d.advice = with_choice(verdict, advice, ch, sig)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from accellog.calibrate.diagnosis.diagnose import heldout_stats
+from accellog.calibrate.diagnosis.transfer import predictive_stats
 from accellog.calibrate.model.compose import Model
 from accellog.calibrate.model.fit import FitResult, fit_model
 from accellog.core.jsonio import JsonResult
@@ -127,7 +127,7 @@ def ladder_row(
         residual_g=np.asarray(res.residual_g, dtype=np.float64),
     )
     if heldout is not None:
-        for k, v in heldout_stats(res, heldout, scatter).items():
+        for k, v in predictive_stats(res, heldout, norm=False, scatter=scatter).items():
             setattr(row, k, v)
     return row
 

@@ -8,7 +8,7 @@ these parts:
 
 - ``fit(obs, model)``                     the least squares
 - ``diagnose(obs, model, ...)``           the ranking of candidate effects (diagnose.diagnose, or
-                                          handheld.diagnose_handheld on the norm)
+                                          diagnose.diagnose_handheld on the norm)
 - ``heldout_score(res, heldout)``         chi2 per equation predicting other sessions
 - ``blocked_scores(fits, obs)``           blocked validation within one session
 - ``rho(res_a, res_b, base, obs)``        the canonical correlation of two candidates' columns
@@ -29,8 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from accellog.calibrate.diagnosis.choose import StepChoice, choose_effect
-from accellog.calibrate.diagnosis.diagnose import Diagnosis, diagnose
-from accellog.calibrate.diagnosis.handheld import diagnose_handheld, settle_choice
+from accellog.calibrate.diagnosis.diagnose import Diagnosis, diagnose, diagnose_handheld, settle_choice
 from accellog.calibrate.diagnosis.loso import loso_score, loso_stats, mean_stats
 from accellog.calibrate.diagnosis.transfer import (
     Score,
@@ -90,8 +89,8 @@ class Strategy:
     def diagnose(self, obs: ObsTable, model: Model, **kw) -> Diagnosis:
         """The diagnosis of model on obs, its significant candidates judged out of sample unless
         validate=False (heldout: held-out sessions, else blocks of obs) by one ranking and one tie
-        rule (labelled: diagnose.diagnose with its keywords; norm: handheld.diagnose_handheld, then
-        choose and handheld.settle_choice)."""
+        rule (labelled: diagnose.diagnose with its keywords; norm: diagnose.diagnose_handheld, then
+        choose and diagnose.settle_choice)."""
         if not self.on_norm:
             return self.diagnose_fn(obs, model, **kw)
         d = self.diagnose_fn(obs, model, candidates=kw.get("candidates"))

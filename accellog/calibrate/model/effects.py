@@ -248,6 +248,8 @@ PRESETS: dict[str, tuple[str, ...]] = {
     "model3": ("bias", "scale", "cross_axis"),
 }
 """The seed's three models."""
+HANDHELD_START = "bias+scale+misalignment_tri"
+"""The start model of a hand-held session (orientation-free: a frame rotation is unobservable)."""
 
 
 @dataclass

@@ -8,17 +8,28 @@ check refuses holds more than ``label_check.MAX_LABEL_ANGLE_DEG`` (10 deg) from 
 default 8 deg leaves a margin; an uncalibrated MPU-9250 on a table reads 3.5-5.5 deg off the faces
 (imucal's Ferraris recording). A hand-held session (holds near, not on, the faces) gets no labels,
 and ``accellog fit`` then fits it orientation-free.
+
+The hand-held path (``detect_holds``) cuts the detected intervals into observation windows without
+labels, the detector's threshold factor swept 2..10 and chosen by the orientation-free fit's RMS
+residual (the gravity norm); ``norm_obs`` gives another session's windows for the norm's
+held-out judgement.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 
-from accellog.calibrate.observe.detect import detect_static
+from accellog.calibrate.model.compose import build_model
+from accellog.calibrate.model.effects import HANDHELD_START
+from accellog.calibrate.model.fit import fit_orientation_free
+from accellog.calibrate.observe.detect import detect_static, with_labels
+from accellog.calibrate.observe.segment import observations
+from accellog.core.errors import InputError, ModelError
 from accellog.core.protocol import pose_spec
-from accellog.core.session import POSE_UP_VECTORS, PoseLabel, Session
+from accellog.core.session import POSE_UP_VECTORS, ObsTable, PoseLabel, Session
 
 
 def label_detected_holds(session: Session, *, min_poses: int = 6, max_angle_deg: float = 8.0) -> Session:
@@ -52,3 +63,64 @@ def label_detected_holds(session: Session, *, min_poses: int = 6, max_angle_deg:
     extra = {**session.meta.extra, "poses": note}
     meta = session.meta.replace(protocol=",".join(p.name for p in labels), extra=extra)
     return dataclasses.replace(session, poses=labels, meta=meta)
+
+
+@dataclass
+class Detection:
+    """Static intervals found by the detector and the settings that found them."""
+
+    intervals: list[dict]
+    window_s: float
+    threshold: float | None
+    """Fixed threshold factor k (statistic < k * reference), or None: swept 2..10, best by the
+    orientation-free residual."""
+
+    def to_dict(self) -> dict:
+        return {"window_s": self.window_s, "threshold": self.threshold, "intervals": self.intervals}
+
+
+def detect_holds(
+    session: Session,
+    *,
+    window_s: float = 1.0,
+    threshold: float | None = None,
+    obs_window_s: float = 2.0,
+    model: str = HANDHELD_START,
+) -> tuple[ObsTable, Detection]:
+    """Detect the static intervals of an unlabelled session (variance window `window_s` s,
+    threshold factor `threshold` or a sweep scored by the orientation-free fit) and cut them into
+    observation windows."""
+    if not window_s > 0:
+        raise InputError(f"detector window must be > 0 s, got {window_s}")
+    rate = (session.n - 1) / max(float(session.t_s[-1] - session.t_s[0]), 1e-12)
+    w = max(3, round(window_s * rate) | 1)
+    m = build_model(model)
+
+    def cost(labels) -> float:
+        o = observations(with_labels(session, labels), window_s=obs_window_s, trim_s=0.0, check_units=False)
+        try:
+            return fit_orientation_free(o, m, weighted=False).rms_g
+        except ModelError:
+            return np.inf
+
+    ks = (float(threshold),) if threshold is not None else tuple(range(2, 11))
+    labels = detect_static(session, window_samples=w, k_values=ks, cost=cost)
+    obs = observations(with_labels(session, labels), window_s=obs_window_s, trim_s=0.0)
+    iv = [
+        {
+            "start_s": p.start_s,
+            "end_s": p.end_s,
+            "n": int(np.sum((session.t_s >= p.start_s) & (session.t_s < p.end_s))),
+            "up_sensor": [float(x) for x in p.up_sensor],
+        }
+        for p in labels
+    ]
+    return obs, Detection(iv, float(window_s), threshold)
+
+
+def norm_obs(session: Session, *, window_s: float = 2.0, detect_window_s: float = 1.0) -> ObsTable:
+    """Observation windows of another session for the gravity-norm judgement: its labelled holds
+    (the norm ignores their orientations), or its detected static intervals when it has none."""
+    if session.poses:
+        return observations(session, window_s=window_s)
+    return detect_holds(session, window_s=detect_window_s, obs_window_s=window_s)[0]
