@@ -142,7 +142,7 @@ def more(hold_s: float, rate_hz: float) -> None:
     from accellog.calibrate.model.effects import HANDHELD_START
     from accellog.calibrate.model.fit import fit_orientation_free
     from accellog.calibrate.observe.detected_holds import detect_holds
-    from accellog.flows.workbench_run import run_workbench
+    from accellog.flows.workbench import run_workbench
 
     with tempfile.TemporaryDirectory() as d:
         paths = sessions(Path(d), hold_s, rate_hz, WARMUPS)

@@ -83,6 +83,8 @@ ALLOWED_MODULES = {
     "acquire/emulator/chip.py": "the emulated chip: the same register protocol as driver.py, kept whole",
     "calibrate/diagnosis/diagnose.py": "one diagnosis for both residuals (labelled per axis, hand-held on "
     "the gravity norm): one nested test, one ranking, one verdict rule and choice, side by side",
+    "flows/workbench.py": "the one discovery loop (labelled or hand-held: a residual strategy), the effects "
+    "it keeps, its ladder and the workbench run, read in one place; the search's record: workbench_trail",
     "flows/stages.py": "the batch stages in one module (fit, segment, evaluate, drift, integrate), each "
     "opening one Source and making its passes, its typed result beside it: one place per stage",
 }

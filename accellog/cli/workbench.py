@@ -1,6 +1,6 @@
 """`accellog diagnose`, `accellog workbench` (the model workbench) and `accellog effects` (the effect
 library): each parses, calls one library function (accellog.flows.diagnose_run.run_diagnose,
-accellog.flows.workbench_run.run_workbench, accellog.calibrate.model.effects.describe) and presents
+accellog.flows.workbench.run_workbench, accellog.calibrate.model.effects.describe) and presents
 (accellog.present.discovery_text)."""
 
 from pathlib import Path
@@ -159,7 +159,7 @@ def workbench_cmd(
     """
     from rich.console import Console
 
-    from accellog.flows.workbench_run import run_workbench
+    from accellog.flows.workbench import run_workbench
     from accellog.present.discovery_text import print_notes, print_workbench, step_printer
     from accellog.present.tables import json_text
 

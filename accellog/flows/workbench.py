@@ -1,13 +1,45 @@
-"""The model workbench loop: diagnose, add the significant effect that predicts unseen data best
-(accellog.calibrate.diagnosis.choose), refit, until no candidate improves out of sample; then the ladder of model-building steps, each judged on the calibration
-data (chi^2/dof), on a held-out session (residual RMS vs its noise floor) and on a static test
-(|displacement| after 60 s).
+"""The model workbench: the discovery loop, the effects it keeps, the ladder, and `accellog workbench`
+as one library call.
 
-    steps: model1 -> model2 -> model3 -> model3 + e1 -> model3 + e1 + e2 ...
+The loop (``discover``, on one residual: calibrate.diagnosis.strategy LABELLED per axis, or NORM
+the gravity norm e_r = |correct(a'_r)| - g of a hand-held session): diagnose, add the significant
+effect that predicts unseen data best (accellog.calibrate.diagnosis.choose), refit, until no
+candidate improves out of sample; then the ladder of model-building steps, each judged on the
+calibration data (chi^2/dof), on a held-out session (residual RMS vs its noise floor) and on a
+static test (|displacement| after 60 s).
+
+    steps: model1 -> model2 -> model3 -> model3 + e1 -> model3 + e1 + e2 ...   (labelled)
+           HANDHELD_START -> + e1 -> + e1 + e2 ...                              (hand-held)
 
 ``discover`` never adds an effect diagnose does not find significant and identifiable, so a clean
 session stops at the start model; it never says "nothing is missing" when the held-out chi2/dof
 exceeds HELDOUT_OK, and it names effects the data cannot tell apart instead of choosing silently.
+
+Only effects that earn their place out of sample stay, judged with the loop's own evidence
+(held-out sessions, leave one session out, or blocks of one session):
+
+- backward step, after each addition: every earlier effect e is refitted away; e is dropped when
+
+      s(model - e) - s(model) <= Z_IMPROVE se(model)
+
+  (s: out-of-sample chi2 per equation; the forward step's own margin), i.e. a later effect has made
+  it redundant, or it was a proxy for what the later one explains;
+- proxies, at the end: with evidence from other sessions, a final model that still does not transfer
+  (held_out_ok) has not found all the physics. Its added effects are judged one by one on the common
+  yardstick (every model with the same repeat-free between-hold scatter,
+  calibrate.model.variance.yardstick): an effect whose removal does not worsen the held-out
+  chi2/dof is dropped as a proxy, one that makes unseen data better stays (the in-library part of
+  what is missing), and no model seen earlier in the search is better held out than the one kept.
+  The verdict says what no library effect explains, names the driver the residual follows
+  (accellog.calibrate.diagnosis.driver_signals) and points to writing a user effect (docs/effects.md).
+
+``run_workbench``: a labelled session is searched on its poses; a session without pose labels
+(hand-held) on its detected static intervals (calibrate.observe.detected_holds.detect_holds) with
+the gravity norm, where what the norm cannot identify (a frame rotation, fixture tilt, the clock,
+effects the data do not excite) is said in `cannot_identify`, never guessed. Optionally the final
+model's calibration file (-o) and a Rerun recording (--rrd). The result is typed
+(WorkbenchOutcome); the CLI only presents it. The search's record (every model tried):
+accellog.flows.workbench_trail.
 """
 
 from __future__ import annotations
@@ -19,11 +51,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from accellog.calibrate.diagnosis.choose import Z_IMPROVE
+from accellog.calibrate.diagnosis.driver_signals import MIN_DRIVER_R2
+from accellog.calibrate.model.compose import Model, build_model
+from accellog.calibrate.model.fit import FitResult, fit_model, obs_drivers
+from accellog.core.errors import InputError, ModelError
+from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.ladder import LadderRow
-    from accellog.calibrate.diagnosis.strategy import Strategy
+    from accellog.calibrate.diagnosis.strategy import ScoreFn, Strategy
+    from accellog.calibrate.observe.detected_holds import Detection
 
 BASE_STEPS = ("model1", "model2")
 
@@ -48,7 +87,8 @@ def held_out_ok(h: dict) -> bool:
 @dataclass
 class Discovery:
     """What the loop found: per step the diagnosis and the out-of-sample choice, the effects added
-    (names for --add), and the final verdict that uses all the evidence."""
+    (names for --add), and the final verdict that uses all the evidence; a hand-held search also
+    the detected intervals, its ladder, and what the gravity norm cannot identify."""
 
     start: str
     diagnoses: list = field(default_factory=list)
@@ -62,7 +102,7 @@ class Discovery:
     """Groups of effects the data cannot tell apart (first: the one added)."""
     dropped: list[dict] = field(default_factory=list)
     """Effects added and then dropped: {effect, why} (a backward step, or a proxy that did not
-    make the model transfer: accellog.flows.workbench_prune)."""
+    make the model transfer: prune)."""
     loso: list[dict | None] | None = None
     """With several calibration sessions: the final model's held-out statistics per left-out session."""
     yardstick: dict | None = None
@@ -75,6 +115,14 @@ class Discovery:
     trail: list = field(default_factory=list)
     """Every model the search tried, in order, with its held-out residual on the yardstick
     (accellog.flows.workbench_trail.TrailStep: kept, dropped, tied, rejected, removed)."""
+    detection: Detection | None = None
+    """A hand-held search: the static intervals detected (None: a labelled session)."""
+    obs: ObsTable | None = field(default=None, repr=False)
+    """A hand-held search: the windows judged (the verdict names the driver of their norm residual)."""
+    ladder: list[LadderRow] = field(default_factory=list)
+    """A hand-held search: the ladder start -> + each found effect on the gravity norm."""
+    ladder_loso: list[list[dict | None]] = field(default_factory=list)
+    """With several calibration sessions: per ladder row, its held-out statistics per left-out session."""
 
     @property
     def final_model(self) -> str:
@@ -89,25 +137,41 @@ class Discovery:
         """The final model transfers (None without a held-out session): see held_out_ok."""
         return None if self.heldout is None else held_out_ok(self.heldout)
 
+    @property
+    def cannot_identify(self) -> list[str]:
+        """The last diagnosis's statements of what the norm (or this data) cannot identify."""
+        return [a for a in self.diagnoses[-1].advice if not a.startswith("refit with")]
+
     def to_json(self) -> dict:
-        """JSON-able summary (the workbench's --json keys besides session and ladder)."""
-        return {
+        """The workbench's --json keys besides session (and, labelled, the ladder); a hand-held search
+        (detection set) also 'handheld', what the norm cannot identify, the detected intervals and its
+        ladder, and no yardstick (the keys in the order the workbench has always printed them)."""
+        hand = self.detection is not None
+        verdicts = {"verdicts": [d.verdict for d in self.diagnoses]}
+        out = {
+            **({"handheld": True} if hand else {}),
             "start": self.start,
             "added": list(self.added),
             "final_model": self.final_model,
             "verdict": self.verdict,
+            **(verdicts if hand else {}),
             "decided": self.decided,
             "undecided": [list(u) for u in self.undecided],
             "transfers": self.transfers,
             "heldout": self.heldout,
-            "verdicts": [d.verdict for d in self.diagnoses],
+            **({} if hand else verdicts),
             "steps": [c.to_dict() for c in self.choices],
             "advice": list(self.advice),
             "dropped": [dict(d) for d in self.dropped],
-            "yardstick": self.yardstick,
+            **({} if hand else {"yardstick": self.yardstick}),
             "trail": [t.to_dict() for t in self.trail],
             **({} if self.loso is None else {"heldout_per_session": self.loso}),
         }
+        if hand:
+            out["cannot_identify"] = self.cannot_identify
+            out["detected"] = self.detection.to_dict()
+            out["ladder"] = [r.to_dict() for r in self.ladder]
+        return out
 
 
 def discover(
@@ -130,7 +194,7 @@ def discover(
     is then their concatenation, calibrate.loso.concat_obs): candidates are judged by leaving one
     session out (calibrate.loso) instead. strategy: the residual judged (calibrate.diagnosis.strategy:
     LABELLED per axis, the default, or NORM, the gravity norm of a hand-held session); found: the
-    Discovery to fill (a HandheldDiscovery), default a new one."""
+    Discovery to fill (a hand-held one with its detection), default a new one."""
     from accellog.calibrate.diagnosis.strategy import LABELLED
 
     held = [heldout] if isinstance(heldout, ObsTable) else list(heldout or [])
@@ -153,10 +217,8 @@ def small_problem_threads():
 def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file, host_time, on_step) -> None:
     """discover's forward loop, backward steps, held-out statistics and proxies (module doc)."""
     from accellog.calibrate.diagnosis.diagnose import default_candidates
-    from accellog.calibrate.model.compose import build_model
     from accellog.calibrate.model.variance import yardstick
     from accellog.flows import workbench_trail as trail
-    from accellog.flows.workbench_prune import backward_step
 
     start = out.start
     model = build_model(start, effects_file=effects_file)
@@ -233,9 +295,8 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
 
 
 def _prune(out: Discovery, stats_of, judged: bool) -> None:
-    """workbench_prune.prune on the models the search walked through, each proxy removed also a
+    """prune on the models the search walked through, each proxy removed also a
     trail row; then every trail row's held-out statistics (judged: on the common yardstick)."""
-    from accellog.flows.workbench_prune import prune
     from accellog.flows.workbench_trail import finish_trail, note_removed
 
     path = ["+".join([out.start, *out.added[:k]]) for k in range(len(out.added))]  # the models seen before
@@ -251,7 +312,7 @@ def final_verdict(found: Discovery, strategy: Strategy | None = None) -> tuple[s
     """One verdict from all the evidence: the last diagnosis, the held-out session, the ties (the
     gravity norm's words for a NORM search)."""
     norm = strategy.norm if strategy is not None else ""
-    proxies = [x["effect"] for x in getattr(found, "dropped", []) if x.get("proxy")]
+    proxies = [x["effect"] for x in found.dropped if x.get("proxy")]
     d = found.final_diagnosis or found.diagnoses[-1]  # the final model's (after pruning)
     parts, extra, held_ok = evidence_parts(found, norm=norm, diagnosis=d)
     if norm:
@@ -259,7 +320,7 @@ def final_verdict(found: Discovery, strategy: Strategy | None = None) -> tuple[s
             return d.verdict.rstrip(".") + held_ok + ".", extra
         head = f"{d.model.name}: norm chi2/dof {d.fit.chi2_dof:.3g} on the calibration session"
         return f"{head}; " + "; ".join(parts) + held_ok + ".", extra
-    where = "the calibration session" + ("s" if getattr(found, "loso", None) else "")
+    where = "the calibration session" + ("s" if found.loso else "")
     fit = f"{d.model.name}: chi2/dof {d.fit.chi2_dof:.3g} on {where}"
     advice = [a for a in d.advice if not any(e in a for e in proxies)] + extra
     if not parts and not d.missing:
@@ -269,14 +330,12 @@ def final_verdict(found: Discovery, strategy: Strategy | None = None) -> tuple[s
     return f"{fit}; " + "; ".join(parts) + held_ok + ".", advice
 
 
-def evidence_parts(found, norm: str, diagnosis=None) -> tuple[list[str], list[str], str]:
+def evidence_parts(found: Discovery, norm: str, diagnosis=None) -> tuple[list[str], list[str], str]:
     """(verdict parts, advice, held-out suffix) of a discovery's ties, refusals, dropped effects and
     held-out result, shared by the labelled and hand-held workbenches (norm = "norm " names the
     gravity-norm residual; diagnosis: that of the final model, default the last)."""
-    from accellog.flows.workbench_prune import no_library_effect
-
     d = diagnosis if diagnosis is not None else found.diagnoses[-1]
-    dropped = list(getattr(found, "dropped", []))
+    dropped = list(found.dropped)
     proxies = [x["effect"] for x in dropped if x.get("proxy")]
     parts, advice = [], [f"{x['effect']}: {x['why']}" for x in dropped]
     tied = {e for group in found.undecided for e in group}
@@ -306,13 +365,140 @@ def evidence_parts(found, norm: str, diagnosis=None) -> tuple[list[str], list[st
     # still missing, and no library effect was taken at the last step (or none transfers)
     stuck = last is None or last.chosen is None or found.transfers is False
     if proxies or (d.missing and stuck) or found.transfers is False:
-        parts.append(no_library_effect(d, proxies, norm, getattr(found, "obs", None)))
+        parts.append(no_library_effect(d, proxies, norm, found.obs))
     held_ok = ""
     if found.transfers:  # a model that misses something transfers only within its own scatter
         held_ok = f" (held-out {norm}chi2/dof {h['heldout_chi2_dof']:.3g}: " + (
             "within the calibration's own scatter)" if d.missing else "it transfers)"
         )
     return parts, advice, held_ok
+
+
+# ---------------------------------------------------------------------------------------------
+# the effects that earn their place (module doc)
+
+
+def backward_step(
+    added: list[str],
+    start: str,
+    effects_file,
+    obs: ObsTable,
+    scores: ScoreFn,
+    full: FitResult | None = None,
+    fit: Callable[[ObsTable, Model], FitResult] = fit_model,
+) -> tuple[str, str] | None:
+    """(effect, why) for the earlier added effect whose removal costs least out of sample, when it
+    costs no more than Z_IMPROVE standard errors (module doc); None when every one earns its place.
+    full: the fit of start + added (refitted when not given); fit: fit_model, or
+    fit_orientation_free for hand-held sessions."""
+    if len(added) < 2:
+        return None
+
+    def fit_of(effects: list[str]) -> FitResult:
+        return fit(obs, build_model(start, add=effects, effects_file=effects_file))
+
+    fits = {"": full if full is not None else fit_of(added)}
+    for e in added[:-1]:
+        try:
+            fits[e] = fit_of([a for a in added if a != e])
+        except ModelError:
+            continue
+    sc = scores(fits)
+    s_full = sc.pop("")
+    if not sc:
+        return None
+    e = min(sc, key=lambda n: sc[n].chi2_per_eq if np.isfinite(sc[n].chi2_per_eq) else np.inf)
+    cost = sc[e].chi2_per_eq - s_full.chi2_per_eq
+    if not cost <= Z_IMPROVE * s_full.se:
+        return None
+    why = (
+        f"dropped after {added[-1]} was added: without it the out-of-sample chi2/eq is "
+        f"{sc[e].chi2_per_eq:.3g} vs {s_full.chi2_per_eq:.3g} with it (se {s_full.se:.2g}), "
+        "so it no longer earns its place"
+    )
+    return e, why
+
+
+def residual_driver(diagnosis, obs: ObsTable | None = None) -> str:
+    """'<signal> on axis <a> (partial R^2 = ..)' for the strongest significant driver signal of a
+    diagnosis's residual (or its strongest signal); for a hand-held diagnosis (no signal table)
+    the driver that explains most of the gravity-norm residual (R^2 of a straight line; obs: its
+    windows); '' when there is none."""
+    sigs = getattr(diagnosis, "driver_signals", None) or []
+    top = next((s for s in sigs if s.get("significant")), sigs[0] if sigs else None)
+    if top is not None:
+        if top["partial_r2"] < MIN_DRIVER_R2:  # a driver is named only when it explains a real share
+            return ""
+        return f"{top['signal']} on axis {top['axis']} (partial R^2 = {top['partial_r2']:.2f})"
+    if obs is None:
+        return ""
+    res = diagnosis.fit
+    drv = obs_drivers(obs)
+    f = res.model.correct(res.theta, np.asarray(obs.meas_g, float), drv)
+    fn = np.linalg.norm(f, axis=1)
+    e, fhat = fn - res.gravity_g, f / fn[:, None]
+    best, r2 = "", 0.0
+    for name in ("temp_degC", "dtemp_degC_per_s", "t_s", "t_in_pose_s"):
+        x = drv.get(name)
+        if x is None or np.ptp(x) == 0 or np.ptp(e) == 0:
+            continue
+        for i, a in enumerate("xyz"):  # a bias b_i(x) on axis i shows in the norm as fhat_i b_i(x)
+            c = float(np.corrcoef(fhat[:, i] * (x - np.mean(x)), e)[0, 1]) ** 2
+            if c > r2:
+                best, r2 = f"{name} on axis {a}", c
+    return f"{best} (R^2 = {r2:.2f} with the gravity-norm residual)" if best and r2 >= MIN_DRIVER_R2 else ""
+
+
+def no_library_effect(
+    diagnosis, proxies: Sequence[str] = (), norm: str = "", obs: ObsTable | None = None
+) -> str:
+    """The verdict part that says no library effect explains what is left (module doc)."""
+    drv = residual_driver(diagnosis, obs)
+    text = "no library effect explains what is left"
+    if proxies:
+        text += f" ({', '.join(proxies)} fitted here but did not make the {norm}model transfer: dropped as proxies)"
+    text += f"; the residual follows {drv}" if drv else "; no single driver signal explains the residual"
+    return text + "; write a user effect for it (docs/effects.md) and load it with --effects-file"
+
+
+def prune(found, stats_of: Callable[[str], dict | None], seen: Sequence[str] = ()) -> list[tuple[str, str]]:
+    """When the final model does not transfer: drop, one at a time, the added effect whose removal
+    lowers the held-out chi2/dof on the common yardstick most, while a removal does not raise it
+    (an effect that makes the held-out residual better stays: never all or nothing); then, if a
+    model seen earlier in the search (seen: their names) is better held out, return to it. Returns
+    (effect, why) per dropped effect; found.added shrinks. Nothing happens without out-of-session
+    evidence or when the final model transfers."""
+    if not found.added or found.heldout is None or found.transfers is not False:
+        return []
+    out: list[tuple[str, str]] = []
+    cur = found.heldout
+
+    def chi2(st: dict | None) -> float:
+        return np.inf if st is None else float(st["heldout_chi2_dof"])
+
+    while found.added:
+        trials = {
+            e: stats_of("+".join([found.start, *[a for a in found.added if a != e]])) for e in found.added
+        }
+        e = min(trials, key=lambda k: chi2(trials[k]))
+        if chi2(trials[e]) > chi2(cur):
+            break
+        out.append((e, f"a proxy: without it the held-out chi2/dof is {chi2(trials[e]):.3g}, with it "
+                       f"{chi2(cur):.3g} (the same yardstick): it does not help unseen data"))  # fmt: skip
+        found.added.remove(e)
+        cur = trials[e]
+    best = min(seen, key=lambda n: chi2(stats_of(n)), default=None)
+    if best is not None and chi2(stats_of(best)) < chi2(cur):
+        terms = best.split("+")[1:] if best != found.start else []
+        gone = [e for e in found.added if e not in terms]
+        why = f"an earlier model of the search, {best}, predicts unseen data better ({chi2(stats_of(best)):.3g} vs {chi2(cur):.3g})"
+        out += [(e, why) for e in gone]
+        found.added = [e for e in found.added if e in terms]
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the ladder
 
 
 def ladder_rows(
@@ -387,4 +573,341 @@ def log_ladder(rec, rows: Sequence[LadderRow], obs: ObsTable) -> None:
         driver=None if obs.temp_degC is None else np.asarray(obs.temp_degC),
         driver_name="temperature (degC)",
         residual_steps=show,
+    )
+
+
+def _norm_ladder_rows(
+    session,
+    obs,
+    start,
+    added,
+    effects_file,
+    static_test,
+    at_s,
+    heldout=(),
+    parts=(),
+    row_loso=None,
+    scatter=None,
+) -> list[LadderRow]:
+    """start, start + e1, start + e1 + e2, ... fitted orientation-free on the detected windows;
+    held-out norm statistics (mean over the held-out sessions, or with several calibration sessions
+    over the left-out sessions; then each row's per-session statistics are appended to row_loso)."""
+    from accellog.calibrate.diagnosis.ladder import ladder_row
+    from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
+    from accellog.calibrate.diagnosis.strategy import NORM
+    from accellog.calibrate.model.fit import fit_orientation_free
+    from accellog.flows.stages import run_fit
+
+    rows = []
+    for k in range(len(added) + 1):
+        fo = run_fit(
+            session,
+            start,
+            add=added[:k],
+            effects_file=effects_file,
+            orientation_free=True,
+            obs=obs,
+            gyro=False,
+        )
+        row = ladder_row(fo.fit, added=added[:k], fit=fo)
+        if len(parts) > 1:
+            per = loso_stats(
+                parts, fo.fit.model, fit_orientation_free, lambda r, o: NORM.heldout_stats(r, o, scatter)
+            )
+            row_loso.append(per)
+            for key, v in mean_stats(per).items():
+                setattr(row, key, v)
+        elif heldout:
+            for key, v in NORM.mean_heldout_stats(fo.fit, heldout, scatter).items():
+                setattr(row, key, v)
+        if static_test is not None:
+            add_static_drift(row, static_test, at_s)
+        rows.append(row)
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# `accellog workbench` (module doc)
+
+
+@dataclass
+class WorkbenchOutcome(JsonResult):
+    """One workbench run: what the loop found (a Discovery; with its detection for an unlabelled
+    session), the ladder, and the calibration file written (if any)."""
+
+    session: str
+    found: Discovery
+    ladder: list[LadderRow]
+    output: str | None = None
+    notes: list[str] = field(default_factory=list)
+    """Remarks about the inputs (e.g. an option not used on this kind of session)."""
+    sessions: list[str] = field(default_factory=list)
+    """All calibration sessions when there are several (session is the first)."""
+    ladder_loso: list[list[dict | None]] = field(default_factory=list)
+    """With several sessions: per ladder row, held-out statistics per left-out session."""
+
+    def loso_dict(self) -> dict | None:
+        """The leave-one-session-out evidence: per ladder step, held-out chi2/dof and RMS (g) of
+        each session predicted by the fit to the others."""
+        if len(self.sessions) < 2:
+            return None
+
+        def col(per, key):
+            return [None if p is None else p[key] for p in per]
+
+        return {
+            "sessions": list(self.sessions),
+            "steps": [
+                {
+                    "model": r.model,
+                    "added": list(r.added),
+                    "heldout_chi2_dof": col(per, "heldout_chi2_dof"),
+                    "heldout_rms_g": col(per, "heldout_rms_g"),
+                    "heldout_noise_g": col(per, "heldout_noise_g"),
+                }
+                for r, per in zip(self.ladder, self.ladder_loso, strict=True)
+            ],
+        }
+
+    @property
+    def handheld(self) -> bool:
+        return self.found.detection is not None
+
+    @property
+    def ok(self) -> bool:
+        """The loop decided, the final model transfers (or no held-out session) and nothing is missing."""
+        f = self.found
+        return f.decided and f.transfers is not False and not f.diagnoses[-1].missing
+
+    def to_dict(self) -> dict:
+        """workbench --json: session, the loop's keys and the ladder; with several calibration
+        sessions also `sessions` and `leave_one_session_out` (loso_dict)."""
+        out = {"session": self.session, **self.found.to_json()}
+        if not self.handheld:
+            out["ladder"] = [r.to_dict() for r in self.ladder]
+        if len(self.sessions) > 1:
+            out["sessions"] = list(self.sessions)
+            out["leave_one_session_out"] = self.loso_dict()
+        return out
+
+
+def run_workbench(
+    session: str | Path | Sequence[str | Path],
+    *,
+    heldout: Sequence[str | Path] = (),
+    static: str | Path | None = None,
+    model: str = "model3",
+    max_steps: int = 4,
+    effects_file: str | Path | None = None,
+    at_s: float = 60.0,
+    output: str | Path | None = None,
+    rrd: str | Path | None = None,
+    on_step: Callable[[object], None] | None = None,
+) -> WorkbenchOutcome:
+    """Run the workbench on one session file, or on several calibration sessions of one sensor
+    (fitted together, each candidate judged by leaving one session out: calibrate.loso), see the
+    module doc; on_step(Diagnosis) after each step of a labelled session's loop (progress)."""
+    from accellog.store.source import open_source
+
+    paths = [session] if isinstance(session, (str, Path)) else list(session)
+    datas = [open_source(p, what="the workbench").whole() for p in paths]
+    if len(paths) > 1 and heldout:
+        raise InputError(
+            "give several calibration sessions (each is left out in turn) or --heldout, not both",
+            where=str(heldout[0]),
+        )
+    if len({bool(d.poses) for d in datas}) > 1:
+        raise InputError(
+            "several calibration sessions must all have pose labels or all be hand-held (none)",
+            where=", ".join(str(p) for p in paths),
+        )
+    test = open_source(static, what="--static").whole() if static is not None else None
+    if not datas[0].poses:  # hand-held: detected static intervals, gravity-norm residual
+        out = _handheld(datas, paths[0], heldout, model, max_steps, effects_file, test, at_s, output, rrd)
+    else:
+        out = _labelled(
+            datas, paths[0], heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step
+        )
+    if len(paths) > 1:
+        out.sessions = [str(p) for p in paths]
+    return out
+
+
+def _labelled(
+    datas, session, heldout, test, model, max_steps, effects_file, at_s, output, rrd, on_step
+) -> WorkbenchOutcome:
+    from accellog.calibrate.diagnosis.loso import concat_obs
+    from accellog.calibrate.observe.segment import observations
+    from accellog.store.source import open_source
+
+    data = datas[0]
+    parts = [observations(d) for d in datas]
+    obs = concat_obs(parts) if len(parts) > 1 else parts[0]
+    helds = [observations(open_source(h, what="--heldout").whole()) for h in heldout]
+    host = None  # the host clock of one session (several sessions: not one clock)
+    if (
+        len(datas) == 1
+        and data.host_time_s is not None
+        and np.all(np.isfinite(data.host_time_s))
+        and data.n > 2
+    ):
+        host = (data.t_s, data.host_time_s)
+    found = discover(
+        obs,
+        model,
+        heldout=helds,
+        max_steps=max_steps,
+        effects_file=effects_file,
+        host_time=host,
+        on_step=on_step,
+        sessions=parts if len(parts) > 1 else None,
+    )
+    rows = ladder_rows(
+        data,
+        obs,
+        steps_for(found),
+        heldout=helds[0] if helds else None,
+        static_test=test,
+        effects_file=effects_file,
+        at_s=at_s,
+        gyro=output is not None or rrd is not None,  # the gyro goes into the calibration file / .rrd
+        scatter=found.scatter,
+    )
+    ladder_loso = _loso_rows(rows, parts, found.scatter) if len(parts) > 1 else []
+    if output is not None:
+        with_notes(rows[-1].fit.cal, found).save(output)
+    if rrd is not None:
+        _write_rrd(rrd, data, found, rows, obs)
+    return WorkbenchOutcome(
+        str(session), found, rows, None if output is None else str(output), ladder_loso=ladder_loso
+    )
+
+
+def with_notes(cal, found):
+    """The calibration with the workbench's reservations in fit.warnings: a tied choice (which
+    effects the data could not tell apart, what was written, what would separate them) and the
+    effects dropped as proxies."""
+    import dataclasses
+
+    notes = []
+    for group in found.undecided:
+        notes.append(
+            f"workbench: {group[0]} was written but this data cannot tell it from "
+            f"{', '.join(group[1:])} (a tied choice, possibly a proxy that will not transfer)"
+        )
+    tied = {e for g in found.undecided for e in g}
+    notes += [
+        f"workbench: what separates them: {c.separate_by}"
+        for ch in found.choices
+        for c in ch.collinear
+        if c.a in tied and c.b in tied
+    ]
+    notes += [f"workbench: {d['effect']} not written: {d['why']}" for d in found.dropped if d.get("proxy")]
+    if not notes:
+        return cal
+    cal.fit = dataclasses.replace(cal.fit, warnings=(*(cal.fit.warnings or ()), *dict.fromkeys(notes)))
+    return cal
+
+
+def _loso_rows(rows, parts, scatter=None) -> list[list[dict | None]]:
+    """Each ladder row's model left-one-session-out: per session its held-out statistics; the
+    row's heldout_* columns become their mean."""
+    from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
+    from accellog.calibrate.diagnosis.transfer import predictive_stats
+
+    out = []
+    for r in rows:
+        per = loso_stats(
+            parts,
+            r.fit.fit.model,
+            fit_model,
+            lambda res, o: predictive_stats(res, o, norm=False, scatter=scatter),
+        )
+        for k, v in mean_stats(per).items():
+            setattr(r, k, v)
+        out.append(per)
+    return out
+
+
+def _write_rrd(rrd, data, found, rows, obs) -> None:
+    from accellog.present.rrd.recording import RunRecording
+    from accellog.present.views import log_diagnosis, log_session
+
+    with RunRecording(f"save:{rrd}") as rec:
+        log_session(rec, data, calibrations={found.final_model: rows[-1].fit.cal})
+        for i, d in enumerate(found.diagnoses, 1):
+            log_diagnosis(rec, d, obs, label=f"step {i}")
+        log_ladder(rec, rows, obs)
+        log_story(rec, found, rows, obs, rows[-1].fit.fit)
+
+
+def log_story(rec, found, rows, obs, final_fit) -> None:
+    """What carries a workbench recording: the search (every model tried, its held-out residual) and
+    the residual against the driver it follows, start model (before) and final model (after), each
+    in its ladder step's colour."""
+    from accellog.present.residual_views import followed_driver, log_workbench_residuals
+    from accellog.present.rrd.logs import step_color
+    from accellog.present.search_views import log_search
+
+    log_search(rec, found.trail, rows)
+    first = next((i for i, r in enumerate(rows) if not r.added and r.model == found.start), 0)
+    colors = (step_color(first), step_color(len(rows) - 1))
+    start = found.diagnoses[0]
+    log_workbench_residuals(rec, obs, start.fit, final_fit, colors, followed_driver(start))
+
+
+def _handheld(
+    datas, session, heldout, model, max_steps, effects_file, test, at_s, output, rrd
+) -> WorkbenchOutcome:
+    """The workbench on unlabelled sessions: the static intervals of each detected
+    (calibrate.observe.detected_holds), then discover on the gravity norm (strategy NORM; start:
+    HANDHELD_START unless another model than model3 is asked: model3's cross_axis is not
+    identifiable here) and the ladder start -> + each found effect. Held-out sessions (labelled or
+    not: norm_obs) are judged on their gravity norm; several calibration sessions are fitted
+    together, candidates judged by leaving one session out (the detection: the first session's)."""
+    from accellog.calibrate.diagnosis.loso import concat_obs
+    from accellog.calibrate.diagnosis.strategy import NORM
+    from accellog.calibrate.model.effects import HANDHELD_START
+    from accellog.calibrate.observe.detected_holds import detect_holds, norm_obs
+    from accellog.store.source import open_source
+
+    data = datas[0]
+    helds = [norm_obs(open_source(h, what="--heldout").whole()) for h in heldout]
+    start = model if model and model != "model3" else HANDHELD_START
+    with small_problem_threads():
+        obs, det = detect_holds(data)
+        parts = [obs] + [detect_holds(d)[0] for d in datas[1:]]
+        obs = concat_obs(parts) if len(parts) > 1 else obs
+        found = Discovery(start=start, detection=det, obs=obs)
+        discover(obs, start, heldout=helds, max_steps=max_steps, effects_file=effects_file,
+                 sessions=parts if len(parts) > 1 else None, strategy=NORM, found=found)  # fmt: skip
+        found.ladder = _norm_ladder_rows(
+            data, obs, start, found.added, effects_file, test, at_s, helds, parts, found.ladder_loso
+        )
+    if output is not None:
+        from accellog.flows.stages import run_fit
+
+        # the full orientation-free fit: gyro from the detected intervals and the rotations between them
+        # several sessions: the windows of all of them (the gyro: the first session's)
+        pooled = found.obs if len(datas) > 1 else None
+        cal = run_fit(
+            data, found.start, add=found.added, effects_file=effects_file, orientation_free=True, obs=pooled
+        ).cal
+        with_notes(cal, found).save(output)
+    if rrd is not None:
+        from accellog.present.detection_views import log_detection
+        from accellog.present.rrd.recording import RunRecording
+        from accellog.present.views import log_session
+
+        with RunRecording(f"save:{rrd}") as rec:
+            log_session(rec, data)
+            log_detection(rec, found.detection)
+            rec.log_ladder(found.ladder)
+            log_story(rec, found, found.ladder, found.obs, found.diagnoses[-1].fit)
+    return WorkbenchOutcome(
+        str(session),
+        found,
+        found.ladder,
+        None if output is None else str(output),
+        ladder_loso=found.ladder_loso,
     )

@@ -2,7 +2,7 @@
 (`diagnose`: parameters, candidates, driver signals, verdict) and the workbench's verdict and ladder.
 
 The results are duck-typed (accellog.flows.diagnose_run.DiagnoseOutcome,
-accellog.flows.workbench_run.WorkbenchOutcome): present/ does not import flows/.
+accellog.flows.workbench.WorkbenchOutcome): present/ does not import flows/.
 """
 
 from __future__ import annotations

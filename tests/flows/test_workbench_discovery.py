@@ -23,9 +23,7 @@ from accellog.calibrate.diagnosis.choose import heats_and_cools, new_recording
 from accellog.calibrate.diagnosis.strategy import LABELLED
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.fit import fit_model
-from accellog.flows.workbench import discover
-from accellog.flows.workbench_prune import backward_step
-from accellog.flows.workbench_run import run_workbench
+from accellog.flows.workbench import backward_step, discover, run_workbench
 
 KW = {"rounds": 3, "hold_s": 8.0}
 
