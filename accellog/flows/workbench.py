@@ -506,39 +506,48 @@ def ladder_rows(
     obs: ObsTable,
     steps: Sequence[tuple[str, list[str]]],
     *,
-    heldout: ObsTable | None = None,
+    heldout: Sequence[ObsTable] | ObsTable | None = None,
     static_test: Session | None = None,
     effects_file: str | Path | None = None,
     at_s: float = 60.0,
     gyro: bool = True,
     scatter=None,
+    strategy: Strategy | None = None,
+    sessions: Sequence[ObsTable] = (),
+    per_session: list[list[dict | None]] | None = None,
 ) -> list[LadderRow]:
     """Fit each step (preset, added effects) and judge it: chi2/dof and RMS on the calibration
-    windows, held-out residual RMS and noise floor (g) and predictive chi2/dof (on scatter: the
-    search's one yardstick), |displacement| of the static test at at_s (m). Each row keeps its
-    FitOutcome in .fit (not JSON); gyro: calibrate the gyro with the last step (for the file)."""
-    with small_problem_threads():
-        return _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro, scatter)
-
-
-def _ladder_rows(calibration, obs, steps, heldout, static_test, effects_file, at_s, gyro, scatter=None):
+    windows; held-out residual RMS and noise floor (g) and predictive chi2/dof (on scatter: the
+    search's one yardstick), averaged over the held-out sessions or, with several calibration
+    sessions (their windows: obs, concatenated), over the sessions left out one by one (each row's
+    per-session statistics appended to per_session); |displacement| of the static test at at_s (m).
+    strategy: LABELLED (default) or NORM (orientation-free fits on the gravity norm). Each row keeps
+    its FitOutcome in .fit (not JSON); gyro: calibrate the gyro with the last step (for the file)."""
     from accellog.calibrate.diagnosis.ladder import ladder_row
+    from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
+    from accellog.calibrate.diagnosis.strategy import LABELLED
     from accellog.flows.stages import run_fit
 
+    strategy = strategy or LABELLED
+    held = [heldout] if isinstance(heldout, ObsTable) else list(heldout or [])
     rows = []
-    for i, (preset, add) in enumerate(steps):
-        fo = run_fit(
-            calibration,
-            preset,
-            add=list(add),
-            effects_file=effects_file,
-            obs=obs,
-            gyro=gyro and i == len(steps) - 1,
-        )
-        row = ladder_row(fo.fit, added=add, heldout=heldout, fit=fo, scatter=scatter)
-        if static_test is not None:
-            add_static_drift(row, static_test, at_s)
-        rows.append(row)
+    with small_problem_threads():
+        for i, (preset, add) in enumerate(steps):
+            fo = run_fit(calibration, preset, add=list(add), effects_file=effects_file, obs=obs,
+                         orientation_free=strategy.on_norm, gyro=gyro and i == len(steps) - 1)  # fmt: skip
+            row = ladder_row(fo.fit, added=add, fit=fo)
+            if len(sessions) > 1:
+                per = loso_stats(sessions, fo.fit.model, strategy.fit,
+                                 lambda r, o: strategy.heldout_stats(r, o, scatter))  # fmt: skip
+                per_session.append(per)
+                stats = mean_stats(per)
+            else:
+                stats = strategy.mean_heldout_stats(fo.fit, held, scatter) if held else {}
+            for key, v in stats.items():
+                setattr(row, key, v)
+            if static_test is not None:
+                add_static_drift(row, static_test, at_s)
+            rows.append(row)
     return rows
 
 
@@ -555,8 +564,10 @@ def add_static_drift(row: LadderRow, static_test: Session, at_s: float) -> None:
 
 
 def steps_for(discovery: Discovery) -> list[tuple[str, list[str]]]:
-    """model1, model2, the start model, then one step per added effect."""
-    steps = [(p, []) for p in BASE_STEPS if p != discovery.start]
+    """model1, model2, the start model, then one step per added effect (a hand-held search: from
+    its start model, model1 and model2 being no steps of an orientation-free fit)."""
+    hand = discovery.detection is not None
+    steps = [(p, []) for p in BASE_STEPS if p != discovery.start and not hand]
     steps.append((discovery.start, []))
     for k in range(1, len(discovery.added) + 1):
         steps.append((discovery.start, discovery.added[:k]))
@@ -574,56 +585,6 @@ def log_ladder(rec, rows: Sequence[LadderRow], obs: ObsTable) -> None:
         driver_name="temperature (degC)",
         residual_steps=show,
     )
-
-
-def _norm_ladder_rows(
-    session,
-    obs,
-    start,
-    added,
-    effects_file,
-    static_test,
-    at_s,
-    heldout=(),
-    parts=(),
-    row_loso=None,
-    scatter=None,
-) -> list[LadderRow]:
-    """start, start + e1, start + e1 + e2, ... fitted orientation-free on the detected windows;
-    held-out norm statistics (mean over the held-out sessions, or with several calibration sessions
-    over the left-out sessions; then each row's per-session statistics are appended to row_loso)."""
-    from accellog.calibrate.diagnosis.ladder import ladder_row
-    from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
-    from accellog.calibrate.diagnosis.strategy import NORM
-    from accellog.calibrate.model.fit import fit_orientation_free
-    from accellog.flows.stages import run_fit
-
-    rows = []
-    for k in range(len(added) + 1):
-        fo = run_fit(
-            session,
-            start,
-            add=added[:k],
-            effects_file=effects_file,
-            orientation_free=True,
-            obs=obs,
-            gyro=False,
-        )
-        row = ladder_row(fo.fit, added=added[:k], fit=fo)
-        if len(parts) > 1:
-            per = loso_stats(
-                parts, fo.fit.model, fit_orientation_free, lambda r, o: NORM.heldout_stats(r, o, scatter)
-            )
-            row_loso.append(per)
-            for key, v in mean_stats(per).items():
-                setattr(row, key, v)
-        elif heldout:
-            for key, v in NORM.mean_heldout_stats(fo.fit, heldout, scatter).items():
-                setattr(row, key, v)
-        if static_test is not None:
-            add_static_drift(row, static_test, at_s)
-        rows.append(row)
-    return rows
 
 
 # ---------------------------------------------------------------------------------------------
@@ -762,18 +723,20 @@ def _labelled(
         on_step=on_step,
         sessions=parts if len(parts) > 1 else None,
     )
+    ladder_loso: list[list[dict | None]] = []
     rows = ladder_rows(
         data,
         obs,
         steps_for(found),
-        heldout=helds[0] if helds else None,
+        heldout=helds[:1],  # the ladder's held-out columns: the first held-out session
         static_test=test,
         effects_file=effects_file,
         at_s=at_s,
         gyro=output is not None or rrd is not None,  # the gyro goes into the calibration file / .rrd
         scatter=found.scatter,
+        sessions=parts,
+        per_session=ladder_loso,
     )
-    ladder_loso = _loso_rows(rows, parts, found.scatter) if len(parts) > 1 else []
     if output is not None:
         with_notes(rows[-1].fit.cal, found).save(output)
     if rrd is not None:
@@ -807,26 +770,6 @@ def with_notes(cal, found):
         return cal
     cal.fit = dataclasses.replace(cal.fit, warnings=(*(cal.fit.warnings or ()), *dict.fromkeys(notes)))
     return cal
-
-
-def _loso_rows(rows, parts, scatter=None) -> list[list[dict | None]]:
-    """Each ladder row's model left-one-session-out: per session its held-out statistics; the
-    row's heldout_* columns become their mean."""
-    from accellog.calibrate.diagnosis.loso import loso_stats, mean_stats
-    from accellog.calibrate.diagnosis.transfer import predictive_stats
-
-    out = []
-    for r in rows:
-        per = loso_stats(
-            parts,
-            r.fit.fit.model,
-            fit_model,
-            lambda res, o: predictive_stats(res, o, norm=False, scatter=scatter),
-        )
-        for k, v in mean_stats(per).items():
-            setattr(r, k, v)
-        out.append(per)
-    return out
 
 
 def _write_rrd(rrd, data, found, rows, obs) -> None:
@@ -881,9 +824,9 @@ def _handheld(
         found = Discovery(start=start, detection=det, obs=obs)
         discover(obs, start, heldout=helds, max_steps=max_steps, effects_file=effects_file,
                  sessions=parts if len(parts) > 1 else None, strategy=NORM, found=found)  # fmt: skip
-        found.ladder = _norm_ladder_rows(
-            data, obs, start, found.added, effects_file, test, at_s, helds, parts, found.ladder_loso
-        )
+    found.ladder = ladder_rows(data, obs, steps_for(found), heldout=helds, static_test=test,
+                               effects_file=effects_file, at_s=at_s, gyro=False, strategy=NORM,
+                               sessions=parts, per_session=found.ladder_loso)  # fmt: skip
     if output is not None:
         from accellog.flows.stages import run_fit
 
