@@ -22,6 +22,7 @@ from accellog.calibrate.observe.segment import (
     window_stats,
 )
 from accellog.calibrate.observe.window_spill import WindowSpill, median
+from accellog.core.errors import InputError
 from accellog.navigate.stream_sums import WindowCarry
 
 COLS = 9
@@ -48,16 +49,22 @@ class MotionCheck:
 
     def check(self, quantum: float, where: str, name: str = "static test") -> None:
         """segment.moving_check of the hold `name` over every window added (InputError: it moves)."""
+        refusal = self.refusal(quantum, where, name)
+        if refusal is not None:
+            raise refusal
+
+    def refusal(self, quantum: float, where: str, name: str = "static test") -> InputError | None:
+        """check's verdict: the InputError naming the first moving window, or None (at rest)."""
         self._take(self.cut.flush())
         try:
-            self._verdict(quantum, where, name)
+            return self._verdict(quantum, where, name)
         finally:
             self.spill.close()
 
-    def _verdict(self, quantum: float, where: str, name: str) -> None:
+    def _verdict(self, quantum: float, where: str, name: str) -> InputError | None:
         n_quiet = sum(int(np.count_nonzero(p[:, 8] > 2)) for p in self.spill.pieces())
         if n_quiet == 0:  # moving_check: no noise reference, no verdict
-            return
+            return None
         ref = float(
             np.linalg.norm(np.array([median(self.spill.column(j, _quiet), n_quiet) for j in (5, 6, 7)]))
         )
@@ -71,9 +78,10 @@ class MotionCheck:
             bad = bad_std | (shift > MOVING_MEAN_SHIFT_G)
             if bad.any():
                 j = int(np.argmax(bad))
-                raise moving_error(
+                return moving_error(
                     name, p[j, 0], p[j, 1], snorm[j] if bad_std[j] else None, shift[j], ref, where
                 )
+        return None
 
 
 def _quiet(p: np.ndarray) -> np.ndarray:
