@@ -11,7 +11,7 @@ The one-hold pass: the source arrives chunk by chunk (a finished MCAP) or as one
 second, cheaper pass first only when the orientation must be inferred from the mean reading. Each
 block is cut (until_s, max_samples), checked (finite reading, increasing stamps), calibrated
 (``evaluation.block_residual``, per calibration) and folded into ``stream_sums.ResidualSums``; the
-motion check runs on the 0.5 s windows of the raw reading (``stream_motion.MotionCheck``). Memory is
+motion check runs on the 0.5 s windows of the raw reading (``calibrate.observe.motion.MotionCheck``). Memory is
 one block plus a few window tables; a session in memory also keeps its series (t, r, d) for plots. A
 calibration that reads dT/dt (a centred 5 s slope) is applied to the whole session in memory
 (``session_drivers.needs_whole_series``). Formulas: navigate.evaluation (one hold) and
@@ -29,6 +29,7 @@ from accellog.calibrate.calfile.calibration import Calibration
 from accellog.calibrate.model.fit import obs_drivers
 from accellog.calibrate.model.session_drivers import needs_whole_series
 from accellog.calibrate.observe.detect import static_sweep, with_labels
+from accellog.calibrate.observe.motion import MotionCheck
 from accellog.calibrate.observe.segment import observations
 from accellog.core.errors import InputError
 from accellog.core.session import ObsTable, Session
@@ -45,7 +46,6 @@ from accellog.navigate.evaluation import (
     norm_refusal,
 )
 from accellog.navigate.integrate import DEFAULT_TIMES_S
-from accellog.navigate.stream_motion import MotionCheck
 from accellog.navigate.stream_sums import ResidualSums
 from accellog.navigate.window_evaluation import (
     HandheldEvaluation,
