@@ -29,13 +29,46 @@ def runs(mask: np.ndarray) -> np.ndarray:
     return np.stack([np.flatnonzero(d == 1), np.flatnonzero(d == -1)], axis=1)
 
 
-def cumtrapz(t_s: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Cumulative trapezoid integral of y (n,...) over t_s (n,), starting at 0 at t_s[0]."""
+def cumtrapz(
+    t_s: np.ndarray,
+    y: np.ndarray,
+    start: np.ndarray | float | None = None,
+    prev: tuple[float, np.ndarray] | None = None,
+) -> np.ndarray:
+    """Cumulative trapezoid integral of y (n,...) over t_s (n,) s, carried across blocks:
+
+        I_i = I_{i-1} + (t_i - t_{i-1}) (y_i + y_{i-1}) / 2
+
+    prev None: the series starts here, I_0 = start (None: 0; then scipy's cumulative_trapezoid with
+    initial 0, bit for bit); prev = (t, y) of the previous block's last sample: the integral goes on
+    from I = start there. The sums run in the order of one cumsum over the whole series, so a session
+    fed block by block gives the bits of the whole session as one block."""
     y = np.asarray(y, float)
-    d = np.diff(np.asarray(t_s, float)).reshape((-1,) + (1,) * (y.ndim - 1))
+    t = np.asarray(t_s, float)
+    shape = (-1,) + (1,) * (y.ndim - 1)
     out = np.empty_like(y)
-    out[:1] = 0.0
-    np.cumsum(d * (y[1:] + y[:-1]) / 2.0, axis=0, out=out[1:])  # scipy's cumulative_trapezoid, bit for bit
+    if prev is None:
+        out[:1] = 0.0 if start is None else start
+        if y.shape[0] > 1:
+            s = np.diff(t).reshape(shape) * (y[1:] + y[:-1]) / 2.0
+            if start is not None:
+                s[0] += start
+            np.cumsum(s, axis=0, out=out[1:])
+        return out
+    if y.shape[0] == 0:
+        return out
+    t_prev, y_prev = prev
+    s = np.empty_like(y)
+    np.add(y[0], y_prev, out=s[0])
+    np.add(y[1:], y[:-1], out=s[1:])
+    dt = np.empty(t.shape[0])
+    dt[0] = t[0] - t_prev
+    np.subtract(t[1:], t[:-1], out=dt[1:])
+    s *= dt.reshape(shape)
+    s /= 2.0
+    if start is not None:
+        s[0] += start
+    np.cumsum(s, axis=0, out=out)
     return out
 
 
