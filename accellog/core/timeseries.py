@@ -1,5 +1,5 @@
 """Time-series helpers shared by every layer: timestamp checks, boolean runs, cumulative trapezoid,
-evenly spaced sample indices."""
+evenly spaced sample indices, windows of a series fed in blocks (``WindowCarry``)."""
 
 from __future__ import annotations
 
@@ -29,13 +29,46 @@ def runs(mask: np.ndarray) -> np.ndarray:
     return np.stack([np.flatnonzero(d == 1), np.flatnonzero(d == -1)], axis=1)
 
 
-def cumtrapz(t_s: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Cumulative trapezoid integral of y (n,...) over t_s (n,), starting at 0 at t_s[0]."""
+def cumtrapz(
+    t_s: np.ndarray,
+    y: np.ndarray,
+    start: np.ndarray | float | None = None,
+    prev: tuple[float, np.ndarray] | None = None,
+) -> np.ndarray:
+    """Cumulative trapezoid integral of y (n,...) over t_s (n,) s, carried across blocks:
+
+        I_i = I_{i-1} + (t_i - t_{i-1}) (y_i + y_{i-1}) / 2
+
+    prev None: the series starts here, I_0 = start (None: 0; then scipy's cumulative_trapezoid with
+    initial 0, bit for bit); prev = (t, y) of the previous block's last sample: the integral goes on
+    from I = start there. The sums run in the order of one cumsum over the whole series, so a session
+    fed block by block gives the bits of the whole session as one block."""
     y = np.asarray(y, float)
-    d = np.diff(np.asarray(t_s, float)).reshape((-1,) + (1,) * (y.ndim - 1))
+    t = np.asarray(t_s, float)
+    shape = (-1,) + (1,) * (y.ndim - 1)
     out = np.empty_like(y)
-    out[:1] = 0.0
-    np.cumsum(d * (y[1:] + y[:-1]) / 2.0, axis=0, out=out[1:])  # scipy's cumulative_trapezoid, bit for bit
+    if prev is None:
+        out[:1] = 0.0 if start is None else start
+        if y.shape[0] > 1:
+            s = np.diff(t).reshape(shape) * (y[1:] + y[:-1]) / 2.0
+            if start is not None:
+                s[0] += start
+            np.cumsum(s, axis=0, out=out[1:])
+        return out
+    if y.shape[0] == 0:
+        return out
+    t_prev, y_prev = prev
+    s = np.empty_like(y)
+    np.add(y[0], y_prev, out=s[0])
+    np.add(y[1:], y[:-1], out=s[1:])
+    dt = np.empty(t.shape[0])
+    dt[0] = t[0] - t_prev
+    np.subtract(t[1:], t[:-1], out=dt[1:])
+    s *= dt.reshape(shape)
+    s /= 2.0
+    if start is not None:
+        s[0] += start
+    np.cumsum(s, axis=0, out=out)
     return out
 
 
@@ -48,3 +81,56 @@ def sorted_unique(e: np.ndarray) -> np.ndarray:
 def even_indices(n: int, points: int) -> np.ndarray:
     """Indices of min(n, points) evenly spaced samples of n, the first and the last included, each once."""
     return sorted_unique(np.r_[np.linspace(0, n - 1, min(n, points)).astype(np.int64), n - 1])
+
+
+class WindowCarry:
+    """Cuts a series fed in blocks into the windows np.arange(t0, t_end, width) gives the whole series
+    (``np.unique(np.searchsorted(t, edges))``), carrying the open window to the next block."""
+
+    def __init__(self, width_s: float) -> None:
+        self.width = float(width_s)
+        self.t0: float | None = None
+        self.carry: tuple[np.ndarray, ...] | None = None
+
+    def push(self, t: np.ndarray, *cols: np.ndarray) -> tuple[np.ndarray, tuple, np.ndarray] | None:
+        """(t, cols, starts) of the windows this block completes (None: none yet)."""
+        if t.shape[0] == 0:
+            return None
+        if self.t0 is None:
+            self.t0 = float(t[0])
+        if self.carry is not None:
+            t = np.concatenate([self.carry[0], t])
+            cols = tuple(np.concatenate([c, x]) for c, x in zip(self.carry[1:], cols, strict=True))
+        starts = self._starts(t)
+        last = int(starts[-1])
+        self.carry = (t[last:], *(c[last:] for c in cols))
+        if starts.size < 2:
+            return None
+        return t[:last], tuple(c[:last] for c in cols), starts[:-1]
+
+    def _starts(self, t: np.ndarray) -> np.ndarray:
+        edges = arange_above(self.t0, t[-1], self.width, t[0])
+        return np.unique(np.concatenate([[0], np.searchsorted(t, edges)]))
+
+    def flush(self) -> tuple[np.ndarray, tuple, np.ndarray] | None:
+        """The last (open) window: the series has ended."""
+        if self.carry is None or self.carry[0].shape[0] == 0:
+            return None
+        t, *cols = self.carry
+        self.carry = None
+        return t, tuple(cols), np.zeros(1, dtype=int)
+
+
+def arange_above(start: float, stop: float, step: float, lo: float) -> np.ndarray:
+    """The elements > lo of np.arange(start, stop, step), the same floats, without making the ones
+    before lo (a block late in a long session needs a few of the session's window edges, not all):
+    numpy makes len ceil((stop - start) / step) values start, start + step, then start + i delta
+    with delta = (start + step) - start."""
+    n = max(int(np.ceil((stop - start) / step)), 0)
+    delta = (start + step) - start
+    i0 = min(max(int(np.floor((lo - start) / delta)) - 1, 0), n) if delta > 0 else 0
+    edges = start + np.arange(i0, n, dtype=float) * delta
+    for i, v in ((0, start), (1, start + step)):  # the two values numpy sets before its fill
+        if i0 <= i < n:
+            edges[i - i0] = v
+    return edges[edges > lo]

@@ -52,8 +52,7 @@ from accellog.store.source import Source, open_source, read_whole
 
 if TYPE_CHECKING:  # the evaluate stages import these when called (`fit` does without them)
     from accellog.calibrate.calfile.drift_model import DriftModel
-    from accellog.navigate.evaluate import Evaluation, PoseEvaluation
-    from accellog.navigate.handheld_evaluate import HandheldEvaluation
+    from accellog.navigate.evaluate import Evaluation, HandheldEvaluation, PoseEvaluation
 
 GRAVITY_CONVENTIONS = ("seed", "local")
 """'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
@@ -490,7 +489,7 @@ class EvaluationReport(JsonResult):
 
     def to_dict(self) -> dict:
         if self.handheld:
-            from accellog.navigate.handheld_evaluate import CANNOT_JUDGE
+            from accellog.navigate.window_evaluation import CANNOT_JUDGE
 
             return {
                 "kind": "handheld",
@@ -529,7 +528,7 @@ class EvaluationReport(JsonResult):
                 fits = {p.label: _WindowResiduals(p.window_resid_g) for p in self.poses}
                 log_residuals_vs_drivers(rec, self.obs, fits)
             elif self.handheld:
-                from accellog.navigate.handheld_evaluate import CANNOT_JUDGE
+                from accellog.navigate.window_evaluation import CANNOT_JUDGE
 
                 md = "\n".join(views.table_markdown(tables.handheld_eval_table(h)) for h in self.handheld)
                 rec.log_document("results/handheld", md + "\n\n" + CANNOT_JUDGE)
@@ -555,84 +554,24 @@ def run_evaluate_report(
     at_s: float = 60.0,
     stream: bool = True,
 ) -> EvaluationReport:
-    """Residual of calibrated static data vs gravity and the displacement, per calibration file.
-
-    An MCAP session streams chunk by chunk when `stream` (memory independent of its length; the
+    """Residual of calibrated static data vs gravity and the displacement, per calibration file
+    (navigate.evaluate.evaluate_source: one static hold, hold by hold, or hand-held, from what the
+    session holds). An MCAP session streams chunk by chunk when `stream` (memory independent of its length; the
     .rrd of a run needs the samples: stream=False); other inputs are read whole."""
     cals = [as_calibration(c) for c in cal_paths]
     names = [c.model_spec.get("name", "") for c in cals]
     labels = (
         [Path(c.path or f"cal{i}").stem for i, c in enumerate(cals)] if len(set(names)) < len(names) else None
     )  # same-model files apart
+    from accellog.navigate.evaluate import evaluate_source
+
     src = open_source(test, what="evaluate")
     if not stream:
         src.whole()  # the .rrd draws the samples
-    try:
-        return _labelled_or_static(src, cals, labels, until_s=until_s, max_samples=max_samples, at_s=at_s)
-    except InputError as exc:
-        return _handheld_report(src, cals, labels, at_s, exc)
-
-
-def _handheld_report(
-    test: Source, cals: list[Calibration], labels, at_s: float, refused: InputError
-) -> EvaluationReport:
-    """A session without pose labels that is not one static hold (it moves, its mean is not 1 g):
-    judged on its detected static intervals with the gravity-norm residual
-    (navigate.handheld_evaluate). `refused` (the single-hold error) is raised again when the session
-    is labelled or fewer than 2 distinct static orientations are found."""
-    from accellog.navigate.handheld_evaluate import detect_intervals, evaluate_handheld
-
-    if test.poses:
-        raise refused
-    try:
-        data = test.whole()
-        obs, intervals = detect_intervals(data)
-    except InputError:
-        raise refused from None
-    g = cals[0].local_gravity_mps2 if cals else data.meta.local_gravity_mps2
-    name = data.path or data.meta.source
-    rep = EvaluationReport(test, cals, labels, at_s, obs=obs)
-    rep.handheld = [
-        evaluate_handheld(obs, intervals, c, session=name, raw_gravity_mps2=g) for c in [None, *cals]
-    ]
-    for h, lab in zip(rep.handheld[1:], labels or [], strict=False):
-        h.label = lab
-    return rep
-
-
-def _labelled_or_static(
-    src: Source, cals: list[Calibration], labels, *, until_s, max_samples, at_s: float
-) -> EvaluationReport:
-    """A labelled multi-pose session hold by hold (its observations), or one static hold."""
-    from accellog.navigate.evaluate import evaluate_blocks, targets
-
-    rep = EvaluationReport(src, cals, labels, at_s)
-    if len(src.poses) > 1:
-        _refuse_cut(len(src.poses), until_s, max_samples, src.where)
-        _pose_evaluations(rep, observations(src), src.meta, src.where)
-        return rep
-    rep.single = evaluate_blocks(src, targets(cals, labels), until_s=until_s, max_samples=max_samples)
-    return rep
-
-
-def _pose_evaluations(rep: EvaluationReport, obs: ObsTable, meta, session: str) -> None:
-    """The raw reading, then each calibration, window by window (gravity of the first calibration)."""
-    from accellog.navigate.evaluate import evaluate_pose_obs
-
-    g = rep.cals[0].local_gravity_mps2 if rep.cals else meta.local_gravity_mps2
-    rep.obs = obs
-    rep.poses = [
-        evaluate_pose_obs(obs, c, at_s=rep.at_s, raw_gravity_mps2=g, session=session)
-        for c in [None, *rep.cals]
-    ]
-
-
-def _refuse_cut(n_poses: int, until_s: float | None, max_samples: int | None, where: str | None) -> None:
-    if until_s is not None or max_samples is not None:
-        raise InputError(
-            f"--until-s/--max-samples cut a single static hold; this session has {n_poses} labelled holds",
-            where=where,
-        )
+    ev = evaluate_source(src, cals, labels, until_s=until_s, max_samples=max_samples, at_s=at_s)
+    return EvaluationReport(
+        src, cals, labels, at_s, single=ev.single, poses=ev.poses, obs=ev.obs, handheld=ev.handheld
+    )
 
 
 @dataclass

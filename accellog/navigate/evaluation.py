@@ -13,7 +13,7 @@ For a session at rest in one orientation (up vector u, sensor frame):
 
 `cal=None` evaluates the raw reading (the seed's "No calibration" row: a = reading * g_local).
 This module holds the result and its formulas; navigate.evaluate feeds them (running sums of
-navigate.stream_sums.ResidualSums over the session's blocks). Multi-pose sessions: navigate.pose_evaluate.
+navigate.stream_sums.ResidualSums over the session's blocks). Window by window: navigate.window_evaluation.
 """
 
 from __future__ import annotations
@@ -121,15 +121,17 @@ class Evaluation(JsonResult):
         return d
 
 
-def check_norm(mean_reading_g: np.ndarray, where: str | None) -> None:
-    """InputError unless |mean reading| at rest is 0.5-2 g (raw counts declared as g, wrong units)."""
+def norm_refusal(mean_reading_g: np.ndarray, where: str | None) -> InputError | None:
+    """The InputError when |mean reading| at rest is not 0.5-2 g (raw counts declared as g, wrong
+    units, or not at rest), else None."""
     norm = float(np.linalg.norm(mean_reading_g))
-    if not 0.5 <= norm <= 2.0:
-        raise InputError(
-            f"|accel| at rest is {norm:.4g} g, expected about 1 g"
-            + (" (are raw counts declared as g?)" if norm > 2 else ""),
-            where=where,
-        )
+    if 0.5 <= norm <= 2.0:
+        return None
+    return InputError(
+        f"|accel| at rest is {norm:.4g} g, expected about 1 g"
+        + (" (are raw counts declared as g?)" if norm > 2 else ""),
+        where=where,
+    )
 
 
 def _cal_sigma_mps2(cal: Calibration, reading_mean: np.ndarray, drivers: dict, unit: float) -> np.ndarray:

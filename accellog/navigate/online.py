@@ -10,8 +10,8 @@ For samples i = 0..N-1 with sensor time t_i (s) and reading m_i (g):
     v_i   = v_{i-1} + dt_i (a_i + a_{i-1}) / 2       (trapezoid, v_0 = v0_mps)
     d_i   = d_{i-1} + dt_i (v_i + v_{i-1}) / 2       (trapezoid, d_0 = d0_m)
 
-The running sums are carried across batches with the same sequential accumulation order as
-``np.cumsum`` over the whole session, so feeding a session batch by batch gives *bit-identical*
+The running sums are carried across batches by ``core.timeseries.cumtrapz`` (the same sequential
+accumulation order as ``np.cumsum`` over the whole session), so feeding a session batch by batch gives *bit-identical*
 numbers to ``scipy.integrate.cumulative_trapezoid(..., initial=0)`` applied twice to the whole
 session, i.e. to ``accellog.navigate.integrate.displacement`` and ``accellog.navigate.evaluate`` (see
 ``integrate_batch``).
@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from accellog.core.errors import InputError
+from accellog.core.timeseries import cumtrapz
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.navigate.integrate import displacement
 
@@ -41,23 +42,6 @@ class OnlineStep:
     accel_mps2: np.ndarray
     vel_mps: np.ndarray
     disp_m: np.ndarray
-
-
-def _cumtrapz_carry(y: np.ndarray, t: np.ndarray, y_prev, t_prev, acc_prev: np.ndarray) -> np.ndarray:
-    """Cumulative trapezoid of y over t continuing from (t_prev, y_prev, acc_prev): sequential sums."""
-    if y_prev is None:
-        dt = np.diff(t)
-        inc = dt[:, None] * (y[1:] + y[:-1]) / 2.0
-        out = np.empty_like(y)
-        out[0] = acc_prev
-        if inc.shape[0]:
-            out[1:] = np.cumsum(np.concatenate([acc_prev[None, :], inc]), axis=0)[1:]
-        return out
-    tt = np.concatenate([[t_prev], t])
-    yy = np.concatenate([y_prev[None, :], y])
-    dt = np.diff(tt)
-    inc = dt[:, None] * (yy[1:] + yy[:-1]) / 2.0
-    return np.cumsum(np.concatenate([acc_prev[None, :], inc]), axis=0)[1:]
 
 
 class OnlineIntegrator:
@@ -136,8 +120,9 @@ class OnlineIntegrator:
         if t.shape[0] == 0:
             e = np.empty((0, 3))
             return OnlineStep(t, f, a, e, e)
-        v = _cumtrapz_carry(a, t, self._a_prev, self._t_prev, self._v_acc)
-        d = _cumtrapz_carry(v, t, self._v_prev, self._t_prev, self._d_acc)
+        first = self._a_prev is None
+        v = cumtrapz(t, a, self._v_acc, prev=None if first else (self._t_prev, self._a_prev))
+        d = cumtrapz(t, v, self._d_acc, prev=None if first else (self._t_prev, self._v_prev))
         self._t_prev, self._a_prev, self._v_prev = float(t[-1]), a[-1].copy(), v[-1].copy()
         self._v_acc, self._d_acc = v[-1].copy(), d[-1].copy()
         self.n += t.shape[0]

@@ -15,8 +15,9 @@ For a residual series r_i (m/s^2, i = 0..n-1, times t_i s) fed in consecutive bl
   power spectra), P and Q accumulate and m' enters at the end;
 - windows [t0 + k w, t0 + (k+1) w) exactly as ``np.arange(t0, t_end, w)`` cuts the whole series (the
   open window is carried to the next block);
-- v(t), d(t): the cumulative trapezoid rule carried across blocks (v_i = v_{i-1} + dt (a_i +
-  a_{i-1}) / 2), read at requested times by linear interpolation between samples.
+- v(t), d(t): the cumulative trapezoid rule carried across blocks (``core.timeseries.cumtrapz``:
+  v_i = v_{i-1} + dt (a_i + a_{i-1}) / 2, the bits of the whole session as one block), read at
+  requested times by linear interpolation between samples.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from accellog.calibrate.observe.hold_noise import BLOCK, SOKAL_C, integrated_autocorr_time, tau_from_rho
+from accellog.core.timeseries import WindowCarry, cumtrapz
 
 
 class AutocorrTime:
@@ -98,59 +100,6 @@ class AutocorrTime:
         return tau_from_rho(rho, self.c)
 
 
-class WindowCarry:
-    """Cuts a series fed in blocks into the windows np.arange(t0, t_end, width) gives the whole series
-    (``np.unique(np.searchsorted(t, edges))``), carrying the open window to the next block."""
-
-    def __init__(self, width_s: float) -> None:
-        self.width = float(width_s)
-        self.t0: float | None = None
-        self.carry: tuple[np.ndarray, ...] | None = None
-
-    def push(self, t: np.ndarray, *cols: np.ndarray) -> tuple[np.ndarray, tuple, np.ndarray] | None:
-        """(t, cols, starts) of the windows this block completes (None: none yet)."""
-        if t.shape[0] == 0:
-            return None
-        if self.t0 is None:
-            self.t0 = float(t[0])
-        if self.carry is not None:
-            t = np.concatenate([self.carry[0], t])
-            cols = tuple(np.concatenate([c, x]) for c, x in zip(self.carry[1:], cols, strict=True))
-        starts = self._starts(t)
-        last = int(starts[-1])
-        self.carry = (t[last:], *(c[last:] for c in cols))
-        if starts.size < 2:
-            return None
-        return t[:last], tuple(c[:last] for c in cols), starts[:-1]
-
-    def _starts(self, t: np.ndarray) -> np.ndarray:
-        edges = arange_above(self.t0, t[-1], self.width, t[0])
-        return np.unique(np.concatenate([[0], np.searchsorted(t, edges)]))
-
-    def flush(self) -> tuple[np.ndarray, tuple, np.ndarray] | None:
-        """The last (open) window: the series has ended."""
-        if self.carry is None or self.carry[0].shape[0] == 0:
-            return None
-        t, *cols = self.carry
-        self.carry = None
-        return t, tuple(cols), np.zeros(1, dtype=int)
-
-
-def arange_above(start: float, stop: float, step: float, lo: float) -> np.ndarray:
-    """The elements > lo of np.arange(start, stop, step), the same floats, without making the ones
-    before lo (a block late in a long session needs a few of the session's window edges, not all):
-    numpy makes len ceil((stop - start) / step) values start, start + step, then start + i delta
-    with delta = (start + step) - start."""
-    n = max(int(np.ceil((stop - start) / step)), 0)
-    delta = (start + step) - start
-    i0 = min(max(int(np.floor((lo - start) / delta)) - 1, 0), n) if delta > 0 else 0
-    edges = start + np.arange(i0, n, dtype=float) * delta
-    for i, v in ((0, start), (1, start + step)):  # the two values numpy sets before its fill
-        if i0 <= i < n:
-            edges[i - i0] = v
-    return edges[edges > lo]
-
-
 class Integrator:
     """v = cumtrapz(t, a), d = cumtrapz(t, v) carried across blocks; values at requested times."""
 
@@ -174,14 +123,12 @@ class Integrator:
             return z, z, {}
         if self.last is None:
             self.t0 = float(t[0])
-            dt, a0, v0, d0 = np.diff(t), None, np.zeros(3), np.zeros(3)
+            v = cumtrapz(t, a)
+            d = cumtrapz(t, v)
         else:
-            dt = np.empty(t.shape[0])
-            dt[0] = t[0] - self.last["t"]
-            np.subtract(t[1:], t[:-1], out=dt[1:])
-            a0, v0, d0 = self.last["a"], self.last["v"], self.last["d"]
-        v = _trapezoid_on(a, a0, dt, v0)
-        d = _trapezoid_on(v, None if a0 is None else v0, dt, d0)
+            last = self.last
+            v = cumtrapz(t, a, last["v"], prev=(last["t"], last["a"]))
+            d = cumtrapz(t, v, last["d"], prev=(last["t"], last["v"]))
         series = {"d": d, **(extra(t, d) if extra is not None else {})}
         self._read_at(t, series)
         self.last = {"t": float(t[-1]), "a": a[-1].copy(), "v": v[-1].copy(), "d": d[-1].copy()}
@@ -232,30 +179,6 @@ class Integrator:
         late = np.isfinite(self.used) & ~np.isin(np.arange(self.req.size), list(self.brackets))
         out[late] = end
         return out, end
-
-
-def _trapezoid_on(x: np.ndarray, x_prev: np.ndarray | None, dt: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """The cumulative trapezoid integral of x (n,3) carried on from the previous sample x_prev
-    (dt (n,): the steps from it), plus start; x_prev None: the series starts here (row 0 = start,
-    dt (n-1,)). The arithmetic of cumsum(dt (x_i + x_i-1) / 2) + start, without concatenating."""
-    out = np.empty_like(x)
-    if x_prev is None:
-        out[0] = 0.0
-        if x.shape[0] > 1:
-            s = x[1:] + x[:-1]
-            s *= dt[:, None]
-            s /= 2.0
-            np.cumsum(s, axis=0, out=out[1:])
-        out += start
-        return out
-    s = np.empty_like(x)
-    np.add(x[0], x_prev, out=s[0])
-    np.add(x[1:], x[:-1], out=s[1:])
-    s *= dt[:, None]
-    s /= 2.0
-    np.cumsum(s, axis=0, out=out)
-    out += start
-    return out
 
 
 class ResidualSums:

@@ -139,7 +139,7 @@ def test_streamed_drift_refuses_nan_in_a_late_block(tmp_path, sessions):
 
 
 def test_arange_above_is_numpys_arange_from_lo():
-    from accellog.navigate.stream_sums import arange_above
+    from accellog.core.timeseries import arange_above
 
     rng = np.random.default_rng(9)
     for _ in range(3000):

@@ -79,6 +79,36 @@ def detect_static(
     if not np.isfinite(acc).all():
         i = int(np.argmax(~np.isfinite(acc).all(axis=1)))
         raise InputError(f"accel is NaN/inf at t = {t[i]:.3f} s", where=where)
+    labels, max_found = static_sweep(
+        session, window_samples=window_samples, init_static_s=init_static_s, k_values=k_values,
+        min_interval_s=min_interval_s, min_poses=min_poses, distinct_angle_deg=distinct_angle_deg, cost=cost,
+    )  # fmt: skip
+    if labels is None:
+        cut = any(e.kind == "recovered" for e in session.events)
+        raise InputError(
+            f"found at most {max_found} distinct static orientations (need >= {min_poses} for an "
+            f"orientation-free fit): {_labelling_hint(session, max_found, min_poses, min_interval_s)}"
+            + ("; the file is truncated: any pose labels went with its end" if cut else ""),
+            where=where,
+        )
+    return labels
+
+
+def static_sweep(
+    session: Session,
+    *,
+    window_samples: int = 101,
+    init_static_s: float | None = None,
+    k_values: Sequence[float] = tuple(range(2, 11)),
+    min_interval_s: float = 1.0,
+    min_poses: int = 9,
+    distinct_angle_deg: float = 10.0,
+    cost: Callable[[list[PoseLabel]], float] | None = None,
+) -> tuple[list[PoseLabel] | None, int]:
+    """detect_static's threshold sweep on >= window_samples finite samples: (the chosen labels, or
+    None when fewer than min_poses distinct orientations; the most distinct orientations found)."""
+    acc = session.accel_g
+    t = session.t_s
     stat = _moving_var_norm(acc, window_samples)
     if init_static_s is not None:
         sl = session.slice_time(t[0], t[0] + init_static_s)
@@ -119,15 +149,7 @@ def detect_static(
         score = float(cost(labels)) if cost is not None else -float(nd)
         if best is None or score < best[0]:
             best = (score, labels, nd)
-    if best is None:
-        cut = any(e.kind == "recovered" for e in session.events)
-        raise InputError(
-            f"found at most {max_found} distinct static orientations (need >= {min_poses} for an "
-            f"orientation-free fit): {_labelling_hint(session, max_found, min_poses, min_interval_s)}"
-            + ("; the file is truncated: any pose labels went with its end" if cut else ""),
-            where=where,
-        )
-    return best[1]
+    return (None if best is None else best[1]), max_found
 
 
 _TABLE_FACES = 6

@@ -253,7 +253,9 @@ class _HoldWindows:
         if self.n_ok == 0:  # no window of n > 2: no noise reference, no verdict
             return
         med = [median(self.spill.column(j, _quiet), self.n_ok) for j in (3, 4, 5)]
-        moving_verdict(self._per_hold(), quantum, where, ref=float(np.linalg.norm(np.array(med))))
+        refusal = moving_verdict(self._per_hold(), quantum, where, ref=float(np.linalg.norm(np.array(med))))
+        if refusal is not None:
+            raise refusal
 
     def close(self) -> None:
         self.spill.close()

@@ -1,6 +1,6 @@
 """Per-window statistics spilled to an unnamed temporary file, and exact order statistics over a
 spilled column in bounded memory (the motion checks' session medians: ``stream_segment`` for the
-observation pass, ``navigate.stream_motion`` for a static test).
+observation pass, ``motion.MotionCheck`` for a static test).
 
 Rows of a fixed number of float64 columns are appended as they are made (in the page cache, not
 held in the process) and read back in order a piece at a time. A median is found exactly by a

@@ -1,7 +1,11 @@
-"""Per-pass and per-window residuals of a multi-pose evaluation: what one mean per pose hides.
+"""The results of evaluating a calibration window by window (g): per labelled pose, pass and window
+(``PoseEvaluation``), or per detected static interval of a hand-held session (``HandheldEvaluation``).
 
-A pass is one visit of a pose (consecutive windows of the same pose; a pose visited while heating and
-again while cooling has two). For the window residuals r_w (g, per axis) with standard errors s_w:
+Labelled holds. Per window w: r_w = correct(theta, a'_w) - truth_g(up_w) (raw: a'_w - up_w), chi2 =
+sum (r_w / s_w)^2 against the window noise s_w, per pose the weighted mean and sem. The displacement
+at 60 s is per hold, extrapolated from the hold's mean residual as if it persisted from rest:
+d_k(60 s) = 1/2 mean_r_k (m/s^2) (60 s)^2. A pass is one visit of a pose (consecutive windows of the
+same pose; a pose visited while heating and again while cooling has two):
 
     pass mean     m_p = sum(r_w / s_w^2) / sum(1 / s_w^2),   sem_p = (sum 1 / s_w^2)^-1/2
     pass chi2/dof = sum_w,axes (r_w / s_w)^2 / (3 n_w)          (against the model's zero)
@@ -16,14 +20,22 @@ Window residuals are treated as independent (the window sigma is autocorrelation
 window, not across windows). The calibration's own uncertainty is not included: a long test session
 can flag a calibration whose temperature term is off by a few of its sigmas where it extrapolates
 beyond the calibration's temperature range (that is a real disagreement, not noise).
+
+Hand-held (no pose labels; imu_tk / ArduPilot): per window w of a detected interval (means a'_w, g;
+standard errors s_w), f_w = correct(theta, a'_w, drivers_w) (raw: a'_w), e_w = |f_w| - g_cal (the
+calibration's truth_g; raw: 1 g), sigma_w = |(f_w / |f_w|) * s_w|, chi2 = sum_w (e_w / sigma_w)^2,
+dof = number of windows; per interval the weighted mean e +- sem and chi2/dof. What the norm cannot
+judge without orientations (CANNOT_JUDGE) is said in one line, not guessed.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from accellog.calibrate.diagnosis.diagnose import NORM_BLIND
+from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable
 
 AXES = ("x", "y", "z")
@@ -230,3 +242,136 @@ def _temp(r: PassRow) -> str:
     if r.temp_min_degC is None:
         return f"{r.start_s:.0f}-{r.end_s:.0f} s"
     return f"{r.start_s:.0f}-{r.end_s:.0f} s, {r.temp_min_degC:.1f}-{r.temp_max_degC:.1f} degC"
+
+
+@dataclass
+class PoseEvaluation(JsonResult):
+    """Window-by-window residuals of a calibration on a multi-pose session (g)."""
+
+    label: str
+    session: str
+    pose_names: list[str]
+    mean_resid_g: np.ndarray  # (poses,3)
+    sem_g: np.ndarray  # (poses,3)
+    rms_g: float
+    chi2: float
+    dof: int
+    mps2_per_unit: float = float("nan")
+    """m/s^2 per unit of the evaluated output (calibration's, or g_local for the raw reading)."""
+    mean_resid_all_g: np.ndarray | None = None
+    """(3,) mean residual over every window of every hold (g)."""
+    at_s: float = 60.0
+    passes: list[PassRow] = field(default_factory=list)
+    """One row per visit of a pose (passes)."""
+    trends: list[TrendRow] = field(default_factory=list)
+    """Slopes of each pose's window residuals against temperature and time in the hold."""
+    flags: list[str] = field(default_factory=list)
+    """Poses whose passes disagree beyond noise or whose windows trend (sentences)."""
+    window_resid_g: np.ndarray | None = None
+    """(windows,3) residual of every window (g; for plots, not in to_dict)."""
+
+    @property
+    def disp_at_m(self) -> np.ndarray:
+        """(poses,3) m: per-hold displacement at at_s, 1/2 mean_r (m/s^2) at_s^2 (see module doc)."""
+        return 0.5 * self.mean_resid_g * self.mps2_per_unit * self.at_s**2
+
+    def to_dict(self) -> dict:
+        d60 = self.disp_at_m
+        worst = d60[np.argmax(np.abs(d60), axis=0), np.arange(3)] if d60.size else np.full(3, np.nan)
+        mean_all = self.mean_resid_all_g if self.mean_resid_all_g is not None else np.full(3, np.nan)
+        return {
+            "label": self.label,
+            "session": self.session,
+            "kind": "poses",
+            "poses": {
+                n: {
+                    "mean_residual_g": m.tolist(),
+                    "sem_g": s.tolist(),
+                    "mean_residual_mps2": (m * self.mps2_per_unit).tolist(),
+                    f"displacement_{self.at_s:g}s_m": d.tolist(),
+                }
+                for n, m, s, d in zip(self.pose_names, self.mean_resid_g, self.sem_g, d60, strict=True)
+            },
+            "rms_g": self.rms_g,
+            "rms_mps2": self.rms_g * self.mps2_per_unit,
+            "mean_residual_mps2": dict(zip(AXES, (mean_all * self.mps2_per_unit).tolist(), strict=True)),
+            "chi2": self.chi2,
+            "dof": self.dof,
+            "chi2_dof": self.chi2 / self.dof if self.dof else None,
+            "chi2_noise": self.chi2,
+            "chi2_noise_dof": self.chi2 / self.dof if self.dof else None,
+            "mps2_per_unit": self.mps2_per_unit,
+            f"displacement_{self.at_s:g}s_m": worst.tolist(),
+            "displacement_note": f"per hold, extrapolated from rest: 1/2 mean residual ({self.at_s:g} s)^2; "
+            "top level: the hold with the largest |d| per axis",
+            "passes": [p.to_dict() for p in self.passes],
+            "pass_disagreement": {
+                k: {"chi2": c, "dof": d, "p_value": p} for k, (c, d, p) in disagreements(self.passes).items()
+            },
+            "trends": [t.to_dict() for t in self.trends],
+            "flags": list(self.flags),
+        }
+
+
+CANNOT_JUDGE = (
+    "without orientations the gravity norm cannot judge: "
+    + "; ".join(f"{k} ({v})" for k, v in NORM_BLIND.items())
+    + "; nor a bias or scale error that leaves |f| unchanged in these orientations"
+)
+
+
+@dataclass
+class HandheldEvaluation(JsonResult):
+    """Gravity-norm residuals of one calibration (or the raw reading) per detected interval (g)."""
+
+    label: str
+    session: str
+    intervals: list[dict]
+    resid_g: np.ndarray
+    """(windows,) |f| - g per window."""
+    sigma_g: np.ndarray
+    interval_id: np.ndarray
+    mps2_per_unit: float
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def chi2(self) -> float:
+        return float(np.sum((self.resid_g / self.sigma_g) ** 2))
+
+    @property
+    def dof(self) -> int:
+        return int(self.resid_g.size)
+
+    def rows(self) -> list[dict]:
+        """Per interval: start, end, windows, mean norm residual +- sem (g), chi2/dof."""
+        out = []
+        for k, iv in enumerate(self.intervals):
+            m = self.interval_id == k
+            w = 1.0 / self.sigma_g[m] ** 2
+            out.append(
+                {
+                    **iv,
+                    "n_windows": int(m.sum()),
+                    "mean_norm_residual_g": float(np.sum(self.resid_g[m] * w) / np.sum(w)),
+                    "sem_g": float(1.0 / np.sqrt(np.sum(w))),
+                    "chi2_dof": float(np.mean((self.resid_g[m] / self.sigma_g[m]) ** 2)),
+                }
+            )
+        return out
+
+    def to_dict(self) -> dict:
+        return {
+            "label": self.label,
+            "session": self.session,
+            "kind": "handheld",
+            "residual": "|f| - g per window of the detected static intervals (g)",
+            "intervals": self.rows(),
+            "rms_g": float(np.sqrt(np.mean(self.resid_g**2))),
+            "rms_mps2": float(np.sqrt(np.mean(self.resid_g**2))) * self.mps2_per_unit,
+            "chi2": self.chi2,
+            "dof": self.dof,
+            "chi2_dof": self.chi2 / max(self.dof, 1),
+            "mps2_per_unit": self.mps2_per_unit,
+            "cannot_judge": CANNOT_JUDGE,
+            "notes": list(self.notes),
+        }

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from accellog.calibrate.observe.motion import MotionCheck
 from accellog.calibrate.observe.segment import moving_check, window_stats
 from accellog.calibrate.observe.window_spill import WindowSpill, kth_smallest, median
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel
-from accellog.navigate.stream_motion import MotionCheck
-from accellog.navigate.stream_sums import WindowCarry
+from accellog.core.timeseries import WindowCarry
 from accellog.store.collect import FAULT_AROUND, release_pages
 
 
