@@ -4,7 +4,7 @@ ArduPilot INS_TCAL1_*), consistent with the offsets and scales of accellog.prese
 accellog's bias polynomial about T_ref, in the driver-rotated axes R (accellog.present.export_frames):
 
     p_a(T) = g0 R (bT dT + bT2 dT^2)        (m/s^2),    dT = T - T_ref        (accelerometer)
-    p_g(T) = R (pi/180) b_T (T - T_ref,g)   (rad/s)                           (gyro)
+    p_g(T) = R (pi/180) (b_T dT + b_T2 dT^2) (rad/s),  dT = T - T_ref,g      (gyro)
 
 so that a = K_R (R r - o_R - p_a(T)) and w = R w_meas - gb_R - p_g(T) (gyro matrix dropped).
 
@@ -77,7 +77,7 @@ def thermal_model(cal: Calibration, R: np.ndarray) -> ThermalModel | None:
     g = cal.gyro
     gyr = np.zeros((3, 3))
     if g is not None:
-        gyr[0] = R @ np.deg2rad(np.nan_to_num(np.asarray(g.temp_bias_dps_per_degC, float)))
+        gyr[:2] = np.deg2rad(g.temp_poly_dps) @ R.T  # b_T, b_T2 per order, rotated
     if not (np.any(acc) or np.any(gyr)):
         return None
     span, observed = temperature_span(cal)

@@ -1,0 +1,127 @@
+"""A thermal calibration the autopilots load, judged on another temperature path (issue 43).
+
+One emulated chip whose errors PX4 and ArduPilot can both hold (per-axis bias and scale, a bias
+quadratic in temperature, accelerometer and gyro; no cross-axis, no temperature scale) is recorded
+through the real path on a freezer warm-up (5 -> 45 degC, six faces repeated) and on a cool-down of
+the same chip. `fit --add temp_bias --add temp_bias2` on the warm-up, `export --to px4|ardupilot`,
+and the cool-down's hold means run through each firmware's own equations (tests/support/firmware.py,
+written from the firmware sources) must come out at gravity within 0.5 mg (accel) and 0.02 deg/s
+(gyro at rest) RMS inside the fitted span, and at <= 0.25x what the same export leaves with its
+thermal terms off. Fitting the warm-up and the cool-down together gives one calibration of the
+chip; a second chip in the same fit is refused in one line.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from support.firmware import FIRMWARE, param_values
+
+from accellog.cli import main
+from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
+from accellog.flows.simulate import FREEZER, Scenario, simulate
+from accellog.store.source import open_source
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+ACCEL_BT2 = [2e-5, -1.2e-5, 1.6e-5]  # g/degC^2
+GYRO_BT2 = [0.002, -0.001, 0.0015]  # deg/s/degC^2
+ZERO33 = [[0.0] * 3] * 3
+
+
+def _scenario(seed: int, temperature: dict, chip_seed: int = 11) -> Scenario:
+    return Scenario(
+        protocol=",".join(["+z,-z,+x,-x,+y,-y"] * 4),
+        hold_s=20.0,
+        sample_rate_hz=200.0,
+        chip_seed=chip_seed,
+        seed=seed,
+        set={"cross_axis": ZERO33, "temp_scale_per_degC": [0.0] * 3, "temp_bias2_g_per_degC2": ACCEL_BT2},
+        gyro_set={"cross_axis": ZERO33, "temp_bias2_dps_per_degC2": GYRO_BT2},
+        temperature=temperature,
+    )
+
+
+COOL = {"kind": "warmup", "T_start": 45.0, "T_end": 8.0, "tau_s": 200.0}
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    d = tmp_path_factory.mktemp("thermal")
+    warm, cool, other = d / "warm.mcap", d / "cool.mcap", d / "other.mcap"
+    simulate(_scenario(1, dict(FREEZER, tau_s=200.0)), warm)
+    simulate(_scenario(2, COOL), cool)
+    simulate(_scenario(3, COOL, chip_seed=12), other)
+    return d, warm, cool, other
+
+
+def _run(capsys, *args):
+    code = main([str(a) for a in args])
+    cap = capsys.readouterr()
+    return code, cap.out + cap.err
+
+
+def _held_out(cool, lo: float, hi: float):
+    """The cool-down's hold means inside lo..hi degC: accel (m/s^2), gyro (rad/s), temperature,
+    and gravity's reading at rest (m/s^2, along the hold's up vector)."""
+    s = open_source(cool).whole()
+    rows = []
+    for p in s.poses:
+        m = (s.t_s >= p.start_s + 1.0) & (s.t_s <= p.end_s - 1.0)
+        rows.append((s.accel_g[m].mean(0), s.gyro_dps[m].mean(0), s.temp_degC[m].mean(), p.up_sensor))
+    a, w, T, up = (np.array(x, float) for x in zip(*rows, strict=True))
+    keep = (lo <= T) & (hi >= T)
+    assert keep.sum() >= 18  # most of the cool-down is inside the warm-up's span
+    g_local = s.meta.local_gravity_mps2
+    return a[keep] * G0, np.deg2rad(w[keep]), T[keep], up[keep] * g_local
+
+
+@pytest.mark.parametrize("target", ["px4", "ardupilot"])
+def test_export_through_the_firmware_transfers_to_the_cool_down(sessions, target, capsys):
+    d, warm, cool, _ = sessions
+    cal, params = d / f"cal_{target}.json", d / f"{target}.params"
+    code, out = _run(capsys, "fit", warm, "--add", "temp_bias", "--add", "temp_bias2", "-o", cal, "--force")
+    assert code == 0, out
+    code, out = _run(capsys, "export", cal, "--to", target, "--device-id", 1, "-o", params, "--force")
+    assert code == 0, out
+    p = param_values(params.read_text(), target)
+    span = json.loads(cal.read_text())["temperature"]
+    lo, hi = span["min_degC"], span["max_degC"]
+    a, w, T, truth = _held_out(cool, lo, hi)
+    thermal = ("TC_A0_X", "TC_G0_X") if target == "px4" else ("INS_TCAL1_ACC", "INS_TCAL1_GYR")
+    off = {k: (np.float32(0.0) if k.startswith(thermal) else v) for k, v in p.items()}
+
+    def rms_mg(params):
+        return float(np.sqrt(np.mean((FIRMWARE[target](a, T, params, "accel") - truth) ** 2)) / G0 * 1e3)
+
+    def rms_dps(params):
+        return float(np.rad2deg(np.sqrt(np.mean(FIRMWARE[target](w, T, params, "gyro") ** 2))))
+
+    assert rms_mg(p) <= 0.5 and rms_mg(p) <= 0.25 * rms_mg(off), (rms_mg(p), rms_mg(off))
+    assert rms_dps(p) <= 0.02 and rms_dps(p) <= 0.25 * rms_dps(off), (rms_dps(p), rms_dps(off))
+
+
+def test_warm_up_and_cool_down_fit_as_one_calibration(sessions, capsys):
+    d, warm, cool, _ = sessions
+    cal = d / "joint.json"
+    code, out = _run(
+        capsys, "fit", warm, cool, "--add", "temp_bias", "--add", "temp_bias2", "-o", cal, "--force"
+    )
+    assert code == 0, out
+    c = json.loads(cal.read_text())
+    assert [s["path"].rsplit("/", 1)[-1] for s in c["sources"]] == ["warm.mcap", "cool.mcap"]
+    g = c["gyro"]
+    assert g["effects"][:3] == ["bias", "temp_bias", "temp_bias2"]
+    b2, s2 = np.array(g["temp_bias2_dps_per_degC2"]), np.array(g["temp_bias2_sigma_dps_per_degC2"])
+    assert np.all(np.abs(b2 - GYRO_BT2) <= 3 * s2 + 1e-12), (b2, s2)  # the emulator's truth within 3 sigma
+    assert g["n_holds"] == 48  # the holds of both sessions
+
+
+def test_two_chips_in_one_fit_are_refused(sessions, capsys):
+    d, warm, _, other = sessions
+    code, out = _run(capsys, "fit", warm, other, "-o", d / "x.json", "--force")
+    assert code == 2
+    assert "another device" in out and "EMU-11" in out and "Traceback" not in out
+    assert not (d / "x.json").exists()
