@@ -35,7 +35,7 @@ import numpy as np
 
 from accellog.calibrate.calfile.calibration import Calibration
 from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
-from accellog.present.export_frames import bias_polynomial_g, temperature_span
+from accellog.present.export_frames import bias_polynomial_g, linear_form, temperature_span
 
 HELD_TERMS = ("temp_bias", "temp_bias2")
 """Library terms both autopilots hold exactly (a bias polynomial in temperature, order <= 3)."""
@@ -168,3 +168,20 @@ def thermal_notes(tm: ThermalModel, target: str) -> list[str]:
     else:
         notes.append("CAL_ACC0_*OFF / CAL_GYRO0_*OFF hold the offsets at TC_A0_TREF / TC_G0_TREF (X0 = 0)")
     return notes
+
+
+def held_correction(cal: Calibration, reading_g: np.ndarray, temp_degC: np.ndarray, gyro_dps=None):
+    """What an autopilot with this calibration's export computes (chip axes, ROTATION_NONE): accel
+    diag(K) (r - o - p_a(T')) (m/s^2) and gyro w - gb - p_g(T') (deg/s, or None), T' = T clamped to
+    the exported span (module doc: the firmware equations, tests/support/firmware.py checks them)."""
+    K, o = linear_form(cal)
+    tm = thermal_model(cal, np.eye(3))
+    p_a, p_g = 0.0, 0.0
+    if tm is not None:
+        Tc = np.clip(np.asarray(temp_degC, float), *tm.span_degC)
+        p_a = poly_eval(tm.accel_mps2, Tc - tm.accel_t_ref_degC)
+        p_g = np.rad2deg(poly_eval(tm.gyro_rps, Tc - tm.gyro_t_ref_degC))
+    acc = np.diag(K) * (G0 * np.asarray(reading_g, float) - o - p_a)
+    if gyro_dps is None or cal.gyro is None:
+        return acc, None
+    return acc, np.asarray(gyro_dps, float) - np.asarray(cal.gyro.bias_dps, float) - p_g

@@ -84,7 +84,9 @@ def test_export_through_the_firmware_transfers_to_the_cool_down(sessions, target
     cal, params = d / f"cal_{target}.json", d / f"{target}.params"
     code, out = _run(capsys, "fit", warm, "--add", "temp_bias", "--add", "temp_bias2", "-o", cal, "--force")
     assert code == 0, out
-    code, out = _run(capsys, "export", cal, "--to", target, "--device-id", 1, "-o", params, "--force")
+    code, out = _run(
+        capsys, "export", cal, "--to", target, "--device-id", 1, "--heldout", cool, "-o", params, "--force"
+    )
     assert code == 0, out
     p = param_values(params.read_text(), target)
     span = json.loads(cal.read_text())["temperature"]
@@ -101,6 +103,14 @@ def test_export_through_the_firmware_transfers_to_the_cool_down(sessions, target
 
     assert rms_mg(p) <= 0.5 and rms_mg(p) <= 0.25 * rms_mg(off), (rms_mg(p), rms_mg(off))
     assert rms_dps(p) <= 0.02 and rms_dps(p) <= 0.25 * rms_dps(off), (rms_dps(p), rms_dps(off))
+    # the verdict in the header is what the firmware equations give on the same holds
+    line = next(
+        ln for ln in params.read_text().splitlines() if ln.startswith("# held out on ") and "cool.mcap" in ln
+    )
+    said = [float(x) for x in line.split(f"{target} leaves ")[1].split(" (x/y/z)")[0].split("/")]
+    assert f"{len(T)} holds in" in line and "held out, gyro at rest" in params.read_text()
+    inside = np.sqrt(np.mean(((FIRMWARE[target](a, T, p, "accel") - truth) / G0 * 1e3) ** 2, axis=0))
+    assert np.allclose(said, inside, rtol=0.1), (said, inside)  # hold means trimmed alike, not equal
 
 
 def test_warm_up_and_cool_down_fit_as_one_calibration(sessions, capsys):
@@ -117,6 +127,24 @@ def test_warm_up_and_cool_down_fit_as_one_calibration(sessions, capsys):
     b2, s2 = np.array(g["temp_bias2_dps_per_degC2"]), np.array(g["temp_bias2_sigma_dps_per_degC2"])
     assert np.all(np.abs(b2 - GYRO_BT2) <= 3 * s2 + 1e-12), (b2, s2)  # the emulator's truth within 3 sigma
     assert g["n_holds"] == 48  # the holds of both sessions
+
+
+def test_heldout_needs_an_autopilot_target_and_labelled_holds(sessions, capsys, tmp_path):
+    d, warm, cool, _ = sessions
+    cal = d / "cal_px4.json"
+    if not cal.exists():
+        assert _run(capsys, "fit", warm, "--add", "temp_bias", "-o", cal)[0] == 0
+    code, out = _run(capsys, "export", cal, "--to", "ros", "--heldout", cool)
+    assert code == 2 and "--heldout judges the px4 or ardupilot export" in out and "Traceback" not in out
+    s = open_source(cool).whole()
+    from dataclasses import replace
+
+    from accellog.store.writer import write_session
+
+    bare = write_session(tmp_path / "bare.mcap", replace(s, poses=[]))
+    code, out = _run(capsys, "export", cal, "--to", "px4", "--heldout", bare, "-o", tmp_path / "p.params")
+    assert code == 2 and "needs a session with labelled holds" in out
+    assert not (tmp_path / "p.params").exists()
 
 
 def test_two_chips_in_one_fit_are_refused(sessions, capsys):

@@ -33,6 +33,7 @@ from accellog.calibrate.model.compose import build_model
 from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
 from accellog.present.export_frames import directions_26, rotation
 from accellog.present.exports import export_calibration
+from accellog.present.thermal_params import held_correction
 
 SPAN = (5.0, 45.0)
 
@@ -96,6 +97,22 @@ def test_firmware_equations_reproduce_the_calibration(target, t_ref, rot):
     assert np.max(np.abs(got_a - want_a)) / G0 < 1e-6
     assert np.rad2deg(np.max(np.abs(got_g - want_g))) < 1e-5
     assert not any("temp_bias" in x or "temperature bias" in x for x in ex.cannot_hold), ex.cannot_hold
+
+
+@pytest.mark.parametrize("target", ["px4", "ardupilot"])
+@pytest.mark.parametrize("gyro_quadratic", [False, True])
+def test_held_correction_is_what_the_firmware_computes(target, gyro_quadratic):
+    """thermal_params.held_correction (the `export --heldout` verdict's correction) against each
+    firmware's equations on the same readings, inside and outside the span (chip axes)."""
+    cal = _cal(25.0)
+    if gyro_quadratic:
+        cal.gyro.temp_bias2_dps_per_degC2 = np.array([2e-3, -1e-3, 1.5e-3])
+    p = param_values(export_calibration(cal, target, device_id=1).text, target)
+    T_grid = np.concatenate([np.linspace(*SPAN, 21), [0.0, 60.0]])
+    T, raw_a, _, raw_g, _ = _readings(cal, np.eye(3), T_grid)
+    acc, gyr = held_correction(cal, raw_a / G0, T, np.rad2deg(raw_g))
+    assert np.max(np.abs(acc - FIRMWARE[target](raw_a, T, p, "accel"))) / G0 < 1e-6
+    assert np.max(np.abs(gyr - np.rad2deg(FIRMWARE[target](raw_g, T, p, "gyro")))) < 1e-5
 
 
 @pytest.mark.parametrize("target", ["px4", "ardupilot"])
