@@ -56,6 +56,12 @@ def export_cmd(
             "(a cool-down, another day): what the autopilot will leave on it, per axis, in the header.",
         ),
     ] = None,
+    rrd: Annotated[
+        Path | None,
+        typer.Option(
+            "--rrd", help="With --heldout: a Rerun recording of the held-out residual against temperature."
+        ),
+    ] = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Values, units and what the target cannot hold.")
     ] = False,
@@ -76,27 +82,33 @@ def export_cmd(
     from accellog.present.exports import export_calibration
     from accellog.store.atomic import check_outputs, write_text_atomic
 
-    check_outputs([output], [cal, noise_from, heldout])
+    check_outputs([output, rrd], [cal, noise_from, heldout])
     if heldout is not None and to.value not in ("px4", "ardupilot"):
         raise InputError(f"--heldout judges the px4 or ardupilot export, not --to {to.value}")
+    if rrd is not None and heldout is None:
+        raise InputError("--rrd draws the --heldout verdict: give --heldout S.mcap")
 
     c = load_calibration(cal, effects_file)
     if noise_from is not None:
         noise = NoiseCharacterisation.from_model(characterise_noise(noise_from))
     else:
         noise = NoiseCharacterisation.from_section(c.noise) if c.noise else None
-    verdict = []
+    verdict, judged = [], None
     if heldout is not None:
         from accellog.flows.export_verdict import export_verdict
 
-        verdict = export_verdict(c, to.value, heldout).lines()
+        judged = export_verdict(c, to.value, heldout)
+        verdict = judged.lines()
         for line in verdict:
             note(line)
+
     ex = export_calibration(
         c, to.value, noise=noise, topic=topic, rotation=rotation, device_id=device_id, verdict=verdict
     )
     if output is not None:
         write_text_atomic(output, ex.text, inputs=(cal, noise_from, heldout))
+    if rrd is not None and judged is not None:
+        judged.write_rrd(rrd)
     if as_json:
         typer.echo(json.dumps({k: v for k, v in ex.to_dict().items() if k != "text"}, default=float))
         return

@@ -14,7 +14,7 @@ correction flat there).
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -43,9 +43,33 @@ class ExportVerdict(JsonResult):
     outside_rms_mg: list[float] | None
     export_gyro_rms_dps: list[float] | None
     fit_gyro_rms_dps: list[float] | None
+    holds: dict = field(default_factory=dict, repr=False)
+    """Per hold (not in the JSON): temp_degC (n,), after_mg (n,3) the residual with the export's
+    terms, thermal_mg (n,3) what its thermal terms subtract (scaled), for the picture (write_rrd)."""
 
     def to_dict(self) -> dict:
-        return dict(self.__dict__)
+        return {k: v for k, v in self.__dict__.items() if k != "holds"}
+
+    def write_rrd(self, path: str | os.PathLike) -> None:
+        """The picture: per axis, the held-out hold residual against temperature without the export's
+        thermal terms (what they must explain) with what they subtract drawn over it, and after
+        them; the exported span marked (present.residual_views)."""
+        from accellog.present.residual_views import Panel, log_panels
+        from accellog.present.rrd.recording import RunRecording
+
+        h = self.holds
+        heat = np.ones(len(h["temp_degC"]), bool)
+        before, after = f"{self.target} without its thermal terms", f"{self.target} export"
+        items = [
+            Panel(
+                "temp_degC", before, h["temp_degC"], h["after_mg"] + h["thermal_mg"], heat, h["thermal_mg"]
+            ),
+            Panel("temp_degC", after, h["temp_degC"], h["after_mg"], heat),
+        ]
+        lo, hi = self.span_degC
+        with RunRecording(f"save:{path}") as rec:
+            marks = [(lo, f"TMIN {lo:.3g} degC"), (hi, f"TMAX {hi:.3g} degC")]
+            log_panels(rec, items, main="temp_degC", marks=marks, dots="what the thermal terms subtract")
 
     def lines(self) -> list[str]:
         """What the header and the terminal say, one line each."""
@@ -89,6 +113,7 @@ def export_verdict(cal: Calibration, target: str, heldout: str | os.PathLike) ->
     drivers = {d: getattr(obs, d) for d in cal.model.required_drivers}
     temp_w = np.asarray(obs.temp_degC, float)
     acc_w, _ = held_correction(cal, obs.meas_g, temp_w)
+    thermal_w = held_correction(cal, obs.meas_g, np.full_like(temp_w, cal.model.t_ref_degC))[0] - acc_w
     truth_w = obs.up_sensor * src.meta.local_gravity_mps2
     acc, full = per_hold(acc_w - truth_w), per_hold(cal.correct_mps2(obs.meas_g, drivers) - truth_w)
     temp = per_hold(temp_w)
@@ -100,7 +125,9 @@ def export_verdict(cal: Calibration, target: str, heldout: str | os.PathLike) ->
             for k in ids
         ]
         gyro = np.array([session.gyro_dps[m].mean(0) for m in cut])
-        temp_g = np.array([session.temp_degC[m].mean() for m in cut]) if session.temp_degC is not None else temp
+        temp_g = (
+            np.array([session.temp_degC[m].mean() for m in cut]) if session.temp_degC is not None else temp
+        )
     (lo, hi), _ = temperature_span(cal)
     inside = (temp >= lo) & (temp <= hi)
     err, err_fit = acc / G0 * 1e3, full / G0 * 1e3
@@ -121,4 +148,5 @@ def export_verdict(cal: Calibration, target: str, heldout: str | os.PathLike) ->
         outside_rms_mg=_rms(err[~inside]) if (~inside).any() else None,
         export_gyro_rms_dps=g_exp,
         fit_gyro_rms_dps=g_fit,
+        holds={"temp_degC": temp, "after_mg": err, "thermal_mg": per_hold(thermal_w) / G0 * 1e3},
     )

@@ -3,7 +3,7 @@
 One emulated chip whose errors PX4 and ArduPilot can both hold (per-axis bias and scale, a bias
 quadratic in temperature, accelerometer and gyro; no cross-axis, no temperature scale) is recorded
 through the real path on a freezer warm-up (5 -> 45 degC, six faces repeated) and on a cool-down of
-the same chip. `fit --add temp_bias --add temp_bias2` on the warm-up, `export --to px4|ardupilot`,
+the same chip (examples/freezer_warmup.toml, freezer_cooldown.toml: the README's flow). `fit --add temp_bias --add temp_bias2` on the warm-up, `export --to px4|ardupilot`,
 and the cool-down's hold means run through each firmware's own equations (tests/support/firmware.py,
 written from the firmware sources) must come out at gravity within 0.5 mg (accel) and 0.02 deg/s
 (gyro at rest) RMS inside the fitted span, and at <= 0.25x what the same export leaves with its
@@ -13,7 +13,9 @@ chip; a second chip in the same fit is refused in one line.
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,39 +23,22 @@ from support.firmware import FIRMWARE, param_values
 
 from accellog.cli import main
 from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
-from accellog.flows.simulate import FREEZER, Scenario, simulate
+from accellog.flows.simulate import Scenario, simulate
 from accellog.store.source import open_source
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
-ACCEL_BT2 = [2e-5, -1.2e-5, 1.6e-5]  # g/degC^2
-GYRO_BT2 = [0.002, -0.001, 0.0015]  # deg/s/degC^2
-ZERO33 = [[0.0] * 3] * 3
-
-
-def _scenario(seed: int, temperature: dict, chip_seed: int = 11) -> Scenario:
-    return Scenario(
-        protocol=",".join(["+z,-z,+x,-x,+y,-y"] * 4),
-        hold_s=20.0,
-        sample_rate_hz=200.0,
-        chip_seed=chip_seed,
-        seed=seed,
-        set={"cross_axis": ZERO33, "temp_scale_per_degC": [0.0] * 3, "temp_bias2_g_per_degC2": ACCEL_BT2},
-        gyro_set={"cross_axis": ZERO33, "temp_bias2_dps_per_degC2": GYRO_BT2},
-        temperature=temperature,
-    )
-
-
-COOL = {"kind": "warmup", "T_start": 45.0, "T_end": 8.0, "tau_s": 200.0}
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+GYRO_BT2 = [0.002, -0.001, 0.0015]  # deg/s/degC^2, examples/freezer_warmup.toml's [gyro_set]
 
 
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory):
     d = tmp_path_factory.mktemp("thermal")
     warm, cool, other = d / "warm.mcap", d / "cool.mcap", d / "other.mcap"
-    simulate(_scenario(1, dict(FREEZER, tau_s=200.0)), warm)
-    simulate(_scenario(2, COOL), cool)
-    simulate(_scenario(3, COOL, chip_seed=12), other)
+    simulate(Scenario.from_toml(EXAMPLES / "freezer_warmup.toml"), warm)
+    simulate(Scenario.from_toml(EXAMPLES / "freezer_cooldown.toml"), cool)
+    simulate(dataclasses.replace(Scenario.from_toml(EXAMPLES / "freezer_cooldown.toml"), chip_seed=12), other)
     return d, warm, cool, other
 
 
@@ -127,6 +112,27 @@ def test_warm_up_and_cool_down_fit_as_one_calibration(sessions, capsys):
     b2, s2 = np.array(g["temp_bias2_dps_per_degC2"]), np.array(g["temp_bias2_sigma_dps_per_degC2"])
     assert np.all(np.abs(b2 - GYRO_BT2) <= 3 * s2 + 1e-12), (b2, s2)  # the emulator's truth within 3 sigma
     assert g["n_holds"] == 48  # the holds of both sessions
+
+
+def test_heldout_picture_shows_the_residual_before_and_after_the_thermal_terms(sessions, capsys):
+    """export --heldout --rrd: per axis the held-out holds against temperature without the thermal
+    terms (with what they subtract drawn over them) and after them, the exported span marked."""
+    from rrd_readback import load_rrd
+
+    d, warm, cool, _ = sessions
+    cal, rrd = d / "pic.json", d / "verdict.rrd"
+    assert _run(capsys, "fit", warm, "--add", "temp_bias", "--add", "temp_bias2", "-o", cal)[0] == 0
+    args = ["export", cal, "--to", "px4", "--heldout", cool, "--rrd", rrd, "-o", d / "pic.params"]
+    assert _run(capsys, *args)[0] == 0
+    r = load_rrd(rrd)
+    base = "/residual_vs/temp_degC"
+    for a in "xyz":
+        before = np.array(r.static(f"{base}/px4_without_its_thermal_terms/{a}", "Points2D:positions"))
+        after = np.array(r.static(f"{base}/px4_export/{a}", "Points2D:positions"))
+        assert before.shape == after.shape and before.shape[0] >= 18
+        assert np.ptp(before[:, 1]) > 5 * np.ptp(after[:, 1])  # the thermal terms flatten it
+        labels = r.static(f"{base}/frame_{a}/mark_labels", "Points2D:labels")
+        assert any("TMIN" in str(x) for x in labels) and any("TMAX" in str(x) for x in labels)
 
 
 def test_heldout_needs_an_autopilot_target_and_labelled_holds(sessions, capsys, tmp_path):
