@@ -238,10 +238,12 @@ def _first_pass(src: Source) -> FirstPass | None:
         return None
 
 
-def _gyro(src: Source, fit, first: FirstPass | None) -> GyroCalibration | None:
+def _gyro(src: Source, fit, first: FirstPass | None, still_ref=None) -> GyroCalibration | None:
     """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
     session's holds and the moves between them (one pass more; first: the first pass already fed),
-    stored next to the accelerometer's; None when the session has no gyro or < 2 holds."""
+    stored next to the accelerometer's; None when the session has no gyro or < 2 holds. Rotations
+    that do not determine the matrix leave the bias alone (said). still_ref: the prior's gyro (turns
+    among the stops left out: gyro.stream.still_windows)."""
     if len(src.poses) < 2:
         return None
     fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
@@ -249,11 +251,19 @@ def _gyro(src: Source, fit, first: FirstPass | None) -> GyroCalibration | None:
     fs, order = gyro_full_scale_dps(src.meta), _gyro_temp_order(fit)
     try:  # in Source.run: a session not read yet (observations given) has its stamps checked here
         return src.run(
-            lambda s: calibrate_blocks(s, s.poses, full_scale_dps=fs, first=first, temp_order=order)
+            lambda s: calibrate_blocks(
+                s, s.poses, full_scale_dps=fs, first=first, temp_order=order, still_ref=still_ref
+            )
         )
-    except ModelError as exc:  # e.g. a scale fit that did not converge: said, not silent
-        note(f"gyro not calibrated: {exc}")
-        return None
+    except ModelError as exc:  # e.g. rotations that do not determine M: said, and the bias kept
+        try:
+            cal = src.run(
+                lambda s: calibrate_blocks(s, s.poses, rotations=False, temp_order=order, still_ref=still_ref)
+            )
+        except AccellogError:
+            cal = None
+        note(f"gyro scale/misalignment not calibrated: {exc}" + ("; the bias is" if cal else ""))
+        return cal
     except AccellogError:
         return None
 
@@ -376,7 +386,7 @@ def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, a
     cal = _calibration(fit, obs, found[0][0], gravity, lg, found[0][1] if len(found) == 1 else None)
     cal.sources = [_provenance(src, None) for src, _ in found]
     if gyro:
-        cal.gyro = _field_gyro([src for src, _ in found], fit)
+        cal.gyro = _field_gyro([src for src, _ in found], fit, None if prior is None else prior.gyro)
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
 
@@ -435,18 +445,19 @@ def _one_device(srcs: Sequence[Source], prior: Calibration | None) -> None:
         )
 
 
-def _field_gyro(srcs: Sequence[Source], fit) -> GyroCalibration | None:
+def _field_gyro(srcs: Sequence[Source], fit, still_ref=None) -> GyroCalibration | None:
     """The gyro calibration of several sessions of one sensor: the bias and its temperature curve
     from the holds (stops) of all of them (gyro.stream.pooled_bias), the matrix from the rotations
-    of the session with the most holds; one session: _gyro."""
+    of the session with the most holds; one session: _gyro. still_ref: the prior's gyro (_gyro)."""
     if len(srcs) == 1:
-        return _gyro(srcs[0], fit, None)
+        return _gyro(srcs[0], fit, None, still_ref)
     fit.release_jacobian()
     try:
         wins = [w for src in srcs if len(src.poses) and (w := src.run(lambda s: bias_windows(s, s.poses)))]
         if not wins:
             return None
-        base = pooled_bias(wins, sum(len(s.poses) for s in srcs), temp_order=_gyro_temp_order(fit))
+        n = sum(len(s.poses) for s in srcs)
+        base = pooled_bias(wins, n, temp_order=_gyro_temp_order(fit), still_ref=still_ref)
         best = max(srcs, key=lambda s: len(s.poses))
         if len(best.poses) < 2:
             return base
