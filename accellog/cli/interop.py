@@ -9,6 +9,8 @@ import typer
 from rich.console import Console
 
 from accellog.cli.app import EffectsOpt, ForceOpt, app
+from accellog.core.errors import InputError
+from accellog.core.notices import note
 from accellog.present.export_targets import TARGETS
 
 Target = enum.Enum("Target", {t: t for t in TARGETS}, type=str)
@@ -46,6 +48,20 @@ def export_cmd(
             "INS_ACC_ID); default: computed from the calibration's I2C bus and address when known.",
         ),
     ] = None,
+    heldout: Annotated[
+        Path | None,
+        typer.Option(
+            "--heldout",
+            help="px4/ardupilot: a labelled session of the same sensor the calibration was not fitted on "
+            "(a cool-down, another day): what the autopilot will leave on it, per axis, in the header.",
+        ),
+    ] = None,
+    rrd: Annotated[
+        Path | None,
+        typer.Option(
+            "--rrd", help="With --heldout: a Rerun recording of the held-out residual against temperature."
+        ),
+    ] = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Values, units and what the target cannot hold.")
     ] = False,
@@ -57,7 +73,8 @@ def export_cmd(
 
     Examples: `accellog export cal.json --to ros -o imu_calib.yaml` (imu_calib's SM/bias);
     `accellog export cal.json --to ardupilot --rotation ROTATION_YAW_270 -o cal.parm`;
-    `accellog export cal.json --to kalibr --noise-from still.mcap -o imu.yaml`.
+    `accellog export cal.json --to kalibr --noise-from still.mcap -o imu.yaml`;
+    `accellog export cal.json --to px4 --heldout cooldown.mcap -o cal.params` (judged on another session).
     """
     from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.calibrate.noise.imu_noise import NoiseCharacterisation
@@ -65,16 +82,33 @@ def export_cmd(
     from accellog.present.exports import export_calibration
     from accellog.store.atomic import check_outputs, write_text_atomic
 
-    check_outputs([output], [cal, noise_from])
+    check_outputs([output, rrd], [cal, noise_from, heldout])
+    if heldout is not None and to.value not in ("px4", "ardupilot"):
+        raise InputError(f"--heldout judges the px4 or ardupilot export, not --to {to.value}")
+    if rrd is not None and heldout is None:
+        raise InputError("--rrd draws the --heldout verdict: give --heldout S.mcap")
 
     c = load_calibration(cal, effects_file)
     if noise_from is not None:
         noise = NoiseCharacterisation.from_model(characterise_noise(noise_from))
     else:
         noise = NoiseCharacterisation.from_section(c.noise) if c.noise else None
-    ex = export_calibration(c, to.value, noise=noise, topic=topic, rotation=rotation, device_id=device_id)
+    verdict, judged = [], None
+    if heldout is not None:
+        from accellog.flows.export_verdict import export_verdict
+
+        judged = export_verdict(c, to.value, heldout)
+        verdict = judged.lines()
+        for line in verdict:
+            note(line)
+
+    ex = export_calibration(
+        c, to.value, noise=noise, topic=topic, rotation=rotation, device_id=device_id, verdict=verdict
+    )
     if output is not None:
-        write_text_atomic(output, ex.text, inputs=(cal, noise_from))
+        write_text_atomic(output, ex.text, inputs=(cal, noise_from, heldout))
+    if rrd is not None and judged is not None:
+        judged.write_rrd(rrd)
     if as_json:
         typer.echo(json.dumps({k: v for k, v in ex.to_dict().items() if k != "text"}, default=float))
         return

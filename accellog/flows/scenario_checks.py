@@ -35,7 +35,7 @@ def finite_numbers(value: Any) -> bool:
 _FLOAT_KEYS = {"hold_s", "move_s", "sample_rate_hz", "local_gravity_mps2", "label_margin_s"}
 _INT_KEYS = {"accel_range_g", "gyro_range_dps", "chip_seed", "seed"}
 _STR_KEYS = {"protocol", "errors", "gyro_errors", "motion", "robot_path"}
-_TABLE_KEYS = {"set", "temperature", "magnetometer", "faults"}
+_TABLE_KEYS = {"set", "gyro_set", "temperature", "magnetometer", "faults"}
 
 
 def check_type(key: str, value: Any, where: str) -> None:

@@ -20,6 +20,8 @@ local_gravity_mps2 = 9.80665
 fixture_tilt_deg = [0.0, 0.0]
 [set]                       # overrides of AccelErrors fields, e.g.
 temp_bias_g_per_degC = [0.001, -0.0005, 0.0008]
+[gyro_set]                  # overrides of GyroErrors fields, e.g.
+temp_bias2_dps_per_degC2 = [0.002, -0.001, 0.0015]
 [faults]                    # all off by default (accellog.acquire.emulator.faults.FaultPlan):
 i2c_error_rate = 0.0        #   probability per transaction / per FIFO read (0..1)
 fifo_glitch_rate = 0.0
@@ -83,6 +85,8 @@ from accellog.store.atomic import AtomicOutput, check_output
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
 _SMPLRT_DIV_BASE_HZ = 1000.0
+FREEZER = {"kind": "warmup", "T_start": 5.0, "T_end": 45.0, "tau_s": 300.0}
+"""--temperature freezer: the die warms from 5 to 45 degC (time constant 300 s): a thermal calibration's span."""
 
 
 @dataclass
@@ -100,6 +104,8 @@ class Scenario:
     errors: str = "datasheet"
     set: dict[str, Any] = field(default_factory=dict)
     gyro_errors: str = "datasheet"
+    gyro_set: dict[str, Any] = field(default_factory=dict)
+    """Overrides of GyroErrors fields (TOML: the [gyro_set] table), e.g. temp_bias2_dps_per_degC2."""
     temperature: dict[str, Any] = field(default_factory=lambda: {"kind": "constant", "T": 25.0})
     local_gravity_mps2: float = STANDARD_GRAVITY_MPS2
     fixture_tilt_deg: tuple[float, float] = (0.0, 0.0)
@@ -262,25 +268,11 @@ def build_sensor_model(sc: Scenario):
         )
     accel = AccelErrors.datasheet(sc.chip_seed) if sc.errors == "datasheet" else AccelErrors.perfect()
     if sc.set:
-        known = {f.name for f in dataclasses.fields(accel)}
-        bad = sorted(set(sc.set) - known)
-        if bad:
-            raise InputError(f"unknown accelerometer error field(s) {bad}; known: {sorted(known)}")
-        values = {}
-        for k, v in sc.set.items():
-            try:
-                arr = np.asarray(v, float)
-            except (TypeError, ValueError):
-                raise InputError(f"error field {k!r}: {v!r} is not a number or a list of numbers") from None
-            default = np.asarray(getattr(accel, k), float)
-            if arr.shape != default.shape and arr.ndim != 0:
-                raise InputError(
-                    f"{k} must be {default.size} numbers (shape {default.shape}), got shape {arr.shape}"
-                )
-            values[k] = float(arr) if default.ndim == 0 else np.broadcast_to(arr, default.shape).copy()
-        accel = dataclasses.replace(accel, **values)
+        accel = _overridden(accel, sc.set, "accelerometer")
         check_accel_errors(accel)
     gyro = GyroErrors.datasheet(sc.chip_seed) if sc.gyro_errors == "datasheet" else GyroErrors.perfect()
+    if sc.gyro_set:
+        gyro = _overridden(gyro, sc.gyro_set, "gyro")
     temperature = temperature_path(sc.temperature)
     known_mag = {"field_uT", "hard_iron_uT", "soft_iron", "noise_uT"}
     if set(sc.magnetometer) - known_mag:
@@ -305,6 +297,27 @@ def build_sensor_model(sc: Scenario):
         **mag,
     )
     return model, motion
+
+
+def _overridden(errors, values: Mapping[str, Any], what: str):
+    """errors (AccelErrors | GyroErrors) with the scenario's [set] / [gyro_set] fields replaced (checked)."""
+    known = {f.name for f in dataclasses.fields(errors)}
+    bad = sorted(set(values) - known)
+    if bad:
+        raise InputError(f"unknown {what} error field(s) {bad}; known: {sorted(known)}")
+    out = {}
+    for k, v in values.items():
+        try:
+            arr = np.asarray(v, float)
+        except (TypeError, ValueError):
+            raise InputError(f"error field {k!r}: {v!r} is not a number or a list of numbers") from None
+        default = np.asarray(getattr(errors, k), float)
+        if arr.shape != default.shape and arr.ndim != 0:
+            raise InputError(
+                f"{k} must be {default.size} numbers (shape {default.shape}), got shape {arr.shape}"
+            )
+        out[k] = float(arr) if default.ndim == 0 else np.broadcast_to(arr, default.shape).copy()
+    return dataclasses.replace(errors, **out)
 
 
 def temperature_path(spec: dict[str, Any]):
@@ -346,7 +359,8 @@ def simulate(
     progress(done_s, total_s): called after every FIFO batch with the simulated time so far.
 
     truth_step_s: spacing of the stored ground truth (s); it is for evaluation only. serial: the
-    device's user serial (identity); start_time_unix_ns: the session's wall-clock start (a
+    device's user serial (identity; default EMU-<chip_seed>: the chip seed draws the chip, so two
+    seeds are two devices and fitting them together is refused); start_time_unix_ns: the session's wall-clock start (a
     simulated date; default: the writer's clock). An existing ``out`` is refused unless
     force=True; the file appears (atomically) only when complete. Faults of the scenario
     (accellog.acquire.emulator.faults) act on the bus and the host's sleep. compression: of the
@@ -380,7 +394,7 @@ def simulate(
         protocol=sc.protocol if sc.motion == "poses" else f"robot:{sc.robot_path}",
         local_gravity_mps2=sc.local_gravity_mps2,
         extra={"scenario": sc.to_json()},
-        serial=serial,
+        serial=serial or f"EMU-{sc.chip_seed}",
         i2c_bus="emulator",
         i2c_address=chip.address,
     )
@@ -467,12 +481,15 @@ def scenario_from_options(
 
 
 def parse_temperature_option(text: str) -> dict:
-    """'constant:T' | 'warmup:T_start:T_end:tau_s' | 'ramp:T0:rate_degC_per_s' -> scenario dict."""
+    """'constant:T' | 'warmup:T_start:T_end:tau_s' | 'ramp:T0:rate_degC_per_s' | 'freezer' -> scenario
+    dict. 'freezer' is FREEZER: a chip out of the fridge warming to a running board's temperature."""
+    if text == "freezer":
+        return dict(FREEZER)
     kind, *vals = text.split(":")
     keys = {"constant": ["T"], "warmup": ["T_start", "T_end", "tau_s"], "ramp": ["T0", "rate_degC_per_s"]}
     if kind not in keys or len(vals) != len(keys[kind]):
         raise InputError(
-            f"--temperature {text!r}: use constant:T, warmup:T_start:T_end:tau_s or ramp:T0:rate"
+            f"--temperature {text!r}: use constant:T, warmup:T_start:T_end:tau_s, ramp:T0:rate or freezer"
         )
     try:
         return {"kind": kind, **{k: float(v) for k, v in zip(keys[kind], vals, strict=True)}}

@@ -31,7 +31,7 @@ from accellog.calibrate.calfile.calibration import Calibration, as_calibration, 
 from accellog.calibrate.calfile.sections import DetectedInterval, DeviceInfo, SensorInfo, SourceFile
 from accellog.calibrate.gyro.calibrate import gyro_full_scale_dps, warn_clipped_moves
 from accellog.calibrate.gyro.model import GyroCalibration
-from accellog.calibrate.gyro.stream import FirstPass, calibrate_blocks, first_pass
+from accellog.calibrate.gyro.stream import FirstPass, bias_windows, calibrate_blocks, first_pass, pooled_bias
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.fit import fit_model, fit_orientation_free
 from accellog.calibrate.observe.detect import detect_static, with_labels
@@ -237,22 +237,39 @@ def _first_pass(src: Source) -> FirstPass | None:
         return None
 
 
-def _gyro(src: Source, fit, first: FirstPass | None) -> GyroCalibration | None:
+def _gyro(src: Source, fit, first: FirstPass | None, still_ref=None) -> GyroCalibration | None:
     """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
     session's holds and the moves between them (one pass more; first: the first pass already fed),
-    stored next to the accelerometer's; None when the session has no gyro or < 2 holds."""
+    stored next to the accelerometer's; None when the session has no gyro or < 2 holds. Rotations
+    that do not determine the matrix leave the bias alone (said). still_ref: the prior's gyro (turns
+    among the stops left out: gyro.stream.still_windows)."""
     if len(src.poses) < 2:
         return None
     fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
     trim_heap()
-    fs = gyro_full_scale_dps(src.meta)
+    fs, order = gyro_full_scale_dps(src.meta), _gyro_temp_order(fit)
     try:  # in Source.run: a session not read yet (observations given) has its stamps checked here
-        return src.run(lambda s: calibrate_blocks(s, s.poses, full_scale_dps=fs, first=first))
-    except ModelError as exc:  # e.g. a scale fit that did not converge: said, not silent
-        note(f"gyro not calibrated: {exc}")
-        return None
+        return src.run(
+            lambda s: calibrate_blocks(
+                s, s.poses, full_scale_dps=fs, first=first, temp_order=order, still_ref=still_ref
+            )
+        )
+    except ModelError as exc:  # e.g. rotations that do not determine M: said, and the bias kept
+        try:
+            cal = src.run(
+                lambda s: calibrate_blocks(s, s.poses, rotations=False, temp_order=order, still_ref=still_ref)
+            )
+        except AccellogError:
+            cal = None
+        note(f"gyro scale/misalignment not calibrated: {exc}" + ("; the bias is" if cal else ""))
+        return cal
     except AccellogError:
         return None
+
+
+def _gyro_temp_order(fit) -> int:
+    """The gyro bias's order in temperature: the accelerometer model's (2 with temp_bias2, else 1)."""
+    return 2 if "temp_bias2" in fit.model.terms else 1
 
 
 def _orientation_free_model(m, effects_file, where: str):
@@ -339,6 +356,10 @@ def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, a
 
     srcs = [open_source(x, what="fit") for x in inputs]
     _one_device(srcs, prior)
+    if prior is None and all(src.poses for src in srcs):
+        return _joint_fit(srcs, build_model(model, add=list(add), effects_file=effects_file), gravity=gravity,
+                          weighted=weighted, local_gravity_mps2=local_gravity_mps2, window_s=window_s, gyro=gyro,
+                          uncertainty=uncertainty)  # fmt: skip
     if prior is not None:
         m, gravity = prior.model, prior.gravity_convention
         pri = Prior.of(prior.param_names, prior.theta, prior.cov, m, aging=aging, what=prior.path or "prior")
@@ -364,7 +385,26 @@ def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, a
     cal = _calibration(fit, obs, found[0][0], gravity, lg, found[0][1] if len(found) == 1 else None)
     cal.sources = [_provenance(src, None) for src, _ in found]
     if gyro:
-        cal.gyro = _field_gyro([src for src, _ in found], fit)
+        cal.gyro = _field_gyro([src for src, _ in found], fit, None if prior is None else prior.gyro)
+    return FitOutcome(obs=obs, fit=fit, cal=cal)
+
+
+def _joint_fit(srcs: Sequence[Source], m, *, gravity, weighted, local_gravity_mps2, window_s, gyro,
+               uncertainty) -> FitOutcome:  # fmt: skip
+    """run_fit of several labelled sessions of one sensor (a freezer warm-up and a room cool-down,
+    several days): their windows pooled (loso.concat_obs, each session's holds its own poses) in one
+    labelled fit with one temperature model; the gyro bias curve from the holds of all of them."""
+    from accellog.calibrate.diagnosis.loso import concat_obs
+
+    lg = float(srcs[0].meta.local_gravity_mps2 if local_gravity_mps2 is None else local_gravity_mps2)
+    truth = _truth_g(gravity, lg)
+    parts = [observations(src, window_s=window_s, trim_s=0.5) for src in srcs]
+    obs = concat_obs(parts)
+    fit = _fit_obs(obs, m, " + ".join(s.where for s in srcs), False, weighted, truth, uncertainty)
+    cal = _calibration(fit, obs, srcs[0], gravity, lg, None)
+    cal.sources = [_provenance(src, part) for src, part in zip(srcs, parts, strict=True)]
+    if gyro:
+        cal.gyro = _field_gyro(srcs, fit)
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
 
@@ -404,13 +444,30 @@ def _one_device(srcs: Sequence[Source], prior: Calibration | None) -> None:
         )
 
 
-def _field_gyro(srcs: Sequence[Source], fit) -> GyroCalibration | None:
-    """The gyro calibration (_gyro) of the session with the most stops; with several sessions the
-    others are not pooled into it (said in a note)."""
-    best = max(srcs, key=lambda s: len(s.poses))
-    if len(srcs) > 1:
-        note(f"gyro: calibrated from the stops of {best.where} only (not pooled over the sessions)")
-    return _gyro(best, fit, None)
+def _field_gyro(srcs: Sequence[Source], fit, still_ref=None) -> GyroCalibration | None:
+    """The gyro calibration of several sessions of one sensor: the bias and its temperature curve
+    from the holds (stops) of all of them (gyro.stream.pooled_bias), the matrix from the rotations
+    of the session with the most holds; one session: _gyro. still_ref: the prior's gyro (_gyro)."""
+    if len(srcs) == 1:
+        return _gyro(srcs[0], fit, None, still_ref)
+    fit.release_jacobian()
+    try:
+        wins = [w for src in srcs if len(src.poses) and (w := src.run(lambda s: bias_windows(s, s.poses)))]
+        if not wins:
+            return None
+        n = sum(len(s.poses) for s in srcs)
+        base = pooled_bias(wins, n, temp_order=_gyro_temp_order(fit), still_ref=still_ref)
+        best = max(srcs, key=lambda s: len(s.poses))
+        if len(best.poses) < 2:
+            return base
+        fs = gyro_full_scale_dps(best.meta)
+        note(f"gyro: bias from the holds of all {len(srcs)} sessions, scale/misalignment from {best.where}")
+        return best.run(lambda s: calibrate_blocks(s, s.poses, full_scale_dps=fs, base=base))
+    except ModelError as exc:
+        note(f"gyro not calibrated: {exc}")
+        return None
+    except AccellogError:
+        return None
 
 
 # ------------------------------------------------------------------------------------------ segment

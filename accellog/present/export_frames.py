@@ -156,13 +156,12 @@ def gyro_losses(cal: Calibration, *, keeps_bias: bool = True, keeps_temp: bool =
     rel = float(np.linalg.norm(M - np.eye(3), 2))
     if rel > 0:
         out.append(f"gyro scale/misalignment matrix dropped: up to {100 * rel:.3g} % rate error")
-    bt = np.nan_to_num(np.asarray(g.temp_bias_dps_per_degC, float))
+    bt = g.temp_poly_dps
     if np.any(bt != 0) and not keeps_temp:
         lo, hi = cal.temperature.range_degC or (g.t_ref_degC - 10.0, g.t_ref_degC + 10.0)
-        dT = max(abs(lo - g.t_ref_degC), abs(hi - g.t_ref_degC))
-        out.append(
-            f"gyro temperature bias dropped: up to {np.max(np.abs(bt)) * dT:.3g} deg/s over {lo:.3g}..{hi:.3g} degC"
-        )
+        dT = np.linspace(lo, hi, 65) - g.t_ref_degC
+        worst = np.max(np.abs(np.multiply.outer(dT, bt[0]) + np.multiply.outer(dT**2, bt[1])))
+        out.append(f"gyro temperature bias dropped: up to {worst:.3g} deg/s over {lo:.3g}..{hi:.3g} degC")
     if not keeps_bias:
         out.append(f"gyro bias dropped: up to {np.max(np.abs(g.bias_dps)):.3g} deg/s")
     return out

@@ -19,6 +19,7 @@ Sources and units: docs/interop.md.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -80,9 +81,9 @@ def _nonlinear(cal: Calibration, target: str, held: tuple[str, ...] = ()) -> lis
     return [f"non-linear model terms dropped ({what}): {amount}"]
 
 
-def _autopilot(cal: Calibration, target: str, rot: str, device_id: int | None):
+def _autopilot(cal: Calibration, target: str, rot: str, device_id: int | None, verdict: Sequence[str] = ()):
     """Board-frame offsets o_R and scales diag(K_R), gyro offsets, the thermal model (None without
-    temperature terms), what is lost, notes, sensor ids."""
+    temperature terms), what is lost, notes (verdict: held-out lines, flows.export_verdict, last), sensor ids."""
     name, num, R = rotation(rot)
     K, o = linear_form(cal)
     K_R, o_R = R @ K @ R.T, R @ o
@@ -105,6 +106,7 @@ def _autopilot(cal: Calibration, target: str, rot: str, device_id: int | None):
         notes.append(f"{id_names[target]} {how}")
     if tm is not None:
         notes += thermal_notes(tm, target)
+    notes += list(verdict)
     gb = None if cal.gyro is None else R @ np.deg2rad(np.asarray(cal.gyro.bias_dps, float))
     return np.diag(K_R), o_R, gb, tm, lost, notes, (acc_id, gyr_id)
 
@@ -118,8 +120,8 @@ def _px4_step_loss(tm) -> list[str]:
             f"change): up to {' and '.join(parts)}"]  # fmt: skip
 
 
-def _params_px4(cal: Calibration, rot: str, device_id: int | None) -> Export:
-    scale, o, gb, tm, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "px4", rot, device_id)
+def _params_px4(cal: Calibration, rot: str, device_id: int | None, verdict: Sequence[str] = ()) -> Export:
+    scale, o, gb, tm, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "px4", rot, device_id, verdict)
     vals: dict = {} if acc_id is None else {"CAL_ACC0_ID": acc_id}
     for i, ax in enumerate("XYZ"):
         vals[f"CAL_ACC0_{ax}OFF"] = float(o[i])
@@ -154,8 +156,10 @@ def _px4_unit(k: str) -> str:
     return "m/s^2" if "ACC" in k and k.endswith("OFF") else "rad/s" if k.endswith("OFF") else "1"
 
 
-def _params_ardupilot(cal: Calibration, rot: str, device_id: int | None) -> Export:
-    scale, o, gb, tm, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "ardupilot", rot, device_id)
+def _params_ardupilot(
+    cal: Calibration, rot: str, device_id: int | None, verdict: Sequence[str] = ()
+) -> Export:
+    scale, o, gb, tm, lost, notes, (acc_id, gyr_id) = _autopilot(cal, "ardupilot", rot, device_id, verdict)
     thermal: dict = {}
     if tm is not None:
         thermal, o, gb = ardupilot_values(tm, o, gb)
@@ -320,9 +324,11 @@ def export_calibration(
     topic: str = "/imu/data",
     rotation: str = "ROTATION_NONE",
     device_id: int | None = None,
+    verdict: Sequence[str] = (),
 ) -> Export:
     """The calibration (and noise, where the target holds it) as ``target`` text; see module docstring.
-    rotation, device_id: PX4 / ArduPilot only (export_frames.rotation, export_frames.sensor_ids)."""
+    rotation, device_id, verdict (held-out lines for the header, flows.export_verdict): PX4 /
+    ArduPilot only (export_frames.rotation, export_frames.sensor_ids)."""
     if target not in TARGETS:
         raise InputError(f"unknown export target {target!r}: use one of {', '.join(TARGETS)}")
     if target == "kalibr":
@@ -330,7 +336,7 @@ def export_calibration(
     if target == "ros":
         return _imu_calib(cal)
     if target == "px4":
-        return _params_px4(cal, rotation, device_id)
+        return _params_px4(cal, rotation, device_id, verdict)
     if target == "ardupilot":
-        return _params_ardupilot(cal, rotation, device_id)
+        return _params_ardupilot(cal, rotation, device_id, verdict)
     return _plain(cal, noise)

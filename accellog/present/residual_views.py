@@ -16,7 +16,7 @@ mean would let heating and cooling passes cancel).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -146,19 +146,47 @@ def _frame(rec, ent: str, role: str, x_ticks: list[tuple[float, str]], y_max: fl
     )
 
 
-def _legend(labels, colors, axis: str, lines: bool) -> list[tuple[str, tuple]]:
+def _marks(rec, ent: str, role: str, at: list[tuple[float, str]]) -> None:
+    """Labelled vertical lines at view x positions (clipped to the frame)."""
+    import rerun as rr
+
+    at = [(min(max(x, 0.0), W), t) for x, t in at]
+    strips = [[[x, -H / 2], [x, H / 2]] for x, _ in at]
+    rec.log_static(f"{ent}/marks", rr.LineStrips2D(strips, colors=[(230, 180, 60)], radii=1.2), role)
+    rec.log_static(
+        f"{ent}/mark_labels",
+        rr.Points2D(
+            [[x + (80.0 if x < W / 2 else -80.0), -H / 2 + 10] for x, _ in at],
+            labels=[t for _, t in at],
+            radii=0.1,
+            colors=[(230, 180, 60)],
+        ),
+        role,
+    )
+
+
+def _legend(
+    labels, colors, axis: str, lines: bool, cooling: bool = True, dots: str = "what the added effects predict"
+) -> list[tuple[str, tuple]]:
     what = "residual" if axis == "norm" else f"residual {axis}"
-    out = [(f"{k}: {what} (light: cooling)", colors[k]) for k in labels]
+    out = [(f"{k}: {what}" + (" (light: cooling)" if cooling else ""), colors[k]) for k in labels]
     dark = tuple(int(0.5 * v) for v in colors[labels[0]])
-    return out + ([("dark dots: what the added effects predict", dark)] if lines else [])
+    return out + ([(f"dark dots: {dots}", dark)] if lines else [])
 
 
 def log_panels(
-    rec, items: list[Panel], colors: Mapping[str, tuple[int, int, int]] | None = None, main: str | None = None
+    rec,
+    items: list[Panel],
+    colors: Mapping[str, tuple[int, int, int]] | None = None,
+    main: str | None = None,
+    marks: Sequence[tuple[float, str]] = (),
+    dots: str = "what the added effects predict",
 ) -> None:
     """Log the panels: per driver and axis one plot with every fit's residuals overlaid in its own
     colour (colors: label -> RGB, see fit_colors), one y scale per axis (mg); main: the driver the
-    residual follows (role scatter2d_main: its own tab in the blueprint)."""
+    residual follows (role scatter2d_main: its own tab in the blueprint); marks: (driver value,
+    label) drawn as labelled vertical lines on the main driver's plots (e.g. an exported span); dots:
+    what the contributions are, in the legend."""
     import rerun as rr
 
     by_driver: dict[str, list[Panel]] = {}
@@ -181,8 +209,11 @@ def log_panels(
             ys += [np.abs(p.contribution_mg[:, i]) for p in ps if p.contribution_mg is not None]
             y_max = float(nice_ticks(0.0, max(float(max(np.max(y) for y in ys)), 1e-6), n=3)[-1])
             lines = any(p.contribution_mg is not None for p in ps)
-            legend = _legend([p.label for p in ps], cols, a, lines)
+            cooling = any(not np.all(p.heating) for p in ps)
+            legend = _legend([p.label for p in ps], cols, a, lines, cooling, dots)
             _frame(rec, f"{SCATTER}/{slug(d)}/{FRAME}{a}", role, x_ticks, y_max, legend)
+            if marks and d == main:
+                _marks(rec, f"{SCATTER}/{slug(d)}/{FRAME}{a}", role, [(float(sx(v)), t) for v, t in marks])
             for p in ps:
                 ent = f"{SCATTER}/{slug(d)}/{slug(p.label)}"
                 col = np.asarray(cols[p.label], np.uint8)

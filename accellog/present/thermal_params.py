@@ -4,7 +4,7 @@ ArduPilot INS_TCAL1_*), consistent with the offsets and scales of accellog.prese
 accellog's bias polynomial about T_ref, in the driver-rotated axes R (accellog.present.export_frames):
 
     p_a(T) = g0 R (bT dT + bT2 dT^2)        (m/s^2),    dT = T - T_ref        (accelerometer)
-    p_g(T) = R (pi/180) b_T (T - T_ref,g)   (rad/s)                           (gyro)
+    p_g(T) = R (pi/180) (b_T dT + b_T2 dT^2) (rad/s),  dT = T - T_ref,g      (gyro)
 
 so that a = K_R (R r - o_R - p_a(T)) and w = R w_meas - gb_R - p_g(T) (gyro matrix dropped).
 
@@ -35,7 +35,7 @@ import numpy as np
 
 from accellog.calibrate.calfile.calibration import Calibration
 from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
-from accellog.present.export_frames import bias_polynomial_g, temperature_span
+from accellog.present.export_frames import bias_polynomial_g, linear_form, temperature_span
 
 HELD_TERMS = ("temp_bias", "temp_bias2")
 """Library terms both autopilots hold exactly (a bias polynomial in temperature, order <= 3)."""
@@ -77,7 +77,7 @@ def thermal_model(cal: Calibration, R: np.ndarray) -> ThermalModel | None:
     g = cal.gyro
     gyr = np.zeros((3, 3))
     if g is not None:
-        gyr[0] = R @ np.deg2rad(np.nan_to_num(np.asarray(g.temp_bias_dps_per_degC, float)))
+        gyr[:2] = np.deg2rad(g.temp_poly_dps) @ R.T  # b_T, b_T2 per order, rotated
     if not (np.any(acc) or np.any(gyr)):
         return None
     span, observed = temperature_span(cal)
@@ -168,3 +168,20 @@ def thermal_notes(tm: ThermalModel, target: str) -> list[str]:
     else:
         notes.append("CAL_ACC0_*OFF / CAL_GYRO0_*OFF hold the offsets at TC_A0_TREF / TC_G0_TREF (X0 = 0)")
     return notes
+
+
+def held_correction(cal: Calibration, reading_g: np.ndarray, temp_degC: np.ndarray, gyro_dps=None):
+    """What an autopilot with this calibration's export computes (chip axes, ROTATION_NONE): accel
+    diag(K) (r - o - p_a(T')) (m/s^2) and gyro w - gb - p_g(T') (deg/s, or None), T' = T clamped to
+    the exported span (module doc: the firmware equations, tests/support/firmware.py checks them)."""
+    K, o = linear_form(cal)
+    tm = thermal_model(cal, np.eye(3))
+    p_a, p_g = 0.0, 0.0
+    if tm is not None:
+        Tc = np.clip(np.asarray(temp_degC, float), *tm.span_degC)
+        p_a = poly_eval(tm.accel_mps2, Tc - tm.accel_t_ref_degC)
+        p_g = np.rad2deg(poly_eval(tm.gyro_rps, Tc - tm.gyro_t_ref_degC))
+    acc = np.diag(K) * (G0 * np.asarray(reading_g, float) - o - p_a)
+    if gyro_dps is None or cal.gyro is None:
+        return acc, None
+    return acc, np.asarray(gyro_dps, float) - np.asarray(cal.gyro.bias_dps, float) - p_g

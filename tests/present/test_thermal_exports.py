@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.firmware import F32, FIRMWARE, param_values, px4_correct
 
 from accellog.calibrate.calfile.calibration import Calibration
 from accellog.calibrate.calfile.sections import TemperatureInfo
@@ -32,8 +33,8 @@ from accellog.calibrate.model.compose import build_model
 from accellog.core.units import STANDARD_GRAVITY_MPS2 as G0
 from accellog.present.export_frames import directions_26, rotation
 from accellog.present.exports import export_calibration
+from accellog.present.thermal_params import held_correction
 
-F32 = np.float32
 SPAN = (5.0, 45.0)
 
 
@@ -63,63 +64,6 @@ def _cal(
     )
 
 
-def _values(text: str, target: str) -> dict[str, np.float32]:
-    """The parameter file as the autopilot loads it: every value a float32."""
-    rows = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
-    pairs = [ln.split("\t")[2:4] if target == "px4" else ln.split(",") for ln in rows]
-    return {k: F32(float(v)) for k, v in pairs}
-
-
-def _vec(p: dict, fmt: str) -> np.ndarray:
-    return np.array([p[fmt.format(i=i, ax=ax)] for i, ax in enumerate("XYZ")], F32)
-
-
-def px4_correct(data: np.ndarray, T: np.ndarray, p: dict, sensor: str) -> np.ndarray:
-    """calc_thermal_offsets_3D then Accelerometer/Gyroscope::Correct (float32, per sample)."""
-    tc, cal = ("TC_A0", "CAL_ACC0") if sensor == "accel" else ("TC_G0", "CAL_GYRO0")
-    x = [_vec(p, f"{tc}_X{k}_{{i}}") for k in range(4)]
-    off = _vec(p, f"{cal}_{{ax}}OFF")
-    scale = _vec(p, f"{cal}_{{ax}}SCALE") if sensor == "accel" else np.ones(3, F32)
-    out = np.empty_like(data, dtype=F32)
-    for n, (d, t) in enumerate(zip(data.astype(F32), T.astype(F32), strict=True)):
-        if t > p[f"{tc}_TMAX"]:
-            dt = p[f"{tc}_TMAX"] - p[f"{tc}_TREF"]
-        elif t < p[f"{tc}_TMIN"]:
-            dt = p[f"{tc}_TMIN"] - p[f"{tc}_TREF"]
-        else:
-            dt = t - p[f"{tc}_TREF"]
-        dt2 = dt * dt
-        dt3 = dt2 * dt
-        thermal = x[0] + x[1] * dt + x[2] * dt2 + x[3] * dt3
-        out[n] = (d - thermal - off) * scale
-    return out
-
-
-def ardupilot_correct(data: np.ndarray, T: np.ndarray, p: dict, sensor: str) -> np.ndarray:
-    """TCal::correct_sensor then the offsets (and scale) of _rotate_and_correct_accel/_gyro (float32)."""
-    kind = "ACC" if sensor == "accel" else "GYR"
-    c = [_vec(p, f"INS_TCAL1_{kind}{k}_{{ax}}") for k in (1, 2, 3)]
-    tmin, tmax = p["INS_TCAL1_TMIN"], p["INS_TCAL1_TMAX"]
-    cal_temp = min(max(p[f"INS_{kind}1_CALTEMP"], tmin), tmax)
-    off = _vec(p, "INS_ACCOFFS_{ax}") if sensor == "accel" else _vec(p, "INS_GYROFFS_{ax}")
-    scale = _vec(p, "INS_ACCSCAL_{ax}") if sensor == "accel" else np.ones(3, F32)
-
-    def poly(tdiff):
-        return (c[0] + (c[1] + c[2] * tdiff) * tdiff) * tdiff * F32(1.0e-6)
-
-    assert p["INS_TCAL1_ENABLE"] == 1
-    out = np.empty_like(data, dtype=F32)
-    for n, (d, t) in enumerate(zip(data.astype(F32), T.astype(F32), strict=True)):
-        t = min(max(t, tmin), tmax)
-        v = d - poly(t - F32(35.0))
-        v = v + poly(cal_temp - F32(35.0))
-        out[n] = (v - off) * scale
-    return out
-
-
-FIRMWARE = {"px4": px4_correct, "ardupilot": ardupilot_correct}
-
-
 def _readings(cal: Calibration, R: np.ndarray, T_grid: np.ndarray):
     """Raw accel (m/s^2) and gyro (rad/s) readings in the driver-rotated axes for the 26 directions at
     each temperature, with accellog's corrections of them in the same axes (m/s^2, rad/s)."""
@@ -144,7 +88,7 @@ def test_firmware_equations_reproduce_the_calibration(target, t_ref, rot):
     """Inside the span: equal to 1e-6 g and 1e-5 deg/s; outside: the correction at the span's end."""
     cal = _cal(t_ref)
     ex = export_calibration(cal, target, rotation=rot, device_id=2621474)
-    p = _values(ex.text, target)
+    p = param_values(ex.text, target)
     _, _, R = rotation(rot)
     T_grid = np.concatenate([np.linspace(*SPAN, 41), [-10.0, 0.0, 4.9, 45.1, 60.0]])
     T, raw_a, want_a, raw_g, want_g = _readings(cal, R, T_grid)
@@ -156,10 +100,26 @@ def test_firmware_equations_reproduce_the_calibration(target, t_ref, rot):
 
 
 @pytest.mark.parametrize("target", ["px4", "ardupilot"])
+@pytest.mark.parametrize("gyro_quadratic", [False, True])
+def test_held_correction_is_what_the_firmware_computes(target, gyro_quadratic):
+    """thermal_params.held_correction (the `export --heldout` verdict's correction) against each
+    firmware's equations on the same readings, inside and outside the span (chip axes)."""
+    cal = _cal(25.0)
+    if gyro_quadratic:
+        cal.gyro.temp_bias2_dps_per_degC2 = np.array([2e-3, -1e-3, 1.5e-3])
+    p = param_values(export_calibration(cal, target, device_id=1).text, target)
+    T_grid = np.concatenate([np.linspace(*SPAN, 21), [0.0, 60.0]])
+    T, raw_a, _, raw_g, _ = _readings(cal, np.eye(3), T_grid)
+    acc, gyr = held_correction(cal, raw_a / G0, T, np.rad2deg(raw_g))
+    assert np.max(np.abs(acc - FIRMWARE[target](raw_a, T, p, "accel"))) / G0 < 1e-6
+    assert np.max(np.abs(gyr - np.rad2deg(FIRMWARE[target](raw_g, T, p, "gyro")))) < 1e-5
+
+
+@pytest.mark.parametrize("target", ["px4", "ardupilot"])
 def test_thermal_terms_off_leave_the_temperature_error(target):
     """The same files with the thermal correction disabled leave the bias curve: the test can fail."""
     cal = _cal(25.0)
-    p = _values(export_calibration(cal, target, device_id=1).text, target)
+    p = param_values(export_calibration(cal, target, device_id=1).text, target)
     thermal = ("TC_A0_X", "TC_G0_X", "INS_TCAL1_ACC", "INS_TCAL1_GYR")
     off = {k: (F32(0.0) if k.startswith(thermal) else v) for k, v in p.items()}
     T, raw_a, want_a, _, _ = _readings(cal, np.eye(3), np.linspace(*SPAN, 9))
@@ -179,7 +139,7 @@ def test_temperature_scale_is_stated_and_covers_the_firmware_error(target):
     stated = float(line.split("up to ")[1].split(" m/s^2")[0])
     T, raw_a, want_a, _, _ = _readings(cal, np.eye(3), np.linspace(*SPAN, 41))
     err = np.max(
-        np.linalg.norm(FIRMWARE[target](raw_a, T, _values(ex.text, target), "accel") - want_a, axis=1)
+        np.linalg.norm(FIRMWARE[target](raw_a, T, param_values(ex.text, target), "accel") - want_a, axis=1)
     )
     assert 0.5 * stated < err <= 1.01 * stated
 
@@ -197,7 +157,7 @@ def test_px4_update_step_is_stated_and_bounds_the_lag():
         if abs(t - last) > 1.0:
             last = t
         published.append(last)
-    p = _values(ex.text, "px4")
+    p = param_values(ex.text, "px4")
     zero = np.zeros((len(path), 3))
     lag = px4_correct(zero, np.array(published), p, "accel") - px4_correct(zero, path, p, "accel")
     assert 0.5 * stated < np.max(np.linalg.norm(lag, axis=1)) <= 1.01 * stated

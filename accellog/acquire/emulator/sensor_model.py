@@ -179,12 +179,13 @@ class AccelErrors:
 
 @dataclass
 class GyroErrors:
-    """Gyro error parameters (zero = off): w' = (diag(1 + s) + C) w + b0 + b_T dT + n (deg/s)."""
+    """Gyro error parameters (zero = off): w' = (diag(1 + s) + C) w + b0 + b_T dT + b_T2 dT^2 + n (deg/s)."""
 
     bias_dps: np.ndarray = field(default_factory=_zeros3)
     scale: np.ndarray = field(default_factory=_zeros3)
     cross_axis: np.ndarray = field(default_factory=_zeros33)
     temp_bias_dps_per_degC: np.ndarray = field(default_factory=_zeros3)
+    temp_bias2_dps_per_degC2: np.ndarray = field(default_factory=_zeros3)
     noise_density_dps_per_rtHz: np.ndarray = field(default_factory=_zeros3)
     bias_instability_dps: np.ndarray = field(default_factory=_zeros3)
     """B (deg/s): flicker bias noise, Allan deviation floor 0.664 B."""
@@ -199,6 +200,7 @@ class GyroErrors:
         self.scale = _as3("scale", self.scale)
         self.cross_axis = _as33("cross_axis", self.cross_axis, zero_diagonal=True)
         self.temp_bias_dps_per_degC = _as3("temp_bias_dps_per_degC", self.temp_bias_dps_per_degC)
+        self.temp_bias2_dps_per_degC2 = _as3("temp_bias2_dps_per_degC2", self.temp_bias2_dps_per_degC2)
         self.noise_density_dps_per_rtHz = _as3("noise_density_dps_per_rtHz", self.noise_density_dps_per_rtHz)
         self.t_ref_degC = float(self.t_ref_degC)
 
@@ -226,6 +228,8 @@ class GyroErrors:
         w = np.asarray(omega_dps, float)
         dT = (np.asarray(temp_degC, float) - self.t_ref_degC)[:, None]
         out = w * (1.0 + self.scale) + self.bias_dps + self.temp_bias_dps_per_degC * dT
+        if np.any(self.temp_bias2_dps_per_degC2):
+            out = out + self.temp_bias2_dps_per_degC2 * dT**2
         if np.any(self.cross_axis):
             out = out + w @ self.cross_axis.T
         return out

@@ -63,15 +63,19 @@ def bias_window_times(iv: np.ndarray, window_s: float, trim_s: float) -> list[np
     return out
 
 
-def bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_span_degC) -> GyroCalibration:
-    """Least squares mean = b0 + b_T (T - T_ref) over the window means (module doc)."""
+def bias_fit(
+    means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_span_degC, temp_order: int = 1
+) -> GyroCalibration:
+    """Least squares mean = b0 + b_T dT (+ b_T2 dT^2 with temp_order=2), dT = T - T_ref, over the
+    window means (module doc); the temperature terms only when the windows span min_temp_span_degC."""
     if len(means) < 2:
         raise InputError(
             f"static holds give fewer than 2 windows of {window_s} s: gyro bias cannot be estimated"
         )
     y, tt = means, temps
     use_temp = has_temp and np.isfinite(tt).all() and np.ptp(tt) >= min_temp_span_degC
-    cols = [np.ones(len(y))] + ([tt - t_ref_degC] if use_temp else [])
+    order = temp_order if use_temp else 0
+    cols = [np.ones(len(y))] + [(tt - t_ref_degC) ** k for k in range(1, order + 1)]
     A = np.stack(cols, axis=1)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     dof = max(len(y) - A.shape[1], 1)
@@ -79,10 +83,14 @@ def bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_spa
     cov_unit = np.linalg.inv(A.T @ A)
     sig = np.sqrt(np.outer(np.diag(cov_unit), s2))
     cal = GyroCalibration(bias_dps=coef[0], bias_sigma_dps=sig[0], t_ref_degC=t_ref_degC, n_holds=n_holds)
-    if use_temp:
+    if order >= 1:
         cal.temp_bias_dps_per_degC = coef[1]
         cal.temp_bias_sigma_dps_per_degC = sig[1]
         cal.effects = ["bias", "temp_bias"]
+    if order >= 2:
+        cal.temp_bias2_dps_per_degC2 = coef[2]
+        cal.temp_bias2_sigma_dps_per_degC2 = sig[2]
+        cal.effects.append("temp_bias2")
     return cal
 
 
@@ -211,17 +219,12 @@ def fit_matrix(
     effects = [e for e in base.effects if e not in ("scale", "cross_axis")] + ["scale"]
     if offdiag_free:
         effects.append("cross_axis")
-    return GyroCalibration(
-        bias_dps=base.bias_dps,
-        bias_sigma_dps=base.bias_sigma_dps,
-        temp_bias_dps_per_degC=base.temp_bias_dps_per_degC,
-        temp_bias_sigma_dps_per_degC=base.temp_bias_sigma_dps_per_degC,
-        t_ref_degC=base.t_ref_degC,
+    return dataclasses.replace(
+        base,
         matrix=m.reshape(3, 3),
         matrix_sigma=msig.reshape(3, 3),
         effects=effects,
         undetermined=undetermined,
-        n_holds=base.n_holds,
         rotation_rms_deg=float(np.sqrt(np.mean(r**2))),
         clipped_moves=int(clipped.sum()),
     )

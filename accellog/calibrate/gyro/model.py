@@ -1,5 +1,8 @@
-"""The gyro model a calibration carries: w_meas = M w_true + b0 + b_T (T - T_ref) (deg/s), with
-1-sigma uncertainties (fitted by accellog.calibrate.gyro.stream with the fits of gyro.fit)."""
+"""The gyro model a calibration carries: w_meas = M w_true + b0 + b_T dT + b_T2 dT^2 (deg/s,
+dT = T - T_ref degC), with 1-sigma uncertainties (fitted by accellog.calibrate.gyro.stream with the
+fits of gyro.fit). b_T2 is fitted only when asked (the accelerometer model has temp_bias2); a file
+without it is a linear model, and it is written only when fitted (earlier files read back byte for
+byte)."""
 
 from __future__ import annotations
 
@@ -15,13 +18,17 @@ PARAM_NAMES = [f"M{'xyz'[i]}{'xyz'[j]}" for i in range(3) for j in range(3)]
 
 @dataclass
 class GyroCalibration:
-    """Gyro model w_meas = M w_true + b0 + b_T (T - T_ref) (deg/s), with 1-sigma uncertainties."""
+    """Gyro model w_meas = M w_true + b0 + b_T dT + b_T2 dT^2 (deg/s, dT = T - T_ref), with 1-sigma
+    uncertainties."""
 
     bias_dps: np.ndarray
     bias_sigma_dps: np.ndarray
     temp_bias_dps_per_degC: np.ndarray = field(default_factory=lambda: np.zeros(3))
     temp_bias_sigma_dps_per_degC: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     t_ref_degC: float = 25.0
+    temp_bias2_dps_per_degC2: np.ndarray | None = None
+    """b_T2 (deg/s/degC^2), None when the bias is linear in temperature (not fitted)."""
+    temp_bias2_sigma_dps_per_degC2: np.ndarray | None = None
     matrix: np.ndarray = field(default_factory=lambda: np.eye(3))
     """M (3,3): scale on the diagonal (1 + s), cross-axis off the diagonal."""
     matrix_sigma: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
@@ -37,15 +44,26 @@ class GyroCalibration:
     of the file: `fit` states it as a warning of the fit."""
 
     def bias_at(self, temp_degC: np.ndarray | float | None = None) -> np.ndarray:
-        """Bias (deg/s): b0 + b_T (T - T_ref); (3,) without temperature, (N,3) with an (N,) array."""
+        """Bias (deg/s): b0 + b_T dT + b_T2 dT^2; (3,) without temperature, (N,3) with an (N,) array."""
         if temp_degC is None:
             return np.asarray(self.bias_dps, float)
         dt = np.asarray(temp_degC, float) - self.t_ref_degC
-        return self.bias_dps + np.multiply.outer(dt, self.temp_bias_dps_per_degC)
+        b = self.bias_dps + np.multiply.outer(dt, self.temp_bias_dps_per_degC)
+        if self.temp_bias2_dps_per_degC2 is not None:
+            b = b + np.multiply.outer(dt**2, self.temp_bias2_dps_per_degC2)
+        return b
+
+    @property
+    def temp_poly_dps(self) -> np.ndarray:
+        """(2,3) [b_T, b_T2] (deg/s/degC^k): the bias polynomial in dT without b0 (b_T2 zero if linear)."""
+        b2 = np.zeros(3) if self.temp_bias2_dps_per_degC2 is None else self.temp_bias2_dps_per_degC2
+        return np.nan_to_num(
+            np.stack([np.asarray(self.temp_bias_dps_per_degC, float), np.asarray(b2, float)])
+        )
 
     def correct(self, gyro_dps: np.ndarray, temp_degC: np.ndarray | None = None) -> np.ndarray:
         """w_true = M^-1 (w_meas - b(T)) for (N,3) rates in deg/s (temperature in degC or None)."""
-        tc = temp_degC if np.any(self.temp_bias_dps_per_degC != 0) else None
+        tc = temp_degC if np.any(self.temp_poly_dps != 0) else None
         w = np.asarray(gyro_dps, float) - self.bias_at(tc)
         return np.linalg.solve(self.matrix, w.T).T
 
@@ -61,13 +79,20 @@ class GyroCalibration:
                 return [clean(x) for x in v]
             return None if isinstance(v, float) and not np.isfinite(v) else v
 
+        quad = {}
+        if self.temp_bias2_dps_per_degC2 is not None:
+            quad = {
+                "temp_bias2_dps_per_degC2": clean(lst(self.temp_bias2_dps_per_degC2)),
+                "temp_bias2_sigma_dps_per_degC2": clean(lst(self.temp_bias2_sigma_dps_per_degC2)),
+            }
         return {
-            "model": "w_meas = M w_true + b0 + b_T (T - T_ref)",
+            "model": "w_meas = M w_true + b0 + b_T (T - T_ref)" + (" + b_T2 (T - T_ref)^2" if quad else ""),
             "units": "deg/s, degC",
             "bias_dps": clean(lst(self.bias_dps)),
             "bias_sigma_dps": clean(lst(self.bias_sigma_dps)),
             "temp_bias_dps_per_degC": clean(lst(self.temp_bias_dps_per_degC)),
             "temp_bias_sigma_dps_per_degC": clean(lst(self.temp_bias_sigma_dps_per_degC)),
+            **quad,
             "t_ref_degC": float(self.t_ref_degC),
             "matrix": clean(lst(self.matrix)),
             "matrix_sigma": clean(lst(self.matrix_sigma)),
@@ -91,6 +116,7 @@ class GyroCalibration:
                 raise InputError(f"gyro calibration {key!r} has shape {a.shape}, expected {shape}")
             return a
 
+        quad = d.get("temp_bias2_dps_per_degC2") is not None
         try:
             rms = d.get("rotation_rms_deg")
             return cls(
@@ -99,6 +125,10 @@ class GyroCalibration:
                 temp_bias_dps_per_degC=arr("temp_bias_dps_per_degC", (3,), [0.0] * 3),
                 temp_bias_sigma_dps_per_degC=arr("temp_bias_sigma_dps_per_degC", (3,), [None] * 3),
                 t_ref_degC=float(d.get("t_ref_degC", 25.0)),
+                temp_bias2_dps_per_degC2=arr("temp_bias2_dps_per_degC2", (3,)) if quad else None,
+                temp_bias2_sigma_dps_per_degC2=(
+                    arr("temp_bias2_sigma_dps_per_degC2", (3,), [None] * 3) if quad else None
+                ),
                 matrix=arr("matrix", (3, 3), np.eye(3).tolist()),
                 matrix_sigma=arr("matrix_sigma", (3, 3), [[None] * 3] * 3),
                 effects=[str(e) for e in d.get("effects", ["bias"])],

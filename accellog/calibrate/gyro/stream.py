@@ -47,6 +47,7 @@ from accellog.calibrate.gyro.model import GyroCalibration
 from accellog.calibrate.gyro.rotation import coarse_plan, fine_pieces
 from accellog.core.errors import InputError
 from accellog.core.heap import trim_heap
+from accellog.core.notices import note
 from accellog.core.session import PoseLabel
 from accellog.store.stream import ImuBlock, closed_after
 
@@ -76,6 +77,8 @@ def calibrate_blocks(
     t_ref_degC: float = 25.0,
     window_s: float = 1.0,
     min_temp_span_degC: float = 2.0,
+    temp_order: int = 1,
+    still_ref: GyroCalibration | None = None,
     trim_s: float = 0.2,
     full_scale_dps: float | None = None,
     floor_deg: float = 0.05,
@@ -90,7 +93,9 @@ def calibrate_blocks(
 
     rotations=False: the bias only (poses may then be (K,2) start/end times, s). base: the bias is
     base's (no windows are summed) and the matrix is fitted (>= 2 poses with a reference needed).
-    first: step 1 already fed every block (first_pass with the same arguments)."""
+    first: step 1 already fed every block (first_pass with the same arguments). temp_order: 2 adds
+    b_T2 dT^2 to the bias (fit.bias_fit). still_ref: a calibration of the same gyro (a lab prior):
+    windows whose mean is more than STILL_TOL_DPS from its bias are turns, not stops (still_windows)."""
     iv, known, first_new = _plan(
         poses, model, reference, window_s, trim_s, full_scale_dps, rotations, bias=base is None
     )
@@ -106,7 +111,16 @@ def calibrate_blocks(
         return None
     has_temp, located = found[1:]
     if base is None:
-        base = _bias(found[0], has_temp, int(iv.shape[0]), t_ref_degC, window_s, min_temp_span_degC)
+        base = _bias(
+            found[0],
+            has_temp,
+            int(iv.shape[0]),
+            t_ref_degC,
+            window_s,
+            min_temp_span_degC,
+            temp_order,
+            still_ref,
+        )
     del found  # the window sums are not held through the second pass (24 h: 3.4 MB)
     if not known:
         return base
@@ -114,11 +128,92 @@ def calibrate_blocks(
     return fit_matrix(phi, c, at, known, base, model, floor_deg, reference, first.moves.counts > 0)
 
 
-def _bias(sums, has_temp: bool, n_holds: int, t_ref_degC: float, window_s: float, min_span: float):
-    """fit.bias_fit on the window means of FirstPass sums."""
+def _bias(sums, has_temp: bool, n_holds: int, t_ref_degC: float, window_s: float, min_span: float,
+          temp_order: int = 1, still_ref: GyroCalibration | None = None):  # fmt: skip
+    """fit.bias_fit on the window means of FirstPass sums (the turning ones out: still_windows)."""
     means = sums[0] / sums[2][:, None]
     temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
-    return bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span)
+    return _screened_fit(
+        means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order, still_ref
+    )
+
+
+def _screened_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order, still_ref):
+    """fit.bias_fit; with still_ref (stops of a run, not a lab's holds) first the turns out
+    (still_windows), then once more without the windows more than ROBUST_CLIP robust sigmas (1.4826
+    MAD per axis) off the fitted curve: a stop that still creeps at its ends."""
+    if still_ref is None:
+        return bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order)
+    means, temps = still_windows(means, temps, has_temp, still_ref)
+    cal = bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order)
+    res = means - cal.bias_at(temps if "temp_bias" in cal.effects else None)
+    mad = 1.4826 * np.median(np.abs(res - np.median(res, axis=0)), axis=0)
+    keep = np.all(np.abs(res) <= ROBUST_CLIP * np.maximum(mad, 1e-9), axis=1)
+    if keep.all() or keep.sum() < 3:
+        return cal
+    note(f"gyro: {int((~keep).sum())} of {keep.size} stop windows more than {ROBUST_CLIP:g} robust sigma off "
+         "the bias curve: left out")  # fmt: skip
+    return bias_fit(means[keep], temps[keep], has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order)
+
+
+STILL_TOL_DPS = 2.0
+"""A window whose mean rate is further than this from the reference's bias (deg/s, any axis) is a
+turn: an accelerometer-still interval of a robot turning in place (a yaw rate leaves the specific
+force unchanged) is not a gyro stop. MPU-9250 zero-rate offsets move by less than this over months
+(the aging a field calibration allows, calibrate.model.prior)."""
+DATASHEET_TEMP_DPS_PER_DEGC = 0.24
+"""PS-MPU-9250A Table 1 zero-rate output variation over temperature (+-30 deg/s over -40..85 degC):
+the tolerance grows by this per degC away from the reference's T_ref when it has no temperature curve."""
+ROBUST_CLIP = 4.0
+"""Stop windows further than this many robust sigmas from the fitted bias curve are left out (_screened_fit)."""
+
+
+def still_windows(means, temps, has_temp: bool, ref: GyroCalibration | None):
+    """(means, temps) of the windows at rest by the reference gyro calibration (STILL_TOL_DPS; all of
+    them without one); how many were turns is said in a note."""
+    if ref is None or not len(means):
+        return means, temps
+    known = has_temp and np.isfinite(temps).all()
+    expect = ref.bias_at(temps if known else None)
+    tol = np.full(len(means), STILL_TOL_DPS)
+    if known and not np.any(ref.temp_poly_dps):  # no curve: allow the datasheet's tempco
+        tol = tol + DATASHEET_TEMP_DPS_PER_DEGC * np.abs(temps - ref.t_ref_degC)
+    keep = np.all(np.abs(means - expect) <= tol[:, None], axis=1)
+    if not keep.all():
+        note(f"gyro: {int((~keep).sum())} of {keep.size} still windows turn (further from the prior's bias than "
+             f"{STILL_TOL_DPS:g} deg/s, + {DATASHEET_TEMP_DPS_PER_DEGC:g}/degC off its T_ref without its temperature "
+             "curve): left out of the bias")  # fmt: skip
+    return means[keep], temps[keep]
+
+
+def bias_windows(blocks: Blocks, poses, *, window_s: float = 1.0, trim_s: float = 0.2):
+    """(window means (W,3) deg/s, window temperatures (W,) degC (NaN without), has_temp) of one
+    session's holds: step 1 alone, for a bias pooled over sessions (pooled_bias); None without gyro."""
+    first = _plan(poses, "full", "gravity", window_s, trim_s, None, rotations=False)[2]
+    with closed_after(blocks()) as it:
+        for blk in it:
+            if not first.add(blk):
+                break
+    found = first.result()
+    if found is None:
+        return None
+    sums, has_temp = found[0], found[1]
+    temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
+    return sums[0] / sums[2][:, None], temps, has_temp
+
+
+def pooled_bias(windows, n_holds: int, *, t_ref_degC: float = 25.0, window_s: float = 1.0,
+                min_temp_span_degC: float = 2.0, temp_order: int = 1,
+                still_ref: GyroCalibration | None = None) -> GyroCalibration:  # fmt: skip
+    """fit.bias_fit over the windows (bias_windows) of several sessions of one sensor together: one
+    temperature curve from all their temperatures (a warm-up and a cool-down, several days);
+    still_ref: as calibrate_blocks."""
+    means = np.concatenate([w[0] for w in windows])
+    temps = np.concatenate([w[1] for w in windows])
+    has_temp = all(w[2] for w in windows)
+    return _screened_fit(
+        means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_span_degC, temp_order, still_ref
+    )
 
 
 def _rotation_blocks(blocks: Blocks, located, k: int, base: GyroCalibration, has_temp: bool):
@@ -133,7 +228,7 @@ def _rotation_blocks(blocks: Blocks, located, k: int, base: GyroCalibration, has
     if n_fine == 1:
         return np.zeros((0, 3)), np.zeros((0, 3)), mid_at
     del coarse
-    use_temp = has_temp and bool(np.any(base.temp_bias_dps_per_degC != 0))
+    use_temp = has_temp and bool(np.any(base.temp_poly_dps != 0))
     acc = _CoarseBlocks(at, n_fine, base, use_temp)
     with closed_after(blocks()) as it:
         _integrate_pass(it, mids[0], fine_pieces(t_mid, mids, _BLOCK_S), acc)
@@ -350,8 +445,11 @@ class _CoarseBlocks:
         """The next fine blocks: rate integrals (deg), temperature integrals (degC s), durations (s)."""
         base = self.base
         b = w_int - np.outer(span, base.bias_dps)
-        if self.use_temp:
-            b -= np.outer(temp_int - base.t_ref_degC * span, base.temp_bias_dps_per_degC)
+        if self.use_temp:  # int b_T dT dt; int b_T2 dT^2 dt ~ b_T2 (mean dT)^2 span (a fine block's
+            dT_s = temp_int - base.t_ref_degC * span  # temperature is flat: the error is b_T2 var(T) span)
+            b -= np.outer(dT_s, base.temp_bias_dps_per_degC)
+            if base.temp_bias2_dps_per_degC2 is not None:
+                b -= np.outer(dT_s**2 / np.maximum(span, 1e-300), base.temp_bias2_dps_per_degC2)
         b = np.deg2rad(b)
         if b.shape[0] == 0:
             return
