@@ -156,7 +156,9 @@ def simulate(
     ] = None,
     temperature: Annotated[
         str | None,
-        typer.Option(help="'constant:T', 'warmup:T_start:T_end:tau_s', 'ramp:T0:rate_degC_per_s' or 'freezer' (warm-up 5 -> 45 degC, tau 300 s)."),
+        typer.Option(
+            help="'constant:T', 'warmup:T_start:T_end:tau_s', 'ramp:T0:rate_degC_per_s' or 'freezer' (warm-up 5 -> 45 degC, tau 300 s)."
+        ),
     ] = None,
     fleet: Annotated[
         int | None,
