@@ -15,6 +15,20 @@ from accellog.present.export_targets import TARGETS
 
 Target = enum.Enum("Target", {t: t for t in TARGETS}, type=str)
 """The --to choices (shell completion offers them)."""
+HeldoutOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--heldout",
+        help="px4/ardupilot: a labelled session of the same sensor the calibration was not fitted on "
+        "(a cool-down, another day): what the autopilot will leave on it, per axis, in the header.",
+    ),
+]
+VerdictRrdOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--rrd", help="With --heldout: a Rerun recording of the held-out residual against temperature."
+    ),
+]
 
 
 @app.command("export", rich_help_panel="2. Calibrate")
@@ -48,20 +62,8 @@ def export_cmd(
             "INS_ACC_ID); default: computed from the calibration's I2C bus and address when known.",
         ),
     ] = None,
-    heldout: Annotated[
-        Path | None,
-        typer.Option(
-            "--heldout",
-            help="px4/ardupilot: a labelled session of the same sensor the calibration was not fitted on "
-            "(a cool-down, another day): what the autopilot will leave on it, per axis, in the header.",
-        ),
-    ] = None,
-    rrd: Annotated[
-        Path | None,
-        typer.Option(
-            "--rrd", help="With --heldout: a Rerun recording of the held-out residual against temperature."
-        ),
-    ] = None,
+    heldout: HeldoutOpt = None,
+    rrd: VerdictRrdOpt = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Values, units and what the target cannot hold.")
     ] = False,
@@ -83,25 +85,15 @@ def export_cmd(
     from accellog.store.atomic import check_outputs, write_text_atomic
 
     check_outputs([output, rrd], [cal, noise_from, heldout])
-    if heldout is not None and to.value not in ("px4", "ardupilot"):
-        raise InputError(f"--heldout judges the px4 or ardupilot export, not --to {to.value}")
-    if rrd is not None and heldout is None:
-        raise InputError("--rrd draws the --heldout verdict: give --heldout S.mcap")
+    _check_verdict_options(to.value, heldout, rrd)
 
     c = load_calibration(cal, effects_file)
     if noise_from is not None:
         noise = NoiseCharacterisation.from_model(characterise_noise(noise_from))
     else:
         noise = NoiseCharacterisation.from_section(c.noise) if c.noise else None
-    verdict, judged = [], None
-    if heldout is not None:
-        from accellog.flows.export_verdict import export_verdict
-
-        judged = export_verdict(c, to.value, heldout)
-        verdict = judged.lines()
-        for line in verdict:
-            note(line)
-
+    judged = _verdict(c, to.value, heldout)
+    verdict = [] if judged is None else judged.lines()
     ex = export_calibration(
         c, to.value, noise=noise, topic=topic, rotation=rotation, device_id=device_id, verdict=verdict
     )
@@ -119,3 +111,23 @@ def export_cmd(
     console.print(f"wrote {output} ({to.value})")
     for x in ex.cannot_hold:
         console.print(f"[yellow]cannot hold:[/] {x}", soft_wrap=True)
+
+
+def _check_verdict_options(target: str, heldout: Path | None, rrd: Path | None) -> None:
+    """--heldout judges an autopilot's export; --rrd draws that verdict."""
+    if heldout is not None and target not in ("px4", "ardupilot"):
+        raise InputError(f"--heldout judges the px4 or ardupilot export, not --to {target}")
+    if rrd is not None and heldout is None:
+        raise InputError("--rrd draws the --heldout verdict: give --heldout S.mcap")
+
+
+def _verdict(cal, target: str, heldout: Path | None):
+    """export --heldout: the held-out verdict (flows.export_verdict), its lines said on stderr; None without."""
+    if heldout is None:
+        return None
+    from accellog.flows.export_verdict import export_verdict
+
+    judged = export_verdict(cal, target, heldout)
+    for line in judged.lines():
+        note(line)
+    return judged

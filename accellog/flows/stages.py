@@ -30,8 +30,9 @@ import numpy as np
 from accellog.calibrate.calfile.calibration import Calibration, as_calibration, load_calibration, source_entry
 from accellog.calibrate.calfile.sections import DetectedInterval, DeviceInfo, SensorInfo, SourceFile
 from accellog.calibrate.gyro.calibrate import gyro_full_scale_dps, warn_clipped_moves
+from accellog.calibrate.gyro.fit import pooled_bias
 from accellog.calibrate.gyro.model import GyroCalibration
-from accellog.calibrate.gyro.stream import FirstPass, bias_windows, calibrate_blocks, first_pass, pooled_bias
+from accellog.calibrate.gyro.stream import FirstPass, bias_windows, calibrate_blocks, first_pass
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.fit import fit_model, fit_orientation_free
 from accellog.calibrate.observe.detect import detect_static, with_labels

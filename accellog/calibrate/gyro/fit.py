@@ -38,6 +38,7 @@ import numpy as np
 from accellog.calibrate.gyro.model import PARAM_NAMES, GyroCalibration
 from accellog.calibrate.gyro.rotation import relative_rotations
 from accellog.core.errors import InputError, ModelError
+from accellog.core.notices import note
 from accellog.core.numeric import least_squares
 from accellog.core.rotations import quat_conjugate, quat_multiply, quat_to_rotvec, rotate_inverse
 from accellog.core.session import PoseLabel
@@ -92,6 +93,68 @@ def bias_fit(
         cal.temp_bias2_sigma_dps_per_degC2 = sig[2]
         cal.effects.append("temp_bias2")
     return cal
+
+
+def screened_bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order, still_ref):
+    """fit.bias_fit; with still_ref (stops of a run, not a lab's holds) first the turns out
+    (still_windows), then once more without the windows more than ROBUST_CLIP robust sigmas (1.4826
+    MAD per axis) off the fitted curve: a stop that still creeps at its ends."""
+    if still_ref is None:
+        return bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order)
+    means, temps = still_windows(means, temps, has_temp, still_ref)
+    cal = bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order)
+    res = means - cal.bias_at(temps if "temp_bias" in cal.effects else None)
+    mad = 1.4826 * np.median(np.abs(res - np.median(res, axis=0)), axis=0)
+    keep = np.all(np.abs(res) <= ROBUST_CLIP * np.maximum(mad, 1e-9), axis=1)
+    if keep.all() or keep.sum() < 3:
+        return cal
+    note(f"gyro: {int((~keep).sum())} of {keep.size} stop windows more than {ROBUST_CLIP:g} robust sigma off "
+         "the bias curve: left out")  # fmt: skip
+    return bias_fit(means[keep], temps[keep], has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order)
+
+
+STILL_TOL_DPS = 2.0
+"""A window whose mean rate is further than this from the reference's bias (deg/s, any axis) is a
+turn: an accelerometer-still interval of a robot turning in place (a yaw rate leaves the specific
+force unchanged) is not a gyro stop. MPU-9250 zero-rate offsets move by less than this over months
+(the aging a field calibration allows, calibrate.model.prior)."""
+DATASHEET_TEMP_DPS_PER_DEGC = 0.24
+"""PS-MPU-9250A Table 1 zero-rate output variation over temperature (+-30 deg/s over -40..85 degC):
+the tolerance grows by this per degC away from the reference's T_ref when it has no temperature curve."""
+ROBUST_CLIP = 4.0
+"""Stop windows further than this many robust sigmas from the fitted bias curve are left out (_screened_fit)."""
+
+
+def still_windows(means, temps, has_temp: bool, ref: GyroCalibration | None):
+    """(means, temps) of the windows at rest by the reference gyro calibration (STILL_TOL_DPS; all of
+    them without one); how many were turns is said in a note."""
+    if ref is None or not len(means):
+        return means, temps
+    known = has_temp and np.isfinite(temps).all()
+    expect = ref.bias_at(temps if known else None)
+    tol = np.full(len(means), STILL_TOL_DPS)
+    if known and not np.any(ref.temp_poly_dps):  # no curve: allow the datasheet's tempco
+        tol = tol + DATASHEET_TEMP_DPS_PER_DEGC * np.abs(temps - ref.t_ref_degC)
+    keep = np.all(np.abs(means - expect) <= tol[:, None], axis=1)
+    if not keep.all():
+        note(f"gyro: {int((~keep).sum())} of {keep.size} still windows turn (further from the prior's bias than "
+             f"{STILL_TOL_DPS:g} deg/s, + {DATASHEET_TEMP_DPS_PER_DEGC:g}/degC off its T_ref without its temperature "
+             "curve): left out of the bias")  # fmt: skip
+    return means[keep], temps[keep]
+
+
+def pooled_bias(windows, n_holds: int, *, t_ref_degC: float = 25.0, window_s: float = 1.0,
+                min_temp_span_degC: float = 2.0, temp_order: int = 1,
+                still_ref: GyroCalibration | None = None) -> GyroCalibration:  # fmt: skip
+    """fit.bias_fit over the windows (stream.bias_windows) of several sessions of one sensor together: one
+    temperature curve from all their temperatures (a warm-up and a cool-down, several days);
+    still_ref: as stream.calibrate_blocks."""
+    means = np.concatenate([w[0] for w in windows])
+    temps = np.concatenate([w[1] for w in windows])
+    has_temp = all(w[2] for w in windows)
+    return screened_bias_fit(
+        means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_span_degC, temp_order, still_ref
+    )
 
 
 CLIP_NEAR = 0.98

@@ -35,19 +35,18 @@ from typing import NamedTuple
 import numpy as np
 
 from accellog.calibrate.gyro.fit import (
-    bias_fit,
     bias_window_times,
     clipped_in_moves,
     fit_matrix,
     hold_intervals,
     known_poses,
     pose_times,
+    screened_bias_fit,
 )
 from accellog.calibrate.gyro.model import GyroCalibration
 from accellog.calibrate.gyro.rotation import coarse_plan, fine_pieces
 from accellog.core.errors import InputError
 from accellog.core.heap import trim_heap
-from accellog.core.notices import note
 from accellog.core.session import PoseLabel
 from accellog.store.stream import ImuBlock, closed_after
 
@@ -95,7 +94,7 @@ def calibrate_blocks(
     base's (no windows are summed) and the matrix is fitted (>= 2 poses with a reference needed).
     first: step 1 already fed every block (first_pass with the same arguments). temp_order: 2 adds
     b_T2 dT^2 to the bias (fit.bias_fit). still_ref: a calibration of the same gyro (a lab prior):
-    windows whose mean is more than STILL_TOL_DPS from its bias are turns, not stops (still_windows)."""
+    windows whose mean is more than fit.STILL_TOL_DPS from its bias are turns, not stops (fit.still_windows)."""
     iv, known, first_new = _plan(
         poses, model, reference, window_s, trim_s, full_scale_dps, rotations, bias=base is None
     )
@@ -130,65 +129,17 @@ def calibrate_blocks(
 
 def _bias(sums, has_temp: bool, n_holds: int, t_ref_degC: float, window_s: float, min_span: float,
           temp_order: int = 1, still_ref: GyroCalibration | None = None):  # fmt: skip
-    """fit.bias_fit on the window means of FirstPass sums (the turning ones out: still_windows)."""
+    """fit.bias_fit on the window means of FirstPass sums (the turning ones out: fit.screened_bias_fit)."""
     means = sums[0] / sums[2][:, None]
     temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
-    return _screened_fit(
+    return screened_bias_fit(
         means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order, still_ref
     )
 
 
-def _screened_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order, still_ref):
-    """fit.bias_fit; with still_ref (stops of a run, not a lab's holds) first the turns out
-    (still_windows), then once more without the windows more than ROBUST_CLIP robust sigmas (1.4826
-    MAD per axis) off the fitted curve: a stop that still creeps at its ends."""
-    if still_ref is None:
-        return bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order)
-    means, temps = still_windows(means, temps, has_temp, still_ref)
-    cal = bias_fit(means, temps, has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order)
-    res = means - cal.bias_at(temps if "temp_bias" in cal.effects else None)
-    mad = 1.4826 * np.median(np.abs(res - np.median(res, axis=0)), axis=0)
-    keep = np.all(np.abs(res) <= ROBUST_CLIP * np.maximum(mad, 1e-9), axis=1)
-    if keep.all() or keep.sum() < 3:
-        return cal
-    note(f"gyro: {int((~keep).sum())} of {keep.size} stop windows more than {ROBUST_CLIP:g} robust sigma off "
-         "the bias curve: left out")  # fmt: skip
-    return bias_fit(means[keep], temps[keep], has_temp, n_holds, t_ref_degC, window_s, min_span, temp_order)
-
-
-STILL_TOL_DPS = 2.0
-"""A window whose mean rate is further than this from the reference's bias (deg/s, any axis) is a
-turn: an accelerometer-still interval of a robot turning in place (a yaw rate leaves the specific
-force unchanged) is not a gyro stop. MPU-9250 zero-rate offsets move by less than this over months
-(the aging a field calibration allows, calibrate.model.prior)."""
-DATASHEET_TEMP_DPS_PER_DEGC = 0.24
-"""PS-MPU-9250A Table 1 zero-rate output variation over temperature (+-30 deg/s over -40..85 degC):
-the tolerance grows by this per degC away from the reference's T_ref when it has no temperature curve."""
-ROBUST_CLIP = 4.0
-"""Stop windows further than this many robust sigmas from the fitted bias curve are left out (_screened_fit)."""
-
-
-def still_windows(means, temps, has_temp: bool, ref: GyroCalibration | None):
-    """(means, temps) of the windows at rest by the reference gyro calibration (STILL_TOL_DPS; all of
-    them without one); how many were turns is said in a note."""
-    if ref is None or not len(means):
-        return means, temps
-    known = has_temp and np.isfinite(temps).all()
-    expect = ref.bias_at(temps if known else None)
-    tol = np.full(len(means), STILL_TOL_DPS)
-    if known and not np.any(ref.temp_poly_dps):  # no curve: allow the datasheet's tempco
-        tol = tol + DATASHEET_TEMP_DPS_PER_DEGC * np.abs(temps - ref.t_ref_degC)
-    keep = np.all(np.abs(means - expect) <= tol[:, None], axis=1)
-    if not keep.all():
-        note(f"gyro: {int((~keep).sum())} of {keep.size} still windows turn (further from the prior's bias than "
-             f"{STILL_TOL_DPS:g} deg/s, + {DATASHEET_TEMP_DPS_PER_DEGC:g}/degC off its T_ref without its temperature "
-             "curve): left out of the bias")  # fmt: skip
-    return means[keep], temps[keep]
-
-
 def bias_windows(blocks: Blocks, poses, *, window_s: float = 1.0, trim_s: float = 0.2):
     """(window means (W,3) deg/s, window temperatures (W,) degC (NaN without), has_temp) of one
-    session's holds: step 1 alone, for a bias pooled over sessions (pooled_bias); None without gyro."""
+    session's holds: step 1 alone, for a bias pooled over sessions (fit.pooled_bias); None without gyro."""
     first = _plan(poses, "full", "gravity", window_s, trim_s, None, rotations=False)[2]
     with closed_after(blocks()) as it:
         for blk in it:
@@ -200,20 +151,6 @@ def bias_windows(blocks: Blocks, poses, *, window_s: float = 1.0, trim_s: float 
     sums, has_temp = found[0], found[1]
     temps = sums[1] / sums[2] if has_temp else np.full(sums[2].size, np.nan)
     return sums[0] / sums[2][:, None], temps, has_temp
-
-
-def pooled_bias(windows, n_holds: int, *, t_ref_degC: float = 25.0, window_s: float = 1.0,
-                min_temp_span_degC: float = 2.0, temp_order: int = 1,
-                still_ref: GyroCalibration | None = None) -> GyroCalibration:  # fmt: skip
-    """fit.bias_fit over the windows (bias_windows) of several sessions of one sensor together: one
-    temperature curve from all their temperatures (a warm-up and a cool-down, several days);
-    still_ref: as calibrate_blocks."""
-    means = np.concatenate([w[0] for w in windows])
-    temps = np.concatenate([w[1] for w in windows])
-    has_temp = all(w[2] for w in windows)
-    return _screened_fit(
-        means, temps, has_temp, n_holds, t_ref_degC, window_s, min_temp_span_degC, temp_order, still_ref
-    )
 
 
 def _rotation_blocks(blocks: Blocks, located, k: int, base: GyroCalibration, has_temp: bool):
