@@ -464,6 +464,22 @@ def results_md(done: list[Row], mode: str, repeat: int, by: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+RESULTS_START = "<!-- discovery: python benchmarks/bench_discovery.py --write -->"
+RESULTS_END = "<!-- end of discovery -->"
+"""Markers of the discovery section of RESULTS.md (written by bench_discovery.py --write)."""
+
+
+def kept_sections() -> str:
+    """Sections of the current RESULTS.md that other scripts write (bench_discovery.py --write),
+    kept when the table is regenerated."""
+    text = (BENCH / "RESULTS.md").read_text() if (BENCH / "RESULTS.md").exists() else ""
+    if RESULTS_START not in text or RESULTS_END not in text:
+        return ""
+    return (
+        "\n" + RESULTS_START + text.split(RESULTS_START, 1)[1].split(RESULTS_END, 1)[0] + RESULTS_END + "\n"
+    )
+
+
 README_START, README_END = "<!-- speed table: python benchmarks/run_all.py -->", "<!-- end of speed table -->"
 
 
@@ -525,7 +541,7 @@ def main() -> None:
         print(f"{r.what:<46} {f.wall_s:7.2f} {f.cpu_s:7.2f} {f.peak_mb:5.0f} | {bs} | {ratio}{cpu_r} "
               f"{'ok' if ok else 'GOAL MISSED: ' + r.goal}")  # fmt: skip
     if not a.no_write:
-        (BENCH / "RESULTS.md").write_text(results_md(todo, mode, repeat, a.by))
+        (BENCH / "RESULTS.md").write_text(results_md(todo, mode, repeat, a.by) + kept_sections())
         print(f"\nwrote {BENCH / 'RESULTS.md'}")
         if not a.rows:  # every row ran: the README's speed table follows
             write_readme_table(todo, a.by)

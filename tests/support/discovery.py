@@ -7,7 +7,12 @@ Scenarios (name -> chip error fields besides model3's and the temperature paths)
 - ``rate``: a bias following the rate of the die temperature, b += r dT/dt (outside the library);
 - ``hysteresis``: a thermal hysteresis, b += h s(t), s = -1 heating / +1 cooling (outside the library);
 - ``two``: two library effects at once, temp_bias and time_drift;
-- ``single``: one library effect, temp_bias (the succeeding search the failing ones are timed against).
+- ``single``: one library effect, temp_bias (the succeeding search the failing ones are timed against);
+- ``clean``: model3's terms only (nothing to add);
+- ``quadratic``: a quadratic temperature bias, temp_bias and temp_bias2 (library), warm-ups;
+- ``tilt``: a tilted fixture (fixture_tilt, library; the 24-pose protocol, ``TILT_DEG``);
+- ``nonlin``: an input nonlinearity, nonlin2 (library);
+- ``temp_nonlin``: temp_bias, temp_bias2 and nonlin2 at once (library), warm-ups.
 
 Calibration and held-out sessions of one scenario share the chip and differ in noise seed and
 temperature path (a warm-up of another amplitude and time constant, or heat/cool in another order).
@@ -40,8 +45,22 @@ HIDDEN: dict[str, dict[str, Any]] = {
         "time_drift_g_per_s": [1.5e-5, -1.0e-5, 1.2e-5],
     },
     "single": {"temp_bias_g_per_degC": [1.0e-3, -0.8e-3, 1.2e-3]},
+    "clean": {},
+    "quadratic": {
+        "temp_bias_g_per_degC": [1.0e-3, -0.8e-3, 1.2e-3],
+        "temp_bias2_g_per_degC2": [6e-5, -5e-5, 7e-5],
+    },
+    "tilt": {},
+    "nonlin": {"nonlin2_per_g": [4e-3, -3e-3, 5e-3]},
+    "temp_nonlin": {
+        "temp_bias_g_per_degC": [1.0e-3, -0.8e-3, 1.2e-3],
+        "temp_bias2_g_per_degC2": [6e-5, -5e-5, 7e-5],
+        "nonlin2_per_g": [4e-3, -3e-3, 5e-3],
+    },
 }
 """Hidden chip error fields (accellog.acquire.emulator.sensor_model.AccelErrors) per scenario."""
+TILT_DEG: dict[str, tuple[float, float]] = {"tilt": (0.3, -0.2)}
+"""Fixture tilt (deg about x, y) per scenario; none elsewhere."""
 
 
 def _temperature(name: str, held: bool, duration_s: float) -> dict[str, Any]:
@@ -62,9 +81,12 @@ def scenario(
 ) -> Scenario:
     """The scenario's calibration (or held-out) session: `rounds` rounds of `poses` (the six faces;
     EDGES for hand-held sessions, which need >= 9 orientations) and a final +z, holds of hold_s s,
-    2 s moves, 200 Hz."""
-    protocol = ",".join([poses] * rounds + ["+z"])
-    duration = (len(poses.split(",")) * rounds + 1) * (hold_s + 2.0) + 1.0
+    2 s moves, 200 Hz. poses "24": the 24-pose fixture protocol, `rounds` times, no final +z."""
+    if poses == "24":
+        protocol, n_holds = ",".join(["24"] * rounds), 24 * rounds
+    else:
+        protocol, n_holds = ",".join([poses] * rounds + ["+z"]), len(poses.split(",")) * rounds + 1
+    duration = n_holds * (hold_s + 2.0) + 1.0
     return Scenario(
         protocol=protocol,
         hold_s=hold_s,
@@ -75,12 +97,13 @@ def scenario(
         set={**MODEL3_CHIP, **HIDDEN[name]},
         seed=seed,
         temperature=_temperature(name, held, duration),
+        fixture_tilt_deg=TILT_DEG.get(name, (0.0, 0.0)),
     )
 
 
 def session_path(root: Path, name: str, seed: int, held: bool = False, **kw: Any) -> Path:
     """The scenario's session as an MCAP file in root (simulated on first use)."""
-    tag = "_edges" if kw.get("poses") == EDGES else ""
+    tag = {EDGES: "_edges", "24": "_24"}.get(kw.get("poses", SIX), "")
     which = "held" if held else "cal"
     p = Path(root) / f"{name}_{seed}_{which}_{kw.get('rounds', 3)}_{kw.get('hold_s', 10.0):g}{tag}.mcap"
     if not p.exists():
