@@ -7,7 +7,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 
 Update = Callable[..., None]
 """update(done, total=None): the work done so far (and the total, when it became known)."""
@@ -66,7 +66,7 @@ class StepBar:
 
     def __init__(self, description: str, *, show: bool | None = None):
         self.description, self.show = description, show
-        self._ctx = None
+        self._ctx: AbstractContextManager[Update] | None = None
         self._update: Update | None = None
 
     def __call__(self, done: float, total: float) -> None:

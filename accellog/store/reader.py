@@ -19,7 +19,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from accellog.core.errors import DataIntegrityWarning, InputError
-from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
+from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth, quat4, vec3
 from accellog.core.units import temp_counts_to_degC
 from accellog.store.collect import Collected, Damage, Decoder, check_file, generic_collect, recover
 from accellog.store.imu_arrays import ImuAccumulator, first_indexes, lsb_scales
@@ -311,10 +311,8 @@ def read_poses(dec: Decoder | None) -> list[PoseLabel]:
             name=d["name"],
             start_s=d["start_ns"] / NS_PER_S,
             end_s=d["end_ns"] / NS_PER_S,
-            up_sensor=tuple(float(v) for v in d["up_sensor"]),
-            q_sensor_to_world=tuple(float(v) for v in d["q_sensor_to_world"])
-            if d["q_sensor_to_world"].size
-            else None,
+            up_sensor=vec3(d["up_sensor"]),
+            q_sensor_to_world=quat4(d["q_sensor_to_world"]) if d["q_sensor_to_world"].size else None,
             hold_index=int(d["hold_index"]),
         )
         for d in _messages(dec)

@@ -28,7 +28,7 @@ import numpy as np
 from accellog.core.errors import InputError
 from accellog.core.kinematics import Kinematics
 from accellog.core.rotations import quat_from_axis_angle, quat_multiply, rotate_inverse
-from accellog.core.session import PoseLabel
+from accellog.core.session import PoseLabel, quat4, vec3
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 CHANNELS = ("speed_mps", "yaw_rad", "pitch_rad", "roll_rad")
@@ -293,8 +293,8 @@ class RobotPathMotion:
                     name=f"stop{len(out)}",
                     start_s=float(t0),
                     end_s=float(t0 + d),
-                    up_sensor=tuple(float(x) for x in up),
-                    q_sensor_to_world=tuple(float(x) for x in q),
+                    up_sensor=vec3(up),
+                    q_sensor_to_world=quat4(q),
                     hold_index=len(out),
                 )
             )

@@ -62,7 +62,7 @@ def autocorrelation(
 
 def integrated_autocorr_time(
     x: np.ndarray, c: float = SOKAL_C, mean: np.ndarray | None = None, centred: bool = False
-) -> np.ndarray:
+) -> float | np.ndarray:
     """Integrated autocorrelation time tau (samples, >= 1) of each column, Sokal's window.
 
     tau(M) = 1 + 2 sum_{k=1..M} rho_k; M = smallest lag with M >= c * tau(M). Returns a float for

@@ -12,7 +12,7 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.protocol import pose_spec
-from accellog.core.session import PoseLabel
+from accellog.core.session import PoseLabel, quat4, vec3
 
 
 @dataclass
@@ -86,7 +86,7 @@ class PoseRuns:
                     f"pose {run.name!r}: true_x,true_y,true_z = {run.up.tolist()} is not a unit vector",
                     where=run.where,
                 )
-            up = tuple(float(v) for v in run.up)
+            up = vec3(run.up)
         elif spec is None:
             raise InputError(
                 f"unknown pose {run.name!r} without true_x,true_y,true_z: use +x,-x,+y,-y,+z,-z "
@@ -102,7 +102,7 @@ class PoseRuns:
                     f"pose {run.name!r}: qw,qx,qy,qz = {run.q.tolist()} is not a unit quaternion",
                     where=run.where,
                 )
-            q = tuple(float(v) for v in run.q)
+            q = quat4(run.q)
         if q is None and spec is not None and np.allclose(spec.up_sensor, up, atol=1e-9):
             q = spec.q_sensor_to_world
         self.poses.append(PoseLabel(run.name, run.start_s, float(end_s), up, q, len(self.poses)))
