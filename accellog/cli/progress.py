@@ -70,10 +70,11 @@ class StepBar:
         self._update: Update | None = None
 
     def __call__(self, done: float, total: float) -> None:
-        if self._ctx is None:
+        update = self._update
+        if self._ctx is None or update is None:
             self._ctx = progress_bar(self.description, total, show=self.show)
-            self._update = self._ctx.__enter__()
-        self._update(done, total)
+            self._update = update = self._ctx.__enter__()
+        update(done, total)
         if done >= total:
             self.close()
 

@@ -139,9 +139,15 @@ class CsvOptions:
         opts.check()
         return opts
 
-    def check(self) -> None:
-        if self.unit == "counts" and not self.lsb_per_g:
+    def counts_lsb_per_g(self) -> float:
+        """lsb_per_g of a --unit counts file (LSB/g; InputError when it was not given)."""
+        if not self.lsb_per_g:
             raise InputError("--unit counts needs --lsb-per-g (e.g. 16384 for +-2 g)")
+        return self.lsb_per_g
+
+    def check(self) -> None:
+        if self.unit == "counts":
+            self.counts_lsb_per_g()
         if self.lsb_per_g is not None and not 0 < self.lsb_per_g < math.inf:
             raise InputError(f"--lsb-per-g must be a positive number, got {self.lsb_per_g:g}")
         if self.gyro_unit == "counts" and not self.gyro_lsb_per_dps:
