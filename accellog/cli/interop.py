@@ -68,6 +68,7 @@ def export_cmd(
     check_outputs([output], [cal, noise_from])
 
     c = load_calibration(cal, effects_file)
+    noise: NoiseCharacterisation | None
     if noise_from is not None:
         noise = NoiseCharacterisation.from_model(characterise_noise(noise_from))
     else:
