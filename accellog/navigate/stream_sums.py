@@ -196,6 +196,8 @@ class Integrator:
         return v, d, series
 
     def _read_at(self, t: np.ndarray, series: dict[str, np.ndarray]) -> None:
+        if self.t0 is None:
+            raise RuntimeError("values read before the first sample")
         want = np.maximum(self.req, self.t0)
         prev = self.last
         lo = prev["t"] if prev is not None else t[0]

@@ -51,10 +51,9 @@ class PoseRuns:
                 if self._name:
                     self._run = _Run(self._name, float(t_s[s]), f"{self.path}:{line_of(s)}")
             if self._run is not None:
-                self._check(s, e, true, quat, line_of)
+                self._check(self._run, s, e, true, quat, line_of)
 
-    def _check(self, s: int, e: int, true, quat, line_of) -> None:
-        run = self._run
+    def _check(self, run: _Run, s: int, e: int, true, quat, line_of) -> None:
         if true is not None:
             seg = true[s:e]
             ok = np.all(np.isfinite(seg), axis=1)
