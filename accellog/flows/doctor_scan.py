@@ -149,7 +149,8 @@ class Where:
     """How many samples were flagged, and the times of the first WHERE_N."""
 
     def __init__(self) -> None:
-        self.count, self.t_s = 0, []
+        self.count = 0
+        self.t_s: list[float] = []
 
     def add(self, t: np.ndarray, mask: np.ndarray) -> None:
         idx = np.flatnonzero(mask)

@@ -339,6 +339,7 @@ def recover(path: Path, topics: Iterable[str] | None, why: Exception) -> Collect
     with open(path, "rb") as f:
         f.seek(max(size - len(MCAP_MAGIC), 0))
         has_end = f.read() == MCAP_MAGIC
+    detail: str | None
     if not has_end:
         detail = (
             f"file was not finished ({type(why).__name__}: {why}); salvaged {sink.n_messages} messages "

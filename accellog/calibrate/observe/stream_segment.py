@@ -270,7 +270,8 @@ class _Rows:
     end: no second copy of the table and no heap fragments left by hundreds of small arrays."""
 
     def __init__(self, capacity: int) -> None:
-        self.cap, self.n, self.cols = max(int(capacity), 1), 0, {}
+        self.cap, self.n = max(int(capacity), 1), 0
+        self.cols: dict[str, np.ndarray] = {}
 
     def add(self, cols: dict[str, np.ndarray]) -> None:
         k = len(next(iter(cols.values())))
