@@ -423,7 +423,7 @@ def run_pipeline(
     res = PipelineResult(
         name=spec["pipeline"]["name"], inputs=inp.files, at_s=float(report.get("at_s", 60.0))
     )
-    _fit_models(spec, inp, res, load_effects_file(effects_file) if effects_file else None)
+    _fit_models(spec, inp, res, load_effects_file(Path(effects_file)) if effects_file else None)
     _evaluate(spec, inp, res)
     if "drift" in spec:
         _drift(spec, inp, res)

@@ -8,7 +8,7 @@ accumulators.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -96,12 +96,12 @@ class DecodedBatch:
     message: str
     n_messages: int
     arrays: dict[str, np.ndarray]
-    scalars: dict[str, list | np.ndarray]  # lists, or arrays with scalar_arrays
+    scalars: Mapping[str, list | np.ndarray]  # lists, or arrays with scalar_arrays
     counts: dict[str, np.ndarray]
     placed: frozenset[str] = frozenset()  # arrays already written in place by BatchAccumulator.reserve
     derived: dict[str, np.ndarray] | None = None  # columns converted while reading (imu_arrays)
 
-    def result(self) -> tuple[dict[str, np.ndarray], dict[str, list], dict[str, np.ndarray]]:
+    def result(self) -> tuple[dict[str, np.ndarray], dict[str, list | np.ndarray], dict[str, np.ndarray]]:
         """(arrays, scalars, counts), as ``BatchDecoder.result()`` (new dicts; the arrays are shared)."""
         return dict(self.arrays), dict(self.scalars), dict(self.counts)
 

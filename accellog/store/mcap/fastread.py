@@ -32,6 +32,7 @@ from accellog.core.errors import InputError
 from accellog.core.threads import pool as thread_pool
 from accellog.store.collect import (
     Collected,
+    Damage,
     Sink,
     data_section_damage,
     recover,
@@ -130,7 +131,8 @@ def fast_walk(
     schemas, channels, chunk_index_at, chunk_index_len, metadata_at = read_summary(
         data, footer, summary_start
     )
-    (idx, usize), damaged = chunk_index(data, footer, chunk_index_at, chunk_index_len), []
+    idx, usize = chunk_index(data, footer, chunk_index_at, chunk_index_len)
+    damaged: list[Damage] = []
     del chunk_index_at, chunk_index_len  # idx keeps 8 B a chunk: a day of recorder chunks, 1.4 MB
     keep = chunks_with(data, idx.ci, channels, topics, stream)
     release_pages(data, 0, len(data))  # what the index pass touched (the summary: ~14 MB at 24 h)
