@@ -26,8 +26,9 @@ from rich.console import Console
 from rich.table import Table
 
 from accellog.calibrate.observe.segment import observations
+from accellog.core.session import ObsTable
 from accellog.flows.simulate import Scenario, simulate
-from accellog.flows.stages import run_drift, run_evaluate, run_fit
+from accellog.flows.stages import DriftOutcome, run_drift, run_evaluate, run_fit
 from accellog.flows.workbench import BASE_STEPS, discover, ladder_rows, log_ladder, steps_for
 from accellog.navigate.track_eval import run_session_tracks
 from accellog.present.rrd.demo_layout import DemoData, demo_blueprint
@@ -63,7 +64,7 @@ class DemoResult:
     fits: dict = field(default_factory=dict)
     evals: list = field(default_factory=list)
     drift_evals: list = field(default_factory=list)
-    drift: object | None = None
+    drift: DriftOutcome | None = None
     final_rows: list = field(default_factory=list)
     ladder: list = field(default_factory=list)
     discovered: list[str] = field(default_factory=list)
@@ -73,7 +74,7 @@ class DemoResult:
     """name -> Session of every simulated session."""
     diagnoses: list = field(default_factory=list)
     """Workbench diagnoses, one per discovery step."""
-    workbench_obs: object | None = None
+    workbench_obs: ObsTable | None = None
     """Observations (ObsTable) of the warm-up session the workbench diagnosed."""
 
 
@@ -279,6 +280,7 @@ def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
         log_evaluations(rec, res.evals)
         m3d = res.drift_evals[-1]
         rec.log_track("test/Model 3 + drift model", m3d.t_s, m3d.disp_drift_series_m)
+        assert res.drift is not None  # run() fits the drift model before the recording is written
         tbl, qtbl = drift_table(res.final_rows, res.evals[0].t_end_s, res.drift.drift)
         rec.log_document(
             "results/drift model", table_markdown(tbl) + "\n" + (table_markdown(qtbl) if qtbl else "")

@@ -8,7 +8,7 @@ accumulators.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -96,7 +96,7 @@ class DecodedBatch:
     message: str
     n_messages: int
     arrays: dict[str, np.ndarray]
-    scalars: Mapping[str, list | np.ndarray]  # lists, or arrays with scalar_arrays
+    scalars: dict[str, list | np.ndarray]  # lists, or arrays with scalar_arrays
     counts: dict[str, np.ndarray]
     placed: frozenset[str] = frozenset()  # arrays already written in place by BatchAccumulator.reserve
     derived: dict[str, np.ndarray] | None = None  # columns converted while reading (imu_arrays)
@@ -172,7 +172,8 @@ class BatchAccumulator:
                 store.resize(self._used[name], refcheck=False)
             arrays[name] = store
         counts = {name: np.concatenate(c) for name, c in self._counts.items()}
-        return DecodedBatch(self.message, self.n_messages, arrays, self._scalars, counts)
+        scalars: dict[str, list | np.ndarray] = dict(self._scalars)  # the lists shared
+        return DecodedBatch(self.message, self.n_messages, arrays, scalars, counts)
 
 
 def decode_batch(
