@@ -272,6 +272,7 @@ def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
     """The demo's recording of res at path, opening on tab first_tab (see demo_layout)."""
 
     S, diags, obs = res.sessions, res.diagnoses, res.workbench_obs
+    assert res.drift is not None and obs is not None  # run() computed both before the recording
     bp = demo_blueprint(_layout_data(res), first=first_tab)
     with RunRecording(f"save:{path}", recording_id="accellog-demo", blueprint=bp) as rec:
         log_session(rec, S["calibration"], calibrations={"Model 3": res.fits["model3"].cal})
@@ -280,7 +281,6 @@ def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
         log_evaluations(rec, res.evals)
         m3d = res.drift_evals[-1]
         rec.log_track("test/Model 3 + drift model", m3d.t_s, m3d.disp_drift_series_m)
-        assert res.drift is not None  # run() fits the drift model before the recording is written
         tbl, qtbl = drift_table(res.final_rows, res.evals[0].t_end_s, res.drift.drift)
         rec.log_document(
             "results/drift model", table_markdown(tbl) + "\n" + (table_markdown(qtbl) if qtbl else "")

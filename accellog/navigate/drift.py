@@ -321,7 +321,8 @@ def _drift(src: Source, cal: Calibration, *, up_sensor, until_s, max_samples):
         fit.add_again(b.t_s, d)
     dm = fit.model(st["std"] ** 2, st["tau"], up, src.where)
     at, end = acc.integ.series_at(dm.apply)
-    series = {} if ev.t_s is None else {"dd": dm.apply(ev.t_s, ev.disp_series_m)}
+    t_s, disp_m = ev.t_s, ev.disp_series_m  # the series kept for plots, if any
+    series = {} if t_s is None or disp_m is None else {"dd": dm.apply(t_s, disp_m)}
     drift_result(ev, dm, {"disp_drift_at": at, "disp_drift_end": end}, series)
     return dataclasses.replace(cal, drift=dm, path=None), dm, ev
 

@@ -78,7 +78,7 @@ class LadderRow(JsonResult):
         for k in _HELD:
             if getattr(self, k) is not None:
                 d[k] = _num(getattr(self, k))
-        if self.drift_at_s is not None:
+        if self.drift_at_s is not None and self.drift_key is not None:
             d["drift_at_s"] = float(self.drift_at_s)
             d[self.drift_key] = _num(self.drift_m)
         return d

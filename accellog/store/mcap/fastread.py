@@ -183,7 +183,7 @@ def fast_walk(
                 if stream is not None:
                     yield meta_kv, _handed_out(parts, channels, stream)
         except NotFast:  # unchecked chunks may be the cause: with damage, walk again checking them
-            if trust and data_crc.result() is not None:
+            if trust and data_crc is not None and data_crc.result() is not None:
                 raise _ChunksUnverified() from None
             raise
         outside = None if data_crc is None else data_crc.result()
