@@ -236,7 +236,7 @@ def generic_collect(path: Path, topics: Iterable[str] | None = None) -> Collecte
                 sink.channel(summary.schemas.get(ch.schema_id), ch)
         return Collected(sink.metadata, sink.topics, sink.decoders, None, [outside] if outside else [])
     except (McapError, EOFError, ValueError, OSError, IndexError, KeyError) as exc:
-        fast_error = exc
+        fast_error: Exception = exc
     except Exception as exc:  # e.g. a damaged chunk that fails inside the decompressor
         fast_error = exc
     return recover(path, topics, fast_error)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Future
+from typing import Any
 
 import numpy as np
 
@@ -108,7 +110,7 @@ class _Behind:
         from accellog.core.threads import pool
 
         self.pool = pool(1, threaded)
-        self.pending = None
+        self.pending: Future | None = None
 
     def wait(self) -> None:
         f, self.pending = self.pending, None
@@ -185,7 +187,7 @@ class _Holds:
 
     def table(self, name: str) -> ObsTable:
         """The ObsTable of every hold's rows (columns no hold has are None)."""
-        out = {}
+        out: dict[str, Any] = {}  # ObsTable's fields
         for f in dataclasses.fields(ObsTable):
             if f.name == "pose_names":
                 out[f.name] = self.names
