@@ -25,6 +25,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from accellog.calibrate.diagnosis.diagnose import Diagnosis
 from accellog.calibrate.observe.segment import observations
 from accellog.core.session import ObsTable
 from accellog.flows.simulate import Scenario, simulate
@@ -230,7 +231,12 @@ def _workbench_stage(res: DemoResult, first: list, con: Console) -> None:
     t2 = time.perf_counter()
     obs = observations(S["warmup_24"])
     held = observations(S["heldout_24"])
-    found = discover(obs, "model3", heldout=[held], on_step=lambda d: con.print(f"  {d.verdict}"))
+
+    def said(d: object) -> None:
+        assert isinstance(d, Diagnosis)  # discover() calls on_step with each step's Diagnosis
+        con.print(f"  {d.verdict}")
+
+    found = discover(obs, "model3", heldout=[held], on_step=said)
     diags = res.diagnoses = found.diagnoses
     res.workbench_obs = obs
     res.discovered = list(found.added)

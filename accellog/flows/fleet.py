@@ -40,7 +40,6 @@ import numpy as np
 from accellog.calibrate.calfile.calibration import sha256_file
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.jsonio import dumps
-from accellog.core.session import Session
 from accellog.core.version import __version__
 from accellog.flows.fleet_dask import batches, close_own, is_local, run_batches, start_client
 from accellog.flows.fleet_inputs import find_sessions, safe_part, unique_files
@@ -142,7 +141,7 @@ def session_task(path: str, content_sha256: str | None, spec: dict, pipe_sha256:
     }
     try:
         data = load_input(path)
-        if not isinstance(data, Session):
+        if not hasattr(data, "meta"):
             raise InputError("fleet run needs recorded sessions (samples), not pose tables", where=path)
         meta = data.meta
         base.update(_device_columns(meta))
@@ -302,8 +301,7 @@ def session_batch(
     returns the rows pointing to them ("stored": True); else the calibrations come back as the JSON
     text of their files, for the client to write. Either way the client's work per session, which
     bounds how many workers it keeps busy, stays small (docs/fleet.md, Scaling model)."""
-    out: list[dict] = []
-    staged: dict[Path, AtomicOutput] = {}
+    out, staged = [], dict[Path, AtomicOutput]()
     try:
         for p, h in zip(paths, hashes, strict=True):
             r = session_task(p, h, spec, pipe_sha256)

@@ -133,7 +133,14 @@ def print_diagnose_outcome(out) -> None:
 
 def step_printer(con: Console) -> Callable[[object], None]:
     """Progress of the workbench loop: one line per step (its out-of-sample choice or verdict)."""
-    return lambda d: con.print(f"step {d.model.name}: {escape(d.choice.reason if d.choice else d.verdict)}")
+    from accellog.calibrate.diagnosis.diagnose import Diagnosis
+
+    def show(d: object) -> None:
+        if not isinstance(d, Diagnosis):
+            raise TypeError(f"a workbench step is a Diagnosis, not {type(d).__name__}")
+        con.print(f"step {d.model.name}: {escape(d.choice.reason if d.choice else d.verdict)}")
+
+    return show
 
 
 def print_notes(notes: Sequence[str]) -> None:

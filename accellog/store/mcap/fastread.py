@@ -131,8 +131,7 @@ def fast_walk(
     schemas, channels, chunk_index_at, chunk_index_len, metadata_at = read_summary(
         data, footer, summary_start
     )
-    idx, usize = chunk_index(data, footer, chunk_index_at, chunk_index_len)
-    damaged: list[Damage] = []
+    (idx, usize), damaged = chunk_index(data, footer, chunk_index_at, chunk_index_len), list[Damage]()
     del chunk_index_at, chunk_index_len  # idx keeps 8 B a chunk: a day of recorder chunks, 1.4 MB
     keep = chunks_with(data, idx.ci, channels, topics, stream)
     release_pages(data, 0, len(data))  # what the index pass touched (the summary: ~14 MB at 24 h)
