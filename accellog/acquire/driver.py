@@ -556,6 +556,8 @@ class Mpu9250:
         dt_s = (self._last_count_ns - t0) * 1e-9
         if dt_s >= 2.0:
             r = (self._next_index - i0) / dt_s
+            if self.config is None:
+                raise RuntimeError("samples counted before the chip was configured")
             nominal = self.config.sample_rate_hz
             if abs(r / nominal - 1.0) < 0.1:
                 self._rate_est = r
@@ -569,11 +571,10 @@ class Mpu9250:
             raise InputError(f"magnetometer mode {mode_hz} Hz: use 8 or 100")
         if self.info is None:
             self.probe()
-        assert self.info is not None
-        if not self.info.has_magnetometer:
-            raise DeviceError(
-                f"{self.info.model} (WHO_AM_I=0x{self.info.who_am_i:02X}) has no AK8963 magnetometer"
-            )
+        info = self.info
+        assert info is not None  # probe() sets it or raises
+        if not info.has_magnetometer:
+            raise DeviceError(f"{info.model} (WHO_AM_I=0x{info.who_am_i:02X}) has no AK8963 magnetometer")
         ak = R.AK8963_ADDRESS
 
         def steps() -> np.ndarray:
@@ -586,7 +587,7 @@ class Mpu9250:
             except _BusFailure:
                 raise DeviceError(
                     "no AK8963 answers at 0x0C with bypass enabled: this board has no magnetometer "
-                    f"({self.info.model} clone reporting WHO_AM_I=0x{self.info.who_am_i:02X}?)"
+                    f"({info.model} clone reporting WHO_AM_I=0x{info.who_am_i:02X}?)"
                 ) from None
             if wia != R.AK_WIA_VALUE:
                 raise DeviceError(f"AK8963 WIA=0x{wia:02X} (expected 0x48): not an AK8963 magnetometer")

@@ -132,11 +132,12 @@ def _exit_code(exc: Exception) -> int | None:
         return 2
     # typer bundles its own click: usage errors carry format_message() and exit_code; they are
     # one line too (the command and the message; `--help` shows the usage).
-    if hasattr(exc, "format_message") and isinstance(getattr(exc, "exit_code", None), int):
+    code = getattr(exc, "exit_code", None)
+    if hasattr(exc, "format_message") and isinstance(code, int):
         ctx = getattr(exc, "ctx", None)
         path = ctx.command_path if ctx is not None else None
         print(_usage_error_line(path, str(exc.format_message())), file=sys.stderr)
-        return exc.exit_code
+        return code
     return None
 
 

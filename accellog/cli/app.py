@@ -148,7 +148,8 @@ def plain_flags(cmd: Any) -> Any:
             p.metavar = ""
         if isinstance(p, TyperArgument):
             p.metavar = p.metavar or (p.name or "arg").upper()
-            p._usage_display_name = functools.partial(_usage_name, p)
+            # click has no setting for an argument's usage name: its method is replaced on the instance
+            p._usage_display_name = functools.partial(_usage_name, p)  # type: ignore[method-assign]
     for sub in getattr(cmd, "commands", {}).values():
         plain_flags(sub)
     return cmd
@@ -157,16 +158,22 @@ def plain_flags(cmd: Any) -> Any:
 def _build(name: str) -> _click.Command:
     """The click command `name` from what its module registered on `app`, as typer builds it for a
     whole app; its flags plain and its numeric options checked (accellog.cli.option_checks)."""
-    settings = {
-        "pretty_exceptions_short": app.pretty_exceptions_short,
-        "rich_markup_mode": app.rich_markup_mode,
-    }
+    short, markup = app.pretty_exceptions_short, app.rich_markup_mode
     for info in app.registered_commands:
-        if (info.name or typer.main.get_command_name(info.callback.__name__)) == name:
-            return guard_options(plain_flags(typer.main.get_command_from_info(info, **settings)))
+        fn_name = info.callback.__name__ if info.callback is not None else ""
+        if (info.name or typer.main.get_command_name(fn_name)) == name:
+            built = typer.main.get_command_from_info(
+                info, pretty_exceptions_short=short, rich_markup_mode=markup
+            )
+            return guard_options(plain_flags(built))
     for group in app.registered_groups:
         if group.name == name:
-            built = typer.main.get_group_from_info(group, suggest_commands=app.suggest_commands, **settings)
+            built = typer.main.get_group_from_info(
+                group,
+                pretty_exceptions_short=short,
+                suggest_commands=app.suggest_commands,
+                rich_markup_mode=markup,
+            )
             return guard_options(plain_flags(built))
     raise LookupError(f"accellog.cli.{COMMANDS[name]} registers no command {name!r}")
 

@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import sys
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from rich.live import Live
 
 
 class _Stream:
@@ -38,7 +41,7 @@ class Busy:
         self.label, self.delay_s, self.show = label, delay_s, show
         self._lock = threading.RLock()
         self._timer: threading.Timer | None = None
-        self._status = None
+        self._status: Live | None = None
         self._saved: tuple[Any, Any] | None = None
         self._done = False
 

@@ -31,6 +31,7 @@ def doctor_cmd(
         from accellog.present.rrd.recording import RunRecording
 
         with RunRecording(f"save:{rrd}", blueprint=None) as rec:
+            assert t_s is not None  # keep_times on a file: every sample time
             doctor_view.log_doctor(rec, r, t_s)
     if as_json:
         typer.echo(r.to_json())

@@ -88,6 +88,7 @@ def export_cmd(
     _check_verdict_options(to.value, heldout, rrd)
 
     c = load_calibration(cal, effects_file)
+    noise: NoiseCharacterisation | None
     if noise_from is not None:
         noise = NoiseCharacterisation.from_model(characterise_noise(noise_from))
     else:

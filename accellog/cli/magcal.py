@@ -53,6 +53,7 @@ def magcal_cmd(
     if rrd is not None:
         from accellog.present.mag_views import log_magcal
 
+        assert session.mag_uT is not None  # run_magcal refuses a session without magnetometer samples
         log_magcal(rrd, c, session.mag_uT)
     if as_json:
         typer.echo(c.to_json())

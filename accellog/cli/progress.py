@@ -7,7 +7,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 
 Update = Callable[..., None]
 """update(done, total=None): the work done so far (and the total, when it became known)."""
@@ -66,14 +66,15 @@ class StepBar:
 
     def __init__(self, description: str, *, show: bool | None = None):
         self.description, self.show = description, show
-        self._ctx = None
+        self._ctx: AbstractContextManager[Update] | None = None
         self._update: Update | None = None
 
     def __call__(self, done: float, total: float) -> None:
-        if self._ctx is None:
+        update = self._update
+        if self._ctx is None or update is None:
             self._ctx = progress_bar(self.description, total, show=self.show)
-            self._update = self._ctx.__enter__()
-        self._update(done, total)
+            self._update = update = self._ctx.__enter__()
+        update(done, total)
         if done >= total:
             self.close()
 

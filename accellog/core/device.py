@@ -100,7 +100,8 @@ class DeviceKey:
     @classmethod
     def from_meta(cls, meta: Any) -> DeviceKey:
         """The key of a SessionMeta (fields of the same names)."""
-        return cls(**{f.name: getattr(meta, f.name, f.default) for f in dataclasses.fields(cls)})
+        kw: dict[str, Any] = {f.name: getattr(meta, f.name, f.default) for f in dataclasses.fields(cls)}
+        return cls(**kw)
 
 
 _INT_FIELDS = {"who_am_i", "ak8963_wia", "i2c_address"}

@@ -155,17 +155,22 @@ class Pending(Generic[T]):
             self._reap()
 
     def _read(self) -> bytes:
+        fd = self._fd
+        if fd is None:
+            raise RuntimeError("the child's result was already taken")
         chunks = []
         try:
-            while chunk := os.read(self._fd, 1 << 20):
+            while chunk := os.read(fd, 1 << 20):
                 chunks.append(chunk)
         finally:
-            os.close(self._fd)
+            os.close(fd)
             self._fd = None
         return b"".join(chunks)
 
     def _reap(self) -> int:
         pid, self._pid = self._pid, None
+        if pid is None:
+            raise RuntimeError("the child was already reaped")
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None

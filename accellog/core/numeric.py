@@ -124,7 +124,8 @@ class _AtStart:
     def __init__(
         self, fn: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, value: np.ndarray | None = None
     ):
-        self.fn, self.x0, self.value = fn, x0, value
+        self.fn, self.value = fn, value
+        self.x0: np.ndarray | None = x0
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         if self.x0 is not None:

@@ -20,7 +20,7 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.rotations import quat_between, quat_from_axis_angle, quat_multiply
-from accellog.core.session import POSE_UP_VECTORS
+from accellog.core.session import POSE_UP_VECTORS, quat4, vec3
 
 SIX_POSITION_ORDER = ("+z", "-z", "+y", "-y", "+x", "-x")
 """The seed's order (z+, z-, y+, y-, x+, x-)."""
@@ -53,10 +53,10 @@ def pose_spec(name: str, hold_s: float) -> PoseSpec:
         up = POSE_UP_VECTORS[faces[0]]
     else:
         v = np.sum([POSE_UP_VECTORS[f] for f in faces], axis=0)
-        up = tuple(float(c) for c in v / np.linalg.norm(v))
+        up = vec3(v / np.linalg.norm(v))
     q_face = quat_between(np.array(up), np.array([0.0, 0.0, 1.0]))
     q = quat_multiply(quat_from_axis_angle([0.0, 0.0, 1.0], np.deg2rad(yaw)), q_face)
-    return PoseSpec(name.strip(), up, tuple(float(v) for v in q), float(hold_s))
+    return PoseSpec(name.strip(), up, quat4(q), float(hold_s))
 
 
 def six_position(hold_s: float = 30.0) -> list[PoseSpec]:

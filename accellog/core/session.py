@@ -70,6 +70,18 @@ class SessionMeta:
         return DeviceKey.from_meta(self)
 
 
+def vec3(v) -> tuple[float, float, float]:
+    """A 3-vector (any sequence or array of 3 numbers) as the plain-float tuple PoseLabel keeps."""
+    x, y, z = (float(c) for c in v)
+    return x, y, z
+
+
+def quat4(q) -> tuple[float, float, float, float]:
+    """A quaternion (w, x, y, z) (any sequence or array of 4 numbers) as a plain-float tuple."""
+    w, x, y, z = (float(c) for c in q)
+    return w, x, y, z
+
+
 @dataclass(frozen=True)
 class PoseLabel:
     """A labelled static hold.

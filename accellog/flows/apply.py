@@ -22,10 +22,11 @@ from accellog.store.recovery import announce
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
 
-def _write_mag_calibrated(w, s: Session, mc: MagCalibration) -> None:
-    """/derived/mag_calibrated: A (m - h) in uT, AK8963 axes (accellog.calibrate.mag.magnetometer)."""
-    t_ns = np.round(s.mag_t_s * NS_PER_S).astype(np.int64)
-    w.write_vector3("mag_calibrated", t_ns, mc.correct(s.mag_uT), "uT", frame="AK8963")
+def _write_mag_calibrated(w, t_s: np.ndarray, mag_uT: np.ndarray, mc: MagCalibration) -> None:
+    """/derived/mag_calibrated: A (m - h) in uT, AK8963 axes (accellog.calibrate.mag.magnetometer);
+    t_s (M,) s and mag_uT (M, 3): the session's magnetometer samples."""
+    t_ns = np.round(t_s * NS_PER_S).astype(np.int64)
+    w.write_vector3("mag_calibrated", t_ns, mc.correct(mag_uT), "uT", frame="AK8963")
 
 
 class OtherDeviceWarning(UserWarning):
@@ -113,8 +114,8 @@ def run_apply(
                     mag_uT=s.mag_uT,
                     first_index=0,
                 )
-                if c.magnetometer is not None and s.mag_uT is not None:
-                    _write_mag_calibrated(w, s, c.magnetometer)
+                if c.magnetometer is not None and s.mag_uT is not None and s.mag_t_s is not None:
+                    _write_mag_calibrated(w, s.mag_t_s, s.mag_uT, c.magnetometer)
             for p in s.poses:
                 w.write_pose(p)
             for e in s.events:
@@ -129,5 +130,5 @@ def run_apply(
     if ros2 is not None:
         from accellog.flows.ros2_out import write_ros2
 
-        write_ros2(s, c, ros2, topic=ros2_topic, frame_id=ros2_frame_id, progress=progress)
+        write_ros2(s, c, Path(ros2), topic=ros2_topic, frame_id=ros2_frame_id, progress=progress)
     return out

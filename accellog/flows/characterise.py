@@ -182,7 +182,9 @@ def characterise_noise(path: str | os.PathLike) -> NoiseModel:
             continue
         k = STANDARD_GRAVITY_MPS2 if name == "accel" else math.pi / 180.0
         quantum = k / lsb if lsb else None
-        sigma0 = np.std((first.accel_g * k if name == "accel" else first.gyro_dps * k)[:8192], axis=0)
+        series = first.accel_g if name == "accel" else first.gyro_dps
+        assert series is not None  # the gyro is skipped above when the session has none
+        sigma0 = np.std((series * k)[:8192], axis=0)
         coarse = bool(quantum is not None and np.any(sigma0 < QUANT_FLAG_LSB * quantum))
         axes = [fit_axis(curve, col0 + i, _AXES[i], unit, tau_min, fit_quantisation=coarse) for i in range(3)]
         flag = coarse or any(a.quantisation.detected for a in axes)

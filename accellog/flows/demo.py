@@ -25,9 +25,11 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from accellog.calibrate.diagnosis.diagnose import Diagnosis
 from accellog.calibrate.observe.segment import observations
+from accellog.core.session import ObsTable
 from accellog.flows.simulate import Scenario, simulate
-from accellog.flows.stages import run_drift, run_evaluate, run_fit
+from accellog.flows.stages import DriftOutcome, run_drift, run_evaluate, run_fit
 from accellog.flows.workbench import BASE_STEPS, discover, ladder_rows, log_ladder, steps_for
 from accellog.navigate.track_eval import run_session_tracks
 from accellog.present.rrd.demo_layout import DemoData, demo_blueprint
@@ -63,7 +65,7 @@ class DemoResult:
     fits: dict = field(default_factory=dict)
     evals: list = field(default_factory=list)
     drift_evals: list = field(default_factory=list)
-    drift: object | None = None
+    drift: DriftOutcome | None = None
     final_rows: list = field(default_factory=list)
     ladder: list = field(default_factory=list)
     discovered: list[str] = field(default_factory=list)
@@ -73,7 +75,7 @@ class DemoResult:
     """name -> Session of every simulated session."""
     diagnoses: list = field(default_factory=list)
     """Workbench diagnoses, one per discovery step."""
-    workbench_obs: object | None = None
+    workbench_obs: ObsTable | None = None
     """Observations (ObsTable) of the warm-up session the workbench diagnosed."""
 
 
@@ -229,7 +231,12 @@ def _workbench_stage(res: DemoResult, first: list, con: Console) -> None:
     t2 = time.perf_counter()
     obs = observations(S["warmup_24"])
     held = observations(S["heldout_24"])
-    found = discover(obs, "model3", heldout=[held], on_step=lambda d: con.print(f"  {d.verdict}"))
+
+    def said(d: object) -> None:
+        assert isinstance(d, Diagnosis)  # discover() calls on_step with each step's Diagnosis
+        con.print(f"  {d.verdict}")
+
+    found = discover(obs, "model3", heldout=[held], on_step=said)
     diags = res.diagnoses = found.diagnoses
     res.workbench_obs = obs
     res.discovered = list(found.added)
@@ -271,6 +278,7 @@ def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
     """The demo's recording of res at path, opening on tab first_tab (see demo_layout)."""
 
     S, diags, obs = res.sessions, res.diagnoses, res.workbench_obs
+    assert res.drift is not None and obs is not None  # run() computed both before the recording
     bp = demo_blueprint(_layout_data(res), first=first_tab)
     with RunRecording(f"save:{path}", recording_id="accellog-demo", blueprint=bp) as rec:
         log_session(rec, S["calibration"], calibrations={"Model 3": res.fits["model3"].cal})

@@ -315,7 +315,7 @@ def _examine(src: Source, keep_times: bool) -> tuple[DoctorReport, np.ndarray | 
     with closed_after(src.blocks()) as blocks:
         for b in blocks:
             scan.add(b)
-    path = (src.session.path if src.in_memory else None) or src.where
+    path = (src.session.path if src.session is not None else None) or src.where
     thin, m = src.session, 1
     if thin is None:
         thin, m = scan.thin.session(src.meta, src.poses, src.events, path), scan.thin.m
@@ -347,7 +347,7 @@ def _examine(src: Source, keep_times: bool) -> tuple[DoctorReport, np.ndarray | 
         source=src.meta.source,
         device=src.meta.device.to_dict(),
         samples=scan.n,
-        duration_s=float(scan.last - scan.t0) if scan.n else 0.0,
+        duration_s=float(scan.last - scan.t0) if scan.last is not None and scan.t0 is not None else 0.0,
         rate_hz=rate_hz,
         jitter_rel=stats.get("jitter_rel", 0.0),
         interval_ms=stats,
@@ -360,7 +360,7 @@ def _examine(src: Source, keep_times: bool) -> tuple[DoctorReport, np.ndarray | 
     )
     times = None
     if keep_times:
-        times = src.session.t_s if src.in_memory else np.concatenate(scan.times or [np.empty(0)])
+        times = src.session.t_s if src.session is not None else np.concatenate(scan.times or [np.empty(0)])
     return report, times
 
 

@@ -91,20 +91,25 @@ class Tally:
         self._pending = self.values.size
 
     def done(self) -> Tally:
+        self._cumulative()
+        return self
+
+    def _cumulative(self) -> np.ndarray:
+        """Cumulative counts of the merged values (made once after the last add)."""
         self._merge()
         if self._cum is None:
             self._cum = np.cumsum(self.counts)
-        return self
+        return self._cum
 
     @property
     def n(self) -> int:
         """Values added (NaNs included)."""
-        self.done()
-        return int(self._cum[-1]) + self.nan if self._cum.size else self.nan
+        cum = self._cumulative()
+        return int(cum[-1]) + self.nan if cum.size else self.nan
 
     def _at(self, k: int) -> float:
         """The k-th smallest value (0-based) of the non-NaN values."""
-        return float(self.values[np.searchsorted(self.done()._cum, k, side="right")])
+        return float(self.values[np.searchsorted(self._cumulative(), k, side="right")])
 
     def median(self) -> float:
         """np.median of the values."""
@@ -149,7 +154,8 @@ class Where:
     """How many samples were flagged, and the times of the first WHERE_N."""
 
     def __init__(self) -> None:
-        self.count, self.t_s = 0, []
+        self.count = 0
+        self.t_s: list[float] = []
 
     def add(self, t: np.ndarray, mask: np.ndarray) -> None:
         idx = np.flatnonzero(mask)
@@ -196,7 +202,8 @@ class Extreme:
     [start, stop) sample indexes, and the times of the first WHERE_N samples in them."""
 
     def __init__(self, sign: int) -> None:
-        self.sign, self.value = sign, None
+        self.sign = sign
+        self.value: float | None = None  # the extreme so far
         self.runs: list[list[int]] = []  # [start, stop) of runs at value; the last may be open
         self.t_s: list[list[float]] = []  # the times of each run's first samples (WHERE_N in all)
         self.open = False  # the last run reaches the end of the last block
@@ -271,7 +278,9 @@ class Scan:
         self.counted = {name: False for name, _, _ in self.SENSORS}
         self.ext = {name: [Extreme(s) for _ in range(3) for s in (1, -1)] for name, _, _ in self.SENSORS}
         self.has = {name: False for name, _, _ in self.SENSORS}
-        self.n, self.t0, self.last = 0, None, None
+        self.n = 0
+        self.t0: float | None = None  # first and last stamp (s)
+        self.last: float | None = None
         self.dt_max = -np.inf
         self.temp: tuple[float, float] | None = None
         self.times: list[np.ndarray] | None = [] if keep_times else None
@@ -320,7 +329,8 @@ class Gaps:
     def __init__(self, med: float, gap: float, burst: float) -> None:
         self.med, self.gap_s, self.burst_s = med, gap * med, burst * med
         self.gaps, self.bursts = Where(), Where()
-        self.missing, self.longest_s, self.last = 0, -np.inf, None
+        self.missing, self.longest_s = 0, -np.inf
+        self.last: float | None = None  # the previous block's last stamp (s)
 
     def add(self, t: np.ndarray) -> None:
         if not t.size:

@@ -301,7 +301,7 @@ def session_batch(
     returns the rows pointing to them ("stored": True); else the calibrations come back as the JSON
     text of their files, for the client to write. Either way the client's work per session, which
     bounds how many workers it keeps busy, stays small (docs/fleet.md, Scaling model)."""
-    out, staged = [], {}
+    out, staged = [], dict[Path, AtomicOutput]()
     try:
         for p, h in zip(paths, hashes, strict=True):
             r = session_task(p, h, spec, pipe_sha256)
@@ -487,14 +487,14 @@ def _stage_result(out: Path, r: dict, staged: dict[Path, AtomicOutput]) -> list[
             try:
                 if rel in staged:
                     raise LockBusy("staged in this batch", where=str(rel))
-                ao.begin()
+                tmp = ao.begin()
             except LockBusy:
                 commit_all(list(staged.values()))
                 staged.clear()
                 ao = AtomicOutput(out / rel, mkdir=True, wait=True)
-                ao.begin()
+                tmp = ao.begin()
             staged[rel] = ao
-            ao.tmp.write_text(dumps(cal) + "\n")
+            tmp.write_text(dumps(cal) + "\n")
             row["calibration"] = str(rel)
         rows.append(row)
     return rows

@@ -128,7 +128,8 @@ def plan_fleet(spec: FleetSpec, out_dir: str | Path) -> tuple[list[SimulatedSess
     t0 = _dt.datetime.fromisoformat(spec.start_utc.replace("Z", "+00:00"))
     t0_ns = round(t0.timestamp()) * NS_PER_S
     damaged = spec.damaged_index()
-    plan, truth = [], {"spec": dataclasses.asdict(spec), "devices": {}}
+    plan = []
+    truth: dict[str, Any] = {"spec": dataclasses.asdict(spec), "devices": {}}
     for k in range(spec.n_devices):
         serial = serial_of(k)
         chip_seed = 1000 * spec.seed + k

@@ -69,5 +69,5 @@ def run_replay(
     if rec is not None:
         rec.close()
         res.rrd = str(sink)[5:] if str(sink).startswith("save:") else sink
-        res.sink_report = rec.report()
+        res.sink_report = rec.report() or ""
     return res

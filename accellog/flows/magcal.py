@@ -20,6 +20,8 @@ from accellog.core.session import Session
 def mag_drivers(s: Session) -> dict[str, tuple[np.ndarray, str]]:
     """Driver signals at the magnetometer sample times."""
     t = s.mag_t_s
+    if t is None:
+        raise InputError("the session has no magnetometer samples")
     d: dict[str, tuple[np.ndarray, str]] = {"time": (t, "s")}
     if s.temp_degC is not None:
         d["temperature"] = (np.interp(t, s.t_s, s.temp_degC), "degC")

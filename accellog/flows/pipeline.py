@@ -248,7 +248,7 @@ class PipelineResult(JsonResult):
         if self.drift is not None and self.drift_evaluations:
             rows = [(ev.label, ev.disp_end_m) for ev in self.drift_evaluations]
             last = self.drift_evaluations[-1]
-            if last.drift_applied:
+            if last.drift_applied and last.disp_end_drift_m is not None:
                 rows.append((last.label + " + drift model", last.disp_end_drift_m))
             t, q = report.drift_table(rows, last.t_end_s, self.drift.drift)
             out += [t, q]
@@ -302,8 +302,9 @@ class _Inputs:
         self.files = {r: str(x) for r, x in zip(self.roles, inputs, strict=True)}
         self.n_per_pose = spec.get("segment", {}).get("n_per_pose")
         self.base = Path(self.where).parent if self.where else Path.cwd()
+        given = preloaded or {}
         self._cache: dict[str, Session | ObsTable] = {
-            r: preloaded[f] for r, f in self.files.items() if f in (preloaded or {})
+            r: given[f] for r, f in self.files.items() if f in given
         }
 
     def get(self, role: str) -> Session | ObsTable:
@@ -423,7 +424,7 @@ def run_pipeline(
     res = PipelineResult(
         name=spec["pipeline"]["name"], inputs=inp.files, at_s=float(report.get("at_s", 60.0))
     )
-    _fit_models(spec, inp, res, load_effects_file(effects_file) if effects_file else None)
+    _fit_models(spec, inp, res, load_effects_file(Path(effects_file)) if effects_file else None)
     _evaluate(spec, inp, res)
     if "drift" in spec:
         _drift(spec, inp, res)

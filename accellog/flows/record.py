@@ -153,7 +153,7 @@ counts; benchmarks/bench_record_steps.py --block). The simulated clock keeps the
 
 def _open_bus(opts: RecordOptions):
     """(bus, sleep, clock_ns, source) of the emulated chip or of /dev/i2c-<bus>."""
-    if not opts.use_sim:
+    if opts.bus is not None and not opts.use_sim:
         return open_hardware_bus(opts.bus), time.sleep, None, "hardware"
 
     sc = Scenario(
@@ -166,8 +166,12 @@ def _open_bus(opts: RecordOptions):
     sc.validate()
     model, _motion = build_sensor_model(sc)
     clock = SimClock() if opts.fast else RealClock()
-    block = {} if opts.fast else {"block_samples": LIVE_BLOCK_SAMPLES}
-    chip = EmulatedMpu9250(model, clock, seed=opts.seed, address=parse_address(opts.address), **block)
+    address = parse_address(opts.address)
+    chip = (
+        EmulatedMpu9250(model, clock, seed=opts.seed, address=address)
+        if opts.fast
+        else EmulatedMpu9250(model, clock, seed=opts.seed, address=address, block_samples=LIVE_BLOCK_SAMPLES)
+    )
     return chip, clock.sleep, clock.now_ns, "emulator"
 
 

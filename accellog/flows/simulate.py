@@ -69,6 +69,7 @@ from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, Sens
 from accellog.acquire.emulator.temperature import TemperaturePath
 from accellog.acquire.recorder import Recorder, session_meta
 from accellog.core.errors import InputError
+from accellog.core.kinematics import Motion
 from accellog.core.notices import note
 from accellog.core.protocol import parse_protocol
 from accellog.core.session import PoseLabel
@@ -255,6 +256,7 @@ for _name in FaultPlan.names():
 def build_sensor_model(sc: Scenario):
     """The emulator's physical model for a scenario: motion, error parameters, temperature path."""
 
+    motion: Motion
     if sc.motion == "robot":
         paths = {"demo": robot.demo_loop, "long": robot.long_run}
         if sc.robot_path not in paths:
@@ -264,7 +266,7 @@ def build_sensor_model(sc: Scenario):
         motion = PoseSequenceMotion(
             parse_protocol(sc.protocol, sc.hold_s),
             move_s=sc.move_s,
-            fixture_tilt_deg=tuple(sc.fixture_tilt_deg),
+            fixture_tilt_deg=sc.fixture_tilt_deg,
         )
     accel = AccelErrors.datasheet(sc.chip_seed) if sc.errors == "datasheet" else AccelErrors.perfect()
     if sc.set:
@@ -279,7 +281,7 @@ def build_sensor_model(sc: Scenario):
         raise InputError(
             f"unknown magnetometer key(s) {sorted(set(sc.magnetometer) - known_mag)}; known: {sorted(known_mag)}"
         )
-    mag = {}
+    mag: dict[str, Any] = {}  # SensorModel's mag_* arguments: arrays, noise a float
     for k, v in sc.magnetometer.items():
         try:
             mag[f"mag_{k}"] = np.asarray(v, float) if k != "noise_uT" else float(v)
@@ -305,7 +307,7 @@ def _overridden(errors, values: Mapping[str, Any], what: str):
     bad = sorted(set(values) - known)
     if bad:
         raise InputError(f"unknown {what} error field(s) {bad}; known: {sorted(known)}")
-    out = {}
+    out: dict[str, Any] = {}  # fields: floats or arrays
     for k, v in values.items():
         try:
             arr = np.asarray(v, float)

@@ -32,7 +32,7 @@ from accellog.calibrate.calfile.calibration import Calibration
 from accellog.calibrate.calfile.drift_model import DriftModel
 from accellog.calibrate.model.session_drivers import needs_whole_series
 from accellog.core.errors import InputError
-from accellog.core.session import Session
+from accellog.core.session import Session, vec3
 from accellog.core.timeseries import sorted_unique
 from accellog.navigate.blocks import checked_blocks
 from accellog.navigate.evaluate import Target, evaluate_blocks
@@ -96,10 +96,17 @@ class DriftSums:
     def solve(self) -> np.ndarray:
         """(3 params q0 m, q1 m/s, q2 m/s^2; 3 axes), as np.linalg.lstsq(design(t), d) to ~1e-8
         relative on the smallest coefficient (DriftRefine takes it to lstsq's accuracy)."""
-        T = self.t_last - self.t0
+        t0 = self.first_s()
+        T = self.t_last - t0
         k = np.arange(3)
         G = self.s[k[:, None] + k[None, :]] / T ** (k[:, None] + k[None, :])
-        return _to_q(np.linalg.solve(G, self.b / T ** k[:, None]), self.t0, T)
+        return _to_q(np.linalg.solve(G, self.b / T ** k[:, None]), t0, T)
+
+    def first_s(self) -> float:
+        """The first sample's time (s); ValueError before any sample."""
+        if self.t0 is None:
+            raise ValueError("no samples to fit a drift polynomial to")
+        return self.t0
 
 
 def _moments(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,22 +204,27 @@ class DriftFit:
 
     def second_pass(self, n: int) -> None:
         """After pass 1 over n samples: the refinement starts from pass 1's q."""
-        self.refine = DriftRefine(self.sums.solve(), self.sums.t0, self.sums.t_last)
+        self.refine = DriftRefine(self.sums.solve(), self.sums.first_s(), self.sums.t_last)
         self.grid = grid_index(n)
 
     def add_again(self, t: np.ndarray, d: np.ndarray) -> None:
         """Pass 2 (the same blocks, after second_pass)."""
-        self.refine.add(t, d)
+        self._refined().add(t, d)
         g = self.grid
         self.grid_t.append(t[g[(g >= self.n2) & (g < self.n2 + t.size)] - self.n2])
         self.n2 += t.size
+
+    def _refined(self) -> DriftRefine:
+        if self.refine is None:
+            raise RuntimeError("pass 2 before second_pass()")
+        return self.refine
 
     def model(
         self, var_mps2: np.ndarray | None, tau: np.ndarray | None, up_sensor, source: str
     ) -> DriftModel:
         """The DriftModel after both passes; var_mps2 (3,) (m/s^2)^2 and tau (3,) samples of the
         residual acceleration (None: sigma NaN, no honest estimate)."""
-        q, rms = self.refine.solve()
+        q, rms = self._refined().solve()
         if var_mps2 is None:
             cov = np.full((3, 3, 3), np.nan)
         else:
@@ -221,8 +233,8 @@ class DriftFit:
         return DriftModel(
             q=q.T.copy(),
             cov=cov,
-            fit_duration_s=float(self.sums.t_last - self.sums.t0),
-            up_sensor=None if up_sensor is None else tuple(float(v) for v in up_sensor),
+            fit_duration_s=float(self.sums.t_last - self.sums.first_s()),
+            up_sensor=None if up_sensor is None else vec3(up_sensor),
             source=source,
             rms_residual_m=rms,
         )
@@ -309,7 +321,8 @@ def _drift(src: Source, cal: Calibration, *, up_sensor, until_s, max_samples):
         fit.add_again(b.t_s, d)
     dm = fit.model(st["std"] ** 2, st["tau"], up, src.where)
     at, end = acc.integ.series_at(dm.apply)
-    series = {} if ev.t_s is None else {"dd": dm.apply(ev.t_s, ev.disp_series_m)}
+    t_s, disp_m = ev.t_s, ev.disp_series_m  # the series kept for plots, if any
+    series = {} if t_s is None or disp_m is None else {"dd": dm.apply(t_s, disp_m)}
     drift_result(ev, dm, {"disp_drift_at": at, "disp_drift_end": end}, series)
     return dataclasses.replace(cal, drift=dm, path=None), dm, ev
 

@@ -112,7 +112,7 @@ class Evaluation(JsonResult):
             "drift_applied": self.drift_applied,
             "notes": list(self.notes),
         }
-        if self.drift_applied and self.disp_drift_m is not None:
+        if self.drift_applied and self.disp_drift_m is not None and self.disp_end_drift_m is not None:
             d["displacement"]["disp_after_drift_m"] = self.disp_drift_m.tolist()
             d["displacement"]["disp_end_after_drift_m"] = self.disp_end_drift_m.tolist()
             d["displacement_60s_after_drift_m"] = (

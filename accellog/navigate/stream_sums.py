@@ -23,6 +23,7 @@ For a residual series r_i (m/s^2, i = 0..n-1, times t_i s) fed in consecutive bl
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -41,7 +42,8 @@ class AutocorrTime:
         self.shift: np.ndarray | None = None
         self.total: np.ndarray | None = None  # sum of y over every sample (remainder included)
         self.nb = 0
-        self.spec = self.ysum = None
+        self.spec: np.ndarray | None = None  # (B+1, k) summed |rfft|^2 of the blocks
+        self.ysum: np.ndarray | None = None  # (B, k) summed blocks
         self.long = False
 
     def add(self, x: np.ndarray) -> None:
@@ -67,7 +69,7 @@ class AutocorrTime:
         nb = buf.shape[0] // self.block
         b = self.block
         y = buf[: nb * b].reshape(nb, b, -1)
-        if self.spec is None:
+        if self.spec is None or self.ysum is None:
             self.spec = np.zeros((b + 1, buf.shape[1]))
             self.ysum = np.zeros((b, buf.shape[1]))
         s = np.fft.rfft(np.ascontiguousarray(y.transpose(0, 2, 1)), n=2 * b, axis=2)  # (nb, k, b + 1)
@@ -84,6 +86,8 @@ class AutocorrTime:
             return np.atleast_1d(
                 integrated_autocorr_time(np.concatenate(self.pending) + self.shift, c=self.c)
             )
+        if self.total is None or self.spec is None or self.ysum is None:
+            raise RuntimeError("long mode without folded blocks")
         b = self.block
         m = self.total / self.n
         syy = np.fft.irfft(self.spec, n=2 * b, axis=0)[:b]
@@ -108,7 +112,8 @@ class Integrator:
         self.tol = tolerance_s
         self.used = np.full(self.req.shape, np.nan)
         self.at: dict[str, np.ndarray] = {}
-        self.last: dict[str, np.ndarray] | None = None  # t, a, v, d (and extra series) of the last sample
+        # of the last sample: t (float, s); a, v, d and end_<series> ((3,) arrays)
+        self.last: dict[str, Any] | None = None
         self.t0: float | None = None
         self.brackets: dict[
             int, tuple[np.ndarray, np.ndarray]
@@ -136,6 +141,8 @@ class Integrator:
         return v, d, series
 
     def _read_at(self, t: np.ndarray, series: dict[str, np.ndarray]) -> None:
+        if self.t0 is None:
+            raise RuntimeError("values read before the first sample")
         want = np.maximum(self.req, self.t0)
         prev = self.last
         lo = prev["t"] if prev is not None else t[0]
@@ -157,6 +164,8 @@ class Integrator:
     def finish(self) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
         """(t_used_s, values at the times per series, end values per series); values_at's rule: a
         time after the last sample within tolerance_s takes the last sample, further out NaN."""
+        if self.last is None:
+            raise RuntimeError("finish() before any sample was added")
         t_end = self.last["t"]
         late = np.isnan(self.used) & (self.req > t_end) & (self.req - t_end <= self.tol)
         ends = {k[4:]: v for k, v in self.last.items() if k.startswith("end_")}
@@ -170,6 +179,8 @@ class Integrator:
         """(values at the times (m,3), end value (3,)) of the series fn(t, d) after finish(), as the
         extra argument of add would have read them: fn on the two samples around each time (a
         pointwise fn, e.g. DriftModel.apply, gives the same interpolation), at the end on the last."""
+        if self.last is None:
+            raise RuntimeError("series_at() before any sample was added")
         end = fn(np.array([self.last["t"]]), self.last["d"][None, :])[0]
         out = np.full((self.req.size, 3), np.nan)
         for i, (tb, db) in self.brackets.items():
@@ -243,6 +254,8 @@ class ResidualSums:
     def finish(self) -> dict:
         """Statistics of everything added (keys as Evaluation's fields)."""
         self._windows(self.windows.flush())
+        if self.shift is None:
+            raise RuntimeError("finish() before any sample was added")
         n = self.n
         m_c = self.s1 / n
         var = np.maximum(self.s2 - n * m_c**2, 0.0) / max(n - 1, 1)

@@ -188,7 +188,8 @@ def run_tracks(
     own_gyro = dict(gyro_corrections or {})
     for name, corr in corrections.items():
         a = np.asarray(corr(accel_g) if corr is not None else accel_g, float)
-        wk = np.asarray(own_gyro[name](gyro_dps), float) if own_gyro.get(name) is not None else w
+        gyro_corr = own_gyro.get(name)
+        wk = np.asarray(gyro_corr(gyro_dps), float) if gyro_corr is not None else w
         q0 = initial_orientation(t, a, window_s=static_window_s, yaw_rad=yaw)
         tr = strapdown(t, a, wk, q0=q0, local_gravity_mps2=local_gravity_mps2, p0=p0, name=name)
 

@@ -67,8 +67,8 @@ def candidates_table(candidates: Sequence[dict]) -> Table:
     """Candidate effects of a diagnosis, ranked."""
     t = Table(title="candidate effects (model + effect; OOS = held-out or blocked validation)")
     cols = ("#", "effect", "ident.", "signif.", "chi2/dof", "dBIC", "CV chi2/eq", "OOS chi2/eq", "p")
-    for c in cols:
-        t.add_column(c, no_wrap=True)  # a number is never split over two lines
+    for name in cols:
+        t.add_column(name, no_wrap=True)  # a number is never split over two lines
     t.add_column("reason / what to record", overflow="fold", ratio=1)
     first_with: dict[str, str] = {}  # reason -> the first effect that gave it (said once)
     for c in candidates:
@@ -133,7 +133,14 @@ def print_diagnose_outcome(out) -> None:
 
 def step_printer(con: Console) -> Callable[[object], None]:
     """Progress of the workbench loop: one line per step (its out-of-sample choice or verdict)."""
-    return lambda d: con.print(f"step {d.model.name}: {escape(d.choice.reason if d.choice else d.verdict)}")
+    from accellog.calibrate.diagnosis.diagnose import Diagnosis
+
+    def show(d: object) -> None:
+        if not isinstance(d, Diagnosis):
+            raise TypeError(f"a workbench step is a Diagnosis, not {type(d).__name__}")
+        con.print(f"step {d.model.name}: {escape(d.choice.reason if d.choice else d.verdict)}")
+
+    return show
 
 
 def print_notes(notes: Sequence[str]) -> None:
@@ -192,8 +199,9 @@ def search_table(trail, norm: str = "") -> Table:
     t = Table(
         title=f"the search, step by step: {what} of every model tried" + (" (one yardstick)" if held else "")
     )
-    for c, just in (("step", "right"), ("change", "left"), ("what became of it", "left")):
-        t.add_column(c, justify=just, no_wrap=True)
+    t.add_column("step", justify="right", no_wrap=True)
+    t.add_column("change", justify="left", no_wrap=True)
+    t.add_column("what became of it", justify="left", no_wrap=True)
     if held:
         t.add_column("held-out χ²/dof", justify="right", no_wrap=True)
         t.add_column("held-out RMS (mg)", justify="right", no_wrap=True)

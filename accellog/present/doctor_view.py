@@ -39,8 +39,8 @@ def tables(r) -> list[Table]:
         "verdict", "[green]no defects found[/]" if r.healthy else f"[red]{len(r.findings)} defect(s)[/]"
     )
     f = Table(title="findings")
-    for c in ("defect", "count", "detail", "first at (s)"):
-        f.add_column(c)
+    for name in ("defect", "count", "detail", "first at (s)"):
+        f.add_column(name)
     for x in r.findings:
         f.add_row(x.kind, str(x.count), x.detail, ", ".join(f"{v:.4g}" for v in x.t_s[:3]))
     c = Table(title="calibrations this log supports")

@@ -67,7 +67,7 @@ class Export:
         return asdict(self)
 
 
-def _header(title: str, lost: list[str], notes: list[str] = ()) -> list[str]:
+def _header(title: str, lost: list[str], notes: Sequence[str] = ()) -> list[str]:
     lines = [f"# {title}", *(f"# {n}" for n in notes)]
     return lines + ([f"# cannot hold: {x}" for x in lost] or ["# cannot hold: nothing of this calibration"])
 

@@ -81,7 +81,7 @@ def log_search(rec, trail, ladder: Sequence = ()) -> None:
         texts += [f"{vals[k]:.3g}"] + ([] if t.heldout_rms_mg is None else [f"{t.heldout_rms_mg:.3g} mg"])
         if t.on_path:
             path.append([x, float(sy(logv[k]))])
-    frame = [[0, 0], [W, 0], [W, H], [0, H], [0, 0]]
+    frame: list[list[float]] = [[0, 0], [W, 0], [W, H], [0, H], [0, 0]]
     rec.log_static(f"{SEARCH}/frame", rr.LineStrips2D([frame], colors=[(150, 150, 150)], radii=0.6), ROLE)
     if strips:
         rec.log_static(

@@ -24,6 +24,7 @@ import urllib.request
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from accellog.core.errors import InputError
 from accellog.present.rrd.tabs import tab_view_files
 from accellog.present.viewer_children import start_child, stop_process
 from accellog.store.atomic import write_bytes_atomic
+
+if TYPE_CHECKING:
+    from websockets.sync.client import ClientConnection
 
 CHROMIUM_CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "chrome")
 
@@ -83,7 +87,9 @@ def wait_port(port: int, timeout_s: float, proc: subprocess.Popen | None = None)
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
         if proc is not None and proc.poll() is not None:
-            raise InputError(f"{Path(str(proc.args[0])).name} exited with code {proc.returncode}")
+            args = proc.args
+            exe = args[0] if isinstance(args, (list, tuple)) else args
+            raise InputError(f"{Path(str(exe)).name} exited with code {proc.returncode}")
         with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=0.5):
             return
         time.sleep(0.1)
@@ -218,7 +224,7 @@ class Chromium:
         # Chromium's own temporary files go to the profile folder, removed on close.
         env = {**os.environ, "TMPDIR": self._profile}
         self.proc = start_child(cmd, folder=self._profile, env=env)
-        self._ws = None
+        self._ws: ClientConnection | None = None
         self._id = 0
         self._events: set[str] = set()
         self._stack = contextlib.ExitStack()
@@ -423,7 +429,8 @@ def _settled_capture(
         else:
             stable_since, good = None, None
         prev = new
-        if good is not None and now - start >= min_wait_s and now - stable_since >= settle_s:
+        stable = stable_since is not None and now - stable_since >= settle_s
+        if good is not None and stable and now - start >= min_wait_s:
             return good
 
 

@@ -15,6 +15,7 @@ evaluate / drift / run / diagnose / track, so every run's recording looks the sa
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from rich.table import Table
@@ -22,6 +23,9 @@ from rich.table import Table
 from accellog.core.session import Session
 from accellog.present.rrd.entities import slug_path
 from accellog.present.tables import displacement_table, params_table, static_means_table
+
+if TYPE_CHECKING:
+    from accellog.calibrate.calfile.calibration import Calibration
 
 
 def table_markdown(table: Table) -> str:
@@ -42,7 +46,7 @@ def table_markdown(table: Table) -> str:
 
 
 def log_session(
-    rec, session: Session, *, calibrations: Mapping[str, object] | None = None, prefix: str = ""
+    rec, session: Session, *, calibrations: Mapping[str, Calibration] | None = None, prefix: str = ""
 ) -> None:
     """Raw (and calibrated) accel in g, gyro in deg/s, holds, temperature and events of a session."""
     name = prefix or "raw"

@@ -54,6 +54,13 @@ class FieldCodec:
     kind: str  # 'packed', 'varint_u', 'varint_s', 'double', 'string', 'bytes'
     dtype: np.dtype | None
 
+    @property
+    def packed_dtype(self) -> np.dtype:
+        """The element dtype of a packed field (the other kinds have none)."""
+        if self.dtype is None:
+            raise TypeError(f"field {self.name!r} is {self.kind}, not packed")
+        return self.dtype
+
 
 @cache
 def codecs_of(message: str) -> tuple[tuple[FieldCodec, ...], dict[int, FieldCodec]]:
@@ -255,8 +262,8 @@ class BatchDecoder:
             if c.kind != "packed":
                 continue
             parts = self._packed[c.name]
-            arrays[c.name] = np.frombuffer(bytearray().join(parts), c.dtype)  # writable
-            sizes = np.fromiter((len(p) for p in parts), np.int64, len(parts)) // c.dtype.itemsize
+            arrays[c.name] = np.frombuffer(bytearray().join(parts), c.packed_dtype)  # writable
+            sizes = np.fromiter((len(p) for p in parts), np.int64, len(parts)) // c.packed_dtype.itemsize
             counts[c.name] = np.bincount(
                 np.asarray(self._owner[c.name], dtype=np.int64), weights=sizes, minlength=self.n_messages
             ).astype(np.int64)

@@ -236,7 +236,7 @@ def generic_collect(path: Path, topics: Iterable[str] | None = None) -> Collecte
                 sink.channel(summary.schemas.get(ch.schema_id), ch)
         return Collected(sink.metadata, sink.topics, sink.decoders, None, [outside] if outside else [])
     except (McapError, EOFError, ValueError, OSError, IndexError, KeyError) as exc:
-        fast_error = exc
+        fast_error: Exception = exc
     except Exception as exc:  # e.g. a damaged chunk that fails inside the decompressor
         fast_error = exc
     return recover(path, topics, fast_error)
@@ -339,6 +339,7 @@ def recover(path: Path, topics: Iterable[str] | None, why: Exception) -> Collect
     with open(path, "rb") as f:
         f.seek(max(size - len(MCAP_MAGIC), 0))
         has_end = f.read() == MCAP_MAGIC
+    detail: str | None
     if not has_end:
         detail = (
             f"file was not finished ({type(why).__name__}: {why}); salvaged {sink.n_messages} messages "

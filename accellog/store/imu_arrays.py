@@ -124,7 +124,10 @@ class ImuAccumulator(BatchAccumulator):
             if name == "temp_counts":
                 temp_counts_to_degC(counts, out=out)
             else:
-                np.divide(counts, self._lsb[name], out=out)
+                lsb = self._lsb[name]
+                if lsb is None:
+                    raise RuntimeError(f"{name} stored without its LSB in the session metadata")
+                np.divide(counts, lsb, out=out)
         n_per = part.counts.get("t_ns")
         if n_per is not None and n_per.shape[0]:
             self._per_message(part, n_per, done)

@@ -19,7 +19,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from accellog.core.errors import DataIntegrityWarning, InputError
-from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth
+from accellog.core.session import Event, PoseLabel, Session, SessionMeta, Truth, quat4, vec3
 from accellog.core.units import temp_counts_to_degC
 from accellog.store.collect import Collected, Damage, Decoder, check_file, generic_collect, recover
 from accellog.store.imu_arrays import ImuAccumulator, first_indexes, lsb_scales
@@ -207,11 +207,11 @@ def _sample_arrays(arrays: dict, n: int, meta: SessionMeta, where: str, derived:
         """Unit conversions of samples lo..hi into the preallocated float64 arrays (no temporaries)."""
         if t_ns is not None:
             np.divide(t_ns[lo:hi], NS_PER_S, out=t_s[lo:hi])
-        if lsb_a is not None:
+        if lsb_a is not None and accel_counts is not None:
             np.divide(accel_counts[lo:hi], lsb_a, out=accel_g[lo:hi])
-        if lsb_g is not None:
+        if lsb_g is not None and gyro_counts is not None and gyro_dps is not None:
             np.divide(gyro_counts[lo:hi], lsb_g, out=gyro_dps[lo:hi])
-        if temp_c is not None:
+        if temp_c is not None and temp_degC is not None:
             temp_counts_to_degC(temp_c[lo:hi], out=temp_degC[lo:hi])
 
     if t_ns is not None or lsb_a is not None or lsb_g is not None or temp_c is not None:
@@ -311,10 +311,8 @@ def read_poses(dec: Decoder | None) -> list[PoseLabel]:
             name=d["name"],
             start_s=d["start_ns"] / NS_PER_S,
             end_s=d["end_ns"] / NS_PER_S,
-            up_sensor=tuple(float(v) for v in d["up_sensor"]),
-            q_sensor_to_world=tuple(float(v) for v in d["q_sensor_to_world"])
-            if d["q_sensor_to_world"].size
-            else None,
+            up_sensor=vec3(d["up_sensor"]),
+            q_sensor_to_world=quat4(d["q_sensor_to_world"]) if d["q_sensor_to_world"].size else None,
             hold_index=int(d["hold_index"]),
         )
         for d in _messages(dec)
@@ -382,6 +380,8 @@ def read_attachments(path: str | Path) -> list[tuple[str, str, bytes]]:
 def _facts_summary(facts: SummaryFacts) -> dict:
     """session_summary's keys of a finished file, from mcap.summary.summary_of."""
     st = facts.statistics
+    if st is None:
+        raise ValueError("a summary without a Statistics record (session_summary scans such a file)")
     return {
         "finished": True,
         "messages": st.message_count,

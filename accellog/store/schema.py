@@ -26,7 +26,11 @@ SCALAR_TYPES = {
     "string": (2, None),
     "bytes": (2, None),
 }
-PACKED_TYPES = {"sfixed64": np.dtype("<i8"), "sfixed32": np.dtype("<i4"), "double": np.dtype("<f8")}
+PACKED_TYPES: dict[str, np.dtype] = {
+    "sfixed64": np.dtype("<i8"),
+    "sfixed32": np.dtype("<i4"),
+    "double": np.dtype("<f8"),
+}
 
 
 @dataclass(frozen=True)

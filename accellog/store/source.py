@@ -81,14 +81,20 @@ class Source:
             block = ImuBlock(s.meta, s.t_s, s.sample_index, s.accel_g, s.gyro_dps, s.temp_degC, s.host_time_s,
                              s.accel_counts, s.gyro_counts)  # fmt: skip
             return iter([block])
-        return iter_imu(self.path)
+        return iter_imu(self._file())
+
+    def _file(self) -> Path:
+        """The file a streamed source reads (an in-memory one has none)."""
+        if self.path is None:
+            raise RuntimeError("an in-memory source has no file to read")
+        return self.path
 
     __call__ = blocks  # a pass factory: calibrate.gyro.stream.calibrate_blocks(src, ...)
 
     def whole(self) -> Session:
         """The samples in memory (a streamed file is read whole now, its stamps checked)."""
         if self.session is None:
-            s = read_whole(self.path, what=self.what, check_times=self.check_times)
+            s = read_whole(self._file(), what=self.what, check_times=self.check_times)
             self.session, self.meta, self.poses, self.events = s, s.meta, list(s.poses), list(s.events)
             self._checked = True
         return self.session
@@ -109,12 +115,13 @@ class Source:
 
     def _checked_run(self, fn: Callable[[Source], T]) -> T:
         check = TimestampCheck()
-        first = self._first = _Checked(iter_imu(self.path), check)
-        out, err = None, None
+        first = self._first = _Checked(iter_imu(self._file()), check)
+        out: list[T] = []  # fn's value, unless it raised
+        err = None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                out = fn(self)
+                out.append(fn(self))
             except InputError as e:  # the stamps' refusal comes first, as from a pass of its own
                 err = e
             finally:
@@ -132,7 +139,7 @@ class Source:
         self._checked = True
         if err is not None:
             raise err
-        return out
+        return out[0]
 
     def extent(self) -> tuple[int, float, float]:
         """(samples, first time s, span s): exact in memory, estimated for a streamed file from its
@@ -142,13 +149,13 @@ class Source:
             return (s.n, float(s.t_s[0]), float(s.t_s[-1] - s.t_s[0])) if s.n else (0, 0.0, 0.0)
         from accellog.store.reader import session_summary
 
-        blocks = iter_imu(self.path)
+        blocks = iter_imu(self._file())
         try:
             first = next(blocks)
         finally:
             blocks.close()
         t0 = float(first.t_s[0])
-        span = max(float(session_summary(self.path).get("duration_s") or 0.0), float(first.t_s[-1]) - t0)
+        span = max(float(session_summary(self._file()).get("duration_s") or 0.0), float(first.t_s[-1]) - t0)
         rate = float(self.meta.sample_rate_hz or 0.0) or (first.n - 1) / max(float(first.t_s[-1]) - t0, 1e-9)
         return round(span * rate) + 1, t0, span
 
@@ -333,7 +340,8 @@ class TimestampCheck:
 
     def __init__(self) -> None:
         self.n, self.t0, self.t_last, self.bad_n = 0, np.nan, np.nan, 0
-        self.nonfinite = self.first_bad = None  # index of the first non-finite stamp / (i, t_i, t_i-1)
+        self.nonfinite: int | None = None  # index of the first non-finite stamp
+        self.first_bad: tuple[int, float, float] | None = None  # (i, t_i s, t_i-1 s) of the first step back
 
     def add(self, t_s: np.ndarray) -> None:
         t, n = np.asarray(t_s, float), self.n

@@ -18,7 +18,7 @@ from __future__ import annotations
 import contextlib
 import mmap
 import warnings
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -68,7 +68,7 @@ def closed_after(blocks: Iterable[ImuBlock]) -> Iterator[Iterable[ImuBlock]]:
             close()
 
 
-def iter_imu(path: str | Path) -> Iterator[ImuBlock]:
+def iter_imu(path: str | Path) -> Generator[ImuBlock, None, None]:
     """The session's IMU samples block by block (see module doc); raises InputError as read_session."""
     from accellog.store.mcap import fastread
 

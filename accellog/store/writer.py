@@ -449,6 +449,8 @@ def write_session(
     )
     tc = session.temp_counts
     put_td = session.temp_degC is not None and _values_needed(tc, session.temp_degC, temp_counts_to_degC)
+    gd = session.gyro_dps if put_gd else None  # values written next to (or instead of) the counts
+    td = session.temp_degC if put_td else None
     tmp = ao.begin()
     try:
         with SessionWriter(
@@ -464,8 +466,8 @@ def write_session(
                         temp_counts=None if tc is None else tc[s:e],
                         host_time_ns=0 if host_ns is None else int(host_ns[e - 1]),
                         accel_g=session.accel_g[s:e] if put_ag else None,
-                        gyro_dps=session.gyro_dps[s:e] if put_gd else None,
-                        temp_degC=session.temp_degC[s:e] if put_td else None,
+                        gyro_dps=None if gd is None else gd[s:e],
+                        temp_degC=None if td is None else td[s:e],
                     )
             if session.mag_t_s is not None and session.mag_t_s.shape[0]:
                 m_ns = to_ns_array(session.mag_t_s)

@@ -35,7 +35,8 @@ class _ChunkZstd:
 
 
 if getattr(mcap.writer, "zstandard", None) is zstandard:
-    mcap.writer.zstandard = _ChunkZstd()  # type: ignore[attr-defined]
+    # a module-typed global replaced by an object that answers the same calls (class docstring)
+    mcap.writer.zstandard = _ChunkZstd()  # type: ignore[assignment]
 
 
 @contextlib.contextmanager

@@ -87,7 +87,10 @@ class _Adapter:
         if addr is None:
             raise OSError(_errno.EINVAL, "Invalid argument (no slave address set)")
         rd, cmd, size = msg.read_write == _SMBUS_READ, int(msg.command), int(msg.size)
-        data = msg.data.contents if msg.data else None
+        if size in (_BYTE_DATA, _WORD_DATA, _I2C_BLOCK_DATA) or (size == _BYTE and rd):
+            if not msg.data:  # a transfer that moves data without a buffer: the kernel's answer
+                raise OSError(_errno.EFAULT, "Bad address")
+            data = msg.data.contents
         if size == _BYTE_DATA:
             if rd:
                 data.byte = chip.read_byte_data(addr, cmd)
@@ -127,11 +130,12 @@ def emulated_i2c_bus(chip: Any, bus_number: int = 1) -> Iterator[_Adapter]:
 
     path = f"/dev/i2c-{int(bus_number)}"
     fd = next(_fd_counter)
-    old_os, old_ioctl = sm.os, sm.ioctl
+    # smbus2's stubs do not declare the module globals ``os`` and ``ioctl`` that are swapped here
+    old_os, old_ioctl = sm.os, sm.ioctl  # type: ignore[attr-defined]
     adapter = _Adapter(chip, fd, old_ioctl)
-    sm.os = _OsShim(old_os, path, fd)
-    sm.ioctl = adapter.ioctl
+    sm.os = _OsShim(old_os, path, fd)  # type: ignore[attr-defined]
+    sm.ioctl = adapter.ioctl  # type: ignore[attr-defined]
     try:
         yield adapter
     finally:
-        sm.os, sm.ioctl = old_os, old_ioctl
+        sm.os, sm.ioctl = old_os, old_ioctl  # type: ignore[attr-defined]

@@ -27,7 +27,7 @@ from accellog.core.errors import InputError
 from accellog.core.kinematics import Kinematics
 from accellog.core.protocol import PoseSpec
 from accellog.core.rotations import quat_conjugate, quat_from_axis_angle, quat_multiply, rotate_inverse
-from accellog.core.session import PoseLabel
+from accellog.core.session import PoseLabel, quat4, vec3
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 
@@ -132,8 +132,8 @@ class PoseSequenceMotion:
                 p.name,
                 float(self.hold_start_s[i]),
                 float(self.hold_end_s[i]),
-                tuple(float(v) for v in p.up_sensor),
-                tuple(float(v) for v in self._q_nominal[i]),
+                vec3(p.up_sensor),
+                quat4(self._q_nominal[i]),
                 i,
             )
             for i, p in enumerate(self.poses)

@@ -28,7 +28,7 @@ import numpy as np
 from accellog.core.errors import InputError
 from accellog.core.kinematics import Kinematics
 from accellog.core.rotations import quat_from_axis_angle, quat_multiply, rotate_inverse
-from accellog.core.session import PoseLabel
+from accellog.core.session import PoseLabel, quat4, vec3
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 CHANNELS = ("speed_mps", "yaw_rad", "pitch_rad", "roll_rad")
@@ -78,6 +78,15 @@ def turn(to_yaw_deg: float, duration_s: float = 2.5) -> Segment:
     return Segment(duration_s, yaw_deg=to_yaw_deg)
 
 
+def _tilt(duration_s: float, channel: str, angle_deg: float) -> Segment:
+    """A segment that tilts channel ('grade_deg' | 'roll_deg') to angle_deg."""
+    if channel == "grade_deg":
+        return Segment(duration_s, grade_deg=angle_deg)
+    if channel == "roll_deg":
+        return Segment(duration_s, roll_deg=angle_deg)
+    raise ValueError(f"no tilt channel {channel!r}")
+
+
 def _tilted_run(
     what: str,
     distance_m: float,
@@ -94,9 +103,9 @@ def _tilted_run(
         raise InputError(f"{what} run of {distance_m} m is too short for its transitions")
     return [
         Segment(accel_s, speed_mps=speed_mps),
-        Segment(tilt_s, **{channel: angle_deg}),
+        _tilt(tilt_s, channel, angle_deg),
         Segment(cruise_s),
-        Segment(tilt_s, **{channel: 0.0}),
+        _tilt(tilt_s, channel, 0.0),
         Segment(accel_s, speed_mps=0.0),
     ]
 
@@ -164,7 +173,8 @@ class RobotPathMotion:
         self._dur = dur
         # channel values at each segment start and end (speed m/s, angles rad)
         cur = np.array([0.0, np.deg2rad(yaw0_deg), 0.0, 0.0])
-        start, end = [], []
+        start: list[np.ndarray] = []
+        end: list[np.ndarray] = []
         for s in segs:
             nxt = cur.copy()
             for k, val in enumerate((s.speed_mps, s.yaw_deg, s.grade_deg, s.roll_deg)):
@@ -293,8 +303,8 @@ class RobotPathMotion:
                     name=f"stop{len(out)}",
                     start_s=float(t0),
                     end_s=float(t0 + d),
-                    up_sensor=tuple(float(x) for x in up),
-                    q_sensor_to_world=tuple(float(x) for x in q),
+                    up_sensor=vec3(up),
+                    q_sensor_to_world=quat4(q),
                     hold_index=len(out),
                 )
             )

@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,6 +37,9 @@ from accellog.core.errors import InputError
 from accellog.core.kinematics import Kinematics, Motion
 from accellog.core.rotations import rotate_inverse
 from accellog.core.session import Truth
+
+if TYPE_CHECKING:
+    from accellog.acquire.emulator.slow_noise import MarkovBank
 from accellog.core.units import (
     MAG_UT_PER_LSB_14BIT,
     MAG_UT_PER_LSB_16BIT,
@@ -351,7 +355,7 @@ class SensorModel:
             s: _WhiteNoise(self.seed, s, 1 if s == _STREAM_TEMP else 3)
             for s in (_STREAM_ACCEL, _STREAM_GYRO, _STREAM_TEMP, _STREAM_MAG)
         }
-        self._slow: dict[tuple[int, float], object] = {}
+        self._slow: dict[tuple[int, float], MarkovBank | None] = {}
 
     def _slow_bias(self, stream: int, odr_hz: float, index: np.ndarray) -> np.ndarray | None:
         """Bias instability + random walk of the accel or gyro at sample indices (None if both off)."""
@@ -359,12 +363,10 @@ class SensorModel:
 
         key = (stream, float(odr_hz))
         if key not in self._slow:
-            e = self.accel if stream == _STREAM_ACCEL else self.gyro
-            B, K = (
-                (e.bias_instability_g, e.random_walk_g_per_s_rtHz)
-                if stream == _STREAM_ACCEL
-                else (e.bias_instability_dps, e.random_walk_dps_per_s_rtHz)
-            )
+            if stream == _STREAM_ACCEL:
+                B, K = self.accel.bias_instability_g, self.accel.random_walk_g_per_s_rtHz
+            else:
+                B, K = self.gyro.bias_instability_dps, self.gyro.random_walk_dps_per_s_rtHz
             self._slow[key] = slow_bias(self.seed, stream, odr_hz, B, K)
         bank = self._slow[key]
         return None if bank is None else bank.at(np.maximum(index, 0))

@@ -14,7 +14,7 @@ not ``null``. ``check_values`` bounds the parameters to what a MEMS acceleromete
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -34,16 +34,11 @@ _STRINGS = ("software", "created_utc")
 
 # Physical plausibility of a stored calibration of a MEMS accelerometer (datasheet: bias within
 # +-80 mg, scale within +-3 %, cross-axis within +-2 %): limits ~10x wider, so only absurd files fail.
-SANITY_LIMITS = {
-    "bias_g": 1.0,
-    "scale_dev": 0.5,
-    "cross": 0.3,
-    "gravity_mps2": (9.7, 9.9),
-    "truth_g": (0.98, 1.02),
-}
+SANITY_LIMITS: dict[str, float] = {"bias_g": 1.0, "scale_dev": 0.5, "cross": 0.3}
+SANITY_RANGES: dict[str, tuple[float, float]] = {"gravity_mps2": (9.7, 9.9), "truth_g": (0.98, 1.02)}
 
 
-def _is_number(v: Any) -> bool:
+def _is_number(v: Any) -> TypeGuard[int | float]:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
@@ -212,12 +207,12 @@ def check_values(
             f"absurd variance of {names[k]}: {d[k]:.3g} > {MAX_VARIANCE:g}; refit this calibration",
             where=where,
         )
-    lo, hi = lim["gravity_mps2"]
+    lo, hi = SANITY_RANGES["gravity_mps2"]
     if not lo <= local_gravity_mps2 <= hi:
         raise InputError(
             f"local_gravity_mps2 = {local_gravity_mps2:g} is not a gravity on Earth ({lo}-{hi} m/s^2)",
             where=where,
         )
-    lo, hi = lim["truth_g"]
+    lo, hi = SANITY_RANGES["truth_g"]
     if not lo <= truth_g <= hi:
         raise InputError(f"gravity truth_g = {truth_g:g} outside {lo}-{hi}", where=where)

@@ -68,7 +68,7 @@ def _read(kind: Any, v: Any, name: str, where: str | None) -> Any:
     """The typed value of JSON value `v` (None stays None); InputError naming `name` when malformed."""
     if v is None:
         return None
-    if isinstance(kind, type):  # a nested section
+    if isinstance(kind, type) and issubclass(kind, Section):  # a nested section
         return kind.from_dict(v, where, name=name)
     if isinstance(kind, tuple):
         form, cls = kind

@@ -119,10 +119,10 @@ def choose_effect(
         def rho(a: FitResult, b: FitResult) -> float:
             return canonical_correlation(a, b, model, obs)
 
-    base = sc.pop("")
-    evidence = base.kind
+    base_score = sc.pop("")
+    evidence = base_score.kind
     if not eligible:
-        return StepChoice(model.name, evidence, base, sc, None, "no candidate is significant here")
+        return StepChoice(model.name, evidence, base_score, sc, None, "no candidate is significant here")
     rows = {c["effect"]: c for c in candidates}
 
     def score(n: str) -> float:
@@ -139,7 +139,7 @@ def choose_effect(
     what = {"heldout": "held-out", "leave-one-session-out": "leave-one-session-out"}.get(
         evidence, "blocked-validation"
     )
-    gain = base.chi2_per_eq - s_best.chi2_per_eq
+    gain = base_score.chi2_per_eq - s_best.chi2_per_eq
     collinear, undecided = [], []
     for other in ranked[1:]:
         r = rho(fits[best], fits[other])
@@ -157,16 +157,16 @@ def choose_effect(
     if not np.isfinite(gain) or gain <= Z_IMPROVE * s_best.se:
         reason = (
             f"{best} is significant here but does not predict unseen data better: {what} chi2/eq "
-            f"{base.chi2_per_eq:.3g} -> {s_best.chi2_per_eq:.3g} (se {s_best.se:.2g})"
+            f"{base_score.chi2_per_eq:.3g} -> {s_best.chi2_per_eq:.3g} (se {s_best.se:.2g})"
         )
-        return StepChoice(model.name, evidence, base, sc, None, reason, undecided, collinear)
-    reason = f"{best}: {what} chi2/eq {base.chi2_per_eq:.3g} -> {s_best.chi2_per_eq:.3g}"
+        return StepChoice(model.name, evidence, base_score, sc, None, reason, undecided, collinear)
+    reason = f"{best}: {what} chi2/eq {base_score.chi2_per_eq:.3g} -> {s_best.chi2_per_eq:.3g}"
     if len(ranked) > 1:
         r2 = ranked[1]
         reason += f" (next: {r2} {sc[r2].chi2_per_eq:.3g})"
     if undecided:
         reason += f"; cannot tell it from {', '.join(undecided)} on this data"
-    return StepChoice(model.name, evidence, base, sc, best, reason, undecided, collinear)
+    return StepChoice(model.name, evidence, base_score, sc, best, reason, undecided, collinear)
 
 
 def heats_and_cools(obs: ObsTable, min_degC: float = 1.0) -> bool:

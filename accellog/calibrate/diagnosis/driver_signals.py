@@ -10,6 +10,7 @@ F = dchi2 / ((chi2 - dchi2) / dof), p = P(F_{1, dof} > F), significant when p < 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from scipy import linalg
@@ -95,14 +96,17 @@ def driver_signals(res: FitResult, obs: ObsTable, drivers: Mapping[str, np.ndarr
     """Residuals against every driver signal: correlation, partial R^2 and the chi2 drop if the
     signal were added as one more additive term on that axis (after projecting out the model)."""
     sig = np.asarray(obs.sigma_g, float)
-    J = res.jacobian if res.weighted else res.jacobian / sig.ravel()[:, None]
+    J = res.jacobian
+    if J is None:
+        raise ValueError("driver signals need the fit's Jacobian, and this fit has none")
+    J = J if res.weighted else J / sig.ravel()[:, None]
     rw = res.residual_g / sig
     r = rw.ravel()
     chi2 = float(r @ r)
     Q = _orthonormal_basis(J)
     del J  # a recomputed Jacobian is freed here: Q took its place
     dof = max(res.dof - 1, 1)
-    rows = []
+    rows: list[dict[str, Any]] = []
     table = driver_signal_table(obs, drivers, res.gravity_g)
     n_tests = 3 * len(table)
     for name, s in table.items():

@@ -78,7 +78,7 @@ class LadderRow(JsonResult):
         for k in _HELD:
             if getattr(self, k) is not None:
                 d[k] = _num(getattr(self, k))
-        if self.drift_at_s is not None:
+        if self.drift_at_s is not None and self.drift_key is not None:
             d["drift_at_s"] = float(self.drift_at_s)
             d[self.drift_key] = _num(self.drift_m)
         return d
@@ -91,6 +91,7 @@ class LadderRow(JsonResult):
         if at is None:
             old = [k for k in d if k.startswith("drift_") and k.endswith("s_m")]
             at = float(old[0][len("drift_") : -len("s_m")]) if old else None
+        held: dict[str, Any] = {k: _num(d.get(k)) for k in _HELD}  # the held-out statistics
         return cls(
             model=str(d["model"]),
             n_params=int(d["n_params"]),
@@ -98,7 +99,7 @@ class LadderRow(JsonResult):
             rms_g=_num(d.get("rms_g")),
             added=list(d.get("added") or []),
             warnings=list(d.get("warnings") or []),
-            **{k: _num(d.get(k)) for k in _HELD},
+            **held,
             drift_m=None if at is None else _num(d.get(f"drift_{float(at):g}s_m")),
             drift_at_s=None if at is None else float(at),
         )

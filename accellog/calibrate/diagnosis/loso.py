@@ -63,7 +63,7 @@ def concat_obs(parts: Sequence[ObsTable]) -> ObsTable:
 
 def fits_without(parts: Sequence[ObsTable], model: Model, fit: FitFn) -> list[FitResult | None]:
     """The model fitted on all sessions but k, for every k (None where that fit fails)."""
-    out = []
+    out: list[FitResult | None] = []
     for k in range(len(parts)):
         try:
             out.append(fit(concat_obs([p for i, p in enumerate(parts) if i != k]), model))
@@ -74,7 +74,8 @@ def fits_without(parts: Sequence[ObsTable], model: Model, fit: FitFn) -> list[Fi
 
 def loso_score(parts: Sequence[ObsTable], model: Model, fit: FitFn, score: ScoreFn) -> Score:
     """Leave-one-session-out chi2 per equation of `model` (module doc); inf where a fit fails."""
-    chi2, m, per = 0.0, 0, []
+    chi2, m = 0.0, 0
+    per: list[float] = []
     for k, res in enumerate(fits_without(parts, model, fit)):
         if res is None:
             chi2, per = np.inf, [*per, np.inf]
@@ -102,9 +103,10 @@ def loso_stats(
 
 def mean_stats(per_session: Sequence[dict[str, float] | None]) -> dict[str, float]:
     """Mean of per-session statistics (inf when a session could not be predicted)."""
-    keys = ("heldout_rms_g", "heldout_noise_g", "heldout_chi2_dof")
+    keys: tuple[str, ...] = ("heldout_rms_g", "heldout_noise_g", "heldout_chi2_dof")
     if all(s is not None and "heldout_chi2_dof_noise" in s for s in per_session):
         keys += ("heldout_chi2_dof_noise",)
-    if any(s is None for s in per_session):
+    known = [s for s in per_session if s is not None]
+    if len(known) < len(per_session):
         return dict.fromkeys(keys, float("inf"))
-    return {k: float(np.mean([s[k] for s in per_session])) for k in keys}
+    return {k: float(np.mean([s[k] for s in known])) for k in keys}

@@ -68,7 +68,7 @@ class DriverTrend:
     def from_dict(cls, d: dict) -> DriverTrend:
         """Inverse of to_dict (null -> NaN)."""
 
-        def num(v: object) -> float:
+        def num(v: float | None) -> float:
             return math.nan if v is None else float(v)
 
         return cls(

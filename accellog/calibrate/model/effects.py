@@ -24,6 +24,7 @@ import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -365,7 +366,7 @@ def _guarded(fn: Contribution, path: Path, name: str) -> Contribution:
     and line."""
 
     def call(p: Mapping[str, float], f_g: np.ndarray, drivers: Mapping[str, np.ndarray]) -> np.ndarray:
-        out = None
+        out: Any = None  # whatever the user's code returned
         try:
             with _no_process_exit():
                 out = fn(p, f_g, drivers)

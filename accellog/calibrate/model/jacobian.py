@@ -37,6 +37,13 @@ def numeric_columns(model: Model) -> list[int]:
     return out
 
 
+def _driver(x: np.ndarray | None, name: str, term: str) -> np.ndarray:
+    """The driver series x a term needs (ValueError naming both when the drivers lack it)."""
+    if x is None:
+        raise ValueError(f"term {term!r} needs the driver {name!r}")
+    return x
+
+
 def _matrix(sdiag: np.ndarray, C: np.ndarray, n: int) -> np.ndarray:
     """M per row (n,3,3): diag(s) + C."""
     M = np.broadcast_to(C, (n, 3, 3)).copy()
@@ -72,10 +79,11 @@ def predict_jacobian(
         if term == "bias":
             J[:, ax, c] = 1.0
         elif term in ("temp_bias", "temp_bias2"):
-            J[:, ax, c] = (dT ** (1 if term == "temp_bias" else 2))[:, None]
+            J[:, ax, c] = (_driver(dT, "temp_degC", term) ** (1 if term == "temp_bias" else 2))[:, None]
         elif term == "time_drift":
-            J[:, ax, c] = t[:, None]
+            J[:, ax, c] = _driver(t, "t_s", term)[:, None]
         elif term == "warmup":
+            t = _driver(t, "t_s", term)
             w, tau = theta[c[:3]], max(float(theta[c[3]]), 1e-6)
             e = np.exp(-t / tau)
             J[:, ax, c[:3]] = (-np.expm1(-t / tau))[:, None]
@@ -84,7 +92,7 @@ def predict_jacobian(
         elif term == "scale":
             J[:, ax, c] = u
         elif term in ("temp_scale", "temp_scale2"):
-            J[:, ax, c] = u * (dT ** (1 if term == "temp_scale" else 2))[:, None]
+            J[:, ax, c] = u * (_driver(dT, "temp_degC", term) ** (1 if term == "temp_scale" else 2))[:, None]
         elif term in ("cross_axis", "misalignment_tri"):
             for k, nm in zip(c, CROSS_NAMES if term == "cross_axis" else TRI_NAMES, strict=True):
                 i, j = S_INDEX[nm]

@@ -4,10 +4,11 @@ t_s (s), temp_degC, dtemp_degC_per_s (a centred local slope) and t_in_pose_s (s)
 from __future__ import annotations
 
 from types import SimpleNamespace
+from typing import Protocol
 
 import numpy as np
 
-from accellog.core.session import Session
+from accellog.core.session import PoseLabel, Session
 
 WHOLE_SERIES_DRIVERS = frozenset({"dtemp_degC_per_s"})
 """Drivers computed over a centred span of samples (a 5 s slope needs samples on both sides of a
@@ -71,7 +72,18 @@ def rate_of_change(t_s: np.ndarray, y: np.ndarray, span_s: float = 5.0) -> np.nd
     return slope
 
 
-def session_drivers(session: Session, needed: list[str] | None = None) -> dict[str, np.ndarray]:
+class Timeline(Protocol):
+    """What the drivers are computed from: a Session, or a block of one with its session's labels."""
+
+    @property
+    def t_s(self) -> np.ndarray: ...  # (N,) s
+    @property
+    def temp_degC(self) -> np.ndarray | None: ...  # (N,) degC
+    @property
+    def poses(self) -> list[PoseLabel]: ...
+
+
+def session_drivers(session: Timeline, needed: list[str] | None = None) -> dict[str, np.ndarray]:
     """Per-sample driver signals of a session: t_s, temp_degC, dtemp_degC_per_s (5 s local slope),
     t_in_pose_s (time since the start of the latest pose label at or before each sample; t_s when
     the session has no labels). Only `needed` drivers are computed when given."""

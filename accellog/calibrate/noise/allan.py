@@ -74,7 +74,7 @@ class AllanCurve:
         return np.sqrt(lo), np.sqrt(hi)
 
 
-def edf_simple(n_phase: int, m: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+def edf_simple(n_phase: int, m: float | np.ndarray, alpha: int | np.ndarray) -> np.ndarray:
     """Equivalent degrees of freedom of the overlapping AVAR (NIST SP 1065 Table 5), vectorised.
 
     n_phase: N phase points; m: averaging factor; alpha: 2 (white PM), 0 (white FM), -1 (flicker FM),

@@ -48,6 +48,10 @@ class NoiseCharacterisation:
         k = dict(d.kalibr or {})
         if "accelerometer_noise_density" not in k:
             raise InputError("the calibration's noise section has no Kalibr values: rerun `accellog noise`")
+        if d.rate_hz is None or d.duration_s is None:
+            raise InputError(
+                "the calibration's noise section has no rate_hz or duration_s: rerun `accellog noise`"
+            )
         bound = True if d.kalibr_random_walk_is_bound is None else d.kalibr_random_walk_is_bound
         return cls._from_values(k, bound, float(d.rate_hz), float(d.duration_s), d.source or "")
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -159,8 +160,8 @@ def fit_axis(
             ia = np.flatnonzero(active)
             cov_a = np.linalg.pinv(info[np.ix_(ia, ia)]) / np.outer(scale[ia], scale[ia])
             cov[np.ix_(ia, ia)] = cov_a
-        for i in np.flatnonzero(~active):  # clamped at 0: sigma of the free estimate (an upper scale)
-            cov[i, i] = max(full[i, i], 0.0) if A[:, i].any() else np.nan
+        for j in np.flatnonzero(~active):  # clamped at 0: sigma of the free estimate (an upper scale)
+            cov[j, j] = max(full[j, j], 0.0) if A[:, j].any() else np.nan
     except np.linalg.LinAlgError:
         cov[:] = np.nan
     cov *= max(chi2r, 1.0) * CORRELATION_INFLATION**2
@@ -184,7 +185,10 @@ def fit_axis(
             )
         )
     lo, hi = curve.interval(_dominant_alpha(c, tau)[:, None] * np.ones((1, curve.adev.shape[1]), int))
-    return AxisNoise(axis, *params, tau, curve.adev[:, col], lo[:, col], hi[:, col], use, chi2r)
+    quant, white, bias, walk = params
+    return AxisNoise(
+        axis, quant, white, bias, walk, tau, curve.adev[:, col], lo[:, col], hi[:, col], use, chi2r
+    )
 
 
 def _min_duration(
@@ -246,7 +250,7 @@ class SensorNoise:
         }
 
     def to_dict(self) -> dict:
-        out = {"sensor": self.sensor, "unit": self.si_unit, "quantum": self.quantum_si}
+        out: dict[str, Any] = {"sensor": self.sensor, "unit": self.si_unit, "quantum": self.quantum_si}
         out["quantisation_flag"] = self.quantisation_flag
         out["axes"] = [
             {
@@ -380,18 +384,22 @@ _SECTION_UNITS = {
 }
 
 
+def _term(p: Param) -> NoiseTerm:
+    return NoiseTerm(value=p.value, sigma=p.sigma)
+
+
 def calibration_section(m: NoiseModel) -> NoiseSection:
     """The 'noise' section of a calibration file: per sensor and axis each term as value and 1-sigma
     (SI units), plus the Kalibr values (what exporters read)."""
-    sensors = {
+    sensors: dict[str, Any] = {  # NoiseSection's fields per sensor: accel, gyro
         s.sensor: SensorNoiseTerms(
             units=dict(_SECTION_UNITS[s.sensor]),
             axes={
                 a.axis: AxisNoiseTerms(
-                    **{
-                        name: NoiseTerm(value=getattr(a, name).value, sigma=getattr(a, name).sigma)
-                        for name in ("white", "bias_instability", "random_walk", "quantisation")
-                    }
+                    white=_term(a.white),
+                    bias_instability=_term(a.bias_instability),
+                    random_walk=_term(a.random_walk),
+                    quantisation=_term(a.quantisation),
                 )
                 for a in s.axes
             },

@@ -14,7 +14,7 @@ import numpy as np
 
 from accellog.calibrate.observe.segment import quantum_g, session_where
 from accellog.core.errors import InputError
-from accellog.core.session import PoseLabel, Session
+from accellog.core.session import PoseLabel, Session, vec3
 from accellog.core.timeseries import runs
 
 # ---------------------------------------------------------------- automatic static detection
@@ -141,7 +141,7 @@ def static_sweep(
                 name=f"static{j:02d}",
                 start_s=float(t[a]),
                 end_s=float(t_end[b - 1]),
-                up_sensor=tuple(float(v) for v in dirs[j]),
+                up_sensor=vec3(dirs[j]),
                 hold_index=j,
             )
             for j, (a, b) in enumerate(zip(starts, stops, strict=True))

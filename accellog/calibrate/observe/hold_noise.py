@@ -62,7 +62,7 @@ def autocorrelation(
 
 def integrated_autocorr_time(
     x: np.ndarray, c: float = SOKAL_C, mean: np.ndarray | None = None, centred: bool = False
-) -> np.ndarray:
+) -> float | np.ndarray:
     """Integrated autocorrelation time tau (samples, >= 1) of each column, Sokal's window.
 
     tau(M) = 1 + 2 sum_{k=1..M} rho_k; M = smallest lag with M >= c * tau(M). Returns a float for
@@ -97,11 +97,11 @@ def sem_autocorr(
     """
     x = np.asarray(x, float)
     n = x.shape[0]
-    tau = integrated_autocorr_time(x, c=c) if tau is None else tau
+    tau_a = np.asarray(integrated_autocorr_time(x, c=c) if tau is None else tau)
     std = x.std(axis=0, ddof=1) if n > 1 else np.zeros(x.shape[1:])
-    sem = std * np.sqrt(np.asarray(tau) / max(n, 1))
+    sem = std * np.sqrt(tau_a / max(n, 1))
     floor = quantum / np.sqrt(12.0 * max(n, 1))
-    return np.maximum(sem, floor), np.asarray(tau)
+    return np.maximum(sem, floor), tau_a
 
 
 def batch_means_sem(x: np.ndarray, n_batches: int = 20) -> np.ndarray:

@@ -210,7 +210,7 @@ def hold_rows(
     starts = starts[starts < n_all]
     xc = acc - mean  # once, for the windows and the autocorrelation
     wmean, std, n = centred_window_stats(xc, starts, mean)
-    tau = integrated_autocorr_time(xc, centred=True)
+    tau = np.asarray(integrated_autocorr_time(xc, centred=True))  # (3,): xc is (n, 3)
     del xc
     sigma = np.maximum(std * np.sqrt(tau[None, :] / n[:, None]), quantum / np.sqrt(12.0 * n[:, None]))
     tmid = np.add.reduceat(t - t[0], starts) / n + t[0]

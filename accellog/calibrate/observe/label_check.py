@@ -18,7 +18,7 @@ import itertools
 import numpy as np
 
 from accellog.core.errors import InputError
-from accellog.core.session import POSE_UP_VECTORS, PoseLabel, Session
+from accellog.core.session import POSE_UP_VECTORS, PoseLabel, Session, vec3
 
 MAX_LABEL_ANGLE_DEG = 10.0
 """Largest angle (deg) between a hold's measured gravity direction and its label's up vector."""
@@ -134,6 +134,6 @@ def relabel_holds(
         if b is None:
             poses.append(p)
             continue
-        up = tuple(float(v) for v in _CANDIDATES[b.likely])
+        up = vec3(_CANDIDATES[b.likely])
         poses.append(PoseLabel(b.likely, p.start_s, p.end_s, up, None, 100 + p.hold_index))
     return dataclasses.replace(session, poses=poses), bad

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -51,7 +52,7 @@ def obs_from_dict(d: dict, where: str | None = None) -> ObsTable:
     if not isinstance(d, dict) or d.get("format") != OBS_FORMAT:
         raise InputError(f"not an accellog observations file (format '{OBS_FORMAT}')", where=where)
     try:
-        kw = {}
+        kw: dict[str, Any] = {}  # ObsTable's array fields (None: absent from the file)
         for k in _OBS_ARRAYS:
             v = d.get(k)
             kw[k] = (

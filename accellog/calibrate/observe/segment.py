@@ -77,8 +77,8 @@ def _segment(data, window_s: float | None, trim_s: float, stats_out: list | None
     def one_pass(s: Source) -> ObsTable | None:
         if stats_out is not None:
             stats_out.clear()  # a pass run again (a damaged file read whole) starts afresh
-        whole = s.in_memory
-        if whole:
+        whole = s.session is not None  # in memory
+        if s.session is not None:
             name = s.session.path or s.meta.source
             if s.session.n == 0 and s.poses:
                 raise InputError("session has no samples", where=s.where)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Future
+from typing import Any
 
 import numpy as np
 
@@ -108,7 +110,7 @@ class _Behind:
         from accellog.core.threads import pool
 
         self.pool = pool(1, threaded)
-        self.pending = None
+        self.pending: Future | None = None
 
     def wait(self) -> None:
         f, self.pending = self.pending, None
@@ -185,7 +187,7 @@ class _Holds:
 
     def table(self, name: str) -> ObsTable:
         """The ObsTable of every hold's rows (columns no hold has are None)."""
-        out = {}
+        out: dict[str, Any] = {}  # ObsTable's fields
         for f in dataclasses.fields(ObsTable):
             if f.name == "pose_names":
                 out[f.name] = self.names
@@ -272,7 +274,8 @@ class _Rows:
     end: no second copy of the table and no heap fragments left by hundreds of small arrays."""
 
     def __init__(self, capacity: int) -> None:
-        self.cap, self.n, self.cols = max(int(capacity), 1), 0, {}
+        self.cap, self.n = max(int(capacity), 1), 0
+        self.cols: dict[str, np.ndarray] = {}
 
     def add(self, cols: dict[str, np.ndarray]) -> None:
         k = len(next(iter(cols.values())))

@@ -118,10 +118,12 @@ def log_bar_groups(
                 cols.append(colors[j])
                 tops.append([x, float(sy(max(v[g, j], base))) - 22.0])
                 shown.append(f"{raw[g, j]:.3g}")
+    y_base = float(sy(base))
+    box: list[list[float]] = [[0, 0], [width, 0], [width, H], [0, H], [0, 0]]
     rec.log_static(
         f"{entity}/frame",
         rr.LineStrips2D(
-            [[[0, 0], [width, 0], [width, H], [0, H], [0, 0]], [[0, sy(base)], [width, sy(base)]]],
+            [box, [[0, y_base], [width, y_base]]],
             colors=[_GREY, (90, 90, 90)],
             radii=0.6,
         ),

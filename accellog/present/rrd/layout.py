@@ -40,7 +40,7 @@ def build_blueprint(entities: Mapping[str, str]):
     tracks = roles.get("track", [])  # logged order (raw first in replays)
     track_views = [rrb.TimeSeriesView(origin=f"/{e}", name=f"{e.split('/', 1)[1]} (m)") for e in tracks]
     world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)") if "track3d" in roles else None
-    texts = [
+    texts: list[rrb.TextDocumentView | rrb.TextLogView] = [
         rrb.TextDocumentView(origin=f"/{e}", name=e[len(DOCS) + 1 :]) for e in sorted(roles.get("doc", []))
     ]
     if "textlog" in roles:
@@ -57,7 +57,7 @@ def _story_tabs(roles: Mapping[str, list[str]]) -> list:
     the ladder, and the residual against the driver it follows, before and after, per axis."""
     import rerun.blueprint as rrb
 
-    tabs = []
+    tabs: list[rrb.Vertical | rrb.Tabs] = []
     if "search2d" in roles:
         search = rrb.Spatial2DView(
             origin=f"/{CHARTS}/search",

@@ -8,7 +8,7 @@ the recording's guarded, columnar ``_log_series`` and its Rerun stream ``rec``; 
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -54,6 +54,14 @@ class PipelineLogs:
     _n_tracks: int
     _n_poses: int
     _finals3d: dict[str, tuple[np.ndarray, str]]
+
+    if TYPE_CHECKING:  # RunRecording's (offload.py, series.py)
+
+        def _guarded(self, fn: Callable[..., Any], *args: Any, **kw: Any) -> Any: ...
+
+        def _log_series(
+            self, entity, t_s, values, names, sample_index, role, colors, points, step, decimate=False
+        ) -> None: ...
 
     def log_poses(self, poses: Sequence[PoseLabel]) -> None:
         """Hold windows: a 0/1 step series per hold (named by its label) + a TextLog at each start.
@@ -369,7 +377,12 @@ def step_color(i: int) -> tuple[int, int, int]:
 def axis_shades(rgb: tuple[int, int, int]) -> list[tuple[int, int, int]]:
     """x, y, z shades of one colour (dark, as is, light): a model's three axes in one plot."""
     c = np.asarray(rgb, dtype=np.float64)
-    return [tuple(int(v) for v in s) for s in (0.6 * c, c, c + 0.5 * (255.0 - c))]
+    return [_rgb(s) for s in (0.6 * c, c, c + 0.5 * (255.0 - c))]
+
+
+def _rgb(c: np.ndarray) -> tuple[int, int, int]:
+    r, g, b = (int(v) for v in c)
+    return r, g, b
 
 
 def ladder_step_names(rows: Sequence[LadderRow]) -> list[str]:

@@ -33,7 +33,8 @@ def shown_entities(origin: str, contents: Iterable[str] | str, entities: Iterabl
     """Entities (of `entities`) a view with this origin and contents query shows."""
     exprs = [contents] if isinstance(contents, str) else list(contents or ["$origin/**"])
     org = "/" + str(origin).strip("/")
-    inc, exc = [], []
+    inc: list[str] = []
+    exc: list[str] = []
     for e in exprs:
         e = str(e).strip()
         target = exc if e.startswith("- ") else inc

@@ -205,8 +205,9 @@ class RunRecording(SeriesLogs, PipelineLogs):
         for e in list(self._pending) if entity is None else [entity]:
             _, parts = self._pending.pop(e, (0, []))
             if parts:  # every part has the sample index or none has
-                t, v, idx = (None if c[0] is None else np.concatenate(c) for c in zip(*parts, strict=True))
-                self._send(e, t, v, idx)
+                ts, vs, idxs = zip(*parts, strict=True)
+                idx = None if idxs[0] is None else np.concatenate(idxs)
+                self._send(e, np.concatenate(ts), np.concatenate(vs), idx)
 
     def _send(self, entity: str, t: np.ndarray, v: np.ndarray, idx: np.ndarray | None) -> None:
         import rerun as rr

@@ -61,11 +61,11 @@ def _blueprint_nodes(chunks) -> tuple[dict[str, _Node], int]:
 def tab_names(nodes: dict[str, _Node]) -> list[str]:
     """Display names of the children of every Tabs container (what --tab accepts)."""
     return [
-        nodes[k].name
+        name
         for n in nodes.values()
         if n.kind == TABS_KIND
         for k in n.children
-        if k in nodes and nodes[k].name
+        if k in nodes and (name := nodes[k].name)
     ]
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from accellog.core.errors import InputError
-from accellog.core.session import POSE_UP_VECTORS, Session, SessionMeta
+from accellog.core.session import POSE_UP_VECTORS, Session, SessionMeta, vec3
 from accellog.core.units import SEED_LOCAL_GRAVITY_MPS2
 from accellog.store.importers.text import (
     check_time,
@@ -59,7 +59,7 @@ def load_capstone_pose_table(path: str | Path) -> PoseTable:
     mean = np.stack([cols["x_mean"], cols["y_mean"], cols["z_mean"]], 1)
     std = np.stack([cols["x_std"], cols["y_std"], cols["z_std"]], 1)
     by_vec = {v: k for k, v in POSE_UP_VECTORS.items()}
-    names = [by_vec.get(tuple(float(x) for x in row), f"pose{i}") for i, row in enumerate(truth)]
+    names = [by_vec.get(vec3(row), f"pose{i}") for i, row in enumerate(truth)]
     return PoseTable(names, truth, mean, std, str(path))
 
 
@@ -113,7 +113,7 @@ def import_capstone(path: str | Path) -> Session:
         meta=meta,
         t_s=t,
         sample_index=np.arange(n, dtype=np.int64),
-        accel_g=counts / CAPSTONE_LSB_PER_G if exact else acc,
+        accel_g=counts / CAPSTONE_LSB_PER_G if counts is not None else acc,
         accel_counts=counts,
         poses=[face_label("+z", float(t[0]), hold_end(t, n), 0)],
         path=str(path),

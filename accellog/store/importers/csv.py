@@ -124,7 +124,9 @@ class CsvImport:
     def _rate(self) -> float | None:
         if "t" in self.cols:
             return None
-        return float(self.opts.rate_hz or self.header.rate_hz)
+        rate = self.opts.rate_hz or self.header.rate_hz
+        assert rate, "_resolve refuses a file without time column or rate"
+        return float(rate)
 
     # -- blocks ------------------------------------------------------------------------------------
     def chunks(self) -> Iterator[Chunk]:
@@ -159,7 +161,7 @@ class CsvImport:
             yield ch
             del ch  # the consumer's, not kept while the next block is parsed (read_ahead)
             self.n += n
-        if self.n == 0:
+        if self.n == 0 or t_prev is None:
             raise InputError("no data rows", where=str(self.path))
         if self.n < 2 or (self.opts.strict_time and t_prev[0] <= t_first_s):
             raise InputError(
@@ -170,7 +172,13 @@ class CsvImport:
         if runs is not None:
             dt = dt_s if dt_s > 0 else 0.0
             self.poses = runs.finish(t_prev[0] + dt)
-            self.meta = self.meta.replace(protocol=",".join(p.name for p in self.poses))
+            self.meta = self.session_meta().replace(protocol=",".join(p.name for p in self.poses))
+
+    def session_meta(self) -> SessionMeta:
+        """meta once chunks() has read the first rows."""
+        if self.meta is None:
+            raise RuntimeError("the CSV's metadata is known after its first rows")
+        return self.meta
 
     def _skipped(self, block: Block, t_s: np.ndarray, prev) -> None:
         """An Event per skipped line of the block, at the time of the row before it (s)."""
@@ -205,7 +213,7 @@ class CsvImport:
         whole = t is not None and bool(np.all(t[:_HEAD_ROWS] == np.round(t[:_HEAD_ROWS])))
         header_rate = None if o.rate_hz else self.header.rate_hz
         check_rate(self.path, dt_s * _T_DIV[o.time_unit], o, column, header_rate, whole)
-        raw = _stack(block, ("ax", "ay", "az"))[:_HEAD_ROWS]
+        raw = _stack_of(block, ("ax", "ay", "az"))[:_HEAD_ROWS]
         w = _stack(block, ("gx", "gy", "gz"))
         w = None if w is None else w[:_HEAD_ROWS]
         check_offsets(self.path, raw, w, o)
@@ -261,8 +269,8 @@ class CsvImport:
         return SessionMeta(
             source="import:csv",
             chip="unknown",
-            accel_lsb_per_g=float(o.lsb_per_g) if o.unit == "counts" else None,
-            gyro_lsb_per_dps=float(o.gyro_lsb_per_dps)
+            accel_lsb_per_g=float(o.counts_lsb_per_g()) if o.unit == "counts" else None,
+            gyro_lsb_per_dps=float(o.counts_lsb_per_dps())
             if o.gyro_unit == "counts" and "gx" in self.cols
             else None,
             sample_rate_hz=rate,
@@ -272,20 +280,20 @@ class CsvImport:
 
     def _convert(self, block: Block, t_s: np.ndarray) -> Chunk:
         o = self.opts
-        raw = _stack(block, ("ax", "ay", "az"))
+        raw = _stack_of(block, ("ax", "ay", "az"))
         ch = Chunk(self.n, t_s, raw)
         if o.unit == "counts":
             ch.accel_counts = _counts(self.path, block, raw, o.count_offset, "ax,ay,az")
-            ch.accel_g = ch.accel_counts / o.lsb_per_g
+            ch.accel_g = ch.accel_counts / o.counts_lsb_per_g()
         elif o.unit == "m/s^2":
             ch.accel_g = raw / STANDARD_GRAVITY_MPS2
         if o.accel_scale != 1.0:
             ch.accel_g = ch.accel_g * o.accel_scale
         if "gx" in self.cols:
-            w = _stack(block, ("gx", "gy", "gz"))
+            w = _stack_of(block, ("gx", "gy", "gz"))
             if o.gyro_unit == "counts":
                 ch.gyro_counts = _counts(self.path, block, w, o.gyro_offset, "gx,gy,gz")
-                ch.gyro_dps = ch.gyro_counts / o.gyro_lsb_per_dps
+                ch.gyro_dps = ch.gyro_counts / o.counts_lsb_per_dps()
             else:
                 ch.gyro_dps = np.rad2deg(w) if o.gyro_unit == "rad/s" else w
         if "temp" in self.cols:
@@ -294,8 +302,12 @@ class CsvImport:
 
 
 def _stack(block: Block, names) -> np.ndarray | None:
-    if names[0] not in block.cols:
-        return None
+    """The (n, len(names)) columns, None when the block has not the first of them."""
+    return _stack_of(block, names) if names[0] in block.cols else None
+
+
+def _stack_of(block: Block, names) -> np.ndarray:
+    """The (n, len(names)) columns (KeyError for one the block has not)."""
     return np.stack([block.cols[n] for n in names], 1)
 
 
@@ -329,7 +341,7 @@ def import_csv(path: str | Path, options: CsvOptions | None = None, **kw) -> Ses
         return None if arrs[0] is None else np.concatenate(arrs)
 
     return Session(
-        meta=imp.meta,
+        meta=imp.session_meta(),
         t_s=cat("t_s"),
         sample_index=np.arange(imp.n, dtype=np.int64),
         accel_g=cat("accel_g"),
@@ -402,7 +414,7 @@ def import_csv_to_mcap(
             if w is None:
                 w = SessionWriter(
                     tmp,
-                    imp.meta,
+                    imp.session_meta(),
                     flush_interval_s=math.inf,
                     chunk_size=1024 * 1024,
                     compression=compression or DEFAULT_COMPRESSION,
@@ -421,11 +433,13 @@ def import_csv_to_mcap(
                     temp_degC=None if ch.temp_degC is None else ch.temp_degC[s:e],
                 )
             t_last = float(ch.t_s[-1])
+        if w is None:  # chunks() refuses a file without rows
+            raise InputError("no data rows", where=str(path))
         for p in imp.poses:
             w.write_pose(p)
         for e in imp.events:
             w.write_event(e)
-        w.update_meta(imp.meta)
+        w.update_meta(imp.session_meta())
         w.close()
     except BaseException:
         chunks.close()
@@ -438,7 +452,7 @@ def import_csv_to_mcap(
 
 
 def _result(imp: CsvImport, path: Path, out: Path, duration_s: float) -> CsvImportResult:
-    m = imp.meta
+    m = imp.session_meta()
     return CsvImportResult(
         input=str(path),
         output=str(out),

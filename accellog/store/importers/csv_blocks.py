@@ -15,7 +15,7 @@ import math
 import queue
 import re
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -120,6 +120,11 @@ class Block:
         """1-based file line of data row ``row`` of this block."""
         if self.clean:
             return self.first_line + row
+        lines = self._line_numbers()
+        return int(lines[row]) if row < lines.shape[0] else self.first_line
+
+    def _line_numbers(self) -> np.ndarray:
+        """File line of every data row of a block with blank or comment lines (made once)."""
         if self._lines is None:
             nos = [
                 self.first_line + i
@@ -127,14 +132,13 @@ class Block:
                 if ln.strip() and not (self.comment and ln.lstrip().startswith(self.comment))
             ]
             self._lines = np.asarray(nos, dtype=np.int64)
-        return int(self._lines[row]) if row < self._lines.shape[0] else self.first_line
+        return self._lines
 
     def rows_before(self, line: int) -> int:
         """How many data rows of this block lie on file lines before ``line``."""
         if self.clean:
             return max(min(line - self.first_line, self.n), 0)
-        self.line_of(0)
-        return int(np.searchsorted(self._lines, line))
+        return int(np.searchsorted(self._line_numbers(), line))
 
 
 class BlockReader:
@@ -303,7 +307,7 @@ class BlockReader:
                 raise InputError(why + hint, where=f"{self.path}:{first_line + k}")
 
 
-def read_ahead(items: Iterable, name: str = "read-ahead") -> Iterator:
+def read_ahead(items: Iterable, name: str = "read-ahead") -> Generator:
     """Yield ``items`` while a second thread already makes the next one (at most one ahead).
 
     The producer's exception is raised here, at its place in the sequence; leaving the loop early

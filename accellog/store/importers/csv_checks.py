@@ -136,8 +136,9 @@ def check_offsets(path, a: np.ndarray, w: np.ndarray | None, o: CsvOptions) -> N
     offset-binary gyro counts without one; the message says which columns each offset applies to."""
     gyro_too = o.gyro_unit == "counts" and o.gyro_count_offset is None
     if o.unit == "counts" and o.count_offset:
-        m0 = float(np.median(np.linalg.norm(a, axis=1))) / o.lsb_per_g
-        m1 = float(np.median(np.linalg.norm(a - o.count_offset, axis=1))) / o.lsb_per_g
+        lsb = o.counts_lsb_per_g()
+        m0 = float(np.median(np.linalg.norm(a, axis=1))) / lsb
+        m1 = float(np.median(np.linalg.norm(a - o.count_offset, axis=1))) / lsb
         if 0.5 <= m0 <= 2.0 and not 0.5 <= m1 <= 2.0:
             also = (
                 f" (and --gyro-count-offset {o.count_offset:g} if gx,gy,gz need it)"

@@ -139,13 +139,25 @@ class CsvOptions:
         opts.check()
         return opts
 
-    def check(self) -> None:
-        if self.unit == "counts" and not self.lsb_per_g:
+    def counts_lsb_per_g(self) -> float:
+        """lsb_per_g of a --unit counts file (LSB/g; InputError when it was not given)."""
+        if not self.lsb_per_g:
             raise InputError("--unit counts needs --lsb-per-g (e.g. 16384 for +-2 g)")
+        return self.lsb_per_g
+
+    def counts_lsb_per_dps(self) -> float:
+        """gyro_lsb_per_dps of a --gyro-unit counts file (LSB/(deg/s); InputError when not given)."""
+        if not self.gyro_lsb_per_dps:
+            raise InputError("--gyro-unit counts needs --gyro-lsb-per-dps (e.g. 131 for +-250 deg/s)")
+        return self.gyro_lsb_per_dps
+
+    def check(self) -> None:
+        if self.unit == "counts":
+            self.counts_lsb_per_g()
         if self.lsb_per_g is not None and not 0 < self.lsb_per_g < math.inf:
             raise InputError(f"--lsb-per-g must be a positive number, got {self.lsb_per_g:g}")
-        if self.gyro_unit == "counts" and not self.gyro_lsb_per_dps:
-            raise InputError("--gyro-unit counts needs --gyro-lsb-per-dps (e.g. 131 for +-250 deg/s)")
+        if self.gyro_unit == "counts":
+            self.counts_lsb_per_dps()
         if self.gyro_lsb_per_dps is not None and not 0 < self.gyro_lsb_per_dps < math.inf:
             raise InputError(f"--gyro-lsb-per-dps must be a positive number, got {self.gyro_lsb_per_dps:g}")
         if not (0 < self.accel_scale < math.inf):

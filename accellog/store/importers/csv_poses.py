@@ -12,7 +12,7 @@ import numpy as np
 
 from accellog.core.errors import InputError
 from accellog.core.protocol import pose_spec
-from accellog.core.session import PoseLabel
+from accellog.core.session import PoseLabel, quat4, vec3
 
 
 @dataclass
@@ -51,10 +51,9 @@ class PoseRuns:
                 if self._name:
                     self._run = _Run(self._name, float(t_s[s]), f"{self.path}:{line_of(s)}")
             if self._run is not None:
-                self._check(s, e, true, quat, line_of)
+                self._check(self._run, s, e, true, quat, line_of)
 
-    def _check(self, s: int, e: int, true, quat, line_of) -> None:
-        run = self._run
+    def _check(self, run: _Run, s: int, e: int, true, quat, line_of) -> None:
         if true is not None:
             seg = true[s:e]
             ok = np.all(np.isfinite(seg), axis=1)
@@ -86,7 +85,7 @@ class PoseRuns:
                     f"pose {run.name!r}: true_x,true_y,true_z = {run.up.tolist()} is not a unit vector",
                     where=run.where,
                 )
-            up = tuple(float(v) for v in run.up)
+            up = vec3(run.up)
         elif spec is None:
             raise InputError(
                 f"unknown pose {run.name!r} without true_x,true_y,true_z: use +x,-x,+y,-y,+z,-z "
@@ -102,7 +101,7 @@ class PoseRuns:
                     f"pose {run.name!r}: qw,qx,qy,qz = {run.q.tolist()} is not a unit quaternion",
                     where=run.where,
                 )
-            q = tuple(float(v) for v in run.q)
+            q = quat4(run.q)
         if q is None and spec is not None and np.allclose(spec.up_sensor, up, atol=1e-9):
             q = spec.q_sensor_to_world
         self.poses.append(PoseLabel(run.name, run.start_s, float(end_s), up, q, len(self.poses)))

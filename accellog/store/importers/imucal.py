@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from accellog.core.errors import InputError
-from accellog.core.session import Event, Session, SessionMeta
+from accellog.core.session import Event, PoseLabel, Session, SessionMeta
 from accellog.core.textin import read_json
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.importers.text import (
@@ -66,7 +66,8 @@ def _imucal_sections(path: Path, sections: Path | None, n: int) -> dict[str, tup
 
 
 def _imucal_labels(t: np.ndarray, parts: dict[str, tuple[int, int]], sample_index: np.ndarray):
-    poses, events = [], []
+    poses: list[PoseLabel] = []
+    events: list[Event] = []
     for label, (s, e) in sorted(parts.items(), key=lambda kv: kv[1][0]):
         end_s = hold_end(t, e)
         if label in IMUCAL_POSES:

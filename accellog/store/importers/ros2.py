@@ -242,6 +242,7 @@ def _decode_block(reader, msgtype: str, raws: list, logs: list, label: str = "",
         head = head or m
     if not rows:
         return np.empty(0, np.int64), log, np.empty((0, 3)), np.empty((0, 3)), frames, None, None
+    assert head is not None  # the first message of the rows
     ints = np.array([r[:2] for r in rows], dtype=np.int64)
     vals = np.array([r[2:] for r in rows], dtype=np.float64)
     cov_a = np.array(head.linear_acceleration_covariance)
@@ -252,7 +253,8 @@ def _decode_block(reader, msgtype: str, raws: list, logs: list, label: str = "",
 def _read_scalar(reader, conns, kind: str, path: Path):
     """(stamp ns, values) of the temperature (kind 'temp', degC) or magnetometer (T) messages; a
     message that does not decode is one InputError naming its topic and index."""
-    t, v = [], []
+    t: list[int] = []
+    v: list[float | tuple[float, float, float]] = []  # degC, or a magnetic field (x, y, z) T
     des = reader.typestore.deserialize_cdr
     for i, (conn, t_log, raw) in enumerate(_messages(reader, conns)):
         try:

@@ -157,7 +157,9 @@ class _Stream:
             mag_t, mag_uT = ros2.side_extras(extra, temp, mag, self.t0)
             meta = ros2.session_meta(self.t0, t_s, extra)
             w = self.writer
-            if mag_t is not None:
+            if w is None:  # the writer opens at the first IMU message, and n >= 2 came
+                raise RuntimeError("IMU messages counted without a writer")
+            if mag_t is not None and mag_uT is not None:
                 m_ns = to_ns_array(mag_t)
                 for i in range(0, m_ns.shape[0], batch_size):
                     w.write_mag(m_ns[i : i + batch_size], mag_uT=mag_uT[i : i + batch_size], first_index=i)

@@ -96,12 +96,12 @@ class DecodedBatch:
     message: str
     n_messages: int
     arrays: dict[str, np.ndarray]
-    scalars: dict[str, list]
+    scalars: dict[str, list | np.ndarray]  # lists, or arrays with scalar_arrays
     counts: dict[str, np.ndarray]
     placed: frozenset[str] = frozenset()  # arrays already written in place by BatchAccumulator.reserve
     derived: dict[str, np.ndarray] | None = None  # columns converted while reading (imu_arrays)
 
-    def result(self) -> tuple[dict[str, np.ndarray], dict[str, list], dict[str, np.ndarray]]:
+    def result(self) -> tuple[dict[str, np.ndarray], dict[str, list | np.ndarray], dict[str, np.ndarray]]:
         """(arrays, scalars, counts), as ``BatchDecoder.result()`` (new dicts; the arrays are shared)."""
         return dict(self.arrays), dict(self.scalars), dict(self.counts)
 
@@ -172,7 +172,8 @@ class BatchAccumulator:
                 store.resize(self._used[name], refcheck=False)
             arrays[name] = store
         counts = {name: np.concatenate(c) for name, c in self._counts.items()}
-        return DecodedBatch(self.message, self.n_messages, arrays, self._scalars, counts)
+        scalars: dict[str, list | np.ndarray] = dict(self._scalars)  # the lists shared
+        return DecodedBatch(self.message, self.n_messages, arrays, scalars, counts)
 
 
 def decode_batch(
@@ -241,20 +242,23 @@ def _assemble(
 ) -> DecodedBatch | None:
     """The batch from the walked offsets and values: packed fields gathered (into ``reserve`` when
     given), strings decoded, scalars as lists; None if a packed length or a string is invalid."""
-    arrays, scalars, counts = {}, {}, {}
+    arrays: dict[str, np.ndarray] = {}
+    scalars: dict[str, list | np.ndarray] = {}
+    counts: dict[str, np.ndarray] = {}
     placed: list[str] = []
     shared: list = [None, None]  # (items per message, their length_classes) of the last packed field
     for c in codecs:
         if c.kind == "packed":
-            size = c.dtype.itemsize
+            dtype = c.packed_dtype
+            size = dtype.itemsize
             ln = lens[c.name]
             if np.any(ln % size):
                 return None
             classes = _classes_of(ln // size, shared)
             if reserve is None:
-                arrays[c.name] = gather_bytes(buf, offs[c.name], ln, size, classes=classes).view(c.dtype)
+                arrays[c.name] = gather_bytes(buf, offs[c.name], ln, size, classes=classes).view(dtype)
             else:
-                dst = reserve(c.name, c.dtype, int(ln.sum()) // size)
+                dst = reserve(c.name, dtype, int(ln.sum()) // size)
                 gather_bytes(buf, offs[c.name], ln, size, out=dst.view(np.uint8), classes=classes)
                 arrays[c.name] = dst
                 placed.append(c.name)
@@ -266,10 +270,11 @@ def _assemble(
             items = [raw[a:b] for a, b in zip([0, *bounds[:-1]], bounds, strict=True)]
             if c.kind == "string":
                 try:
-                    items = [b.decode("utf-8") for b in items]
+                    scalars[c.name] = [b.decode("utf-8") for b in items]
                 except UnicodeDecodeError:
                     return None
-            scalars[c.name] = items
+            else:
+                scalars[c.name] = items
         else:
             v = vals[c.name]  # a fresh array per call
             v = v.view(np.int64) if c.kind == "varint_s" else v.view(DOUBLE) if c.kind == "double" else v

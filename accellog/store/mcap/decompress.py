@@ -116,8 +116,10 @@ class GroupDecompressor:
                 return None
         frames = np.array([(at + 49 + nl, csize) for at, _, _, csize, _, nl in index], np.uint64)
         usize = np.array([ix[2] for ix in index], np.uint64)
+        spans: zstandard.BufferWithSegments | None = None
         try:
-            spans = zstandard.BufferWithSegments(data, frames.tobytes())
+            # zstandard's stubs leave out mmap, which it takes as any buffer
+            spans = zstandard.BufferWithSegments(data, frames.tobytes())  # type: ignore[arg-type]
             parts = self.zstd[slot].multi_decompress_to_buffer(
                 spans, decompressed_sizes=usize.tobytes(), threads=1
             )
@@ -131,7 +133,8 @@ class GroupDecompressor:
             if len(part) != u:
                 return None
             dst = out[pos : pos + u]
-            dst[:] = part
+            # zstandard's stubs do not give BufferSegment the buffer protocol it has
+            dst[:] = part  # type: ignore[call-overload]
             if crc and self.check_crcs and crc32_holding_gil(dst) != crc:
                 return None
             pos += u
@@ -142,6 +145,7 @@ class GroupDecompressor:
         what chunk j of the group gave). Returns the bytes written."""
         data, mv = self.data, memoryview(self.data)  # released on return
         pos = 0
+        why: str | None
         for k, (j, ix) in enumerate(zip(at_in_group.tolist(), index, strict=True)):
             at, _, u, csize, _, nl = ix
             crc = header_agrees(data, *ix)

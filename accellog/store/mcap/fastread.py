@@ -32,6 +32,7 @@ from accellog.core.errors import InputError
 from accellog.core.threads import pool as thread_pool
 from accellog.store.collect import (
     Collected,
+    Damage,
     Sink,
     data_section_damage,
     recover,
@@ -130,7 +131,7 @@ def fast_walk(
     schemas, channels, chunk_index_at, chunk_index_len, metadata_at = read_summary(
         data, footer, summary_start
     )
-    (idx, usize), damaged = chunk_index(data, footer, chunk_index_at, chunk_index_len), []
+    (idx, usize), damaged = chunk_index(data, footer, chunk_index_at, chunk_index_len), list[Damage]()
     del chunk_index_at, chunk_index_len  # idx keeps 8 B a chunk: a day of recorder chunks, 1.4 MB
     keep = chunks_with(data, idx.ci, channels, topics, stream)
     release_pages(data, 0, len(data))  # what the index pass touched (the summary: ~14 MB at 24 h)
@@ -181,7 +182,7 @@ def fast_walk(
                 if stream is not None:
                     yield meta_kv, _handed_out(parts, channels, stream)
         except NotFast:  # unchecked chunks may be the cause: with damage, walk again checking them
-            if trust and data_crc.result() is not None:
+            if trust and data_crc is not None and data_crc.result() is not None:
                 raise _ChunksUnverified() from None
             raise
         outside = None if data_crc is None else data_crc.result()

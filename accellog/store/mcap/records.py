@@ -34,7 +34,8 @@ def metadata_between_chunks(data, end: int) -> list[int]:
     op, ln = _PREFIX.unpack_from(data, magic)
     if data[:magic] != MCAP_MAGIC or op != _OP_HEADER:
         raise ValueError("no MCAP header record")
-    pos, found = magic + 9 + ln, []
+    pos = magic + 9 + ln
+    found: list[int] = []
     while pos + 9 <= end:
         op, ln = _PREFIX.unpack_from(data, pos)
         if op == _OP_DATA_END:
