@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from accellog.flows.workbench_run import run_workbench
 from run_all import RESULTS_END, RESULTS_START
 from support.discovery import EDGES, MODEL3_CHIP, SIX, handheld_path, session_obs
 
@@ -57,7 +58,6 @@ from accellog.calibrate.model.fit import fit_model
 from accellog.calibrate.observe.segment import observations
 from accellog.flows.stages import load_input
 from accellog.flows.workbench import discover
-from accellog.flows.workbench_run import run_workbench
 
 REPO = Path(__file__).resolve().parents[1]
 TRUTH: dict[str, set[str]] = {

@@ -13,26 +13,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Files being restructured on other branches: their errors are fixed once those are merged, and
-# this list is then removed.
+# Files restructured by the one-source redesign (issue 41) whose errors are not fixed yet; the list
+# shrinks to nothing and goes with the xfail marker below.
 PENDING_MYPY = [
-    "accellog/navigate/evaluate.py",
-    "accellog/navigate/handheld_evaluate.py",
-    "accellog/navigate/pose_evaluate.py",
-    "accellog/navigate/pose_passes.py",
-    "accellog/navigate/stream_motion.py",
-    "accellog/calibrate/observe/motion.py",
-    "accellog/calibrate/diagnosis/transfer.py",
-    "accellog/calibrate/diagnosis/norm_transfer.py",
     "accellog/calibrate/diagnosis/diagnose.py",
-    "accellog/calibrate/diagnosis/handheld.py",
-    "accellog/calibrate/diagnosis/strategy.py",
-    "accellog/flows/workbench.py",
-    "accellog/flows/workbench_prune.py",
-    "accellog/flows/workbench_run.py",
-    "accellog/flows/workbench_trail.py",
-    "accellog/flows/handheld_workbench.py",
+    "accellog/calibrate/diagnosis/transfer.py",
     "accellog/flows/stages.py",
+    "accellog/flows/workbench.py",
 ]
 
 pytest.importorskip("mypy")
@@ -90,8 +77,8 @@ def test_readme_snippet_sees_real_types(tmp_path: Path) -> None:
 
 @pytest.mark.xfail(
     strict=True,
-    reason="25 errors outside PENDING_MYPY remain (gyro/stream.py's pass state, the residual functions' "
-    "attributes, record_starts' buffer types, and callers of stages.py's and workbench.py's signatures); "
+    reason="28 errors outside PENDING_MYPY remain (gyro/stream.py's pass state, the residual functions' "
+    "attributes, record_starts' buffer types, online's carried integrals, callers of stages.py's signatures); "
     "this marker goes once they are fixed",
 )
 def test_package_is_clean() -> None:

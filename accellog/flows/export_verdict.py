@@ -133,7 +133,7 @@ def export_verdict(cal: Calibration, target: str, heldout: str | os.PathLike) ->
     err, err_fit = acc / G0 * 1e3, full / G0 * 1e3
     chi = np.mean((acc[inside] / (G0 * sig_g[inside])) ** 2, axis=0) if inside.any() else np.full(3, np.nan)
     g_exp = g_fit = None
-    if gyro is not None:
+    if gyro is not None and cal.gyro is not None:
         g_exp = _rms(held_correction(cal, np.zeros_like(gyro), temp_g, gyro)[1][inside])
         g_fit = _rms(cal.gyro.correct(gyro, temp_g)[inside])
     return ExportVerdict(

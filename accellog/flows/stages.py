@@ -138,7 +138,7 @@ class FitOutcome(JsonResult):
 
 
 def run_fit(
-    data: SessionInput | ObsTable,
+    data: SessionInput | ObsTable | Sequence[SessionInput],
     model: str = "model3",
     *,
     add: Sequence[str] = (),

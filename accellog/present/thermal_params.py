@@ -176,7 +176,8 @@ def held_correction(cal: Calibration, reading_g: np.ndarray, temp_degC: np.ndarr
     the exported span (module doc: the firmware equations, tests/support/firmware.py checks them)."""
     K, o = linear_form(cal)
     tm = thermal_model(cal, np.eye(3))
-    p_a, p_g = 0.0, 0.0
+    p_a: np.ndarray | float = 0.0
+    p_g: np.ndarray | float = 0.0
     if tm is not None:
         Tc = np.clip(np.asarray(temp_degC, float), *tm.span_degC)
         p_a = poly_eval(tm.accel_mps2, Tc - tm.accel_t_ref_degC)
