@@ -48,6 +48,7 @@ command line).
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import json
 import warnings
@@ -142,7 +143,9 @@ class Scenario:
         flat = [k for k in FaultPlan.names() if k in data]  # the form before [faults] (module doc)
         unknown = sorted(set(data) - names - set(flat))
         if unknown:
-            raise InputError(f"unknown scenario key(s) {unknown}; known: {sorted(names)}", where=where)
+            hints = [m[0] for k in unknown if (m := difflib.get_close_matches(k, names, n=1))]
+            hint = f" (did you mean {', '.join(hints)}?)" if hints else ""
+            raise InputError(f"unknown scenario key(s) {unknown}{hint}; known: {sorted(names)}", where=where)
         for key, value in data.items():
             check_type(key, value, where)
         data = dict(data)

@@ -91,7 +91,7 @@ def test_cli_rejects_bad_scenario(tmp_path, capsys, args, needle):
 @pytest.mark.parametrize(
     "body, needles",
     [
-        ("holdd_s = 3\n", ["s.toml", "unknown scenario key", "holdd_s"]),
+        ("holdd_s = 3\n", ["s.toml", "unknown scenario key", "holdd_s", "did you mean hold_s?"]),
         ("hold_s = [\n", ["s.toml", "not valid TOML"]),
         ('temperature = {kind = "warmup", T_start = 20.0}\n', ["needs key 'T_end'"]),
         ('motion = "robot"\nrobot_path = "moon"\n', ["robot_path='moon'"]),

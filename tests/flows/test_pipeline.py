@@ -123,6 +123,7 @@ def test_six_position_pipeline_reproduces_the_seed(shared_data, capsys):
     [
         ('[pipeline]\nname="x"\ninputs=["a"]\n[fit]\ninput="a"\nmodels=["model1"]\n[bogus]\nk=1\n', r"x.toml:7: unknown stage \[bogus\]"),
         ('[pipeline]\nname="x"\ninputs=["a"]\n[fit]\ninput="a"\nmodels=["model1"]\nwindw=2\n', r"x.toml:7: unknown key 'fit.windw'"),
+        ('[pipeline]\nname="x"\ninputs=["a"]\n[fit]\ninput="a"\nmodles=["model1"]\n', r"unknown key 'fit.modles' \(did you mean models\?\)"),
         ('[pipeline]\nname="x"\ninputs=["a"]\n[fit]\ninput="a"\nmodels=["model1"]\nweighted="no"\n', r"x.toml:7: 'fit.weighted' must be a bool"),
         ('[pipeline]\nname="x"\ninputs=["a"]\n[fit]\ninput="b"\nmodels=["model1"]\n', r"x.toml:5: 'fit.input' = 'b' is not one of"),
         ('[pipeline]\nname="x"\ninputs=["a"]\n[fit]\ninput="a"\nmodels=["model1"]\n[drift]\nmodel="model3"\nfit_input="a"\n', r"'drift.model' = 'model3' is not in fit.models"),
