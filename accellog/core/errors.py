@@ -34,3 +34,13 @@ class DeviceError(AccellogError):
 class DataIntegrityWarning(UserWarning):
     """Part of a file failed its integrity check (CRC) and was skipped or is unverified; the
     message names where. The CLI prints it as one line on stderr."""
+
+
+def did_you_mean(words, known) -> str:
+    """' (did you mean X, Y?)' naming the closest known name of each unknown word (difflib), or ''
+    when none is close: the hint an unknown key or option value gets."""
+    import difflib
+
+    words = [words] if isinstance(words, str) else list(words)
+    hits = [m[0] for w in words if (m := difflib.get_close_matches(w, list(known), n=1))]
+    return f" (did you mean {', '.join(hits)}?)" if hits else ""

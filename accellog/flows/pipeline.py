@@ -8,7 +8,6 @@ inputs = roles of the SESSION arguments in order), [segment], [fit], [evaluate],
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import json
 import math
 import os
@@ -22,7 +21,7 @@ import tomllib
 
 from accellog.calibrate.calfile.calibration import read_text, source_entry, write_json_atomic
 from accellog.calibrate.model.effects import load_effects_file
-from accellog.core.errors import InputError, ModelError
+from accellog.core.errors import InputError, ModelError, did_you_mean
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 from accellog.core.textin import toml_loads
@@ -114,18 +113,12 @@ def load_pipeline(path: str | os.PathLike) -> dict:
     return spec
 
 
-def _hint(word: str, known) -> str:
-    """' (did you mean X?)' for the closest known name, or '' when none is close."""
-    close = difflib.get_close_matches(word, list(known), n=1)
-    return f" (did you mean {close[0]}?)" if close else ""
-
-
 def _check_schema(spec: dict, text: str, p: Path) -> None:
     """Known tables and keys of the right types; required keys present."""
     for table, body in spec.items():
         if table not in _SCHEMA:
             raise InputError(
-                f"unknown stage [{table}]{_hint(table, _SCHEMA)} (known: {', '.join(_SCHEMA)})",
+                f"unknown stage [{table}]{did_you_mean(table, _SCHEMA)} (known: {', '.join(_SCHEMA)})",
                 where=f"{p}:{_line_of(text, table) or 1}",
             )
         if not isinstance(body, dict):
@@ -141,7 +134,7 @@ def _check_schema(spec: dict, text: str, p: Path) -> None:
                 )
             if key not in _SCHEMA[table]:
                 raise InputError(
-                    f"unknown key '{table}.{key}'{_hint(key, _SCHEMA[table])} (known: {', '.join(_SCHEMA[table])})",
+                    f"unknown key '{table}.{key}'{did_you_mean(key, _SCHEMA[table])} (known: {', '.join(_SCHEMA[table])})",
                     where=f"{p}:{_line_of(text, table, key) or 1}",
                 )
             want = _SCHEMA[table][key]

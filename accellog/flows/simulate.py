@@ -48,7 +48,6 @@ command line).
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import functools
 import json
 import warnings
@@ -69,7 +68,7 @@ from accellog.acquire.emulator.poses import PoseSequenceMotion
 from accellog.acquire.emulator.sensor_model import AccelErrors, GyroErrors, SensorModel
 from accellog.acquire.emulator.temperature import TemperaturePath
 from accellog.acquire.recorder import Recorder, session_meta
-from accellog.core.errors import InputError
+from accellog.core.errors import InputError, did_you_mean
 from accellog.core.kinematics import Motion
 from accellog.core.notices import note
 from accellog.core.protocol import parse_protocol
@@ -143,8 +142,7 @@ class Scenario:
         flat = [k for k in FaultPlan.names() if k in data]  # the form before [faults] (module doc)
         unknown = sorted(set(data) - names - set(flat))
         if unknown:
-            hints = [m[0] for k in unknown if (m := difflib.get_close_matches(k, names, n=1))]
-            hint = f" (did you mean {', '.join(hints)}?)" if hints else ""
+            hint = did_you_mean(unknown, names)
             raise InputError(f"unknown scenario key(s) {unknown}{hint}; known: {sorted(names)}", where=where)
         for key, value in data.items():
             check_type(key, value, where)
@@ -309,7 +307,9 @@ def _overridden(errors, values: Mapping[str, Any], what: str):
     known = {f.name for f in dataclasses.fields(errors)}
     bad = sorted(set(values) - known)
     if bad:
-        raise InputError(f"unknown {what} error field(s) {bad}; known: {sorted(known)}")
+        raise InputError(
+            f"unknown {what} error field(s) {bad}{did_you_mean(bad, known)}; known: {sorted(known)}"
+        )
     out: dict[str, Any] = {}  # fields: floats or arrays
     for k, v in values.items():
         try:
