@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from accellog.core.errors import InputError
+from accellog.core.errors import InputError, did_you_mean
 from accellog.core.units import EARTH_GRAVITY_RANGE_MPS2
 
 MAX_SESSION_S = 86400.0
@@ -126,3 +127,26 @@ def check_accel_errors(accel: Any) -> None:
                 f"error field {name} = {np.round(v, 6).tolist()} outside its physical range {lo:g}..{hi:g}",
                 where="scenario",
             )
+
+
+def overridden_errors(errors, values: Mapping[str, Any], what: str):
+    """errors (AccelErrors | GyroErrors) with the scenario's [set] / [gyro_set] fields replaced (checked)."""
+    known = {f.name for f in dataclasses.fields(errors)}
+    bad = sorted(set(values) - known)
+    if bad:
+        raise InputError(
+            f"unknown {what} error field(s) {bad}{did_you_mean(bad, known)}; known: {sorted(known)}"
+        )
+    out: dict[str, Any] = {}  # fields: floats or arrays
+    for k, v in values.items():
+        try:
+            arr = np.asarray(v, float)
+        except (TypeError, ValueError):
+            raise InputError(f"error field {k!r}: {v!r} is not a number or a list of numbers") from None
+        default = np.asarray(getattr(errors, k), float)
+        if arr.shape != default.shape and arr.ndim != 0:
+            raise InputError(
+                f"{k} must be {default.size} numbers (shape {default.shape}), got shape {arr.shape}"
+            )
+        out[k] = float(arr) if default.ndim == 0 else np.broadcast_to(arr, default.shape).copy()
+    return dataclasses.replace(errors, **out)

@@ -81,6 +81,7 @@ from accellog.flows.scenario_checks import (
     check_numbers,
     check_session_runs,
     check_type,
+    overridden_errors,
 )
 from accellog.store.atomic import AtomicOutput, check_output
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
@@ -271,11 +272,11 @@ def build_sensor_model(sc: Scenario):
         )
     accel = AccelErrors.datasheet(sc.chip_seed) if sc.errors == "datasheet" else AccelErrors.perfect()
     if sc.set:
-        accel = _overridden(accel, sc.set, "accelerometer")
+        accel = overridden_errors(accel, sc.set, "accelerometer")
         check_accel_errors(accel)
     gyro = GyroErrors.datasheet(sc.chip_seed) if sc.gyro_errors == "datasheet" else GyroErrors.perfect()
     if sc.gyro_set:
-        gyro = _overridden(gyro, sc.gyro_set, "gyro")
+        gyro = overridden_errors(gyro, sc.gyro_set, "gyro")
     temperature = temperature_path(sc.temperature)
     known_mag = {"field_uT", "hard_iron_uT", "soft_iron", "noise_uT"}
     if set(sc.magnetometer) - known_mag:
@@ -300,29 +301,6 @@ def build_sensor_model(sc: Scenario):
         **mag,
     )
     return model, motion
-
-
-def _overridden(errors, values: Mapping[str, Any], what: str):
-    """errors (AccelErrors | GyroErrors) with the scenario's [set] / [gyro_set] fields replaced (checked)."""
-    known = {f.name for f in dataclasses.fields(errors)}
-    bad = sorted(set(values) - known)
-    if bad:
-        raise InputError(
-            f"unknown {what} error field(s) {bad}{did_you_mean(bad, known)}; known: {sorted(known)}"
-        )
-    out: dict[str, Any] = {}  # fields: floats or arrays
-    for k, v in values.items():
-        try:
-            arr = np.asarray(v, float)
-        except (TypeError, ValueError):
-            raise InputError(f"error field {k!r}: {v!r} is not a number or a list of numbers") from None
-        default = np.asarray(getattr(errors, k), float)
-        if arr.shape != default.shape and arr.ndim != 0:
-            raise InputError(
-                f"{k} must be {default.size} numbers (shape {default.shape}), got shape {arr.shape}"
-            )
-        out[k] = float(arr) if default.ndim == 0 else np.broadcast_to(arr, default.shape).copy()
-    return dataclasses.replace(errors, **out)
 
 
 def temperature_path(spec: dict[str, Any]):
