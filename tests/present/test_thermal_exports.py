@@ -2,22 +2,8 @@
 equations, written here from the firmware sources (not from accellog's model), in float32 as the
 firmware computes, over the fitted temperature span and beyond it, against accellog's correction.
 
-PX4 (PX4/PX4-Autopilot):
-- src/modules/temperature_compensation/TemperatureCompensation.cpp, ``calc_thermal_offsets_3D``:
-  delta_temp = measured_temp clipped to [min_temp, max_temp] minus ref_temp;
-  offset[i] = x0[i] + x1[i] dT + x2[i] dT^2 + x3[i] dT^3.
-- src/lib/sensor_calibration/Accelerometer.hpp, ``Correct``:
-  _rotation * ((data - _thermal_offset - _offset).emult(_scale));
-  Gyroscope.hpp, ``Correct``: _rotation * (data - _thermal_offset - _offset).
-ArduPilot (ArduPilot/ardupilot):
-- libraries/AP_InertialSensor/AP_InertialSensor_tempcal.cpp, ``TCal::polynomial_eval``:
-  (c[0] + (c[1] + c[2] tdiff) tdiff) tdiff * 1e-6; ``TCal::correct_sensor``: temperature and cal_temp
-  constrained to [temp_min, temp_max]; v -= P(temperature - 35); v += P(cal_temp - 35).
-- libraries/AP_InertialSensor/AP_InertialSensor_Backend.cpp, ``_rotate_and_correct_accel``: rotate by
-  the sensor orientation, tcal correct_accel(temperature, caltemp_accel), accel -= offset,
-  accel *= scale per axis, rotate to the board; ``_rotate_and_correct_gyro``: the same rotation,
-  correct_gyro(temperature, caltemp_gyro), gyro -= offset.
-The board rotation after the correction is the identity here (it is the same for both sides).
+The firmware equations (PX4's TemperatureCompensation / Accelerometer::Correct, ArduPilot's
+TCal::correct_sensor / _rotate_and_correct_accel, with their source files) are in tests/support/firmware.py.
 """
 
 from __future__ import annotations
