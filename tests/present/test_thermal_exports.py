@@ -1,5 +1,5 @@
 """The thermal parameters of `export --to px4|ardupilot` run through each firmware's own run-time
-equations, written here from the firmware sources (not from accellog's model), in float32 as the
+equations, written from the firmware sources (not from accellog's model), in float32 as the
 firmware computes, over the fitted temperature span and beyond it, against accellog's correction.
 
 The firmware equations (PX4's TemperatureCompensation / Accelerometer::Correct, ArduPilot's
