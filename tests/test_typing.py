@@ -78,7 +78,7 @@ def test_readme_snippet_sees_real_types(tmp_path: Path) -> None:
 @pytest.mark.slow  # mypy over the whole package: ~35 s
 @pytest.mark.xfail(
     strict=True,
-    reason="28 errors outside PENDING_MYPY remain (gyro/stream.py's pass state, the residual functions' "
+    reason="25 errors outside PENDING_MYPY remain (gyro/stream.py's pass state, the residual functions' "
     "attributes, record_starts' buffer types, online's carried integrals, callers of stages.py's signatures); "
     "this marker goes once they are fixed",
 )

@@ -21,6 +21,7 @@ import warnings
 from collections.abc import Generator, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -55,8 +56,11 @@ class ImuBlock:
         return int(self.t_s.shape[0])
 
 
+_B = TypeVar("_B")
+
+
 @contextlib.contextmanager
-def closed_after(blocks: Iterable[ImuBlock]) -> Iterator[Iterable[ImuBlock]]:
+def closed_after(blocks: Iterable[_B]) -> Iterator[Iterable[_B]]:
     """blocks, closed on leaving the with-block, also on an error (when it has close()). A reader
     left to the garbage collector is closed on whatever thread the collection runs, and its close
     joins the decompression threads: a collection inside Thread.start deadlocked there (seen in CI)."""
