@@ -234,16 +234,22 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
             on_step(d)
         ch = d.choice if len(out.added) < max_steps else None
         trail.note_start(out, ch)
+        if ch is not None and ch.chosen is None and len(out.added) + 2 <= max_steps:
+            pair = strategy.choose_pair(d, obs, held, parts)  # two effects that only together help
+            if pair is not None:
+                trail.note_rejected(out, ch)
+                ch = pair
         if ch is not None:
             out.choices.append(ch)
-        if ch is None or ch.chosen is None or ch.chosen in out.added:
+        new = [] if ch is None or ch.chosen is None else ch.chosen.split("+")
+        if not new or set(new) & set(out.added):
             trail.note_rejected(out, ch)
             break
         if ch.undecided:
             out.undecided.append([ch.chosen, *ch.undecided])
-        out.added.append(ch.chosen)
+        out.added.extend(new)
         trail.note_added(out, ch)
-        model = model.with_terms([ch.chosen])
+        model = model.with_terms(new)
         full = d.fits.get(ch.chosen)
         while (
             drop := backward_step(out.added, start, effects_file, obs, scores, full, strategy.fit)

@@ -88,7 +88,7 @@ def note_start(out, choice) -> None:
 def note_added(out, choice) -> None:
     """Step k added choice.chosen (out.added already holds it): its row and its tied alternatives."""
     k = len(out.choices)
-    before = [e for e in out.added if e != choice.chosen]
+    before = [e for e in out.added if e not in choice.chosen.split("+")]  # a pair: 'a+b'
     out.trail.append(
         TrailStep(
             k,
@@ -130,7 +130,7 @@ def note_removed(out, effect: str, status: str, why: str, effects=None) -> None:
     row that added it becomes 'dropped'."""
     k = len(out.choices)
     for row in out.trail:
-        if row.change == f"+{effect}" and row.status == "kept":
+        if effect in row.change[1:].split("+") and row.change[0] == "+" and row.status == "kept":
             row.status, row.why = "dropped", f"{row.why}; later removed: {why}" if row.why else why
     left = out.added if effects is None else effects
     out.trail.append(TrailStep(k, f"-{effect}", _name(out.start, left), status, why))

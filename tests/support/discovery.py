@@ -5,7 +5,8 @@ real path (emulator -> driver -> recorder -> MCAP) and cut into windows.
 Scenarios (name -> chip error fields besides model3's and the temperature paths):
 
 - ``rate``: a bias following the rate of the die temperature, b += r dT/dt (outside the library);
-- ``hysteresis``: a thermal hysteresis, b += h s(t), s = -1 heating / +1 cooling (outside the library);
+- ``hysteresis``: a linear bias tempco (library: temp_bias, the in-library part) and a thermal
+  hysteresis, b += h s(t), s = -1 heating / +1 cooling (outside the library);
 - ``two``: two library effects at once, temp_bias and time_drift;
 - ``single``: one library effect, temp_bias (the succeeding search the failing ones are timed against);
 - ``clean``: model3's terms only (nothing to add);
@@ -39,7 +40,11 @@ EDGES = SIX + ",+x+y,-x-y,+x-y,-x+y,+x+z,-x-z,+x-z,-x+z,+y+z,-y-z,+y-z,-y+z"
 
 HIDDEN: dict[str, dict[str, Any]] = {
     "rate": {"temp_rate_bias_g_per_degC_per_s": [0.04, -0.03, 0.05]},
-    "hysteresis": {"temp_hysteresis_g": [2.0e-3, -1.5e-3, 2.5e-3], "temp_hysteresis_width_degC": 3.0},
+    "hysteresis": {
+        "temp_bias_g_per_degC": [1.0e-3, -0.8e-3, 1.2e-3],
+        "temp_hysteresis_g": [2.0e-3, -1.5e-3, 2.5e-3],
+        "temp_hysteresis_width_degC": 3.0,
+    },
     "two": {
         "temp_bias_g_per_degC": [1.0e-3, -0.8e-3, 1.2e-3],
         "time_drift_g_per_s": [1.5e-5, -1.0e-5, 1.2e-5],

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from accellog.calibrate.diagnosis.choose import StepChoice, choose_effect
+from accellog.calibrate.diagnosis.choose import StepChoice, choose_effect, choose_pair
 from accellog.calibrate.diagnosis.diagnose import Diagnosis, diagnose, diagnose_handheld, settle_choice
 from accellog.calibrate.diagnosis.loso import loso_score, loso_stats, mean_stats
 from accellog.calibrate.diagnosis.transfer import (
@@ -128,6 +128,15 @@ class Strategy:
             rho=lambda a, b: self.rho(a, b, d.model, obs),
         )
         return d.choice
+
+    def choose_pair(
+        self, d: Diagnosis, obs: ObsTable, held: Sequence[ObsTable], parts: Sequence[ObsTable] = ()
+    ) -> StepChoice | None:
+        """Two of d's candidates that only together predict unseen data better, after d.choice chose
+        no single one (choose.choose_pair with this residual's fit and scores)."""
+        if d.choice is None or d.choice.chosen is not None:
+            return None
+        return choose_pair(d.fit, d.choice, d.fits, self.fit, obs, self.scores(obs, held, parts))
 
     def final_stats(
         self,
