@@ -123,3 +123,18 @@ def test_handheld_outside_the_library_says_what_is_left(root, name):
     assert found.transfers is False and "nothing is missing" not in found.verdict, found.verdict
     assert "no library effect explains what is left" in found.verdict, found.verdict
     assert "docs/effects.md" in found.verdict
+
+
+@pytest.mark.slow
+def test_two_effects_that_only_help_together_are_added_together(root):
+    """Hand-held temperature + nonlinearity (issue 42): after temp_bias2 neither nonlin2 nor
+    temp_bias alone predicts the held-out session better (each stands for part of the other's
+    residual); the pair does, and the search ends transferring with the chip's three effects."""
+    cal = handheld_path(root, "temp_nonlin", 1)
+    held = handheld_path(root, "temp_nonlin", 101, held=True)
+    found = run_workbench(cal, heldout=[held]).found
+    assert set(found.added) == {"temp_bias", "temp_bias2", "nonlin2"}, (found.added, found.verdict)
+    pair = [c for c in found.choices if c.chosen and "+" in c.chosen]
+    assert pair and "together" in pair[0].reason, [c.reason for c in found.choices]
+    assert found.transfers and found.heldout["heldout_chi2_dof"] < 1.5, found.heldout
+    assert "no library effect" not in found.verdict

@@ -47,7 +47,7 @@ Z_IMPROVE = 3.0
 """An effect is added only if it lowers the out-of-sample score by more than 3 standard errors."""
 Z_TIE = 2.0
 """Two collinear candidates whose scores differ by less than 2 standard errors are a tie."""
-PAIR_TOP = 6
+PAIR_TOP = 8
 """choose_pair tries the pairs of this many candidates (those that lower the calibration chi2 most)."""
 PAIR_ALPHA = 0.01
 """Significance of a pair on the calibration data (F test), Bonferroni-divided over the pairs tried."""
