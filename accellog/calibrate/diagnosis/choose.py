@@ -1,9 +1,10 @@
 """Choose the effect that transfers: one step of the workbench, judged out of sample.
 
 Among the candidates diagnose() calls significant on the calibration data, the step picks the one
-with the lowest out-of-sample score (among those within Z_TIE standard errors of the lowest, the
-one with the lowest dBIC: parsimony) (accellog.calibrate.diagnosis.transfer: held-out sessions when given,
-else blocked validation over temperature and time). It adds nothing when
+with the lowest out-of-sample score (among those within Z_TIE standard errors of the lowest, one
+that skips no lower order (Effect.extends: temp_bias before temp_bias2), then the lowest dBIC:
+parsimony) (accellog.calibrate.diagnosis.transfer: held-out sessions when given, else blocked
+validation over temperature and time). It adds nothing when
 
     s_base - s_best <= Z_IMPROVE * se(s_best),   se(s) = sqrt(2 / m) max(1, s)
 
@@ -40,6 +41,7 @@ from accellog.calibrate.diagnosis.transfer import (
     heldout_score,
     separating_recording,
 )
+from accellog.calibrate.model.effects import all_effects
 from accellog.calibrate.model.fit import FitResult
 from accellog.core.session import ObsTable
 
@@ -146,7 +148,12 @@ def choose_effect(
     se_min = sc[min(eligible, key=score)].se
     # parsimony among the equally good: the lowest dBIC (fewest parameters for the same fit) wins
     tied_best = [n for n in eligible if score(n) <= s_min + Z_TIE * se_min]
-    best = min(tied_best, key=lambda n: rows[n].get("delta_bic", np.inf))
+    lib = all_effects(model.effects_file)
+
+    def skips_an_order(n: str) -> bool:  # temp_bias2 before temp_bias: the lower order first
+        return any(e not in model.term_names for e in getattr(lib.get(n), "extends", ()))
+
+    best = min(tied_best, key=lambda n: (skips_an_order(n), rows[n].get("delta_bic", np.inf)))
     ranked = [best, *sorted((n for n in eligible if n != best), key=score)]
     s_best = sc[best]
     what = {"heldout": "held-out", "leave-one-session-out": "leave-one-session-out"}.get(

@@ -70,6 +70,8 @@ class Effect:
     where p maps parameter names to values; built-in effects leave it None (the model evaluates
     them in the measurement equation). static: False if static pose means cannot show it (clock).
     conflicts: effects that cannot be in the same model (they parametrise the same thing).
+    extends: lower-order effects this one continues (temp_bias2 extends temp_bias): between two
+    effects the data cannot tell apart, the workbench takes the lower order first.
     """
 
     name: str
@@ -83,6 +85,7 @@ class Effect:
     conflicts: tuple[str, ...] = ()
     builtin: bool = False
     source: str | None = None
+    extends: tuple[str, ...] = ()
 
     @property
     def param_names(self) -> list[str]:
@@ -155,6 +158,7 @@ LIBRARY: dict[str, Effect] = {
             equation="bT2_i dT^2",
             reveal="a temperature sweep of >= 3 degC (three or more temperature levels)",
             builtin=True,
+            extends=("temp_bias",),
         ),
         _B(
             "temp_scale",
@@ -173,6 +177,7 @@ LIBRARY: dict[str, Effect] = {
             equation="sT2_i dT^2 on the diagonal of S",
             reveal="temperature sweep of >= 3 degC with +i and -i poses at several temperatures",
             builtin=True,
+            extends=("temp_scale",),
         ),
         _B(
             "nonlin2",
