@@ -138,3 +138,18 @@ def test_two_effects_that_only_help_together_are_added_together(root):
     assert pair and "together" in pair[0].reason, [c.reason for c in found.choices]
     assert found.transfers and found.heldout["heldout_chi2_dof"] < 1.5, found.heldout
     assert "no library effect" not in found.verdict
+
+
+@pytest.mark.slow
+def test_diagnose_heldout_says_when_its_choice_leaves_something(root):
+    """diagnose --heldout takes the effect that predicts the other session best; when the other
+    session is still far from the noise with it (a warm-up standing for dT/dt), the verdict says more
+    is missing instead of 'refit and done'; with the right effect it does not."""
+    from accellog.calibrate.diagnosis.diagnose import diagnose
+
+    cal, held = _pair(root, "rate")
+    d = diagnose(cal, build_model("model3"), heldout=[held])
+    assert d.choice.chosen == "warmup" and "more is missing" in d.verdict, d.verdict
+    cal, held = _pair(root, "single")
+    d = diagnose(cal, build_model("model3"), heldout=[held])
+    assert d.choice.chosen == "temp_bias" and "more is missing" not in d.verdict, d.verdict

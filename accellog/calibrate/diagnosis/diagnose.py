@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.diagnosis.choose import StepChoice, choose_effect
+from accellog.calibrate.diagnosis.choose import OUT_OF_SESSION, StepChoice, choose_effect
 from accellog.calibrate.diagnosis.clock import clock_from_host_time
 from accellog.calibrate.diagnosis.cross_validation import cv_compare, cv_scores
 from accellog.calibrate.diagnosis.driver_signals import ALPHA, MIN_DRIVER_R2, driver_signals
@@ -46,6 +46,8 @@ from accellog.core.session import ObsTable
 
 DBIC_MIN = -10.0
 """A candidate must lower BIC by more than 10 ("very strong" evidence) to count."""
+STILL_MISSING = 3.0
+"""Above this held-out chi2/eq (window noise alone) the chosen effect is said to leave something."""
 
 
 @dataclass
@@ -346,6 +348,14 @@ def with_choice(verdict: str, advice: list[str], choice: StepChoice, sig_cands: 
         verdict += (
             f" Cannot decide between {choice.chosen} and {', '.join(choice.undecided)}: they explain the "
             "same residual on this data."
+        )
+    left = choice.scores.get(choice.chosen) if choice.chosen is not None else None
+    if left is not None and choice.evidence in OUT_OF_SESSION and left.chi2_per_eq > STILL_MISSING:
+        verdict += (
+            f" With {choice.chosen.replace('+', ' and ')} the other session is still {left.chi2_per_eq:.3g}x "
+            "the window noise (chi2/eq): it predicts unseen data better, not to the noise, so more is "
+            "missing (accellog workbench with the same sessions searches on and says what no library "
+            "effect explains)."
         )
     tied = set(choice.undecided)
     advice = advice + [c.text() for c in choice.collinear if c.b in tied]
