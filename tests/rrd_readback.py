@@ -66,6 +66,18 @@ class Rrd:
         tbl = self._table(entity, component)
         return tbl[component].to_pylist()[-1]
 
+    def labels(self, prefix: str) -> list[str]:
+        """Every Points2D label of the entities under prefix (labels come in groups of <= 30: the
+        viewer hides them all beyond that), in entity order."""
+        ent = prefix if prefix.startswith("/") else "/" + prefix
+        under = sorted(e for e in self.chunks if e == ent or e.startswith(ent + "/"))
+        return [
+            lab
+            for e in under
+            if "Points2D:labels" in self.components(e)
+            for lab in self.static(e, "Points2D:labels")
+        ]
+
     def bar_values(self, entity: str) -> np.ndarray:
         """Values of a static BarChart (1-D float64)."""
         return np.asarray(self.static(entity, "BarChart:values")[0]["buffer"], dtype=np.float64)

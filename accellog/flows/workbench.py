@@ -570,13 +570,17 @@ def add_static_drift(row: LadderRow, static_test: Session, at_s: float) -> None:
 
 
 def steps_for(discovery: Discovery) -> list[tuple[str, list[str]]]:
-    """model1, model2, the start model, then one step per added effect (a hand-held search: from
-    its start model, model1 and model2 being no steps of an orientation-free fit)."""
+    """model1, model2, the start model, then one step per added effect, a pair added together one
+    step (a hand-held search: from its start model, model1 and model2 being no steps of an
+    orientation-free fit)."""
     hand = discovery.detection is not None
     steps = [(p, []) for p in BASE_STEPS if p != discovery.start and not hand]
     steps.append((discovery.start, []))
-    for k in range(1, len(discovery.added) + 1):
-        steps.append((discovery.start, discovery.added[:k]))
+    pairs = [set(c.chosen.split("+")) for c in discovery.choices if c.chosen and "+" in c.chosen]
+    added, k = discovery.added, 0
+    while k < len(added):
+        k += 2 if set(added[k : k + 2]) in pairs else 1
+        steps.append((discovery.start, added[:k]))
     return steps
 
 
@@ -832,7 +836,7 @@ def _handheld(
                  sessions=parts if len(parts) > 1 else None, strategy=NORM, found=found)  # fmt: skip
     found.ladder = ladder_rows(data, obs, steps_for(found), heldout=helds, static_test=test,
                                effects_file=effects_file, at_s=at_s, gyro=False, strategy=NORM,
-                               sessions=parts, per_session=found.ladder_loso)  # fmt: skip
+                               scatter=found.scatter, sessions=parts, per_session=found.ladder_loso)  # fmt: skip
     if output is not None:
         from accellog.flows.stages import run_fit
 

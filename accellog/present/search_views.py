@@ -27,6 +27,8 @@ ROLE = "search2d"
 W, H = 1200.0, 260.0
 """Chart frame in view units."""
 GREY, DARK = (140, 140, 140), (85, 85, 85)
+LABELS_PER_ENTITY = 24
+"""The Rerun viewer hides every label of an entity that has more than 30: labels go in groups."""
 
 
 def _terms(model: str) -> frozenset[str]:
@@ -97,14 +99,19 @@ def log_search(rec, trail, ladder: Sequence = ()) -> None:
             f"{t.step} {t.change}",
             TRAIL_STATUS.get(t.status, t.status) + (" = final" if t.final else ""),
         ]
-    pos += [[-40.0, float(sy(v))] for v in ticks]
-    txt = labels + [f"{10.0**v:g}" for v in ticks]
-    if tops:
-        pos += tops
-        txt += texts
-    rec.log_static(
-        f"{SEARCH}/labels", rr.Points2D(pos, labels=txt, radii=0.1, colors=[(210, 210, 210)] * len(txt)), ROLE
-    )
+    groups = {
+        "steps": (pos, labels),
+        "ticks": ([[-40.0, float(sy(v))] for v in ticks], [f"{10.0**v:g}" for v in ticks]),
+        "values": (tops, texts),
+    }
+    for name, (p, t) in groups.items():  # the viewer draws no label of an entity with > 30 of them
+        for i in range(0, len(t), LABELS_PER_ENTITY):
+            sl = slice(i, i + LABELS_PER_ENTITY)
+            rec.log_static(
+                f"{SEARCH}/labels/{name}/{i // LABELS_PER_ENTITY}",
+                rr.Points2D(p[sl], labels=t[sl], radii=0.1, colors=[(210, 210, 210)] * len(t[sl])),
+                ROLE,
+            )
     caption = f"{what} of every model the search tried (log scale); line: the models it walked through"
     rec.log_static(
         f"{SEARCH}/legend",

@@ -158,7 +158,7 @@ def test_a_search_that_ends_at_the_start_shows_what_it_tried(sessions, capsys):
     assert all(
         t["heldout_chi2_dof"] is not None and "does not predict unseen data better" in t["why"] for t in tried
     )
-    labels = load_rrd(rrd).static("/charts/search/labels", "Points2D:labels")
+    labels = load_rrd(rrd).labels("/charts/search/labels")
     assert "+temp_bias" in " ".join(labels) and "rejected" in labels and "start = final" in labels
 
 
@@ -181,8 +181,13 @@ def test_workbench_shows_every_step_tried(sessions, capsys):
     assert [(t["change"], t["status"]) for t in trail[:2]] == [("model3", "start"), ("+temp_bias", "kept")]
     assert trail[1]["final"] and trail[1]["heldout_chi2_dof"] < 0.1 * trail[0]["heldout_chi2_dof"]
     r = load_rrd(rrd)
-    labels = r.static("/charts/search/labels", "Points2D:labels")
-    assert labels[:4] == ["0 model3", "start", "1 +temp_bias", "kept = final"]
+    labels = r.labels("/charts/search/labels")
+    assert r.labels("/charts/search/labels/steps")[:4] == [
+        "0 model3",
+        "start",
+        "1 +temp_bias",
+        "kept = final",
+    ]
     assert (
         f"{trail[1]['heldout_chi2_dof']:.3g}" in labels and f"{trail[0]['heldout_rms_mg']:.3g} mg" in labels
     )

@@ -125,10 +125,30 @@ def test_trail_in_the_rrd_a_bar_per_model_values_and_the_falling_path(tmp_path: 
     length = [abs(s[-1][1] - s[0][1]) + 2 * rad for s, rad in zip(strips, radii, strict=True)]
     assert len(strips) == len(out.trail)
     assert min(length) > 0.1 * max(length)  # chi2/dof 1.2 next to 300: a bar, not a line
-    labels = r.static("/charts/search/labels", "Points2D:labels")
+    labels = r.labels("/charts/search/labels")
     assert {"0 model3", "tied, not taken", "removed (proxy) = final", "1.2", "300"} <= set(labels)
     path = np.asarray(r.static("/charts/search/path", "LineStrips2D:strips")[0], float)
     assert len(path) == 5  # start, +warmup, +nonlin2, -warmup, -temp_bias2: not the side branches
     assert path[3, 1] > path[0, 1]  # lower on screen: smaller chi2/dof
     colors = r.static("/charts/search/bars", "LineStrips2D:colors")
     assert len(set(colors)) == 2  # no ladder given: grey on the path, darker grey for side branches
+
+
+def test_search_labels_stay_under_the_viewers_limit(tmp_path):
+    """The Rerun viewer draws no label of an entity holding more than 30: a long search's labels
+    (two per row, the ticks, two values per bar) come in groups, each under the limit."""
+    from accellog.flows.workbench_trail import TrailStep
+
+    trail = [
+        TrailStep(
+            k, f"+e{k}", "+".join(["model3", *[f"e{j}" for j in range(k)]]), "kept", score=100.0 / (k + 1)
+        )
+        for k in range(20)
+    ]
+    rrd = tmp_path / "long.rrd"
+    with RunRecording(f"save:{rrd}") as rec:
+        log_search(rec, trail)
+    r = load_rrd(rrd)
+    groups = [e for e in r.entities if e.startswith("/charts/search/labels/")]
+    assert groups and all(len(r.static(e, "Points2D:labels")) <= 30 for e in groups)
+    assert {"0 +e0", "19 +e19", "100"} <= set(r.labels("/charts/search/labels"))

@@ -387,8 +387,13 @@ def _rgb(c: np.ndarray) -> tuple[int, int, int]:
 
 def ladder_step_names(rows: Sequence[LadderRow]) -> list[str]:
     """Short names of the ladder's steps: 'k model' for a base model, 'k +effect' for a step that
-    adds an effect to the previous one."""
-    return [f"{i} +{r.added[-1]}" if r.added else f"{i} {r.model}" for i, r in enumerate(rows)]
+    adds an effect to the previous one ('k +a+b' for two added together)."""
+    out, before = [], []
+    for i, r in enumerate(rows):
+        new = [e for e in r.added if e not in before] or r.added[-1:]
+        out.append(f"{i} +{'+'.join(new)}" if r.added else f"{i} {r.model}")
+        before = list(r.added)
+    return out
 
 
 def _ladder_values(r: LadderRow) -> list[float]:
