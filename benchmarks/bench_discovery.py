@@ -28,7 +28,8 @@ plus, with the effects the final model must hold (the right physics):
 
 Per run: effects added / dropped, the right physics (the final model's effects are exactly the
 truth's), the bias within 3 sigma of the truth (max_i |b_i - b_true_i| / sigma_b_i of the final
-fit; b_true = the chip's b0 at 25 degC, the model's t_ref; with warmup the settled bias b + w, whose
+fit, sigma as `accellog fit` writes it (scaled by the hold means' Birge ratio when they reject the
+noise); b_true = the chip's b0 at 25 degC, the model's t_ref; with warmup the settled bias b + w, whose
 rate term has died away, and its sigma; labelled fits on the calibration windows,
 hand-held the last ladder row's fit), the final held-out chi2/dof (predictive) and chi2/dof against
 the noise alone, CPU (process time: the machine is shared). Then the pass counts per scenario and the
@@ -61,6 +62,7 @@ from support.discovery import EDGES, MODEL3_CHIP, SIX, handheld_path, session_ob
 
 from accellog.calibrate.model.compose import build_model
 from accellog.calibrate.model.fit import fit_model
+from accellog.calibrate.model.variance import with_uncertainty
 from accellog.calibrate.observe.segment import observations
 from accellog.flows.stages import load_input
 from accellog.flows.workbench import discover, run_workbench
@@ -110,6 +112,12 @@ def _z(fit, b_true: np.ndarray) -> float:
     return float(np.max(np.abs((b - b_true) / np.sqrt(var))))
 
 
+def calibrated(obs, model: str):
+    """The fit `accellog fit` writes: its sigma from the window noise, scaled by the hold means'
+    Birge ratio when they reject the noise (variance.with_uncertainty 'noise')."""
+    return with_uncertainty(fit_model(obs, build_model(model)), obs, "noise")
+
+
 def _row(scenario, seed, found, fit, b_true, cpu, truth) -> dict:
     h = found.heldout or {}
     added = list(found.added)
@@ -140,7 +148,7 @@ def run_labelled(root: Path, name: str, seed: int, rounds: int, hold_s: float, n
     t0 = time.process_time()
     found = discover(cal, "model3", heldout=held)
     cpu = time.process_time() - t0
-    row = _row(name, seed, found, fit_model(cal, build_model(found.final_model)), B_TRUE_G, cpu, TRUTH[name])
+    row = _row(name, seed, found, calibrated(cal, found.final_model), B_TRUE_G, cpu, TRUTH[name])
     if numeric:  # the same loop with central differences for every column (the baseline)
         import accellog.calibrate.model.fit as fit_mod
 
@@ -183,8 +191,8 @@ def run_real_nonlin(data: Path) -> dict:
     found = discover(observations(inj), "model3")
     cpu = time.process_time() - t0
     m = build_model("model3+nonlin2")
-    base = fit_model(observations(s), m)
-    fit = fit_model(observations(inj), build_model(found.final_model))
+    base = calibrated(observations(s), m.name)
+    fit = calibrated(observations(inj), found.final_model)
     row = _row("real:nonlin", 0, found, fit, np.asarray(base.b), cpu, {"nonlin2"})
     if found.added == ["nonlin2"]:
         k = [m.param_names.index(f"k2_{a}") for a in "xyz"]
@@ -201,8 +209,8 @@ def run_real(data: Path) -> dict:
     found = discover(observations(inj), "model3")
     cpu = time.process_time() - t0
     m = build_model("model3+temp_bias")
-    base = fit_model(observations(s), m)
-    fit = fit_model(observations(inj), build_model(found.final_model))
+    base = calibrated(observations(s), m.name)
+    fit = calibrated(observations(inj), found.final_model)
     row = _row("real", 0, found, fit, np.asarray(base.b), cpu, {"temp_bias"})
     if found.added == ["temp_bias"]:
         k = [m.param_names.index(f"bT_{a}") for a in "xyz"]
