@@ -64,3 +64,23 @@ def test_adding_the_correct_effect_never_raises_the_score(root, seed):
     assert sr["heldout_chi2_dof"] < s3["heldout_chi2_dof"], (sr, s3)
     assert sr["heldout_chi2_dof"] < 2.0 and s3["heldout_chi2_dof"] > 10 * sr["heldout_chi2_dof"]
     assert sr["heldout_rms_g"] < s3["heldout_rms_g"]
+
+
+def test_no_it_transfers_over_a_model_far_from_the_noise(root):
+    """model3 on a nonlinear chip (the misfit repeats at each pose, so it is no scatter): on its own
+    repeat-free yardstick it is not called transferring, and a small predictive chi2/dof alone never
+    makes a model transfer when its residual is > 3x the noise plus the repeat-free scatter."""
+    from accellog.flows.workbench import held_out_ok
+
+    cal = session_obs(root, "nonlin", 1, **KW)
+    held = session_obs(root, "nonlin", 101, held=True, **KW)
+    m3 = fit_model(cal, build_model("model3"))
+    yard, source = yardstick(m3, cal)
+    assert source == "replicates"
+    st = LABELLED.mean_heldout_stats(m3, [held], yard)
+    assert st["heldout_rms_g"] > 3 * np.hypot(st["heldout_noise_g"], st["heldout_scatter_g"])
+    assert not held_out_ok(st), st
+    right = LABELLED.mean_heldout_stats(fit_model(cal, build_model("model3+nonlin2")), [held], yard)
+    assert held_out_ok(right), right
+    bent = {"heldout_chi2_dof": 0.9, "heldout_rms_g": 2e-3, "heldout_noise_g": 1e-4, "heldout_scatter_g": 1e-4}
+    assert not held_out_ok(bent)
