@@ -82,5 +82,10 @@ def test_no_it_transfers_over_a_model_far_from_the_noise(root):
     assert not held_out_ok(st), st
     right = LABELLED.mean_heldout_stats(fit_model(cal, build_model("model3+nonlin2")), [held], yard)
     assert held_out_ok(right), right
-    bent = {"heldout_chi2_dof": 0.9, "heldout_rms_g": 2e-3, "heldout_noise_g": 1e-4, "heldout_scatter_g": 1e-4}
+    bent = {
+        "heldout_chi2_dof": 0.9,
+        "heldout_rms_g": 2e-3,
+        "heldout_noise_g": 1e-4,
+        "heldout_scatter_g": 1e-4,
+    }
     assert not held_out_ok(bent)
