@@ -196,14 +196,15 @@ def choose_pair(
     fit: Callable[[ObsTable, object], FitResult],
     obs: ObsTable,
     scores: Callable[[dict[str, FitResult]], dict[str, Score]],
+    nested_test: Callable[[FitResult, FitResult, int, int], tuple[float, float, float, float]],
 ) -> StepChoice | None:
     """Two effects that only together predict unseen data better (module doc), as a StepChoice whose
     chosen is 'a+b' (its scores: the pairs tried and the single candidates), or None. single: the
     step's choice among single effects (it chose nothing); fits: the candidates' fits (model +
-    effect); fit(obs, model) fits a pair as the candidates were fitted."""
+    effect); fit(obs, model) fits a pair as the candidates were fitted; nested_test(base, fit, dk,
+    m_eq) -> (dchi2, F, p, dBIC): diagnose's test of a richer model."""
     from itertools import combinations
 
-    from accellog.calibrate.diagnosis.diagnose import nested_test
     from accellog.core.errors import ModelError
 
     if single.evidence not in OUT_OF_SESSION:

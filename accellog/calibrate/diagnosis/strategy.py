@@ -29,7 +29,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from accellog.calibrate.diagnosis.choose import StepChoice, choose_effect, choose_pair
-from accellog.calibrate.diagnosis.diagnose import Diagnosis, diagnose, diagnose_handheld, settle_choice
+from accellog.calibrate.diagnosis.diagnose import (
+    Diagnosis,
+    diagnose,
+    diagnose_handheld,
+    nested_test,
+    settle_choice,
+)
 from accellog.calibrate.diagnosis.loso import loso_score, loso_stats, mean_stats
 from accellog.calibrate.diagnosis.transfer import (
     Score,
@@ -136,7 +142,7 @@ class Strategy:
         no single one (choose.choose_pair with this residual's fit and scores)."""
         if d.choice is None or d.choice.chosen is not None:
             return None
-        return choose_pair(d.fit, d.choice, d.fits, self.fit, obs, self.scores(obs, held, parts))
+        return choose_pair(d.fit, d.choice, d.fits, self.fit, obs, self.scores(obs, held, parts), nested_test)
 
     def final_stats(
         self,
