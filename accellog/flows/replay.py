@@ -248,8 +248,11 @@ def replay(
     """Replay a session (path or Session) through online correction + integration.
 
     A session file is streamed block by block (store.source: memory bounded by one chunk group
-    plus the display series, whatever the session length; its time stamps checked first). cals: Calibration objects or JSON paths
-    (one track each, after the raw track when include_raw). speed: sensor seconds per wall second
+    plus the display series, whatever the session length) in one pass, its time stamps checked
+    along it (a bad stamp refuses the file: nothing is returned); with a recording, which shows the
+    samples as they go, the stamps are checked first, in the pass that infers the up vector when it
+    must be (two passes; inferring it without a recording: two passes too). cals: Calibration
+    objects or JSON paths (one track each, after the raw track when include_raw). speed: sensor seconds per wall second
     (None/'max': no pacing). recording: where to log (raw and calibrated accel and temperature as
     display envelopes, poses, events, decimated tracks, final table); None logs nothing.
     """
@@ -261,19 +264,38 @@ def replay(
     src = open_source(session, what="replay")
     if needs_whole_series({d for c in cal_objs for d in c.model.required_drivers}):
         src.whole()
-    src.check()  # a replay shows its samples as it goes: the stamps are checked before
+    up = parse_up(up_sensor)
+    mean = None
+    if recording is not None:  # what a recording was shown cannot be taken back: the stamps first,
+        mean = src.run(mean_reading) if _infers_up(up, src) else src.check()  # with the mean's pass
+    opts = dict(cal_objs=cal_objs, labels=labels, speed_f=speed_f, rec=recording, up=up, mean=mean,
+                include_raw=include_raw, apply_drift=apply_drift, batch_s=batch_s, sleep=sleep, clock=clock,
+                t_wall0=t_wall0)  # fmt: skip
+    return src.run(lambda s: _replay(s, **opts))
+
+
+def _infers_up(up: np.ndarray | None, src: Source) -> bool:
+    """The up vector is inferred from the mean reading (none given, not one pose label)."""
+    return up is None and len(src.poses) != 1
+
+
+def _replay(
+    src: Source, *, cal_objs, labels, speed_f, rec, up, mean, include_raw, apply_drift, batch_s, sleep, clock,
+    t_wall0,
+) -> ReplayResult:  # fmt: skip
+    """replay's passes over the source: the mean reading's when the up vector is inferred (unless
+    given: mean), then the replay's; inside Source.run (the first checks the stamps), and afresh
+    when the source is read again whole (no recording then: replay checked the stamps before)."""
     n_est, t0_s, span_s = src.extent()
     if n_est < 2:
         raise InputError(f"session has {n_est} samples: nothing to replay", where=src.where)
-    up = parse_up(up_sensor)
     notes: list[str] = []
     if up is None:
-        up, note = _infer_up(src.poses, lambda: mean_reading(src))
+        up, note = _infer_up(src.poses, lambda: mean_reading(src) if mean is None else mean)
         if note:
             notes.append(note)
     g_local = float(cal_objs[0].local_gravity_mps2) if cal_objs else float(src.meta.local_gravity_mps2)
     tracks = _tracks(cal_objs, labels, up, g_local, include_raw, apply_drift)
-    rec = recording
     if rec is not None:
         if src.poses:
             rec.log_poses(src.poses)

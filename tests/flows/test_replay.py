@@ -308,3 +308,51 @@ def test_replay_streams_and_full_rate_on_demand(spiky, tmp_path: Path, capsys) -
     t, v = load_rrd(out).series("accel/raw")
     np.testing.assert_allclose(t, s.t_s, rtol=0, atol=2e-9)
     np.testing.assert_array_equal(v, s.accel_g)
+
+
+def _full_passes(monkeypatch) -> list[int]:
+    """Counts the passes over a streamed file's samples that read it to its end (store.source)."""
+    import accellog.store.source as source
+
+    done: list[int] = []
+    real = source.iter_imu
+
+    def counted(path):
+        yield from real(path)
+        done.append(1)  # reached only when the pass read every block
+
+    monkeypatch.setattr(source, "iter_imu", counted)
+    return done
+
+
+@pytest.mark.parametrize("up", ["+z", None])
+def test_replay_reads_the_file_once(files, monkeypatch, up) -> None:
+    """Without a recording the stamps are checked along the replay's own pass: one pass over the
+    file, two when the up vector is inferred from the mean reading (the test file has no label)."""
+    done = _full_passes(monkeypatch)
+    res = replay(files["test"], cals=[files["model3"]], speed=None, up_sensor=up)
+    assert len(done) == (1 if up else 2) and res.n == 12_000
+    done.clear()
+    out = Path(str(files["test"]) + ".rrd")
+    rec = RunRecording(f"save:{out}", recording_id="passes")
+    replay(files["test"], cals=[files["model3"]], speed=None, up_sensor=up, recording=rec)
+    rec.close()
+    assert len(done) == 2  # a recording: the stamps first (with the mean's pass when inferred)
+
+
+@pytest.mark.parametrize("with_rrd", [False, True])
+def test_replay_refuses_bad_stamps_in_one_line(files, tmp_path: Path, capsys, with_rrd) -> None:
+    """Stamps that go backwards are refused (the stamps' line, nothing written) whether they are
+    checked along the one pass or before a recording."""
+    s = read_session(files["test"])
+    t = s.t_s.copy()
+    t[5000], t[5001] = t[5001], t[5000]
+    bad = tmp_path / "bad.mcap"
+    write_session(bad, Session(meta=s.meta, t_s=t, sample_index=s.sample_index, accel_g=s.accel_g,
+                               accel_counts=s.accel_counts, temp_degC=s.temp_degC))  # fmt: skip
+    out = tmp_path / "bad.rrd"
+    args = ["replay", str(bad), "--speed", "max", "--cal", str(files["model3"])]
+    assert main([*args, *(["--rrd", str(out)] if with_rrd else [])]) == 2
+    err = capsys.readouterr().err
+    assert "decreasing time stamp at sample 5001" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
