@@ -328,10 +328,10 @@ def _full_passes(monkeypatch) -> list[int]:
 @pytest.mark.parametrize("up", ["+z", None])
 def test_replay_reads_the_file_once(files, monkeypatch, up) -> None:
     """Without a recording the stamps are checked along the replay's own pass: one pass over the
-    file, two when the up vector is inferred from the mean reading (the test file has no label)."""
+    file, also when the up vector is inferred from the mean reading (the test file has no label)."""
     done = _full_passes(monkeypatch)
     res = replay(files["test"], cals=[files["model3"]], speed=None, up_sensor=up)
-    assert len(done) == (1 if up else 2) and res.n == 12_000
+    assert len(done) == 1 and res.n == 12_000 and list(res.up_sensor) == [0, 0, 1]
     done.clear()
     out = Path(str(files["test"]) + ".rrd")
     rec = RunRecording(f"save:{out}", recording_id="passes")
@@ -356,3 +356,31 @@ def test_replay_refuses_bad_stamps_in_one_line(files, tmp_path: Path, capsys, wi
     err = capsys.readouterr().err
     assert "decreasing time stamp at sample 5001" in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def _turned(path: Path) -> Path:
+    """400 s at 1 kHz: +x up for the first 100 s, then +z up (the mean reading's face is +z, the
+    first chunk group's +x)."""
+    rng = np.random.default_rng(3)
+    n, rate = 400_000, 1000.0
+    f = np.tile([0.0, 0.0, 1.0], (n, 1))
+    f[:100_000] = [1.0, 0.0, 0.0]
+    write_session(path, _session(_counts(f, rng), rate))
+    return path
+
+
+def test_replay_up_guess_checked_against_the_whole_mean(tmp_path: Path, monkeypatch) -> None:
+    """The up vector is guessed from the first block's mean; when the whole session's mean has
+    another face the replay is made again with it (a second pass): the tracks are those of the
+    session in memory, whose mean is known at once."""
+    from accellog.navigate.blocks import first_mean
+    from accellog.store.source import open_source
+
+    path = _turned(tmp_path / "turned.mcap")
+    assert np.argmax(np.abs(first_mean(open_source(path)))) == 0  # the guess is +x
+    done = _full_passes(monkeypatch)
+    a = replay(path, speed=None)
+    assert len(done) == 2 and list(a.up_sensor) == [0, 0, 1]
+    b = replay(read_session(path), speed=None)
+    np.testing.assert_allclose(a.tracks[0].final_m, b.tracks[0].final_m, rtol=1e-12)
+    assert a.tracks[0].notes == b.tracks[0].notes and "+z up" in a.tracks[0].notes[0]
