@@ -368,7 +368,7 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
         f1h = made(d, "fit", 3600)
     if want("fit"):
         out.append(Row("fit", "`fit` 1 h at 1 kHz (model3 + gyro)", "< 3 s and <= 0.75x baseline",
-                       accellog("fit", f1h, "-o", d / "cal_fit.json"), "read_session + np.linalg.lstsq",
+                       accellog("fit", f1h, "-o", d / "cal_fit.json", "--force"), "read_session + np.linalg.lstsq",
                        python(LSTSQ, f1h), _ratio(0.75, 3.0)))  # fmt: skip
     if want("diagnose"):
         out.append(Row("diagnose", "`diagnose` 1 h at 1 kHz", "< 1.5 s", accellog("diagnose", f1h, "--json"),
@@ -409,7 +409,7 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
             path = made(d, "fit", sec)
             name = f"{sec // 60} min" if sec < 3600 else f"{sec // 3600} h"
             out.append(Row("scale", f"`fit` {name} (memory flat in the length)", "peak <= 1.25x the 1 h fit",
-                           accellog("fit", path, "-o", d / "cal_scale.json"), "`fit` 1 h (row above)", None,
+                           accellog("fit", path, "-o", d / "cal_scale.json", "--force"), "`fit` 1 h (row above)", None,
                            _flat(ref)))  # fmt: skip
     if want("doctor"):
         for sec in [60, 600 if quick else 3600] + ([86400] if full else []):
@@ -417,7 +417,7 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
             name = f"{sec // 60} min" if sec < 3600 else f"{sec // 3600} h"
             out.append(Row("doctor", f"`doctor` {name} (memory beside `fit`'s)", "peak <= 1.25x `fit` on the same session",
                            accellog("doctor", path, "--json"), f"`fit` {name}",
-                           accellog("fit", path, "-o", d / "cal_doctor.json"), _beside(1.25)))  # fmt: skip
+                           accellog("fit", path, "-o", d / "cal_doctor.json", "--force"), _beside(1.25)))  # fmt: skip
     if want("cpu"):
         sim = made(d, "sim24", 3600)
         cal = d / "cal_cpu.json"
@@ -428,7 +428,7 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
                     lambda f, b: ("-", True), shown="python benchmarks/floor_numpy.py D/sim24_3600s.mcap")  # fmt: skip
         out.append(floor)
         ref = lambda: median(floor.figs["cmd"]) if floor.figs["cmd"] else None  # noqa: E731
-        for label, args in (("fit", ("fit", sim, "-o", d / "cal_cpu_fit.json")),
+        for label, args in (("fit", ("fit", sim, "-o", d / "cal_cpu_fit.json", "--force")),
                             ("evaluate --cal", ("evaluate", sim, "--cal", cal)),
                             ("replay --cal", ("replay", sim, "--cal", cal, "--speed", "max")),
                             ("noise", ("noise", sim, "--json")),
