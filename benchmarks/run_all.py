@@ -509,7 +509,7 @@ def results_md(done: list[Row], mode: str, repeat: int, by: str, only: list[str]
         keys = ", ".join(f"`{k}`" for k in only)
         note = (f"The {keys} rows: `python benchmarks/run_all.py{flags} --rows {' '.join(only)}` (medians of "
                 f"{repeat} run(s), load {load}).")  # fmt: skip
-        notes = [x for x in notes if not x.startswith(f"The {keys} rows:")] + [note]
+        notes = [x for x in notes if not _made_by(x) or not _made_by(x) <= set(only)] + [note]
         return "\n".join([*head, *kept, *new.values(), "", *notes]) + "\n"
     head = [
         "# Benchmark results",
@@ -526,6 +526,13 @@ def results_md(done: list[Row], mode: str, repeat: int, by: str, only: list[str]
         "|---|---|---|---|---|---|---|",
     ]
     return "\n".join([*head, *lines]) + "\n"
+
+
+def _made_by(note: str) -> set[str]:
+    """The row keys of a note "The `a`, `b` rows: ..." (empty for any other line): a later run of
+    those rows makes it stale."""
+    m = re.match(r"The ((?:`\w+`(?:, )?)+) rows:", note)
+    return set(re.findall(r"`(\w+)`", m[1])) if m else set()
 
 
 def _what(line: str) -> str:
@@ -577,9 +584,8 @@ def write_readme_table() -> None:
         what, goal, end, base, ratio, ok = (c.strip() for c in row.split("|")[1:7])
         m = FIGURE.match(end)
         wall, cpu, mb = (f"{m[1]} s", f"{m[2]} s", f"{m[3]} MB") if m else (end, "-", "-")
-        lines.append(
-            f"| {what} | {wall} | {cpu} | {mb} | {ratio} ({base.split(': ', 1)[0]}) | {goal} | {ok} |"
-        )
+        vs = ratio if base == "-" else f"{ratio} ({base.split(': ', 1)[0]})"
+        lines.append(f"| {what} | {wall} | {cpu} | {mb} | {vs} | {goal} | {ok} |")
     text = (ROOT / "README.md").read_text()
     a, b = text.index(README_START), text.index(README_END)
     (ROOT / "README.md").write_text(text[:a] + "\n".join([*lines, ""]) + "\n" + text[b:])
