@@ -77,6 +77,31 @@ def test_the_demos_still_test_is_one_interval(tmp_path, capsys):
     assert r["distinct_orientations"] == 1 and r["healthy"]
 
 
+def test_long_streamed_log_against_the_emulators_truth(tmp_path, capsys):
+    """A 24-pose log of 309,513 samples (> 2^18: streamed, its still intervals found on every 2nd
+    sample) with the bus cut for 0.5 s at 100 s: every sample counted, the one gap found with the
+    samples the emulator's events say were lost, and every labelled hold inside one still interval
+    (the turns about the vertical keep gravity still: one interval per face)."""
+    p = tmp_path / "long.mcap"
+    simulate(
+        Scenario(protocol="24", hold_s=10.0, seed=5, faults={"disconnect_at_s": 100.0, "disconnect_s": 0.5}),
+        p,
+    )
+    s = read_session(p)
+    lost = sum(e.lost_samples for e in s.events)
+    assert s.n > 1 << 18 and lost > 400
+    r = _doctor(p, capsys)
+    assert r["samples"] == s.n and r["duration_s"] == pytest.approx(s.t_s[-1] - s.t_s[0], abs=1e-9)
+    kinds = {f["kind"]: f for f in r["findings"]}
+    assert kinds["gap"]["count"] == 1 and f"~{lost} samples missing" in kinds["gap"]["detail"]
+    assert 99.0 < kinds["gap"]["t_s"][0] < 100.5 and r["events"]["lost_samples"] == lost
+    holds = r["still_intervals"]
+    assert len(holds) == r["distinct_orientations"] == 6
+    for pose in s.poses:
+        (h,) = [h for h in holds if h["start_s"] <= pose.start_s and pose.end_s <= h["end_s"]]
+        assert np.dot(h["up"], pose.up_sensor) > np.cos(np.deg2rad(5.0))
+
+
 def _damage(s, *, counts: bool):
     rng = np.random.default_rng(0)
     n = s.n
