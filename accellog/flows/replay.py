@@ -266,9 +266,11 @@ def replay(
     if needs_whole_series({d for c in cal_objs for d in c.model.required_drivers}):
         src.whole()
     up = parse_up(up_sensor)
-    mean = None
-    if recording is not None:  # what a recording was shown cannot be taken back: the stamps first,
-        mean = src.run(mean_reading) if _infers_up(up, src) else src.check()  # with the mean's pass
+    mean: np.ndarray | None = None
+    if recording is not None and _infers_up(up, src):  # what a recording was shown cannot be taken
+        mean = src.run(mean_reading)  # back: the stamps first, in the mean reading's pass
+    elif recording is not None:
+        src.check()
     opts = dict(cal_objs=cal_objs, labels=labels, speed_f=speed_f, rec=recording, up=up, mean=mean,
                 include_raw=include_raw, apply_drift=apply_drift, batch_s=batch_s, sleep=sleep, clock=clock,
                 t_wall0=t_wall0)  # fmt: skip
@@ -342,7 +344,7 @@ def _replay(
     return res
 
 
-def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float]:
+def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float, np.ndarray]:
     """Feed every batch to every track (and the recording), paced when speed_f; returns the number
     of samples, the last sample time (s) and the mean reading (g, mean_reading's). Tracks are logged every k-th sample plus the last one,
     k = n / (2 ENVELOPE_BUCKETS) (smooth double integrals: no spike to lose); extent: (samples
