@@ -16,13 +16,19 @@ scheme), a round of the full run takes minutes, and the command, always first, p
 
 Inputs are generated once into --dir (default /tmp/accellog_bench) and reused by later runs:
 benchmarks/synth_long.py (1 kHz calibration sessions: 12 holds, accel + gyro + temperature),
-synth_static.py (static sessions for `noise`), bench_replay.py (static session + a model3
+synth_static.py (static sessions for `noise`), accellog.flows.simulate (the emulator's 24-pose
+session, ~71 MB an hour, for the `cpu` rows: `accellog simulate --protocol 24 --hold 150`), bench_replay.py (static session + a model3
 calibration), bench_csv_import.py (logger CSV), bench_ros2_import.py (rosbag2 MCAP bag).
 
     python benchmarks/run_all.py            # 1 h rows, 4 h CSV / noise, 60 min bag, 3 runs each
     python benchmarks/run_all.py --quick    # smaller inputs, 1 run: a check that every row runs
     python benchmarks/run_all.py --full     # + fit 24 h, fleet run (300 sessions); 5 runs
     python benchmarks/run_all.py --rows fit diagnose --no-write   # some rows, RESULTS.md untouched
+    python benchmarks/run_all.py --rows cpu     # CPU of fit, evaluate, replay, noise, diagnose, doctor
+                                                # beside benchmarks/floor_numpy.py, one 1 h session
+
+A run of some rows (--rows) replaces those rows of RESULTS.md's table (the others keep their
+figures) and adds a line naming the run; the README's speed table is remade from RESULTS.md's.
 
 The console shows the load average once per run (figures on a loaded machine are inflated: compare
 the ratios); RESULTS.md holds the figures only.
@@ -33,6 +39,7 @@ from __future__ import annotations
 import argparse
 import compileall
 import os
+import re
 import shlex
 import statistics
 import subprocess
@@ -195,6 +202,7 @@ GEN = {
     "csv": "from bench_csv_import import write_csv; write_csv(OUT, round({sec} * 1000), 1000.0)",
     "bag": "from bench_ros2_import import write_bag; write_bag(OUT, round({sec} * 1000), 1000.0)",
     "replay": "from bench_replay import write_static; write_static(OUT, {sec} / 60)",
+    "sim24": "from accellog.flows.simulate import Scenario, simulate; simulate(Scenario(protocol='24', hold_s={sec} / 24), OUT)",
 }
 
 
@@ -335,6 +343,21 @@ def _beside(at_most: float) -> Callable[[Fig, Fig | None], tuple[str, bool]]:
     return judge
 
 
+def _cpu_floor(
+    floor: Callable[[], Fig | None], at_most: float
+) -> Callable[[Fig, Fig | None], tuple[str, bool]]:
+    """CPU time against the same run's plain-numpy floor (benchmarks/floor_numpy.py)."""
+
+    def judge(f: Fig, b: Fig | None) -> tuple[str, bool]:
+        ref = floor()
+        if ref is None:
+            return "-", True
+        r = f.cpu_s / ref.cpu_s
+        return f"CPU {r:.2f}x", r <= at_most
+
+    return judge
+
+
 def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
     """The rows of this run (mode: quick / default / full); inputs are made only for chosen rows."""
     quick, full = mode == "quick", mode == "full"
@@ -345,7 +368,7 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
         f1h = made(d, "fit", 3600)
     if want("fit"):
         out.append(Row("fit", "`fit` 1 h at 1 kHz (model3 + gyro)", "< 3 s and <= 0.75x baseline",
-                       accellog("fit", f1h, "-o", d / "cal_fit.json"), "read_session + np.linalg.lstsq",
+                       accellog("fit", f1h, "-o", d / "cal_fit.json", "--force"), "read_session + np.linalg.lstsq",
                        python(LSTSQ, f1h), _ratio(0.75, 3.0)))  # fmt: skip
     if want("diagnose"):
         out.append(Row("diagnose", "`diagnose` 1 h at 1 kHz", "< 1.5 s", accellog("diagnose", f1h, "--json"),
@@ -386,7 +409,7 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
             path = made(d, "fit", sec)
             name = f"{sec // 60} min" if sec < 3600 else f"{sec // 3600} h"
             out.append(Row("scale", f"`fit` {name} (memory flat in the length)", "peak <= 1.25x the 1 h fit",
-                           accellog("fit", path, "-o", d / "cal_scale.json"), "`fit` 1 h (row above)", None,
+                           accellog("fit", path, "-o", d / "cal_scale.json", "--force"), "`fit` 1 h (row above)", None,
                            _flat(ref)))  # fmt: skip
     if want("doctor"):
         for sec in [60, 600 if quick else 3600] + ([86400] if full else []):
@@ -394,7 +417,25 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
             name = f"{sec // 60} min" if sec < 3600 else f"{sec // 3600} h"
             out.append(Row("doctor", f"`doctor` {name} (memory beside `fit`'s)", "peak <= 1.25x `fit` on the same session",
                            accellog("doctor", path, "--json"), f"`fit` {name}",
-                           accellog("fit", path, "-o", d / "cal_doctor.json"), _beside(1.25)))  # fmt: skip
+                           accellog("fit", path, "-o", d / "cal_doctor.json", "--force"), _beside(1.25)))  # fmt: skip
+    if want("cpu"):
+        sim = made(d, "sim24", 3600)
+        cal = d / "cal_cpu.json"
+        if not cal.exists():  # the calibration evaluate and replay apply: the session's own fit, made once
+            subprocess.run(accellog("fit", sim, "-o", cal), env=ENV, stdout=subprocess.DEVNULL, check=True)
+        floor_cmd = [sys.executable, str(BENCH / "floor_numpy.py"), str(sim)]
+        floor = Row("cpu", "plain-numpy floor of the work, 1 h 24-pose at 1 kHz", "-", floor_cmd, "-", None,
+                    lambda f, b: ("-", True), shown="python benchmarks/floor_numpy.py D/sim24_3600s.mcap")  # fmt: skip
+        out.append(floor)
+        ref = lambda: median(floor.figs["cmd"]) if floor.figs["cmd"] else None  # noqa: E731
+        for label, args in (("fit", ("fit", sim, "-o", d / "cal_cpu_fit.json", "--force")),
+                            ("evaluate --cal", ("evaluate", sim, "--cal", cal)),
+                            ("replay --cal", ("replay", sim, "--cal", cal, "--speed", "max")),
+                            ("noise", ("noise", sim, "--json")),
+                            ("diagnose --model model3", ("diagnose", sim, "--model", "model3")),
+                            ("doctor", ("doctor", sim, "--json"))):  # fmt: skip
+            out.append(Row("cpu", f"`{label}` 1 h 24-pose at 1 kHz: CPU beside the floor", "CPU <= 1.5x the floor",
+                           accellog(*args), "the floor (row above)", None, _cpu_floor(ref, 1.5)))  # fmt: skip
     if full and want("fleet"):
         fl = fleet_sessions(d, 300)
         run = ("fleet", "run", ROOT / "pipelines" / "fleet.toml", f"{fl}/**/*.mcap", "--force", "-o")
@@ -440,28 +481,75 @@ def met(r: Row, ok: bool) -> str:
     return "-" if r.goal == "-" else ("yes" if ok else "**no**")
 
 
-def results_md(done: list[Row], mode: str, repeat: int, by: str) -> str:
+TABLE_HEAD = "| what | goal | end to end | baseline (same run) | ratio | goal met | command |"
+
+
+def row_lines(done: list[Row], by: str) -> list[str]:
+    """The RESULTS.md table rows of this run's rows."""
+    out = []
+    for r in done:
+        f, b, ratio, ok = judged(r, by)
+        base = f"{r.base_name}: {fmt(b)}" if b else r.base_name
+        out.append(f"| {r.what} | {r.goal} | {fmt(f)} | {base} | {ratio} | {met(r, ok)} | `{r.shown}` |")
+    return out
+
+
+def results_md(done: list[Row], mode: str, repeat: int, by: str, only: list[str] | None, load: str) -> str:
+    """RESULTS.md's table: the whole of it from a run of every row; from a run of some rows (only),
+    the current table with those rows replaced (or added at its end) and a line naming that run."""
     flags = ("" if mode == "default" else f" --{mode}") + (" --by cpu" if by == "cpu" else "")
     flags += f" --repeat {repeat}" if repeat != {"quick": 1, "default": 3, "full": 5}[mode] else ""
-    lines = [
+    lines = row_lines(done, by)
+    head, table, notes = _split_results(
+        (BENCH / "RESULTS.md").read_text() if (BENCH / "RESULTS.md").exists() else ""
+    )
+    if only and table:
+        new = {_what(x): x for x in lines}
+        kept = [new.pop(_what(x), x) for x in table]
+        keys = ", ".join(f"`{k}`" for k in only)
+        note = (f"The {keys} rows: `python benchmarks/run_all.py{flags} --rows {' '.join(only)}` (medians of "
+                f"{repeat} run(s), load {load}).")  # fmt: skip
+        notes = [x for x in notes if not _made_by(x) or not _made_by(x) <= set(only)] + [note]
+        return "\n".join([*head, *kept, *new.values(), "", *notes]) + "\n"
+    head = [
         "# Benchmark results",
         "",
         f"Generated by `python benchmarks/run_all.py{flags}`: "
         "each command is run end to end from the CLI in a fresh process, from files on disk, beside its "
         f"baseline in the same run; figures are medians of {repeat} run(s): wall time (CPU time = user + "
-        f"sys, peak resident memory). The ratio and the goal are judged on {by} time. `D` is the input directory "
+        "sys of the process and the children it waited for, from wait4; peak resident memory). The ratio "
+        f"and the goal are judged on {by} time where the goal names no CPU. `D` is the input directory "
         "(`--dir`, default /tmp/accellog_bench) where the script generates the sessions. Inner-function "
         "figures of the individual `bench_*.py` scripts are described in benchmarks/README.md.",
         "",
-        "| what | goal | end to end | baseline (same run) | ratio | goal met | command |",
+        TABLE_HEAD,
         "|---|---|---|---|---|---|---|",
     ]
-    for r in done:
-        f, b, ratio, ok = judged(r, by)
-        base = f"{r.base_name}: {fmt(b)}" if b else r.base_name
-        lines.append(f"| {r.what} | {r.goal} | {fmt(f)} | {base} | {ratio} | {met(r, ok)} "
-                     f"| `{r.shown}` |")  # fmt: skip
-    return "\n".join(lines) + "\n"
+    return "\n".join([*head, *lines]) + "\n"
+
+
+def _made_by(note: str) -> set[str]:
+    """The row keys of a note "The `a`, `b` rows: ..." (empty for any other line): a later run of
+    those rows makes it stale."""
+    m = re.match(r"The ((?:`\w+`(?:, )?)+) rows:", note)
+    return set(re.findall(r"`(\w+)`", m[1])) if m else set()
+
+
+def _what(line: str) -> str:
+    return line.split("|")[1].strip()
+
+
+def _split_results(text: str) -> tuple[list[str], list[str], list[str]]:
+    """(the lines down to the table's separator, the table's rows, the lines after it) of RESULTS.md's
+    main table (the text before the sections other scripts write)."""
+    lines = text.split(RESULTS_START, 1)[0].rstrip("\n").splitlines()
+    if TABLE_HEAD not in lines:
+        return lines, [], []
+    i = lines.index(TABLE_HEAD) + 2
+    j = i
+    while j < len(lines) and lines[j].startswith("| "):
+        j += 1
+    return lines[:i], lines[i:j], [x for x in lines[j:] if x.strip()]
 
 
 RESULTS_START = "<!-- discovery: python benchmarks/bench_discovery.py --write -->"
@@ -481,17 +569,23 @@ def kept_sections() -> str:
 
 
 README_START, README_END = "<!-- speed table: python benchmarks/run_all.py -->", "<!-- end of speed table -->"
+FIGURE = re.compile(r"([\d.]+) s \(CPU ([\d.]+) s, (\d+) MB\)")
+"""An end-to-end cell of RESULTS.md (fmt): wall s, CPU s, peak MB."""
 
 
-def write_readme_table(done: list[Row], by: str) -> None:
-    """The README's speed table (between its two markers): what, the end-to-end figure, the ratio to
-    the same-run baseline, the goal and whether it is met; the commands are in RESULTS.md."""
-    lines = [README_START, "", "| what (end to end, from the CLI) | figure | vs the same-run baseline | goal | met |",
-             "|---|---|---|---|---|"]  # fmt: skip
-    for r in done:
-        f, b, ratio, ok = judged(r, by)
-        lines.append(f"| {r.what} | {f.wall_s:.2f} s, {f.peak_mb:.0f} MB | {ratio} ({r.base_name}) | {r.goal} "
-                     f"| {met(r, ok)} |")  # fmt: skip
+def write_readme_table() -> None:
+    """The README's speed table (between its two markers) from RESULTS.md's table: what, wall time,
+    CPU time (user + sys, children included), peak memory, the ratio to the same-run baseline, the
+    goal and whether it is met; the commands are in RESULTS.md."""
+    _, table, _ = _split_results((BENCH / "RESULTS.md").read_text())
+    lines = [README_START, "", "| what (end to end, from the CLI) | wall | CPU | peak RSS | vs the same-run baseline | goal | met |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for row in table:
+        what, goal, end, base, ratio, ok = (c.strip() for c in row.split("|")[1:7])
+        m = FIGURE.match(end)
+        wall, cpu, mb = (f"{m[1]} s", f"{m[2]} s", f"{m[3]} MB") if m else (end, "-", "-")
+        vs = ratio if base == "-" else f"{ratio} ({base.split(': ', 1)[0]})"
+        lines.append(f"| {what} | {wall} | {cpu} | {mb} | {vs} | {goal} | {ok} |")
     text = (ROOT / "README.md").read_text()
     a, b = text.index(README_START), text.index(README_END)
     (ROOT / "README.md").write_text(text[:a] + "\n".join([*lines, ""]) + "\n" + text[b:])
@@ -507,7 +601,8 @@ def main() -> None:
     ap.add_argument(
         "--rows",
         nargs="+",
-        help="only these rows: fit diagnose csv replay ros2 startup noise scale doctor fleet (--full)",
+        help="only these rows: fit diagnose csv replay ros2 startup noise scale doctor cpu fleet (--full); "
+        "RESULTS.md keeps the other rows' figures (and says which rows this run made)",
     )
     ap.add_argument(
         "--by", choices=["wall", "cpu"], default="wall", help="judge ratios and goals on this time"
@@ -525,12 +620,14 @@ def main() -> None:
         f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores; inputs in {a.dir}"
     )
     todo = rows(a.dir, mode, set(a.rows) if a.rows else None)
+    loads = [load[0]]
     for k in range(repeat):  # interleaved: each round runs every command and its baseline once,
         for r in todo:  # the baseline first in every other round (module docstring)
             pair = [("cmd", r.cmd)] + ([("base", r.base)] if r.base is not None else [])
             for key, cmd in pair[:: -1 if k % 2 else 1]:
                 r.figs[key].append(run_once(cmd, a.dir))
-        print(f"  round {k + 1}/{repeat} done, load {os.getloadavg()[0]:.2f}", flush=True)
+        loads.append(os.getloadavg()[0])
+        print(f"  round {k + 1}/{repeat} done, load {loads[-1]:.2f}", flush=True)
     print(
         f"\n{'what':<46} {'wall s':>7} {'CPU s':>7} {'MB':>5} | {'base wall':>9} {'CPU s':>7} {'MB':>5} | ratio"
     )
@@ -541,11 +638,12 @@ def main() -> None:
         print(f"{r.what:<46} {f.wall_s:7.2f} {f.cpu_s:7.2f} {f.peak_mb:5.0f} | {bs} | {ratio}{cpu_r} "
               f"{'ok' if ok else 'GOAL MISSED: ' + r.goal}")  # fmt: skip
     if not a.no_write:
-        (BENCH / "RESULTS.md").write_text(results_md(todo, mode, repeat, a.by) + kept_sections())
+        span = f"{min(loads):.1f}-{max(loads):.1f}"
+        text = results_md(todo, mode, repeat, a.by, a.rows, span) + kept_sections()
+        (BENCH / "RESULTS.md").write_text(text)
         print(f"\nwrote {BENCH / 'RESULTS.md'}")
-        if not a.rows:  # every row ran: the README's speed table follows
-            write_readme_table(todo, a.by)
-            print(f"wrote the speed table of {ROOT / 'README.md'}")
+        write_readme_table()  # the README's speed table follows RESULTS.md's
+        print(f"wrote the speed table of {ROOT / 'README.md'}")
 
 
 if __name__ == "__main__":

@@ -184,6 +184,15 @@ def chi2_sf(x: float, k: float) -> float:
     return float(chdtrc(float(k), float(x)))
 
 
+def chi2_ppf(q: float, k: np.ndarray) -> np.ndarray:
+    """x with P(X <= x) = q for X ~ chi-square with k > 0 degrees of freedom (elementwise over k):
+    scipy.special.chdtri(k, 1 - q), scipy.stats.chi2.ppf to ~1e-14 relative, without importing
+    scipy.stats (~0.5 s of CPU)."""
+    from scipy.special import chdtri
+
+    return chdtri(np.asarray(k, float), 1.0 - q)
+
+
 def f_sf(x: float, d1: float, d2: float) -> float:
     """P(X > x) for X ~ F(d1, d2) (scipy.special.fdtrc, as scipy.stats.f.sf: 1 for x <= 0, NaN for
     d1 or d2 <= 0) without importing scipy.stats (~0.8 s of CPU at start-up)."""

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from accellog.calibrate.gyro.fit import BIAS_TRIM_S, BIAS_WINDOW_S, bias_window_times
 from accellog.core.errors import InputError
 from accellog.core.jsonio import dumps
 from accellog.core.plausible import (
@@ -282,18 +283,22 @@ def still(s: Session) -> list[dict]:
 
 
 def supports(poses: list, has_gyro: bool, holds: list[dict], n_dir: int) -> list[Support]:
-    """Which accellog calibrations the log supports, and what is missing for the others."""
+    """Which accellog calibrations the log supports, and what is missing for the others (the gyro bias:
+    >= 2 whole windows of the gyro fit's, accellog.calibrate.gyro.fit.bias_window_times)."""
     faces = {p.name for p in poses}
     longest = max((h["end_s"] - h["start_s"] for h in holds), default=0.0)
     temps = [h["temp_degC"] for h in holds if h["temp_degC"] is not None]
     span = (max(temps) - min(temps)) if temps else 0.0
+    iv = np.array([[h["start_s"], h["end_s"]] for h in holds], float).reshape(-1, 2)
+    windows = sum(w.size - 1 for w in bias_window_times(iv, BIAS_WINDOW_S, BIAS_TRIM_S))
     return [
         Support("model3 on labelled poses (fit)", len(faces) >= 6,
                 f"{len(poses)} labelled holds, {len(faces)} distinct names (needs >= 6 faces)"),
         Support("orientation-free bias+scale+misalignment_tri (fit --orientation-free)", n_dir >= 9,
                 f"{n_dir} distinct still orientations (needs >= 9)"),
-        Support("gyro bias", has_gyro and len(holds) >= 2,
-                "no gyro" if not has_gyro else f"{len(holds)} still intervals (needs >= 2)"),
+        Support("gyro bias", has_gyro and windows >= 2,
+                "no gyro" if not has_gyro else f"{windows} whole {BIAS_WINDOW_S:g} s windows in "
+                f"{len(holds)} still intervals (needs >= 2 windows)"),
         Support("temperature terms (temp_bias)", span >= 1.0,
                 f"still-interval temperatures span {span:.2g} degC (needs >= 1; 3 for temp_scale)"),
         Support("noise density (export --to kalibr)", longest >= 60.0, f"longest still interval {longest:.0f} s (needs >= 60)"),

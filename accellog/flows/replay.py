@@ -31,7 +31,7 @@ import numpy as np
 from accellog.calibrate.model.session_drivers import BlockDrivers, needs_whole_series
 from accellog.core.errors import InputError
 from accellog.core.session import Session
-from accellog.navigate.blocks import mean_reading
+from accellog.navigate.blocks import first_mean, mean_reading, nan_sums
 from accellog.navigate.online import OnlineIntegrator
 from accellog.present.rrd.entities import AXES, AXIS_COLORS, TRACKS, slug
 from accellog.present.rrd.envelope import ENVELOPE_BUCKETS
@@ -248,8 +248,12 @@ def replay(
     """Replay a session (path or Session) through online correction + integration.
 
     A session file is streamed block by block (store.source: memory bounded by one chunk group
-    plus the display series, whatever the session length; its time stamps checked first). cals: Calibration objects or JSON paths
-    (one track each, after the raw track when include_raw). speed: sensor seconds per wall second
+    plus the display series, whatever the session length) in one pass, its time stamps checked
+    along it (a bad stamp refuses the file: nothing is returned; an up vector inferred from the mean
+    reading: guessed from the first block, a second pass only when the whole mean disagrees); with a
+    recording, which shows the samples as they go, the stamps are checked first, in the pass that
+    infers the up vector when it must be (two passes). cals: Calibration
+    objects or JSON paths (one track each, after the raw track when include_raw). speed: sensor seconds per wall second
     (None/'max': no pacing). recording: where to log (raw and calibrated accel and temperature as
     display envelopes, poses, events, decimated tracks, final table); None logs nothing.
     """
@@ -261,19 +265,43 @@ def replay(
     src = open_source(session, what="replay")
     if needs_whole_series({d for c in cal_objs for d in c.model.required_drivers}):
         src.whole()
-    src.check()  # a replay shows its samples as it goes: the stamps are checked before
+    up = parse_up(up_sensor)
+    mean: np.ndarray | None = None
+    if recording is not None and _infers_up(up, src):  # what a recording was shown cannot be taken
+        mean = src.run(mean_reading)  # back: the stamps first, in the mean reading's pass
+    elif recording is not None:
+        src.check()
+    opts = dict(cal_objs=cal_objs, labels=labels, speed_f=speed_f, rec=recording, up=up, mean=mean,
+                include_raw=include_raw, apply_drift=apply_drift, batch_s=batch_s, sleep=sleep, clock=clock,
+                t_wall0=t_wall0)  # fmt: skip
+    return src.run(lambda s: _replay(s, **opts))
+
+
+def _infers_up(up: np.ndarray | None, src: Source) -> bool:
+    """The up vector is inferred from the mean reading (none given, not one pose label)."""
+    return up is None and len(src.poses) != 1
+
+
+def _replay(
+    src: Source, *, cal_objs, labels, speed_f, rec, up, mean, include_raw, apply_drift, batch_s, sleep, clock,
+    t_wall0,
+) -> ReplayResult:  # fmt: skip
+    """replay's pass over the source, inside Source.run (it checks the stamps; afresh when the source
+    is read again whole: no recording then, replay checked the stamps before). An up vector inferred
+    from the mean reading (mean: the whole session's, known) is guessed from the first block's and
+    the replay made again, a second pass, only when its own pass's mean has another face."""
     n_est, t0_s, span_s = src.extent()
     if n_est < 2:
         raise InputError(f"session has {n_est} samples: nothing to replay", where=src.where)
-    up = parse_up(up_sensor)
     notes: list[str] = []
+    guessed = up is None and mean is None and len(src.poses) != 1
+    given = up
     if up is None:
-        up, note = _infer_up(src.poses, lambda: mean_reading(src))
+        up, note = _infer_up(src.poses, lambda: first_mean(src) if mean is None else mean)
         if note:
             notes.append(note)
     g_local = float(cal_objs[0].local_gravity_mps2) if cal_objs else float(src.meta.local_gravity_mps2)
     tracks = _tracks(cal_objs, labels, up, g_local, include_raw, apply_drift)
-    rec = recording
     if rec is not None:
         if src.poses:
             rec.log_poses(src.poses)
@@ -282,9 +310,14 @@ def replay(
         rec.begin_batches(t0_s, t0_s + span_s, n_est)
     if batch_s is None:
         batch_s = MAX_BATCH_S if speed_f is None else max(speed_f / PACED_UPDATES_PER_S, 1e-3)
-    n, t_end = _run(src, (n_est, t0_s), tracks, rec, speed_f, batch_s, sleep, clock)
+    n, t_end, mean_g = _run(src, (n_est, t0_s), tracks, rec, speed_f, batch_s, sleep, clock)
     if n < 2:
         raise InputError(f"session has {n} samples: nothing to replay", where=src.where)
+    if guessed and not np.array_equal(_infer_up(src.poses, lambda: mean_g)[0], up):
+        opts = dict(cal_objs=cal_objs, labels=labels, speed_f=speed_f, rec=rec, up=given, mean=mean_g,
+                    include_raw=include_raw, apply_drift=apply_drift, batch_s=batch_s, sleep=sleep, clock=clock,
+                    t_wall0=t_wall0)  # fmt: skip
+        return _replay(src, **opts)  # the whole mean's face is not the first block's: a second pass
     results = []
     for tr in tracks:
         d_end = tr.integ.disp_m
@@ -311,9 +344,9 @@ def replay(
     return res
 
 
-def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float]:
+def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int, float, np.ndarray]:
     """Feed every batch to every track (and the recording), paced when speed_f; returns the number
-    of samples and the last sample time (s). Tracks are logged every k-th sample plus the last one,
+    of samples, the last sample time (s) and the mean reading (g, mean_reading's). Tracks are logged every k-th sample plus the last one,
     k = n / (2 ENVELOPE_BUCKETS) (smooth double integrals: no spike to lose); extent: (samples
     estimated, first time s)."""
     n_est, t0 = extent
@@ -323,6 +356,7 @@ def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int,
     slow = max(1, n_est // (2 * ENVELOPE_BUCKETS))  # displacement time series
     drivers = BlockDrivers(src.poses, src.session)
     n, t_end = 0, t0
+    read_sum, read_n = np.zeros(3), np.zeros(3)
     with closed_after(batches(src.blocks(), t0, batch_s)) as cut:
         for b in cut:
             tb = b.t_s
@@ -347,6 +381,9 @@ def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int,
                 _log_track_rows(rec, tr, tb[keep], d[keep])
             n += b.n
             t_end = float(tb[-1])
+            bs, bc = nan_sums(b.accel_g)
+            read_sum += bs
+            read_n += bc
             if rec is not None and speed_f is not None and clock() - last_3d > 1.0:
                 last_3d = clock()
                 for tr in tracks:
@@ -354,7 +391,7 @@ def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int,
     if rec is not None and (n - 1) % slow:  # a track ends at its final displacement
         for tr in tracks:
             _log_track_rows(rec, tr, np.array([t_end]), tr.last[None, :])
-    return n, t_end
+    return n, t_end, read_sum / np.maximum(read_n, 1)
 
 
 def _log_track_rows(rec: Recording, tr: _Track, t_s: np.ndarray, disp_m: np.ndarray) -> None:

@@ -1,7 +1,8 @@
 """The per-block steps of the static stages (``evaluate``, ``drift``, ``integrate``) over a
 ``store.source.Source``: ``cut_blocks`` applies until_s / max_samples, ``checked_blocks`` the checks
 every stage makes (finite reading, finite and strictly increasing time stamps across blocks: one
-InputError line), ``mean_reading`` a pass of its own for the mean.
+InputError line), ``mean_reading`` a pass of its own for the mean, ``first_mean`` the mean of the
+first block alone (a guess of it without a pass: a stage checks it against the mean of its own pass).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import numpy as np
 from accellog.core.errors import InputError
 from accellog.core.session import Session
 from accellog.store.source import Source
-from accellog.store.stream import ImuBlock, closed_after
+from accellog.store.stream import ImuBlock, closed_after, iter_imu
 
 
 def cut_blocks(src: Source, until_s: float | None, max_samples: int | None) -> Iterator[ImuBlock]:
@@ -75,7 +76,28 @@ def mean_reading(src: Source) -> np.ndarray:
     c = np.zeros(3)
     with closed_after(src.blocks()) as blocks:
         for b in blocks:
-            ok = np.isfinite(b.accel_g)
-            s += np.where(ok, b.accel_g, 0.0).sum(axis=0)
-            c += ok.sum(axis=0)
+            bs, bc = nan_sums(b.accel_g)
+            s += bs
+            c += bc
+    return s / np.maximum(c, 1)
+
+
+def nan_sums(accel_g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sum, count) per axis of the finite readings (g): mean_reading's sums of one block."""
+    ok = np.isfinite(accel_g)
+    return np.where(ok, accel_g, 0.0).sum(axis=0), ok.sum(axis=0)
+
+
+def first_mean(src: Source) -> np.ndarray:
+    """nanmean of the accel of the source's first block (g): mean_reading of a session in memory,
+    of a file's first chunk group otherwise (no pass over the file); zeros without a sample."""
+    if src.in_memory:
+        return mean_reading(src)
+    assert src.path is not None  # a streamed source reads a file
+    blocks = iter_imu(src.path)
+    with closed_after(blocks):
+        b = next(blocks, None)
+    if b is None:
+        return np.zeros(3)
+    s, c = nan_sums(b.accel_g)
     return s / np.maximum(c, 1)

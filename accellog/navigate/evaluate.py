@@ -33,7 +33,7 @@ from accellog.calibrate.observe.motion import MotionCheck
 from accellog.calibrate.observe.segment import observations
 from accellog.core.errors import InputError
 from accellog.core.session import ObsTable, Session
-from accellog.navigate.blocks import checked_blocks, mean_reading
+from accellog.navigate.blocks import checked_blocks, first_mean
 from accellog.navigate.evaluation import (
     AXES,
     EvalContext,
@@ -114,12 +114,16 @@ def _one_hold(src: Source, tgts: Sequence[Target], **opts) -> tuple[list[Evaluat
 
 
 def _evaluate(
-    src: Source, tgts, *, up_sensor, times_s, until_s, max_samples, window_s, check_moving, on_block, sums_out
-) -> tuple[list[Evaluation], InputError | None]:
-    """_one_hold's pass (the refusal checked in the seed's order: samples, |mean|, motion)."""
+    src: Source, tgts, *, up_sensor, times_s, until_s, max_samples, window_s, check_moving, on_block, sums_out,
+    mean_g: np.ndarray | None = None,
+) -> tuple[list[Evaluation], InputError | None]:  # fmt: skip
+    """_one_hold's pass (the refusal checked in the seed's order: samples, |mean|, motion). An
+    unlabelled session is evaluated with the face of its first block's mean reading (mean_g: of the
+    whole session, known) and again, a second pass, only when the pass's own mean has another face."""
     where, meta = src.where, src.meta
     notes: list[str] = []
-    up = _up(src, up_sensor, notes)
+    guessed = up_sensor is None and not src.poses and mean_g is None
+    up = _up(src, up_sensor, notes, lambda: first_mean(src) if mean_g is None else mean_g)
     ctxs: list[EvalContext] = [
         eval_context(where, meta, x.cal, up, list(notes), label=x.label, local_gravity_mps2=x.local_gravity_mps2,
                      raw_truth_g=x.raw_truth_g, apply_drift=x.apply_drift)
@@ -142,6 +146,10 @@ def _evaluate(
                 on_block(k, b.t_s, v, d)
     if n < 10:
         raise InputError(f"static session has {n} samples (need >= 10)", where=where)
+    if guessed and not np.array_equal(infer_up(read_sum / n, []), up):
+        opts = dict(up_sensor=None, times_s=times_s, until_s=until_s, max_samples=max_samples, window_s=window_s,
+                    check_moving=check_moving, on_block=on_block, sums_out=sums_out, mean_g=read_sum / n)  # fmt: skip
+        return _evaluate(src, tgts, **opts)
     refusal = norm_refusal(read_sum / n, where)
     if motion is not None:  # the spill is closed either way
         moving = motion.refusal(1.0 / meta.accel_lsb_per_g if meta.accel_lsb_per_g else 0.0, where)
@@ -157,8 +165,8 @@ def _evaluate(
     ], None
 
 
-def _up(src: Source, up_sensor, notes: list[str]) -> np.ndarray:
-    """The given up vector, the single pose label's, or the one inferred from the mean reading."""
+def _up(src: Source, up_sensor, notes: list[str], mean_of: Callable[[], np.ndarray]) -> np.ndarray:
+    """The given up vector, the single pose label's, or the one inferred from the mean reading mean_of()."""
     if up_sensor is not None:
         return np.asarray(up_sensor, float)
     if len(src.poses) == 1:
@@ -169,7 +177,7 @@ def _up(src: Source, up_sensor, notes: list[str]) -> np.ndarray:
             "labels (use evaluate_poses / the pipeline's evaluate_poses stage)",
             where=src.where,
         )
-    return infer_up(mean_reading(src), notes)
+    return infer_up(mean_of(), notes)
 
 
 def evaluate(

@@ -151,7 +151,7 @@ def passes(obs: ObsTable, r_g: np.ndarray) -> list[PassRow]:
 
 def disagreements(rows: list[PassRow]) -> dict[str, tuple[float, int, float]]:
     """pose -> (chi2, dof, p) of its passes against their common mean (poses with >= 2 passes)."""
-    from scipy import stats
+    from accellog.core.numeric import chi2_sf
 
     out = {}
     for pose in dict.fromkeys(r.pose for r in rows):
@@ -163,7 +163,7 @@ def disagreements(rows: list[PassRow]) -> dict[str, tuple[float, int, float]]:
         common, _ = _wmean(m, s)
         chi2 = float(np.sum(((m - common) / s) ** 2))
         dof = 3 * (len(ps) - 1)
-        out[pose] = (chi2, dof, float(stats.chi2.sf(chi2, dof)))
+        out[pose] = (chi2, dof, chi2_sf(chi2, dof))
     return out
 
 

@@ -105,6 +105,16 @@ def test_detect_static_finds_holds_and_refuses_too_few():
         detect_static(s, min_poses=9)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_detect_static_keeps_a_still_minute_whole(seed):
+    """A still minute at 1 kHz is one interval: the moving variance's own noise crosses the tightest
+    threshold (2x its 5th percentile) here and there, which cut it into 14-16 pieces."""
+    # AR(1) noise, phi 0.8 (a low-pass filtered chip): the variance over 101 samples scatters more
+    s = synth_session(poses=["+z"], hold_s=60.0, move_s=0.0, rate_hz=1000.0, phi=0.8, jitter=0.0, seed=seed)
+    (hold,) = detect_static(s, min_poses=1)
+    assert hold.start_s < s.t_s[0] + 0.1 and hold.end_s > s.t_s[-1] - 0.1
+
+
 def _blocks(s, size: int) -> list:
     """The session's samples as blocks of `size` samples (what a file's chunks give)."""
     return [

@@ -46,6 +46,62 @@ def test_clean_log_passes(clean, capsys):
     assert r["device"]["who_am_i"] == 0x71 and r["device"]["i2c_bus"] == "emulator"  # the device key
 
 
+def test_still_intervals_are_the_emulators_holds(clean, capsys):
+    """One still interval around each of the six holds the emulator labels (the settling before and
+    after a hold is still too)."""
+    r = _doctor(clean, capsys)
+    poses = read_session(clean).poses
+    assert len(r["still_intervals"]) == len(poses) == 6
+    for h, p in zip(r["still_intervals"], poses, strict=True):
+        assert h["start_s"] <= p.start_s and p.end_s <= h["end_s"] <= p.end_s + 0.5
+        assert np.dot(h["up"], p.up_sensor) > np.cos(np.deg2rad(5.0))
+
+
+def test_the_demos_still_test_is_one_interval(tmp_path, capsys):
+    """The demo's static test (one still 62 s hold at 1 kHz, accellog.flows.demo) is one still interval
+    spanning the emulator's hold, long enough for drift evaluation and noise density, and >= 2 bias
+    windows for the gyro."""
+    from accellog.flows.demo import CHIP_SEED
+
+    p = tmp_path / "static_test.mcap"
+    simulate(Scenario(protocol="+z", hold_s=62.0, chip_seed=CHIP_SEED, seed=3), p)
+    (pose,) = read_session(p).poses
+    r = _doctor(p, capsys)
+    (h,) = r["still_intervals"]
+    assert h["start_s"] <= pose.start_s and pose.end_s <= h["end_s"]
+    ok = {x["calibration"]: x for x in r["supports"]}
+    for name in ("drift evaluation (evaluate / drift)", "noise density (export --to kalibr)", "gyro bias"):
+        assert ok[name]["ok"], ok[name]["why"]
+    windows = int((h["end_s"] - h["start_s"] - 2 * 0.2) // 1.0)  # the bias fit's windows (0.2 s trimmed)
+    assert windows >= 61 and ok["gyro bias"]["why"].startswith(f"{windows} whole 1 s windows in 1 still")
+    assert r["distinct_orientations"] == 1 and r["healthy"]
+
+
+def test_long_streamed_log_against_the_emulators_truth(tmp_path, capsys):
+    """A 24-pose log of 309,513 samples (> 2^18: streamed, its still intervals found on every 2nd
+    sample) with the bus cut for 0.5 s at 100 s: every sample counted, the one gap found with the
+    samples the emulator's events say were lost, and every labelled hold inside one still interval
+    (the turns about the vertical keep gravity still: one interval per face)."""
+    p = tmp_path / "long.mcap"
+    simulate(
+        Scenario(protocol="24", hold_s=10.0, seed=5, faults={"disconnect_at_s": 100.0, "disconnect_s": 0.5}),
+        p,
+    )
+    s = read_session(p)
+    lost = sum(e.lost_samples for e in s.events)
+    assert s.n > 1 << 18 and lost > 400
+    r = _doctor(p, capsys)
+    assert r["samples"] == s.n and r["duration_s"] == pytest.approx(s.t_s[-1] - s.t_s[0], abs=1e-9)
+    kinds = {f["kind"]: f for f in r["findings"]}
+    assert kinds["gap"]["count"] == 1 and f"~{lost} samples missing" in kinds["gap"]["detail"]
+    assert 99.0 < kinds["gap"]["t_s"][0] < 100.5 and r["events"]["lost_samples"] == lost
+    holds = r["still_intervals"]
+    assert len(holds) == r["distinct_orientations"] == 6
+    for pose in s.poses:
+        (h,) = [h for h in holds if h["start_s"] <= pose.start_s and pose.end_s <= h["end_s"]]
+        assert np.dot(h["up"], pose.up_sensor) > np.cos(np.deg2rad(5.0))
+
+
 def _damage(s, *, counts: bool):
     rng = np.random.default_rng(0)
     n = s.n

@@ -308,3 +308,79 @@ def test_replay_streams_and_full_rate_on_demand(spiky, tmp_path: Path, capsys) -
     t, v = load_rrd(out).series("accel/raw")
     np.testing.assert_allclose(t, s.t_s, rtol=0, atol=2e-9)
     np.testing.assert_array_equal(v, s.accel_g)
+
+
+def _full_passes(monkeypatch) -> list[int]:
+    """Counts the passes over a streamed file's samples that read it to its end (store.source)."""
+    import accellog.store.source as source
+
+    done: list[int] = []
+    real = source.iter_imu
+
+    def counted(path):
+        yield from real(path)
+        done.append(1)  # reached only when the pass read every block
+
+    monkeypatch.setattr(source, "iter_imu", counted)
+    return done
+
+
+@pytest.mark.parametrize("up", ["+z", None])
+def test_replay_reads_the_file_once(files, monkeypatch, up) -> None:
+    """Without a recording the stamps are checked along the replay's own pass: one pass over the
+    file, also when the up vector is inferred from the mean reading (the test file has no label)."""
+    done = _full_passes(monkeypatch)
+    res = replay(files["test"], cals=[files["model3"]], speed=None, up_sensor=up)
+    assert len(done) == 1 and res.n == 12_000 and list(res.up_sensor) == [0, 0, 1]
+    done.clear()
+    out = Path(str(files["test"]) + ".rrd")
+    rec = RunRecording(f"save:{out}", recording_id="passes")
+    replay(files["test"], cals=[files["model3"]], speed=None, up_sensor=up, recording=rec)
+    rec.close()
+    assert len(done) == 2  # a recording: the stamps first (with the mean's pass when inferred)
+
+
+@pytest.mark.parametrize("with_rrd", [False, True])
+def test_replay_refuses_bad_stamps_in_one_line(files, tmp_path: Path, capsys, with_rrd) -> None:
+    """Stamps that go backwards are refused (the stamps' line, nothing written) whether they are
+    checked along the one pass or before a recording."""
+    s = read_session(files["test"])
+    t = s.t_s.copy()
+    t[5000], t[5001] = t[5001], t[5000]
+    bad = tmp_path / "bad.mcap"
+    write_session(bad, Session(meta=s.meta, t_s=t, sample_index=s.sample_index, accel_g=s.accel_g,
+                               accel_counts=s.accel_counts, temp_degC=s.temp_degC))  # fmt: skip
+    out = tmp_path / "bad.rrd"
+    args = ["replay", str(bad), "--speed", "max", "--cal", str(files["model3"])]
+    assert main([*args, *(["--rrd", str(out)] if with_rrd else [])]) == 2
+    err = capsys.readouterr().err
+    assert "decreasing time stamp at sample 5001" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def _turned(path: Path) -> Path:
+    """400 s at 1 kHz: +x up for the first 100 s, then +z up (the mean reading's face is +z, the
+    first chunk group's +x)."""
+    rng = np.random.default_rng(3)
+    n, rate = 400_000, 1000.0
+    f = np.tile([0.0, 0.0, 1.0], (n, 1))
+    f[:100_000] = [1.0, 0.0, 0.0]
+    write_session(path, _session(_counts(f, rng), rate))
+    return path
+
+
+def test_replay_up_guess_checked_against_the_whole_mean(tmp_path: Path, monkeypatch) -> None:
+    """The up vector is guessed from the first block's mean; when the whole session's mean has
+    another face the replay is made again with it (a second pass): the tracks are those of the
+    session in memory, whose mean is known at once."""
+    from accellog.navigate.blocks import first_mean
+    from accellog.store.source import open_source
+
+    path = _turned(tmp_path / "turned.mcap")
+    assert np.argmax(np.abs(first_mean(open_source(path)))) == 0  # the guess is +x
+    done = _full_passes(monkeypatch)
+    a = replay(path, speed=None)
+    assert len(done) == 2 and list(a.up_sensor) == [0, 0, 1]
+    b = replay(read_session(path), speed=None)
+    np.testing.assert_allclose(a.tracks[0].final_m, b.tracks[0].final_m, rtol=1e-12)
+    assert a.tracks[0].notes == b.tracks[0].notes and "+z up" in a.tracks[0].notes[0]

@@ -182,3 +182,38 @@ def test_integrate_a_csv_input_with_a_calibration(sessions, tmp_path, capsys):
     assert got.shape == (s.n, 7)
     np.testing.assert_allclose(got[-1, 4:], res["disp_end_m"], rtol=1e-8, atol=1e-12)
     assert abs(got[-1, 6]) > 0.0
+
+
+def test_unlabelled_static_file_evaluated_in_one_pass(tmp_path, monkeypatch):
+    """An unlabelled static file (an `import csv` output): the up vector is guessed from its first
+    block's mean reading and checked against the pass's own mean, so the file is read once; a guess
+    the whole mean contradicts (+x up for the first 100 s, +z for the 300 s after) costs a second
+    pass and gives the numbers of the session in memory."""
+    import accellog.store.source as source
+    from accellog.navigate.evaluate import Target, evaluate, evaluate_blocks
+    from accellog.store.reader import read_session
+    from accellog.store.source import open_source
+
+    done: list[int] = []
+    real = source.iter_imu
+
+    def counted(path):
+        yield from real(path)
+        done.append(1)  # a pass that read the file to its end
+
+    monkeypatch.setattr(source, "iter_imu", counted)
+    rng = np.random.default_rng(5)
+    for first_face, passes in (([0.0, 0.0, 1.0], 1), ([1.0, 0.0, 0.0], 2)):
+        f = np.tile([0.0, 0.0, 1.0], (400_000, 1))
+        f[:100_000] = first_face
+        s = synth_session(poses=["+z"], hold_s=1.0, move_s=0.0, label=False)  # the meta of a logger
+        acc = f + rng.normal(0.0, 0.002, f.shape)
+        path = tmp_path / f"static_{passes}.mcap"
+        write_session(path, s.__class__(meta=s.meta, t_s=np.arange(f.shape[0]) * 1e-3,
+                                        sample_index=np.arange(f.shape[0], dtype=np.int64), accel_g=acc))  # fmt: skip
+        done.clear()
+        (ev,) = evaluate_blocks(open_source(path), [Target(None)], check_moving=False)
+        assert len(done) == passes
+        whole = evaluate(read_session(path), None, check_moving=False)
+        assert list(ev.up_sensor) == list(whole.up_sensor) == [0, 0, 1]
+        assert_json_close(json.loads(dumps(ev.to_dict())), json.loads(dumps(whole.to_dict())))

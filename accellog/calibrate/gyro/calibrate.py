@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from accellog.calibrate.gyro.fit import CLIP_NEAR
+from accellog.calibrate.gyro.fit import BIAS_TRIM_S, BIAS_WINDOW_S, CLIP_NEAR
 from accellog.calibrate.gyro.model import GyroCalibration
 from accellog.calibrate.gyro.stream import Blocks, RateBlock, calibrate_blocks
 from accellog.core.errors import InputError
@@ -46,9 +46,9 @@ def fit_gyro_bias(
     temp_degC: np.ndarray | None = None,
     *,
     t_ref_degC: float = 25.0,
-    window_s: float = 1.0,
+    window_s: float = BIAS_WINDOW_S,
     min_temp_span_degC: float = 2.0,
-    trim_s: float = 0.2,
+    trim_s: float = BIAS_TRIM_S,
 ) -> GyroCalibration:
     """Bias (and temp_bias when the holds span >= min_temp_span_degC) from static holds (gyro.fit
     module doc). holds: PoseLabels or (K,2) start/end times (s); trim_s is cut from both ends of

@@ -44,6 +44,10 @@ from accellog.core.rotations import quat_conjugate, quat_multiply, quat_to_rotve
 from accellog.core.session import PoseLabel
 
 DEG_PER_RAD = 180.0 / np.pi
+BIAS_WINDOW_S = 1.0
+"""The bias's window length (s): each hold's window means are its observations."""
+BIAS_TRIM_S = 0.2
+"""Cut from both ends of a hold before it is windowed (s)."""
 
 
 def hold_intervals(holds: Sequence[PoseLabel] | np.ndarray) -> np.ndarray:
@@ -143,7 +147,7 @@ def still_windows(means, temps, has_temp: bool, ref: GyroCalibration | None):
     return means[keep], temps[keep]
 
 
-def pooled_bias(windows, n_holds: int, *, t_ref_degC: float = 25.0, window_s: float = 1.0,
+def pooled_bias(windows, n_holds: int, *, t_ref_degC: float = 25.0, window_s: float = BIAS_WINDOW_S,
                 min_temp_span_degC: float = 2.0, temp_order: int = 1,
                 still_ref: GyroCalibration | None = None) -> GyroCalibration:  # fmt: skip
     """fit.bias_fit over the windows (stream.bias_windows) of several sessions of one sensor together: one

@@ -35,6 +35,8 @@ from typing import NamedTuple
 import numpy as np
 
 from accellog.calibrate.gyro.fit import (
+    BIAS_TRIM_S,
+    BIAS_WINDOW_S,
     bias_window_times,
     clipped_in_moves,
     fit_matrix,
@@ -74,11 +76,11 @@ def calibrate_blocks(
     model: str = "full",
     reference: str = "gravity",
     t_ref_degC: float = 25.0,
-    window_s: float = 1.0,
+    window_s: float = BIAS_WINDOW_S,
     min_temp_span_degC: float = 2.0,
     temp_order: int = 1,
     still_ref: GyroCalibration | None = None,
-    trim_s: float = 0.2,
+    trim_s: float = BIAS_TRIM_S,
     full_scale_dps: float | None = None,
     floor_deg: float = 0.05,
     rotations: bool = True,
@@ -137,7 +139,7 @@ def _bias(sums, has_temp: bool, n_holds: int, t_ref_degC: float, window_s: float
     )
 
 
-def bias_windows(blocks: Blocks, poses, *, window_s: float = 1.0, trim_s: float = 0.2):
+def bias_windows(blocks: Blocks, poses, *, window_s: float = BIAS_WINDOW_S, trim_s: float = BIAS_TRIM_S):
     """(window means (W,3) deg/s, window temperatures (W,) degC (NaN without), has_temp) of one
     session's holds: step 1 alone, for a bias pooled over sessions (fit.pooled_bias); None without gyro."""
     first = _plan(poses, "full", "gravity", window_s, trim_s, None, rotations=False)[2]
@@ -178,8 +180,8 @@ def first_pass(
     *,
     model: str = "full",
     reference: str = "gravity",
-    window_s: float = 1.0,
-    trim_s: float = 0.2,
+    window_s: float = BIAS_WINDOW_S,
+    trim_s: float = BIAS_TRIM_S,
     full_scale_dps: float | None = None,
 ) -> FirstPass:
     """Step 1 of calibrate_blocks with these arguments, to be fed a pass's blocks (add) and

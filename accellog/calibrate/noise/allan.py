@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from accellog.core.numeric import chi2_ppf
+
 M_EXACT = 1 << 18
 """Largest averaging factor accumulated exactly (every start point j)."""
 DECIMATE = 1 << 10
@@ -66,11 +68,9 @@ class AllanCurve:
 
     def interval(self, alpha: np.ndarray, p: float = 0.3173) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) two-sided (1 - p) confidence interval of the ADEV (default 68.3 %, i.e. 1 sigma)."""
-        from scipy.stats import chi2
-
         edf = np.maximum(self.edf(alpha), 1.0)
-        lo = self.avar * edf / chi2.ppf(1.0 - p / 2.0, edf)
-        hi = self.avar * edf / chi2.ppf(p / 2.0, edf)
+        lo = self.avar * edf / chi2_ppf(1.0 - p / 2.0, edf)
+        hi = self.avar * edf / chi2_ppf(p / 2.0, edf)
         return np.sqrt(lo), np.sqrt(hi)
 
 

@@ -64,8 +64,10 @@ def detect_static(
     r = ||per-axis variance of the first init_static_s seconds|| (the recording starts still), or,
     when None, the 5th percentile of s. For each k in k_values the intervals with s < k r lasting
     >= min_interval_s are candidates; with `cost` (e.g. an orientation-free fit's residual) the k
-    with the lowest cost is kept (as imu_tk), otherwise the k giving the most distinct poses (ties:
-    the smallest k). up_sensor of each label = its mean reading normalised (an estimate, not truth).
+    with the lowest cost is kept (as imu_tk), otherwise the k giving the most distinct poses, then
+    the fewest intervals (ties: the smallest k). The fewest: s of a still stretch fluctuates (a
+    w-sample variance has a relative spread ~sqrt(2 / w)), so a tight k cuts one hold into pieces
+    wherever s crosses k r (a still 60 s test at 1 kHz: 8 pieces at k = 2, one at k = 3). up_sensor of each label = its mean reading normalised (an estimate, not truth).
     Raises InputError when fewer than min_poses distinct orientations (> distinct_angle_deg apart)
     are found.
     """
@@ -118,7 +120,7 @@ def static_sweep(
     ref = max(ref, (quantum_g(session) ** 2) / 12.0, 1e-15)
     rate = (session.n - 1) / max(t[-1] - t[0], 1e-12)
     min_len = max(int(np.ceil(min_interval_s * rate)), 2)
-    best: tuple[float, list[PoseLabel], int] | None = None
+    best: tuple[tuple[float, int], list[PoseLabel], int] | None = None
     max_found = 0
     csum = np.concatenate([np.zeros((1, 3)), np.cumsum(acc, axis=0)])
     # label [start_s, end_s) covers samples a..b-1: end at the next sample's time (one period past the end)
@@ -146,7 +148,7 @@ def static_sweep(
             )
             for j, (a, b) in enumerate(zip(starts, stops, strict=True))
         ]
-        score = float(cost(labels)) if cost is not None else -float(nd)
+        score = (float(cost(labels)), 0) if cost is not None else (-float(nd), len(labels))
         if best is None or score < best[0]:
             best = (score, labels, nd)
     return (None if best is None else best[1]), max_found
