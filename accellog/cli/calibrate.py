@@ -35,6 +35,11 @@ PriorOpt = Annotated[
     typer.Option(help="A calibration of this device (the lab's): the sessions' stops update it."),
 ]
 
+AddOpt = Annotated[
+    list[str] | None,
+    typer.Option("--add", help="Add an effect (repeatable; with --prior added to it at its typical size)."),
+]
+
 AgingOpt = Annotated[
     list[str] | None,
     typer.Option(
@@ -99,7 +104,7 @@ def fit(
     model: Annotated[
         str, typer.Option("--model", "-m", help="model1 | model2 | model3 | effect+effect...")
     ] = "model3",
-    add: Annotated[list[str] | None, typer.Option("--add", help="Add an effect (repeatable).")] = None,
+    add: AddOpt = None,
     effects_file: Annotated[Path | None, typer.Option(help="Python file with user effects.")] = None,
     unweighted: Annotated[
         bool, typer.Option("--unweighted", help="Unweighted least squares (the seed).")
@@ -161,7 +166,7 @@ def fit(
         trim_s=trim_s,
         uncertainty=uncertainty,
         relabel=relabel,
-        prior=prior,
+        prior=_prior(prior, add or [], effects_file),
         aging=_aging(aging),
     )
     if _save_outcome(out, data, output, rrd, json_out, inputs=(*sessions, effects_file, prior)):
@@ -174,6 +179,23 @@ def fit(
     for w in out.fit.warnings:
         _console.print(f"[yellow]warning:[/] {w}")
     _console.print(f"wrote {output}")
+
+
+def _prior(path: Path | None, add: list[str], effects_file: Path | None):
+    """--prior as given, or with --add the lab calibration with those effects added at their
+    typical size (Calibration.with_effects; a note says so): the stops update them too."""
+    if path is None or not add:
+        return path
+    from accellog.calibrate.calfile.calibration import load_calibration
+    from accellog.core.notices import note
+
+    lab = load_calibration(path, effects_file)
+    cal = lab.with_effects(add)
+    new = [n for n in cal.param_names if n not in lab.param_names]
+    if new:
+        note(f"{path}: {', '.join(new)} not in the prior: added at their initial values with "
+             "1-sigma = the effect's typical size")  # fmt: skip
+    return cal
 
 
 def _aging(items: list[str] | None) -> dict[str, float] | None:

@@ -83,7 +83,8 @@ def test_gyro_bias_curve_from_the_stops_of_an_emulated_robot(tmp_path, capsys):
     on its 10-minute run, labels removed, updated from a six-face lab calibration at 25 degC: the
     accelerometer-still intervals include turns in place (a yaw rate leaves the specific force
     unchanged), which are left out of the gyro bias; its temperature curve then matches the chip's
-    (the emulator's truth) within 3 sigma per coefficient, and the sigmas are honest on average."""
+    (the emulator's truth) within 2 sigma (honest sigmas leave 1 in 20 coefficients beyond: at
+    most one of the 12 may be, none beyond 3 sigma), and the sigmas are honest on average."""
     from accellog.acquire.emulator.sensor_model import GyroErrors
     from accellog.flows.simulate import Scenario, simulate
     from accellog.store.source import open_source
@@ -111,5 +112,68 @@ def test_gyro_bias_curve_from_the_stops_of_an_emulated_robot(tmp_path, capsys):
             / np.array(g["temp_bias_sigma_dps_per_degC"])
         )
     z = np.array(z)
-    assert np.all(np.abs(z) < 3.0), z.round(2)
+    assert np.all(np.abs(z) < 3.0) and np.sum(np.abs(z) >= 2.0) <= 1, z.round(2)
     assert np.sqrt(np.mean(z**2)) < 1.5, z.round(2)
+
+
+def test_parked_robot_warming_up_beats_the_lab_calibration(tmp_path, capsys):
+    """The Done-means of field calibration on an emulated ground robot (emulator -> driver ->
+    recorder -> MCAP): 30 stops parked on slopes tilted <= 15 deg, the die warming 20 -> 36 degC,
+    the accelerometer biases aged 3-8 mg since a six-face lab calibration at 25 degC. `fit RUN
+    --prior LAB.json --add temp_bias` (the tempco at the datasheet's +-1.5 mg/degC as its prior):
+    the vector error over the robot's attitudes and temperatures <= 0.3x the lab calibration's,
+    every bias within 3 sigma of the truth, the unidentified terms named."""
+    from accellog.acquire.emulator.sensor_model import AccelErrors
+    from accellog.flows.simulate import Scenario, simulate
+    from accellog.store.source import open_source
+
+    lab = Scenario(protocol="six", hold_s=20.0, sample_rate_hz=200.0)
+    simulate(lab, tmp_path / "lab.mcap")
+    assert main(["fit", str(tmp_path / "lab.mcap"), "-o", str(tmp_path / "lab.json")]) == 0
+    chip = AccelErrors.datasheet(lab.chip_seed)
+    aged = dataclasses.replace(chip, bias_g=np.add(chip.bias_g, [0.005, -0.008, 0.003]))
+    run = Scenario(motion="robot", robot_path="parked", sample_rate_hz=200.0, seed=5,
+                   set={"bias_g": list(aged.bias_g)},
+                   temperature={"kind": "warmup", "T_start": 20.0, "T_end": 36.0, "tau_s": 200.0})  # fmt: skip
+    simulate(run, tmp_path / "r.mcap")
+    bare = write_session(
+        tmp_path / "run.mcap", dataclasses.replace(open_source(tmp_path / "r.mcap").whole(), poses=[])
+    )
+    capsys.readouterr()
+    args = [
+        "fit",
+        str(bare),
+        "--prior",
+        str(tmp_path / "lab.json"),
+        "--add",
+        "temp_bias",
+        "-o",
+        str(tmp_path / "f.json"),
+    ]
+    assert main([*args, "--json"]) == 0
+    cap = capsys.readouterr()
+    assert "bT_x, bT_y, bT_z not in the prior" in cap.err
+    ident = json.loads(cap.out)["identification"]
+    labc, field = load_calibration(tmp_path / "lab.json"), load_calibration(tmp_path / "f.json")
+    rng = np.random.default_rng(9)  # the robot's attitudes (z-up within 15 deg) and temperatures
+    tilt, az, temp = (
+        np.deg2rad(rng.uniform(0, 15, 400)),
+        rng.uniform(0, 2 * np.pi, 400),
+        rng.uniform(20, 36, 400),
+    )
+    ups = np.c_[np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)]
+    reading = aged.apply(ups, temp, np.zeros(400))
+
+    def vector_error_g(cal) -> float:
+        return float(np.sqrt(np.mean(np.sum((cal.correct(reading, {"temp_degC": temp}) - ups) ** 2, axis=1))))
+
+    assert vector_error_g(field) <= 0.3 * vector_error_g(labc), (vector_error_g(field), vector_error_g(labc))
+    for k, name in enumerate(("b_x", "b_y", "b_z")):
+        assert abs(field.theta[k] - aged.bias_g[k]) < 3 * field.sigma[k], (
+            name,
+            field.theta[k],
+            aged.bias_g[k],
+        )
+    assert set(ident["identified"]) == {"b_x", "b_y", "b_z", "bT_x", "bT_y", "bT_z"}
+    assert {"S_xx", "S_yy", "S_zz", "S_xz", "S_zx"} <= set(ident["not_identified"])
+    assert "S_zz not identified" in cap.err and "kept at the prior's value" in cap.err
