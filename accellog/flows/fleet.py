@@ -42,9 +42,16 @@ from accellog.core.errors import AccellogError, InputError
 from accellog.core.jsonio import dumps
 from accellog.core.version import __version__
 from accellog.flows.fleet_dask import batches, close_own, is_local, run_batches, start_client
-from accellog.flows.fleet_inputs import find_sessions, safe_part, unique_files
-from accellog.flows.fleet_table import TABLE_NAME, read_table, write_table
-from accellog.store.atomic import AtomicOutput, LockBusy, commit_all, write_text_atomic
+from accellog.flows.fleet_inputs import find_sessions, unique_files
+from accellog.flows.fleet_table import (
+    CAL_DIR,
+    TABLE_NAME,
+    read_table,
+    stage_result,
+    store_results,
+    write_table,
+)
+from accellog.store.atomic import AtomicOutput, commit_all
 
 __all__ = [
     "CAL_DIR",
@@ -55,9 +62,6 @@ __all__ = [
     "run_fleet",
     "session_task",
 ]
-
-CAL_DIR = "cal"
-
 
 # ------------------------------------------------------------------------------------------ inputs
 # (session globs and safe path parts: accellog.flows.fleet_inputs)
@@ -306,7 +310,7 @@ def session_batch(
         for p, h in zip(paths, hashes, strict=True):
             r = session_task(p, h, spec, pipe_sha256)
             if out_dir is not None:
-                out.append({"rows": _stage_result(Path(out_dir), r, staged), "cals": {}, "stored": True})
+                out.append({"rows": stage_result(Path(out_dir), r, staged), "cals": {}, "stored": True})
             else:
                 out.append({**r, "cals": {m: dumps(c) + "\n" for m, c in r["cals"].items()}})
         commit_all(list(staged.values()))
@@ -414,7 +418,7 @@ def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_prog
     def on_result(r: dict) -> None:
         """Hand one session's result to the writers (its calibration files are written while the
         tasks go on) unless a worker wrote them, and count it."""
-        stored.append(r["rows"] if r.get("stored") else writers.submit(_store_results, out, [r], path_locks))
+        stored.append(r["rows"] if r.get("stored") else writers.submit(store_results, out, [r], path_locks))
         sums[0] += r["rows"][0].get("task_s") or 0.0
         sums[1] += r["rows"][0].get("task_cpu_s") or 0.0
         sums[2] += 1
@@ -444,57 +448,3 @@ WRITERS = 8
 --workers-write). Each file is written atomically with two fsyncs (accellog.store.atomic): one
 after another they took 12-15 ms of wall time per session on the 2-core test host (2 ms of CPU),
 more than a task; 8 writers bring it to 1.8 ms."""
-
-
-def _cal_name(row: dict) -> Path:
-    """OUT-relative name of a row's calibration file: cal/<device>/<session>_<sha8>_<model>.json."""
-    name = f"{safe_part(row['session_name'])}_{row['content_sha256'][:8]}_{safe_part(row['model'])}.json"
-    return Path(CAL_DIR) / safe_part(row["device"]) / name
-
-
-def _store_results(out: Path, results: list[dict], path_locks: dict[Path, threading.Lock]) -> list[dict]:
-    """Write each calibration JSON under OUT/cal/<device>/ (the client's writer threads) and return
-    the rows pointing to them. path_locks: one lock per file name, shared by the writer threads: two
-    sessions whose files have one name (byte-identical copies in two folders) are written one after
-    the other, the later replacing the earlier as in a serial run, instead of the second failing on
-    the first's lock."""
-    rows = []
-    for r in results:
-        for row in r["rows"]:
-            cal = r["cals"].get(row.get("model"))
-            if cal is not None:
-                rel = _cal_name(row)
-                text = cal if isinstance(cal, str) else dumps(cal) + "\n"  # str: encoded by a worker
-                with path_locks.setdefault(rel, threading.Lock()):
-                    write_text_atomic(out / rel, text, mkdir=True)
-                row["calibration"] = str(rel)
-            rows.append(row)
-    return rows
-
-
-def _stage_result(out: Path, r: dict, staged: dict[Path, AtomicOutput]) -> list[dict]:
-    """A worker's storing of one session's calibrations: each file begun (locked) and written under
-    its temporary name; returns the rows pointing to them. ``commit_all(staged)`` at the end of the
-    batch makes them durable and visible together. A name another worker is writing (two copies of
-    one session) is waited for, but only after this batch's staged files are committed (their locks
-    released): a worker never waits holding a lock, so two workers cannot wait for each other."""
-    rows = []
-    for row in r["rows"]:
-        cal = r["cals"].get(row.get("model"))
-        if cal is not None:
-            rel = _cal_name(row)
-            ao = AtomicOutput(out / rel, mkdir=True)
-            try:
-                if rel in staged:
-                    raise LockBusy("staged in this batch", where=str(rel))
-                tmp = ao.begin()
-            except LockBusy:
-                commit_all(list(staged.values()))
-                staged.clear()
-                ao = AtomicOutput(out / rel, mkdir=True, wait=True)
-                tmp = ao.begin()
-            staged[rel] = ao
-            tmp.write_text(dumps(cal) + "\n")
-            row["calibration"] = str(rel)
-        rows.append(row)
-    return rows
