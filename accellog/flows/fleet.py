@@ -42,6 +42,7 @@ from accellog.core.errors import AccellogError, InputError
 from accellog.core.jsonio import dumps
 from accellog.core.version import __version__
 from accellog.flows.fleet_dask import batches, close_own, is_local, run_batches, start_client
+from accellog.flows.fleet_field import field_priors, field_result, lab_calibrations, stale_field_sessions
 from accellog.flows.fleet_inputs import find_sessions, unique_files
 from accellog.flows.fleet_table import (
     CAL_DIR,
@@ -156,6 +157,13 @@ def session_task(path: str, content_sha256: str | None, spec: dict, pipe_sha256:
             lost_samples=int(data.lost_samples()),
             temp_mean_degC=float(np.mean(data.temp_degC)) if data.temp_degC is not None else float("nan"),
         )
+        if not data.poses:  # a field session: it updates the device's calibration (fleet_field)
+            r = field_result(data, base, spec.get("field_priors", {}))
+            r["rows"][0]["task_s"], r["rows"][0]["task_cpu_s"] = (
+                time.perf_counter() - t0,
+                time.process_time() - c0,
+            )
+            return r
         roles = spec["pipeline"]["inputs"]
         spec_run = {**spec, "report": {k: v for k, v in spec.get("report", {}).items() if k != "output_dir"}}
         res = run_pipeline(spec_run, [path] * len(roles), preloaded={str(path): data})
@@ -386,6 +394,7 @@ def run_fleet(
         if workers_write is None:
             workers_write = client is not None and is_local(client)
         new_rows, sums = _run(res, client, out, todo, hashes, spec, ph, on_progress, workers_write)
+        new_rows = _field_pass(res, client, out, prev, new_rows, spec, ph, on_progress, workers_write, sums)
     finally:
         if own is None and starting is not None and starting.exception() is None:
             own = starting.result()  # started for sessions that did not run (an error above)
@@ -402,6 +411,29 @@ def run_fleet(
     res.n_rows = len(rows)
     res.errors = sorted({(r["session"], r["error"]) for r in new_rows if r.get("error")})
     return res
+
+
+def _field_pass(
+    res, client, out: Path, prev, new_rows, spec, ph, on_progress, workers_write, sums
+) -> list[dict]:
+    """The second pass (accellog.flows.fleet_field): the field sessions whose rows did not update their
+    device's latest lab calibration, run with it; returns the new rows with theirs replaced."""
+    redone = {r["session"] for r in new_rows}
+    rows = [r for r in prev if r["session"] not in redone] + new_rows
+    labs = lab_calibrations(rows)
+    todo = stale_field_sessions(rows, labs)
+    if not todo:
+        return new_rows
+    again = [r for r in rows if r["session"] in set(todo)]
+    spec2 = {**spec, "field_priors": field_priors(again, labs, out)}
+    hashes = {r["session"]: r["content_sha256"] for r in again}
+    wall = res.wall_s
+    rows2, sums2 = _run(res, client, out, todo, hashes, spec2, ph, on_progress, workers_write)
+    res.wall_s += wall
+    sums[0], sums[1] = sums[0] + sums2[0], sums[1] + sums2[1]
+    res.n_run += len(set(todo) - redone)
+    res.n_skipped -= len(set(todo) - redone)
+    return [r for r in new_rows if r["session"] not in set(todo)] + rows2
 
 
 def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_progress, workers_write=False):

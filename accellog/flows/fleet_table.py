@@ -61,6 +61,8 @@ def table_schema():
             ("flags", pa.list_(s)),
             ("error", s),
             ("calibration", s),
+            ("field", pa.bool_()),
+            ("prior_calibration", s),
             ("task_s", f),
             ("task_cpu_s", f),
             ("worker_pid", i),
