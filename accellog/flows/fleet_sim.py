@@ -15,7 +15,7 @@ after its first session: its x bias jumps by ``damage_bias_g`` and its y scale b
 coefficients then do not act; a fleet at varying temperature needs a temperature model).
 
 Field runs (field_runs > 0): after its lab sessions each device records that many robot runs
-(robot_path 'parked': 30 stops on slopes tilted <= 15 deg, pose labels removed, as a robot's log
+(robot_path 'parked': 30 stops of FIELD_STOP_S on slopes tilted <= 15 deg, pose labels removed, as a robot's log
 has none: DIR/<serial>/<serial>_f<j>.mcap), months_between apart; the devices in aged_devices have
 had their biases move by aged_bias_g (magnitude uniform in that range, random sign, per axis)
 since the last lab session, the others only by their slow ageing (accellog.flows.fleet_field).
@@ -38,6 +38,8 @@ import numpy as np
 from accellog.core.errors import InputError
 
 NS_PER_S = 1_000_000_000
+FIELD_STOP_S = 8.0
+"""How long a field run's robot stands at each of its stops (s)."""
 SECONDS_PER_MONTH = 30.4375 * 86400.0
 
 
@@ -197,7 +199,7 @@ def _simulate_one(spec: FleetSpec, s: SimulatedSession) -> str:
     sc = Scenario(
         **robot,
         protocol="six",
-        hold_s=spec.hold_s,
+        hold_s=FIELD_STOP_S if s.field else spec.hold_s,
         move_s=spec.move_s,
         sample_rate_hz=spec.sample_rate_hz,
         chip_seed=s.chip_seed,

@@ -132,7 +132,7 @@ def test_parked_robot_warming_up_beats_the_lab_calibration(tmp_path, capsys):
     assert main(["fit", str(tmp_path / "lab.mcap"), "-o", str(tmp_path / "lab.json")]) == 0
     chip = AccelErrors.datasheet(lab.chip_seed)
     aged = dataclasses.replace(chip, bias_g=np.add(chip.bias_g, [0.005, -0.008, 0.003]))
-    run = Scenario(motion="robot", robot_path="parked", sample_rate_hz=200.0, seed=5,
+    run = Scenario(motion="robot", robot_path="parked", hold_s=8.0, sample_rate_hz=200.0, seed=5,
                    set={"bias_g": list(aged.bias_g)},
                    temperature={"kind": "warmup", "T_start": 20.0, "T_end": 36.0, "tau_s": 200.0})  # fmt: skip
     simulate(run, tmp_path / "r.mcap")

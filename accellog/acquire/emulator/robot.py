@@ -374,6 +374,7 @@ def parked_run_segments(
     return segs
 
 
-def parked_run(seed: int = 0, **kw) -> RobotPathMotion:
-    """parked_run_segments(seed=seed) as a RobotPathMotion (kw go to the motion): about 10 min."""
-    return RobotPathMotion(parked_run_segments(seed=seed), **kw)
+def parked_run(seed: int = 0, hold_s: float = 8.0, **kw) -> RobotPathMotion:
+    """parked_run_segments(seed=seed, hold_s=hold_s) as a RobotPathMotion (kw go to the motion):
+    about 10 min with 8 s stops."""
+    return RobotPathMotion(parked_run_segments(seed=seed, hold_s=hold_s), **kw)
