@@ -40,6 +40,7 @@ import numpy as np
 from accellog.calibrate.calfile.calibration import sha256_file
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.jsonio import dumps
+from accellog.core.session import Session
 from accellog.core.version import __version__
 from accellog.flows.fleet_dask import batches, close_own, is_local, run_batches, start_client
 from accellog.flows.fleet_field import field_priors, field_result, lab_calibrations, stale_field_sessions
@@ -146,7 +147,7 @@ def session_task(path: str, content_sha256: str | None, spec: dict, pipe_sha256:
     }
     try:
         data = load_input(path)
-        if not hasattr(data, "meta"):
+        if not isinstance(data, Session):
             raise InputError("fleet run needs recorded sessions (samples), not pose tables", where=path)
         meta = data.meta
         base.update(_device_columns(meta))

@@ -195,9 +195,9 @@ def plan_fleet(spec: FleetSpec, out_dir: str | Path) -> tuple[list[SimulatedSess
 def _simulate_one(spec: FleetSpec, s: SimulatedSession) -> str:
     from accellog.flows.simulate import Scenario, simulate
 
-    robot = {"motion": "robot", "robot_path": "parked"} if s.field else {}
     sc = Scenario(
-        **robot,
+        motion="robot" if s.field else "poses",
+        robot_path="parked",  # the robot's path (motion 'robot' only)
         protocol="six",
         hold_s=FIELD_STOP_S if s.field else spec.hold_s,
         move_s=spec.move_s,
