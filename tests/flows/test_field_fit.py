@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
 import numpy as np
+import pytest
 from calibrate.test_prior_fit import level_stops
 from support.synthetic import synthetic_session
 
@@ -116,17 +118,16 @@ def test_gyro_bias_curve_from_the_stops_of_an_emulated_robot(tmp_path, capsys):
     assert np.sqrt(np.mean(z**2)) < 1.5, z.round(2)
 
 
-def test_parked_robot_warming_up_beats_the_lab_calibration(tmp_path, capsys):
-    """The Done-means of field calibration on an emulated ground robot (emulator -> driver ->
-    recorder -> MCAP): 30 stops parked on slopes tilted <= 15 deg, the die warming 20 -> 36 degC,
-    the accelerometer biases aged 3-8 mg since a six-face lab calibration at 25 degC. `fit RUN
-    --prior LAB.json --add temp_bias` (the tempco at the datasheet's +-1.5 mg/degC as its prior):
-    the vector error over the robot's attitudes and temperatures <= 0.3x the lab calibration's,
-    every bias within 3 sigma of the truth, the unidentified terms named."""
+@pytest.fixture(scope="module")
+def parked(tmp_path_factory):
+    """An emulated ground robot (emulator -> driver -> recorder -> MCAP): 30 stops parked on slopes
+    tilted <= 15 deg, the die warming 20 -> 36 degC, the accelerometer biases aged 3-8 mg since a
+    six-face lab calibration at 25 degC (lab.json); the run written without its labels."""
     from accellog.acquire.emulator.sensor_model import AccelErrors
     from accellog.flows.simulate import Scenario, simulate
     from accellog.store.source import open_source
 
+    tmp_path = tmp_path_factory.mktemp("parked")
     lab = Scenario(protocol="six", hold_s=20.0, sample_rate_hz=200.0)
     simulate(lab, tmp_path / "lab.mcap")
     assert main(["fit", str(tmp_path / "lab.mcap"), "-o", str(tmp_path / "lab.json")]) == 0
@@ -139,6 +140,15 @@ def test_parked_robot_warming_up_beats_the_lab_calibration(tmp_path, capsys):
     bare = write_session(
         tmp_path / "run.mcap", dataclasses.replace(open_source(tmp_path / "r.mcap").whole(), poses=[])
     )
+    return tmp_path, aged, bare
+
+
+def test_parked_robot_warming_up_beats_the_lab_calibration(parked, capsys):
+    """The Done-means of field calibration on the parked robot: `fit RUN --prior LAB.json --add
+    temp_bias` (the tempco at the datasheet's +-1.5 mg/degC as its prior): the vector error over the
+    robot's attitudes and temperatures <= 0.3x the lab calibration's, every bias within 3 sigma of
+    the truth, the unidentified terms named."""
+    tmp_path, aged, bare = parked
     capsys.readouterr()
     args = [
         "fit",
@@ -177,3 +187,31 @@ def test_parked_robot_warming_up_beats_the_lab_calibration(tmp_path, capsys):
     assert set(ident["identified"]) == {"b_x", "b_y", "b_z", "bT_x", "bT_y", "bT_z"}
     assert {"S_xx", "S_yy", "S_zz", "S_xz", "S_zx"} <= set(ident["not_identified"])
     assert "S_zz not identified" in cap.err and "kept at the prior's value" in cap.err
+
+
+def test_a_fit_from_stops_draws_its_stops_residuals_and_gyro_curve(parked, tmp_path):
+    """--rrd of a field fit: the stops' gravity directions on the sphere with the van Hees caps (only
+    +z seen by a ground robot), |f| - g per stop before (the lab's) and after (smaller), the gyro
+    bias against temperature over the run's temperatures (the fitted curve)."""
+    from rrd_readback import load_rrd
+
+    lab_dir, _, bare = parked
+    rrd, out = tmp_path / "f.rrd", tmp_path / "f.json"
+    args = ["fit", str(bare), "--prior", str(lab_dir / "lab.json"), "--add", "temp_bias", "-o", str(out)]
+    assert main([*args, "--rrd", str(rrd)]) == 0
+    r = load_rrd(rrd)
+    ups = np.array(r.static("/field/sphere/stops", "Points3D:positions"))
+    assert len(ups) >= 25 and np.all(ups[:, 2] > np.cos(np.deg2rad(16))), ups[:, 2].min()
+    assert "/field/sphere/caps" in r.entities
+    caps = r.texts("/docs/field/caps", "TextDocument:text")[0][1]
+    assert "caps seen: +z; not seen: +x, -x, +y, -y, -z" in caps
+    assert "/charts/field/norm_residual/bars" in r.entities
+    doc = r.texts("/docs/field/norm_residual", "TextDocument:text")[0][1]
+    before, after = map(float, re.findall(r"RMS before \(prior\) ([\d.]+) mg, after ([\d.]+) mg", doc)[0])
+    assert after < 0.5 * before, doc.splitlines()[0]
+    t, b = r.series("/field/gyro_bias/curve", timeline="temperature_mdegC")
+    g = load_calibration(out).gyro
+    assert 19_000 < t[0] < 22_000 and 34_000 < t[-1] < 37_000
+    np.testing.assert_allclose(b, g.bias_at(t / 1000.0), atol=1e-9)
+    names = {v["name"] for v in r.views()}
+    assert "stops: gravity directions and van Hees caps" in names
