@@ -215,3 +215,14 @@ def test_a_fit_from_stops_draws_its_stops_residuals_and_gyro_curve(parked, tmp_p
     np.testing.assert_allclose(b, g.bias_at(t / 1000.0), atol=1e-9)
     names = {v["name"] for v in r.views()}
     assert "stops: gravity directions and van Hees caps" in names
+
+
+def test_a_warm_up_with_a_prior_without_temperature_terms_is_warned(parked, tmp_path, capsys):
+    """Without --add temp_bias the one-temperature lab prior fits one bias to the whole warm-up:
+    said (the fix named), in the notes and the fit's warnings."""
+    lab_dir, _, bare = parked
+    args = ["fit", str(bare), "--prior", str(lab_dir / "lab.json"), "-o", str(tmp_path / "f.json"), "--json"]
+    assert main(args) == 0
+    cap = capsys.readouterr()
+    assert "has no temperature term" in cap.err and "--add temp_bias" in cap.err
+    assert any("has no temperature term" in w for w in json.loads(cap.out)["warnings"])
