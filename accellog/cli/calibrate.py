@@ -170,17 +170,12 @@ def fit(
     _console.print(f"wrote {output}")
 
 
-UNTEMPERED_SPAN_DEGC = 2.0
-"""Stops spanning this many degC with a prior that has no temperature term are warned about: on the
-emulated robot warming 20 -> 36 degC such an update (b_z moved 20 prior sigmas, scales by 10 %) was
-worse than the lab calibration alone, with --add temp_bias 0.015x its vector error."""
-
-
 def _warn_untempered(prior: Path | None, out):
     """A warning (note and fit warning) when the stops span UNTEMPERED_SPAN_DEGC or more and the model
     (the prior's) has no temperature term: one bias is then fitted to every temperature. Returns out."""
     import numpy as np
 
+    from accellog.calibrate.model.prior import UNTEMPERED_SPAN_DEGC
     from accellog.core.notices import note
 
     temps = out.obs.temp_degC

@@ -8,7 +8,10 @@ A fleet run has two passes (accellog.flows.fleet.run_fleet): the first runs ever
 session comes back as a pending row (its device's calibration may be made in the same pass). The
 second runs the field sessions whose row did not update their device's latest lab calibration
 (pending, or a lab session of the device came since), each task given that calibration's file.
-A device with field sessions and no lab session keeps their pending rows, errors that say so.
+A device with field sessions and no lab session keeps their pending rows, errors that say so. A
+run whose temperatures span UNTEMPERED_SPAN_DEGC (calibrate.model.prior) with a lab calibration
+without a temperature term gets temp_bias added to the prior (Calibration.with_effects; a flag
+says so); its row holds the lab's parameters, its calibration file the tempco too.
 
 Rows of field sessions have field = True and prior_calibration = the FLEET-relative file of the
 calibration they updated.
@@ -57,6 +60,21 @@ def field_priors(sessions_rows: list[dict[str, Any]], labs: dict[str, str], out:
     return {d: {"calibration": labs[d], "text": (out / labs[d]).read_text()} for d in sorted(devices)}
 
 
+def untempered(lab, temps) -> tuple:
+    """(prior, flags): the lab calibration, with temp_bias added at its typical size when the run's
+    temperatures span UNTEMPERED_SPAN_DEGC or more and it has no temperature term (flags say so)."""
+    from accellog.calibrate.model.prior import UNTEMPERED_SPAN_DEGC
+
+    t = np.asarray(temps if temps is not None else [], float)
+    if not t.size or not np.isfinite(t).all() or np.ptp(t) < UNTEMPERED_SPAN_DEGC:
+        return lab, []
+    if "temp_degC" in lab.model.required_drivers:
+        return lab, []
+    return lab.with_effects(["temp_bias"]), [
+        f"temp_bias added to the prior: the run spans {np.ptp(t):.1f} degC"
+    ]
+
+
 def field_result(data, base: dict[str, Any], priors: dict[str, dict]) -> dict[str, Any]:
     """session_task of a field session: {'rows', 'cals'} of the update of the device's calibration
     (priors: field_priors), or one pending row when the task was given none for the device."""
@@ -66,24 +84,26 @@ def field_result(data, base: dict[str, Any], priors: dict[str, dict]) -> dict[st
     entry = priors.get(base.get("device") or "")
     if entry is None:
         return {"rows": [{**base, "model": "", "field": True, "error": PENDING}], "cals": {}}
-    prior = calibration_from_dict(json.loads(entry["text"]), where=entry["calibration"])
+    lab = calibration_from_dict(json.loads(entry["text"]), where=entry["calibration"])
+    prior, flags = untempered(lab, data.temp_degC)
     fo = run_fit(data, prior=prior)
+    keep = [fo.cal.param_names.index(n) for n in lab.param_names]  # the row: the lab's parameters
     row = {
         **base,
-        "model": prior.model.name,
+        "model": lab.model.name,
         "field": True,
         "prior_calibration": entry["calibration"],
-        "param_names": list(fo.cal.param_names),
-        "param_units": list(fo.cal.param_units),
-        "values": [float(v) for v in fo.cal.theta],
-        "sigmas": [float(v) for v in fo.cal.sigma],
+        "param_names": list(lab.param_names),
+        "param_units": list(lab.param_units),
+        "values": [float(fo.cal.theta[k]) for k in keep],
+        "sigmas": [float(fo.cal.sigma[k]) for k in keep],
         "chi2_dof": float(fo.fit.chi2_dof),
         "rms_g": float(fo.fit.rms_g),
         "heldout_rms_g": float("nan"),  # the stops' held-out score needs labels (the lab's own)
         "heldout_noise_g": float("nan"),
         "noise_std_g": [float(v) for v in np.mean(fo.obs.std_g, axis=0)],
         "n_obs": int(fo.obs.n),
-        "flags": list(fo.fit.warnings),
+        "flags": flags + list(fo.fit.warnings),
         "error": "",
     }
     return {"rows": [row], "cals": {row["model"]: fo.cal.to_dict()}}

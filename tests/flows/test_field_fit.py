@@ -226,3 +226,23 @@ def test_a_warm_up_with_a_prior_without_temperature_terms_is_warned(parked, tmp_
     cap = capsys.readouterr()
     assert "has no temperature term" in cap.err and "--add temp_bias" in cap.err
     assert any("has no temperature term" in w for w in json.loads(cap.out)["warnings"])
+
+
+def test_a_fleet_field_session_warming_up_gets_the_tempco_added(parked):
+    """fleet_field.field_result on the parked robot's warm-up with the one-temperature lab
+    calibration: temp_bias added to the prior (flagged), the row in the lab's parameters (what the
+    report compares), the biases within 3 sigma of the aged truth, the tempco in the calibration."""
+    from accellog.flows.fleet_field import field_result
+    from accellog.store.reader import read_session
+
+    lab_dir, aged, bare = parked
+    lab = load_calibration(lab_dir / "lab.json")
+    priors = {"EMU-7": {"calibration": "cal/lab.json", "text": (lab_dir / "lab.json").read_text()}}
+    r = field_result(read_session(bare), {"device": "EMU-7", "session": str(bare)}, priors)
+    (row,) = r["rows"]
+    assert row["error"] == "" and row["param_names"] == lab.param_names and row["model"] == lab.model.name
+    assert any("temp_bias added to the prior" in f for f in row["flags"])
+    b, s = np.array(row["values"][:3]), np.array(row["sigmas"][:3])
+    assert np.all(np.abs(b - aged.bias_g) < 3 * s), (b, aged.bias_g, s)
+    names = [p["name"] for p in r["cals"][row["model"]]["params"]]
+    assert names[-3:] == ["bT_x", "bT_y", "bT_z"]
