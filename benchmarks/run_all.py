@@ -557,15 +557,21 @@ RESULTS_END = "<!-- end of discovery -->"
 """Markers of the discovery section of RESULTS.md (written by bench_discovery.py --write)."""
 
 
+PEERS_START, PEERS_END = "<!-- peers: python benchmarks/bench_peers.py --write -->", "<!-- end of peers -->"
+"""Markers of the peers section of RESULTS.md (written by bench_peers.py --write)."""
+KEPT_SECTIONS = ((RESULTS_START, RESULTS_END), (PEERS_START, PEERS_END))
+"""Markers of the sections of RESULTS.md that other scripts write (bench_discovery.py, bench_peers.py)."""
+
+
 def kept_sections() -> str:
-    """Sections of the current RESULTS.md that other scripts write (bench_discovery.py --write),
-    kept when the table is regenerated."""
+    """Sections of the current RESULTS.md that other scripts write (KEPT_SECTIONS), kept when the
+    table is regenerated."""
     text = (BENCH / "RESULTS.md").read_text() if (BENCH / "RESULTS.md").exists() else ""
-    if RESULTS_START not in text or RESULTS_END not in text:
-        return ""
-    return (
-        "\n" + RESULTS_START + text.split(RESULTS_START, 1)[1].split(RESULTS_END, 1)[0] + RESULTS_END + "\n"
-    )
+    out = ""
+    for start, end in KEPT_SECTIONS:
+        if start in text and end in text:
+            out += "\n" + start + text.split(start, 1)[1].split(end, 1)[0] + end + "\n"
+    return out
 
 
 README_START, README_END = "<!-- speed table: python benchmarks/run_all.py -->", "<!-- end of speed table -->"

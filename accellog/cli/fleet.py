@@ -104,5 +104,6 @@ def report(
     out.print(fleet_tables.distribution_table(rep))
     if rep.errors:
         out.print(fleet_tables.errors_table(rep.errors))
-    flagged = ", ".join(h.device for h in rep.flagged) or "none"
+    flagged = ", ".join(h.device + (f" (proposed: {h.proposed})" if h.proposed else "") for h in rep.flagged)
+    flagged = flagged or "none"
     out.print(f"recalibrate: {flagged}; outliers: {', '.join(rep.outliers) or 'none'}")

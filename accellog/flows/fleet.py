@@ -40,11 +40,20 @@ import numpy as np
 from accellog.calibrate.calfile.calibration import sha256_file
 from accellog.core.errors import AccellogError, InputError
 from accellog.core.jsonio import dumps
+from accellog.core.session import Session
 from accellog.core.version import __version__
 from accellog.flows.fleet_dask import batches, close_own, is_local, run_batches, start_client
-from accellog.flows.fleet_inputs import find_sessions, safe_part, unique_files
-from accellog.flows.fleet_table import TABLE_NAME, read_table, write_table
-from accellog.store.atomic import AtomicOutput, LockBusy, commit_all, write_text_atomic
+from accellog.flows.fleet_field import field_priors, field_result, lab_calibrations, stale_field_sessions
+from accellog.flows.fleet_inputs import find_sessions, unique_files
+from accellog.flows.fleet_table import (
+    CAL_DIR,
+    TABLE_NAME,
+    read_table,
+    stage_result,
+    store_results,
+    write_table,
+)
+from accellog.store.atomic import AtomicOutput, commit_all
 
 __all__ = [
     "CAL_DIR",
@@ -55,9 +64,6 @@ __all__ = [
     "run_fleet",
     "session_task",
 ]
-
-CAL_DIR = "cal"
-
 
 # ------------------------------------------------------------------------------------------ inputs
 # (session globs and safe path parts: accellog.flows.fleet_inputs)
@@ -141,7 +147,7 @@ def session_task(path: str, content_sha256: str | None, spec: dict, pipe_sha256:
     }
     try:
         data = load_input(path)
-        if not hasattr(data, "meta"):
+        if not isinstance(data, Session):
             raise InputError("fleet run needs recorded sessions (samples), not pose tables", where=path)
         meta = data.meta
         base.update(_device_columns(meta))
@@ -152,6 +158,13 @@ def session_task(path: str, content_sha256: str | None, spec: dict, pipe_sha256:
             lost_samples=int(data.lost_samples()),
             temp_mean_degC=float(np.mean(data.temp_degC)) if data.temp_degC is not None else float("nan"),
         )
+        if not data.poses:  # a field session: it updates the device's calibration (fleet_field)
+            r = field_result(data, base, spec.get("field_priors", {}))
+            r["rows"][0]["task_s"], r["rows"][0]["task_cpu_s"] = (
+                time.perf_counter() - t0,
+                time.process_time() - c0,
+            )
+            return r
         roles = spec["pipeline"]["inputs"]
         spec_run = {**spec, "report": {k: v for k, v in spec.get("report", {}).items() if k != "output_dir"}}
         res = run_pipeline(spec_run, [path] * len(roles), preloaded={str(path): data})
@@ -306,7 +319,7 @@ def session_batch(
         for p, h in zip(paths, hashes, strict=True):
             r = session_task(p, h, spec, pipe_sha256)
             if out_dir is not None:
-                out.append({"rows": _stage_result(Path(out_dir), r, staged), "cals": {}, "stored": True})
+                out.append({"rows": stage_result(Path(out_dir), r, staged), "cals": {}, "stored": True})
             else:
                 out.append({**r, "cals": {m: dumps(c) + "\n" for m, c in r["cals"].items()}})
         commit_all(list(staged.values()))
@@ -382,6 +395,7 @@ def run_fleet(
         if workers_write is None:
             workers_write = client is not None and is_local(client)
         new_rows, sums = _run(res, client, out, todo, hashes, spec, ph, on_progress, workers_write)
+        new_rows = _field_pass(res, client, out, prev, new_rows, spec, ph, on_progress, workers_write, sums)
     finally:
         if own is None and starting is not None and starting.exception() is None:
             own = starting.result()  # started for sessions that did not run (an error above)
@@ -400,6 +414,29 @@ def run_fleet(
     return res
 
 
+def _field_pass(
+    res, client, out: Path, prev, new_rows, spec, ph, on_progress, workers_write, sums
+) -> list[dict]:
+    """The second pass (accellog.flows.fleet_field): the field sessions whose rows did not update their
+    device's latest lab calibration, run with it; returns the new rows with theirs replaced."""
+    redone = {r["session"] for r in new_rows}
+    rows = [r for r in prev if r["session"] not in redone] + new_rows
+    labs = lab_calibrations(rows)
+    todo = stale_field_sessions(rows, labs)
+    if not todo:
+        return new_rows
+    again = [r for r in rows if r["session"] in set(todo)]
+    spec2 = {**spec, "field_priors": field_priors(again, labs, out)}
+    hashes = {r["session"]: r["content_sha256"] for r in again}
+    wall = res.wall_s
+    rows2, sums2 = _run(res, client, out, todo, hashes, spec2, ph, on_progress, workers_write)
+    res.wall_s += wall
+    sums[0], sums[1] = sums[0] + sums2[0], sums[1] + sums2[1]
+    res.n_run += len(set(todo) - redone)
+    res.n_skipped -= len(set(todo) - redone)
+    return [r for r in new_rows if r["session"] not in set(todo)] + rows2
+
+
 def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_progress, workers_write=False):
     """The task phase: `todo` on `client` (None: the serial loop here); each result is stored as it
     arrives, by the workers (workers_write) or by WRITERS threads here. Returns (new table rows, [sum
@@ -414,7 +451,7 @@ def _run(res: FleetRunResult, client, out: Path, todo, hashes, spec, ph, on_prog
     def on_result(r: dict) -> None:
         """Hand one session's result to the writers (its calibration files are written while the
         tasks go on) unless a worker wrote them, and count it."""
-        stored.append(r["rows"] if r.get("stored") else writers.submit(_store_results, out, [r], path_locks))
+        stored.append(r["rows"] if r.get("stored") else writers.submit(store_results, out, [r], path_locks))
         sums[0] += r["rows"][0].get("task_s") or 0.0
         sums[1] += r["rows"][0].get("task_cpu_s") or 0.0
         sums[2] += 1
@@ -444,57 +481,3 @@ WRITERS = 8
 --workers-write). Each file is written atomically with two fsyncs (accellog.store.atomic): one
 after another they took 12-15 ms of wall time per session on the 2-core test host (2 ms of CPU),
 more than a task; 8 writers bring it to 1.8 ms."""
-
-
-def _cal_name(row: dict) -> Path:
-    """OUT-relative name of a row's calibration file: cal/<device>/<session>_<sha8>_<model>.json."""
-    name = f"{safe_part(row['session_name'])}_{row['content_sha256'][:8]}_{safe_part(row['model'])}.json"
-    return Path(CAL_DIR) / safe_part(row["device"]) / name
-
-
-def _store_results(out: Path, results: list[dict], path_locks: dict[Path, threading.Lock]) -> list[dict]:
-    """Write each calibration JSON under OUT/cal/<device>/ (the client's writer threads) and return
-    the rows pointing to them. path_locks: one lock per file name, shared by the writer threads: two
-    sessions whose files have one name (byte-identical copies in two folders) are written one after
-    the other, the later replacing the earlier as in a serial run, instead of the second failing on
-    the first's lock."""
-    rows = []
-    for r in results:
-        for row in r["rows"]:
-            cal = r["cals"].get(row.get("model"))
-            if cal is not None:
-                rel = _cal_name(row)
-                text = cal if isinstance(cal, str) else dumps(cal) + "\n"  # str: encoded by a worker
-                with path_locks.setdefault(rel, threading.Lock()):
-                    write_text_atomic(out / rel, text, mkdir=True)
-                row["calibration"] = str(rel)
-            rows.append(row)
-    return rows
-
-
-def _stage_result(out: Path, r: dict, staged: dict[Path, AtomicOutput]) -> list[dict]:
-    """A worker's storing of one session's calibrations: each file begun (locked) and written under
-    its temporary name; returns the rows pointing to them. ``commit_all(staged)`` at the end of the
-    batch makes them durable and visible together. A name another worker is writing (two copies of
-    one session) is waited for, but only after this batch's staged files are committed (their locks
-    released): a worker never waits holding a lock, so two workers cannot wait for each other."""
-    rows = []
-    for row in r["rows"]:
-        cal = r["cals"].get(row.get("model"))
-        if cal is not None:
-            rel = _cal_name(row)
-            ao = AtomicOutput(out / rel, mkdir=True)
-            try:
-                if rel in staged:
-                    raise LockBusy("staged in this batch", where=str(rel))
-                tmp = ao.begin()
-            except LockBusy:
-                commit_all(list(staged.values()))
-                staged.clear()
-                ao = AtomicOutput(out / rel, mkdir=True, wait=True)
-                tmp = ao.begin()
-            staged[rel] = ao
-            tmp.write_text(dumps(cal) + "\n")
-            row["calibration"] = str(rel)
-        rows.append(row)
-    return rows

@@ -8,7 +8,10 @@ Change detection. For each device, each pair of consecutive sessions (i, j) and 
     dp = p_j - p_i,    sigma_c = sqrt(sigma_eff_i^2 + sigma_eff_j^2),    z = |dp| / sigma_c
 
 A change with z > k_sigma flags the device "recalibrate" and is reported with its size (dp in the
-parameter's unit, and z). k_sigma = 5 by default: a fleet of 40 devices x 3 sessions x 12
+parameter's unit, and z). A lab session is compared with the device's previous lab session; a field
+session (accellog.flows.fleet_field: the update of the device's lab calibration by a robot's stops)
+with the lab calibration it updated, and when it flags, its update is the proposed calibration (a
+parameter the stops did not identify stays at the prior's value: it cannot flag). k_sigma = 5 by default: a fleet of 40 devices x 3 sessions x 12
 parameters makes ~1000 comparisons, so k = 1 ("larger than its combined uncertainty") would flag
 almost every healthy device by chance, while at 5 sigma a Gaussian false alarm has p ~ 6e-7 per
 comparison.
@@ -21,7 +24,6 @@ outside a limit, or further than 5 robust sigmas (1.4826 MAD) from the fleet med
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,6 +66,8 @@ class Change:
     to_time_unix_ns: int
     delta: float
     sigma_combined: float
+    proposed: str | None = None
+    """A field session's update (FLEET-relative calibration file) when to_session is one."""
 
     @property
     def z(self) -> float:
@@ -80,6 +84,7 @@ class Change:
             "delta": self.delta,
             "sigma_combined": self.sigma_combined,
             "z": self.z,
+            "proposed_calibration": self.proposed,
         }
 
 
@@ -99,6 +104,12 @@ class DeviceHistory:
     def recalibrate(self) -> bool:
         return bool(self.flagged)
 
+    @property
+    def proposed(self) -> str | None:
+        """The calibration proposed for the device: the latest field update that flagged, if any."""
+        field = [c for c in self.flagged if c.proposed]
+        return max(field, key=lambda c: c.to_time_unix_ns).proposed if field else None
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "device": self.device,
@@ -117,6 +128,7 @@ class DeviceHistory:
                 for r in self.sessions
             ],
             "flagged": [c.to_dict() for c in self.flagged],
+            "proposed_calibration": self.proposed,
             "largest_change": self.largest.to_dict() if self.largest else None,
         }
 
@@ -192,9 +204,7 @@ def device_history(device: str, rows: list[dict[str, Any]], k_sigma: float) -> D
     """History and flagged changes of one device from its rows (one model, any order)."""
     rows = sorted(rows, key=lambda r: (r.get("start_time_unix_ns") or 0, r["session"]))
     h = DeviceHistory(device=device, key=DeviceKey.from_dict(rows[-1]), sessions=rows)
-    for a, b in itertools.pairwise(rows):
-        if a["param_names"] != b["param_names"]:
-            continue
+    for a, b in _compared(rows):
         va, vb = np.asarray(a["values"], float), np.asarray(b["values"], float)
         sc = np.hypot(_sigma_eff(a), _sigma_eff(b))
         for i, name in enumerate(a["param_names"]):
@@ -207,6 +217,7 @@ def device_history(device: str, rows: list[dict[str, Any]], k_sigma: float) -> D
                 to_time_unix_ns=int(b.get("start_time_unix_ns") or 0),
                 delta=float(vb[i] - va[i]),
                 sigma_combined=float(sc[i]),
+                proposed=b.get("calibration") if b.get("field") else None,
             )
             if h.largest is None or ch.z > h.largest.z:
                 h.largest = ch
@@ -214,6 +225,19 @@ def device_history(device: str, rows: list[dict[str, Any]], k_sigma: float) -> D
                 h.flagged.append(ch)
     h.flagged.sort(key=lambda c: -c.z)
     return h
+
+
+def _compared(rows: list[dict[str, Any]]):
+    """(earlier, later) row pairs of one device in time order (module doc): each lab row with the
+    lab row before it, each field row with the lab row whose calibration it updated."""
+    by_cal = {r.get("calibration"): r for r in rows if not r.get("field")}
+    lab = None
+    for b in rows:
+        a = by_cal.get(b.get("prior_calibration")) if b.get("field") else lab
+        if not b.get("field"):
+            lab = b
+        if a is not None and a["param_names"] == b["param_names"]:
+            yield a, b
 
 
 def distributions(latest: dict[str, dict[str, Any]]) -> list[ParamDistribution]:

@@ -14,6 +14,12 @@ after its first session: its x bias jumps by ``damage_bias_g`` and its y scale b
 ``damage_scale``. The room is at 25 degC in every session (the datasheet temperature
 coefficients then do not act; a fleet at varying temperature needs a temperature model).
 
+Field runs (field_runs > 0): after its lab sessions each device records that many robot runs
+(robot_path 'parked': 30 stops of FIELD_STOP_S on slopes tilted <= 15 deg, pose labels removed, as a robot's log
+has none: DIR/<serial>/<serial>_f<j>.mcap), months_between apart; the devices in aged_devices have
+had their biases move by aged_bias_g (magnitude uniform in that range, random sign, per axis)
+since the last lab session, the others only by their slow ageing (accellog.flows.fleet_field).
+
 Files: DIR/<serial>/<serial>_s<j>.mcap, plus DIR/fleet_truth.json (the drawn parameters, ageing
 rates and the damaged device: ground truth for tests, never read by ``fleet run``).
 """
@@ -32,6 +38,8 @@ import numpy as np
 from accellog.core.errors import InputError
 
 NS_PER_S = 1_000_000_000
+FIELD_STOP_S = 8.0
+"""How long a field run's robot stands at each of its stops (s)."""
 SECONDS_PER_MONTH = 30.4375 * 86400.0
 
 
@@ -54,6 +62,9 @@ class FleetSpec:
     ageing_scale_per_month: float = 10e-6
     start_utc: str = "2026-01-05T09:00:00Z"
     temperature_degC: float = 25.0
+    field_runs: int = 0
+    aged_devices: tuple[int, ...] = ()
+    aged_bias_g: tuple[float, float] = (0.005, 0.008)
 
     def damaged_index(self) -> int | None:
         if self.damaged is None or self.n_devices == 0:
@@ -67,6 +78,10 @@ class FleetSpec:
         if self.n_devices < 1 or self.sessions_per_device < 1:
             raise InputError(
                 f"fleet of {self.n_devices} devices x {self.sessions_per_device} sessions: need >= 1"
+            )
+        if self.field_runs < 0 or any(not 0 <= k < self.n_devices for k in self.aged_devices):
+            raise InputError(
+                f"field_runs={self.field_runs} must be >= 0 and aged_devices in 0..{self.n_devices - 1}"
             )
         if self.n_devices * self.sessions_per_device > self.MAX_SESSIONS:
             raise InputError(
@@ -90,6 +105,8 @@ class SimulatedSession:
     chip_seed: int
     noise_seed: int
     overrides: dict[str, list[float]]
+    field: bool = False
+    """A robot's run without pose labels (module doc), not a lab session."""
 
 
 @dataclass
@@ -145,18 +162,25 @@ def plan_fleet(spec: FleetSpec, out_dir: str | Path) -> tuple[list[SimulatedSess
             "ageing_scale_per_month": r_s.tolist(),
             "damaged": k == damaged,
         }
-        for j in range(spec.sessions_per_device):
+        aged = (
+            rng.uniform(*spec.aged_bias_g, 3) * rng.choice([-1.0, 1.0], 3) if k in spec.aged_devices else 0.0
+        )
+        truth["devices"][serial]["field_aged_bias_g"] = np.broadcast_to(aged, 3).tolist()
+        n_lab = spec.sessions_per_device
+        for j in range(n_lab + spec.field_runs):
             months = j * spec.months_between
-            bias = base.bias_g + r_b * months
+            bias = base.bias_g + r_b * months + (aged if j >= n_lab else 0.0)
             scale = base.scale + r_s * months
             if k == damaged and j >= 1:
                 bias = bias + np.array([spec.damage_bias_g, 0.0, 0.0])
                 scale = scale + np.array([0.0, spec.damage_scale, 0.0])
+            name = f"{serial}_s{j}" if j < n_lab else f"{serial}_f{j - n_lab}"
             plan.append(
                 SimulatedSession(
                     serial=serial,
                     index=j,
-                    path=str(out / serial / f"{serial}_s{j}.mcap"),
+                    field=j >= n_lab,
+                    path=str(out / serial / f"{name}.mcap"),
                     start_time_unix_ns=t0_ns + round(months * SECONDS_PER_MONTH) * NS_PER_S,
                     months=months,
                     chip_seed=chip_seed,
@@ -172,8 +196,10 @@ def _simulate_one(spec: FleetSpec, s: SimulatedSession) -> str:
     from accellog.flows.simulate import Scenario, simulate
 
     sc = Scenario(
+        motion="robot" if s.field else "poses",
+        robot_path="parked",  # the robot's path (motion 'robot' only)
         protocol="six",
-        hold_s=spec.hold_s,
+        hold_s=FIELD_STOP_S if s.field else spec.hold_s,
         move_s=spec.move_s,
         sample_rate_hz=spec.sample_rate_hz,
         chip_seed=s.chip_seed,
@@ -183,7 +209,16 @@ def _simulate_one(spec: FleetSpec, s: SimulatedSession) -> str:
     )
     sc.validate()
     Path(s.path).parent.mkdir(parents=True, exist_ok=True)
-    simulate(sc, s.path, serial=s.serial, start_time_unix_ns=s.start_time_unix_ns)
+    if not s.field:
+        simulate(sc, s.path, serial=s.serial, start_time_unix_ns=s.start_time_unix_ns)
+        return s.path
+    from accellog.store.reader import read_session
+    from accellog.store.writer import write_session
+
+    labelled = Path(s.path).with_suffix(".labelled")
+    simulate(sc, labelled, serial=s.serial, start_time_unix_ns=s.start_time_unix_ns, force=True)
+    write_session(s.path, dataclasses.replace(read_session(labelled), poses=[]))  # a robot's log has none
+    labelled.unlink()
     return s.path
 
 

@@ -1,4 +1,6 @@
-"""The fleet table FLEET/fleet.parquet: its Arrow schema, atomic writing and validated reading.
+"""What a fleet run writes under FLEET/: the table fleet.parquet (its Arrow schema, atomic writing and
+validated reading) and the calibration files cal/<device>/<session>_<sha8>_<model>.json the rows
+point to (written by the client's writer threads, or staged by a worker and committed per batch).
 
 One row per (session, model) of a fleet run, or one error row per session that could not be
 calibrated (see accellog.flows.fleet and docs/fleet.md for the columns).
@@ -7,12 +9,17 @@ calibrated (see accellog.flows.fleet and docs/fleet.md for the columns).
 from __future__ import annotations
 
 import os
+import threading
 from pathlib import Path
 from typing import Any
 
 from accellog.core.errors import InputError
+from accellog.core.jsonio import dumps
+from accellog.flows.fleet_inputs import safe_part
+from accellog.store.atomic import AtomicOutput, LockBusy, commit_all, write_text_atomic
 
 TABLE_NAME = "fleet.parquet"
+CAL_DIR = "cal"
 
 
 def table_schema():
@@ -54,6 +61,8 @@ def table_schema():
             ("flags", pa.list_(s)),
             ("error", s),
             ("calibration", s),
+            ("field", pa.bool_()),
+            ("prior_calibration", s),
             ("task_s", f),
             ("task_cpu_s", f),
             ("worker_pid", i),
@@ -94,3 +103,57 @@ def write_table(path: str | os.PathLike, rows: list[dict[str, Any]]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def cal_name(row: dict) -> Path:
+    """OUT-relative name of a row's calibration file: cal/<device>/<session>_<sha8>_<model>.json."""
+    name = f"{safe_part(row['session_name'])}_{row['content_sha256'][:8]}_{safe_part(row['model'])}.json"
+    return Path(CAL_DIR) / safe_part(row["device"]) / name
+
+
+def store_results(out: Path, results: list[dict], path_locks: dict[Path, threading.Lock]) -> list[dict]:
+    """Write each calibration JSON under OUT/cal/<device>/ (the client's writer threads) and return
+    the rows pointing to them. path_locks: one lock per file name, shared by the writer threads: two
+    sessions whose files have one name (byte-identical copies in two folders) are written one after
+    the other, the later replacing the earlier as in a serial run, instead of the second failing on
+    the first's lock."""
+    rows = []
+    for r in results:
+        for row in r["rows"]:
+            cal = r["cals"].get(row.get("model"))
+            if cal is not None:
+                rel = cal_name(row)
+                text = cal if isinstance(cal, str) else dumps(cal) + "\n"  # str: encoded by a worker
+                with path_locks.setdefault(rel, threading.Lock()):
+                    write_text_atomic(out / rel, text, mkdir=True)
+                row["calibration"] = str(rel)
+            rows.append(row)
+    return rows
+
+
+def stage_result(out: Path, r: dict, staged: dict[Path, AtomicOutput]) -> list[dict]:
+    """A worker's storing of one session's calibrations: each file begun (locked) and written under
+    its temporary name; returns the rows pointing to them. ``commit_all(staged)`` at the end of the
+    batch makes them durable and visible together. A name another worker is writing (two copies of
+    one session) is waited for, but only after this batch's staged files are committed (their locks
+    released): a worker never waits holding a lock, so two workers cannot wait for each other."""
+    rows = []
+    for row in r["rows"]:
+        cal = r["cals"].get(row.get("model"))
+        if cal is not None:
+            rel = cal_name(row)
+            ao = AtomicOutput(out / rel, mkdir=True)
+            try:
+                if rel in staged:
+                    raise LockBusy("staged in this batch", where=str(rel))
+                tmp = ao.begin()
+            except LockBusy:
+                commit_all(list(staged.values()))
+                staged.clear()
+                ao = AtomicOutput(out / rel, mkdir=True, wait=True)
+                tmp = ao.begin()
+            staged[rel] = ao
+            tmp.write_text(dumps(cal) + "\n")
+            row["calibration"] = str(rel)
+        rows.append(row)
+    return rows

@@ -115,7 +115,8 @@ class Scenario:
     motion: str = "poses"
     """'poses' (guided static holds) or 'robot' (the default robot path; see emulator.robot)."""
     robot_path: str = "demo"
-    """'demo' (a 64 s closed loop with ramps, a banked turn and 9 stops) or 'long' (10 min)."""
+    """'demo' (a 64 s closed loop with ramps, a banked turn and 9 stops), 'long' (10 min) or 'parked'
+    (30 stops of hold_s on slopes tilted <= 15 deg, drawn from seed: emulator.robot.parked_run)."""
     magnetometer: dict[str, Any] = field(default_factory=dict)
     """Empty: no magnetometer readout. Else keys field_uT, hard_iron_uT, soft_iron, noise_uT (emulator)."""
     faults: FaultPlan = field(default_factory=FaultPlan)
@@ -260,7 +261,8 @@ def build_sensor_model(sc: Scenario):
 
     motion: Motion
     if sc.motion == "robot":
-        paths = {"demo": robot.demo_loop, "long": robot.long_run}
+        paths = {"demo": robot.demo_loop, "long": robot.long_run,
+                 "parked": functools.partial(robot.parked_run, seed=sc.seed, hold_s=sc.hold_s)}  # fmt: skip
         if sc.robot_path not in paths:
             raise InputError(f"robot_path={sc.robot_path!r}: use one of {sorted(paths)}")
         motion = paths[sc.robot_path](local_gravity_mps2=sc.local_gravity_mps2)

@@ -76,7 +76,7 @@ def devices_table(rep: Any) -> Table:
             _date(first),
             _date(last),
             status,
-            (_delta(change) + where) if change else "-",
+            (_delta(change) + where + (f"; proposed {h.proposed}" if h.proposed else "")) if change else "-",
         )
     return t
 

@@ -84,6 +84,10 @@ def log_fit(rec, outcome, label: str | None = None) -> None:
     rec.log_document(
         f"parameters/{label}", table_markdown(params_table(outcome.cal, title=f"{label}: parameters"))
     )
+    if fit.identification is not None:  # a fit from stops (a field session): its pictures too
+        from accellog.present.field_views import log_field_fit
+
+        log_field_fit(rec, outcome)
 
 
 def log_evaluations(

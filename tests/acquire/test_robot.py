@@ -5,7 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accellog.acquire.emulator.robot import RobotPathMotion, Segment, demo_loop, drive, long_run, stop, turn
+from accellog.acquire.emulator.robot import (
+    RobotPathMotion,
+    Segment,
+    demo_loop,
+    drive,
+    long_run,
+    parked_run,
+    stop,
+    turn,
+)
 from accellog.core.errors import InputError
 from accellog.core.rotations import quat_conjugate, quat_multiply, rotate
 from accellog.core.units import STANDARD_GRAVITY_MPS2
@@ -111,6 +120,22 @@ def test_long_run_lasts():
     assert m.duration_s >= 600.0
     k = m.kinematics(np.array([0.0, m.duration_s]))
     np.testing.assert_allclose(k.position_m[-1], k.position_m[0], atol=1e-8)
+
+
+def test_parked_run_stops_on_slopes_and_stands_still():
+    """parked_run: a level start, then 30 stops, each standing still (zero rate, gravity only) z-up
+    tilted 2-15 deg, the tilts differing between stops and between seeds."""
+    m = parked_run(seed=3)
+    first, *labels = m.labels()
+    assert first.up_sensor == (0.0, 0.0, 1.0) and len(labels) == 30 and 550.0 < m.duration_s < 700.0
+    tilt = np.rad2deg(np.arccos([p.up_sensor[2] for p in labels]))
+    assert tilt.min() > 1.9 and tilt.max() < 15.1 and np.ptp(tilt) > 8.0
+    t = np.concatenate([np.linspace(p.start_s, p.end_s, 5) for p in labels])
+    k = m.kinematics(t)
+    assert np.abs(k.omega_dps).max() < 1e-9 and np.abs(k.velocity_mps).max() < 1e-9
+    up = np.repeat([p.up_sensor for p in labels], 5, axis=0)
+    np.testing.assert_allclose(k.specific_force_g, up, atol=1e-9)
+    assert labels[0].up_sensor != parked_run(seed=4).labels()[1].up_sensor
 
 
 def test_bad_input():

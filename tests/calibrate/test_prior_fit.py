@@ -78,3 +78,21 @@ def test_prior_must_hold_every_parameter_of_the_model():
     m, lab, _, _ = lab_and_truth()
     with pytest.raises(ModelError, match="no value for bT_x"):
         Prior.of(m.param_names, lab.theta, lab.cov, build_model("model3+temp_bias"))
+
+
+def test_a_calibration_with_effects_added_for_a_prior(tmp_path):
+    """Calibration.with_effects: the lab's parameters and covariance kept, the added effect's at
+    their initial values with 1-sigma = its typical size, uncorrelated; nothing to add: itself."""
+    from accellog.calibrate.calfile.calibration import Calibration
+
+    _, lab, _, _ = lab_and_truth()
+    cal = Calibration.from_fit(lab)
+    ext = cal.with_effects(["temp_bias", "bias"])
+    assert ext.param_names == [*cal.param_names, "bT_x", "bT_y", "bT_z"] and ext.terms[-1] == "temp_bias"
+    np.testing.assert_array_equal(ext.theta[:12], cal.theta)
+    np.testing.assert_array_equal(ext.cov[:12, :12], cal.cov)
+    np.testing.assert_array_equal(ext.theta[12:], 0.0)
+    np.testing.assert_array_equal(ext.cov[12:, :12], 0.0)
+    np.testing.assert_allclose(ext.sigma[12:], 1.5e-3)
+    Prior.of(ext.param_names, ext.theta, ext.cov, build_model("model3+temp_bias"))  # a prior of that model
+    assert cal.with_effects(["scale"]) is cal

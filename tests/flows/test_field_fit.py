@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
 import numpy as np
+import pytest
 from calibrate.test_prior_fit import level_stops
 from support.synthetic import synthetic_session
 
@@ -83,7 +85,8 @@ def test_gyro_bias_curve_from_the_stops_of_an_emulated_robot(tmp_path, capsys):
     on its 10-minute run, labels removed, updated from a six-face lab calibration at 25 degC: the
     accelerometer-still intervals include turns in place (a yaw rate leaves the specific force
     unchanged), which are left out of the gyro bias; its temperature curve then matches the chip's
-    (the emulator's truth) within 3 sigma per coefficient, and the sigmas are honest on average."""
+    (the emulator's truth) within 2 sigma (honest sigmas leave 1 in 20 coefficients beyond: at
+    most one of the 12 may be, none beyond 3 sigma), and the sigmas are honest on average."""
     from accellog.acquire.emulator.sensor_model import GyroErrors
     from accellog.flows.simulate import Scenario, simulate
     from accellog.store.source import open_source
@@ -111,5 +114,163 @@ def test_gyro_bias_curve_from_the_stops_of_an_emulated_robot(tmp_path, capsys):
             / np.array(g["temp_bias_sigma_dps_per_degC"])
         )
     z = np.array(z)
-    assert np.all(np.abs(z) < 3.0), z.round(2)
+    assert np.all(np.abs(z) < 3.0) and np.sum(np.abs(z) >= 2.0) <= 1, z.round(2)
     assert np.sqrt(np.mean(z**2)) < 1.5, z.round(2)
+
+
+@pytest.fixture(scope="module")
+def parked(tmp_path_factory):
+    """An emulated ground robot (emulator -> driver -> recorder -> MCAP): 30 stops parked on slopes
+    tilted <= 15 deg, the die warming 20 -> 36 degC, the accelerometer biases aged 3-8 mg since a
+    six-face lab calibration at 25 degC (lab.json); the run written without its labels."""
+    from accellog.acquire.emulator.sensor_model import AccelErrors
+    from accellog.flows.simulate import Scenario, simulate
+    from accellog.store.source import open_source
+
+    tmp_path = tmp_path_factory.mktemp("parked")
+    lab = Scenario(protocol="six", hold_s=20.0, sample_rate_hz=200.0)
+    simulate(lab, tmp_path / "lab.mcap")
+    assert main(["fit", str(tmp_path / "lab.mcap"), "-o", str(tmp_path / "lab.json")]) == 0
+    chip = AccelErrors.datasheet(lab.chip_seed)
+    aged = dataclasses.replace(chip, bias_g=np.add(chip.bias_g, [0.005, -0.008, 0.003]))
+    run = Scenario(motion="robot", robot_path="parked", hold_s=8.0, sample_rate_hz=200.0, seed=5,
+                   set={"bias_g": list(aged.bias_g)},
+                   temperature={"kind": "warmup", "T_start": 20.0, "T_end": 36.0, "tau_s": 200.0})  # fmt: skip
+    simulate(run, tmp_path / "r.mcap")
+    bare = write_session(
+        tmp_path / "run.mcap", dataclasses.replace(open_source(tmp_path / "r.mcap").whole(), poses=[])
+    )
+    return tmp_path, aged, bare
+
+
+def test_parked_robot_warming_up_beats_the_lab_calibration(parked, capsys):
+    """The Done-means of field calibration on the parked robot: `fit RUN --prior LAB.json --add
+    temp_bias` (the tempco at the datasheet's +-1.5 mg/degC as its prior): the vector error over the
+    robot's attitudes and temperatures <= 0.3x the lab calibration's, every bias within 3 sigma of
+    the truth, the unidentified terms named."""
+    tmp_path, aged, bare = parked
+    capsys.readouterr()
+    args = [
+        "fit",
+        str(bare),
+        "--prior",
+        str(tmp_path / "lab.json"),
+        "--add",
+        "temp_bias",
+        "-o",
+        str(tmp_path / "f.json"),
+    ]
+    assert main([*args, "--json"]) == 0
+    cap = capsys.readouterr()
+    assert "bT_x, bT_y, bT_z not in the prior" in cap.err
+    ident = json.loads(cap.out)["identification"]
+    labc, field = load_calibration(tmp_path / "lab.json"), load_calibration(tmp_path / "f.json")
+    rng = np.random.default_rng(9)  # the robot's attitudes (z-up within 15 deg) and temperatures
+    tilt, az, temp = (
+        np.deg2rad(rng.uniform(0, 15, 400)),
+        rng.uniform(0, 2 * np.pi, 400),
+        rng.uniform(20, 36, 400),
+    )
+    ups = np.c_[np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)]
+    reading = aged.apply(ups, temp, np.zeros(400))
+
+    def vector_error_g(cal) -> float:
+        return float(np.sqrt(np.mean(np.sum((cal.correct(reading, {"temp_degC": temp}) - ups) ** 2, axis=1))))
+
+    assert vector_error_g(field) <= 0.3 * vector_error_g(labc), (vector_error_g(field), vector_error_g(labc))
+    for k, name in enumerate(("b_x", "b_y", "b_z")):
+        assert abs(field.theta[k] - aged.bias_g[k]) < 3 * field.sigma[k], (
+            name,
+            field.theta[k],
+            aged.bias_g[k],
+        )
+    assert set(ident["identified"]) == {"b_x", "b_y", "b_z", "bT_x", "bT_y", "bT_z"}
+    assert {"S_xx", "S_yy", "S_zz", "S_xz", "S_zx"} <= set(ident["not_identified"])
+    assert "S_zz not identified" in cap.err and "kept at the prior's value" in cap.err
+
+
+def test_a_fit_from_stops_draws_its_stops_residuals_and_gyro_curve(parked, tmp_path):
+    """--rrd of a field fit: the stops' gravity directions on the sphere with the van Hees caps (only
+    +z seen by a ground robot), |f| - g per stop before (the lab's) and after (smaller), the gyro
+    bias against temperature over the run's temperatures (the fitted curve)."""
+    from rrd_readback import load_rrd
+
+    lab_dir, _, bare = parked
+    rrd, out = tmp_path / "f.rrd", tmp_path / "f.json"
+    args = ["fit", str(bare), "--prior", str(lab_dir / "lab.json"), "--add", "temp_bias", "-o", str(out)]
+    assert main([*args, "--rrd", str(rrd)]) == 0
+    r = load_rrd(rrd)
+    ups = np.array(r.static("/field/sphere/stops", "Points3D:positions"))
+    assert len(ups) >= 25 and np.all(ups[:, 2] > np.cos(np.deg2rad(16))), ups[:, 2].min()
+    assert "/field/sphere/caps" in r.entities
+    caps = r.texts("/docs/field/caps", "TextDocument:text")[0][1]
+    assert "caps seen: +z; not seen: +x, -x, +y, -y, -z" in caps
+    assert "/charts/field/norm_residual/bars" in r.entities
+    doc = r.texts("/docs/field/norm_residual", "TextDocument:text")[0][1]
+    before, after = map(float, re.findall(r"RMS before \(prior\) ([\d.]+) mg, after ([\d.]+) mg", doc)[0])
+    assert after < 0.5 * before, doc.splitlines()[0]
+    t, b = r.series("/field/gyro_bias/curve", timeline="temperature_mdegC")
+    g = load_calibration(out).gyro
+    assert 19_000 < t[0] < 22_000 and 34_000 < t[-1] < 37_000
+    np.testing.assert_allclose(b, g.bias_at(t / 1000.0), atol=1e-9)
+    names = {v["name"] for v in r.views()}
+    assert "stops: gravity directions and van Hees caps" in names
+
+
+def test_a_warm_up_with_a_prior_without_temperature_terms_is_warned(parked, tmp_path, capsys):
+    """Without --add temp_bias the one-temperature lab prior fits one bias to the whole warm-up:
+    said (the fix named), in the notes and the fit's warnings."""
+    lab_dir, _, bare = parked
+    args = ["fit", str(bare), "--prior", str(lab_dir / "lab.json"), "-o", str(tmp_path / "f.json"), "--json"]
+    assert main(args) == 0
+    cap = capsys.readouterr()
+    assert "has no temperature term" in cap.err and "--add temp_bias" in cap.err
+    assert any("has no temperature term" in w for w in json.loads(cap.out)["warnings"])
+
+
+def test_a_fleet_field_session_warming_up_gets_the_tempco_added(parked):
+    """fleet_field.field_result on the parked robot's warm-up with the one-temperature lab
+    calibration: temp_bias added to the prior (flagged), the row in the lab's parameters (what the
+    report compares), the biases within 3 sigma of the aged truth, the tempco in the calibration."""
+    from accellog.flows.fleet_field import field_result
+    from accellog.store.reader import read_session
+
+    lab_dir, aged, bare = parked
+    lab = load_calibration(lab_dir / "lab.json")
+    priors = {"EMU-7": {"calibration": "cal/lab.json", "text": (lab_dir / "lab.json").read_text()}}
+    r = field_result(read_session(bare), {"device": "EMU-7", "session": str(bare)}, priors)
+    (row,) = r["rows"]
+    assert row["error"] == "" and row["param_names"] == lab.param_names and row["model"] == lab.model.name
+    assert any("temp_bias added to the prior" in f for f in row["flags"])
+    b, s = np.array(row["values"][:3]), np.array(row["sigmas"][:3])
+    assert np.all(np.abs(b - aged.bias_g) < 3 * s), (b, aged.bias_g, s)
+    names = [p["name"] for p in r["cals"][row["model"]]["params"]]
+    assert names[-3:] == ["bT_x", "bT_y", "bT_z"]
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="run_fit's field path (stages._field_fit) observes labelled sessions with trim_s=0.5 fixed and "
+    "does not forward --trim-s: a robot's labelled 1-1.5 s stops refuse the whole run",
+)
+def test_a_labelled_robot_run_with_short_stops_updates_the_prior(parked, tmp_path, capsys):
+    """The emulated demo loop (9 stops, 0.5-3.5 s labelled) with its labels, given --prior and a
+    short --trim-s and --window-s: its stops update the lab calibration (today: 'has 0 samples after trimming
+    0.5 s at each end')."""
+    from accellog.flows.simulate import Scenario, simulate
+
+    lab_dir, _, _ = parked
+    simulate(
+        Scenario(motion="robot", robot_path="demo", sample_rate_hz=200.0, seed=3), tmp_path / "demo.mcap"
+    )
+    args = [
+        "fit",
+        str(tmp_path / "demo.mcap"),
+        "--prior",
+        str(lab_dir / "lab.json"),
+        "--trim-s",
+        "0.1",
+        "--window-s",
+        "0.5",
+    ]
+    assert main([*args, "-o", str(tmp_path / "f.json")]) == 0, capsys.readouterr().err

@@ -156,7 +156,7 @@ def test_two_workers_storing_two_names_in_opposite_orders_both_finish(tmp_path):
     commits what it holds before it waits, so neither waits for the other for ever."""
     import threading
 
-    from accellog.flows.fleet import _stage_result
+    from accellog.flows.fleet_table import stage_result
     from accellog.store.atomic import commit_all
 
     def result(name: str) -> dict:
@@ -168,9 +168,9 @@ def test_two_workers_storing_two_names_in_opposite_orders_both_finish(tmp_path):
 
     def worker(order: tuple[str, str]) -> None:
         staged: dict = {}
-        rows = _stage_result(tmp_path, result(order[0]), staged)
+        rows = stage_result(tmp_path, result(order[0]), staged)
         both_hold_one.wait()
-        rows += _stage_result(tmp_path, result(order[1]), staged)
+        rows += stage_result(tmp_path, result(order[1]), staged)
         commit_all(list(staged.values()))
         done.append([r["calibration"] for r in rows])
 

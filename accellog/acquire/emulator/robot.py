@@ -351,3 +351,30 @@ def long_run(duration_s: float = 600.0, **kw) -> RobotPathMotion:
             yaw = None if s.yaw_deg is None else s.yaw_deg + 360.0 * i
             segs.append(Segment(s.duration_s, s.speed_mps, yaw, s.grade_deg, s.roll_deg, s.kind))
     return RobotPathMotion(segs, **kw)
+
+
+def parked_run_segments(
+    n_stops: int = 30, max_tilt_deg: float = 15.0, hold_s: float = 8.0, seed: int = 0
+) -> list[Segment]:
+    """A ground robot's run that parks on slopes: after 4 s standing level, n_stops times drive onto a slope (grade
+    g = t cos a, roll r = t sin a, tilt t uniform in [2, max_tilt_deg] deg, azimuth a uniform;
+    the tilt changes while moving, as on a ramp), stand hold_s, drive back onto level ground and
+    turn in place to a new heading. The stops' gravity directions are all z-up within max_tilt_deg
+    (where a ground robot lives)."""
+    rng = np.random.default_rng([int(seed), 0x9A4C])
+    tilt = rng.uniform(2.0, max_tilt_deg, n_stops)
+    az = rng.uniform(0.0, 2 * np.pi, n_stops)
+    yaw = np.cumsum(rng.uniform(30.0, 150.0, n_stops) * rng.choice([-1.0, 1.0], n_stops))
+    segs: list[Segment] = [stop(4.0)]
+    for t, a, y in zip(tilt, az, yaw, strict=True):
+        onto = Segment(2.0, grade_deg=t * np.cos(a), roll_deg=t * np.sin(a))
+        segs += [Segment(1.5, speed_mps=1.0), onto, Segment(1.5, speed_mps=0.0), stop(hold_s)]
+        segs += [Segment(1.5, speed_mps=1.0), Segment(2.0, grade_deg=0.0, roll_deg=0.0)]
+        segs += [Segment(1.5, speed_mps=0.0), turn(float(y), 2.5)]
+    return segs
+
+
+def parked_run(seed: int = 0, hold_s: float = 8.0, **kw) -> RobotPathMotion:
+    """parked_run_segments(seed=seed, hold_s=hold_s) as a RobotPathMotion (kw go to the motion):
+    about 10 min with 8 s stops."""
+    return RobotPathMotion(parked_run_segments(seed=seed, hold_s=hold_s), **kw)

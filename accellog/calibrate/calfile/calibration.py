@@ -30,8 +30,8 @@ import datetime as _dt
 import functools
 import hashlib
 import os
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -184,6 +184,21 @@ class Calibration(JsonResult):
         if self.stored_S_b is not None and self.needs_user_code:
             return self.stored_S_b
         return self.model.S_b(self.theta)
+
+    def with_effects(self, add: Sequence[str]) -> Calibration:
+        """This calibration with more effects, as the prior of a fit that adds them (`fit RUN --prior
+        LAB.json --add temp_bias`: a lab calibration at one temperature updated by a warm-up's
+        stops): the added parameters at their initial values (0; S_ii 1) with 1-sigma = the effect's
+        typical size (temp_bias: 1.5 mg/degC, the datasheet tempco), uncorrelated; the rest as here."""
+        m = self.model.with_terms(add)
+        if m.term_names == self.model.term_names:
+            return self
+        theta, cov = m.initial_theta(), np.diag(m.param_typical**2)
+        old = [m.index[n] for n in self.param_names]
+        theta[old] = self.theta
+        cov[np.ix_(old, old)] = self.cov
+        return replace(self, model_spec=m.to_spec(), param_names=list(m.param_names),
+                       param_units=list(m.param_units), theta=theta, cov=cov, stored_S_b=None)  # fmt: skip
 
     @property
     def needs_user_code(self) -> bool:

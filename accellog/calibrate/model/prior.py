@@ -27,6 +27,12 @@ AGING: dict[str, float] = {"bias": 0.01, "scale": 2e-3, "cross_axis": 5e-4, "mis
 prior was fitted, added in quadrature to its covariance; effects not named here: 0 (the prior's own
 sigma). A bias ages by milli-g over months; the sensitivity and the axes far less."""
 
+UNTEMPERED_SPAN_DEGC = 2.0
+"""Stops spanning this many degC need a temperature term: a prior without one fits one bias to every
+temperature (on the emulated robot warming 20 -> 36 degC such an update, b_z moved 20 prior sigmas
+and the scales by 10 %, was worse than the lab calibration alone; with temp_bias added at its
+typical size 0.015x its vector error)."""
+
 PRIOR_ABOVE = 0.8
 """var_post / var_prior above this: the prior determined the parameter."""
 DATA_BELOW = 0.2

@@ -159,6 +159,8 @@ def _chart_views(roles: Mapping[str, list[str]], scatter: bool = True) -> list:
         charts.append(rrb.Vertical(*views, name=f"residual vs {title}"))
     for model in sorted({e.split("/")[1] for e in roles.get("residual_bar", [])}):
         charts.append(residual_bars_view(model))
+    if "field3d" in roles:  # a fit from stops (present.field_views)
+        charts.append(_field_views(roles))
     if "ladder_bar" in roles:
         charts.append(ladder_bars_view())
     if "ladder_step" in roles:
@@ -168,6 +170,24 @@ def _chart_views(roles: Mapping[str, list[str]], scatter: bool = True) -> list:
         ]
         charts.append(_group([steps, *driver]))
     return charts
+
+
+def _field_views(roles: Mapping[str, list[str]]):
+    """A fit from stops: the stops on the sphere, |f| - g per stop before/after, the gyro bias against
+    temperature (its own timeline, present.field_views.GYRO_TEMP_TIMELINE)."""
+    import rerun.blueprint as rrb
+
+    views = [
+        rrb.Spatial3DView(origin="/field/sphere", name="stops: gravity directions and van Hees caps"),
+        rrb.Spatial2DView(
+            origin=f"/{CHARTS}/field/norm_residual", name="|f| - g per stop (mg): before, after"
+        ),
+    ]
+    if "field_gyro" in roles:
+        views.append(
+            rrb.TimeSeriesView(origin="/field/gyro_bias", name="gyro bias (deg/s) vs temperature_mdegC")
+        )
+    return rrb.Vertical(*views, name="stops")
 
 
 def residual_bars_view(model: str, name: str | None = None):

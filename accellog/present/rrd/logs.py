@@ -102,6 +102,22 @@ class PipelineLogs:
             columns=rr.TextLog.columns(text=texts, level=["INFO"] * len(texts)),
         )
 
+    def log_curve(self, entity: str, timeline: str, x: np.ndarray, values: np.ndarray, names: Sequence[str],
+                  role: str) -> None:  # fmt: skip
+        """Lines values (n, k) against a sequence timeline of integers x (n,) (e.g. a temperature in
+        mdegC: a plot whose x axis is not time; the view shows it with that timeline selected)."""
+        self._guarded(
+            self._log_curve, entity, timeline, np.asarray(x), np.asarray(values, float), list(names), role
+        )
+
+    def _log_curve(self, entity, timeline, x, values, names, role) -> None:
+        import rerun as rr
+
+        self._entities[entity] = role
+        self.rec.log(entity, rr.SeriesLines(names=names), static=True)
+        self.rec.send_columns(entity, indexes=[rr.TimeColumn(timeline, sequence=x.astype(np.int64))],
+                              columns=rr.Scalars.columns(scalars=values.reshape(len(x), -1)))  # fmt: skip
+
     def log_events(self, events: Iterable[Event]) -> None:
         """Every event as a TextLog line (level by kind) + lost samples as points on sensor_time."""
         self._guarded(self._log_events, list(events))

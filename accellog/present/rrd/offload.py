@@ -186,6 +186,7 @@ class OffloadedRecording(SeriesLogs):
     log_poses = _forward("log_poses")
     log_events = _forward("log_events")
     log_residuals = _forward("log_residuals")
+    log_curve = _forward("log_curve")
     log_document = _forward("log_document")
     log_ladder = _forward("log_ladder")
 
