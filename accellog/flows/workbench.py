@@ -206,6 +206,21 @@ def discover(
     return found
 
 
+def _step_choice(out: Discovery, d, obs, held, parts, strategy, max_steps: int):
+    """The step's choice (None past max_steps); when no single effect helps, two that only together
+    do (Strategy.choose_pair), the single step's candidates then noted as rejected on the trail."""
+    from accellog.flows import workbench_trail as trail
+
+    ch = d.choice if len(out.added) < max_steps else None
+    trail.note_start(out, ch)
+    if ch is not None and ch.chosen is None and len(out.added) + 2 <= max_steps:
+        pair = strategy.choose_pair(d, obs, held, parts)
+        if pair is not None:
+            trail.note_rejected(out, ch)
+            ch = pair
+    return ch
+
+
 def small_problem_threads():
     """Single-threaded BLAS for the workbench's many small (~1000 x 20) least-squares problems:
     threads only add overhead there, and oversubscribe a loaded machine (10x slower at load 12)."""
@@ -232,13 +247,7 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
         out.diagnoses.append(d)
         if on_step is not None:
             on_step(d)
-        ch = d.choice if len(out.added) < max_steps else None
-        trail.note_start(out, ch)
-        if ch is not None and ch.chosen is None and len(out.added) + 2 <= max_steps:
-            pair = strategy.choose_pair(d, obs, held, parts)  # two effects that only together help
-            if pair is not None:
-                trail.note_rejected(out, ch)
-                ch = pair
+        ch = _step_choice(out, d, obs, held, parts, strategy, max_steps)
         if ch is not None:
             out.choices.append(ch)
         new = [] if ch is None or ch.chosen is None else ch.chosen.split("+")

@@ -148,12 +148,7 @@ def choose_effect(
     se_min = sc[min(eligible, key=score)].se
     # parsimony among the equally good: the lowest dBIC (fewest parameters for the same fit) wins
     tied_best = [n for n in eligible if score(n) <= s_min + Z_TIE * se_min]
-    lib = all_effects(model.effects_file)
-
-    def skips_an_order(n: str) -> bool:  # temp_bias2 before temp_bias: the lower order first
-        return any(e not in model.term_names for e in getattr(lib.get(n), "extends", ()))
-
-    best = min(tied_best, key=lambda n: (skips_an_order(n), rows[n].get("delta_bic", np.inf)))
+    best = min(tied_best, key=lambda n: (skips_an_order(n, model), rows[n].get("delta_bic", np.inf)))
     ranked = [best, *sorted((n for n in eligible if n != best), key=score)]
     s_best = sc[best]
     what = {"heldout": "held-out", "leave-one-session-out": "leave-one-session-out"}.get(
@@ -187,6 +182,12 @@ def choose_effect(
     if undecided:
         reason += f"; cannot tell it from {', '.join(undecided)} on this data"
     return StepChoice(model.name, evidence, base_score, sc, best, reason, undecided, collinear)
+
+
+def skips_an_order(effect: str, model) -> bool:
+    """The effect extends a lower-order one the model lacks (temp_bias2 without temp_bias)."""
+    lib = all_effects(model.effects_file)
+    return any(e not in model.term_names for e in getattr(lib.get(effect), "extends", ()))
 
 
 def choose_pair(
