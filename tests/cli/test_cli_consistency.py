@@ -90,3 +90,22 @@ def test_usage_lines_name_arguments_in_capitals():
             assert "{" not in usage and not re.search(r"\b[a-z_]+\.\.\.", usage), (name, usage)
             args = [p for p in sub.params if p.param_type_name == "argument"]
             assert all(p.metavar and p.metavar[0].isupper() for p in args), (name, usage)
+
+
+def test_swapped_arguments_name_the_file_kind(session, tmp_path, capsys):
+    cal = tmp_path / "cal.json"
+    assert _run(["fit", session, "-o", cal], capsys)[0] == 0
+    blob = tmp_path / "blob.bin"
+    blob.write_bytes(bytes(range(128, 256)))
+    cases = [
+        (["evaluate", cal, "--cal", session], session, "this is an MCAP file (a session or a ROS 2 bag), not a calibration file"),
+        (["export", session, "--to", "ros", "-o", tmp_path / "r.yaml"], session, "this is an MCAP file"),
+        (["fit", cal, "-o", tmp_path / "x.json"], cal, "this is an accellog calibration (written by `accellog fit -o`), not a session"),
+        (["diagnose", cal], cal, "this is an accellog calibration"),
+        (["evaluate", session, "--cal", blob], blob, "not UTF-8 text, so not a calibration file"),
+    ]  # fmt: skip
+    for argv, named, says in cases:
+        rc, _, err = _run(argv, capsys)
+        assert rc == 2 and err.count("\n") == 1, (argv, err)
+        assert err.startswith(f"accellog: error: {named}: ") and says in err, (argv, err)
+        assert "Decode" not in err

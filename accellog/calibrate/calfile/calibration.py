@@ -353,6 +353,9 @@ def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = 
                 "fit one with `accellog fit`",
                 where=where,
             )
+        other = textin.json_kind(d)
+        if other is not None:
+            raise InputError(f"this is {other}, not a calibration: are the arguments swapped?", where=where)
         keys = ", ".join(sorted(d)[:6])
         raise InputError(
             f"not an accellog calibration file (no format '{FORMAT}'; keys: {keys})", where=where
