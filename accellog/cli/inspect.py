@@ -175,7 +175,8 @@ def view(
         extra.append(rbl)
     if web:
         with viewer.serve_rrd(recording, extra=extra) as v:
-            _console.print(f"web viewer: {v.url}  (Ctrl-C to stop)")
+            # one line whatever the terminal's width: a URL cut by a line break cannot be clicked or copied
+            print(f"web viewer: {v.url}  (Ctrl-C to stop)", flush=True)
             try:
                 while v.proc.poll() is None:
                     time.sleep(0.5)

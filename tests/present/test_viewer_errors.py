@@ -51,3 +51,37 @@ def test_a_closed_devtools_connection_is_one_input_error_line() -> None:
     assert "closed the DevTools connection" in text and "Page.captureScreenshot" in text and "\n" not in text
     with pytest.raises(InputError, match="closed the DevTools connection"):
         ch.navigate("about:blank", load_timeout_s=0.5)
+
+
+def test_view_web_prints_the_url_on_one_line_in_a_narrow_terminal(tmp_path: Path) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    rrd = tmp_path / "tiny.rrd"
+    with RunRecording(f"save:{rrd}") as rec:
+        rec.log_samples("raw", np.arange(10.0), None, np.zeros((10, 3)), "g")
+    env = dict(os.environ, COLUMNS="40", RERUN_ANALYTICS="0")
+    code = "import sys; from accellog.cli import main; sys.exit(main())"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "view", "--web", str(rrd)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        start_new_session=True,
+    )
+    try:
+        line = proc.stdout.readline() if proc.stdout else ""
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(60)
+        if proc.stdout:
+            proc.stdout.close()
+        if proc.stderr:
+            proc.stderr.close()
+    assert line.startswith("web viewer: http://127.0.0.1:") and line.rstrip().endswith("(Ctrl-C to stop)"), (
+        line
+    )
+    assert "proxy" in line
