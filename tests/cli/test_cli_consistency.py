@@ -109,3 +109,36 @@ def test_swapped_arguments_name_the_file_kind(session, tmp_path, capsys):
         assert rc == 2 and err.count("\n") == 1, (argv, err)
         assert err.startswith(f"accellog: error: {named}: ") and says in err, (argv, err)
         assert "Decode" not in err
+
+
+def _leaves(group, ctx):
+    for name in group.list_commands(ctx):
+        cmd = group.get_command(ctx, name)
+        subs = getattr(cmd, "commands", None)
+        if subs is None:
+            yield [name], cmd
+        else:
+            yield from (([name, s], c) for s, c in subs.items())
+
+
+def test_every_commands_help_has_an_example_that_uses_its_own_options():
+    """Each command's help shows at least one `accellog ...` line (as the README says), and every
+    flag of an example is one that command has (an example cannot outlive a renamed option)."""
+    import shlex
+
+    group = command_group()
+    ctx = _click.Context(group, info_name="accellog")
+    for path, cmd in _leaves(group, ctx):
+        text = " ".join((cmd.help or "").split())
+        uses = [
+            u
+            for span in re.findall(r"`(accellog [^`]+)`", text)
+            for u in re.split(r";|>|&&", span)
+            if u.strip().startswith("accellog ")
+        ]
+        mine = [u for u in uses if shlex.split(u)[1 : 1 + len(path)] == path]
+        assert mine, f"accellog {' '.join(path)}: no example in its help"
+        opts = {o for p in cmd.params for o in (*p.opts, *p.secondary_opts)}
+        for use in mine:
+            flags = [w.split("=")[0] for w in shlex.split(use) if w.startswith("-")]
+            assert set(flags) <= opts, (path, use, set(flags) - opts)
