@@ -85,3 +85,18 @@ def test_view_web_prints_the_url_on_one_line_in_a_narrow_terminal(tmp_path: Path
         line
     )
     assert "proxy" in line
+
+
+def test_a_failed_screenshot_says_whether_the_page_stayed_blank_or_kept_changing() -> None:
+    blank = [(t, viewer.PixelStats(colors=200, non_background=0.02, std=1.0)) for t in (10.0, 30.0, 50.0)]
+    said = viewer._why_not_drawn(blank)
+    assert (
+        said.startswith("it stayed blank, 200 colours and 2% drawn, over its last 40 s")
+        and "--wait-s" not in said
+    )
+    drawing = [
+        (t, viewer.PixelStats(colors=c, non_background=0.3, std=9.0))
+        for t, c in ((1.0, 300), (2.0, 900), (3.0, 1500))
+    ]
+    assert "still changing" in viewer._why_not_drawn(drawing) and "--wait-s" in viewer._why_not_drawn(drawing)
+    assert "still changing" in viewer._why_not_drawn(blank[:2])  # too few captures to tell
