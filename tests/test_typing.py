@@ -75,6 +75,43 @@ def test_readme_snippet_sees_real_types(tmp_path: Path) -> None:
     ], out
 
 
+def _readme_install() -> list[str]:
+    """The README's install command (its first line), as arguments after `pip`."""
+    first = (ROOT / "README.md").read_text(encoding="utf-8").split("```bash\n", 1)[1].splitlines()[0]
+    command = first.split("#", 1)[0].split()
+    assert command[:3] == ["pip", "install", "-e"], first
+    return command[1:]
+
+
+@pytest.mark.slow  # a virtual environment and an editable install: ~20 s
+def test_readme_install_lets_mypy_see_the_types(tmp_path: Path) -> None:
+    """After the README's install line (an editable install) a user's mypy finds accellog without
+    any path given: setuptools' default editable finder is an import hook mypy cannot follow."""
+    import shutil
+    import venv
+
+    src = tmp_path / "src"  # a copy of the checkout: the install writes build files beside it
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".git", "tests", "*.egg-info", "__pycache__"))
+    env_dir = tmp_path / "env"
+    venv.create(env_dir, system_site_packages=True, with_pip=True)  # mypy and the dependencies: the suite's
+    py = env_dir / "bin" / "python"
+    args = [a if a != "." else str(src) for a in _readme_install()]
+    subprocess.run([str(py), "-m", "pip", "-q", *args, "--no-deps"], check=True, cwd=tmp_path, timeout=600)
+    script = tmp_path / "user" / "notebook.py"
+    script.parent.mkdir()
+    script.write_text(_readme_snippet() + "reveal_type(fit)\n", encoding="utf-8")
+    run = subprocess.run(
+        [str(py), "-m", "mypy", "--no-error-summary", "--cache-dir", str(tmp_path / "cache"), str(script)],
+        cwd=script.parent,
+        env={k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "MYPYPATH")},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert ": error:" not in run.stdout, run.stdout
+    assert 'Revealed type is "accellog.calibrate.model.fit.FitResult"' in run.stdout, run.stdout
+
+
 @pytest.mark.slow  # mypy over the whole package: ~35 s
 @pytest.mark.xfail(
     strict=True,

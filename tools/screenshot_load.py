@@ -1,10 +1,11 @@
 """Screenshots of the demo's tabs on a loaded machine: how many succeed, how long each takes.
 
-    python tools/screenshot_load.py [--rrd demo.rrd] [--shots 10] [--busy 2] [--wait-s 90]
+    python tools/screenshot_load.py [--rrd demo.rrd] [--shots 10] [--busy 2] [--wait-s 90] [--tab NAME ...]
 
 Starts --busy CPU-bound loops (python -c 'while 1: pass'; ended when done), then takes --shots
 screenshots through the CLI as a user would (`accellog view RRD --screenshot PNG --tab TAB
---wait-s W`), cycling through the tabs, one after the other. For each: exit code, wall time, the
+--wait-s W`), cycling through the tabs (the demo's four, or each --tab given; '-' for the recording's
+own first view), one after the other. For each: exit code, wall time, the
 1-minute load average at its start, and whether a failed run left a PNG behind (it must not).
 Without --rrd the demo's recording is made first (`accellog demo --quick`).
 """
@@ -28,7 +29,9 @@ def main() -> int:
     ap.add_argument("--shots", type=int, default=10)
     ap.add_argument("--busy", type=int, default=2, help="CPU-bound loops running meanwhile")
     ap.add_argument("--wait-s", type=float, default=90.0, help="view --wait-s")
+    ap.add_argument("--tab", action="append", help="a tab to screenshot (repeatable; '-': none given)")
     a = ap.parse_args()
+    tabs = tuple(a.tab) if a.tab else TABS
     cli = [sys.executable, "-m", "accellog"]
     with tempfile.TemporaryDirectory(prefix="accellog-shots-") as d:
         rrd = a.rrd
@@ -43,7 +46,7 @@ def main() -> int:
         ok = 0
         try:
             for k in range(a.shots):
-                tab, png = TABS[k % len(TABS)], Path(d) / f"shot{k}.png"
+                tab, png = tabs[k % len(tabs)], Path(d) / f"shot{k}.png"
                 load = os.getloadavg()[0]
                 t0 = time.monotonic()
                 p = subprocess.run(
@@ -53,8 +56,7 @@ def main() -> int:
                         str(rrd),
                         "--screenshot",
                         str(png),
-                        "--tab",
-                        tab,
+                        *(["--tab", tab] if tab != "-" else []),
                         "--wait-s",
                         f"{a.wait_s:g}",
                     ],
@@ -65,7 +67,7 @@ def main() -> int:
                 ok += p.returncode == 0
                 left = "" if p.returncode == 0 else f"  PNG left: {png.exists()}  {p.stderr.strip()[-160:]}"
                 print(
-                    f"{k + 1:2d} {tab:22s} exit {p.returncode}  {wall:6.1f} s  load {load:5.2f}{left}",
+                    f"{k + 1:2d} {tab[:22]:22s} exit {p.returncode}  {wall:6.1f} s  load {load:5.2f}{left}",
                     flush=True,
                 )
         finally:

@@ -77,7 +77,11 @@ def segment(
     json_out: JsonOpt = False,
     force: ForceOpt = False,
 ) -> None:
-    """Per-pose statistics (mean, std, autocorrelation-aware sem) and windowed observations."""
+    """Per-pose statistics (mean, std, autocorrelation-aware sem) and windowed observations.
+
+    Example: `accellog segment cal.mcap --window-s 2 -o obs.json`, then `accellog fit obs.json -o
+    cal.json`.
+    """
     from accellog.calibrate.calfile.calibration import write_json_atomic
     from accellog.flows.stages import run_segment
     from accellog.present import tables as report
@@ -298,7 +302,10 @@ def drift(
     effects_file: EffectsOpt = None,
     force: ForceOpt = False,
 ) -> None:
-    """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data."""
+    """Fit the displacement-drift polynomial d' = d + 1/2 q2 t^2 + q1 t + q0 on calibrated static data.
+
+    Example: `accellog drift static.mcap --cal cal.json -o cal_drift.json`.
+    """
     from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.flows.stages import load_input, run_drift
     from accellog.present import tables as report
@@ -388,7 +395,11 @@ def run(
     rrd: RrdOpt = None,
     effects_file: EffectsOpt = None,
 ) -> None:
-    """Run a pipeline file (segment -> fit -> evaluate -> drift -> report)."""
+    """Run a pipeline file (segment -> fit -> evaluate -> drift -> report).
+
+    Example: `accellog run pipelines/six_position.toml cal.mcap static.mcap static.mcap static2.mcap
+    -o out` (the sessions in the order of the pipeline's inputs).
+    """
     from accellog.flows.pipeline import run_pipeline
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
@@ -422,7 +433,10 @@ def integrate(
     force: ForceOpt = False,
 ) -> None:
     """Integrate a static session twice over its recorded (uneven) timestamps, gravity removed with
-    local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid."""
+    local gravity: a = f * g_local - up * g_local (m/s^2); v, d by cumulative trapezoid.
+
+    Example: `accellog integrate static.mcap --cal cal.json -o disp.csv`.
+    """
     from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.flows.stages import run_integrate
     from accellog.present import tables as report

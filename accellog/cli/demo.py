@@ -18,7 +18,11 @@ def demo(
     quick: Annotated[bool, typer.Option(help="Shorter holds (faster, noisier).")] = False,
 ) -> None:
     """Simulate calibration, static and moving sessions on the emulated MPU-9250; fit Models 1-3,
-    print the seed's tables, find a hidden effect with the workbench, track a moving robot."""
+    print the seed's tables, find a hidden effect with the workbench, track a moving robot.
+
+    Example: `accellog demo --quick -o demo-out` (shorter holds), then `accellog view
+    demo-out/demo.rrd`.
+    """
     from accellog.cli.progress import StepBar
     from accellog.flows.demo import run_demo
 

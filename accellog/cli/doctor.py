@@ -22,7 +22,10 @@ def doctor_cmd(
     ] = None,
     strict: Annotated[bool, typer.Option("--strict", help="Exit 1 when any defect is found.")] = False,
 ) -> None:
-    """Check a log before calibrating with it."""
+    """Check a log before calibrating with it.
+
+    Example: `accellog doctor logger.csv --strict` (exit 1 on a defect).
+    """
     from accellog.flows.doctor import examine, open_any
     from accellog.present import doctor_view
 

@@ -45,7 +45,10 @@ def run(
     ] = None,
     json_out: JsonOpt = False,
 ) -> None:
-    """Run the pipeline on every session as independent tasks; update FLEET/fleet.parquet."""
+    """Run the pipeline on every session as independent tasks; update FLEET/fleet.parquet.
+
+    Example: `accellog fleet run pipelines/fleet.toml 'sessions/**/*.mcap' -o fleet --workers 2`.
+    """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from accellog.flows.fleet import run_fleet
@@ -87,7 +90,10 @@ def report(
     ] = None,
     json_out: JsonOpt = False,
 ) -> None:
-    """Per-device history, 'recalibrate' flags and fleet distributions vs the datasheet."""
+    """Per-device history, 'recalibrate' flags and fleet distributions vs the datasheet.
+
+    Example: `accellog fleet report fleet --k-sigma 3`.
+    """
     from accellog.flows.fleet_report import fleet_report
     from accellog.present import fleet_tables
 

@@ -135,7 +135,10 @@ def import_capstone_cmd(
     compression: CompressionOpt = "zstd",
     force: ForceOpt = False,
 ) -> None:
-    """Capstone static test file (t in s; x, y, z in g) -> MCAP with one '+z' hold; counts at 16384 LSB/g."""
+    """Capstone static test file (t in s; x, y, z in g) -> MCAP with one '+z' hold; counts at 16384 LSB/g.
+
+    Example: `accellog import capstone six_position_test_data.csv -o static.mcap`.
+    """
     from accellog.store.importers import import_capstone
 
     _check_out(out, file, compression, force)
@@ -161,7 +164,10 @@ def import_imucal_cmd(
     compression: CompressionOpt = "zstd",
     force: ForceOpt = False,
 ) -> None:
-    """imucal Ferraris recording -> MCAP (x_p..z_a -> poses +x..-z; x_rot.. -> motion_segment events)."""
+    """imucal Ferraris recording -> MCAP (x_p..z_a -> poses +x..-z; x_rot.. -> motion_segment events).
+
+    Example: `accellog import imucal example_ferraris_session.csv -o ferraris.mcap`.
+    """
     from accellog.store.importers import import_imucal
 
     _check_out(out, file, compression, force)
@@ -228,6 +234,10 @@ def import_csv_cmd(
     `--unit counts --lsb-per-g 16384 --count-offset 32768 --gyro-unit counts --gyro-lsb-per-dps 131`;
     no time column `--rate 100` (or a '# rate: 100 Hz' line above the header); a table protocol
     without a pose column `--detect-holds` (read in memory, as `import ros2 --detect-holds`).
+
+    Example: `accellog import csv examples/handheld.csv -o hand.mcap`; a serial log with glitched
+    rows and a +-8 g range printed as +-2 g: `accellog import csv log.csv --bad-rows skip --accel-scale
+    4 -o s.mcap`.
     """
     from accellog.cli.progress import progress_bar, wanted
     from accellog.store.importers.csv import CsvOptions, import_csv_to_mcap

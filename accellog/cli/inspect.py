@@ -79,7 +79,10 @@ def replay(
     effects_file: EffectsOpt = None,
 ) -> None:
     """Feed a session through online correction + integration in sensor time, logging raw and
-    calibrated accel and displacement tracks to a live viewer or an .rrd."""
+    calibrated accel and displacement tracks to a live viewer or an .rrd.
+
+    Example: `accellog replay robot.mcap --cal cal.json --rrd replay.rrd`.
+    """
     from accellog.flows.inspect import run_replay, sink_option
     from accellog.flows.replay import parse_speed
 
@@ -113,7 +116,10 @@ def compare(
     effects_file: EffectsOpt = None,
 ) -> None:
     """Displacement tracks of several calibrations of one test session side by side, with their
-    final drift (terminal table, --json, and a document in the .rrd)."""
+    final drift (terminal table, --json, and a document in the .rrd).
+
+    Example: `accellog compare robot.mcap --cal model2.json --cal model3.json --rrd compare.rrd`.
+    """
     from accellog.flows.inspect import run_replay, sink_option
 
     if not cal:
@@ -149,7 +155,11 @@ def view(
         str | None, typer.Option("--tab", help="Show this blueprint tab (its name, e.g. '3 workbench').")
     ] = None,
 ) -> None:
-    """Open an .rrd: native viewer (default), web viewer on 127.0.0.1 (--web), or a PNG (--screenshot)."""
+    """Open an .rrd: native viewer (default), web viewer on 127.0.0.1 (--web), or a PNG (--screenshot).
+
+    Examples: `accellog view demo.rrd --tab '3 workbench'`; `accellog view demo.rrd --web`; `accellog
+    view demo.rrd --screenshot wb.png --tab '3 workbench'`.
+    """
     import tempfile
 
     from accellog.present import viewer
@@ -175,7 +185,8 @@ def view(
         extra.append(rbl)
     if web:
         with viewer.serve_rrd(recording, extra=extra) as v:
-            _console.print(f"web viewer: {v.url}  (Ctrl-C to stop)")
+            # one line whatever the terminal's width: a URL cut by a line break cannot be clicked or copied
+            print(f"web viewer: {v.url}  (Ctrl-C to stop)", flush=True)
             try:
                 while v.proc.poll() is None:
                     time.sleep(0.5)

@@ -36,7 +36,10 @@ def magcal_cmd(
     force: ForceOpt = False,
 ) -> None:
     """Ellipsoid fit of the magnetometer: hard iron h and soft iron A with 1-sigma, field strength vs the
-    expected local field, residual vs noise, and the residual's trends against time, temperature and rate."""
+    expected local field, residual vs noise, and the residual's trends against time, temperature and rate.
+
+    Example: `accellog magcal examples/mag_session.mcap --field-uT 48 --cal cal.json -o cal_mag.json`.
+    """
     from accellog.flows.magcal import run_magcal
 
     if (cal is None) != (out is None):

@@ -29,7 +29,10 @@ def track_cmd(
     effects_file: EffectsOpt = None,
 ) -> None:
     """Integrate the session (gyro attitude + accel) per calibration; print the final and RMS
-    position error against the truth (simulations) or the loop-closure error (real runs)."""
+    position error against the truth (simulations) or the loop-closure error (real runs).
+
+    Example: `accellog track robot.mcap --cal model3.json --zupt --rrd track.rrd`.
+    """
     from accellog.calibrate.calfile.calibration import load_calibration
     from accellog.core.jsonio import dumps
     from accellog.flows.track import track_session

@@ -30,7 +30,10 @@ def noise_cmd(
 ) -> None:
     """Overlapping Allan deviation per axis (accel, gyro) with confidence intervals; fitted white noise,
     bias instability and random walk with 1-sigma, in SI and datasheet units, and the session length each
-    needs; quantisation and temperature-driven stretches flagged."""
+    needs; quantisation and temperature-driven stretches flagged.
+
+    Example: `accellog noise still.mcap --rrd allan.rrd --cal cal.json -o cal_noise.json`.
+    """
     from accellog.flows.characterise import characterise_noise
 
     if (cal is None) != (out is None):

@@ -21,7 +21,11 @@ def report(
     ],
     markdown: Annotated[bool, typer.Option("--markdown", help="Markdown tables on stdout.")] = False,
 ) -> None:
-    """Print the tables of stage artifacts (parameters ± 1σ, the seed's tables, the model ladder)."""
+    """Print the tables of stage artifacts (parameters ± 1σ, the seed's tables, the model ladder).
+
+    Example: `accellog evaluate static.mcap --cal cal.json --json > eval.json; accellog report
+    cal.json eval.json`.
+    """
     from accellog.calibrate.calfile.calibration import read_json
     from accellog.present.artifacts import tables_for
     from accellog.present.views import table_markdown

@@ -18,7 +18,10 @@ def effects(
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable list on stdout.")] = False,
 ) -> None:
-    """List the effect library: name, parameters with units, driver signals, meaning."""
+    """List the effect library: name, parameters with units, driver signals, meaning.
+
+    Example: `accellog effects --effects-file examples/effects_creep.py`.
+    """
     from accellog.calibrate.model.effects import describe, load_effects_file
     from accellog.core.jsonio import dumps
     from accellog.present.discovery_text import print_effects

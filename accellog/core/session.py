@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from accellog.core.device import DeviceKey
+from accellog.core.reprs import names_text, short_repr
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 
 POSE_UP_VECTORS: dict[str, tuple[float, float, float]] = {
@@ -160,6 +161,25 @@ class Session:
     def n(self) -> int:
         return int(self.t_s.shape[0])
 
+    def __repr__(self) -> str:
+        span = float(self.t_s[-1] - self.t_s[0]) if self.n else 0.0
+        channels = ["accel"] + [
+            c
+            for c, x in (("gyro", self.gyro_dps), ("temp", self.temp_degC), ("mag", self.mag_uT))
+            if x is not None
+        ]
+        return short_repr(
+            "Session",
+            [
+                self.meta.source,
+                f"{self.n} samples over {span:.4g} s at {self.meta.sample_rate_hz:g} Hz",
+                "+".join(channels),
+                f"{len(self.poses)} poses",
+                f"{len(self.events)} events",
+                self.path,
+            ],
+        )
+
     @property
     def accel_mps2(self) -> np.ndarray:
         """(N,3) reading in m/s^2 (g0 = 9.80665)."""
@@ -201,3 +221,10 @@ class ObsTable:
     @property
     def n(self) -> int:
         return int(self.meas_g.shape[0])
+
+    def __repr__(self) -> str:
+        temp = None
+        if self.temp_degC is not None and np.isfinite(self.temp_degC).any():
+            temp = f"{np.nanmin(self.temp_degC):.1f}..{np.nanmax(self.temp_degC):.1f} degC"
+        poses = f"{len(self.pose_names)} poses ({names_text(self.pose_names)})"
+        return short_repr("ObsTable", [f"{self.n} windows", poses, temp, self.session])

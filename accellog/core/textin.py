@@ -43,6 +43,35 @@ _KINDS = (
 )
 
 
+BINARY_KINDS = (
+    (b"\x89MCAP", "an MCAP file (a session or a ROS 2 bag)"),
+    (b"RRF", "a Rerun recording (.rrd)"),
+    (b"ULog", "a PX4 ULog"),
+    (b"\xa3\x95", "an ArduPilot DataFlash log"),
+    (b"\x89PNG", "a PNG image"),
+    (b"PK\x03\x04", "a zip archive"),
+    (b"\x1f\x8b", "a gzip file"),
+    (b"\x28\xb5\x2f\xfd", "a zstd file"),
+)
+"""Leading bytes of binary files a user may pass where text is read (arguments swapped)."""
+
+ACCELLOG_JSON = {
+    "accellog.calibration": "an accellog calibration (written by `accellog fit -o`)",
+    "accellog.observations": "an accellog observation table (written by `accellog segment -o`)",
+}
+"""What each accellog JSON file is, by its "format" field (named when the wrong one is passed)."""
+
+
+def binary_kind(head: bytes) -> str | None:
+    """What a binary file is by its leading bytes (BINARY_KINDS), None when unknown."""
+    return next((name for magic, name in BINARY_KINDS if head.startswith(magic)), None)
+
+
+def json_kind(value: Any) -> str | None:
+    """What an accellog JSON document is by its "format" field (ACCELLOG_JSON), None otherwise."""
+    return ACCELLOG_JSON.get(value.get("format")) if isinstance(value, dict) else None
+
+
 def file_kind(mode: int) -> str | None:
     """None for a regular file's st_mode, else what it is: 'a directory', 'a character device', ..."""
     if stat.S_ISREG(mode):
@@ -88,8 +117,14 @@ def read_text(path: str | os.PathLike, what: str = "file", kind: str | None = No
     data = read_bytes(path, what, kind)
     try:
         return data.decode()
-    except UnicodeDecodeError as exc:
-        raise InputError(f"cannot read as text: {exc.__class__.__name__}", where=str(path)) from None
+    except UnicodeDecodeError:
+        found = binary_kind(data)
+        if found is not None:
+            raise InputError(
+                f"this is {found}, not a {what}: are the arguments swapped?",
+                where=str(path),
+            ) from None
+        raise InputError(f"not UTF-8 text, so not a {what}", where=str(path)) from None
 
 
 def nesting_depth(value: Any, limit: int = MAX_DEPTH) -> int:

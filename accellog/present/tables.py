@@ -131,6 +131,21 @@ def drift_table(
     return t, q
 
 
+class _HeadersWrapFirst(Table):
+    """A table that, when too wide for the terminal, wraps the headers of its number columns (each
+    down to its widest cell or header word: ``caps``) before rich narrows the other columns."""
+
+    def __init__(self, *args, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.caps: list = []
+
+    def __rich_console__(self, console, options):
+        wide = self.__rich_measure__(console, options).maximum > options.max_width
+        for column, cap in self.caps:
+            column.max_width = cap if wide else None
+        yield from super().__rich_console__(console, options)
+
+
 def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Table:
     """The one table of the model ladder: model, params, chi2/dof and RMS (mg) on the calibration
     data; held-out RMS and noise floor (mg), held-out chi2/dof, static-test drift (m) and warnings
@@ -152,16 +167,22 @@ def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Tabl
     cols += [f"{a:g} s drift (m)" for a in ats] + (["warnings"] if warn else [])
     body = []
     for r in rows:
-        cells = [r.model, str(r.n_params), num(r.chi2_dof), mg(r.rms_g)]
+        # a narrow terminal wraps the model at its terms ("model3 + temp_bias +" / "temp_scale"), never inside one
+        cells = [r.model.replace("+", " + "), str(r.n_params), num(r.chi2_dof), mg(r.rms_g)]
         cells += [mg(r.heldout_rms_g), mg(r.heldout_noise_g)] if held else []
         cells += [num(r.heldout_chi2_dof)] if chi else []
         cells += [num(r.drift_m) if r.drift_at_s == a else "-" for a in ats]
         cells += [str(len(r.warnings))] if warn else []
         body.append(cells)
-    t = Table(title=title)
-    for k, c in enumerate(cols):  # headers may wrap; a number never is split (min_width = widest cell)
-        widest = max((len(b[k]) for b in body), default=1) if c != "model" else None
-        t.add_column(c, justify="left" if c == "model" else "right", min_width=widest, overflow="fold")
+    t = _HeadersWrapFirst(title=title)
+    for k, c in enumerate(cols):  # a number or a term never is split (min_width)
+        if c == "model":
+            term = max((len(w) for b in body for w in b[k].split()), default=1) + 2  # "temp_bias +"
+            t.add_column(c, min_width=term, overflow="fold")
+            continue
+        widest = max((len(b[k]) for b in body), default=1)
+        t.add_column(c, justify="right", min_width=widest, overflow="fold")
+        t.caps.append((t.columns[-1], max(widest, *(len(w) for w in c.split()))))
     for cells in body:
         t.add_row(*cells)
     return t

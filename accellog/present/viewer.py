@@ -386,26 +386,49 @@ def screenshot_url(
     try:
         with Chromium(size=size, timeout_s=max(deadline - time.monotonic(), 1.0)) as ch:
             ch.navigate(url, load_timeout_s=max(min(20.0, deadline - time.monotonic()), 0.1))
-            shot = _settled_capture(ch, deadline, min_wait_s, settle_s)
+            seen: list[tuple[float, PixelStats]] = []
+            shot = _settled_capture(ch, deadline, min_wait_s, settle_s, seen=seen)
     except OSError as exc:  # the browser's DevTools port refused or reset: one line, not a traceback
         raise InputError(f"chromium's DevTools port failed: {exc}; nothing written", where=str(out)) from None
     if shot is None:
         raise InputError(
             f"the viewer did not draw a stable picture within {wait_s:.0f} s; nothing written "
-            "(a longer --wait-s helps on a loaded machine)",
+            f"({_why_not_drawn(seen)})",
             where=str(out),
         )
     write_bytes_atomic(out, shot[0])
     return shot[1]
 
 
+def _why_not_drawn(seen: list[tuple[float, PixelStats]]) -> str:
+    """Why no picture was taken, from the captures (time s, stats): a page that stayed blank and
+    alike over its last three or more captures draws nothing there (or is far too slow), else it
+    was still changing."""
+    tail = seen[-3:]
+    if len(tail) == 3 and not any(st.looks_rendered() for _, st in tail):
+        lo, hi = min(st.colors for _, st in tail), max(st.colors for _, st in tail)
+        if hi <= 1.1 * max(lo, 1):
+            last = tail[-1][1]
+            return (
+                f"it stayed blank, {last.colors} colours and {100 * last.non_background:.0f}% drawn, over its "
+                f"last {tail[-1][0] - tail[0][0]:.0f} s: that view or tab draws nothing, or the machine is far "
+                "too busy for it"
+            )
+    return "it was still changing: a longer --wait-s helps on a loaded machine"
+
+
 def _settled_capture(
-    ch: Chromium, deadline: float, min_wait_s: float, settle_s: float, poll_s: float = 1.0
+    ch: Chromium,
+    deadline: float,
+    min_wait_s: float,
+    settle_s: float,
+    poll_s: float = 1.0,
+    seen: list[tuple[float, PixelStats]] | None = None,
 ) -> tuple[bytes, PixelStats] | None:
     """Capture until two successive pictures look rendered and alike (colour counts within 10 %)
     for settle_s, at least min_wait_s after the start; at the deadline the last such picture, if the
     last two captures were alike, else None. Captures are spaced by at least the time the last one
-    took, so a slow browser is not kept busy by them."""
+    took, so a slow browser is not kept busy by them. seen: gets (time s, stats) of every capture."""
     start = time.monotonic()
     prev: PixelStats | None = None
     good: tuple[bytes, PixelStats] | None = None
@@ -423,6 +446,8 @@ def _settled_capture(
         now = time.monotonic()
         gap_s = max(poll_s, now - t0)
         new = pixel_stats(png)
+        if seen is not None:
+            seen.append((now, new))
         if prev is not None and new.looks_rendered() and abs(new.colors - prev.colors) <= 0.1 * prev.colors:
             stable_since = now if stable_since is None else stable_since
             good = (png, new)

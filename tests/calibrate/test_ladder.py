@@ -66,7 +66,7 @@ def test_one_table_for_live_rows_and_report_of_json(rows, tmp_path, capsys):
         con = Console(width=200, record=True)
         con.print(ladder_table(rows))
         text = con.export_text()
-        assert "30 s drift (m)" in text and "held-out RMS (mg)" in text and "model3+temp_bias" in text
+        assert "30 s drift (m)" in text and "held-out RMS (mg)" in text and "model3 + temp_bias" in text
         f = tmp_path / "wb.json"
         f.write_text(dumps({"session": "x", "ladder": [r.to_dict() for r in rows]}))
         capsys.readouterr()

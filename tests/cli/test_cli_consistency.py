@@ -90,3 +90,55 @@ def test_usage_lines_name_arguments_in_capitals():
             assert "{" not in usage and not re.search(r"\b[a-z_]+\.\.\.", usage), (name, usage)
             args = [p for p in sub.params if p.param_type_name == "argument"]
             assert all(p.metavar and p.metavar[0].isupper() for p in args), (name, usage)
+
+
+def test_swapped_arguments_name_the_file_kind(session, tmp_path, capsys):
+    cal = tmp_path / "cal.json"
+    assert _run(["fit", session, "-o", cal], capsys)[0] == 0
+    blob = tmp_path / "blob.bin"
+    blob.write_bytes(bytes(range(128, 256)))
+    cases = [
+        (["evaluate", cal, "--cal", session], session, "this is an MCAP file (a session or a ROS 2 bag), not a calibration file"),
+        (["export", session, "--to", "ros", "-o", tmp_path / "r.yaml"], session, "this is an MCAP file"),
+        (["fit", cal, "-o", tmp_path / "x.json"], cal, "this is an accellog calibration (written by `accellog fit -o`), not a session"),
+        (["diagnose", cal], cal, "this is an accellog calibration"),
+        (["evaluate", session, "--cal", blob], blob, "not UTF-8 text, so not a calibration file"),
+    ]  # fmt: skip
+    for argv, named, says in cases:
+        rc, _, err = _run(argv, capsys)
+        assert rc == 2 and err.count("\n") == 1, (argv, err)
+        assert err.startswith(f"accellog: error: {named}: ") and says in err, (argv, err)
+        assert "Decode" not in err
+
+
+def _leaves(group, ctx):
+    for name in group.list_commands(ctx):
+        cmd = group.get_command(ctx, name)
+        subs = getattr(cmd, "commands", None)
+        if subs is None:
+            yield [name], cmd
+        else:
+            yield from (([name, s], c) for s, c in subs.items())
+
+
+def test_every_commands_help_has_an_example_that_uses_its_own_options():
+    """Each command's help shows at least one `accellog ...` line (as the README says), and every
+    flag of an example is one that command has (an example cannot outlive a renamed option)."""
+    import shlex
+
+    group = command_group()
+    ctx = _click.Context(group, info_name="accellog")
+    for path, cmd in _leaves(group, ctx):
+        text = " ".join((cmd.help or "").split())
+        uses = [
+            u
+            for span in re.findall(r"`(accellog [^`]+)`", text)
+            for u in re.split(r";|>|&&", span)
+            if u.strip().startswith("accellog ")
+        ]
+        mine = [u for u in uses if shlex.split(u)[1 : 1 + len(path)] == path]
+        assert mine, f"accellog {' '.join(path)}: no example in its help"
+        opts = {o for p in cmd.params for o in (*p.opts, *p.secondary_opts)}
+        for use in mine:
+            flags = [w.split("=")[0] for w in shlex.split(use) if w.startswith("-")]
+            assert set(flags) <= opts, (path, use, set(flags) - opts)

@@ -31,8 +31,10 @@ def chromium() -> str:
 def test_blank_page_times_out_within_the_wait_and_writes_nothing(chromium: str, tmp_path: Path) -> None:
     png = tmp_path / "shot.png"
     t0 = time.monotonic()
-    with pytest.raises(InputError, match=r"did not draw a stable picture within 5 s; nothing written"):
+    with pytest.raises(InputError, match=r"did not draw a stable picture within 5 s; nothing written") as err:
         screenshot_url("about:blank", png, size=(400, 300), wait_s=5.0, min_wait_s=1.0)
+    # said as what it is: a page that stays blank, not one a longer wait would finish
+    assert "it stayed blank" in str(err.value) and "draws nothing" in str(err.value), err.value
     elapsed = time.monotonic() - t0
     assert not png.exists() and list(tmp_path.iterdir()) == []  # no PNG, no temporary left
     assert 4.0 < elapsed < 5.0 + 10.0  # the wait, plus closing the browser

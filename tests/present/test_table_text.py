@@ -58,3 +58,22 @@ def test_diagnose_on_the_seed_poses_says_each_thing_once(shared_data, capsys):
     assert main(["diagnose", str(poses), "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert not any(re.search(r"\bnan\b", c.get("reason", "")) for c in d["candidates"])
+
+
+@pytest.mark.parametrize("width", [100, 120])
+def test_ladder_model_names_wrap_at_their_terms(width):
+    """A long model name wraps between its terms, never inside one (it was 'model3+temp_' /
+    'bias+temp_sc' / 'ale'); at 120 columns it is whole."""
+    rows = [
+        LadderRow("model1", 3, 11634.2, 0.0123, heldout_rms_g=0.0456, heldout_noise_g=6.1e-5, drift_m=1234.5,
+                  drift_at_s=60.0, heldout_chi2_dof=6.96),
+        LadderRow("model3+temp_bias+temp_scale", 18, 0.888, 1.41e-4, heldout_rms_g=1.5e-4, heldout_noise_g=1.52e-4,
+                  drift_m=1.41, drift_at_s=60.0, warnings=["x"], heldout_chi2_dof=0.896),
+    ]  # fmt: skip
+    text = _text(ladder_table(rows, "watch the error fall"), width)
+    cells = [ln.split("│")[1].strip() for ln in text.splitlines() if ln.startswith("│")]
+    words = " ".join(cells).split()
+    assert words[:2] == ["model1", "model3"] and {"temp_bias", "temp_scale"} <= set(words), cells
+    assert all(len(ln) <= width for ln in text.splitlines())
+    if width == 120:
+        assert "model3 + temp_bias + temp_scale" in cells

@@ -58,6 +58,7 @@ from accellog.core import textin
 from accellog.core.device import DeviceKey
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult, dumps
+from accellog.core.reprs import fit_text, param_table_html, short_repr
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.core.version import __version__
@@ -172,6 +173,27 @@ class Calibration(JsonResult):
     @property
     def terms(self) -> list[str]:
         return list(self.model_spec.get("terms", []))
+
+    def __repr__(self) -> str:
+        name, f = self.model_spec.get("name", "+".join(self.terms)), self.fit
+        sections = "+".join(
+            n for n, x in (("gyro", self.gyro), ("noise", self.noise), ("mag", self.magnetometer)) if x
+        )
+        return short_repr(
+            "Calibration",
+            [
+                fit_text(name, len(self.param_names), f.chi2_dof, f.rms_g),
+                sections and f"with {sections}",
+                f"device {self.device.key.id}" if self.device.key.known else None,
+                self.path,
+            ],
+        )
+
+    def _repr_html_(self) -> str:
+        stats = fit_text(self.model_spec.get("name", "+".join(self.terms)), len(self.param_names), None, None)
+        return param_table_html(
+            f"calibration {stats}", self.param_names, self.param_units, self.theta, self.sigma
+        )
 
     def device_conflicts(self, key: DeviceKey) -> list[str]:
         """How `key` (a session's device) differs from the calibrated device; [] when they match
@@ -346,6 +368,9 @@ def calibration_from_dict(d: Any, where: str | None = None, effects_file: Any = 
                 "fit one with `accellog fit`",
                 where=where,
             )
+        other = textin.json_kind(d)
+        if other is not None:
+            raise InputError(f"this is {other}, not a calibration: are the arguments swapped?", where=where)
         keys = ", ".join(sorted(d)[:6])
         raise InputError(
             f"not an accellog calibration file (no format '{FORMAT}'; keys: {keys})", where=where

@@ -40,6 +40,7 @@ from accellog.calibrate.model.prior import Prior
 from accellog.calibrate.model.residual_fns import numjac, restricted, with_prior
 from accellog.core.errors import InputError, ModelError
 from accellog.core.numeric import chi2_sf, least_squares
+from accellog.core.reprs import fit_text, param_table_html, short_repr
 from accellog.core.session import ObsTable
 
 
@@ -117,7 +118,19 @@ class FitResult:
             self.__dict__["_jacobian"] = None
 
     def params(self) -> dict[str, float]:
+        """Parameter name -> value (units: ``param_units``)."""
         return self.model.params_dict(self.theta)
+
+    def __repr__(self) -> str:
+        stats = fit_text(self.model.name, len(self.theta), self.chi2_dof, self.rms_g)
+        fixed = f"{len(self.fixed)} fixed" if self.fixed else None
+        warned = f"{len(self.warnings)} warnings" if self.warnings else None
+        how = f"{self.method}, {self.n_obs} obs, 1-sigma from {self.uncertainty}"
+        return short_repr("FitResult", [stats, how, fixed, warned])
+
+    def _repr_html_(self) -> str:
+        stats = fit_text(self.model.name, len(self.theta), self.chi2_dof, self.rms_g)
+        return param_table_html(stats, self.param_names, self.param_units, self.theta, self.sigma)
 
     def to_dict(self) -> dict:
         """JSON-able summary: parameters with units and 1-sigma, fit statistics, warnings."""

@@ -79,7 +79,7 @@ def read_obs_table(path: str | os.PathLike, *, n_per_pose: int | None = None) ->
     """The ObsTable of an observations JSON or a capstone pose table (n_per_pose samples behind each
     mean, default CAPSTONE_SAMPLES_PER_POSE); None for any other file (a session: store.source)."""
     from accellog.calibrate.observe.segment import obs_from_pose_means
-    from accellog.core.textin import read_json
+    from accellog.core.textin import json_kind, read_json
     from accellog.store.importers import load_capstone_pose_table
     from accellog.store.source import text_kind
 
@@ -89,6 +89,12 @@ def read_obs_table(path: str | os.PathLike, *, n_per_pose: int | None = None) ->
         d = read_json(p)
         if isinstance(d, dict) and d.get("format") == OBS_FORMAT:
             return obs_from_dict(d, where=str(p))
+        other = json_kind(d)
+        if other is not None:
+            raise InputError(
+                f"this is {other}, not a session or observation table: are the arguments swapped?",
+                where=str(p),
+            )
         raise InputError(
             f"JSON input must be an observations file ('{OBS_FORMAT}', written by `accellog segment -o`)",
             where=str(p),

@@ -5,7 +5,9 @@ qw..qz) are mapped onto the file's with ``CsvOptions.columns``. Units and conver
 ``accellog.store.importers.csv_options``; the source units, offsets and conversions are recorded in
 meta.extra. The file is parsed in byte blocks (``csv_blocks``), converted and checked block by block:
 time must strictly increase (duplicates and backward steps are refused with their line), a file needs
-two rows spanning a non-zero duration. ``import_csv_to_mcap`` parses the next block on a second thread
+two rows spanning a non-zero duration; a gyro read as deg/s that turns ~57x less than gravity does
+between the file's rests is refused after its last row (rad/s: ``csv_checks.check_gyro_motion``).
+``import_csv_to_mcap`` parses the next block on a second thread
 while the current one is encoded, compressed and written (``read_ahead``).
 """
 
@@ -19,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from accellog.core.errors import InputError
+from accellog.core.plausible import GYRO_WINDOW_S, GravityTurns
 from accellog.core.session import Event, Session, SessionMeta
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.atomic import AtomicOutput
@@ -26,6 +29,7 @@ from accellog.store.importers.csv_blocks import BLOCK_BYTES, Block, BlockReader,
 from accellog.store.importers.csv_checks import (
     check_accel,
     check_gyro,
+    check_gyro_motion,
     check_increasing,
     check_offsets,
     check_rate,
@@ -132,6 +136,7 @@ class CsvImport:
     def chunks(self) -> Iterator[Chunk]:
         """Converted blocks; raises InputError (file:line) on the first bad row."""
         runs = PoseRuns(self.path) if "pose" in self.cols else None
+        turns: GravityTurns | None = None
         t_prev = t0 = None
         t_first_s = dt_s = 0.0
         for block in self.reader:
@@ -149,6 +154,8 @@ class CsvImport:
                 dt_s = float(np.median(np.diff(head))) if head.shape[0] > 1 else 0.0
                 self._check_units(block, dt_s)
                 self.meta = self._meta(t0, dt_s)
+                if "gx" in self.cols and self.opts.check_units and dt_s > 0:
+                    turns = GravityTurns(round(GYRO_WINDOW_S / dt_s))
             if runs is not None:
                 true = _stack(block, ("true_x", "true_y", "true_z"))
                 quat = _stack(block, ("qw", "qx", "qy", "qz"))
@@ -156,6 +163,8 @@ class CsvImport:
             self._skipped(block, t_s, t_prev)
             ch = self._convert(block, t_s)
             check_samples(ch.accel_g, ch.gyro_dps, lambda i, b=block: f"{self.path}:{b.line_of(i)}")
+            if turns is not None and ch.gyro_dps is not None:
+                turns.feed(ch.t_s, ch.accel_g, ch.gyro_dps)
             n, t_prev = block.n, (float(t_s[-1]), block.line_of(block.n - 1))
             del block, t_s  # what the chunk does not use is freed before the chunk waits to be written
             yield ch
@@ -169,6 +178,9 @@ class CsvImport:
                 "samples at distinct times",
                 where=str(self.path),
             )
+        if turns is not None:
+            turns.finish()
+            check_gyro_motion(self.path, turns, self.opts)
         if runs is not None:
             dt = dt_s if dt_s > 0 else 0.0
             self.poses = runs.finish(t_prev[0] + dt)

@@ -21,6 +21,7 @@ from accellog.core.plausible import (
     RATE_MIN_HZ,
     TIME_UNIT_NAME,
     TIME_UNIT_S,
+    GravityTurns,
     accel_scale_guess,
     accel_unit_guess,
     gyro_counts_evidence,
@@ -190,6 +191,20 @@ def check_gyro(path, w: np.ndarray, o: CsvOptions) -> None:
     raise UnitsError(
         f"gyro values gx,gy,gz declared as {o.gyro_unit} {why}: they look like raw counts "
         f"({GYRO_LSB_HINT}{keep}): use --gyro-unit counts --gyro-lsb-per-dps LSB{off}",
+        where=str(path),
+    )
+
+
+def check_gyro_motion(path, turns: GravityTurns, o: CsvOptions) -> None:
+    """Refuse a gyro read as deg/s that integrates ~57x less than the turns gravity shows over the
+    whole file (rad/s values; core.plausible.GravityTurns): judged after the last row, since the
+    first rows are often still. Not when the user named the unit with --gyro-unit."""
+    if o.gyro_unit_given or o.gyro_unit != "deg/s" or not turns.looks_like_rad_s():
+        return
+    raise UnitsError(
+        f"gyro values gx,gy,gz read as deg/s integrate to {turns.gyro_deg:.3g} deg over the moves in which "
+        f"gravity turns by {turns.turn_deg:.0f} deg ({turns.ratio():.3g}x less; 180/pi = 57.3): they look "
+        "like rad/s: pass --gyro-unit rad/s (or --gyro-unit deg/s if they really are deg/s)",
         where=str(path),
     )
 
