@@ -22,7 +22,6 @@ and MAD. A session in memory anyway (CSV, ROS 2 bag, a damaged file) is examined
 
 from __future__ import annotations
 
-import itertools
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -33,8 +32,10 @@ from accellog.calibrate.gyro.fit import BIAS_TRIM_S, BIAS_WINDOW_S, bias_window_
 from accellog.core.errors import InputError
 from accellog.core.jsonio import dumps
 from accellog.core.plausible import (
+    GYRO_WINDOW_S,
     TIME_UNIT_NAME,
     TIME_UNIT_S,
+    GravityTurns,
     accel_scale_guess,
     accel_unit_guess,
     gyro_counts_evidence,
@@ -215,41 +216,30 @@ def units(scan: Scan, s: Session, m: int, rate_hz: float) -> list[Finding]:
     return out
 
 
-GYRO_TURN_MIN_DEG = 20.0
-"""A move between still intervals is used to judge the gyro's scale when gravity turns by more."""
 GYRO_SHORT_FACTOR = 10.0
 """The gyro integrates to less than 1/this of the turn gravity shows: its values are too small."""
 
 
-def gyro_scale(s: Session, holds: list[dict]) -> list[Finding]:
-    """A gyro that integrates to far less than the turns gravity shows: between consecutive still
-    intervals whose gravity directions differ by theta_k > GYRO_TURN_MIN_DEG, the sensor turned by at
-    least theta_k, so the path integral of |w| dt over the move is >= theta_k with the right unit.
-    r = sum theta_k / sum integral |w| dt > GYRO_SHORT_FACTOR is a defect; r near 180/pi is rad/s
-    stored as deg/s. s: the scan's series (every m-th sample: the integral is a trapezoid over it)."""
-    if s.gyro_dps is None or len(holds) < 2:
+def gyro_scale(s: Session, rate_hz: float) -> list[Finding]:
+    """A gyro that integrates to far less than the turns gravity shows between rests (the importer's
+    check, core.plausible.GravityTurns, over the scan's series s at rate_hz): r = turn / gyro
+    integral > GYRO_SHORT_FACTOR is a defect; r near 180/pi is rad/s stored as deg/s."""
+    if s.gyro_dps is None or s.t_s.shape[0] < 2:
         return []
-    turn_deg = turned_deg = 0.0
-    for a, b in itertools.pairwise(holds):
-        theta = float(np.degrees(np.arccos(np.clip(np.dot(a["up"], b["up"]), -1.0, 1.0))))
-        sl = s.slice_time(a["end_s"], b["start_s"])
-        t, w = s.t_s[sl], s.gyro_dps[sl]
-        if theta <= GYRO_TURN_MIN_DEG or t.shape[0] < 2:
-            continue
-        turn_deg += theta
-        speed = np.linalg.norm(w, axis=1)
-        turned_deg += float(np.sum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t)))
-    if turn_deg == 0.0 or turn_deg <= GYRO_SHORT_FACTOR * turned_deg:
+    turns = GravityTurns(max(1, round(GYRO_WINDOW_S * rate_hz)))
+    turns.feed(np.asarray(s.t_s, float), np.asarray(s.accel_g, float), np.asarray(s.gyro_dps, float))
+    turns.finish()
+    r = turns.ratio()
+    if r is None or r <= GYRO_SHORT_FACTOR:
         return []
-    r = turn_deg / max(turned_deg, 1e-12)
     fix = (
         "the values look like rad/s stored as deg/s: re-import with --gyro-unit rad/s"
-        if 20.0 <= r <= 200.0
+        if turns.looks_like_rad_s()
         else "check the gyro's unit and scale (--gyro-unit, --gyro-lsb-per-dps)"
     )
     detail = (
-        f"gyro: the moves between still intervals turn gravity by {turn_deg:.0f} deg but the gyro "
-        f"integrates to {turned_deg:.3g} deg ({r:.3g}x less): {fix}"
+        f"gyro: the moves between rests turn gravity by {turns.turn_deg:.0f} deg but the gyro "
+        f"integrates to {turns.gyro_deg:.3g} deg ({r:.3g}x less): {fix}"
     )
     return [Finding("unit", detail, 1)]
 
@@ -327,7 +317,7 @@ def _examine(src: Source, keep_times: bool) -> tuple[DoctorReport, np.ndarray | 
     stats, findings = timing(scan, src)
     rate_hz = 1e3 / stats["median"] if stats.get("median") else 0.0
     holds = still(thin)
-    findings += units(scan, thin, m, rate_hz) + gyro_scale(thin, holds)
+    findings += units(scan, thin, m, rate_hz) + gyro_scale(thin, rate_hz / m)
     findings += clipping(scan, thin)
     ev: dict[str, int] = {}
     lost = 0

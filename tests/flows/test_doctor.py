@@ -46,6 +46,18 @@ def test_clean_log_passes(clean, capsys):
     assert r["device"]["who_am_i"] == 0x71 and r["device"]["i2c_bus"] == "emulator"  # the device key
 
 
+def test_a_gyro_in_rad_s_stored_as_deg_s_is_a_defect(clean, tmp_path, capsys):
+    """Issue 45: a gyro written in rad/s where deg/s belongs (57x small) passed as healthy; doctor
+    judges it from the motion as the CSV importer does (core.plausible.GravityTurns): gravity turns
+    by hundreds of degrees between the rests while the gyro integrates ~57x less."""
+    s = read_session(clean)
+    rad = tmp_path / "rad.mcap"
+    write_session(rad, dataclasses.replace(s, gyro_dps=s.gyro_dps * np.pi / 180.0))
+    r = _doctor(rad, capsys)
+    units = [f["detail"] for f in r["findings"] if f["kind"] == "unit"]
+    assert not r["healthy"] and any("look like rad/s" in d and "--gyro-unit rad/s" in d for d in units), r
+
+
 def test_still_intervals_are_the_emulators_holds(clean, capsys):
     """One still interval around each of the six holds the emulator labels (the settling before and
     after a hold is still too)."""
