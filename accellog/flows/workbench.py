@@ -132,6 +132,23 @@ class Discovery:
     def decided(self) -> bool:
         return not self.undecided
 
+    def __repr__(self) -> str:
+        """One line for a notebook: start, what was added and dropped, the final held-out verdict."""
+        from accellog.core.reprs import short_repr
+
+        h = self.heldout
+        held = None if h is None else f"held-out chi2/dof {h['heldout_chi2_dof']:.3g}"
+        return short_repr(
+            "Discovery",
+            [
+                self.start,
+                self.added and "+" + "+".join(self.added),
+                self.dropped and f"dropped {', '.join(x['effect'] for x in self.dropped)}",
+                held,
+                {True: "transfers", False: "does not transfer", None: None}[self.transfers],
+            ],
+        )
+
     @property
     def transfers(self) -> bool | None:
         """The final model transfers (None without a held-out session): see held_out_ok."""

@@ -44,3 +44,15 @@ def test_fit_and_calibration_show_a_parameter_table(fitted):
         assert page.startswith("<table>") and page.count("<tr>") == 1 + len(fit.param_names)
         assert "<td>b_x</td>" in page and "&plusmn;" in page
     assert f"<td>{fit.theta[0]:.4g}</td>" in fit._repr_html_()
+
+
+def test_a_diagnosis_and_a_discovery_are_one_short_line(fitted):
+    """diagnose() and discover() results (16 kB and more as dataclass dumps) show one line each."""
+    _, obs, _, _ = fitted
+    d = al.diagnose(obs, al.build_model("model3"))
+    found = al.discover(obs, "model3")
+    for x, name in ((d, "Diagnosis"), (found, "Discovery")):
+        text = repr(x)
+        assert text.startswith(f"<{name}: ") and len(text) < 300 and "\n" not in text, text
+    assert "model3 (12 params)" in repr(d) and "missing" in repr(d)
+    assert repr(found).startswith("<Discovery: model3")

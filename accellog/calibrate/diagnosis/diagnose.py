@@ -42,6 +42,7 @@ from accellog.calibrate.model.identifiability import checked_advice, effect_requ
 from accellog.core.errors import InputError, ModelError
 from accellog.core.heap import trim_heap
 from accellog.core.numeric import f_sf, normal_sf
+from accellog.core.reprs import fit_text, short_repr
 from accellog.core.session import ObsTable
 
 DBIC_MIN = -10.0
@@ -70,6 +71,21 @@ class Diagnosis:
     """Out-of-sample judgement of the significant candidates (accellog.calibrate.diagnosis.choose)."""
     fits: dict[str, FitResult] = field(default_factory=dict, repr=False)
     """Fit of model + candidate, by candidate name (identifiable candidates; not in to_dict)."""
+
+    def __repr__(self) -> str:
+        """One line for a notebook: the model's fit, missing or not, the chosen effect (core.reprs)."""
+        f = self.fit
+        stats = fit_text(self.model.name, self.model.n_params, f.chi2_dof, f.rms_g)
+        tied = self.choice.undecided if self.choice is not None else []
+        return short_repr(
+            "Diagnosis",
+            [
+                stats,
+                "something is missing" if self.missing else "nothing is missing",
+                self.best and f"best {self.best}",
+                tied and f"tied with {', '.join(tied)}",
+            ],
+        )
 
     def to_dict(self, max_signals: int = 30) -> dict:
         return {
