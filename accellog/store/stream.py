@@ -30,9 +30,9 @@ from accellog.core.heap import HeapTrim
 from accellog.core.session import Event, PoseLabel, SessionMeta
 from accellog.core.units import temp_counts_to_degC
 from accellog.store.collect import check_file
-from accellog.store.imu_arrays import first_indexes, per_sample
 from accellog.store.layout import NS_PER_S, TOPIC_EVENTS, TOPIC_IMU, TOPIC_POSES, metadata_to_meta
 from accellog.store.mcap.batch_decode import DecodedBatch
+from accellog.store.reader import first_indexes, per_sample
 
 
 @dataclass
