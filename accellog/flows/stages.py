@@ -49,7 +49,7 @@ from accellog.core.numfmt import format_rows
 from accellog.core.session import ObsTable, Session
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.atomic import atomic_output
-from accellog.store.source import Source, open_source, read_whole
+from accellog.store.source import Source, open_source, read_whole, recovery_info
 
 if TYPE_CHECKING:  # the evaluate stages import these when called (`fit` does without them)
     from accellog.calibrate.calfile.drift_model import DriftModel
@@ -78,8 +78,6 @@ def load_input(
 def _provenance(src: Source | None, table: ObsTable | None) -> SourceFile:
     """Provenance entry of the input (hashed only when a calibration is built); a recovered
     (truncated) session says what was kept."""
-    from accellog.store.recovery import recovery_info
-
     if src is None:
         p = table.session
         return source_entry(p if p and Path(p).is_file() else None, "")

@@ -277,7 +277,7 @@ class SourceFile(Section):
     kind: str | None = json_field("str")
     """What the file is ('emulator', 'hardware', 'import:...', 'drift', ...)."""
     recovered: Mapping[str, Any] | None = json_field("obj", optional=True)
-    """What was salvaged from a truncated input (accellog.store.recovery.RecoveryInfo.to_dict())."""
+    """What was salvaged from a truncated input (accellog.store.source.RecoveryInfo.to_dict())."""
 
     @classmethod
     def list_from_json(cls, v: Any, where: str | None = None) -> list[SourceFile]:
