@@ -191,6 +191,11 @@ class HostClock:
         self.any_host, self.n, self.missing = False, 0, False
         self.carry: tuple | None = None  # (t, host) of the previous block's last sample: its run may go on
 
+    @classmethod
+    def for_pass(cls, _src: object = None) -> HostClock:
+        """A new HostClock for one pass (calibrate.observe.segment.observe_riding's rider of a Source)."""
+        return cls()
+
     def add(self, b: ImuBlock) -> None:
         self.n += b.n
         if b.host_time_s is None or self.missing:
