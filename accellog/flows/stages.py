@@ -43,16 +43,13 @@ from accellog.calibrate.gyro.calibrate import (
     warn_clipped_moves,
 )
 from accellog.calibrate.model.compose import build_model, orientation_free_model
-from accellog.calibrate.model.fit import fit_orientation_free
 from accellog.calibrate.model.variance import fit_with_uncertainty
-from accellog.calibrate.observe.detect import detect_static, with_labels
-from accellog.calibrate.observe.detected_holds import fit_observations
+from accellog.calibrate.observe.detected_holds import field_observations, fit_observations, fit_stops
 from accellog.calibrate.observe.obs_file import obs_to_dict, read_obs_table
 from accellog.calibrate.observe.segment import PoseStats, check_coverage, observations, observe_riding
 from accellog.core.forked import started
 from accellog.core.heap import trim_heap
 from accellog.core.jsonio import JsonResult
-from accellog.core.notices import note
 from accellog.core.numeric import load_solver, solver_loaded
 from accellog.core.numfmt import format_rows
 from accellog.core.session import ObsTable, Session
@@ -224,20 +221,9 @@ def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, a
                                         srcs[0].where), None  # fmt: skip
     lg = float(srcs[0].meta.local_gravity_mps2 if local_gravity_mps2 is None else local_gravity_mps2)
     truth = convention_truth_g(gravity, lg)
-    parts, found = [], []
-    for src in srcs:
-        session = src.whole()
-        if session.poses:  # a labelled session: its holds are the stops
-            parts.append(observations(session, window_s=window_s, trim_s=0.5))
-            found.append((src, None))
-            continue
-        detected = detect_static(session, min_poses=1, cost=lambda lab, s=session: _stop_fit(
-            observations(with_labels(s, lab), window_s=window_s, trim_s=0.0, check_units=False),
-            m, truth, pri, False).rms_g)  # fmt: skip
-        parts.append(observations(with_labels(session, detected), window_s=window_s, trim_s=0.0))
-        found.append((open_source(with_labels(session, detected)), detected))
+    parts, found = field_observations(srcs, m, truth, pri, window_s=window_s)
     obs = concat_obs(parts) if len(parts) > 1 else parts[0]
-    fit = _stop_fit(obs, m, truth, pri, weighted, uncertainty, note_what=True)
+    fit = fit_stops(obs, m, truth, pri, weighted=weighted, uncertainty=uncertainty, note_what=True)
     cal = Calibration.from_session_fit(fit, obs, found[0][0], gravity_convention=gravity, local_gravity_mps2=lg,
                                        detected=found[0][1] if len(found) == 1 else None)  # fmt: skip
     cal.sources = [source_provenance(src, None) for src, _ in found]
@@ -271,28 +257,6 @@ def _joint_fit(srcs: Sequence[Source], m, *, gravity, weighted, local_gravity_mp
         trim_heap()
         cal.gyro = calibrate_sources(srcs, temp_order=temp_order_of(fit.model.terms))
     return FitOutcome(obs=obs, fit=fit, cal=cal)
-
-
-def _stop_fit(obs: ObsTable, m, truth: float, prior, weighted: bool = True, uncertainty: str = "noise",
-              note_what: bool = False):  # fmt: skip
-    """The orientation-free fit of the stops: with the prior, or of the terms they identify
-    (calibrate.model.identifiability.identify_stops; the rest held at nominal, said in a note)."""
-    from accellog.calibrate.model.identifiability import identify_stops
-    from accellog.calibrate.model.variance import with_uncertainty
-
-    start = None if prior is None else prior.theta
-    ident = identify_stops(obs, m, start)
-    fixed = ident.unfitted if prior is None else ()
-    fit = fit_orientation_free(obs, m, weighted=weighted or prior is not None, gravity_g=truth, prior=prior,
-                               fixed=fixed)  # fmt: skip
-    fit = with_uncertainty(fit, obs, uncertainty)
-    if prior is not None:
-        fit.prior_sources = prior.sources(fit.theta, fit.cov)
-    fit.identification = ident
-    if note_what:
-        for line in ident.lines(prior is not None):
-            note(f"{obs.session or 'stops'}: {line}")
-    return fit
 
 
 # ------------------------------------------------------------------------------------------ segment

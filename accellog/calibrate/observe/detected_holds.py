@@ -13,7 +13,9 @@ The hand-held path (``detect_holds``) cuts the detected intervals into observati
 labels, the detector's threshold factor swept 2..10 and chosen by the orientation-free fit's RMS
 residual (the gravity norm, ``norm_cost``); ``norm_obs`` gives another session's windows for the
 norm's held-out judgement. ``fit_observations`` is the fit stage's observation step for a session
-read whole (relabelled, orientation-free or unlabelled): its holds, or its detected intervals.
+read whole (relabelled, orientation-free or unlabelled): its holds, or its detected intervals;
+``field_observations`` and ``fit_stops`` are the field fit's (unlabelled sessions of one device,
+their stops fitted orientation-free with a prior or on what the stops identify).
 """
 
 from __future__ import annotations
@@ -163,3 +165,51 @@ def fit_observations(
         ) from None
     held = with_labels(session, detected)
     return observations(held, window_s=window_s, trim_s=0.0), detected, open_source(held)
+
+
+def fit_stops(obs: ObsTable, m: Model, gravity_g: float, prior=None, *, weighted: bool = True,
+              uncertainty: str = "noise", note_what: bool = False):  # fmt: skip
+    """The orientation-free fit of the stops: with the prior (calibrate.model.prior.Prior), or of
+    the terms they identify (model.identifiability.identify_stops; the rest held at nominal, said
+    in a note when note_what)."""
+    from accellog.calibrate.model.identifiability import identify_stops
+    from accellog.calibrate.model.variance import with_uncertainty
+
+    ident = identify_stops(obs, m, None if prior is None else prior.theta)
+    fixed = ident.unfitted if prior is None else ()
+    fit = fit_orientation_free(obs, m, weighted=weighted or prior is not None, gravity_g=gravity_g, prior=prior,
+                               fixed=fixed)  # fmt: skip
+    fit = with_uncertainty(fit, obs, uncertainty)
+    if prior is not None:
+        fit.prior_sources = prior.sources(fit.theta, fit.cov)
+    fit.identification = ident
+    if note_what:
+        for line in ident.lines(prior is not None):
+            note(f"{obs.session or 'stops'}: {line}")
+    return fit
+
+
+def field_observations(
+    srcs: list[Source], m: Model, gravity_g: float, prior=None, *, window_s: float
+) -> tuple[list[ObsTable], list[tuple[Source, list[PoseLabel] | None]]]:
+    """(each session's stop windows, [(the Source its gyro and provenance read, its detected
+    intervals or None)]): a labelled session's holds are its stops (0.5 s trimmed); an unlabelled
+    one's are the still intervals detect_static finds (one at least), scored by the fit of the stops
+    (fit_stops, unweighted, with the prior)."""
+    parts, found = [], []
+    for src in srcs:
+        session = src.whole()
+        if session.poses:
+            parts.append(observations(session, window_s=window_s, trim_s=0.5))
+            found.append((src, None))
+            continue
+
+        def cost(labels, s=session) -> float:
+            o = observations(with_labels(s, labels), window_s=window_s, trim_s=0.0, check_units=False)
+            return fit_stops(o, m, gravity_g, prior, weighted=False).rms_g
+
+        detected = detect_static(session, min_poses=1, cost=cost)
+        held = with_labels(session, detected)
+        parts.append(observations(held, window_s=window_s, trim_s=0.0))
+        found.append((open_source(held), detected))
+    return parts, found
