@@ -13,11 +13,8 @@ import numpy as np
 import pytest
 
 from accellog.calibrate.observe.motion import MotionCheck
-from accellog.calibrate.observe.segment import moving_check, window_stats
 from accellog.calibrate.observe.window_spill import WindowSpill, kth_smallest, median
 from accellog.core.errors import InputError
-from accellog.core.session import PoseLabel
-from accellog.core.timeseries import WindowCarry
 from accellog.store.collect import FAULT_AROUND, release_pages
 
 
@@ -76,23 +73,6 @@ def _session(rng, n=40_000, bump=None):
     elif bump == "mean":
         acc[30_000:31_000, 0] += 0.08
     return t, acc
-
-
-def _whole_verdict(t, acc, quantum):
-    cut = WindowCarry(0.5)
-    parts = [cut.push(t, acc), cut.flush()]
-    cols = []
-    for tt, (a,), starts in parts:
-        mean, std, n = window_stats(a, starts)
-        ends = np.append(starts[1:] - 1, tt.shape[0] - 1)
-        cols.append((tt[starts], tt[ends], mean, std, n))
-    cols = [np.concatenate([c[i] for c in cols]) for i in range(5)]
-    label = PoseLabel("static test", float(cols[0][0]), float(cols[1][-1]) + 1e-9, (0.0, 0.0, 1.0))
-    try:
-        moving_check([(label, *cols)], quantum, "w")
-    except InputError as e:
-        return str(e)
-    return None
 
 
 def _numpy_windows(t, acc, width_s: float = 0.5):
