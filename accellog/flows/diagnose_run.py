@@ -22,6 +22,7 @@ from accellog.core.jsonio import JsonResult
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.diagnose import Diagnosis
     from accellog.calibrate.observe.detected_holds import Detection
+    from accellog.store.source import Source
 
 
 @dataclass
@@ -78,24 +79,28 @@ def run_diagnose(
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
     table = read_obs_table(session)  # observations JSON, pose tables
-    src = None if table is not None else open_source(session, what="diagnose")
-    handheld = src is not None and not src.poses
-    obs, host, det = table, None, None
-    if handheld:
-        from accellog.calibrate.observe.detected_holds import detect_holds
+    src: Source | None = None
+    host, det, handheld = None, None, False
+    if table is not None:
+        obs = table
+    else:
+        src = open_source(session, what="diagnose")
+        handheld = not src.poses
+        if handheld:
+            from accellog.calibrate.observe.detected_holds import detect_holds
 
-        obs, det = detect_holds(
-            src.whole(), window_s=detect_window_s, threshold=threshold, obs_window_s=window_s
-        )
-    elif src is not None:
-        if rrd is not None:
-            src.whole()  # the recording draws the samples
-        with started(observe_riding, src, window_s=window_s, rider=HostClock.for_pass,
-                     what=f"reading {session}", meanwhile=not _diagnosis_loaded()) as reading:  # fmt: skip
-            if reading.forked:
-                _load_diagnosis()
-            obs, clock, src = reading.result()
-        host = clock.result() if clock is not None else None
+            obs, det = detect_holds(
+                src.whole(), window_s=detect_window_s, threshold=threshold, obs_window_s=window_s
+            )
+        else:
+            if rrd is not None:
+                src.whole()  # the recording draws the samples
+            with started(observe_riding, src, window_s=window_s, rider=HostClock.for_pass,
+                         what=f"reading {session}", meanwhile=not _diagnosis_loaded()) as reading:  # fmt: skip
+                if reading.forked:
+                    _load_diagnosis()
+                obs, clock, src = reading.result()
+            host = clock.result() if clock is not None else None
     from accellog.calibrate.diagnosis import diagnose as dg
     from accellog.calibrate.diagnosis.strategy import NORM
     from accellog.calibrate.model.compose import build_model

@@ -196,7 +196,8 @@ def field_observations(
     intervals or None)]): a labelled session's holds are its stops (0.5 s trimmed); an unlabelled
     one's are the still intervals detect_static finds (one at least), scored by the fit of the stops
     (fit_stops, unweighted, with the prior)."""
-    parts, found = [], []
+    parts: list[ObsTable] = []
+    found: list[tuple[Source, list[PoseLabel] | None]] = []
     for src in srcs:
         session = src.whole()
         if session.poses:
