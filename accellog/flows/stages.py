@@ -201,29 +201,40 @@ def run_fit(
 
 def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, aging, gravity, weighted,
                local_gravity_mps2, window_s, gyro, uncertainty) -> FitOutcome:  # fmt: skip
-    """run_fit of unlabelled field sessions of one device (a robot's run, a drone between flights):
-    the still intervals of each detected (moves ignored), their observations pooled, fitted
-    orientation-free with the prior (or, without one, only what the stops identify)."""
+    """run_fit of several sessions of one device, or of field sessions with a prior. Labelled
+    sessions without a prior (a freezer warm-up and a room cool-down, several days): their windows
+    pooled (loso.concat_obs, each session's holds its own poses) in one labelled fit with one
+    temperature model. Otherwise (a robot's run, a drone between flights) the still intervals of
+    each are detected (moves ignored), their observations pooled and fitted orientation-free with
+    the prior (or, without one, only what the stops identify). The gyro bias curve from the holds
+    (stops) of all of them."""
     from accellog.calibrate.diagnosis.loso import concat_obs
     from accellog.calibrate.model.prior import Prior
 
     srcs = [open_source(x, what="fit") for x in inputs]
     check_one_device(srcs, prior)
-    if prior is None and all(src.poses for src in srcs):
-        return _joint_fit(srcs, build_model(model, add=list(add), effects_file=effects_file), gravity=gravity,
-                          weighted=weighted, local_gravity_mps2=local_gravity_mps2, window_s=window_s, gyro=gyro,
-                          uncertainty=uncertainty)  # fmt: skip
+    joint = prior is None and all(src.poses for src in srcs)  # what the sessions hold, decided here
+    pri = None
     if prior is not None:
         m, gravity = prior.model, prior.gravity_convention
         pri = Prior.of(prior.param_names, prior.theta, prior.cov, m, aging=aging, what=prior.path or "prior")
     else:
-        m, pri = orientation_free_model(build_model(model, add=list(add), effects_file=effects_file),
-                                        srcs[0].where), None  # fmt: skip
+        m = build_model(model, add=list(add), effects_file=effects_file)
+        if not joint:
+            m = orientation_free_model(m, srcs[0].where)
     lg = float(srcs[0].meta.local_gravity_mps2 if local_gravity_mps2 is None else local_gravity_mps2)
     truth = convention_truth_g(gravity, lg)
-    parts, found = field_observations(srcs, m, truth, pri, window_s=window_s)
-    obs = concat_obs(parts) if len(parts) > 1 else parts[0]
-    fit = fit_stops(obs, m, truth, pri, weighted=weighted, uncertainty=uncertainty, note_what=True)
+    if joint:
+        found: list = [(src, None) for src in srcs]
+        obs = concat_obs([observations(src, window_s=window_s, trim_s=0.5) for src in srcs])
+        needs_scale = m.n_params > 3 or any(t != "bias" for t in m.terms)
+        check_coverage(obs, needs_scale=needs_scale, where=" + ".join(s.where for s in srcs))
+        fit = fit_with_uncertainty(obs, m, orientation_free=False, weighted=weighted, gravity_g=truth,
+                                   uncertainty=uncertainty)  # fmt: skip
+    else:
+        parts, found = field_observations(srcs, m, truth, pri, window_s=window_s)
+        obs = concat_obs(parts) if len(parts) > 1 else parts[0]
+        fit = fit_stops(obs, m, truth, pri, weighted=weighted, uncertainty=uncertainty, note_what=True)
     cal = Calibration.from_session_fit(fit, obs, found[0][0], gravity_convention=gravity, local_gravity_mps2=lg,
                                        detected=found[0][1] if len(found) == 1 else None)  # fmt: skip
     cal.sources = [source_provenance(src, None) for src, _ in found]
@@ -232,30 +243,6 @@ def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, a
         trim_heap()
         cal.gyro = calibrate_sources([src for src, _ in found], temp_order=temp_order_of(fit.model.terms),
                                      still_ref=None if prior is None else prior.gyro)  # fmt: skip
-    return FitOutcome(obs=obs, fit=fit, cal=cal)
-
-
-def _joint_fit(srcs: Sequence[Source], m, *, gravity, weighted, local_gravity_mps2, window_s, gyro,
-               uncertainty) -> FitOutcome:  # fmt: skip
-    """run_fit of several labelled sessions of one sensor (a freezer warm-up and a room cool-down,
-    several days): their windows pooled (loso.concat_obs, each session's holds its own poses) in one
-    labelled fit with one temperature model; the gyro bias curve from the holds of all of them."""
-    from accellog.calibrate.diagnosis.loso import concat_obs
-
-    lg = float(srcs[0].meta.local_gravity_mps2 if local_gravity_mps2 is None else local_gravity_mps2)
-    truth = convention_truth_g(gravity, lg)
-    parts = [observations(src, window_s=window_s, trim_s=0.5) for src in srcs]
-    obs = concat_obs(parts)
-    needs_scale = m.n_params > 3 or any(t != "bias" for t in m.terms)
-    check_coverage(obs, needs_scale=needs_scale, where=" + ".join(s.where for s in srcs))
-    fit = fit_with_uncertainty(obs, m, orientation_free=False, weighted=weighted, gravity_g=truth,
-                               uncertainty=uncertainty)  # fmt: skip
-    cal = Calibration.from_session_fit(fit, obs, srcs[0], gravity_convention=gravity, local_gravity_mps2=lg)
-    cal.sources = [source_provenance(src, part) for src, part in zip(srcs, parts, strict=True)]
-    if gyro:
-        fit.release_jacobian()  # not held through the gyro passes
-        trim_heap()
-        cal.gyro = calibrate_sources(srcs, temp_order=temp_order_of(fit.model.terms))
     return FitOutcome(obs=obs, fit=fit, cal=cal)
 
 
