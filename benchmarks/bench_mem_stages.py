@@ -55,14 +55,16 @@ def main(mode: str, path: str) -> None:
         from accellog.flows import stages
 
         st.mark("imports")
+        from accellog.calibrate.gyro.calibrate import calibrate_source, first_pass_of, temp_order_of
+        from accellog.calibrate.observe.segment import observe_riding
         from accellog.store.source import open_source
 
-        obs, first, src = stages.observe_riding(open_source(path), rider=stages._first_pass)
+        obs, first, src = observe_riding(open_source(path), rider=first_pass_of)
         st.mark("observations")
         out = stages.run_fit(src, obs=obs, gyro=False)  # the fit reuses the table just read
         out.fit.release_jacobian()  # as run_fit does before the gyro passes
         st.mark("fit model3")
-        stages._gyro(src, out.fit, first)
+        calibrate_source(src, temp_order=temp_order_of(out.fit.model.terms), first=first)
         st.mark("gyro")
         return
     from accellog.calibrate.diagnosis.diagnose import diagnose

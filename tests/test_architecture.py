@@ -85,6 +85,10 @@ ALLOWED_MODULES = {
     "the gravity norm): one nested test, one ranking, one verdict rule and choice, side by side",
     "flows/workbench.py": "the one discovery loop (labelled or hand-held: a residual strategy), the effects "
     "it keeps, its ladder and the workbench run, read in one place; the search's record: workbench_trail",
+    "store/reader.py": "an accellog MCAP file into a Session in one module: the fast or generic collect, the "
+    "/imu columns converted group by group while the walk goes on, the other topics, the summary facts",
+    "calibrate/calfile/calibration.py": "the calibration file in one module: its typed sections read and "
+    "written byte for byte, the provenance, the correction it applies and its notebook views",
     "flows/stages.py": "the batch stages in one module (fit, segment, evaluate, drift, integrate), each "
     "opening one Source and making its passes, its typed result beside it: one place per stage",
 }

@@ -18,7 +18,7 @@ from accellog.core.session import Session
 from accellog.store.atomic import AtomicOutput
 from accellog.store.layout import NS_PER_S
 from accellog.store.reader import read_session
-from accellog.store.recovery import announce
+from accellog.store.source import announce
 from accellog.store.writer import DEFAULT_COMPRESSION, SessionWriter, check_compression
 
 

@@ -10,21 +10,19 @@ typed (DiagnoseOutcome); the CLI only presents it.
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from accellog.core.errors import InputError
 from accellog.core.forked import started
 from accellog.core.jsonio import JsonResult
-from accellog.core.session import Session
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.diagnose import Diagnosis
     from accellog.calibrate.observe.detected_holds import Detection
+    from accellog.store.source import Source
 
 
 @dataclass
@@ -65,25 +63,69 @@ def run_diagnose(
     noise_from: str | Path | None = None,
     rrd: str | Path | None = None,
 ) -> DiagnoseOutcome:
-    """Diagnose one session file (module doc); rrd: also write a Rerun recording of the residuals
-    per pose, the verdict and the candidates (labelled sessions)."""
+    """Diagnose one session file (module doc): what it holds is decided once (an observation
+    table, labelled holds, or none: hand-held), then observe, diagnose. A labelled session's
+    observations and host clock points come from one pass, read by a forked child while this
+    process imports the diagnosis; a hand-held one is judged on its detected static intervals
+    (gravity-norm residual, the significant candidates out of sample: held-out sessions, else blocks
+    of the session). rrd: also write a Rerun recording of the residuals per pose, the verdict and
+    the candidates (labelled sessions)."""
     from accellog.calibrate.observe.obs_file import read_obs_table
-    from accellog.store.source import open_source
+    from accellog.calibrate.observe.segment import observations, observe_riding
+    from accellog.store.source import open_source, read_whole
+    from accellog.store.stream import HostClock
 
     session = Path(session)
     if not session.is_file():
         raise InputError("session file not found", where=str(session))
     table = read_obs_table(session)  # observations JSON, pose tables
-    src = None if table is not None else open_source(session, what="diagnose")
-    if src is not None and not src.poses:
-        return _handheld(
-            src.whole(), session, model, add, effects_file, window_s, detect_window_s, threshold, heldout
+    src: Source | None = None
+    host, det, handheld = None, None, False
+    if table is not None:
+        obs = table
+    else:
+        src = open_source(session, what="diagnose")
+        handheld = not src.poses
+        if handheld:
+            from accellog.calibrate.observe.detected_holds import detect_holds
+
+            obs, det = detect_holds(
+                src.whole(), window_s=detect_window_s, threshold=threshold, obs_window_s=window_s
+            )
+        else:
+            if rrd is not None:
+                src.whole()  # the recording draws the samples
+            with started(observe_riding, src, window_s=window_s, rider=HostClock.for_pass,
+                         what=f"reading {session}", meanwhile=not _diagnosis_loaded()) as reading:  # fmt: skip
+                if reading.forked:
+                    _load_diagnosis()
+                obs, clock, src = reading.result()
+            host = clock.result() if clock is not None else None
+    from accellog.calibrate.diagnosis import diagnose as dg
+    from accellog.calibrate.diagnosis.strategy import NORM
+    from accellog.calibrate.model.compose import build_model
+    from accellog.calibrate.model.effects import HANDHELD_START
+    from accellog.calibrate.observe.detected_holds import norm_obs
+
+    name = HANDHELD_START if handheld and model == "model3" else model  # cross_axis needs labels
+    m = build_model(name, add=list(add), effects_file=effects_file)
+    if handheld:  # judged out of sample, as the workbench's steps are
+        d = NORM.diagnose(
+            obs, m, heldout=[norm_obs(read_whole(h, what="--heldout"), window_s=window_s) for h in heldout]
         )
-    if rrd is not None and src is not None:
-        src.whole()  # the recording draws the samples
-    return _labelled(
-        table, src, session, model, add, effects_file, window_s, weighted, gravity_g, heldout, noise_from, rrd
-    )
+        return DiagnoseOutcome(str(session), d, det)
+    helds = [observations(read_whole(h, what="--heldout"), window_s=window_s) for h in heldout]
+    if noise_from is not None:
+        from accellog.calibrate.noise.noise_model import floor_noise
+
+        rate = src.meta.sample_rate_hz if src is not None else None
+        obs, helds = floor_noise(obs, helds, noise_from, rate)
+    d = dg.diagnose(obs, m, weighted=weighted, gravity_g=gravity_g, host_time=host, heldout=helds)
+    if rrd is not None:
+        from accellog.present.residual_views import write_diagnosis_rrd
+
+        write_diagnosis_rrd(rrd, None if src is None else src.whole(), d, obs)
+    return DiagnoseOutcome(str(session), d)
 
 
 def _diagnosis_loaded() -> bool:
@@ -100,96 +142,3 @@ def _load_diagnosis() -> None:
     from accellog.core.numeric import load_solver
 
     load_solver()
-
-
-def _sessions(paths: Sequence[str | Path]) -> Iterator[Session]:
-    """The --heldout sessions one by one, whole (store.source.read_whole, imported only when there
-    are some)."""
-    if not paths:
-        return
-    from accellog.store.source import read_whole
-
-    for h in paths:
-        yield read_whole(h, what="--heldout")
-
-
-def _labelled(
-    table, src, session, model, add, effects_file, window_s, weighted, gravity_g, heldout, noise_from, rrd
-) -> DiagnoseOutcome:
-    """A labelled session (src: its observations and host clock points in one pass, read by a forked
-    child while this process imports the diagnosis) or an observation table."""
-    from accellog.calibrate.observe.segment import observations, observe_riding
-    from accellog.store.stream import HostClock
-
-    obs, host = table, None
-    if src is not None:
-        with started(observe_riding, src, window_s=window_s, rider=lambda _s: HostClock(),
-                     what=f"reading {session}", meanwhile=not _diagnosis_loaded()) as reading:  # fmt: skip
-            if reading.forked:
-                _load_diagnosis()
-            obs, clock, src = reading.result()
-        host = clock.result() if clock is not None else None
-    from accellog.calibrate.diagnosis import diagnose as dg
-    from accellog.calibrate.model.compose import build_model
-
-    m = build_model(model, add=list(add), effects_file=effects_file)
-    helds = [observations(h, window_s=window_s) for h in _sessions(heldout)]
-    if noise_from is not None:
-        obs, helds = _noise_floored(obs, helds, src, noise_from)
-    d = dg.diagnose(obs, m, weighted=weighted, gravity_g=gravity_g, host_time=host, heldout=helds)
-    if rrd is not None:
-        _write_rrd(rrd, src, d, obs)
-    return DiagnoseOutcome(str(session), d)
-
-
-def _noise_floored(obs, helds, src, noise_from):
-    """Floor every window's sigma by the calibration's white noise (Allan) at the session's rate."""
-    from accellog.calibrate.calfile.calibration import load_calibration
-    from accellog.calibrate.noise.noise_model import floor_obs_sigma
-
-    section = load_calibration(noise_from).noise
-    if not section:
-        raise InputError(
-            "no noise section: add one with `accellog noise STILL.mcap --cal C -o C2`",
-            where=str(noise_from),
-        )
-    rate = src.meta.sample_rate_hz if src is not None else None
-    return floor_obs_sigma(obs, section, rate), [floor_obs_sigma(h, section, rate) for h in helds]
-
-
-def _write_rrd(rrd, src, d, obs) -> None:
-    from accellog.present.residual_views import log_diagnosis_residuals
-    from accellog.present.rrd.recording import RunRecording
-    from accellog.present.views import log_diagnosis, log_session
-
-    with RunRecording(f"save:{rrd}") as rec:
-        if src is not None:
-            log_session(rec, src.whole())
-        log_diagnosis(rec, d, obs)
-        log_diagnosis_residuals(rec, d, obs)
-        rec.log_series(
-            "residuals/windows",
-            np.asarray(obs.t_s, float),
-            np.asarray(d.fit.residual_g, float) * 1000.0,
-            [f"{d.model.name} residual {a} (mg)" for a in "xyz"],
-            points=True,
-        )
-
-
-def _handheld(
-    data, session, model, add, effects_file, window_s, detect_window_s, threshold, heldout
-) -> DiagnoseOutcome:
-    """An unlabelled session: detected static intervals, gravity-norm residual; the significant
-    candidates judged out of sample on the gravity norm (held-out sessions, else blocks of the
-    session: d.choice), by the workbench's ranking and tie rule."""
-    from accellog.calibrate.diagnosis.strategy import NORM
-    from accellog.calibrate.model.compose import build_model
-    from accellog.calibrate.model.effects import HANDHELD_START
-    from accellog.calibrate.observe.detected_holds import detect_holds, norm_obs
-
-    name = HANDHELD_START if model == "model3" else model  # model3's cross_axis is not identifiable here
-    m = build_model(name, add=list(add), effects_file=effects_file)
-    obs, det = detect_holds(data, window_s=detect_window_s, threshold=threshold, obs_window_s=window_s)
-    helds = [norm_obs(h, window_s=window_s) for h in _sessions(heldout)]
-    d = NORM.diagnose(obs, m, heldout=helds)  # judged out of sample, as the workbench's steps are
-    return DiagnoseOutcome(str(session), d, det)

@@ -19,14 +19,18 @@ from typing import TYPE_CHECKING, Any
 
 import tomllib
 
-from accellog.calibrate.calfile.calibration import read_text, source_entry, write_json_atomic
+from accellog.calibrate.calfile.calibration import (
+    GRAVITY_CONVENTIONS,
+    read_text,
+    source_entry,
+    write_json_atomic,
+)
 from accellog.calibrate.model.effects import load_effects_file
 from accellog.core.errors import InputError, ModelError, did_you_mean
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
 from accellog.core.textin import toml_loads
 from accellog.flows.stages import (
-    GRAVITY_CONVENTIONS,
     DriftOutcome,
     FitOutcome,
     load_input,

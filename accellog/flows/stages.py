@@ -27,23 +27,29 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from accellog.calibrate.calfile.calibration import Calibration, as_calibration, load_calibration, source_entry
-from accellog.calibrate.calfile.sections import DetectedInterval, DeviceInfo, SensorInfo, SourceFile
-from accellog.calibrate.gyro.calibrate import gyro_full_scale_dps, warn_clipped_moves
-from accellog.calibrate.gyro.fit import pooled_bias
-from accellog.calibrate.gyro.model import GyroCalibration
-from accellog.calibrate.gyro.stream import FirstPass, bias_windows, calibrate_blocks, first_pass
-from accellog.calibrate.model.compose import build_model
-from accellog.calibrate.model.fit import fit_model, fit_orientation_free
-from accellog.calibrate.observe.detect import detect_static, with_labels
-from accellog.calibrate.observe.label_check import relabel_holds
+from accellog.calibrate.calfile.calibration import (
+    Calibration,
+    as_calibration,
+    convention_truth_g,
+    load_calibration,
+    source_provenance,
+)
+from accellog.calibrate.calfile.sections import check_one_device
+from accellog.calibrate.gyro.calibrate import (
+    calibrate_source,
+    calibrate_sources,
+    first_pass_of,
+    temp_order_of,
+    warn_clipped_moves,
+)
+from accellog.calibrate.model.compose import build_model, orientation_free_model
+from accellog.calibrate.model.variance import fit_with_uncertainty
+from accellog.calibrate.observe.detected_holds import field_observations, fit_observations, fit_stops
 from accellog.calibrate.observe.obs_file import obs_to_dict, read_obs_table
 from accellog.calibrate.observe.segment import PoseStats, check_coverage, observations, observe_riding
-from accellog.core.errors import AccellogError, InputError, ModelError
 from accellog.core.forked import started
 from accellog.core.heap import trim_heap
 from accellog.core.jsonio import JsonResult
-from accellog.core.notices import note
 from accellog.core.numeric import load_solver, solver_loaded
 from accellog.core.numfmt import format_rows
 from accellog.core.session import ObsTable, Session
@@ -54,10 +60,6 @@ from accellog.store.source import Source, open_source, read_whole
 if TYPE_CHECKING:  # the evaluate stages import these when called (`fit` does without them)
     from accellog.calibrate.calfile.drift_model import DriftModel
     from accellog.navigate.evaluate import Evaluation, HandheldEvaluation, PoseEvaluation
-
-GRAVITY_CONVENTIONS = ("seed", "local")
-"""'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
-g_local / g0 in standard g (the physical convention)."""
 
 SessionInput = Session | Source | str | os.PathLike
 
@@ -73,28 +75,6 @@ def load_input(
     refused, for tools that report them, e.g. doctor)."""
     table = read_obs_table(path, n_per_pose=n_per_pose)
     return table if table is not None else read_whole(path, check_times=check_times)
-
-
-def _provenance(src: Source | None, table: ObsTable | None) -> SourceFile:
-    """Provenance entry of the input (hashed only when a calibration is built); a recovered
-    (truncated) session says what was kept."""
-    from accellog.store.recovery import recovery_info
-
-    if src is None:
-        p = table.session
-        return source_entry(p if p and Path(p).is_file() else None, "")
-    path = str(src.path) if src.path is not None else src.session.path
-    entry = source_entry(path if path and Path(path).is_file() else None, src.meta.source)
-    info = recovery_info(src.session) if src.in_memory else None
-    if info is not None:
-        entry = dataclasses.replace(entry, recovered=info.to_dict())
-    return entry
-
-
-def _truth_g(gravity: str, local_gravity_mps2: float) -> float:
-    if gravity not in GRAVITY_CONVENTIONS:
-        raise InputError(f"unknown gravity convention {gravity!r}: use 'seed' or 'local'")
-    return 1.0 if gravity == "seed" else local_gravity_mps2 / STANDARD_GRAVITY_MPS2
 
 
 def _cal(x: Calibration | str | os.PathLike) -> Calibration:
@@ -189,286 +169,81 @@ def run_fit(
     src = None if given else open_source(data, what="fit")
     name = table.session if src is None else src.where
     m = build_model(model, add=list(add), effects_file=effects_file)
-    if not orientation_free and table is None and not src.poses:
-        orientation_free, m = True, _orientation_free_model(m, effects_file, name)
+    if not orientation_free and table is None and not src.poses:  # what the session holds, decided here
+        orientation_free, m = True, orientation_free_model(m, name)
     if local_gravity_mps2 is None:
         local_gravity_mps2 = STANDARD_GRAVITY_MPS2 if src is None else src.meta.local_gravity_mps2
-    truth = _truth_g(gravity, float(local_gravity_mps2))
+    lg = float(local_gravity_mps2)
+    truth = convention_truth_g(gravity, lg)
     detected, first = None, None  # static intervals found in an unlabelled session; the gyro's first pass
-    if table is None and (relabel or orientation_free):
-        src = open_source(_relabelled(src.whole(), trim_s) if relabel else src.whole())
-        table, detected = _fit_observations(src.session, m, truth, orientation_free, window_s, trim_s)
-        if detected:  # hand-held: the gyro is calibrated on the detected static intervals (imu_tk style)
-            src = open_source(with_labels(src.session, detected))
-    elif table is None:
-        table, first, src = _read_observing(src, window_s, trim_s, gyro)
-    fit = _fit_obs(table, m, name, orientation_free, weighted, truth, uncertainty)
-    cal = _calibration(fit, table, src, gravity, float(local_gravity_mps2), detected)
+    if table is None and (relabel or orientation_free):  # read whole: relabelled, held or detected holds
+        table, detected, src = fit_observations(src, m, gravity_g=truth, relabel=relabel, window_s=window_s,
+                                                trim_s=trim_s)  # fmt: skip
+    elif table is None:  # labelled: one pass (a forked child while this process imports the solver)
+        with started(observe_riding, src, window_s=window_s, trim_s=trim_s, rider=first_pass_of if gyro else None,
+                     what=f"reading {src.where}", meanwhile=not solver_loaded()) as reading:  # fmt: skip
+            if reading.forked:
+                load_solver()  # meanwhile; in-process the first fit imports it
+            table, first, src = reading.result()
+    if not orientation_free:
+        check_coverage(table, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=name)
+    fit = fit_with_uncertainty(table, m, orientation_free=orientation_free, weighted=weighted, gravity_g=truth,
+                               uncertainty=uncertainty)  # fmt: skip
+    cal = Calibration.from_session_fit(fit, table, src, gravity_convention=gravity, local_gravity_mps2=lg,
+                                       detected=detected)  # fmt: skip
     if gyro and src is not None:
-        cal.gyro = _gyro(src, fit, first)
+        fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
+        trim_heap()
+        cal.gyro = calibrate_source(src, temp_order=temp_order_of(fit.model.terms), first=first)
     warn_clipped_moves(fit, cal)  # moves left out of the gyro fit: said, and in the file
     return FitOutcome(obs=table, fit=fit, cal=cal)
 
 
-def _relabelled(session: Session, trim_s: float) -> Session:
-    """The session with hold labels that contradict gravity replaced (a note each)."""
-    session, changes = relabel_holds(session, trim_s=trim_s)
-    for c in changes:
-        note(f"{session.path or 'session'}: relabelled {c.pose!r} as {c.likely!r}: {c.line()}")
-    return session
-
-
-def _read_observing(src: Source, window_s: float, trim_s: float, gyro: bool):
-    """(observations, the gyro calibration's first pass fed along their pass or None, src):
-    segment.observe_riding in a forked child while this process imports the solver (core.forked)."""
-    with started(observe_riding, src, window_s=window_s, trim_s=trim_s, rider=_first_pass if gyro else None,
-                 what=f"reading {src.where}", meanwhile=not solver_loaded()) as reading:  # fmt: skip
-        if reading.forked:
-            load_solver()  # meanwhile; in-process the first fit imports it
-        return reading.result()
-
-
-def _first_pass(src: Source) -> FirstPass | None:
-    """An unfed first pass of _gyro's calibrate_blocks, or None."""
-    if len(src.poses) < 2:
-        return None
-    try:
-        return first_pass(src.poses, full_scale_dps=gyro_full_scale_dps(src.meta))
-    except AccellogError:
-        return None
-
-
-def _gyro(src: Source, fit, first: FirstPass | None, still_ref=None) -> GyroCalibration | None:
-    """Gyro bias (and scale/misalignment where the holds' orientations are known) from the same
-    session's holds and the moves between them (one pass more; first: the first pass already fed),
-    stored next to the accelerometer's; None when the session has no gyro or < 2 holds. Rotations
-    that do not determine the matrix leave the bias alone (said). still_ref: the prior's gyro (turns
-    among the stops left out: gyro.stream.still_windows)."""
-    if len(src.poses) < 2:
-        return None
-    fit.release_jacobian()  # not held through the gyro passes (read again, it is remade)
-    trim_heap()
-    fs, order = gyro_full_scale_dps(src.meta), _gyro_temp_order(fit)
-    try:  # in Source.run: a session not read yet (observations given) has its stamps checked here
-        return src.run(
-            lambda s: calibrate_blocks(
-                s, s.poses, full_scale_dps=fs, first=first, temp_order=order, still_ref=still_ref
-            )
-        )
-    except ModelError as exc:  # e.g. rotations that do not determine M: said, and the bias kept
-        try:
-            cal = src.run(
-                lambda s: calibrate_blocks(s, s.poses, rotations=False, temp_order=order, still_ref=still_ref)
-            )
-        except AccellogError:
-            cal = None
-        note(f"gyro scale/misalignment not calibrated: {exc}" + ("; the bias is" if cal else ""))
-        return cal
-    except AccellogError:
-        return None
-
-
-def _gyro_temp_order(fit) -> int:
-    """The gyro bias's order in temperature: the accelerometer model's (2 with temp_bias2, else 1)."""
-    return 2 if "temp_bias2" in fit.model.terms else 1
-
-
-def _orientation_free_model(m, effects_file, where: str):
-    """An unlabelled (hand-held) session is fitted orientation-free, said in a note; cross_axis (3 of its
-    6 terms are a frame rotation, unobservable without labels) becomes misalignment_tri."""
-    terms = ["misalignment_tri" if t == "cross_axis" else t for t in m.terms]
-    swap = " with misalignment_tri for cross_axis" if terms != list(m.terms) else ""
-    note(f"{where}: no pose labels: fitted orientation-free (|f| = g on the detected still intervals){swap}")
-    return build_model("+".join(dict.fromkeys(terms)), effects_file=effects_file) if swap else m
-
-
-def _fit_observations(
-    session: Session, m, truth: float, orientation_free: bool, window_s: float, trim_s: float
-):
-    """(obs, detected static intervals or None): windowed observations of the holds, or of the static
-    intervals detect_static finds in an unlabelled session for an orientation-free fit (too few
-    distinct orientations: refused, with the option that updates a lab calibration instead)."""
-    if not (orientation_free and not session.poses):
-        return observations(session, window_s=window_s, trim_s=trim_s), None
-
-    def cost(labels) -> float:
-        o = observations(with_labels(session, labels), window_s=window_s, trim_s=0.0, check_units=False)
-        return fit_orientation_free(o, m, weighted=False, gravity_g=truth).rms_g
-
-    try:
-        detected = detect_static(session, cost=cost)
-    except InputError as exc:
-        if "distinct static orientations" not in str(exc):
-            raise
-        raise InputError(
-            f"{exc}; or give --prior LAB.json to update a lab calibration from these stops"
-        ) from None
-    return observations(with_labels(session, detected), window_s=window_s, trim_s=0.0), detected
-
-
-def _fit_obs(obs, m, name: str, orientation_free: bool, weighted: bool, truth: float, uncertainty: str):
-    """The fit (orientation-free, or labelled after the pose coverage check), with the uncertainty asked."""
-    if orientation_free:
-        fit = fit_orientation_free(obs, m, weighted=weighted, gravity_g=truth)
-    else:
-        check_coverage(obs, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=name)
-        fit = fit_model(obs, m, weighted=weighted, gravity_g=truth)
-    from accellog.calibrate.model.variance import with_uncertainty
-
-    return with_uncertainty(fit, obs, uncertainty)  # 'noise' too: scaled when the holds reject it
-
-
-def _calibration(
-    fit, obs, src: Source | None, gravity: str, local_gravity_mps2: float, detected
-) -> Calibration:
-    """The calibration of a fit: sensor, source, device and the detected intervals it used."""
-    cal = Calibration.from_fit(
-        fit,
-        obs=obs,
-        gravity_convention=gravity,
-        local_gravity_mps2=local_gravity_mps2,
-        sources=[_provenance(src, obs)],
-        sensor=SensorInfo.empty() if src is None else SensorInfo.from_meta(src.meta),
-    )
-    if src is not None:
-        cal.device = DeviceInfo.from_key(src.meta.device)
-    if detected:  # hand-held: the static intervals the fit used go into the calibration file
-        t = src.session.t_s
-        intervals = tuple(
-            DetectedInterval(
-                start_s=p.start_s,
-                end_s=p.end_s,
-                n=int(np.sum((t >= p.start_s) & (t < p.end_s))),
-                up_sensor=tuple(float(x) for x in p.up_sensor),
-            )
-            for p in detected
-        )
-        cal.fit = dataclasses.replace(cal.fit, detected_intervals=intervals)
-    return cal
-
-
 def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, aging, gravity, weighted,
                local_gravity_mps2, window_s, gyro, uncertainty) -> FitOutcome:  # fmt: skip
-    """run_fit of unlabelled field sessions of one device (a robot's run, a drone between flights):
-    the still intervals of each detected (moves ignored), their observations pooled, fitted
-    orientation-free with the prior (or, without one, only what the stops identify)."""
+    """run_fit of several sessions of one device, or of field sessions with a prior. Labelled
+    sessions without a prior (a freezer warm-up and a room cool-down, several days): their windows
+    pooled (loso.concat_obs, each session's holds its own poses) in one labelled fit with one
+    temperature model. Otherwise (a robot's run, a drone between flights) the still intervals of
+    each are detected (moves ignored), their observations pooled and fitted orientation-free with
+    the prior (or, without one, only what the stops identify). The gyro bias curve from the holds
+    (stops) of all of them."""
     from accellog.calibrate.diagnosis.loso import concat_obs
     from accellog.calibrate.model.prior import Prior
 
     srcs = [open_source(x, what="fit") for x in inputs]
-    _one_device(srcs, prior)
-    if prior is None and all(src.poses for src in srcs):
-        return _joint_fit(srcs, build_model(model, add=list(add), effects_file=effects_file), gravity=gravity,
-                          weighted=weighted, local_gravity_mps2=local_gravity_mps2, window_s=window_s, gyro=gyro,
-                          uncertainty=uncertainty)  # fmt: skip
+    check_one_device(srcs, prior)
+    joint = prior is None and all(src.poses for src in srcs)  # what the sessions hold, decided here
+    pri = None
     if prior is not None:
         m, gravity = prior.model, prior.gravity_convention
         pri = Prior.of(prior.param_names, prior.theta, prior.cov, m, aging=aging, what=prior.path or "prior")
     else:
-        m, pri = _orientation_free_model(build_model(model, add=list(add), effects_file=effects_file),
-                                         effects_file, srcs[0].where), None  # fmt: skip
+        m = build_model(model, add=list(add), effects_file=effects_file)
+        if not joint:
+            m = orientation_free_model(m, srcs[0].where)
     lg = float(srcs[0].meta.local_gravity_mps2 if local_gravity_mps2 is None else local_gravity_mps2)
-    truth = _truth_g(gravity, lg)
-    parts, found = [], []
-    for src in srcs:
-        session = src.whole()
-        if session.poses:  # a labelled session: its holds are the stops
-            parts.append(observations(session, window_s=window_s, trim_s=0.5))
-            found.append((src, None))
-            continue
-        detected = detect_static(session, min_poses=1, cost=lambda lab, s=session: _stop_fit(
-            observations(with_labels(s, lab), window_s=window_s, trim_s=0.0, check_units=False),
-            m, truth, pri, False).rms_g)  # fmt: skip
-        parts.append(observations(with_labels(session, detected), window_s=window_s, trim_s=0.0))
-        found.append((open_source(with_labels(session, detected)), detected))
-    obs = concat_obs(parts) if len(parts) > 1 else parts[0]
-    fit = _stop_fit(obs, m, truth, pri, weighted, uncertainty, note_what=True)
-    cal = _calibration(fit, obs, found[0][0], gravity, lg, found[0][1] if len(found) == 1 else None)
-    cal.sources = [_provenance(src, None) for src, _ in found]
+    truth = convention_truth_g(gravity, lg)
+    if joint:
+        found: list = [(src, None) for src in srcs]
+        obs = concat_obs([observations(src, window_s=window_s, trim_s=0.5) for src in srcs])
+        needs_scale = m.n_params > 3 or any(t != "bias" for t in m.terms)
+        check_coverage(obs, needs_scale=needs_scale, where=" + ".join(s.where for s in srcs))
+        fit = fit_with_uncertainty(obs, m, orientation_free=False, weighted=weighted, gravity_g=truth,
+                                   uncertainty=uncertainty)  # fmt: skip
+    else:
+        parts, found = field_observations(srcs, m, truth, pri, window_s=window_s)
+        obs = concat_obs(parts) if len(parts) > 1 else parts[0]
+        fit = fit_stops(obs, m, truth, pri, weighted=weighted, uncertainty=uncertainty, note_what=True)
+    cal = Calibration.from_session_fit(fit, obs, found[0][0], gravity_convention=gravity, local_gravity_mps2=lg,
+                                       detected=found[0][1] if len(found) == 1 else None)  # fmt: skip
+    cal.sources = [source_provenance(src, None) for src, _ in found]
     if gyro:
-        cal.gyro = _field_gyro([src for src, _ in found], fit, None if prior is None else prior.gyro)
+        fit.release_jacobian()  # not held through the gyro passes
+        trim_heap()
+        cal.gyro = calibrate_sources([src for src, _ in found], temp_order=temp_order_of(fit.model.terms),
+                                     still_ref=None if prior is None else prior.gyro)  # fmt: skip
     return FitOutcome(obs=obs, fit=fit, cal=cal)
-
-
-def _joint_fit(srcs: Sequence[Source], m, *, gravity, weighted, local_gravity_mps2, window_s, gyro,
-               uncertainty) -> FitOutcome:  # fmt: skip
-    """run_fit of several labelled sessions of one sensor (a freezer warm-up and a room cool-down,
-    several days): their windows pooled (loso.concat_obs, each session's holds its own poses) in one
-    labelled fit with one temperature model; the gyro bias curve from the holds of all of them."""
-    from accellog.calibrate.diagnosis.loso import concat_obs
-
-    lg = float(srcs[0].meta.local_gravity_mps2 if local_gravity_mps2 is None else local_gravity_mps2)
-    truth = _truth_g(gravity, lg)
-    parts = [observations(src, window_s=window_s, trim_s=0.5) for src in srcs]
-    obs = concat_obs(parts)
-    fit = _fit_obs(obs, m, " + ".join(s.where for s in srcs), False, weighted, truth, uncertainty)
-    cal = _calibration(fit, obs, srcs[0], gravity, lg, None)
-    cal.sources = [_provenance(src, part) for src, part in zip(srcs, parts, strict=True)]
-    if gyro:
-        cal.gyro = _field_gyro(srcs, fit)
-    return FitOutcome(obs=obs, fit=fit, cal=cal)
-
-
-def _stop_fit(obs: ObsTable, m, truth: float, prior, weighted: bool = True, uncertainty: str = "noise",
-              note_what: bool = False):  # fmt: skip
-    """The orientation-free fit of the stops: with the prior, or of the terms they identify
-    (calibrate.model.identifiability.identify_stops; the rest held at nominal, said in a note)."""
-    from accellog.calibrate.model.identifiability import identify_stops
-    from accellog.calibrate.model.variance import with_uncertainty
-
-    start = None if prior is None else prior.theta
-    ident = identify_stops(obs, m, start)
-    fixed = ident.unfitted if prior is None else ()
-    fit = fit_orientation_free(obs, m, weighted=weighted or prior is not None, gravity_g=truth, prior=prior,
-                               fixed=fixed)  # fmt: skip
-    fit = with_uncertainty(fit, obs, uncertainty)
-    if prior is not None:
-        fit.prior_sources = prior.sources(fit.theta, fit.cov)
-    fit.identification = ident
-    if note_what:
-        for line in ident.lines(prior is not None):
-            note(f"{obs.session or 'stops'}: {line}")
-    return fit
-
-
-def _one_device(srcs: Sequence[Source], prior: Calibration | None) -> None:
-    """Refuse (InputError, one line) sessions of different devices, or of another device than the prior's."""
-    first = DeviceInfo.from_key(srcs[0].meta.device).key
-    for src in srcs[1:]:
-        diff = first.conflicts(DeviceInfo.from_key(src.meta.device).key)
-        if diff:
-            raise InputError(f"{src.where} is another device than {srcs[0].where}: {'; '.join(diff)}")
-    diff = [] if prior is None else prior.device_conflicts(first)
-    if diff:
-        raise InputError(
-            f"{srcs[0].where} is another device than the prior's ({prior.path}): {'; '.join(diff)}"
-        )
-
-
-def _field_gyro(srcs: Sequence[Source], fit, still_ref=None) -> GyroCalibration | None:
-    """The gyro calibration of several sessions of one sensor: the bias and its temperature curve
-    from the holds (stops) of all of them (gyro.stream.pooled_bias), the matrix from the rotations
-    of the session with the most holds; one session: _gyro. still_ref: the prior's gyro (_gyro)."""
-    if len(srcs) == 1:
-        return _gyro(srcs[0], fit, None, still_ref)
-    fit.release_jacobian()
-    try:
-        wins = [w for src in srcs if len(src.poses) and (w := src.run(lambda s: bias_windows(s, s.poses)))]
-        if not wins:
-            return None
-        n = sum(len(s.poses) for s in srcs)
-        base = pooled_bias(wins, n, temp_order=_gyro_temp_order(fit), still_ref=still_ref)
-        best = max(srcs, key=lambda s: len(s.poses))
-        if len(best.poses) < 2:
-            return base
-        fs = gyro_full_scale_dps(best.meta)
-        note(f"gyro: bias from the holds of all {len(srcs)} sessions, scale/misalignment from {best.where}")
-        return best.run(lambda s: calibrate_blocks(s, s.poses, full_scale_dps=fs, base=base))
-    except ModelError as exc:
-        note(f"gyro not calibrated: {exc}")
-        return None
-    except AccellogError:
-        return None
 
 
 # ------------------------------------------------------------------------------------------ segment
@@ -679,7 +454,7 @@ def run_drift(
     if not stream:
         src.whole()
     cal_d, dm, ev = drift_blocks(src, _cal(cal), until_s=until_s, max_samples=max_samples)
-    entry = _provenance(src, None)
+    entry = source_provenance(src, None)
     if entry.recovered is not None:  # provenance: the drift was fitted on a recovered (truncated) file
         cal_d.sources = [*cal_d.sources, dataclasses.replace(entry, kind="drift")]
     return DriftOutcome(cal=cal_d, drift=dm, fit_eval=ev)

@@ -324,3 +324,23 @@ def followed_driver(diagnosis) -> str | None:
         if s.get("significant") and s.get("signal") in DRIVERS:
             return str(s["signal"])
     return None
+
+
+def write_diagnosis_rrd(path, session, d, obs) -> None:
+    """A Rerun recording of a diagnosis: the session's samples (session: a Session, or None for an
+    observation table), the verdict and candidates, the residuals per pose and per window (mg)."""
+    from accellog.present.rrd.recording import RunRecording
+    from accellog.present.views import log_diagnosis, log_session
+
+    with RunRecording(f"save:{path}") as rec:
+        if session is not None:
+            log_session(rec, session)
+        log_diagnosis(rec, d, obs)
+        log_diagnosis_residuals(rec, d, obs)
+        rec.log_series(
+            "residuals/windows",
+            np.asarray(obs.t_s, float),
+            np.asarray(d.fit.residual_g, float) * 1000.0,
+            [f"{d.model.name} residual {a} (mg)" for a in "xyz"],
+            points=True,
+        )

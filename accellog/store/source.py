@@ -21,6 +21,11 @@ stage that needs the whole series at once, e.g. a centred slope over block edges
 
 Pose tables and observation files are observation tables, not sessions: ``calibrate.observe.obs_file``
 reads them; here they are refused with a line that says so.
+
+What was recovered from a truncated or unfinished recording is stated so that users see it:
+``read_session`` salvages the complete chunks and appends an Event('recovered'); ``recovery_info``
+turns that into numbers (seconds and samples kept, complete holds) that commands print on stderr
+(``announce``, when a file is read whole), put in ``--json`` and store in every artifact's provenance.
 """
 
 from __future__ import annotations
@@ -28,12 +33,14 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
 
 from accellog.core.errors import DataIntegrityWarning, InputError
+from accellog.core.notices import note
 from accellog.core.session import Event, PoseLabel, Session, SessionMeta
 from accellog.store.stream import ImuBlock, iter_imu, read_labels
 
@@ -249,7 +256,6 @@ def _read(p: Path, what: str) -> Session:
     from accellog.store.importers.csv_checks import UnitsError
     from accellog.store.importers.ros2 import import_ros2, is_ros2_bag
     from accellog.store.reader import read_session
-    from accellog.store.recovery import announce
 
     if not p.exists():
         raise InputError("no such file", where=str(p))
@@ -306,6 +312,47 @@ def _not_a_session(p: Path, what: str) -> InputError:
     return InputError(
         f"{what} needs a recorded session (samples), not a pose table / observations", where=str(p)
     )
+
+
+# ------------------------------------------------------------------------------------------ recovery
+
+
+@dataclass(frozen=True)
+class RecoveryInfo:
+    """A recovered session: duration_s and samples kept, holds (complete labelled poses), detail."""
+
+    path: str
+    duration_s: float
+    samples: int
+    holds: int
+    detail: str
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def line(self) -> str:
+        return (
+            f"{self.path}: truncated file recovered: {self.duration_s:.1f} s, {self.samples} samples, "
+            f"{self.holds} holds kept ({self.detail})"
+        )
+
+
+def recovery_info(session: Session) -> RecoveryInfo | None:
+    """RecoveryInfo of a session read from an unfinished file, None for a finished one."""
+    notes = [e.detail for e in session.events if e.kind == "recovered"]
+    if not notes:
+        return None
+    dur = float(session.t_s[-1] - session.t_s[0]) if session.n else 0.0
+    return RecoveryInfo(str(session.path or ""), dur, int(session.n), len(session.poses), "; ".join(notes))
+
+
+def announce(session: Session) -> RecoveryInfo | None:
+    """recovery_info, also queued as a user note (accellog.core.notices; the CLI prints it on
+    stderr when the command succeeds)."""
+    info = recovery_info(session)
+    if info is not None:
+        note(info.line())
+    return info
 
 
 # ------------------------------------------------------------------------------------------ time stamps

@@ -30,9 +30,9 @@ from accellog.core.heap import HeapTrim
 from accellog.core.session import Event, PoseLabel, SessionMeta
 from accellog.core.units import temp_counts_to_degC
 from accellog.store.collect import check_file
-from accellog.store.imu_arrays import first_indexes, per_sample
 from accellog.store.layout import NS_PER_S, TOPIC_EVENTS, TOPIC_IMU, TOPIC_POSES, metadata_to_meta
 from accellog.store.mcap.batch_decode import DecodedBatch
+from accellog.store.reader import first_indexes, per_sample
 
 
 @dataclass
@@ -190,6 +190,11 @@ class HostClock:
         self.th_parts: list[np.ndarray] = []
         self.any_host, self.n, self.missing = False, 0, False
         self.carry: tuple | None = None  # (t, host) of the previous block's last sample: its run may go on
+
+    @classmethod
+    def for_pass(cls, _src: object = None) -> HostClock:
+        """A new HostClock for one pass (calibrate.observe.segment.observe_riding's rider of a Source)."""
+        return cls()
 
     def add(self, b: ImuBlock) -> None:
         self.n += b.n

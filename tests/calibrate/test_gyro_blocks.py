@@ -1,7 +1,7 @@
 """The gyro calibration is one implementation fed blocks of samples (accellog.calibrate.gyro.stream):
-its result must not depend on where the session is cut into blocks (whole arrays are one block, an
-MCAP file's chunk groups are many). Windows, hold middles and fine blocks then span block edges,
-down to blocks of one sample."""
+wherever the session is cut into blocks (whole arrays are one block, an MCAP file's chunk groups are
+many; windows, hold middles and fine blocks then span block edges, down to blocks of one sample) it
+recovers the chip's gyro errors the emulator drew (its truth)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from accellog.acquire.emulator.sensor_model import GyroErrors
 from accellog.calibrate.gyro.calibrate import calibrate_gyro, gyro_full_scale_dps
 from accellog.calibrate.gyro.stream import RateBlock, calibrate_blocks
 from accellog.core.errors import InputError
@@ -18,18 +19,19 @@ from accellog.flows.simulate import Scenario, simulate
 from accellog.store.reader import read_session
 
 CLIPPING = "+z,+x,+y,-x,-y,-z,+y,-y,+x"  # the +y -> -y flip in 1 s clips a 250 deg/s gyro
+SCENARIOS = {
+    "six": Scenario(protocol="six", hold_s=3.0, move_s=3.0, sample_rate_hz=100.0),
+    "warm": Scenario(protocol="six", hold_s=3.0, move_s=3.0, sample_rate_hz=100.0,
+                     temperature={"kind": "ramp", "T0": 25.0, "rate_degC_per_s": 0.2}),
+    "clip": Scenario(protocol=CLIPPING, hold_s=3.0, move_s=1.0, sample_rate_hz=200.0, seed=2),
+}  # fmt: skip
 
 
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory):
     d = tmp_path_factory.mktemp("gyro_blocks")
-    warm = {"kind": "ramp", "T0": 25.0, "rate_degC_per_s": 0.2}
     out = {}
-    for name, sc in (
-        ("six", Scenario(protocol="six", hold_s=3.0, move_s=3.0, sample_rate_hz=100.0)),
-        ("warm", Scenario(protocol="six", hold_s=3.0, move_s=3.0, sample_rate_hz=100.0, temperature=warm)),
-        ("clip", Scenario(protocol=CLIPPING, hold_s=3.0, move_s=1.0, sample_rate_hz=200.0, seed=2)),
-    ):
+    for name, sc in SCENARIOS.items():
         simulate(sc, d / f"{name}.mcap")
         out[name] = d / f"{name}.mcap"
     return out
@@ -47,42 +49,40 @@ def _cut(s, sizes):
     ]
 
 
-def _close(a, b, tol):
-    """GyroCalibration dicts equal, floats within tol (relative to max(1, |a|)); NaN where NaN."""
-    assert a.keys() == b.keys()
-    for k in a:
-        x, y = np.array(a[k], dtype=object), np.array(b[k], dtype=object)
-        if x.dtype == object and all(isinstance(v, (float, int, type(None))) for v in x.ravel()):
-            x, y = (np.array(np.where(v == None, np.nan, v), float) for v in (x, y))  # noqa: E711
-            np.testing.assert_allclose(y, x, rtol=0, atol=tol * max(1.0, np.nanmax(np.abs(x), initial=0)))
-            assert np.array_equal(np.isnan(x), np.isnan(y)), k
-        else:
-            assert a[k] == b[k], k
+def _assert_chip(cal, sc: Scenario, k: float = 4.0) -> None:
+    """cal recovers the emulated chip's gyro errors (the emulator's truth): M = diag(1 + s) + C, the
+    bias and, when fitted, its temperature slope, each within k sigma."""
+    chip = GyroErrors.datasheet(sc.chip_seed)
+    M = np.diag(1.0 + chip.scale) + chip.cross_axis
+    assert np.all(np.abs(cal.matrix - M) < k * cal.matrix_sigma), (cal.matrix - M) / cal.matrix_sigma
+    assert np.all(np.abs(cal.bias_dps - chip.bias_dps) < k * cal.bias_sigma_dps)
+    if "temp_bias" in cal.effects:
+        err = cal.temp_bias_dps_per_degC - chip.temp_bias_dps_per_degC
+        assert np.all(np.abs(err) < k * cal.temp_bias_sigma_dps_per_degC), err
 
 
 @pytest.mark.parametrize("sizes", [[1], [1000], [3, 250, 1, 40]])
 @pytest.mark.parametrize("name", ["six", "warm", "clip"])
-def test_any_cut_into_blocks_gives_the_one_block_result(sessions, name, sizes):
+def test_any_cut_into_blocks_recovers_the_chip(sessions, name, sizes):
+    """The session cut into blocks of any sizes (one sample, a hold, irregular): the calibration
+    recovers the chip the emulator drew, the clipped flip left out and the warm-up's slope fitted."""
     s = read_session(sessions[name])
     fs = gyro_full_scale_dps(s.meta)
-    whole = calibrate_gyro(s.t_s, s.gyro_dps, s.poses, s.temp_degC, full_scale_dps=fs)
     blocks = _cut(s, sizes)
     cut = calibrate_blocks(lambda: iter(blocks), s.poses, full_scale_dps=fs)
-    assert "scale" in whole.effects and cut.clipped_moves == whole.clipped_moves == (name == "clip")
-    assert ("temp_bias" in whole.effects) == (name == "warm")
-    # a coarse block summed in two parts rounds differently (~1e-16); the matrix fits of the warm
-    # and clipping sessions turn that into ~1e-10 (where Levenberg-Marquardt stops moves with it)
-    _close(whole.to_dict(), cut.to_dict(), 1e-12 if name == "six" else 1e-9)
+    assert "scale" in cut.effects and cut.clipped_moves == (name == "clip")
+    assert ("temp_bias" in cut.effects) == (name == "warm")
+    _assert_chip(cut, SCENARIOS[name])
 
 
 def test_a_hold_labelled_past_the_end(sessions):
     """Bias windows and a hold middle past the last sample (found only at the end of the pass)."""
     s = read_session(sessions["six"])
     poses = [*s.poses[:-1], replace(s.poses[-1], end_s=float(s.t_s[-1]) + 5.0)]
-    whole = calibrate_gyro(s.t_s, s.gyro_dps, poses, s.temp_degC)
-    assert whole.n_holds == 6 and "scale" in whole.effects
     blocks = _cut(s, [37])
-    _close(whole.to_dict(), calibrate_blocks(lambda: iter(blocks), poses).to_dict(), 1e-12)
+    cal = calibrate_blocks(lambda: iter(blocks), poses)
+    assert cal.n_holds == 6 and "scale" in cal.effects
+    _assert_chip(cal, SCENARIOS["six"])
 
 
 def test_the_file_is_read_in_its_chunk_groups(sessions, monkeypatch):

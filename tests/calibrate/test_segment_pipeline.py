@@ -1,6 +1,7 @@
-"""segment_blocks reduces each hold on a worker thread while the next blocks are read: the table is
-the one of a sequential pass, whatever the block cuts, and the first error is the one a sequential
-pass meets first."""
+"""segment_blocks reduces each hold on a worker thread while the next blocks are read: whatever the
+block cuts, the table is what plain numpy computes on the whole arrays (each trimmed hold cut into
+consecutive windows of the table's sample counts: their mean reading and mean time), and the first
+error is the one a sequential pass meets first."""
 
 from __future__ import annotations
 
@@ -9,7 +10,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from accellog.calibrate.observe.segment import observations
 from accellog.calibrate.observe.stream_segment import segment_blocks
 from accellog.core.errors import InputError
 from accellog.flows.simulate import Scenario, simulate
@@ -33,14 +33,30 @@ def _blocks(s, n, accel=None, fail_after_s=None):
         yield SimpleNamespace(t_s=s.t_s[sl], accel_g=acc[sl], temp_degC=s.temp_degC[sl])
 
 
+def _numpy_windows(s, obs, trim_s: float = 0.5):
+    """(mean reading (W, 3) g, mean time (W,) s) of the windows in plain numpy: each hold's samples
+    in [start + trim_s, end - trim_s) split into consecutive runs of the table's n_samples."""
+    means, times = [], []
+    for k, p in enumerate(s.poses):
+        idx = np.flatnonzero((s.t_s >= p.start_s + trim_s) & (s.t_s < p.end_s - trim_s))
+        n = obs.n_samples[obs.pose_id == k]
+        assert n.sum() == idx.size  # the windows tile the trimmed hold
+        for part in np.split(idx, np.cumsum(n)[:-1]):
+            means.append(s.accel_g[part].mean(axis=0))
+            times.append(s.t_s[part].mean())
+    return np.array(means), np.array(times)
+
+
 @pytest.mark.parametrize("n", [97, 1000, 10**9])
-def test_any_cut_gives_the_table_of_the_whole_session(session, n):
-    whole = observations(session)
+def test_any_cut_gives_numpys_windows(session, n):
     cut = segment_blocks(
         session.meta, session.poses, _blocks(session, n), where="x.mcap", events=session.events
     )
-    for name in ("t_s", "meas_g", "sigma_g", "pose_id", "n_samples"):
-        assert np.array_equal(getattr(cut, name), getattr(whole, name)), name
+    assert cut.n >= len(session.poses) and set(cut.pose_id) == set(range(len(session.poses)))
+    means, times = _numpy_windows(session, cut)
+    np.testing.assert_allclose(cut.meas_g, means, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(cut.t_s, times, rtol=1e-12, atol=0)
+    assert np.all(cut.sigma_g > 0) and np.all(np.isfinite(cut.sigma_g))
 
 
 def test_a_bad_hold_is_raised_before_a_later_read_error(session):

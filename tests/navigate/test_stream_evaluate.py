@@ -1,7 +1,8 @@
-"""evaluate / integrate over a session's blocks: an MCAP file in many blocks gives the numbers of the same
-session in memory as one block (JSON within 1e-9 relative: the carried sums, the cuts across blocks),
-on simulated sessions long enough for several chunk groups; the running sums against the
-whole-series formulas when fed in small irregular blocks; a CSV input integrated with a calibration."""
+"""evaluate / integrate over a session's blocks: an MCAP file in many blocks gives the numbers plain
+numpy computes on the whole arrays with the calibration's own correction (within 1e-9 relative:
+the carried sums, the cuts across blocks), on simulated sessions long enough for several chunk
+groups; the running sums against the whole-series formulas when fed in small irregular blocks; a
+CSV input integrated with a calibration."""
 
 from __future__ import annotations
 
@@ -97,65 +98,114 @@ def test_test_session_spans_several_chunk_groups(sessions):
     assert len([b.n for b in iter_imu(sessions / "test.mcap")]) >= 10
 
 
+def _numpy_track(path, cal_path, cut=None):
+    """(t, d) of the session at path in plain numpy: f = the calibration's own correction of the
+    samples, a = f g / truth_g - up g, v and d by cumulative trapezoid over the kept samples
+    (t - t0 <= until_s, the first max_samples); d with the calibration's drift model removed."""
+    from scipy.integrate import cumulative_trapezoid
+
+    from accellog.calibrate.calfile.calibration import load_calibration
+    from accellog.store.reader import read_session
+
+    cut = cut or {}
+    s, cal = read_session(path), load_calibration(cal_path)
+    keep = np.ones(s.n, bool)
+    if "until_s" in cut:
+        keep &= s.t_s - s.t_s[0] <= cut["until_s"]
+    if "max_samples" in cut:
+        keep[cut["max_samples"] :] = False
+    t, g = s.t_s[keep], cal.local_gravity_mps2
+    a = cal.correct(s)[keep] * g / cal.truth_g - np.asarray(s.poses[0].up_sensor, float) * g
+    v = cumulative_trapezoid(a, t, axis=0, initial=0.0)
+    d = cumulative_trapezoid(v, t, axis=0, initial=0.0)
+    return t, v, d if cal.drift is None else cal.drift.apply(t, d)
+
+
 @pytest.mark.parametrize(
     "cut", [{}, {"until_s": 25.5}, {"max_samples": 37_000}], ids=["all", "until", "max_samples"]
 )
-def test_evaluate_in_many_blocks_equals_one_block(sessions, cut):
+def test_evaluate_in_many_blocks_equals_numpy(sessions, cut):
+    """Each calibration's end displacement (model3, + temperature bias, + drift model) of a file
+    read in many blocks is numpy's on the whole arrays."""
     d = sessions
     cals = [d / "m3.json", d / "tb.json", d / "m3d.json"]
     streamed = run_evaluate_report(d / "test.mcap", cals, **cut)
-    whole = run_evaluate_report(d / "test.mcap", cals, stream=False, **cut)
     assert not streamed.data.in_memory and streamed.single[0].t_s is None
-    assert whole.single[0].t_s is not None
-    assert streamed.single[-1].drift_applied
-    assert_json_close(whole.to_dict(), streamed.to_dict())
+    assert [e.drift_applied for e in streamed.single[1:]] == [False, False, True]
+    for ev, cal in zip(streamed.single[1:], cals, strict=True):
+        t, _v, disp = _numpy_track(d / "test.mcap", cal, cut)
+        assert ev.t_end_s == pytest.approx(t[-1], rel=1e-12)
+        end = ev.disp_end_drift_m if ev.drift_applied else ev.disp_end_m
+        np.testing.assert_allclose(end, disp[-1], rtol=1e-9, atol=1e-12, err_msg=str(cal))
 
 
 def test_evaluate_takes_an_opened_streamed_session_in_memory_too(sessions):
     """run_evaluate on an opened Source (e.g. reused from an earlier stage) with stream=False reads
-    its file whole: the same evaluation as from the path."""
+    its file whole: its displacement series is numpy's."""
     from accellog.flows.stages import run_evaluate
     from accellog.store.source import open_source
 
     d = sessions
     opened = open_source(d / "test.mcap")
-    got = run_evaluate(opened, d / "m3.json", stream=False)
-    want = run_evaluate(d / "test.mcap", d / "m3.json", stream=False)
-    assert got[-1].t_s is not None
-    assert_json_close([e.to_dict() for e in want], [e.to_dict() for e in got])
+    got = run_evaluate(opened, d / "m3.json", stream=False)[-1]
+    t, _v, disp = _numpy_track(d / "test.mcap", d / "m3.json")
+    np.testing.assert_allclose(got.t_s, t, rtol=1e-12)
+    np.testing.assert_allclose(got.disp_series_m, disp, rtol=1e-9, atol=1e-12)
 
 
-def test_streamed_per_pose_evaluate_equals_whole_session(sessions):
+def test_streamed_per_pose_evaluate_equals_numpy(sessions):
+    """Hold by hold on a file read in many blocks: every window's residual is numpy's (the mean of
+    the calibration's correction over the window's samples, each trimmed hold cut into runs of the
+    windows' sample counts, minus its up vector in truth units), each hold's mean their 1/sigma^2
+    weighted mean."""
+    from accellog.calibrate.calfile.calibration import load_calibration
+    from accellog.store.reader import read_session
+
     d = sessions
-    streamed = run_evaluate_report(d / "poses.mcap", [d / "m3.json"])
-    whole = run_evaluate_report(d / "poses.mcap", [d / "m3.json"], stream=False)
-    assert not streamed.data.in_memory and streamed.kind == "poses"
-    assert_json_close(whole.to_dict(), streamed.to_dict())
+    rep = run_evaluate_report(d / "poses.mcap", [d / "m3.json"])
+    assert not rep.data.in_memory and rep.kind == "poses"
+    s, cal, obs, ev = read_session(d / "poses.mcap"), load_calibration(d / "m3.json"), rep.obs, rep.poses[1]
+    f = cal.correct(s)
+    assert ev.pose_names == [p.name for p in s.poses]
+    for k, p in enumerate(s.poses):
+        rows = obs.pose_id == k
+        idx = np.flatnonzero((s.t_s >= p.start_s + 0.5) & (s.t_s < p.end_s - 0.5))
+        n = obs.n_samples[rows]
+        assert n.sum() == idx.size  # the windows tile the trimmed hold
+        r = np.array([f[w].mean(axis=0) for w in np.split(idx, np.cumsum(n)[:-1])])
+        r -= np.asarray(p.up_sensor, float) * cal.truth_g
+        np.testing.assert_allclose(ev.window_resid_g[rows], r, rtol=0, atol=1e-13)
+        wt = 1.0 / obs.sigma_g[rows] ** 2
+        np.testing.assert_allclose(
+            ev.mean_resid_g[k], (r * wt).sum(axis=0) / wt.sum(axis=0), rtol=0, atol=1e-13
+        )
 
 
-def test_integrate_csv_in_many_blocks_equals_one_block(sessions, capsys):
+def test_integrate_csv_in_many_blocks_equals_numpy(sessions, capsys):
+    """`integrate -o` streams the CSV block by block: its rows are numpy's t, v, d (9 digits)."""
     d = sessions
     args = ["integrate", str(d / "test.mcap"), "--cal", str(d / "m3.json"), "--json"]
     assert main([*args, "-o", str(d / "s.csv")]) == 0
-    streamed = json.loads(capsys.readouterr().out)
-    from accellog.flows.stages import run_integrate
-
-    whole = run_integrate(d / "test.mcap", d / "m3.json", stream=False)
-    (d / "w.csv").write_text(whole.csv_text())
-    a = np.loadtxt(d / "w.csv", delimiter=",", skiprows=1)
-    b = np.loadtxt(d / "s.csv", delimiter=",", skiprows=1)
-    assert a.shape == b.shape and a.shape[0] > 2 * BLOCK
-    np.testing.assert_allclose(b, a, rtol=1e-8, atol=1e-12)  # the CSV holds 9 significant digits
-    assert_json_close(json.loads(dumps(whole.to_dict(streamed["output"]))), streamed)
+    said = json.loads(capsys.readouterr().out)
+    rows = np.loadtxt(d / "s.csv", delimiter=",", skiprows=1)
+    t, v, disp = _numpy_track(d / "test.mcap", d / "m3.json")
+    assert rows.shape == (t.size, 7) and t.size > 2 * BLOCK
+    np.testing.assert_allclose(rows[:, 0], t, rtol=1e-8)
+    np.testing.assert_allclose(rows[:, 1:4], v, rtol=1e-7, atol=1e-9)  # the CSV holds 9 significant digits
+    np.testing.assert_allclose(rows[:, 4:7], disp, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(said["disp_end_m"], disp[-1], rtol=1e-9, atol=1e-12)
+    assert said["output"] == str(d / "s.csv")
 
 
 def test_streamed_evaluate_refuses_a_moving_session(tmp_path):
-    _static_mcap(tmp_path / "m.mcap", seed=6, bump_at_s=35.0)  # in a late block
-    with pytest.raises(InputError, match=r"labelled static but moves at t = 3[45]\.") as streamed:
-        run_evaluate_report(tmp_path / "m.mcap", [])
-    with pytest.raises(InputError) as whole:
-        run_evaluate_report(tmp_path / "m.mcap", [], stream=False)
-    assert str(streamed.value) == str(whole.value)
+    """The knock the session was given (+0.3 g at 35.0-35.4 s, in a late block) is named, one line."""
+    path = _static_mcap(tmp_path / "m.mcap", seed=6, bump_at_s=35.0)
+    with pytest.raises(InputError) as streamed:
+        run_evaluate_report(path, [])
+    msg = str(streamed.value)
+    assert "\n" not in msg and str(path) in msg and "labelled static but moves at t = " in msg
+    lo, hi = (float(x) for x in msg.split("moves at t = ")[1].split()[0].rstrip("s:,").split("-"))
+    assert lo <= 35.4 and hi >= 35.0 and hi - lo <= 2.0, msg  # the window that holds the knock
 
 
 def test_integrate_a_csv_input_with_a_calibration(sessions, tmp_path, capsys):

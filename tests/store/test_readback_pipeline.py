@@ -1,4 +1,4 @@
-"""read_session's group-by-group conversions (store.imu_arrays) against the generic reader, bit for bit,
+"""read_session's group-by-group conversions (store.reader.ImuAccumulator) against the generic reader, bit for bit,
 on files shaped like bench_readback's: accel/gyro/temp counts with host times, FIFO reads of 36 or
 30-42 samples, recorder (0.5 s chunks) and write_session (1 MiB chunks) layouts, zstd and lz4, read
 in small chunk groups so that group and chunk boundaries fall inside every kind of run."""
@@ -13,7 +13,7 @@ import pytest
 
 from accellog.core.session import Session, SessionMeta
 from accellog.core.units import temp_counts_to_degC
-from accellog.store import imu_arrays, reader
+from accellog.store import reader
 from accellog.store.codec import encode
 from accellog.store.mcap import fastread
 from accellog.store.mcap import index as mcap_index
@@ -130,7 +130,7 @@ def test_imu_accumulator_grows_while_converting():
             )
         )
         first += m + (3 if k == 20 else 0)
-    acc = imu_arrays.ImuAccumulator("ImuBatch", 16384.0, 131.0)
+    acc = reader.ImuAccumulator("ImuBatch", 16384.0, 131.0)
     for lo in range(0, 40, 7):
         part = b"".join(msgs[lo : lo + 7])
         buf = np.frombuffer(part + bytes(16), np.uint8)
@@ -270,7 +270,7 @@ def test_conversion_error_on_the_worker_falls_back(tmp_path, monkeypatch):
     _recorder(p, s, "zstd", vary=True, gap=False)
     monkeypatch.setattr(fastread, "_GROUP_BYTES", 64 << 10)
     calls = []
-    convert = imu_arrays.ImuAccumulator._convert
+    convert = reader.ImuAccumulator._convert
 
     def failing(self, *args):
         calls.append(1)
@@ -278,7 +278,7 @@ def test_conversion_error_on_the_worker_falls_back(tmp_path, monkeypatch):
             raise MemoryError("worker")
         return convert(self, *args)
 
-    monkeypatch.setattr(imu_arrays.ImuAccumulator, "_convert", failing)
+    monkeypatch.setattr(reader.ImuAccumulator, "_convert", failing)
     threads = threading.active_count()
     dec = reader.collect_session(p, accumulator=reader._imu_accumulator).decoders["/imu"]
     assert getattr(dec, "derived", None) is None

@@ -26,13 +26,15 @@ this version does not know are kept).
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import functools
 import hashlib
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -40,6 +42,7 @@ from accellog.calibrate.calfile.drift_model import DriftModel
 from accellog.calibrate.calfile.noise_section import NoiseSection
 from accellog.calibrate.calfile.schema import check_document, check_S, check_values
 from accellog.calibrate.calfile.sections import (
+    DetectedInterval,
     DeviceInfo,
     FitInfo,
     SensorInfo,
@@ -64,6 +67,9 @@ from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.core.version import __version__
 from accellog.store.atomic import write_text_atomic
 
+if TYPE_CHECKING:
+    from accellog.store.source import Source
+
 FORMAT = "accellog.calibration"
 FORMAT_VERSION = 1
 UNITS = {"accel_in": "g", "accel_out": "g (see gravity.truth_g)", "time": "s", "temperature": "degC"}
@@ -84,6 +90,35 @@ def sha256_file(path: str | os.PathLike) -> str | None:
 def source_entry(path: str | None, kind: str = "") -> SourceFile:
     """Path, SHA-256 (None when unreadable) and kind of an input file."""
     return SourceFile(path=path, sha256=sha256_file(path) if path else None, kind=kind)
+
+
+GRAVITY_CONVENTIONS = ("seed", "local")
+"""'seed': truth = +-1 per pose (unit = one local g; the capstone study); 'local': truth =
+g_local / g0 in standard g (the physical convention)."""
+
+
+def convention_truth_g(gravity: str, local_gravity_mps2: float) -> float:
+    """The fit's truth |f| (g) under a gravity convention (GRAVITY_CONVENTIONS)."""
+    if gravity not in GRAVITY_CONVENTIONS:
+        raise InputError(f"unknown gravity convention {gravity!r}: use 'seed' or 'local'")
+    return 1.0 if gravity == "seed" else local_gravity_mps2 / STANDARD_GRAVITY_MPS2
+
+
+def source_provenance(src: Source | None, table: ObsTable | None) -> SourceFile:
+    """The provenance entry of a fit's input: its session file (hashed), or the observation
+    table's session file when no session was read; a recovered (truncated) session says what was
+    kept (store.source.recovery_info)."""
+    from accellog.store.source import recovery_info
+
+    if src is None:
+        p = table.session if table is not None else None
+        return source_entry(p if p and Path(p).is_file() else None, "")
+    path = str(src.path) if src.path is not None else src.session.path if src.session is not None else None
+    entry = source_entry(path if path and Path(path).is_file() else None, src.meta.source)
+    info = recovery_info(src.session) if src.session is not None else None
+    if info is not None:
+        entry = dataclasses.replace(entry, recovered=info.to_dict())
+    return entry
 
 
 @dataclass
@@ -289,6 +324,34 @@ class Calibration(JsonResult):
             sensor=sensor if isinstance(sensor, SensorInfo) else SensorInfo.from_dict(sensor or {}),
             created_utc=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         )
+
+    @classmethod
+    def from_session_fit(
+        cls,
+        fit: Any,
+        obs: ObsTable,
+        src: Source | None,
+        *,
+        gravity_convention: str,
+        local_gravity_mps2: float,
+        detected: list | None = None,
+    ) -> Calibration:
+        """from_fit with the session's sensor, device and provenance (source_provenance), and the
+        static intervals the fit used when they were detected (hand-held: PoseLabels of src)."""
+        cal = cls.from_fit(
+            fit,
+            obs=obs,
+            gravity_convention=gravity_convention,
+            local_gravity_mps2=local_gravity_mps2,
+            sources=[source_provenance(src, obs)],
+            sensor=SensorInfo.empty() if src is None else SensorInfo.from_meta(src.meta),
+        )
+        if src is not None:
+            cal.device = DeviceInfo.from_key(src.meta.device)
+        if detected and src is not None and src.session is not None:
+            intervals = DetectedInterval.of_labels(detected, src.session.t_s)
+            cal.fit = dataclasses.replace(cal.fit, detected_intervals=intervals)
+        return cal
 
     # ------------------------------------------------------------------ file
     def to_dict(self) -> dict:

@@ -21,7 +21,7 @@ accellog.calibrate.mag.magnetometer.MagCalibration; ``object_section`` gives the
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
@@ -192,6 +192,19 @@ class DetectedInterval(Section):
     up_sensor: tuple[float, ...] | None = json_field("nums")
     """Unit vector of gravity 'up' in the sensor frame during the interval."""
 
+    @classmethod
+    def of_labels(cls, labels: Sequence[Any], t_s: np.ndarray) -> tuple[DetectedInterval, ...]:
+        """The intervals of detected PoseLabels, n counted in the session's sample times t_s (s)."""
+        return tuple(
+            cls(
+                start_s=p.start_s,
+                end_s=p.end_s,
+                n=int(np.sum((t_s >= p.start_s) & (t_s < p.end_s))),
+                up_sensor=tuple(float(x) for x in p.up_sensor),
+            )
+            for p in labels
+        )
+
 
 @dataclass(frozen=True)
 class FitInfo(Section):
@@ -277,7 +290,7 @@ class SourceFile(Section):
     kind: str | None = json_field("str")
     """What the file is ('emulator', 'hardware', 'import:...', 'drift', ...)."""
     recovered: Mapping[str, Any] | None = json_field("obj", optional=True)
-    """What was salvaged from a truncated input (accellog.store.recovery.RecoveryInfo.to_dict())."""
+    """What was salvaged from a truncated input (accellog.store.source.RecoveryInfo.to_dict())."""
 
     @classmethod
     def list_from_json(cls, v: Any, where: str | None = None) -> list[SourceFile]:
@@ -358,3 +371,18 @@ def object_section(obj: Any, source: Mapping[str, Any] | None, reread: Callable[
     if dumps(reread(dict(source)).to_dict()) == dumps(d):
         return copy.deepcopy(dict(source))
     return {**d, **{k: copy.deepcopy(v) for k, v in source.items() if k not in d}}
+
+
+def check_one_device(srcs: Sequence[Any], prior: Any = None) -> None:
+    """Refuse (InputError, one line) session Sources of different devices, or of another device
+    than the prior calibration's."""
+    first = DeviceInfo.from_key(srcs[0].meta.device).key
+    for src in srcs[1:]:
+        diff = first.conflicts(DeviceInfo.from_key(src.meta.device).key)
+        if diff:
+            raise InputError(f"{src.where} is another device than {srcs[0].where}: {'; '.join(diff)}")
+    diff = [] if prior is None else prior.device_conflicts(first)
+    if diff:
+        raise InputError(
+            f"{srcs[0].where} is another device than the prior's ({prior.path}): {'; '.join(diff)}"
+        )

@@ -1,21 +1,35 @@
 """Gyro calibration of a session held in memory: its arrays fed as one block to the one
 implementation (accellog.calibrate.gyro.stream.calibrate_blocks; the model and the fits:
-accellog.calibrate.gyro.fit), and what the fit flow reads off a session for it (the gyro full
-scale, the warning for the moves left out).
+accellog.calibrate.gyro.fit); the gyro calibration of one or several session Sources
+(``calibrate_source``, ``calibrate_sources``: the fit stage's, the source itself is the pass
+factory) and what the fit flow reads off a session for it (the gyro full scale, the first pass
+fed along the observation pass, the warning for the moves left out).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from accellog.calibrate.gyro.fit import BIAS_TRIM_S, BIAS_WINDOW_S, CLIP_NEAR
+from accellog.calibrate.gyro.fit import BIAS_TRIM_S, BIAS_WINDOW_S, CLIP_NEAR, pooled_bias
 from accellog.calibrate.gyro.model import GyroCalibration
-from accellog.calibrate.gyro.stream import Blocks, RateBlock, calibrate_blocks
-from accellog.core.errors import InputError
+from accellog.calibrate.gyro.stream import (
+    Blocks,
+    FirstPass,
+    RateBlock,
+    bias_windows,
+    calibrate_blocks,
+    first_pass,
+)
+from accellog.core.errors import AccellogError, InputError, ModelError
+from accellog.core.notices import note
 from accellog.core.session import PoseLabel
+
+if TYPE_CHECKING:
+    from accellog.store.source import Source
 
 
 def calibrate_gyro(
@@ -123,6 +137,85 @@ def gyro_full_scale_dps(meta) -> float | None:
     if meta.gyro_range_dps:
         return float(meta.gyro_range_dps)
     return 32768.0 / meta.gyro_lsb_per_dps if meta.gyro_lsb_per_dps else None
+
+
+def temp_order_of(terms: Sequence[str]) -> int:
+    """The gyro bias's order in temperature: the accelerometer model's (2 with temp_bias2, else 1)."""
+    return 2 if "temp_bias2" in terms else 1
+
+
+def first_pass_of(src: Source) -> FirstPass | None:
+    """An unfed first pass of calibrate_source's calibrate_blocks (segment.observe_riding's rider),
+    or None (fewer than 2 holds, or no pass to plan)."""
+    if len(src.poses) < 2:
+        return None
+    try:
+        return first_pass(src.poses, full_scale_dps=gyro_full_scale_dps(src.meta))
+    except AccellogError:
+        return None
+
+
+def calibrate_source(
+    src: Source,
+    *,
+    temp_order: int = 1,
+    first: FirstPass | None = None,
+    still_ref: GyroCalibration | None = None,
+) -> GyroCalibration | None:
+    """Gyro bias (and scale/misalignment where the holds' orientations are known) from a session's
+    holds and the moves between them (one pass more; first: the first pass already fed), stored
+    next to the accelerometer's; None when the session has no gyro or < 2 holds. Rotations that do
+    not determine the matrix leave the bias alone (said). still_ref: the prior's gyro (turns among
+    the stops left out: gyro.stream.still_windows)."""
+    if len(src.poses) < 2:
+        return None
+    fs = gyro_full_scale_dps(src.meta)
+    try:  # in Source.run: a session not read yet (observations given) has its stamps checked here
+        return src.run(
+            lambda s: calibrate_blocks(
+                s, s.poses, full_scale_dps=fs, first=first, temp_order=temp_order, still_ref=still_ref
+            )
+        )
+    except ModelError as exc:  # e.g. rotations that do not determine M: said, and the bias kept
+        try:
+            cal = src.run(
+                lambda s: calibrate_blocks(
+                    s, s.poses, rotations=False, temp_order=temp_order, still_ref=still_ref
+                )
+            )
+        except AccellogError:
+            cal = None
+        note(f"gyro scale/misalignment not calibrated: {exc}" + ("; the bias is" if cal else ""))
+        return cal
+    except AccellogError:
+        return None
+
+
+def calibrate_sources(
+    srcs: Sequence[Source], *, temp_order: int = 1, still_ref: GyroCalibration | None = None
+) -> GyroCalibration | None:
+    """The gyro calibration of several sessions of one sensor: the bias and its temperature curve
+    from the holds (stops) of all of them (fit.pooled_bias), the matrix from the rotations of the
+    session with the most holds; one session: calibrate_source."""
+    if len(srcs) == 1:
+        return calibrate_source(srcs[0], temp_order=temp_order, still_ref=still_ref)
+    try:
+        wins = [w for src in srcs if len(src.poses) and (w := src.run(lambda s: bias_windows(s, s.poses)))]
+        if not wins:
+            return None
+        n = sum(len(s.poses) for s in srcs)
+        base = pooled_bias(wins, n, temp_order=temp_order, still_ref=still_ref)
+        best = max(srcs, key=lambda s: len(s.poses))
+        if len(best.poses) < 2:
+            return base
+        fs = gyro_full_scale_dps(best.meta)
+        note(f"gyro: bias from the holds of all {len(srcs)} sessions, scale/misalignment from {best.where}")
+        return best.run(lambda s: calibrate_blocks(s, s.poses, full_scale_dps=fs, base=base))
+    except ModelError as exc:
+        note(f"gyro not calibrated: {exc}")
+        return None
+    except AccellogError:
+        return None
 
 
 def warn_clipped_moves(fit, cal) -> None:

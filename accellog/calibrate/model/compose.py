@@ -34,6 +34,7 @@ from accellog.calibrate.model.effects import (
     load_effects_file,
 )
 from accellog.core.errors import ModelError
+from accellog.core.notices import note
 from accellog.core.rotations import quat_from_rotvec, rotate_inverse
 
 _ORDER = list(LIBRARY)
@@ -372,6 +373,15 @@ def build_model(
         terms.extend(PRESETS.get(t, (t,)))
     name = spec.strip() + "".join(f"+{a.strip()}" for a in (add or []) if a.strip())
     return Model(terms, effects_file=ef, t_ref_degC=t_ref_degC, name=name)
+
+
+def orientation_free_model(m: Model, where: str) -> Model:
+    """m for an unlabelled (hand-held) session, fitted orientation-free (said in a note): cross_axis
+    (3 of its 6 terms are a frame rotation, unobservable without labels) becomes misalignment_tri."""
+    terms = ["misalignment_tri" if t == "cross_axis" else t for t in m.terms]
+    swap = " with misalignment_tri for cross_axis" if terms != list(m.terms) else ""
+    note(f"{where}: no pose labels: fitted orientation-free (|f| = g on the detected still intervals){swap}")
+    return build_model("+".join(dict.fromkeys(terms)), effects_file=m.effects_file) if swap else m
 
 
 def model_from_spec(spec: Mapping, effects_file: str | Path | EffectsFile | None = None) -> Model:

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from accellog.calibrate.model.acceptance import acceptance_warnings
-from accellog.calibrate.model.fit import FitResult, obs_drivers
+from accellog.calibrate.model.fit import FitResult, fit_model, fit_orientation_free, obs_drivers
 from accellog.core.errors import AccellogError, ModelError
 from accellog.core.numeric import chi2_sf
 from accellog.core.session import ObsTable
@@ -424,6 +424,18 @@ def with_uncertainty(res: FitResult, obs: ObsTable, method: str = "between_hold"
         out.uncertainty_note = f"leave-one-hold-out jackknife over {H} holds ({kind} residual)"
     _finish(out, noise_only=False)
     return out
+
+
+def fit_with_uncertainty(
+    obs: ObsTable, m, *, orientation_free: bool, weighted: bool, gravity_g: float, uncertainty: str
+) -> FitResult:
+    """The fit of obs (orientation-free on the gravity norm, or labelled per axis) with the
+    uncertainty asked (with_uncertainty; 'noise' too: scaled when the holds reject it)."""
+    if orientation_free:
+        fit = fit_orientation_free(obs, m, weighted=weighted, gravity_g=gravity_g)
+    else:
+        fit = fit_model(obs, m, weighted=weighted, gravity_g=gravity_g)
+    return with_uncertainty(fit, obs, uncertainty)
 
 
 def _noise(out: FitResult, res: FitResult, obs: ObsTable, kind: str) -> None:

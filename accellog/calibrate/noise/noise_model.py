@@ -444,3 +444,18 @@ def floor_obs_sigma(obs, section: NoiseSection, rate_hz: float | None = None):
         return obs
     floor_g = n[None, :] / STANDARD_GRAVITY_MPS2 / np.sqrt(np.asarray(obs.n_samples, float)[:, None] / rate)
     return dataclasses.replace(obs, sigma_g=np.maximum(obs.sigma_g, floor_g))
+
+
+def floor_noise(obs, helds, cal_path, rate_hz: float | None = None):
+    """(obs, helds) with every window's sigma floored by the white noise (Allan) of the 'noise'
+    section of the calibration file cal_path, at rate_hz (floor_obs_sigma; `diagnose --noise-from`);
+    InputError (one line) when the file has no noise section."""
+    from accellog.calibrate.calfile.calibration import load_calibration
+    from accellog.core.errors import InputError
+
+    section = load_calibration(cal_path).noise
+    if not section:
+        raise InputError(
+            "no noise section: add one with `accellog noise STILL.mcap --cal C -o C2`", where=str(cal_path)
+        )
+    return floor_obs_sigma(obs, section, rate_hz), [floor_obs_sigma(h, section, rate_hz) for h in helds]

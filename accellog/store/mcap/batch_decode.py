@@ -99,7 +99,7 @@ class DecodedBatch:
     scalars: dict[str, list | np.ndarray]  # lists, or arrays with scalar_arrays
     counts: dict[str, np.ndarray]
     placed: frozenset[str] = frozenset()  # arrays already written in place by BatchAccumulator.reserve
-    derived: dict[str, np.ndarray] | None = None  # columns converted while reading (imu_arrays)
+    derived: dict[str, np.ndarray] | None = None  # columns converted while reading (reader.ImuAccumulator)
 
     def result(self) -> tuple[dict[str, np.ndarray], dict[str, list | np.ndarray], dict[str, np.ndarray]]:
         """(arrays, scalars, counts), as ``BatchDecoder.result()`` (new dicts; the arrays are shared)."""

@@ -5,7 +5,7 @@ reused buffers (store.mcap.decompress; the next groups on worker threads while t
 records walked by checked guesses (runs of equal-length messages) or, in groups of many small chunks,
 all chunks side by side (store.mcap.record_starts), and every channel's payloads decoded at once by
 ``batch_decode.decode_batch`` straight into arrays sized once (a channel's accumulator may convert each
-group as it comes: store.imu_arrays). Anything unexpected raises ``NotFast`` and the generic reader
+group as it comes: store.reader.ImuAccumulator). Anything unexpected raises ``NotFast`` and the generic reader
 decides.
 
 Integrity (see accellog.store.collect): the summary CRC is checked first (a damaged summary is not
