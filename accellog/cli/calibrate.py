@@ -160,8 +160,7 @@ def fit(
     out = run_fit(sessions if len(sessions) > 1 else data, model, add=add or [], effects_file=effects_file,
                   weighted=not unweighted, orientation_free=orientation_free, gravity=gravity,
                   local_gravity_mps2=local_gravity, window_s=window_s, trim_s=trim_s, uncertainty=uncertainty,
-                  relabel=relabel, prior=_prior(prior, add or [], effects_file), aging=_aging(aging))  # fmt: skip
-    _warn_untempered(prior, out)
+                  relabel=relabel, prior=prior, aging=_aging(aging))  # fmt: skip
     if _save_outcome(out, data, output, rrd, json_out, inputs=(*sessions, effects_file, prior)):
         return
     _console.print(report.params_table(out.cal))
@@ -172,44 +171,6 @@ def fit(
     for w in out.fit.warnings:
         _console.print(f"[yellow]warning:[/] {w}")
     _console.print(f"wrote {output}")
-
-
-def _warn_untempered(prior: Path | None, out):
-    """A warning (note and fit warning) when the stops span UNTEMPERED_SPAN_DEGC or more and the model
-    (the prior's) has no temperature term: one bias is then fitted to every temperature. Returns out."""
-    import numpy as np
-
-    from accellog.calibrate.model.prior import UNTEMPERED_SPAN_DEGC
-    from accellog.core.notices import note
-
-    temps = out.obs.temp_degC
-    if prior is None or temps is None or "temp_degC" in out.fit.model.required_drivers:
-        return out
-    temps = np.asarray(temps, float)
-    if not np.isfinite(temps).all() or np.ptp(temps) < UNTEMPERED_SPAN_DEGC:
-        return out
-    w = (f"the stops span {temps.min():.1f}-{temps.max():.1f} degC and {prior} has no temperature term: "
-         "one bias is fitted to all of them; give --add temp_bias to fit the tempco from the stops")  # fmt: skip
-    note(w)
-    out.fit.warnings.append(w)
-    return out
-
-
-def _prior(path: Path | None, add: list[str], effects_file: Path | None):
-    """--prior as given, or with --add the lab calibration with those effects added at their
-    typical size (Calibration.with_effects; a note says so): the stops update them too."""
-    if path is None or not add:
-        return path
-    from accellog.calibrate.calfile.calibration import load_calibration
-    from accellog.core.notices import note
-
-    lab = load_calibration(path, effects_file)
-    cal = lab.with_effects(add)
-    new = [n for n in cal.param_names if n not in lab.param_names]
-    if new:
-        note(f"{path}: {', '.join(new)} not in the prior: added at their initial values with "
-             "1-sigma = the effect's typical size")  # fmt: skip
-    return cal
 
 
 def _aging(items: list[str] | None) -> dict[str, float] | None:

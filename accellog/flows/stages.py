@@ -50,6 +50,7 @@ from accellog.calibrate.observe.segment import PoseStats, check_coverage, observ
 from accellog.core.forked import started
 from accellog.core.heap import trim_heap
 from accellog.core.jsonio import JsonResult
+from accellog.core.notices import note
 from accellog.core.numeric import load_solver, solver_loaded
 from accellog.core.numfmt import format_rows
 from accellog.core.session import ObsTable, Session
@@ -158,10 +159,11 @@ def run_fit(
     stops pooled (_field_fit).
     """
     field = dict(model=model, add=add, effects_file=effects_file, aging=aging, gravity=gravity, weighted=weighted,
-                 local_gravity_mps2=local_gravity_mps2, window_s=window_s, gyro=gyro, uncertainty=uncertainty)  # fmt: skip
+                 local_gravity_mps2=local_gravity_mps2, window_s=window_s, trim_s=trim_s, gyro=gyro,
+                 uncertainty=uncertainty)  # fmt: skip
     if prior is not None or isinstance(data, (list, tuple)):
         many = list(data) if isinstance(data, (list, tuple)) else [data]
-        return _field_fit(many, None if prior is None else _cal(prior), **field)
+        return _field_fit(many, None if prior is None else _prior(prior, add, effects_file), **field)
     table = data if isinstance(data, ObsTable) else obs
     if table is None and isinstance(data, (str, os.PathLike)):
         table = read_obs_table(data, n_per_pose=n_per_pose)
@@ -199,8 +201,20 @@ def run_fit(
     return FitOutcome(obs=table, fit=fit, cal=cal)
 
 
+def _prior(prior: Calibration | str | os.PathLike, add: Sequence[str], effects_file) -> Calibration:
+    """The lab calibration a field fit updates, with the effects of `add` it lacks added at their
+    typical size (Calibration.with_effects; a note says so): the stops update them too."""
+    lab = prior if isinstance(prior, Calibration) else load_calibration(prior, effects_file)
+    cal = lab.with_effects(list(add)) if add else lab
+    new = [n for n in cal.param_names if n not in lab.param_names]
+    if new:
+        note(f"{lab.path or 'the prior'}: {', '.join(new)} not in the prior: added at their initial values "
+             "with 1-sigma = the effect's typical size")  # fmt: skip
+    return cal
+
+
 def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, aging, gravity, weighted,
-               local_gravity_mps2, window_s, gyro, uncertainty) -> FitOutcome:  # fmt: skip
+               local_gravity_mps2, window_s, trim_s, gyro, uncertainty) -> FitOutcome:  # fmt: skip
     """run_fit of several sessions of one device, or of field sessions with a prior. Labelled
     sessions without a prior (a freezer warm-up and a room cool-down, several days): their windows
     pooled (loso.concat_obs, each session's holds its own poses) in one labelled fit with one
@@ -209,7 +223,7 @@ def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, a
     the prior (or, without one, only what the stops identify). The gyro bias curve from the holds
     (stops) of all of them."""
     from accellog.calibrate.diagnosis.loso import concat_obs
-    from accellog.calibrate.model.prior import Prior
+    from accellog.calibrate.model.prior import Prior, untempered_warning
 
     srcs = [open_source(x, what="fit") for x in inputs]
     check_one_device(srcs, prior)
@@ -226,15 +240,19 @@ def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, a
     truth = convention_truth_g(gravity, lg)
     if joint:
         found: list = [(src, None) for src in srcs]
-        obs = concat_obs([observations(src, window_s=window_s, trim_s=0.5) for src in srcs])
+        obs = concat_obs([observations(src, window_s=window_s, trim_s=trim_s) for src in srcs])
         needs_scale = m.n_params > 3 or any(t != "bias" for t in m.terms)
         check_coverage(obs, needs_scale=needs_scale, where=" + ".join(s.where for s in srcs))
         fit = fit_with_uncertainty(obs, m, orientation_free=False, weighted=weighted, gravity_g=truth,
                                    uncertainty=uncertainty)  # fmt: skip
     else:
-        parts, found = field_observations(srcs, m, truth, pri, window_s=window_s)
+        parts, found = field_observations(srcs, m, truth, pri, window_s=window_s, trim_s=trim_s)
         obs = concat_obs(parts) if len(parts) > 1 else parts[0]
         fit = fit_stops(obs, m, truth, pri, weighted=weighted, uncertainty=uncertainty, note_what=True)
+        w = None if prior is None else untempered_warning(fit.model, obs.temp_degC, prior.path or "the prior")
+        if w is not None:
+            note(w)
+            fit.warnings.append(w)
     cal = Calibration.from_session_fit(fit, obs, found[0][0], gravity_convention=gravity, local_gravity_mps2=lg,
                                        detected=found[0][1] if len(found) == 1 else None)  # fmt: skip
     cal.sources = [source_provenance(src, None) for src, _ in found]

@@ -248,15 +248,10 @@ def test_a_fleet_field_session_warming_up_gets_the_tempco_added(parked):
     assert names[-3:] == ["bT_x", "bT_y", "bT_z"]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="run_fit's field path (stages._field_fit) observes labelled sessions with trim_s=0.5 fixed and "
-    "does not forward --trim-s: a robot's labelled 1-1.5 s stops refuse the whole run",
-)
 def test_a_labelled_robot_run_with_short_stops_updates_the_prior(parked, tmp_path, capsys):
     """The emulated demo loop (9 stops, 0.5-3.5 s labelled) with its labels, given --prior and a
-    short --trim-s and --window-s: its stops update the lab calibration (today: 'has 0 samples after trimming
-    0.5 s at each end')."""
+    short --trim-s and --window-s: its stops update the lab calibration (the field path once trimmed
+    0.5 s whatever --trim-s said: 'has 0 samples after trimming 0.5 s at each end')."""
     from accellog.flows.simulate import Scenario, simulate
 
     lab_dir, _, _ = parked

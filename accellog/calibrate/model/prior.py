@@ -33,6 +33,19 @@ temperature (on the emulated robot warming 20 -> 36 degC such an update, b_z mov
 and the scales by 10 %, was worse than the lab calibration alone; with temp_bias added at its
 typical size 0.015x its vector error)."""
 
+
+def untempered_warning(model: Model, temp_degC, what: str) -> str | None:
+    """The warning for stops spanning UNTEMPERED_SPAN_DEGC or more fitted with a prior (what) whose
+    model has no temperature term: one bias is then fitted to every temperature; None otherwise."""
+    if temp_degC is None or "temp_degC" in model.required_drivers:
+        return None
+    T = np.asarray(temp_degC, float)
+    if not np.isfinite(T).all() or np.ptp(T) < UNTEMPERED_SPAN_DEGC:
+        return None
+    return (f"the stops span {T.min():.1f}-{T.max():.1f} degC and {what} has no temperature term: one bias "
+            "is fitted to all of them; give --add temp_bias to fit the tempco from the stops")  # fmt: skip
+
+
 PRIOR_ABOVE = 0.8
 """var_post / var_prior above this: the prior determined the parameter."""
 DATA_BELOW = 0.2

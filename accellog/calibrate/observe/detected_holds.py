@@ -190,10 +190,10 @@ def fit_stops(obs: ObsTable, m: Model, gravity_g: float, prior=None, *, weighted
 
 
 def field_observations(
-    srcs: list[Source], m: Model, gravity_g: float, prior=None, *, window_s: float
+    srcs: list[Source], m: Model, gravity_g: float, prior=None, *, window_s: float, trim_s: float = 0.5
 ) -> tuple[list[ObsTable], list[tuple[Source, list[PoseLabel] | None]]]:
     """(each session's stop windows, [(the Source its gyro and provenance read, its detected
-    intervals or None)]): a labelled session's holds are its stops (0.5 s trimmed); an unlabelled
+    intervals or None)]): a labelled session's holds are its stops (trim_s s trimmed); an unlabelled
     one's are the still intervals detect_static finds (one at least), scored by the fit of the stops
     (fit_stops, unweighted, with the prior)."""
     parts: list[ObsTable] = []
@@ -201,7 +201,7 @@ def field_observations(
     for src in srcs:
         session = src.whole()
         if session.poses:
-            parts.append(observations(session, window_s=window_s, trim_s=0.5))
+            parts.append(observations(session, window_s=window_s, trim_s=trim_s))
             found.append((src, None))
             continue
 
