@@ -38,7 +38,12 @@ from accellog.calibrate.diagnosis.driver_signals import ALPHA, MIN_DRIVER_R2, dr
 from accellog.calibrate.model.compose import Model
 from accellog.calibrate.model.effects import all_effects
 from accellog.calibrate.model.fit import FitResult, fit_model, fit_orientation_free, obs_drivers
-from accellog.calibrate.model.identifiability import checked_advice, effect_requirement, norm_blind_reason
+from accellog.calibrate.model.identifiability import (
+    NORM_BLIND,
+    checked_advice,
+    effect_requirement,
+    norm_blind_reason,
+)
 from accellog.core.errors import InputError, ModelError
 from accellog.core.heap import trim_heap
 from accellog.core.numeric import f_sf, normal_sf
@@ -433,15 +438,6 @@ def _verdict(model, base, floor, missing, sig_cands, signals, rows, clock) -> tu
 
 # ---------------------------------------------------------------------------------------------
 # hand-held sessions (no pose labels): the gravity norm
-
-
-NORM_BLIND = {
-    "cross_axis": "3 of its 6 terms are a rotation of the sensor frame, invisible in |f|: use "
-    "misalignment_tri (the other 3), or record labelled poses",
-    "fixture_tilt": "needs pose labels (the tilt of a fixture is a rotation of every truth)",
-    "clock": "a sample-clock error does not change static readings: supply host timestamps",
-}
-"""Effects the gravity norm cannot identify, with what to do instead."""
 
 
 def diagnose_handheld(obs: ObsTable, model: Model, *, candidates: Sequence[str] | None = None) -> Diagnosis:
