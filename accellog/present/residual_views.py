@@ -165,11 +165,22 @@ def _marks(rec, ent: str, role: str, at: list[tuple[float, str]]) -> None:
     )
 
 
+def _short(label: str, labels) -> str:
+    """'final <start>+a+b' as 'final: + a + b' beside 'start <start>' (two model names side by side
+    overlap in the legend)."""
+    starts = [k[len("start ") :] for k in labels if k.startswith("start ")]
+    if starts and label.startswith(f"final {starts[0]}+"):
+        return "final: + " + " + ".join(label[len(f"final {starts[0]}+") :].split("+"))
+    return label
+
+
 def _legend(
     labels, colors, axis: str, lines: bool, cooling: bool = True, dots: str = "what the added effects predict"
 ) -> list[tuple[str, tuple]]:
     what = "residual" if axis == "norm" else f"residual {axis}"
-    out = [(f"{k}: {what}" + (" (light: cooling)" if cooling else ""), colors[k]) for k in labels]
+    out = [
+        (f"{_short(k, labels)}: {what}" + (" (light: cooling)" if cooling else ""), colors[k]) for k in labels
+    ]
     dark = tuple(int(0.5 * v) for v in colors[labels[0]])
     return out + ([(f"dark dots: {dots}", dark)] if lines else [])
 

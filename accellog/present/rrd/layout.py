@@ -68,7 +68,8 @@ def _story_tabs(roles: Mapping[str, list[str]]) -> list:
         tabs.append(rrb.Vertical(*views, row_shares=[3, 2][: len(views)], name="the search"))
     main = _scatter_views(roles, "scatter2d_main")
     tabs += [rrb.Vertical(*vs, name=f"residual vs {d}: before / after") for d, vs in main.items()]
-    every = {**main, **_scatter_views(roles, "scatter2d")}
+    # views of their own: a view placed in two containers (the tab above and here) draws in neither
+    every = {**_scatter_views(roles, "scatter2d_main"), **_scatter_views(roles, "scatter2d")}
     if tabs and every:  # each driver as large as the first, one tab each
         tabs.append(rrb.Tabs(*(rrb.Vertical(*vs, name=f"residual vs {d}") for d, vs in every.items()),
                              name="residual vs every driver"))  # fmt: skip
