@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from accellog.calibrate.model.identifiability import NORM_BLIND
+from accellog.calibrate.model.effects import NORM_BLIND
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable
 

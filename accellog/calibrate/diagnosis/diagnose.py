@@ -36,14 +36,9 @@ from accellog.calibrate.diagnosis.clock import clock_from_host_time
 from accellog.calibrate.diagnosis.cross_validation import cv_compare, cv_scores
 from accellog.calibrate.diagnosis.driver_signals import ALPHA, MIN_DRIVER_R2, driver_signals
 from accellog.calibrate.model.compose import Model
-from accellog.calibrate.model.effects import all_effects
+from accellog.calibrate.model.effects import NORM_BLIND, all_effects
 from accellog.calibrate.model.fit import FitResult, fit_model, fit_orientation_free, obs_drivers
-from accellog.calibrate.model.identifiability import (
-    NORM_BLIND,
-    checked_advice,
-    effect_requirement,
-    norm_blind_reason,
-)
+from accellog.calibrate.model.identifiability import checked_advice, effect_requirement, norm_blind_reason
 from accellog.core.errors import InputError, ModelError
 from accellog.core.heap import trim_heap
 from accellog.core.numeric import f_sf, normal_sf

@@ -258,6 +258,15 @@ HANDHELD_START = "bias+scale+misalignment_tri"
 """The start model of a hand-held session (orientation-free: a frame rotation is unobservable)."""
 
 
+NORM_BLIND = {
+    "cross_axis": "3 of its 6 terms are a rotation of the sensor frame, invisible in |f|: use "
+    "misalignment_tri (the other 3), or record labelled poses",
+    "fixture_tilt": "needs pose labels (the tilt of a fixture is a rotation of every truth)",
+    "clock": "a sample-clock error does not change static readings: supply host timestamps",
+}
+"""Effects the gravity norm cannot identify, with what to do instead."""
+
+
 @dataclass
 class EffectsFile:
     """Effects loaded from a user file, with the file's path and SHA-256 (stored in model specs)."""

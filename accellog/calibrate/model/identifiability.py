@@ -312,15 +312,6 @@ def norm_blind_params(model: Model) -> list[str]:
         return []
 
 
-NORM_BLIND = {
-    "cross_axis": "3 of its 6 terms are a rotation of the sensor frame, invisible in |f|: use "
-    "misalignment_tri (the other 3), or record labelled poses",
-    "fixture_tilt": "needs pose labels (the tilt of a fixture is a rotation of every truth)",
-    "clock": "a sample-clock error does not change static readings: supply host timestamps",
-}
-"""Effects the gravity norm cannot identify, with what to do instead."""
-
-
 def norm_blind_reason(model: Model, effect: str) -> str | None:
     """Why `effect` cannot be identified on top of `model` by a gravity-norm fit with any
     orientations (None if a good recording could identify it): the parameters that enter |f| alike."""
