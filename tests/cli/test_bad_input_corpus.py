@@ -466,6 +466,12 @@ for _name, _text in CSV_BAD.items():
     )
 
 
+@case("csv-one-column-mapped-twice", "--columns", "'ax' is mapped twice", "ax and ay")
+def _csv_column_twice(d: Path, good: dict) -> list[str]:
+    csv = cp(good, "csv", d)
+    return ["import", "csv", str(csv), "--columns", "ax=ax,ay=ax,az=az", "-o", str(d / "o.mcap")]
+
+
 @case("csv-out-is-input", "six.csv", "input")
 def _(d, g):
     src = cp(g, "csv", d)
@@ -787,6 +793,10 @@ for _name, _opts, _needles in (
     ("window-0", ("--window-s", "0"), ("--window-s",)),
     ("trim-huge", ("--trim-s", "100"), ("samples after trimming",)),
     ("effects-file-dir", ("--effects-file", "."), ("effects file",)),
+    ("model-bias-twice", ("--model", "bias+bias"), ("'bias' twice",)),
+    ("model-model3-twice", ("--model", "model3+model3"), ("model3+model3", "'cross_axis'", "twice")),
+    ("model-preset-term-again", ("--model", "model3+bias"), ("'bias' twice",)),
+    ("add-a-term-of-the-model", ("--model", "model2", "--add", "scale"), ("'scale' twice",)),
 ):
     add(f"option-fit-{_name}", _fit_opt(*_opts), *_needles)
 
