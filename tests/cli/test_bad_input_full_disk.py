@@ -1,5 +1,6 @@
 """A full file system (issue 46, item 5): every command that writes fails with one line, leaves no
-temporary or lock file (nor a folder it made) and the next run works once there is room.
+temporary or lock file (nor a folder it made) and the next run works once there is room; a command
+with two outputs, one on a read-only file system, writes neither.
 
 The full disk is a 2 MiB tmpfs mounted for the test (root only; skipped elsewhere) and filled to
 its last KiBs, so that each command runs out of space part-way through writing.
@@ -32,19 +33,33 @@ def inputs(tmp_path_factory) -> Path:
     return d
 
 
+def _tmpfs(mnt: Path, options: str) -> None:
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(mnt)], capture_output=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs: {r.stderr.decode().strip()}")
+
+
 @pytest.fixture
 def full(tmp_path) -> Path:
     """tmp_path/full: a 2 MiB tmpfs with ROOM_KIB free (unmounted afterwards)."""
     mnt = tmp_path / "full"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs: {r.stderr.decode().strip()}")
+    _tmpfs(mnt, "size=2m")
     try:
         st = os.statvfs(mnt)
         (mnt / "filler").write_bytes(b"\xff" * (st.f_bavail * st.f_frsize - ROOM_KIB * 1024))
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+@pytest.fixture
+def read_only(tmp_path) -> Path:
+    mnt = tmp_path / "ro"
+    _tmpfs(mnt, "size=1m,ro")
+    try:
         yield mnt
     finally:
         subprocess.run(["umount", "-l", str(mnt)], check=False)
@@ -93,3 +108,13 @@ def test_a_full_disk_leaves_no_partial_file_or_folder(argv, inputs, full, capsys
     assert "Traceback" not in err, err
     assert err.splitlines()[-1].startswith("accellog: error: "), err
     assert [p.name for p in full.iterdir()] == ["filler"]
+
+
+def test_apply_with_its_ros2_bag_on_a_read_only_folder_writes_neither(inputs, read_only, tmp_path, capsys):
+    d = tmp_path / "case"
+    d.mkdir()
+    (d / "six.mcap").write_bytes((inputs / "six.mcap").read_bytes())
+    assert main(["fit", str(d / "six.mcap"), "-o", str(d / "cal.json")]) == 0
+    argv = ["apply", str(d / "six.mcap"), "--cal", str(d / "cal.json"), "-o", str(d / "o.mcap")]
+    assert_refused([*argv, "--ros2", str(read_only / "bag")], d, capsys, ("Read-only file system",))
+    assert main([*argv, "--ros2", str(d / "bag")]) == 0  # the next run, somewhere writable
