@@ -502,6 +502,10 @@ PIPE_BAD = {
         'inputs = ["calibration", "test", "drift_fit", "drift_apply"]', 'inputs = "calibration"'
     ),
     "binary": "\x00\x01",
+    "window_1e308": GOOD_PIPE.replace("window_s = 2.0", "window_s = 1e308"),
+    "report_at_negative": GOOD_PIPE.replace("at_s = 60.0", "at_s = -5.0"),
+    "times_negative": GOOD_PIPE.replace("times_s = [10.0, 30.0, 60.0]", "times_s = [10.0, -30.0]"),
+    "gravity_on_the_moon": GOOD_PIPE.replace("local_gravity_mps2 = 9.797", "local_gravity_mps2 = 1.62"),
 }
 for _name, _text in PIPE_BAD.items():
     add(f"pipeline-{_name}", _pipeline(_text), "pipe.toml")
