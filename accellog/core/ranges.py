@@ -43,6 +43,7 @@ OPTION_RANGES: dict[str, tuple[float, float, bool, str]] = {
     "--gyro-lsb-per-dps": (0, 1e6, True, "counts/(deg/s)"),
     "--k-sigma": (0, 1_000, True, "sigma"),
     "--threshold": (0, _BIG, True, ""),
+    "--device-id": (-(2**31), 2**32 - 1, False, "(a 32-bit id: as PX4/ArduPilot store it, int32 or uint32)"),
 }
 
 

@@ -536,9 +536,22 @@ SCENARIO_BAD = {
     "fault_negative_stall": ("[faults]\nhost_stall_s = -0.1\n", ("host_stall_s", "faults")),
     "fault_unknown_in_table": ("[faults]\nbogus = 1\n", ("faults",)),
     "binary": ("\x00\x01", ()),
+    "empty": ("", ("sets nothing",)),
+    "only_comments": ("# a scenario\n\n", ("sets nothing",)),
+    "gyro_errors_misspelt": ('gyro_error = "datasheet"\n', ("did you mean gyro_errors?",)),
 }
 for _name, (_text, _extra) in SCENARIO_BAD.items():
     add(f"scenario-{_name}", _scenario(_text), "sc.toml", *_extra)
+# checked when the chip is built (the line names the scenario, not its file)
+add(
+    "scenario-temp_bias_1e3",
+    _scenario("[set]\ntemp_bias_g_per_degC = 1e3\n"),
+    "temp_bias_g_per_degC",
+    "physical",
+)
+add(
+    "scenario-temp_scale_huge", _scenario("[set]\ntemp_scale_per_degC = [0.1, 0, 0]\n"), "temp_scale_per_degC"
+)
 
 
 # ---------------------------------------------------------------------------------- effects plugins
@@ -784,6 +797,14 @@ for _name, (_argv, _needles) in OPTION_BAD.items():
         ),
         *_needles,
     )
+
+
+add(
+    "option-export-device-id-beyond-32-bits",
+    lambda d, g: ["export", str(cp(g, "cal", d)), "--to", "px4", "--device-id", str(2**40)],
+    "--device-id",
+    "32-bit",
+)
 
 
 def _fit_opt(*opts: str):
