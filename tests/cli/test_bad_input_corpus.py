@@ -822,6 +822,7 @@ for _name, _opts, _needles in (
     ("model-model3-twice", ("--model", "model3+model3"), ("model3+model3", "'cross_axis'", "twice")),
     ("model-preset-term-again", ("--model", "model3+bias"), ("'bias' twice",)),
     ("add-a-term-of-the-model", ("--model", "model2", "--add", "scale"), ("'scale' twice",)),
+    ("model-with-clock", ("--model", "model3+clock"), ("model3+clock", "static pose means")),
 ):
     add(f"option-fit-{_name}", _fit_opt(*_opts), *_needles)
 
