@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -118,3 +119,17 @@ def test_apply_with_its_ros2_bag_on_a_read_only_folder_writes_neither(inputs, re
     argv = ["apply", str(d / "six.mcap"), "--cal", str(d / "cal.json"), "-o", str(d / "o.mcap")]
     assert_refused([*argv, "--ros2", str(read_only / "bag")], d, capsys, ("Read-only file system",))
     assert main([*argv, "--ros2", str(d / "bag")]) == 0  # the next run, somewhere writable
+
+
+def test_an_rrd_on_a_full_disk_is_one_line_from_a_real_process(inputs, full):
+    """rerun's own log lines about its failing file sink stay quiet (present.rrd.sdk): the command's
+    stderr is its one error line."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2]), "RERUN_ANALYTICS": "0"}
+    env.pop("RUST_LOG", None)
+    argv = [sys.executable, "-m", "accellog", "noise", str(inputs / "six.mcap"), "--rrd", str(full / "n.rrd")]
+    r = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert lines[0].startswith(f"accellog: error: {full / 'n.rrd'}: cannot write the recording"), lines
+    assert "file system is full" in lines[0]
+    assert [p.name for p in full.iterdir()] == ["filler"]

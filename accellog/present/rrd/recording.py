@@ -63,9 +63,18 @@ def check_finished(tmp: Path | None, final: Path | None) -> None:
         raise InputError(f"cannot read the recording back: {exc.strerror or exc}", where=str(final)) from None
     if RRD_FOOTER not in tail:
         raise InputError(
-            "the recording could not be written completely (a full disk?); nothing was kept",
+            f"the recording could not be written completely{_space(final)}; nothing was kept",
             where=str(final),
         )
+
+
+def _space(path: Path | None) -> str:
+    """'; its file system is full' when the folder of path has less than 1 MiB free, else ''."""
+    try:
+        st = os.statvfs(Path(path).parent if path is not None else ".")
+    except OSError:
+        return ""
+    return "; its file system is full" if st.f_bavail * st.f_frsize < 1024**2 else ""
 
 
 class RunRecording(SeriesLogs, PipelineLogs):
@@ -136,7 +145,9 @@ class RunRecording(SeriesLogs, PipelineLogs):
             except BaseException as exc:
                 self._out.abort()
                 if isinstance(exc, RuntimeError):  # rerun's file sink: a full disk, an I/O error
-                    raise InputError(f"cannot write the recording: {exc}", where=str(self._final)) from None
+                    raise InputError(
+                        f"cannot write the recording: {exc}{_space(self._final)}", where=str(self._final)
+                    ) from None
                 raise
         else:
             self._guarded(self._connect, bp)
@@ -308,7 +319,9 @@ class RunRecording(SeriesLogs, PipelineLogs):
         except BaseException as exc:
             self.abort()  # no half-written file left behind
             if isinstance(exc, RuntimeError) and self.kind == "save":  # rerun's file sink failed
-                raise InputError(f"cannot write the recording: {exc}", where=str(self._final)) from None
+                raise InputError(
+                    f"cannot write the recording: {exc}{_space(self._final)}", where=str(self._final)
+                ) from None
             raise
         finally:
             self._closed = True
