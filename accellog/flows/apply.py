@@ -123,12 +123,12 @@ def run_apply(
             if s.truth is not None:
                 w.write_truth(s.truth)
             w.attach("calibration/accel.json", "application/json", dumps(c.to_dict()).encode())
+        if ros2 is not None:  # before the copy is renamed into place: a bag that fails leaves neither
+            from accellog.flows.ros2_out import write_ros2
+
+            write_ros2(s, c, Path(ros2), topic=ros2_topic, frame_id=ros2_frame_id, progress=progress)
     except BaseException:
         ao.abort()
         raise
     ao.commit()
-    if ros2 is not None:
-        from accellog.flows.ros2_out import write_ros2
-
-        write_ros2(s, c, Path(ros2), topic=ros2_topic, frame_id=ros2_frame_id, progress=progress)
     return out

@@ -50,6 +50,7 @@ from accellog.present.views import (
     log_track_runs,
     table_markdown,
 )
+from accellog.store.atomic import folder_output
 from accellog.store.reader import read_session
 
 CHIP_SEED = 7
@@ -144,21 +145,20 @@ def run_demo(
     2 workbench, 3 robot). progress(done, total): the sessions simulated by the first step."""
 
     con = console or Console(width=None if sys.stdout.isatty() else 120)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    res = DemoResult(out_dir=out, rrd=rrd)
-    t0 = time.perf_counter()
-    _record_stage(res, out, quick, con, t0, progress)
-    _seed_stage(res, out, con)
-    first = _robot_stage(res, con)
-    _workbench_stage(res, first, con)
+    with folder_output(out_dir) as out:  # a folder the demo made goes if it fails (a full disk)
+        res = DemoResult(out_dir=out, rrd=rrd)
+        t0 = time.perf_counter()
+        _record_stage(res, out, quick, con, t0, progress)
+        _seed_stage(res, out, con)
+        first = _robot_stage(res, con)
+        _workbench_stage(res, first, con)
 
-    if rrd is not None:
-        t4 = time.perf_counter()
-        write_rrd(res, rrd, first_tab)
-        res.seconds["rrd"] = time.perf_counter() - t4
-        con.print(f"wrote {rrd} (open it with: accellog view {rrd})")
-    con.print(f"sessions and calibrations in {out}/ ; total {time.perf_counter() - t0:.1f} s")
+        if rrd is not None:
+            t4 = time.perf_counter()
+            write_rrd(res, rrd, first_tab)
+            res.seconds["rrd"] = time.perf_counter() - t4
+            con.print(f"wrote {rrd} (open it with: accellog view {rrd})")
+        con.print(f"sessions and calibrations in {out}/ ; total {time.perf_counter() - t0:.1f} s")
     return res
 
 

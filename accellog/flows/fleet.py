@@ -53,7 +53,7 @@ from accellog.flows.fleet_table import (
     store_results,
     write_table,
 )
-from accellog.store.atomic import AtomicOutput, commit_all
+from accellog.store.atomic import AtomicOutput, commit_all, folder_output
 
 __all__ = [
     "CAL_DIR",
@@ -359,12 +359,17 @@ def run_fleet(
     process (the baseline of the benchmark). workers_write: the workers write the calibration files
     under OUT themselves (OUT must be on a filesystem they share under the same path); default: with
     a local cluster only, else the client writes them."""
+    with folder_output(out_dir, create=False):  # an OUT made by this run goes if it fails (a full disk)
+        return _run_fleet(pipeline, sessions, Path(out_dir), scheduler, workers, client, force,
+                          workers_write, on_progress)  # fmt: skip
+
+
+def _run_fleet(pipeline, sessions, out: Path, scheduler, workers, client, force, workers_write, on_progress):
     from accellog.flows.pipeline import load_pipeline
 
     spec = pipeline if isinstance(pipeline, dict) else load_pipeline(pipeline)
     ph = pipeline_hash(spec)
     files = find_sessions(sessions) if isinstance(sessions, str) else unique_files(sessions)
-    out = Path(out_dir)
     table_path = out / TABLE_NAME
     need = client is None and workers != 0  # a client to make: of `scheduler`, else a local cluster
     local = need and not scheduler

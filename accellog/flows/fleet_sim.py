@@ -36,6 +36,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from accellog.core.errors import InputError
+from accellog.store.atomic import folder_output
 
 NS_PER_S = 1_000_000_000
 FIELD_STOP_S = 8.0
@@ -227,16 +228,15 @@ def simulate_fleet(spec: FleetSpec, out_dir: str | Path, *, jobs: int = 1) -> Fl
     from accellog.calibrate.calfile.calibration import write_json_atomic
 
     plan, truth = plan_fleet(spec, out_dir)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    if jobs > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as ex:
-            list(ex.map(_simulate_one, [spec] * len(plan), plan, chunksize=8))
-    else:
-        for s in plan:
-            _simulate_one(spec, s)
-    truth_file = out / "fleet_truth.json"
-    write_json_atomic(truth_file, truth)
+    with folder_output(out_dir) as out:  # a fleet folder made here goes if it fails (a full disk)
+        if jobs > 1:
+            with ProcessPoolExecutor(max_workers=jobs) as ex:
+                list(ex.map(_simulate_one, [spec] * len(plan), plan, chunksize=8))
+        else:
+            for s in plan:
+                _simulate_one(spec, s)
+        truth_file = out / "fleet_truth.json"
+        write_json_atomic(truth_file, truth)
     return FleetSimResult(
         out_dir=str(out), sessions=plan, damaged_serial=truth["damaged_serial"], truth_file=str(truth_file)
     )

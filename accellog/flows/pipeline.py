@@ -28,6 +28,7 @@ from accellog.calibrate.calfile.calibration import (
 from accellog.calibrate.model.effects import load_effects_file
 from accellog.core.errors import InputError, ModelError, did_you_mean
 from accellog.core.jsonio import JsonResult
+from accellog.core.ranges import check_option
 from accellog.core.session import ObsTable, Session
 from accellog.core.textin import toml_loads
 from accellog.flows.stages import (
@@ -81,6 +82,19 @@ _SCHEMA: dict[str, dict[str, type | tuple[type, ...]]] = {
     "report": {"at_s": (int, float), "output_dir": str},
 }
 _REQUIRED = {"pipeline": ("name", "inputs"), "fit": ("input", "models")}
+_RANGES = {  # (table, key) -> the command-line option whose range (core.ranges) holds for it
+    ("segment", "window_s"): "--window-s",
+    ("segment", "trim_s"): "--trim-s",
+    ("fit", "local_gravity_mps2"): "--local-gravity",
+    ("evaluate", "times_s"): "--at-s",
+    ("evaluate", "until_s"): "--until-s",
+    ("evaluate", "max_samples"): "--max-samples",
+    ("drift", "fit_until_s"): "--until-s",
+    ("drift", "apply_until_s"): "--until-s",
+    ("drift", "fit_max_samples"): "--max-samples",
+    ("drift", "apply_max_samples"): "--max-samples",
+    ("report", "at_s"): "--at-s",
+}
 
 
 def _line_of(text: str, table: str, key: str | None = None) -> int:
@@ -157,6 +171,14 @@ def _check_schema(spec: dict, text: str, p: Path) -> None:
                     f"'{table}.{key}' = {val!r} must be finite (no nan or inf)",
                     where=f"{p}:{_line_of(text, table, key) or 1}",
                 )
+            if (table, key) in _RANGES:
+                try:
+                    check_option(_RANGES[table, key], val)
+                except InputError as exc:  # "--window-s: 1e+308 is out of range: ..." said of the key
+                    raise InputError(
+                        f"'{table}.{key}': {str(exc).split(': ', 1)[-1]}",
+                        where=f"{p}:{_line_of(text, table, key) or 1}",
+                    ) from None
     for table, keys in _REQUIRED.items():
         for k in keys:
             if k not in spec.get(table, {}):

@@ -110,6 +110,8 @@ ERROR_LIMITS = {  # field: (low, high) of every element; beyond them the loaders
     "scale": (-0.5, 0.5),
     "cross_axis": (-0.3, 0.3),
     "warmup_g": (-1.0, 1.0),
+    "temp_bias_g_per_degC": (-0.01, 0.01),  # datasheet draws +-1.5 mg/degC; 0.01 g/degC: 1 g over 100 degC
+    "temp_scale_per_degC": (-3e-3, 3e-3),  # datasheet draws +-0.026 %/degC
     "temp_hysteresis_g": (-1.0, 1.0),
     "noise_density_g_per_rtHz": (0.0, 0.1),
     "bias_instability_g": (0.0, 0.1),

@@ -136,6 +136,8 @@ class Scenario:
             data = toml_loads(read_text(p, "scenario file", kind="TOML"), str(p))
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"not valid TOML ({exc})", where=str(p)) from None
+        if not data:  # an empty file (or only comments) is a mistake, not a request for the defaults
+            raise InputError("scenario file sets nothing (no keys or tables)", where=str(p))
         return cls.from_dict(data, where=str(p))
 
     @classmethod

@@ -149,9 +149,10 @@ def _strip(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def log_noise(rrd: str | Path, m: NoiseModel) -> None:
     """Write the Allan plots and the summary of ``m`` to the .rrd file ``rrd``."""
-    import rerun as rr
-
     from accellog.present.rrd.recording import RunRecording
+    from accellog.present.rrd.sdk import rerun_sdk
+
+    rr = rerun_sdk()  # imported the one way (present.rrd.sdk: collector paused, rerun's sink logs quiet)
 
     with RunRecording(f"save:{rrd}", blueprint=noise_blueprint(m)) as run:
         rec = run.rec

@@ -27,7 +27,8 @@ process and removed by the next writer. Outputs get the usual permissions (0666 
 ``check_output``/``check_outputs`` run the checks alone (to validate every output of a command
 before computing); ``AtomicOutput`` (begin/commit/abort) and ``atomic_output`` (a context manager
 yielding the temporary path) write; ``commit_all`` commits several with one folder sync;
-``write_bytes_atomic``/``write_text_atomic`` are the one-call forms; ``wait=True`` waits for the
+``write_bytes_atomic``/``write_text_atomic`` are the one-call forms; ``folder_output`` removes a
+folder of outputs the command made when it fails; ``wait=True`` waits for the
 lock instead of refusing (``LockBusy``); ``OutputLock`` is the lock alone
 (``SessionWriter(exclusive=True)`` uses it for live recording, which writes under the real name
 with O_EXCL: a crash must leave the data there).
@@ -430,6 +431,30 @@ def atomic_output(
         ao.abort()
         raise
     ao.commit()
+
+
+@contextlib.contextmanager
+def folder_output(out: PathLike, *, create: bool = True) -> Iterator[Path]:
+    """Context manager for a command that writes a folder of files (each written atomically): the
+    folder (with its missing parents; `create`: made now, else by the writers) is removed with
+    everything in it when the block fails (a full disk, Ctrl-C), if it did not exist before. A
+    folder that existed keeps what it held and the complete files written into it."""
+    p = Path(out)
+    first = p
+    while not (first.parent.exists() or first.parent.is_symlink()) and first.parent != first:
+        first = first.parent
+    new = not (p.exists() or p.is_symlink())
+    if create:
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise InputError(f"cannot create the folder: {exc.strerror or exc}", where=str(p)) from None
+    try:
+        yield p
+    except BaseException:
+        if new:
+            shutil.rmtree(first, ignore_errors=True)
+        raise
 
 
 def write_bytes_atomic(out: PathLike, data: bytes, **kw) -> Path:

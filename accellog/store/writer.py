@@ -365,9 +365,21 @@ class SessionWriter:
         try:
             with at_level(self._level):
                 self._w.finish()
+        except OSError as exc:  # full disk, I/O error: the lock goes, the chunks written stay readable
+            if self._lock is None:  # an atomic output: its temporary file is removed by its owner
+                raise
+            raise InputError(
+                f"cannot finish the MCAP file: {exc.strerror or exc}; it holds the first "
+                f"{self.samples_written} samples, without its summary (accellog reads them)",
+                where=str(self.path),
+            ) from None
         finally:
-            self._f.close()
-            self._unlock()
+            try:
+                self._f.close()
+            except OSError:
+                pass  # the error above (or the one that ended the recording) says why
+            finally:
+                self._unlock()
 
     def _unlock(self) -> None:
         if self._lock is not None:

@@ -466,6 +466,12 @@ for _name, _text in CSV_BAD.items():
     )
 
 
+@case("csv-one-column-mapped-twice", "--columns", "'ax' is mapped twice", "ax and ay")
+def _csv_column_twice(d: Path, good: dict) -> list[str]:
+    csv = cp(good, "csv", d)
+    return ["import", "csv", str(csv), "--columns", "ax=ax,ay=ax,az=az", "-o", str(d / "o.mcap")]
+
+
 @case("csv-out-is-input", "six.csv", "input")
 def _(d, g):
     src = cp(g, "csv", d)
@@ -496,6 +502,10 @@ PIPE_BAD = {
         'inputs = ["calibration", "test", "drift_fit", "drift_apply"]', 'inputs = "calibration"'
     ),
     "binary": "\x00\x01",
+    "window_1e308": GOOD_PIPE.replace("window_s = 2.0", "window_s = 1e308"),
+    "report_at_negative": GOOD_PIPE.replace("at_s = 60.0", "at_s = -5.0"),
+    "times_negative": GOOD_PIPE.replace("times_s = [10.0, 30.0, 60.0]", "times_s = [10.0, -30.0]"),
+    "gravity_on_the_moon": GOOD_PIPE.replace("local_gravity_mps2 = 9.797", "local_gravity_mps2 = 1.62"),
 }
 for _name, _text in PIPE_BAD.items():
     add(f"pipeline-{_name}", _pipeline(_text), "pipe.toml")
@@ -526,9 +536,22 @@ SCENARIO_BAD = {
     "fault_negative_stall": ("[faults]\nhost_stall_s = -0.1\n", ("host_stall_s", "faults")),
     "fault_unknown_in_table": ("[faults]\nbogus = 1\n", ("faults",)),
     "binary": ("\x00\x01", ()),
+    "empty": ("", ("sets nothing",)),
+    "only_comments": ("# a scenario\n\n", ("sets nothing",)),
+    "gyro_errors_misspelt": ('gyro_error = "datasheet"\n', ("did you mean gyro_errors?",)),
 }
 for _name, (_text, _extra) in SCENARIO_BAD.items():
     add(f"scenario-{_name}", _scenario(_text), "sc.toml", *_extra)
+# checked when the chip is built (the line names the scenario, not its file)
+add(
+    "scenario-temp_bias_1e3",
+    _scenario("[set]\ntemp_bias_g_per_degC = 1e3\n"),
+    "temp_bias_g_per_degC",
+    "physical",
+)
+add(
+    "scenario-temp_scale_huge", _scenario("[set]\ntemp_scale_per_degC = [0.1, 0, 0]\n"), "temp_scale_per_degC"
+)
 
 
 # ---------------------------------------------------------------------------------- effects plugins
@@ -776,6 +799,14 @@ for _name, (_argv, _needles) in OPTION_BAD.items():
     )
 
 
+add(
+    "option-export-device-id-beyond-32-bits",
+    lambda d, g: ["export", str(cp(g, "cal", d)), "--to", "px4", "--device-id", str(2**40)],
+    "--device-id",
+    "32-bit",
+)
+
+
 def _fit_opt(*opts: str):
     return lambda d, g: ["fit", str(cp(g, "mcap", d)), "-o", str(d / "c.json"), *opts]
 
@@ -787,6 +818,11 @@ for _name, _opts, _needles in (
     ("window-0", ("--window-s", "0"), ("--window-s",)),
     ("trim-huge", ("--trim-s", "100"), ("samples after trimming",)),
     ("effects-file-dir", ("--effects-file", "."), ("effects file",)),
+    ("model-bias-twice", ("--model", "bias+bias"), ("'bias' twice",)),
+    ("model-model3-twice", ("--model", "model3+model3"), ("model3+model3", "'cross_axis'", "twice")),
+    ("model-preset-term-again", ("--model", "model3+bias"), ("'bias' twice",)),
+    ("add-a-term-of-the-model", ("--model", "model2", "--add", "scale"), ("'scale' twice",)),
+    ("model-with-clock", ("--model", "model3+clock"), ("model3+clock", "static pose means")),
 ):
     add(f"option-fit-{_name}", _fit_opt(*_opts), *_needles)
 

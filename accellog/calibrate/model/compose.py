@@ -363,7 +363,8 @@ def build_model(
     t_ref_degC: float = 25.0,
 ) -> Model:
     """Model from a preset ('model1'..'model3') or '+'-joined effect names ('bias+scale'), plus
-    `add`. Unknown names raise ModelError listing the valid names."""
+    `add`. Unknown names raise ModelError listing the valid names; a term named twice (bias+bias,
+    model3+model3, model3+bias: a preset's terms included) raises ModelError naming it."""
     ef = load_effects_file(effects_file) if isinstance(effects_file, (str, Path)) else effects_file
     tokens = [t.strip() for t in spec.split("+") if t.strip()] + [a.strip() for a in (add or []) if a.strip()]
     if not tokens:
@@ -371,6 +372,12 @@ def build_model(
     terms: list[str] = []
     for t in tokens:
         terms.extend(PRESETS.get(t, (t,)))
+    twice = list(dict.fromkeys(t for t in terms if terms.count(t) > 1))
+    if twice:
+        raise ModelError(
+            f"model {'+'.join(tokens)!r} names {', '.join(map(repr, twice))} twice "
+            "(a preset includes its terms: model1 = bias, model2 = bias+scale, model3 = bias+scale+cross_axis)"
+        )
     name = spec.strip() + "".join(f"+{a.strip()}" for a in (add or []) if a.strip())
     return Model(terms, effects_file=ef, t_ref_degC=t_ref_degC, name=name)
 

@@ -287,7 +287,8 @@ def fit_model(
     prob = _Problem(model, obs, drv, w, float(gravity_g), q_or_none(obs))
     th0 = model.initial_theta() if theta0 is None else np.asarray(theta0, float).copy()
     if check_rank:
-        for name in GEOMETRY_EFFECTS & set(model.term_names):
+        blind = {e.name for e in model.effects if not e.static}  # clock: nothing a pose mean shows
+        for name in sorted(GEOMETRY_EFFECTS & set(model.term_names)) + sorted(blind):
             why = effect_requirement(name, obs, drv, model)
             if why:
                 raise ModelError(f"model {model.name} cannot be determined from this data: {why}")

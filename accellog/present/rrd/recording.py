@@ -16,6 +16,7 @@ holds, events, residuals, tracks, documents and the ladder are logged by the ``P
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import threading
 import urllib.parse
@@ -25,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from accellog.core.errors import InputError
 from accellog.present.rrd.entities import (
     MAIN_TIMELINE,
     SAMPLE_TIMELINE,
@@ -42,6 +44,37 @@ COALESCE_ROWS = 16_384
 """A file sink sends a series' batches of fewer rows than this gathered, up to this many rows per
 ``send_columns`` call (a call costs ~0.15 ms; a replay logs ~130 envelope rows per series and batch).
 Live sinks get every batch as it comes."""
+
+
+RRD_FOOTER = b"RRF2FOOT"
+"""The magic of the footer rerun's file sink writes last (rerun 0.41): a file without it was cut."""
+
+
+def check_finished(tmp: Path | None, final: Path | None) -> None:
+    """InputError when the file rerun's sink wrote does not end with its footer: the sink's writer
+    thread failed (a full disk, an I/O error; rerun only logs it), so the file is not committed."""
+    if tmp is None:
+        return
+    try:
+        with open(tmp, "rb") as f:
+            f.seek(max(0, os.fstat(f.fileno()).st_size - 64))
+            tail = f.read()
+    except OSError as exc:
+        raise InputError(f"cannot read the recording back: {exc.strerror or exc}", where=str(final)) from None
+    if RRD_FOOTER not in tail:
+        raise InputError(
+            f"the recording could not be written completely{_space(final)}; nothing was kept",
+            where=str(final),
+        )
+
+
+def _space(path: Path | None) -> str:
+    """'; its file system is full' when the folder of path has less than 1 MiB free, else ''."""
+    try:
+        st = os.statvfs(Path(path).parent if path is not None else ".")
+    except OSError:
+        return ""
+    return "; its file system is full" if st.f_bavail * st.f_frsize < 1024**2 else ""
 
 
 class RunRecording(SeriesLogs, PipelineLogs):
@@ -109,8 +142,12 @@ class RunRecording(SeriesLogs, PipelineLogs):
             self._out, self._tmp = output, output.tmp
             try:  # the blueprint goes in on close, with each view's time range (present.rrd.ranges)
                 self.rec.save(str(self._tmp), default_blueprint=None)
-            except BaseException:
+            except BaseException as exc:
                 self._out.abort()
+                if isinstance(exc, RuntimeError):  # rerun's file sink: a full disk, an I/O error
+                    raise InputError(
+                        f"cannot write the recording: {exc}{_space(self._final)}", where=str(self._final)
+                    ) from None
                 raise
         else:
             self._guarded(self._connect, bp)
@@ -270,21 +307,46 @@ class RunRecording(SeriesLogs, PipelineLogs):
                 # active: a viewer reading the file has built a layout from the data by now
                 self.rec.send_blueprint(bp, make_active=True, make_default=True)
             if self.kind == "save":
-                self.rec.flush()
+                self._flush_file()
                 self.rec.disconnect()
+                check_finished(self._tmp, self._final)
             elif self.down:  # dropping an unreachable gRPC sink waits up to 5 s: on a thread of its
                 # own, not in the caller nor wherever the garbage collector happens to drop it later
                 threading.Thread(target=self._disconnect_quietly, daemon=True).start()
             else:
                 self._guarded(self.rec.flush, timeout_sec=2.0)
                 self._guarded(self.rec.disconnect)
-        except BaseException:
+        except BaseException as exc:
             self.abort()  # no half-written file left behind
+            if isinstance(exc, RuntimeError) and self.kind == "save":  # rerun's file sink failed
+                raise InputError(
+                    f"cannot write the recording: {exc}{_space(self._final)}", where=str(self._final)
+                ) from None
             raise
         finally:
             self._closed = True
         if self._out is not None:
             self._out.commit()
+
+    DISCONNECT_WAIT_S = 5.0
+    """How long abort waits for rerun to let go of a sink."""
+    FLUSH_STEP_S = 2.0
+    """A file sink's flush is waited for in steps of this many seconds while the file grows."""
+
+    def _flush_file(self) -> None:
+        """Flush the file sink, waiting while the file grows: rerun's flush (timeout infinite) never
+        returns when its writer thread died meanwhile (a full disk), so it is waited for in steps and
+        given up when a step wrote nothing (RuntimeError, turned into one line by close)."""
+        size = -1
+        while True:
+            try:
+                self.rec.flush(timeout_sec=self.FLUSH_STEP_S)
+                return
+            except RuntimeError:  # a timeout, or the sink failed
+                now = self._tmp.stat().st_size if self._tmp is not None and self._tmp.exists() else -1
+                if now == size:
+                    raise
+                size = now
 
     def _disconnect_quietly(self) -> None:
         with contextlib.suppress(Exception):
@@ -296,8 +358,15 @@ class RunRecording(SeriesLogs, PipelineLogs):
             self._watch.stop()
         if not self._closed:
             self._closed = True
-            with contextlib.suppress(Exception):
-                self.rec.disconnect()
+            # rerun's disconnect flushes the sink without a timeout and never returns when its file
+            # writer died (a full disk): waited for DISCONNECT_WAIT_S on a thread of its own, and if it
+            # hangs, rerun's exit handler (the same flush) is dropped so that the process can end
+            t = threading.Thread(target=self._disconnect_quietly, name="accellog-rrd-abort", daemon=True)
+            t.start()
+            t.join(self.DISCONNECT_WAIT_S)
+            if t.is_alive():
+                with contextlib.suppress(Exception):
+                    rerun_sdk().unregister_shutdown()
         if self._out is not None:
             self._out.abort()
 

@@ -7,14 +7,20 @@ the caller had it. In a one-shot process (the CLI sets FREEZE_AFTER_IMPORT) ever
 then frozen (``gc.freeze``): later collections and interpreter shutdown never scan rerun's objects
 again (0.2 s of CPU at the exit of a 1 h ``replay --rrd``). A library must not move a user's objects
 out of the collector's reach, so by default nothing is frozen.
+
+Unless the user sets ``RUST_LOG``, rerun's own log lines about its file sink (``RUST_LOG_DEFAULT``)
+are off: a sink that fails (a full disk) is said once, by ``RunRecording``, as one error line.
 """
 
 from __future__ import annotations
 
 import gc
+import os
 import sys
 from types import ModuleType
 
+RUST_LOG_DEFAULT = "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off"
+"""rerun's log filter when RUST_LOG is unset: warnings, except the file sink's (RunRecording says them)."""
 FREEZE_AFTER_IMPORT = False
 """True in the `accellog` command's own process (accellog.cli sets it): gc.freeze() after the import."""
 
@@ -25,6 +31,7 @@ def rerun_sdk() -> ModuleType:
         import rerun
 
         return rerun
+    os.environ.setdefault("RUST_LOG", RUST_LOG_DEFAULT)  # read by rerun when it starts logging
     was_on = gc.isenabled()
     gc.disable()
     try:

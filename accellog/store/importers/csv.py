@@ -454,10 +454,14 @@ def import_csv_to_mcap(
         w.update_meta(imp.session_meta())
         w.close()
     except BaseException:
-        chunks.close()
-        if w is not None:
-            w.close()
-        ao.abort()
+        try:
+            chunks.close()
+            if w is not None and not w.closed:
+                w.close()  # may fail again (a full disk): the temporary file goes all the same
+        except Exception:
+            pass
+        finally:
+            ao.abort()
         raise
     ao.commit()
     return _result(imp, path, out, t_last - t_first)

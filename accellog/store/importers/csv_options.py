@@ -82,6 +82,9 @@ def parse_columns(text: str | None) -> dict[str, str]:
             raise InputError(f"--columns: unknown name {key!r}: use {', '.join(FIELDS)}")
         if key in out:
             raise InputError(f"--columns: {key!r} given twice")
+        twice = [k for k, v in out.items() if v == val]
+        if twice:  # ax=X,ay=X: one column read as two axes
+            raise InputError(f"--columns: column {val!r} is mapped twice ({twice[0]} and {key})")
         out[key] = val
     return out
 

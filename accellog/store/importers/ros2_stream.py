@@ -140,8 +140,12 @@ class _Stream:
                                   temp_degC=None if temp is None else temp[s:e])  # fmt: skip
 
     def abort(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
+        try:
+            if self.writer is not None and not self.writer.closed:
+                self.writer.close()  # may fail again (a full disk): the temporary file goes all the same
+        except Exception:
+            pass
+        finally:
             self.ao.abort()
 
     def finish(self, topic: str, temp, mag, batch_size: int) -> dict:
