@@ -57,7 +57,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from run_all import RESULTS_END, RESULTS_START
+from run_all import RESULTS_END, RESULTS_START, write_section
 from support.discovery import EDGES, MODEL3_CHIP, SIX, handheld_path, session_obs
 
 from accellog.calibrate.model.compose import build_model
@@ -181,41 +181,29 @@ def real_sessions(data: Path):
     return s, dataclasses.replace(s, accel_g=s.accel_g + REAL_BT * (T - 25.0)[:, None])
 
 
-def run_real_nonlin(data: Path) -> dict:
-    """The workbench on the real recording with an input nonlinearity a_i += k2_i a_i^2 injected
-    (REAL_K2, 3-5 mg at 1 g); truth: model3 + nonlin2 fitted to the untouched recording, plus
-    REAL_K2 (the recording's own nonlinearity is in both fits)."""
-    s = load_input(data / REAL_FILE)
-    inj = dataclasses.replace(s, accel_g=s.accel_g + REAL_K2 * s.accel_g**2)
+def run_real(data: Path, kind: str = "temp") -> dict:
+    """The workbench on the real recording with an injected effect; truth: model3 + the effect
+    fitted to the untouched recording, plus what was injected (the recording's own share of the
+    effect is in both fits). kind 'temp': a bias tempco REAL_BT over the die temperature of
+    real_sessions; 'nonlin': an input nonlinearity a_i += k2_i a_i^2 (REAL_K2, 3-5 mg at 1 g)."""
+    if kind == "temp":
+        s, inj = real_sessions(data)
+        name, effect, prefix, injected = "real", "temp_bias", "bT", REAL_BT
+    else:
+        s = load_input(data / REAL_FILE)
+        inj = dataclasses.replace(s, accel_g=s.accel_g + REAL_K2 * s.accel_g**2)
+        name, effect, prefix, injected = "real:nonlin", "nonlin2", "k2", REAL_K2
     t0 = time.process_time()
     found = discover(observations(inj), "model3")
     cpu = time.process_time() - t0
-    m = build_model("model3+nonlin2")
+    m = build_model(f"model3+{effect}")
     base = calibrated(observations(s), m.name)
     fit = calibrated(observations(inj), found.final_model)
-    row = _row("real:nonlin", 0, found, fit, np.asarray(base.b), cpu, {"nonlin2"})
-    if found.added == ["nonlin2"]:
-        k = [m.param_names.index(f"k2_{a}") for a in "xyz"]
+    row = _row(name, 0, found, fit, np.asarray(base.b), cpu, {effect})
+    if found.added == [effect]:
+        k = [m.param_names.index(f"{prefix}_{a}") for a in "xyz"]
         sig = np.hypot(fit.sigma[k], base.sigma[k])
-        row["bT_z"] = float(np.max(np.abs(fit.theta[k] - base.theta[k] - REAL_K2) / sig))
-        row["bT_fit"] = (fit.theta[k] - base.theta[k]).tolist()
-    return row
-
-
-def run_real(data: Path) -> dict:
-    """The workbench on the injected real recording; truth from the untouched one (module doc)."""
-    s, inj = real_sessions(data)
-    t0 = time.process_time()
-    found = discover(observations(inj), "model3")
-    cpu = time.process_time() - t0
-    m = build_model("model3+temp_bias")
-    base = calibrated(observations(s), m.name)
-    fit = calibrated(observations(inj), found.final_model)
-    row = _row("real", 0, found, fit, np.asarray(base.b), cpu, {"temp_bias"})
-    if found.added == ["temp_bias"]:
-        k = [m.param_names.index(f"bT_{a}") for a in "xyz"]
-        sig = np.hypot(fit.sigma[k], base.sigma[k])
-        row["bT_z"] = float(np.max(np.abs(fit.theta[k] - base.theta[k] - REAL_BT) / sig))
+        row["bT_z"] = float(np.max(np.abs(fit.theta[k] - base.theta[k] - injected) / sig))
         row["bT_fit"] = (fit.theta[k] - base.theta[k]).tolist()
     return row
 
@@ -272,17 +260,6 @@ def results_section(rows: list[dict], command: str, load: float) -> str:
     return "\n".join(out) + "\n"
 
 
-def write_results(section: str, path: Path = REPO / "benchmarks" / "RESULTS.md") -> None:
-    """Replace (or append) the discovery section of RESULTS.md."""
-    text = path.read_text() if path.exists() else ""
-    if RESULTS_START in text and RESULTS_END in text:
-        head, rest = text.split(RESULTS_START, 1)
-        text = head + section.rstrip("\n") + rest.split(RESULTS_END, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    path.write_text(text)
-
-
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="71,72,73", help="comma-separated seeds (held-out: seed + 100)")
@@ -304,7 +281,7 @@ def main(argv: list[str] | None = None) -> None:
                     if not (a.data / REAL_FILE).exists():
                         print(f"real: {a.data / REAL_FILE} not found, skipped")
                         continue
-                    r = run_real(a.data) if name == "real" else run_real_nonlin(a.data)
+                    r = run_real(a.data, "temp" if name == "real" else "nonlin")
                 elif name.startswith("hand:"):
                     r = run_handheld(Path(d), name[5:], seed)
                 else:
@@ -343,7 +320,7 @@ def main(argv: list[str] | None = None) -> None:
         )
     if a.write:
         cmd = " ".join(["python benchmarks/bench_discovery.py", *(sys.argv[1:] if argv is None else argv)])
-        write_results(results_section(rows, cmd, os.getloadavg()[0]))
+        write_section(results_section(rows, cmd, os.getloadavg()[0]), RESULTS_START, RESULTS_END)
         print("wrote the discovery section of benchmarks/RESULTS.md")
     if a.numeric:
         num, ana = np.nansum([r["cpu_numeric_s"] for r in rows]), sum(r["cpu_s"] for r in rows)

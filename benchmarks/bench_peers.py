@@ -47,7 +47,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from run_all import PEERS_END, PEERS_START
+from run_all import PEERS_END, PEERS_START, write_section
 
 from accellog.acquire.emulator.sensor_model import AccelErrors
 from accellog.calibrate.calfile.calibration import load_calibration
@@ -250,17 +250,6 @@ def section(rows: list[dict], command: str) -> str:
     return "\n".join([*out, PEERS_END]) + "\n"
 
 
-def write_results(text: str, path: Path = REPO / "benchmarks" / "RESULTS.md") -> None:
-    """Replace (or append) the peers section of RESULTS.md."""
-    old = path.read_text() if path.exists() else ""
-    if PEERS_START in old and PEERS_END in old:
-        head, rest = old.split(PEERS_START, 1)
-        old = head + text.rstrip("\n") + rest.split(PEERS_END, 1)[1]
-    else:
-        old = old.rstrip("\n") + "\n\n" + text
-    path.write_text(old)
-
-
 def run() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write", action="store_true", help="write the table into benchmarks/RESULTS.md")
@@ -272,7 +261,7 @@ def run() -> None:
         if (a.data / "example_ferraris_session.csv").exists():
             rows += real_rows(Path(tmp), a.data)
     if a.write:
-        write_results(section(rows, "python benchmarks/bench_peers.py --write"))
+        write_section(section(rows, "python benchmarks/bench_peers.py --write"), PEERS_START, PEERS_END)
         print("wrote the peers section of benchmarks/RESULTS.md")
 
 

@@ -563,6 +563,19 @@ KEPT_SECTIONS = ((RESULTS_START, RESULTS_END), (PEERS_START, PEERS_END))
 """Markers of the sections of RESULTS.md that other scripts write (bench_discovery.py, bench_peers.py)."""
 
 
+def write_section(text: str, start: str, end: str, path: Path | None = None) -> None:
+    """Replace the section of RESULTS.md between the markers start and end with text (which holds
+    them), or append it."""
+    path = path or BENCH / "RESULTS.md"
+    old = path.read_text() if path.exists() else ""
+    if start in old and end in old:
+        head, rest = old.split(start, 1)
+        old = head + text.rstrip("\n") + rest.split(end, 1)[1]
+    else:
+        old = old.rstrip("\n") + "\n\n" + text
+    path.write_text(old)
+
+
 def kept_sections() -> str:
     """Sections of the current RESULTS.md that other scripts write (KEPT_SECTIONS), kept when the
     table is regenerated."""
