@@ -18,7 +18,8 @@ EFFECTS = [e for e in LIBRARY if LIBRARY[e].static and e not in ("misalignment_t
 
 
 def _case(base: str, effect: str):
-    m = build_model(base, add=[effect, "temp_scale"] if effect != "temp_scale" else [effect])
+    have = build_model(base).term_names  # bias and scale are the base's own (a term is named once)
+    m = build_model(base, add=[e for e in dict.fromkeys([effect, "temp_scale"]) if e not in have])
     th = true_theta(m)
     obs = synthetic_obs(
         m,
