@@ -1,12 +1,11 @@
-"""Crash-safe ``SessionWriter`` (and ``write_session`` for whole in-memory sessions).
-
-The writer ends the current chunk and flushes the OS file at least every ``flush_interval_s`` of sensor
-time or wall time, so a killed recorder loses at most that much data (plus the chunk being written);
-the readers salvage every complete chunk of an unfinished file.
-"""
+"""Crash-safe ``SessionWriter`` (and ``write_session`` for whole in-memory sessions): the current
+chunk ends and the OS file is flushed at least every ``flush_interval_s`` of sensor time or wall time,
+so a killed recorder loses at most that much data (plus the chunk being written); the readers
+salvage every complete chunk of an unfinished file."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from pathlib import Path
@@ -374,12 +373,9 @@ class SessionWriter:
                 where=str(self.path),
             ) from None
         finally:
-            try:
+            with contextlib.suppress(OSError):  # the error above (or the one that ended it) says why
                 self._f.close()
-            except OSError:
-                pass  # the error above (or the one that ended the recording) says why
-            finally:
-                self._unlock()
+            self._unlock()
 
     def _unlock(self) -> None:
         if self._lock is not None:
@@ -391,11 +387,9 @@ class SessionWriter:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None and not self.closed:
-            try:
+            with contextlib.suppress(Exception):  # the writer itself may be what failed; still finish
                 what = "interrupted" if issubclass(exc_type, KeyboardInterrupt) else exc_type.__name__
                 self.write_event(Event(self._t_last_ns / NS_PER_S, "note", f"recording ended: {what}: {exc}"))
-            except Exception:  # the writer itself may be what failed; still try to finish
-                pass
         self.close()
 
 
