@@ -823,7 +823,6 @@ for _name, _opts, _needles in (
     ("model-preset-term-again", ("--model", "model3+bias"), ("'bias' twice",)),
     ("add-a-term-of-the-model", ("--model", "model2", "--add", "scale"), ("'scale' twice",)),
     ("model-with-clock", ("--model", "model3+clock"), ("model3+clock", "static pose means")),
-    ("model-without-bias", ("--model", "scale"), ("'scale' has no bias term",)),
 ):
     add(f"option-fit-{_name}", _fit_opt(*_opts), *_needles)
 

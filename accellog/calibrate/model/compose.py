@@ -364,8 +364,7 @@ def build_model(
 ) -> Model:
     """Model from a preset ('model1'..'model3') or '+'-joined effect names ('bias+scale'), plus
     `add`. Unknown names raise ModelError listing the valid names; a term named twice (bias+bias,
-    model3+model3, model3+bias: a preset's terms included) raises ModelError naming it, and so does a
-    model without the bias term ('scale' alone)."""
+    model3+model3, model3+bias: a preset's terms included) raises ModelError naming it."""
     ef = load_effects_file(effects_file) if isinstance(effects_file, (str, Path)) else effects_file
     tokens = [t.strip() for t in spec.split("+") if t.strip()] + [a.strip() for a in (add or []) if a.strip()]
     if not tokens:
@@ -378,11 +377,6 @@ def build_model(
         raise ModelError(
             f"model {'+'.join(tokens)!r} names {', '.join(map(repr, twice))} twice "
             "(a preset includes its terms: model1 = bias, model2 = bias+scale, model3 = bias+scale+cross_axis)"
-        )
-    if "bias" not in terms:  # every accelerometer has an offset: a fit without one hides it in the rest
-        raise ModelError(
-            f"model {'+'.join(tokens)!r} has no bias term: every accelerometer has an offset, which the "
-            "other terms would absorb (start from model1 = bias, model2 = bias+scale or model3)"
         )
     name = spec.strip() + "".join(f"+{a.strip()}" for a in (add or []) if a.strip())
     return Model(terms, effects_file=ef, t_ref_degC=t_ref_degC, name=name)
