@@ -102,31 +102,15 @@ def test_pose_table_is_refused_with_one_line(tmp_path, capsys):
     assert rc != 0 and err.startswith("accellog: error:") and "\n" not in err
 
 
-def test_workbench_rrd_places_each_view_once(sessions, capsys):
-    """A view placed in two containers draws in neither: the 'residual vs every driver' tabs drew
-    nothing while their views were also the before/after tab's. Every view and container of the
-    blueprint has exactly one parent."""
-    from collections import Counter
-
-    d = sessions
-    rrd = d / "wb_views.rrd"
-    args = ["workbench", str(d / "hidden.mcap"), "--heldout", str(d / "heldout.mcap"), "--rrd", str(rrd)]
-    assert main([*args, "--json"]) == 0
-    capsys.readouterr()
-    r = load_rrd(rrd)
-    children = Counter(
-        child for comps in r.blueprint.values() for child in comps.get("ContainerBlueprint:contents", [])
-    )
-    assert children and max(children.values()) == 1, [c for c, n in children.items() if n > 1]
-    names = {(c.get("ContainerBlueprint:display_name") or [None])[0] for c in r.blueprint.values()}
-    assert "residual vs every driver" in names
-
-
 def test_workbench_rrd_shows_residuals_against_temperature(sessions, capsys):
     """The .rrd read back: per axis one residual-vs-temperature plot with the start model (sloped:
     the residual follows temperature) and the final model (flat) overlaid, each in its ladder step's
     colour, the added effect's prediction drawn over the start model's residual; temperature, the
-    driver the residual follows, has its own tab."""
+    driver the residual follows, has its own tab. Every view has one parent (a view placed in two
+    containers draws in neither: the 'residual vs every driver' tabs drew nothing while their views
+    were also the before/after tab's)."""
+    from collections import Counter
+
     from accellog.present.rrd.logs import step_color
 
     d = sessions
@@ -135,6 +119,10 @@ def test_workbench_rrd_shows_residuals_against_temperature(sessions, capsys):
     assert main([*args, "--json"]) == 0
     capsys.readouterr()
     r = load_rrd(rrd)
+    children = Counter(
+        child for comps in r.blueprint.values() for child in comps.get("ContainerBlueprint:contents", [])
+    )
+    assert children and max(children.values()) == 1, [c for c, n in children.items() if n > 1]
     root = "/residual_vs/temp_degC"
     plots = sorted(
         {e.split("/")[3] for e in r.entities if e.startswith(root + "/")} - {"frame_x", "frame_y", "frame_z"}
