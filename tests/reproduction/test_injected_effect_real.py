@@ -43,3 +43,18 @@ def test_injected_nonlinearity_is_kept_with_its_size(sessions):
     k = [m.param_names.index(f"k2_{a}") for a in "xyz"]
     delta, sig = r1.theta[k] - r0.theta[k], np.hypot(r1.sigma[k], r0.sigma[k])
     np.testing.assert_array_less(np.abs(delta - K2), 3 * sig)
+
+
+def test_a_tie_goes_to_the_lower_order_first(shared_data):
+    """The same recording with a bias tempco injected over a die temperature 25 -> 40 -> 30 degC
+    (piecewise linear in time): 11 windows cannot tell temp_bias from temp_bias2 (a tie, said);
+    the loop takes the linear term first (Effect.extends), never the quadratic without it."""
+    s = load_input(shared_data / "imucal" / "example_ferraris_session.csv")
+    T = np.interp(s.t_s, [s.t_s[0], 0.5 * (s.t_s[0] + s.t_s[-1]), s.t_s[-1]], [25.0, 40.0, 30.0])
+    s = dataclasses.replace(s, temp_degC=T)
+    inj = dataclasses.replace(
+        s, accel_g=s.accel_g + np.array([1.0e-3, -0.7e-3, 0.5e-3]) * (T - 25.0)[:, None]
+    )
+    found = discover(observations(inj), "model3")
+    assert found.added[0] == "temp_bias", found.added
+    assert any("temp_bias2" in group for group in found.undecided) or "temp_bias2" not in found.added
