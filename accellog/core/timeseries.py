@@ -29,6 +29,26 @@ def runs(mask: np.ndarray) -> np.ndarray:
     return np.stack([np.flatnonzero(d == 1), np.flatnonzero(d == -1)], axis=1)
 
 
+MAX_GAP_S = 10.0
+"""Longest step between samples (s) an integral is carried across; a longer one is a gap in the
+recording (a logger paused, a bus lost): integrating through it would add unmeasured motion."""
+
+
+def check_gap(t: np.ndarray, t_prev: float | None) -> None:
+    """InputError naming the first step of t_s (s; from t_prev, the sample before, when given)
+    longer than MAX_GAP_S."""
+    full = t if t_prev is None else np.concatenate([[t_prev], t])
+    steps = np.diff(full)
+    if steps.size and float(np.max(steps)) > MAX_GAP_S:
+        i = int(np.argmax(steps))
+        t0 = float(full[i])
+        raise InputError(
+            f"a {float(steps[i]):.3g} s gap in the time stamps after t = {t0:.3f} s: the motion in it was not "
+            f"measured, so nothing is integrated across it; take the part before it (evaluate, integrate, drift: "
+            f"--until-s {t0:.6g})"
+        )
+
+
 def cumtrapz(
     t_s: np.ndarray,
     y: np.ndarray,
@@ -42,9 +62,12 @@ def cumtrapz(
     prev None: the series starts here, I_0 = start (None: 0; then scipy's cumulative_trapezoid with
     initial 0, bit for bit); prev = (t, y) of the previous block's last sample: the integral goes on
     from I = start there. The sums run in the order of one cumsum over the whole series, so a session
-    fed block by block gives the bits of the whole session as one block."""
+    fed block by block gives the bits of the whole session as one block. A step longer than
+    MAX_GAP_S (from prev too) is an InputError naming it: the motion in a gap was not measured, so
+    nothing is integrated across one."""
     y = np.asarray(y, float)
     t = np.asarray(t_s, float)
+    check_gap(t, None if prev is None else float(prev[0]))
     shape = (-1,) + (1,) * (y.ndim - 1)
     out = np.empty_like(y)
     if prev is None:

@@ -31,6 +31,7 @@ import numpy as np
 from accellog.calibrate.model.session_drivers import BlockDrivers, needs_whole_series
 from accellog.core.errors import InputError
 from accellog.core.session import Session
+from accellog.core.timeseries import check_gap
 from accellog.navigate.blocks import first_mean, mean_reading, nan_sums
 from accellog.navigate.online import OnlineIntegrator
 from accellog.present.rrd.entities import AXES, AXIS_COLORS, TRACKS, slug
@@ -361,6 +362,7 @@ def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int,
         for b in cut:
             tb = b.t_s
             if speed_f is not None:
+                check_gap(tb, t_end if n else None)  # a gap is refused, not slept through
                 wait = t_pace0 + (float(tb[-1]) - t0) / speed_f - clock()
                 if wait > 0:
                     sleep(wait)
