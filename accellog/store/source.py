@@ -252,40 +252,54 @@ def read_whole(path: str | os.PathLike, *, what: str = "this command", check_tim
 
 
 def _read(p: Path, what: str) -> Session:
-    from accellog.store import importers
-    from accellog.store.importers.csv_checks import UnitsError
-    from accellog.store.importers.ros2 import import_ros2, is_ros2_bag
-    from accellog.store.reader import read_session
-
+    """The Session of a file, by the reader of its kind (session_kind): accellog's MCAP or an importer."""
     if not p.exists():
         raise InputError("no such file", where=str(p))
-    suffix = p.suffix.lower()
-    if is_ros2_bag(p):  # a ROS 2 bag's only sensor_msgs/Imu topic (import ros2 for the options)
-        return import_ros2(p)
-    if suffix == ".mcap":
-        session = read_session(p)
-        announce(session)  # a truncated file: say what was recovered (stderr)
-        return session
-    if suffix in (".csv", ".txt"):
-        kind = text_kind(p)
-        if kind == "pose_table":
-            raise _not_a_session(p, what)
-        if kind == "imucal":
-            return importers.import_imucal(p)
-        if kind == "capstone":
-            return importers.import_capstone(p)
-        try:
-            return importers.import_csv(p)
-        except UnitsError as exc:  # its fix names import csv's options: say where they go
-            raise UnitsError(
-                f"{exc} (an option of `accellog import csv FILE -o S.mcap`: import the file, then give S.mcap)"
-            ) from None
-    if suffix == ".json":
+    kind = session_kind(p)
+    if kind in ("pose_table", "observations"):
         raise _not_a_session(p, what)
-    raise InputError(
-        f"unknown input type {suffix or '(no suffix)'!r}: give .mcap, .csv or observations .json",
-        where=str(p),
-    )
+    from accellog.store.importers import IMPORTERS, import_file
+    from accellog.store.importers.csv_checks import UnitsError
+
+    if kind != "mcap" and kind not in IMPORTERS:
+        raise InputError(
+            f"unknown input type {p.suffix.lower() or '(no suffix)'!r}: give .mcap, .csv, .ulg, .bin or "
+            "observations .json",
+            where=str(p),
+        )
+    try:
+        if kind == "mcap":  # accellog's own: salvaged when truncated (announced below)
+            from accellog.store.reader import read_session
+
+            session = read_session(p)
+        else:
+            session = import_file(kind, p)  # the importer of its kind (IMPORTERS)
+    except UnitsError as exc:  # its fix names import csv's options: say where they go
+        raise UnitsError(
+            f"{exc} (an option of `accellog import csv FILE -o S.mcap`: import the file, then give S.mcap)"
+        ) from None
+    announce(session)  # a truncated MCAP file: say what was recovered (stderr)
+    return session
+
+
+def session_kind(p: Path) -> str:
+    """What a file holds: 'ros2' (a bag's only sensor_msgs/Imu topic), 'mcap' (accellog's), a text
+    kind (text_kind), 'ulog' (PX4 .ulg), 'dataflash' (ArduPilot .bin), 'observations' (.json) or
+    'unknown'."""
+    from accellog.store.importers.ros2 import is_ros2_bag
+
+    suffix = p.suffix.lower()
+    if is_ros2_bag(p):
+        return "ros2"
+    if suffix == ".mcap":
+        return "mcap"
+    if suffix in (".csv", ".txt"):
+        return text_kind(p)
+    if suffix == ".ulg":
+        return "ulog"
+    if suffix == ".bin":
+        return "dataflash"
+    return "observations" if suffix == ".json" else "unknown"
 
 
 def text_kind(p: Path) -> str:

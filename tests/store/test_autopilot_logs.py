@@ -100,3 +100,17 @@ def test_units_are_checked_at_the_door(tmp_path):
     with pytest.raises(InputError, match="need at least two"):
         log_session(tmp_path / "a.ulg", "ulog", t_us[:1], acc[:1], None, None, accel_id=None, gyro_id=None,
                     extra={})  # fmt: skip
+
+
+def test_every_stage_reads_an_autopilot_log_directly(capsys):
+    """A .ulg or .BIN given to a stage is read by its importer (instance 0), as import would."""
+    from accellog.store.source import read_whole
+
+    for kind, src in (("ulog", ULG), ("dataflash", BIN)):
+        s = read_whole(src)
+        want = import_file(kind, src)
+        assert s.meta.source == f"import:{kind}" and np.array_equal(s.accel_g, want.accel_g)
+        rc, out, err = _run(["doctor", src, "--json"], capsys)
+        assert rc == 0, err
+        facts = json.loads(out)
+        assert facts["source"] == f"import:{kind}" and facts["samples"] == len(want.t_s)

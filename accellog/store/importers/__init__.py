@@ -40,6 +40,7 @@ _WHERE = {
 }
 
 __all__ = [
+    "IMPORTERS",
     "CsvOptions",
     "PoseTable",
     "import_capstone",
@@ -60,25 +61,20 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+IMPORTERS: dict[str, str] = {
+    "capstone": "import_capstone",
+    "imucal": "import_imucal",
+    "csv": "import_csv",
+    "ros2": "import_ros2",  # a bag's only sensor_msgs/Imu topic unless topic= is given
+    "ulog": "import_ulog",  # PX4: sensor_accel instance imu= (0)
+    "dataflash": "import_dataflash",  # ArduPilot: IMU instance imu= (0)
+}
+"""The importer of each kind (a function of the path in the module of that name): a new format is
+one entry; its module (and its library) is loaded when a file of its kind is imported."""
+
+
 def import_file(kind: str, path: str | Path, **options) -> Session:
-    """Dispatch: kind 'capstone' | 'imucal' | 'csv' | 'ros2' | 'ulog' | 'dataflash' (options passed on)."""
-    if kind == "capstone":
-        from accellog.store.importers.capstone import import_capstone
-
-        return import_capstone(path)
-    if kind == "imucal":
-        from accellog.store.importers.imucal import import_imucal
-
-        return import_imucal(path, **options)
-    if kind == "csv":
-        from accellog.store.importers.csv import import_csv
-
-        return import_csv(path, **options)
-    if kind == "ros2":
-        from accellog.store.importers.ros2 import import_ros2
-
-        return import_ros2(path, **options)
-    if kind in ("ulog", "dataflash"):
-        mod = import_module(f"{__name__}.{kind}")
-        return getattr(mod, f"import_{kind}")(path, **options)
-    raise InputError(f"unknown import kind {kind!r}: use capstone, imucal, csv, ros2, ulog or dataflash")
+    """The Session of a file of kind ``kind`` (IMPORTERS; options passed on)."""
+    if kind not in IMPORTERS:
+        raise InputError(f"unknown import kind {kind!r}: use {', '.join(IMPORTERS)}")
+    return getattr(import_module(f"{__name__}.{kind}"), IMPORTERS[kind])(path, **options)
