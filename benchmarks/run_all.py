@@ -25,7 +25,8 @@ calibration), bench_csv_import.py (logger CSV), bench_ros2_import.py (rosbag2 MC
     python benchmarks/run_all.py --full     # + fit 24 h, fleet run (300 sessions); 5 runs
     python benchmarks/run_all.py --rows fit diagnose --no-write   # some rows, RESULTS.md untouched
     python benchmarks/run_all.py --rows cpu     # CPU of fit, evaluate, replay, noise, diagnose, doctor
-                                                # beside benchmarks/floor_numpy.py, one 1 h session
+                                                # beside benchmarks/floor_numpy.py, one 1 h session;
+                                                # their peak memory on 1 min and 4 h beside it
 
 A run of some rows (--rows) replaces those rows of RESULTS.md's table (the others keep their
 figures) and adds a line naming the run; the README's speed table is remade from RESULTS.md's.
@@ -358,6 +359,19 @@ def _cpu_floor(
     return judge
 
 
+CPU_COMMANDS = ("fit", "evaluate --cal", "replay --cal", "noise", "diagnose --model model3", "doctor")
+
+
+def _cpu_commands(sim: Path, cal: Path, d: Path) -> list[tuple[str, tuple]]:
+    """The commands of the `cpu` rows on session sim (evaluate and replay apply cal), as CPU_COMMANDS."""
+    return list(zip(CPU_COMMANDS, (("fit", sim, "-o", d / "cal_cpu_fit.json", "--force"),
+                                   ("evaluate", sim, "--cal", cal),
+                                   ("replay", sim, "--cal", cal, "--speed", "max"),
+                                   ("noise", sim, "--json"),
+                                   ("diagnose", sim, "--model", "model3"),
+                                   ("doctor", sim, "--json")), strict=True))  # fmt: skip
+
+
 def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
     """The rows of this run (mode: quick / default / full); inputs are made only for chosen rows."""
     quick, full = mode == "quick", mode == "full"
@@ -428,14 +442,17 @@ def rows(d: Path, mode: str, only: set[str] | None) -> list[Row]:
                     lambda f, b: ("-", True), shown="python benchmarks/floor_numpy.py D/sim24_3600s.mcap")  # fmt: skip
         out.append(floor)
         ref = lambda: median(floor.figs["cmd"]) if floor.figs["cmd"] else None  # noqa: E731
-        for label, args in (("fit", ("fit", sim, "-o", d / "cal_cpu_fit.json", "--force")),
-                            ("evaluate --cal", ("evaluate", sim, "--cal", cal)),
-                            ("replay --cal", ("replay", sim, "--cal", cal, "--speed", "max")),
-                            ("noise", ("noise", sim, "--json")),
-                            ("diagnose --model model3", ("diagnose", sim, "--model", "model3")),
-                            ("doctor", ("doctor", sim, "--json"))):  # fmt: skip
+        for label, args in _cpu_commands(sim, cal, d):
             out.append(Row("cpu", f"`{label}` 1 h 24-pose at 1 kHz: CPU beside the floor", "CPU <= 1.5x the floor",
                            accellog(*args), "the floor (row above)", None, _cpu_floor(ref, 1.5)))  # fmt: skip
+        # memory flat in the length: each command on 1 min and 4 h of the same protocol, beside its 1 h peak
+        hour = {r.what.split("`")[1]: r for r in out[-len(CPU_COMMANDS) :]}
+        for sec in (60, 600 if quick else 14400):
+            path, name = made(d, "sim24", sec), f"{sec // 60} min" if sec < 3600 else f"{sec // 3600} h"
+            for label, args in _cpu_commands(path, cal, d):
+                out.append(Row("cpu", f"`{label}` {name} 24-pose (memory flat in the length)",
+                               "peak <= 1.25x its 1 h run", accellog(*args), f"`{label}` 1 h (CPU row)", None,
+                               _flat(lambda r=hour[label]: median(r.figs["cmd"]) if r.figs["cmd"] else None)))  # fmt: skip
     if full and want("fleet"):
         fl = fleet_sessions(d, 300)
         run = ("fleet", "run", ROOT / "pipelines" / "fleet.toml", f"{fl}/**/*.mcap", "--force", "-o")
