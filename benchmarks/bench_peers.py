@@ -41,6 +41,7 @@ import argparse
 import contextlib
 import dataclasses
 import io
+import json
 import os
 import tempfile
 import warnings
@@ -129,7 +130,17 @@ def accellog_fit(run: Path, cal: Path, warm: bool, prior: Path | None = None):
         err = err.split(": ", 1)[-1] if err.startswith(str(run)) else err
         return f"refuses: {err.split(': ')[0].split(';')[0]}", None
     c = load_calibration(cal)
-    return "fitted " + "+".join(c.terms), lambda a, t: c.correct(a, {"temp_degC": t})
+    held = [t for t in c.terms if not np.any(np.asarray(c.sigma)[c.model.slices[t]] > 0)]  # fixed: sigma 0
+    status = (
+        "fitted "
+        + "+".join(t for t in c.terms if t not in held)
+        + (f" ({'+'.join(held)} held)" if held else "")
+    )
+    weak = json.loads(cal.read_text())["fit"]["warnings"]
+    weak = [w.split(": ")[1].split(" (")[0] for w in weak if w.startswith("weakly determined")]
+    return status + (f"; weakly determined: {weak[0]}" if weak else ""), lambda a, t: c.correct(
+        a, {"temp_degC": t}
+    )
 
 
 def actipy_fit(session, min_windows: int | None = None):

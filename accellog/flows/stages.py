@@ -44,7 +44,13 @@ from accellog.calibrate.gyro.calibrate import (
 )
 from accellog.calibrate.model.compose import build_model, orientation_free_model
 from accellog.calibrate.model.variance import fit_with_uncertainty
-from accellog.calibrate.observe.detected_holds import field_observations, fit_observations, fit_stops
+from accellog.calibrate.observe.detect import TooFewOrientations
+from accellog.calibrate.observe.detected_holds import (
+    field_observations,
+    fit_observations,
+    fit_stops,
+    judge_stops,
+)
 from accellog.calibrate.observe.obs_file import obs_to_dict, read_obs_table
 from accellog.calibrate.observe.segment import PoseStats, check_coverage, observations, observe_riding
 from accellog.core.forked import started
@@ -145,18 +151,15 @@ def run_fit(
     observations of the session, when made already. gravity: 'seed' (truth 1 per pose) or 'local'
     (g_local/g0 standard g). local_gravity_mps2: default the session's (meta.local_gravity_mps2), g0
     for pose tables. orientation_free: fit |correct(reading)| = truth_g without pose labels;
-    unlabelled sessions are segmented by detect_static (threshold sweep scored by the
-    orientation-free residual). gyro: also calibrate the gyro from the session's holds and the moves
-    between them (stored in cal.gyro). uncertainty: 'noise' (window noise; scaled by the hold means'
-    Birge ratio when they reject it), 'between_hold' (plus the between-hold variance component) or
-    'jackknife' (leave one hold out); accellog.calibrate.model.variance (fit.uncertainty_note says
-    which). relabel: replace hold labels that contradict the measured gravity direction (each change
-    is a note on stderr).
+    unlabelled sessions are segmented by detect_static (threshold sweep scored by the fit), their
+    stops, in too few directions for the model, fitted in what they identify (_field_fit). gyro: also
+    calibrate the gyro from the holds and the moves between them (cal.gyro). uncertainty: 'noise',
+    'between_hold' or 'jackknife' (accellog.calibrate.model.variance). relabel: replace hold labels
+    that contradict the measured gravity direction (each change is a note on stderr).
 
-    prior: a calibration of the device (the lab's): the stops of the unlabelled session(s) update it
-    (a Bayesian update, calibrate.model.prior; aging: how far each effect may have moved since, per
-    effect, default prior.AGING); data may then be several sessions of one device (a list), their
-    stops pooled (_field_fit).
+    prior: a calibration of the device (the lab's) that the stops of the unlabelled session(s) update
+    (calibrate.model.prior; aging: how far each effect may have moved since, default prior.AGING);
+    data may then be several sessions of one device (a list), their stops pooled (_field_fit).
     """
     field = dict(model=model, add=add, effects_file=effects_file, aging=aging, gravity=gravity, weighted=weighted,
                  local_gravity_mps2=local_gravity_mps2, window_s=window_s, trim_s=trim_s, gyro=gyro,
@@ -179,18 +182,19 @@ def run_fit(
     truth = convention_truth_g(gravity, lg)
     detected, first = None, None  # static intervals found in an unlabelled session; the gyro's first pass
     if table is None and (relabel or orientation_free):  # read whole: relabelled, held or detected holds
-        table, detected, src = fit_observations(src, m, gravity_g=truth, relabel=relabel, window_s=window_s,
-                                                trim_s=trim_s)  # fmt: skip
-    elif table is None:  # labelled: one pass (a forked child while this process imports the solver)
-        with started(observe_riding, src, window_s=window_s, trim_s=trim_s, rider=first_pass_of if gyro else None,
-                     what=f"reading {src.where}", meanwhile=not solver_loaded()) as reading:  # fmt: skip
-            if reading.forked:
-                load_solver()  # meanwhile; in-process the first fit imports it
-            table, first, src = reading.result()
+        try:
+            table, detected, src = fit_observations(src, m, gravity_g=truth, relabel=relabel, window_s=window_s,
+                                                    trim_s=trim_s)  # fmt: skip
+        except TooFewOrientations as exc:  # stops near level, six faces: fit what they identify
+            return _few_directions(src, exc, field)
+    elif table is None:
+        table, first, src = _labelled_pass(src, window_s=window_s, trim_s=trim_s, gyro=gyro)
     if not orientation_free:
         check_coverage(table, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=name)
     fit = fit_with_uncertainty(table, m, orientation_free=orientation_free, weighted=weighted, gravity_g=truth,
                                uncertainty=uncertainty)  # fmt: skip
+    if detected is not None:  # stops found in an unlabelled session: how well they determine the fit
+        judge_stops(fit, table)
     cal = Calibration.from_session_fit(fit, table, src, gravity_convention=gravity, local_gravity_mps2=lg,
                                        detected=detected)  # fmt: skip
     if gyro and src is not None:
@@ -199,6 +203,26 @@ def run_fit(
         cal.gyro = calibrate_source(src, temp_order=temp_order_of(fit.model.terms), first=first)
     warn_clipped_moves(fit, cal)  # moves left out of the gyro fit: said, and in the file
     return FitOutcome(obs=table, fit=fit, cal=cal)
+
+
+def _few_directions(src: Source, exc: TooFewOrientations, field: dict) -> FitOutcome:
+    """The fit of what an unlabelled session's stops identify (_field_fit without a prior), said
+    with why the full model could not be fitted; a truncated file (its labels went with its end)
+    is refused instead."""
+    if any(e.kind == "recovered" for e in src.events):
+        raise exc
+    note(f"{exc}. Fitting only what these stops identify instead (below)")
+    return _field_fit([src], None, **field)
+
+
+def _labelled_pass(src: Source, *, window_s: float, trim_s: float, gyro: bool):
+    """(observations, the gyro's first pass or None, Source) of a labelled session in one pass: in a
+    forked child while this process imports the solver."""
+    with started(observe_riding, src, window_s=window_s, trim_s=trim_s, rider=first_pass_of if gyro else None,
+                 what=f"reading {src.where}", meanwhile=not solver_loaded()) as reading:  # fmt: skip
+        if reading.forked:
+            load_solver()  # meanwhile; in-process the first fit imports it
+        return reading.result()
 
 
 def _prior(prior: Calibration | str | os.PathLike, add: Sequence[str], effects_file) -> Calibration:

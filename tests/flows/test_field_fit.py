@@ -70,14 +70,24 @@ def test_robot_stops_update_the_lab_calibration(tmp_path, capsys):
     assert [x.path for x in field.sources] == [str(r) for r in runs]
 
 
-def test_level_stops_without_a_prior_say_which_option_works(tmp_path, capsys):
-    """No prior: a single unlabelled run with level stops only is refused in one line that names
-    --prior (a deliberate choice for now: hand-held sessions that fitted before fit the same)."""
-    _, _aged, runs = _robot(tmp_path)
-    assert main(["fit", str(runs[0]), "-o", str(tmp_path / "f.json"), "--json"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "distinct static orientations" in err and "--prior LAB.json" in err and "\n" not in err
-    assert not (tmp_path / "f.json").exists()
+def test_level_stops_without_a_prior_fit_what_they_identify(tmp_path, capsys):
+    """No prior: a single unlabelled run with level stops only fits the biases (what the stops
+    identify), holds the scale and cross-axis terms at nominal, says why for each and names
+    --prior; the biases land where the aged chip's biases plus the unseen S_zz put them."""
+    _, aged, runs = _robot(tmp_path)
+    out = tmp_path / "f.json"
+    assert main(["fit", str(runs[0]), "-o", str(out), "--json"]) == 0
+    cap = capsys.readouterr()
+    ident = json.loads(cap.out)["identification"]
+    assert ident["identified"] == ["b_x", "b_y", "b_z"]
+    assert set(ident["not_identified"]) == {"S_xx", "S_yy", "S_zz", "S_yx", "S_zx", "S_zy"}
+    assert "b_z + S_zz" in ident["not_identified"]["S_zz"] and "van Hees" in ident["not_identified"]["S_xx"]
+    assert "--prior LAB.json" in cap.err and "Fitting only what these stops identify" in cap.err
+    cal = load_calibration(out)
+    p = {n: (v, s) for n, v, s in zip(cal.param_names, cal.theta, cal.sigma, strict=True)}
+    assert [p[n][0] for n in ("S_xx", "S_yy", "S_zz")] == [1.0, 1.0, 1.0]
+    # |f| = 1 on near-level stops: b_z carries S_zz - 1; b_x, b_y the tilt-weighted cross terms
+    assert abs(p["b_z"][0] - (aged[2] + aged[5] - 1.0)) < 3 * p["b_z"][1]
 
 
 def test_gyro_bias_curve_from_the_stops_of_an_emulated_robot(tmp_path, capsys):
@@ -269,3 +279,33 @@ def test_a_labelled_robot_run_with_short_stops_updates_the_prior(parked, tmp_pat
         "0.5",
     ]
     assert main([*args, "-o", str(tmp_path / "f.json")]) == 0, capsys.readouterr().err
+
+
+def test_few_stops_warming_up_say_which_terms_they_barely_determine(tmp_path, capsys):
+    """Ten stops (faces and four corners) while the chip warms 20 -> 36 degC fit bias, scale,
+    misalignment and the bias tempco, but some of them lie mostly along directions the stops barely
+    see: the fit says which, in a note and in the calibration's warnings, and what pins them; 24
+    stops over the sphere through the same warm-up leave no such term."""
+    from accellog.flows.simulate import Scenario, simulate
+    from accellog.store.reader import read_session
+
+    warm = {"kind": "warmup", "T_start": 20.0, "T_end": 36.0, "tau_s": 200.0}
+    few = "+z,-z,+x,-x,+y,-y,+x+y+z,-x-y+z,+x-y-z,-x+y-z"
+    many = few + ",+x+y,-x-y,+x-y,-x+y,+x+z,-x-z,+x-z,-x+z,+y+z,-y-z,+y-z,-y+z,+x+y-z,-x-y-z"
+    weak = {}
+    for name, protocol in (("few", few), ("many", many)):
+        sim = tmp_path / f"{name}.labelled.mcap"
+        simulate(
+            Scenario(protocol=protocol, hold_s=25.0, sample_rate_hz=200.0, temperature=warm, seed=21), sim
+        )
+        run = write_session(tmp_path / f"{name}.mcap", dataclasses.replace(read_session(sim), poses=[]))
+        out = tmp_path / f"{name}.json"
+        assert main(["fit", str(run), "--add", "temp_bias", "-o", str(out), "--json"]) == 0
+        cap = capsys.readouterr()
+        weak[name] = json.loads(cap.out)["identification"]["weakly_determined"]
+        said = [w for w in json.loads(out.read_text())["fit"]["warnings"] if "weakly determined" in w]
+        assert bool(said) == bool(weak[name]) and ("weakly determined" in cap.err) == bool(weak[name])
+        if said:
+            assert all(p in said[0] for p in weak[name]) and ">= 12" in said[0]
+    assert weak["many"] == []
+    assert weak["few"] and any(p.startswith("bT_") for p in weak["few"]), weak

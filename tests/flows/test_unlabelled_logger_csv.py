@@ -1,6 +1,7 @@
 """A logger's CSV of the 24-pose protocol without a pose column (issue 45, item 1): rotations about
-the vertical read as one orientation, so fit / diagnose / workbench refuse it with one line naming
-what makes it work; `import csv --detect-holds` labels the face holds and all three then run."""
+the vertical read as one orientation, so fit fits what the six faces identify and diagnose /
+workbench refuse it, each naming what makes it work; `import csv --detect-holds` labels the face
+holds and all three then run."""
 
 from __future__ import annotations
 
@@ -41,10 +42,22 @@ def _import(csv, out, capsys, *extra):
     return _run(["import", "csv", csv, "--columns", COLUMNS, "--time-unit", "us", "-o", out, *extra], capsys)
 
 
-def test_unlabelled_24_pose_csv_refused_with_the_option_that_works(logger_csv, tmp_path, capsys):
+def test_unlabelled_24_pose_csv_fits_what_its_faces_identify_and_names_the_option(
+    logger_csv, tmp_path, capsys
+):
+    """fit: the six faces identify the biases and scales (the cross-axis terms are held, said); the
+    note names the pose column and --detect-holds. diagnose and workbench, which need the full
+    model, refuse in one line naming them."""
     ses = tmp_path / "u.mcap"
     assert _import(logger_csv, ses, capsys)[0] == 0
-    for argv in (["fit", ses, "-o", tmp_path / "u.json"], ["diagnose", ses], ["workbench", ses]):
+    rc, out, err = _run(["fit", ses, "-o", tmp_path / "u.json", "--json"], capsys)
+    assert rc == 0, err
+    assert "found at most 6 distinct static orientations" in err
+    assert "pose column" in err and "import csv ... --detect-holds" in err
+    ident = json.loads(out)["identification"]
+    assert {"b_x", "b_y", "b_z", "S_xx", "S_yy", "S_zz"} <= set(ident["identified"]), ident
+    assert {"S_yx", "S_zx", "S_zy"} <= set(ident["not_identified"]), ident
+    for argv in (["diagnose", ses], ["workbench", ses]):
         rc, _, err = _run(argv, capsys)
         assert rc == 2, (argv, err)
         lines = err.strip().splitlines()

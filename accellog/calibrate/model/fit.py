@@ -105,7 +105,7 @@ class FitResult:
     prior_sources: list[dict] | None = None
     """With a prior (calibrate.model.prior.Prior.sources): per parameter which source determined it."""
     identification: Any = None
-    """What the stops identified (calibrate.model.identifiability.StopIdentification), field fits."""
+    """What the stops identified (calibrate.model.stops.StopIdentification), field fits."""
     obs: ObsTable | None = field(default=None, repr=False, compare=False)
     """The observations fitted (held-out scores take the session's between-hold scatter from them)."""
     _recompute: Callable[[], np.ndarray] | None = field(default=None, init=False, repr=False, compare=False)
@@ -389,7 +389,7 @@ def fit_orientation_free(
     residuals and the fit starts at theta_p, so what the norm cannot see (cross_axis, fixture_tilt,
     b_z against S_zz on level stops) stays at the prior's values; FitResult.prior_sources says per
     parameter which source determined it. fixed: parameter names held at the start values (the
-    terms calibrate.model.identifiability.identify_stops finds the stops cannot see), sigma 0.
+    terms calibrate.model.stops.identify_stops finds the stops cannot see), sigma 0.
     """
     if prior is None and model.has("fixture_tilt"):
         raise ModelError("fixture_tilt needs pose labels: the orientation-free fit cannot use it")

@@ -47,6 +47,11 @@ def _distinct(dirs: np.ndarray, angle_deg: float) -> int:
     return len(reps)
 
 
+class TooFewOrientations(InputError):
+    """An unlabelled session whose still intervals point in too few directions for a full
+    orientation-free fit (`fit` then fits only what its stops identify: flows.stages.run_fit)."""
+
+
 def detect_static(
     session: Session,
     *,
@@ -87,7 +92,7 @@ def detect_static(
     )  # fmt: skip
     if labels is None:
         cut = any(e.kind == "recovered" for e in session.events)
-        raise InputError(
+        raise TooFewOrientations(
             f"found at most {max_found} distinct static orientations (need >= {min_poses} for an "
             f"orientation-free fit): {_labelling_hint(session, max_found, min_poses, min_interval_s)}"
             + ("; the file is truncated: any pose labels went with its end" if cut else ""),

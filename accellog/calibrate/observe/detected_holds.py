@@ -28,7 +28,7 @@ import numpy as np
 from accellog.calibrate.model.compose import Model, build_model
 from accellog.calibrate.model.effects import HANDHELD_START
 from accellog.calibrate.model.fit import fit_orientation_free
-from accellog.calibrate.observe.detect import detect_static, with_labels
+from accellog.calibrate.observe.detect import TooFewOrientations, detect_static, with_labels
 from accellog.calibrate.observe.label_check import relabel_holds
 from accellog.calibrate.observe.segment import observations
 from accellog.core.errors import InputError, ModelError
@@ -157,10 +157,8 @@ def fit_observations(
         return observations(session, window_s=window_s, trim_s=trim_s), None, open_source(session)
     try:
         detected = detect_static(session, cost=norm_cost(session, m, window_s=window_s, gravity_g=gravity_g))
-    except InputError as exc:
-        if "distinct static orientations" not in str(exc):
-            raise
-        raise InputError(
+    except TooFewOrientations as exc:
+        raise TooFewOrientations(
             f"{exc}; or give --prior LAB.json to update a lab calibration from these stops"
         ) from None
     held = with_labels(session, detected)
@@ -170,9 +168,9 @@ def fit_observations(
 def fit_stops(obs: ObsTable, m: Model, gravity_g: float, prior=None, *, weighted: bool = True,
               uncertainty: str = "noise", note_what: bool = False):  # fmt: skip
     """The orientation-free fit of the stops: with the prior (calibrate.model.prior.Prior), or of
-    the terms they identify (model.identifiability.identify_stops; the rest held at nominal, said
+    the terms they identify (model.stops.identify_stops; the rest held at nominal, said
     in a note when note_what)."""
-    from accellog.calibrate.model.identifiability import identify_stops
+    from accellog.calibrate.model.stops import identify_stops
     from accellog.calibrate.model.variance import with_uncertainty
 
     ident = identify_stops(obs, m, None if prior is None else prior.theta)
@@ -186,7 +184,22 @@ def fit_stops(obs: ObsTable, m: Model, gravity_g: float, prior=None, *, weighted
     if note_what:
         for line in ident.lines(prior is not None):
             note(f"{obs.session or 'stops'}: {line}")
+    if ident.weak and prior is None:
+        fit.warnings.append(ident.weak_line())
     return fit
+
+
+def judge_stops(fit, obs: ObsTable) -> None:
+    """What the detected stops of a full orientation-free fit determine (identify_stops at the
+    fitted values) in fit.identification; weakly determined parameters said in a note and in the
+    fit's warnings."""
+    from accellog.calibrate.model.stops import identify_stops
+
+    ident = identify_stops(obs, fit.model, fit.theta)
+    fit.identification = ident
+    if ident.weak:
+        note(f"{obs.session or 'stops'}: {ident.weak_line()}")
+        fit.warnings.append(ident.weak_line())
 
 
 def field_observations(
