@@ -5,14 +5,8 @@ For a residual series r_i (m/s^2, i = 0..n-1, times t_i s) fed in consecutive bl
 
 - mean and std (ddof 1) from shifted sums S1 = sum (r - c), S2 = sum (r - c)^2 (c: the first
   block's mean, so no cancellation);
-- the integrated autocorrelation time of ``calibrate.noise.integrated_autocorr_time``: for
-  n > 2 B (B = noise.BLOCK) the autocovariance is averaged over non-overlapping B-blocks centred on
-  the global mean m, which is only known at the end; with y = r - c and m' = m - c,
-
-      sum_j (y_j - m')(y_{j+k} - m') = Syy(k) - m' (P(k) + Q(k)) + m'^2 (B - k)
-
-  (pairs inside one block; P(k) = sum_{j<B-k} y_j, Q(k) = sum_{j>=k} y_j), so Syy (summed block
-  power spectra), P and Q accumulate and m' enters at the end;
+- the integrated autocorrelation time (``calibrate.observe.hold_noise.AutocorrTime``: summed block
+  spectra corrected for the global mean at the end);
 - windows [t0 + k w, t0 + (k+1) w) exactly as ``np.arange(t0, t_end, w)`` cuts the whole series (the
   open window is carried to the next block);
 - v(t), d(t): the cumulative trapezoid rule carried across blocks (``core.timeseries.cumtrapz``:
@@ -27,81 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from accellog.calibrate.observe.hold_noise import BLOCK, SOKAL_C, integrated_autocorr_time, tau_from_rho
+from accellog.calibrate.observe.hold_noise import AutocorrTime
 from accellog.core.timeseries import WindowCarry, cumtrapz
-
-
-class AutocorrTime:
-    """integrated_autocorr_time(x) of a (n,k) series fed in consecutive pieces (module doc)."""
-
-    def __init__(self, block: int = BLOCK, c: float = SOKAL_C) -> None:
-        self.block, self.c = block, c
-        self.pending: list[np.ndarray] = []
-        self.n_pending = 0
-        self.n = 0
-        self.shift: np.ndarray | None = None
-        self.total: np.ndarray | None = None  # sum of y over every sample (remainder included)
-        self.nb = 0
-        self.spec: np.ndarray | None = None  # (B+1, k) summed |rfft|^2 of the blocks
-        self.ysum: np.ndarray | None = None  # (B, k) summed blocks
-        self.long = False
-
-    def add(self, x: np.ndarray) -> None:
-        x = np.asarray(x, float)
-        if x.shape[0] == 0:
-            return
-        if self.shift is None:
-            self.shift = x.mean(axis=0)
-            self.total = np.zeros(x.shape[1])
-        y = x - self.shift  # pending samples are kept shifted
-        self.n += x.shape[0]
-        self.total += y.sum(axis=0)
-        self.pending.append(y)
-        self.n_pending += x.shape[0]
-        if not self.long and self.n_pending > 2 * self.block:
-            self.long = True
-        if self.long and self.n_pending >= self.block:
-            self._blocks()
-
-    def _blocks(self) -> None:
-        """Fold every complete B-block of the pending samples into the sums."""
-        buf = np.concatenate(self.pending) if len(self.pending) > 1 else self.pending[0]
-        nb = buf.shape[0] // self.block
-        b = self.block
-        y = buf[: nb * b].reshape(nb, b, -1)
-        if self.spec is None or self.ysum is None:
-            self.spec = np.zeros((b + 1, buf.shape[1]))
-            self.ysum = np.zeros((b, buf.shape[1]))
-        s = np.fft.rfft(np.ascontiguousarray(y.transpose(0, 2, 1)), n=2 * b, axis=2)  # (nb, k, b + 1)
-        self.spec += (s.real * s.real + s.imag * s.imag).sum(axis=0).T  # |s|^2
-        self.ysum += y.sum(axis=0)  # P and Q are linear in y: built from the block sum at the end
-        self.nb += nb
-        rest = buf[nb * b :].copy()  # not a view: buf is freed
-        self.pending = [rest] if rest.shape[0] else []
-        self.n_pending = rest.shape[0]
-
-    def tau(self) -> np.ndarray:
-        """(k,) tau in samples, >= 1 (integrated_autocorr_time of everything added)."""
-        if not self.long:
-            return np.atleast_1d(
-                integrated_autocorr_time(np.concatenate(self.pending) + self.shift, c=self.c)
-            )
-        if self.total is None or self.spec is None or self.ysum is None:
-            raise RuntimeError("long mode without folded blocks")
-        b = self.block
-        m = self.total / self.n
-        syy = np.fft.irfft(self.spec, n=2 * b, axis=0)[:b]
-        lags = np.arange(b, dtype=float)[:, None]
-        cs = np.cumsum(self.ysum, axis=0)  # summed over blocks: cs[j] = sum_b sum_{i<=j} y_bi
-        p = cs[::-1]  # P(k) = cs[B-1-k]
-        q = cs[-1] - np.concatenate([np.zeros((1, cs.shape[1])), cs[:-1]])  # Q(k) = total - cs[k-1]
-        acov = syy - m * (p + q) + m * m * (b - lags) * self.nb
-        var0 = acov[0]
-        ok = var0 > 1e-300
-        rho = np.zeros_like(acov)
-        rho[:, ok] = acov[:, ok] / var0[ok]
-        rho[0, :] = 1.0
-        return tau_from_rho(rho, self.c)
 
 
 class Integrator:

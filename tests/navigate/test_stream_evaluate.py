@@ -13,13 +13,13 @@ import pytest
 from support.sessions import RTOL, assert_json_close, synth_session
 from support.sessions import random_blocks as _blocks
 
-from accellog.calibrate.observe.hold_noise import BLOCK, integrated_autocorr_time
+from accellog.calibrate.observe.hold_noise import BLOCK, AutocorrTime, integrated_autocorr_time, tau_from_rho
 from accellog.cli import main
 from accellog.core.errors import InputError
 from accellog.core.jsonio import dumps
 from accellog.flows.simulate import Scenario, simulate
 from accellog.flows.stages import run_evaluate_report
-from accellog.navigate.stream_sums import AutocorrTime, ResidualSums
+from accellog.navigate.stream_sums import ResidualSums
 from accellog.store.stream import iter_imu
 from accellog.store.writer import write_session
 
@@ -32,6 +32,25 @@ def test_autocorr_time_in_pieces_equals_the_whole_series(n):
     for sl in _blocks(n, rng):
         acc.add(x[sl])
     np.testing.assert_allclose(acc.tau(), integrated_autocorr_time(x), rtol=RTOL)
+    np.testing.assert_allclose(acc.tau(), tau_from_rho(_block_rho(x)), rtol=RTOL)
+
+
+def _block_rho(x: np.ndarray) -> np.ndarray:
+    """Plain numpy: the autocorrelation summed over non-overlapping BLOCK-blocks of x centred on
+    its global mean (one FFT of the whole series when it has <= 2 BLOCK samples)."""
+    xc = x - x.mean(axis=0)
+    b = BLOCK if len(x) > 2 * BLOCK else len(x)
+    acov = np.zeros((b, x.shape[1]))
+    for i in range(len(x) // b):
+        y = xc[i * b : (i + 1) * b]
+        for j in range(x.shape[1]):
+            acov[:, j] += np.correlate(y[:, j], y[:, j], "full")[b - 1 :] if b < 6000 else _fft_acov(y[:, j])
+    return acov / acov[0]
+
+
+def _fft_acov(y: np.ndarray) -> np.ndarray:
+    f = np.fft.rfft(y, 2 * len(y))
+    return np.fft.irfft(f * np.conj(f), 2 * len(y))[: len(y)]
 
 
 def test_residual_sums_in_pieces_equal_one_block():

@@ -35,11 +35,11 @@ def autocorrelation(
 ) -> np.ndarray:
     """Normalised autocorrelation rho_k of each column of x (FFT, zero padded).
 
-    Series longer than 2 * block use summed block spectra (non-overlapping blocks, all centred on
-    the global mean, BLOCK_GROUP at a time): lags k < block, O(n log block) instead of O(n log n). A column with zero
-    variance (e.g. a constant quantised reading) gets rho = (1, 0, 0, ...). mean: x.mean(axis=0)
-    when the caller has it already (the same values, not computed again); centred: x is x - mean
-    already (the caller's, not made again).
+    Series longer than 2 * block use summed block spectra (``AutocorrTime``: non-overlapping
+    blocks, all centred on the global mean): lags k < block, O(n log block) instead of O(n log n).
+    A column with zero variance (e.g. a constant quantised reading) gets rho = (1, 0, 0, ...).
+    mean: x.mean(axis=0) when the caller has it already (the same values, not computed again);
+    centred: x is x - mean already (the caller's, not made again).
     """
     x = np.asarray(x, float)
     squeeze = x.ndim == 1
@@ -48,23 +48,106 @@ def autocorrelation(
     mean = None if centred else (x2.mean(axis=0) if mean is None else np.asarray(mean, float).reshape(-1))
     xc = x2 if mean is None else x2 - mean
     if n > 2 * block:
-        power = None  # summed |rfft|^2 of the blocks, BLOCK_GROUP blocks at a time
-        for i in range(0, n // block, BLOCK_GROUP):
-            j = min(n // block, i + BLOCK_GROUP)
-            spec = np.fft.rfft(xc[i * block : j * block].reshape(j - i, block, -1), n=2 * block, axis=1)
-            p = (spec.real**2 + spec.imag**2).sum(axis=0)
-            power = p if power is None else power + p
-        acov = np.fft.irfft(power, n=2 * block, axis=0)[:block]
+        acc = AutocorrTime(block)
+        for i in range(0, n, block * BLOCK_GROUP):
+            acc.add(xc[i : i + block * BLOCK_GROUP])
+        rho = acc.rho()
     else:
         nfft = 1 << int(np.ceil(np.log2(max(2 * n - 1, 1))))
         spec = np.fft.rfft(xc, n=nfft, axis=0)
-        acov = np.fft.irfft((spec * np.conj(spec)).real, n=nfft, axis=0)[:n]
+        rho = _normalised(np.fft.irfft((spec * np.conj(spec)).real, n=nfft, axis=0)[:n])
+    return rho[:, 0] if squeeze else rho
+
+
+def _normalised(acov: np.ndarray) -> np.ndarray:
+    """rho = acov / acov[0] per column (rho = (1, 0, ...) for a column of zero variance)."""
     var0 = acov[0]
     ok = var0 > 1e-300
     rho = np.zeros_like(acov)
     rho[:, ok] = acov[:, ok] / var0[ok]
     rho[0, :] = 1.0
-    return rho[:, 0] if squeeze else rho
+    return rho
+
+
+class AutocorrTime:
+    """The autocorrelation (``rho``) and integrated autocorrelation time (``tau``) of a (n,k) series
+    fed in consecutive pieces, in memory bounded by BLOCK_GROUP blocks whatever n.
+
+    For n > 2 B (B = block) the autocovariance is summed over non-overlapping B-blocks centred on
+    the global mean m, which is only known at the end; with y = x - c (c: the first piece's mean,
+    so no cancellation) and m' = m - c,
+
+        sum_j (y_j - m')(y_{j+k} - m') = Syy(k) - m' (P(k) + Q(k)) + m'^2 (B - k)
+
+    (pairs inside one block; P(k) = sum_{j<B-k} y_j, Q(k) = sum_{j>=k} y_j), so Syy (summed block
+    power spectra), P and Q accumulate and m' enters at the end. Up to 2 B samples are kept until
+    the series is known to be long (a short one: one FFT of it all, ``autocorrelation``)."""
+
+    def __init__(self, block: int = BLOCK, c: float = SOKAL_C) -> None:
+        self.block, self.c = block, c
+        self.pending: list[np.ndarray] = []
+        self.n_pending = 0
+        self.n = 0
+        self.shift: np.ndarray | None = None
+        self.total: np.ndarray | None = None  # sum of y over every sample (remainder included)
+        self.nb = 0
+        self.spec: np.ndarray | None = None  # (B+1, k) summed |rfft|^2 of the blocks
+        self.ysum: np.ndarray | None = None  # (B, k) summed blocks
+        self.long = False
+
+    def add(self, x: np.ndarray) -> None:
+        x = np.asarray(x, float)
+        if x.shape[0] == 0:
+            return
+        if self.shift is None:
+            self.shift = x.mean(axis=0)
+            self.total = np.zeros(x.shape[1])
+        y = x - self.shift  # pending samples are kept shifted
+        self.n += x.shape[0]
+        self.total += y.sum(axis=0)
+        self.pending.append(y)
+        self.n_pending += x.shape[0]
+        if not self.long and self.n_pending > 2 * self.block:
+            self.long = True
+        if self.long and self.n_pending >= self.block:
+            self._blocks()
+
+    def _blocks(self) -> None:
+        """Fold every complete B-block of the pending samples into the sums, BLOCK_GROUP at a time."""
+        buf = np.concatenate(self.pending) if len(self.pending) > 1 else self.pending[0]
+        b = self.block
+        nb = buf.shape[0] // b
+        if self.spec is None or self.ysum is None:
+            self.spec = np.zeros((b + 1, buf.shape[1]))
+            self.ysum = np.zeros((b, buf.shape[1]))
+        for i in range(0, nb, BLOCK_GROUP):
+            y = buf[i * b : min(nb, i + BLOCK_GROUP) * b].reshape(-1, b, buf.shape[1])
+            s = np.fft.rfft(y, n=2 * b, axis=1)  # (blocks, b + 1, k)
+            self.spec += (s.real * s.real + s.imag * s.imag).sum(axis=0)  # |s|^2
+            self.ysum += y.sum(axis=0)  # P and Q are linear in y: built from the block sum at the end
+        self.nb += nb
+        rest = buf[nb * b :].copy()  # not a view: buf is freed
+        self.pending = [rest] if rest.shape[0] else []
+        self.n_pending = rest.shape[0]
+
+    def rho(self) -> np.ndarray:
+        """(lags, k) autocorrelation of everything added (autocorrelation's values)."""
+        if not self.long:
+            return autocorrelation(np.concatenate(self.pending), self.block)  # its own mean
+        if self.total is None or self.spec is None or self.ysum is None:
+            raise RuntimeError("long mode without folded blocks")
+        b = self.block
+        m = self.total / self.n
+        syy = np.fft.irfft(self.spec, n=2 * b, axis=0)[:b]
+        lags = np.arange(b, dtype=float)[:, None]
+        cs = np.cumsum(self.ysum, axis=0)  # summed over blocks: cs[j] = sum_b sum_{i<=j} y_bi
+        p = cs[::-1]  # P(k) = cs[B-1-k]
+        q = cs[-1] - np.concatenate([np.zeros((1, cs.shape[1])), cs[:-1]])  # Q(k) = total - cs[k-1]
+        return _normalised(syy - m * (p + q) + m * m * (b - lags) * self.nb)
+
+    def tau(self) -> np.ndarray:
+        """(k,) tau in samples, >= 1 (integrated_autocorr_time of everything added)."""
+        return tau_from_rho(self.rho(), self.c)
 
 
 def integrated_autocorr_time(
@@ -106,9 +189,13 @@ def sem_autocorr(
     n = x.shape[0]
     tau_a = np.asarray(integrated_autocorr_time(x, c=c) if tau is None else tau)
     std = x.std(axis=0, ddof=1) if n > 1 else np.zeros(x.shape[1:])
-    sem = std * np.sqrt(tau_a / max(n, 1))
-    floor = quantum / np.sqrt(12.0 * max(n, 1))
-    return np.maximum(sem, floor), tau_a
+    return sem_of(std, tau_a, n, quantum), tau_a
+
+
+def sem_of(std: np.ndarray, tau: np.ndarray, n: int, quantum: float = 0.0) -> np.ndarray:
+    """sem = std sqrt(tau / n), floored at quantum / sqrt(12 n) (sem_autocorr from its parts)."""
+    sem = std * np.sqrt(tau / max(n, 1))
+    return np.maximum(sem, quantum / np.sqrt(12.0 * max(n, 1)))
 
 
 def batch_means_sem(x: np.ndarray, n_batches: int = 20) -> np.ndarray:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from accellog.calibrate.observe.holds import quantum_g, session_where, window_stats
+from accellog.calibrate.observe.holds import WindowSums, quantum_g, session_where, window_edges, window_stats
 from accellog.calibrate.observe.window_spill import WindowSpill, median
 from accellog.core.errors import InputError
 from accellog.core.session import PoseLabel, Session
@@ -47,11 +47,11 @@ def static_windows(
 ) -> tuple:
     """check_static's windows of one hold: (window start times, end times, mean, std, n); mean:
     acc.mean(axis=0) when the caller has it (the same values, not computed again)."""
-    edges = np.arange(t[0], t[-1], window_s)
-    starts = np.unique(np.searchsorted(t, edges))
-    mean, std, n = window_stats(acc, starts, mean)
-    ends = np.append(starts[1:] - 1, t.shape[0] - 1)
-    return t[starts], t[ends], mean, std, n
+    mean = acc.mean(axis=0) if mean is None else mean
+    sums = WindowSums(window_edges(float(t[0]), float(t[-1]), window_s), float(t[0]), False)
+    xc = acc - mean
+    sums.add(t, xc, xc * xc, None)
+    return sums.stats(mean)[:5]
 
 
 def moving_check(

@@ -1,12 +1,14 @@
 """Stage 'segment': the observation table (and per-hold statistics) of a session's labelled holds,
 made from its samples as blocks in time order (``segment_blocks``, called by ``segment.observations``
-over a ``store.source.Source``): an MCAP file chunk by chunk (memory bounded by the two longest holds
-plus one chunk group, whatever the session length) or a whole Session in memory as a single block.
+over a ``store.source.Source``): an MCAP file chunk by chunk (memory bounded by two holds of at most
+SPILL_ROWS samples plus one chunk group, whatever the session's or the holds' length) or a whole Session in memory as a single block.
 
 The labels are checked first (``holds.checked_labels``); the samples then pass and each trimmed
-hold [start + trim_s, end - trim_s) is gathered until it ends, checked (``holds.check_hold``: unit
-up vector, min_samples, finite readings: refused at once), reduced to its observation rows
-(``holds.hold_rows``) and statistics (``holds.hold_stats``), then dropped. The session-wide checks
+hold [start + trim_s, end - trim_s) is gathered until it ends (``holds.HoldSamples``: from a file,
+a hold longer than SPILL_ROWS samples goes on in a temporary file, so memory is bounded whatever
+the holds' length), checked (``holds.check_hold``: unit up vector, min_samples, finite readings:
+refused at once), reduced to its observation rows and statistics (``holds.reduce_hold``), then
+dropped. The session-wide checks
 run when every hold has passed, in this order: wrong units (|mean| far from 1 g: the first such
 hold), labels that contradict the measured gravity (``label_check``: the first and how many more)
 and motion (``motion``: every hold's 0.5 s windows, spilled to a temporary file as they pass,
@@ -27,17 +29,19 @@ from typing import Any
 import numpy as np
 
 from accellog.calibrate.observe.holds import (
+    SPILL_ROWS,
+    HoldSamples,
     PoseStats,
     check_hold,
     check_window,
     checked_labels,
-    hold_rows,
-    hold_stats,
+    first_pass,
     meta_quantum_g,
+    reduce_hold,
     units_error,
 )
 from accellog.calibrate.observe.label_check import hold_mismatch, mismatch_error
-from accellog.calibrate.observe.motion import mean_shift, moving_verdict, static_windows
+from accellog.calibrate.observe.motion import mean_shift, moving_verdict
 from accellog.calibrate.observe.window_spill import WindowSpill, median
 from accellog.core.errors import InputError
 from accellog.core.heap import trim_heap
@@ -74,10 +78,13 @@ def segment_blocks(
         check_window(window_s, meta.sample_rate_hz, where)
     labels = checked_labels(poses, where, events)
     holds = _Holds(meta, labels, window_s, trim_s, where, min_samples, check_units, check_moving, stats_out)
-    gather = _HoldGatherer(labels, trim_s)
+    gather = _HoldGatherer(labels, trim_s, SPILL_ROWS if threaded else None)
 
-    def reduce(p, parts) -> None:
-        holds.add(p, parts)
+    def reduce(p, samples) -> None:
+        try:
+            holds.add(p, samples)
+        finally:
+            samples.close()
         if release:
             trim_heap()  # a hold's arrays are freed: give their pages back (core.heap)
 
@@ -86,10 +93,10 @@ def segment_blocks(
             for block in blocks:
                 if on_block is not None:
                     on_block(block)
-                for p, parts in gather.add(block):
-                    behind.submit(reduce, p, parts)
-            for p, parts in gather.finish():
-                behind.submit(reduce, p, parts)
+                for p, samples in gather.add(block):
+                    behind.submit(reduce, p, samples)
+            for p, samples in gather.finish():
+                behind.submit(reduce, p, samples)
         holds.judge()
     finally:
         holds.close()
@@ -150,30 +157,30 @@ class _Holds:
         self.units: InputError | None = None  # the first hold far from 1 g
         self.mismatches: list = []  # label_check.LabelMismatch of every hold far from its label
 
-    def add(self, p: PoseLabel, parts: list[tuple]) -> None:
-        """Check and reduce one trimmed hold (parts: its (t, accel, temp) pieces in time order)."""
-        t, acc, temp = _joined(parts)
-        check_hold(p, t, acc, self.trim_s, self.min_samples, self.where)
-        mean = acc.mean(axis=0)  # once, for the checks and the rows
+    def add(self, p: PoseLabel, samples: HoldSamples) -> None:
+        """Check and reduce one trimmed hold (holds.first_pass, then holds.reduce_hold)."""
+        first = first_pass(samples)
+        check_hold(p, first, self.trim_s, self.min_samples, self.where)
         if self.check_units:
             if self.units is None:
-                self.units = units_error(p, mean, self.where)
-            bad = hold_mismatch(p, mean)
+                self.units = units_error(p, first.mean, self.where)
+            bad = hold_mismatch(p, first.mean)
             if bad is not None:
                 self.mismatches.append(bad)
         if self.units is not None or self.mismatches:  # refused when every hold has passed
             return
-        if self.wins is not None:
-            self.wins.add(p, *static_windows(t, acc, mean=mean))
-        tau = None  # the hold's autocorrelation time, computed once for the rows and the stats
-        if self.window_s is not None:
+        red = reduce_hold(p, samples, first, window_s=self.window_s, quantum=self.quantum,
+                          motion_window_s=0.5 if self.wins is not None else None,
+                          stats=self.stats_out is not None)  # fmt: skip
+        if self.wins is not None and red.windows is not None:
+            self.wins.add(p, *red.windows)
+        if red.rows is not None:
             if p.name not in self.names:
                 self.names.append(p.name)
-            cols, tau = hold_rows(p, t, acc, temp, mean, self.window_s, self.quantum)
+            cols = red.rows
             self.rows.add({"pose_id": np.full(len(cols["t_s"]), self.names.index(p.name)), **cols})
-        if self.stats_out is not None:
-            same = tau is not None and acc.dtype == np.float64  # hold_stats' own tau would be these bits
-            self.stats_out.append(hold_stats(p, t, acc, temp, mean, self.quantum, tau if same else None))
+        if self.stats_out is not None and red.stats is not None:
+            self.stats_out.append(red.stats)
 
     def judge(self) -> None:
         """The session-wide refusals, in order: units, labels, motion (InputError)."""
@@ -201,17 +208,6 @@ class _Holds:
     def close(self) -> None:
         if self.wins is not None:
             self.wins.close()
-
-
-def _joined(parts: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(t, accel, temp or None) of a hold's pieces (the piece itself when there is one)."""
-    if len(parts) == 1:
-        return parts[0]
-    if not parts:
-        return np.zeros(0), np.zeros((0, 3)), None
-    t, acc = (np.concatenate([x[i] for x in parts]) for i in range(2))
-    temp = None if parts[0][2] is None else np.concatenate([x[2] for x in parts])
-    return t, acc, temp
 
 
 def _most_windows(p: PoseLabel, trim_s: float, window_s: float) -> int:
@@ -296,20 +292,27 @@ class _Rows:
 
 
 class _HoldGatherer:
-    """Collects the samples of each trimmed hold [start + trim, end - trim) as blocks pass."""
+    """Collects the samples of each trimmed hold [start + trim, end - trim) as blocks pass
+    (holds.HoldSamples; spill_rows: theirs)."""
 
-    def __init__(self, labels: list[PoseLabel], trim_s: float) -> None:
+    def __init__(self, labels: list[PoseLabel], trim_s: float, spill_rows: int | None = None) -> None:
         self.labels = labels
         self.trim_s = trim_s
         self.k = 0
-        self.parts: list[tuple] = []
+        self.spill_rows = spill_rows
+        self.samples = HoldSamples(spill_rows)
 
     def _range(self, p: PoseLabel) -> tuple[float, float]:
         t0, t1 = p.start_s + self.trim_s, p.end_s - self.trim_s
         return (t0, t1) if t1 > t0 else (t0, t0)
 
+    def _next(self) -> HoldSamples:
+        done, self.samples = self.samples, HoldSamples(self.spill_rows)
+        self.k += 1
+        return done
+
     def add(self, b):
-        """Yield (label, parts) for every hold this block completes."""
+        """Yield (label, HoldSamples) for every hold this block completes."""
         if b.t_s.shape[0] == 0:
             return
         while self.k < len(self.labels):
@@ -318,17 +321,11 @@ class _HoldGatherer:
             i, j = np.searchsorted(b.t_s, [t0, t1])
             if j > i:
                 sl = slice(i, j)
-                self.parts.append(
-                    (b.t_s[sl], b.accel_g[sl], None if b.temp_degC is None else b.temp_degC[sl])
-                )
+                self.samples.add(b.t_s[sl], b.accel_g[sl], None if b.temp_degC is None else b.temp_degC[sl])
             if b.t_s[-1] < t1:  # the hold goes on in the next block
                 return
-            yield p, self.parts
-            self.parts = []
-            self.k += 1
+            yield p, self._next()
 
     def finish(self):
         while self.k < len(self.labels):
-            yield self.labels[self.k], self.parts
-            self.parts = []
-            self.k += 1
+            yield self.labels[self.k], self._next()
