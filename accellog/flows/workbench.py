@@ -58,6 +58,7 @@ from accellog.calibrate.model.fit import FitResult, fit_model, obs_drivers
 from accellog.core.errors import InputError, ModelError
 from accellog.core.jsonio import JsonResult
 from accellog.core.session import ObsTable, Session
+from accellog.core.timeseries import LineFit
 
 if TYPE_CHECKING:
     from accellog.calibrate.diagnosis.ladder import LadderRow
@@ -198,7 +199,7 @@ def discover(
     heldout: Sequence[ObsTable] | ObsTable | None = None,
     max_steps: int = 4,
     effects_file: str | Path | None = None,
-    host_time: tuple[np.ndarray, np.ndarray] | None = None,
+    host_time: LineFit | None = None,
     on_step: Callable[[object], None] | None = None,
     sessions: Sequence[ObsTable] | None = None,
     strategy: Strategy | None = None,
@@ -736,6 +737,7 @@ def _labelled(
     from accellog.calibrate.diagnosis.loso import concat_obs
     from accellog.calibrate.observe.segment import observations
     from accellog.store.source import open_source
+    from accellog.store.stream import HostClock
 
     data = datas[0]
     parts = [observations(d) for d in datas]
@@ -748,7 +750,7 @@ def _labelled(
         and np.all(np.isfinite(data.host_time_s))
         and data.n > 2
     ):
-        host = (data.t_s, data.host_time_s)
+        host = HostClock.of(data.t_s, data.host_time_s)
     found = discover(
         obs,
         model,

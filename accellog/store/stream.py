@@ -16,6 +16,7 @@ at the end of a recording, so a stage that needs them reads them first: one deco
 from __future__ import annotations
 
 import contextlib
+import copy
 import mmap
 import warnings
 from collections.abc import Generator, Iterable, Iterator
@@ -28,6 +29,7 @@ import numpy as np
 from accellog.core.errors import DataIntegrityWarning, InputError
 from accellog.core.heap import HeapTrim
 from accellog.core.session import Event, PoseLabel, SessionMeta
+from accellog.core.timeseries import LineFit
 from accellog.core.units import temp_counts_to_degC
 from accellog.store.collect import check_file
 from accellog.store.layout import NS_PER_S, TOPIC_EVENTS, TOPIC_IMU, TOPIC_POSES, metadata_to_meta
@@ -171,10 +173,11 @@ def _block(dec: DecodedBatch, meta: SessionMeta, where: str) -> ImuBlock:
                     vec("accel_counts", 3), gc)  # fmt: skip
 
 
-def read_host_clock(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """(sensor time, host time) (s) of the last sample of every run of equal host times, i.e. the
-    points calibrate.diagnose.clock_from_host_time uses (one per read batch: memory ~ samples /
-    batch size), streamed; None when the session stores no host time (as read_session's None)."""
+def read_host_clock(path: str | Path) -> LineFit | None:
+    """The host clock of a session: host - sensor time (s) against sensor time at the last sample
+    of every run of equal host times (one point per read batch; the points
+    calibrate.diagnosis.clock_from_host_time fits), streamed in bounded memory; None when the
+    session stores no host time (as read_session's None)."""
     clock = HostClock()
     with closed_after(iter_imu(path)) as blocks:
         for b in blocks:
@@ -183,11 +186,11 @@ def read_host_clock(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 class HostClock:
-    """read_host_clock fed block by block (add), e.g. from another pass over the file; result()."""
+    """read_host_clock fed block by block (add), e.g. from another pass over the file; result():
+    the line fit of its points (core.timeseries.LineFit), or None without host time."""
 
     def __init__(self) -> None:
-        self.ts_parts: list[np.ndarray] = []
-        self.th_parts: list[np.ndarray] = []
+        self.line = LineFit()
         self.any_host, self.n, self.missing = False, 0, False
         self.carry: tuple | None = None  # (t, host) of the previous block's last sample: its run may go on
 
@@ -196,27 +199,38 @@ class HostClock:
         """A new HostClock for one pass (calibrate.observe.segment.observe_riding's rider of a Source)."""
         return cls()
 
+    @classmethod
+    def of(cls, t_s: np.ndarray, host_s: np.ndarray) -> LineFit | None:
+        """result() of a session's whole sample and host times (s) in memory."""
+        clock = cls()
+        clock.add_times(np.asarray(t_s, float), np.asarray(host_s, float))
+        return clock.result()
+
     def add(self, b: ImuBlock) -> None:
-        self.n += b.n
         if b.host_time_s is None or self.missing:
+            self.n += b.n
             self.missing = True
             return
-        th, ts = b.host_time_s, b.t_s
+        self.add_times(b.t_s, b.host_time_s)
+
+    def add_times(self, ts: np.ndarray, th: np.ndarray) -> None:
+        """One block's sensor and host times (s)."""
+        self.n += ts.shape[0]
+        if ts.shape[0] == 0:
+            return
         self.any_host = self.any_host or bool(np.any(th != 0))
         if self.carry is not None and th[0] != self.carry[1]:
-            self.ts_parts.append(np.array([self.carry[0]]))
-            self.th_parts.append(np.array([self.carry[1]]))
+            self.line.add([self.carry[0]], [self.carry[1] - self.carry[0]])
         last = np.flatnonzero(np.diff(th) != 0)  # run ends inside the block (not its last sample)
-        self.ts_parts.append(ts[last])
-        self.th_parts.append(th[last])
-        self.carry = (ts[-1], th[-1])
+        self.line.add(ts[last], th[last] - ts[last])
+        self.carry = (float(ts[-1]), float(th[-1]))
 
-    def result(self) -> tuple[np.ndarray, np.ndarray] | None:
+    def result(self) -> LineFit | None:
         if self.missing or not self.any_host or self.n <= 2 or self.carry is None:
             return None
-        ts = np.concatenate([*self.ts_parts, [self.carry[0]]])
-        th = np.concatenate([*self.th_parts, [self.carry[1]]])
-        return ts, th
+        line = copy.deepcopy(self.line)  # pending points are not shared
+        line.add([self.carry[0]], [self.carry[1] - self.carry[0]])
+        return line
 
 
 def read_labels(path: str | Path) -> tuple[SessionMeta, list[PoseLabel], list[Event]]:

@@ -135,17 +135,25 @@ def test_segment_streams(recorded, small_groups):
         assert abs(np.linalg.norm(st.mean_g) - 1.0) < 0.1
 
 
-def test_host_clock_points_equal_numpy(recorded, small_groups):
-    """The streamed host-clock points are numpy's last sample of each run of equal host times."""
+def test_host_clock_fit_equals_numpy(recorded, small_groups):
+    """The streamed host clock is numpy's least-squares line of host time against sensor time at
+    the last sample of each run of equal host times (one point per read batch, not per sample)."""
+    from accellog.calibrate.diagnosis.clock import clock_from_host_time
     from accellog.store.stream import read_host_clock
 
     s = read_session(recorded)
     assert s.host_time_s is not None
     last = np.flatnonzero(np.append(np.diff(s.host_time_s) != 0, True))
-    ts, th = read_host_clock(recorded)
-    assert ts.size == last.size < s.n / 5  # one point per read batch, not per sample
-    np.testing.assert_array_equal(ts, s.t_s[last])
-    np.testing.assert_array_equal(th, s.host_time_s[last])
+    ts, th = s.t_s[last], s.host_time_s[last]
+    line = read_host_clock(recorded)
+    assert line is not None and line.count == last.size < s.n / 5
+    A = np.stack([ts - ts.mean(), np.ones_like(ts)], axis=1)
+    coef, rss, *_ = np.linalg.lstsq(A, th, rcond=None)
+    got = clock_from_host_time(line)
+    assert got["eps_clock"] == pytest.approx(coef[0] - 1.0, rel=1e-9, abs=1e-13)
+    sigma = np.sqrt(rss[0] / (ts.size - 2) / np.sum((ts - ts.mean()) ** 2))
+    assert got["sigma"] == pytest.approx(sigma, rel=1e-9)
+    assert clock_from_host_time((s.t_s, s.host_time_s)) == pytest.approx(got, rel=1e-9, abs=1e-13)
 
 
 def test_streamed_diagnose_base_fit_equals_numpy(recorded, small_groups, capsys):

@@ -44,6 +44,7 @@ from accellog.core.heap import trim_heap
 from accellog.core.numeric import f_sf, normal_sf
 from accellog.core.reprs import fit_text, short_repr
 from accellog.core.session import ObsTable
+from accellog.core.timeseries import LineFit
 
 DBIC_MIN = -10.0
 """A candidate must lower BIC by more than 10 ("very strong" evidence) to count."""
@@ -140,13 +141,14 @@ def diagnose(
     weighted: bool = True,
     gravity_g: float = 1.0,
     drivers: Mapping[str, np.ndarray] | None = None,
-    host_time: tuple[np.ndarray, np.ndarray] | None = None,
+    host_time: LineFit | tuple[np.ndarray, np.ndarray] | None = None,
     heldout: Sequence[ObsTable] | None = None,
     validate: bool = True,
 ) -> Diagnosis:
     """Fit `model`, test it against the noise floor, rank candidate effects, show driver signals.
 
-    host_time: optional (t_sensor_s, t_host_s) sample times to estimate the sample-clock error.
+    host_time: optional host clock to estimate the sample-clock error: store.stream.HostClock's
+    result (a pass over a file), or the (t_sensor_s, t_host_s) sample times (s) of a session.
     validate: judge the significant candidates out of sample (accellog.calibrate.diagnosis.choose: held-out
     sessions `heldout` when given, else blocked validation) and make the best of them `best`.
     The test statistics always use sigma_g (the noise estimate); weighted=False only changes the
@@ -213,7 +215,7 @@ def _candidate_rows(cands, obs, model, base, cv_b_all, drv, fit_kw, host_time, n
         row: dict = {"effect": name, "n_params": len(lib[name].params), "identifiable": False}
         rows.append(row)
         if name == "clock" and host_time is not None:
-            clock = clock_from_host_time(*host_time)
+            clock = clock_from_host_time(host_time)
             row.update(_clock_row(clock))
             continue
         reason = effect_requirement(name, obs, drv, model)
