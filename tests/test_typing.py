@@ -13,15 +13,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Files restructured by the one-source redesign (issue 41) whose errors are not fixed yet; the list
-# shrinks to nothing and goes with the xfail marker below.
-PENDING_MYPY = [
-    "accellog/calibrate/diagnosis/diagnose.py",
-    "accellog/calibrate/diagnosis/transfer.py",
-    "accellog/flows/stages.py",
-    "accellog/flows/workbench.py",
-]
-
 pytest.importorskip("mypy")
 
 
@@ -113,14 +104,8 @@ def test_readme_install_lets_mypy_see_the_types(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow  # mypy over the whole package: ~35 s
-@pytest.mark.xfail(
-    strict=True,
-    reason="25 errors outside PENDING_MYPY remain (gyro/stream.py's pass state, the residual functions' "
-    "attributes, record_starts' buffer types, online's carried integrals, callers of stages.py's signatures); "
-    "this marker goes once they are fixed",
-)
 def test_package_is_clean() -> None:
-    """`mypy accellog` with the project's configuration: no error outside PENDING_MYPY."""
+    """`mypy accellog` with the project's configuration: no error."""
     out = _mypy("accellog", cwd=ROOT)
-    errors = [ln for ln in out if ": error:" in ln and ln.split(":", 1)[0] not in PENDING_MYPY]
+    errors = [ln for ln in out if ": error:" in ln]
     assert not errors, f"{len(errors)} mypy errors:\n" + "\n".join(errors)

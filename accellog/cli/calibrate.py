@@ -268,13 +268,16 @@ def drift(
     Example: `accellog drift static.mcap --cal cal.json -o cal_drift.json`.
     """
     from accellog.calibrate.calfile.calibration import load_calibration
-    from accellog.flows.stages import load_input, run_drift
+    from accellog.flows.stages import run_drift
     from accellog.present import tables as report
     from accellog.store.atomic import check_outputs
+    from accellog.store.source import read_whole
 
     check_outputs([output, rrd], [static, cal, effects_file])
     c = load_calibration(cal, effects_file)
-    data = load_input(static) if rrd is not None else static  # an MCAP file streams (no series to draw)
+    data = (
+        read_whole(static, what="drift") if rrd is not None else static
+    )  # an MCAP file streams (no series to draw)
     out = run_drift(data, c, until_s=until_s, max_samples=max_samples)
     if _save_outcome(out, data, output, rrd, json_out, inputs=(static, cal)):
         return

@@ -13,7 +13,7 @@ from accellog.core.errors import InputError
 from accellog.core.notices import note
 from accellog.present.export_targets import TARGETS
 
-Target = enum.Enum("Target", {t: t for t in TARGETS}, type=str)
+Target = enum.Enum("Target", {t: t for t in TARGETS}, type=str)  # type: ignore[misc]  # from the one list
 """The --to choices (shell completion offers them)."""
 HeldoutOpt = Annotated[
     Path | None,

@@ -69,7 +69,8 @@ def binary_kind(head: bytes) -> str | None:
 
 def json_kind(value: Any) -> str | None:
     """What an accellog JSON document is by its "format" field (ACCELLOG_JSON), None otherwise."""
-    return ACCELLOG_JSON.get(value.get("format")) if isinstance(value, dict) else None
+    fmt = value.get("format") if isinstance(value, dict) else None
+    return ACCELLOG_JSON.get(fmt) if isinstance(fmt, str) else None
 
 
 def file_kind(mode: int) -> str | None:

@@ -120,21 +120,17 @@ class WindowCarry:
         """(t, cols, starts) of the windows this block completes (None: none yet)."""
         if t.shape[0] == 0:
             return None
-        if self.t0 is None:
-            self.t0 = float(t[0])
+        t0 = self.t0 = float(t[0]) if self.t0 is None else self.t0
         if self.carry is not None:
             t = np.concatenate([self.carry[0], t])
             cols = tuple(np.concatenate([c, x]) for c, x in zip(self.carry[1:], cols, strict=True))
-        starts = self._starts(t)
+        edges = arange_above(t0, t[-1], self.width, t[0])
+        starts = np.unique(np.concatenate([[0], np.searchsorted(t, edges)]))
         last = int(starts[-1])
         self.carry = (t[last:], *(c[last:] for c in cols))
         if starts.size < 2:
             return None
         return t[:last], tuple(c[:last] for c in cols), starts[:-1]
-
-    def _starts(self, t: np.ndarray) -> np.ndarray:
-        edges = arange_above(self.t0, t[-1], self.width, t[0])
-        return np.unique(np.concatenate([[0], np.searchsorted(t, edges)]))
 
     def flush(self) -> tuple[np.ndarray, tuple, np.ndarray] | None:
         """The last (open) window: the series has ended."""

@@ -51,7 +51,7 @@ import dataclasses
 import functools
 import json
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -263,7 +263,7 @@ def build_sensor_model(sc: Scenario):
 
     motion: Motion
     if sc.motion == "robot":
-        paths = {"demo": robot.demo_loop, "long": robot.long_run,
+        paths: dict[str, Callable[..., Motion]] = {"demo": robot.demo_loop, "long": robot.long_run,
                  "parked": functools.partial(robot.parked_run, seed=sc.seed, hold_s=sc.hold_s)}  # fmt: skip
         if sc.robot_path not in paths:
             raise InputError(f"robot_path={sc.robot_path!r}: use one of {sorted(paths)}")

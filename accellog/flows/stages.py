@@ -53,6 +53,7 @@ from accellog.calibrate.observe.detected_holds import (
 )
 from accellog.calibrate.observe.obs_file import obs_to_dict, read_obs_table
 from accellog.calibrate.observe.segment import PoseStats, check_coverage, observations, observe_riding
+from accellog.core.errors import InputError
 from accellog.core.forked import started
 from accellog.core.heap import trim_heap
 from accellog.core.jsonio import JsonResult
@@ -167,28 +168,26 @@ def run_fit(
     if prior is not None or isinstance(data, (list, tuple)):
         many = list(data) if isinstance(data, (list, tuple)) else [data]
         return _field_fit(many, None if prior is None else _prior(prior, add, effects_file), **field)
-    table = data if isinstance(data, ObsTable) else obs
-    if table is None and isinstance(data, (str, os.PathLike)):
-        table = read_obs_table(data, n_per_pose=n_per_pose)
-    given = isinstance(data, ObsTable) or (obs is None and table is not None)  # no session
-    src = None if given else open_source(data, what="fit")
-    name = table.session if src is None else src.where
+    table, src, name = _fit_input(data, obs, n_per_pose)
     m = build_model(model, add=list(add), effects_file=effects_file)
-    if not orientation_free and table is None and not src.poses:  # what the session holds, decided here
+    if not orientation_free and src is not None and table is None and not src.poses:  # decided here
         orientation_free, m = True, orientation_free_model(m, name)
     if local_gravity_mps2 is None:
         local_gravity_mps2 = STANDARD_GRAVITY_MPS2 if src is None else src.meta.local_gravity_mps2
     lg = float(local_gravity_mps2)
     truth = convention_truth_g(gravity, lg)
     detected, first = None, None  # static intervals found in an unlabelled session; the gyro's first pass
-    if table is None and (relabel or orientation_free):  # read whole: relabelled, held or detected holds
+    if (
+        src is not None and table is None and (relabel or orientation_free)
+    ):  # read whole: relabelled, detected
         try:
             table, detected, src = fit_observations(src, m, gravity_g=truth, relabel=relabel, window_s=window_s,
                                                     trim_s=trim_s)  # fmt: skip
         except TooFewOrientations as exc:  # stops near level, six faces: fit what they identify
             return _few_directions(src, exc, field)
-    elif table is None:
+    elif src is not None and table is None:
         table, first, src = _labelled_pass(src, window_s=window_s, trim_s=trim_s, gyro=gyro)
+    assert table is not None  # given, read from its file, or observed in the session above
     if not orientation_free:
         check_coverage(table, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=name)
     fit = fit_with_uncertainty(table, m, orientation_free=orientation_free, weighted=weighted, gravity_g=truth,
@@ -203,6 +202,28 @@ def run_fit(
         cal.gyro = calibrate_source(src, temp_order=temp_order_of(fit.model.terms), first=first)
     warn_clipped_moves(fit, cal)  # moves left out of the gyro fit: said, and in the file
     return FitOutcome(obs=table, fit=fit, cal=cal)
+
+
+def _fit_input(
+    data: SessionInput | ObsTable | Sequence[SessionInput], obs: ObsTable | None, n_per_pose: int | None
+) -> tuple[ObsTable | None, Source | None, str]:
+    """What run_fit was given: (the observation table, given or read from a table file, or None;
+    the session's source, None for a table alone; the name said in messages)."""
+    if isinstance(data, ObsTable):
+        return data, None, data.session
+    table = (
+        read_obs_table(data, n_per_pose=n_per_pose)
+        if obs is None and isinstance(data, (str, os.PathLike))
+        else obs
+    )
+    if table is not None and obs is None:  # a table file: no session
+        return table, None, table.session
+    if not isinstance(data, (Session, Source, str, os.PathLike)):
+        raise InputError(
+            f"fit: cannot read a {type(data).__name__} (a path, Session, ObsTable or list of them)"
+        )
+    src = open_source(data, what="fit")
+    return table, src, src.where
 
 
 def _few_directions(src: Source, exc: TooFewOrientations, field: dict) -> FitOutcome:
@@ -334,7 +355,7 @@ def run_evaluate(
     stream: an MCAP file chunk by chunk (its evaluations then keep no series to plot), else in memory."""
     from accellog.navigate.evaluate import evaluate_blocks, targets
 
-    cals = [_cal(c) for c in cal] if isinstance(cal, (list, tuple)) else [_cal(cal)]
+    cals = [_cal(cal)] if isinstance(cal, (Calibration, str, os.PathLike)) else [_cal(c) for c in cal]
     src = open_source(test, what="evaluate")
     if not stream:
         src.whole()  # the series are kept for plots
@@ -392,23 +413,25 @@ class EvaluationReport(JsonResult):
         from accellog.present.rrd.offload import open_recording
 
         with open_recording(f"save:{path}") as rec:
-            if self.data.in_memory:
+            if self.data.session is not None:  # in memory
                 views.log_session(rec, self.data.session, calibrations=self.calibrations_by_label())
-            if self.poses:
+            obs = self.obs  # the windows judged: set for pose and hand-held evaluations
+            assert obs is not None or not (self.poses or self.handheld)
+            if self.poses and obs is not None:
                 md = "\n".join(views.table_markdown(tables.pose_eval_table(p)) for p in self.poses)
                 passes = [t for t in (tables.pass_eval_table(p) for p in self.poses) if t is not None]
                 md += "".join("\n" + views.table_markdown(t) for t in passes)
                 md += "".join(f"\n- {f}" for p in self.poses for f in p.flags)
                 rec.log_document("results/poses", md)
                 fits = {p.label: _WindowResiduals(p.window_resid_g) for p in self.poses}
-                log_residuals_vs_drivers(rec, self.obs, fits)
-            elif self.handheld:
+                log_residuals_vs_drivers(rec, obs, fits)
+            elif self.handheld and obs is not None:
                 from accellog.navigate.window_evaluation import CANNOT_JUDGE
 
                 md = "\n".join(views.table_markdown(tables.handheld_eval_table(h)) for h in self.handheld)
                 rec.log_document("results/handheld", md + "\n\n" + CANNOT_JUDGE)
                 fits = {h.label: _WindowResiduals(h.resid_g[:, None]) for h in self.handheld}
-                log_panels(rec, panels(self.obs, fits))  # the norm residual against each driver
+                log_panels(rec, panels(obs, fits))  # the norm residual against each driver
             else:
                 views.log_evaluations(rec, self.single)
 
@@ -516,13 +539,6 @@ class Integration(JsonResult):
     velocity_mps: np.ndarray | None
     written: Path | None = None
 
-    def csv_text(self) -> str:
-        """t_s, vx_mps, vy_mps, vz_mps, x_m, y_m, z_m (one row per sample)."""
-
-        ev = self.evaluation
-        rows = format_rows(np.column_stack([ev.t_s, self.velocity_mps, ev.disp_series_m]))
-        return CSV_HEADER + rows.decode("ascii")
-
     def to_dict(self, output: str = "") -> dict:
         ev = self.evaluation
         return {
@@ -575,7 +591,7 @@ def run_integrate(
 
     if output is None:
         return Integration(src.where, cp, one_pass()[-1], np.concatenate(vel))
-    path = src.path if src.path is not None else src.session.path
+    path = src.path if src.path is not None else src.whole().path  # in memory: no read
     with atomic_output(output, inputs=(path, cp)) as tmp, open(tmp, "wb") as f:
 
         def csv_pass(_src: Source) -> list[Evaluation]:

@@ -61,9 +61,13 @@ from accellog.core.session import ObsTable, Session
 from accellog.core.timeseries import LineFit
 
 if TYPE_CHECKING:
+    from accellog.calibrate.diagnosis.choose import StepChoice
+    from accellog.calibrate.diagnosis.diagnose import Diagnosis
     from accellog.calibrate.diagnosis.ladder import LadderRow
     from accellog.calibrate.diagnosis.strategy import ScoreFn, Strategy
+    from accellog.calibrate.model.variance import HoldScatter
     from accellog.calibrate.observe.detected_holds import Detection
+    from accellog.flows.workbench_trail import TrailStep
 
 BASE_STEPS = ("model1", "model2")
 
@@ -92,8 +96,8 @@ class Discovery:
     the detected intervals, its ladder, and what the gravity norm cannot identify."""
 
     start: str
-    diagnoses: list = field(default_factory=list)
-    choices: list = field(default_factory=list)
+    diagnoses: list[Diagnosis] = field(default_factory=list)
+    choices: list[StepChoice] = field(default_factory=list)
     added: list[str] = field(default_factory=list)
     heldout: dict | None = None
     """Held-out statistics of the final model (heldout_rms_g, heldout_noise_g, heldout_chi2_dof)."""
@@ -109,11 +113,11 @@ class Discovery:
     yardstick: dict | None = None
     """The between-hold scatter every model was judged with held out (variance.yardstick: from
     replicate holds of the richest model, or its residual), with its source."""
-    scatter: object = field(default=None, repr=False)
+    scatter: HoldScatter | None = field(default=None, repr=False)
     """The yardstick itself (variance.HoldScatter), for the ladder's held-out columns."""
-    final_diagnosis: object = field(default=None, repr=False)
+    final_diagnosis: Diagnosis | None = field(default=None, repr=False)
     """The diagnosis of the final model when pruning made it another than the last step's."""
-    trail: list = field(default_factory=list)
+    trail: list[TrailStep] = field(default_factory=list)
     """Every model the search tried, in order, with its held-out residual on the yardstick
     (accellog.flows.workbench_trail.TrailStep: kept, dropped, tied, rejected, removed)."""
     detection: Detection | None = None
@@ -185,7 +189,7 @@ class Discovery:
             "trail": [t.to_dict() for t in self.trail],
             **({} if self.loso is None else {"heldout_per_session": self.loso}),
         }
-        if hand:
+        if self.detection is not None:  # hand-held
             out["cannot_identify"] = self.cannot_identify
             out["detected"] = self.detection.to_dict()
             out["ladder"] = [r.to_dict() for r in self.ladder]
@@ -300,7 +304,7 @@ def _search(out: Discovery, obs, held, parts, strategy, max_steps, effects_file,
         key = frozenset(m.term_names)
         if key not in cache:
             stats, per = strategy.final_stats(obs, m, held, parts, scatter=yard)
-            if stats is not None and out.yardstick["source"] != "replicates":
+            if stats is not None and (out.yardstick or {}).get("source") != "replicates":
                 stats["heldout_scatter_g"] = 0.0  # no replicates: scatter cannot be told from model error
             cache[key] = stats, per
         stats, per = cache[key]
@@ -400,7 +404,7 @@ def evidence_parts(found: Discovery, norm: str, diagnosis=None) -> tuple[list[st
     if proxies or (d.missing and stuck) or found.transfers is False:
         parts.append(no_library_effect(d, proxies, norm, found.obs))
     held_ok = ""
-    if found.transfers:  # a model that misses something transfers only within its own scatter
+    if found.transfers and h is not None:  # a model that misses something transfers only within its scatter
         held_ok = f" (held-out {norm}chi2/dof {h['heldout_chi2_dof']:.3g}: " + (
             "within the calibration's own scatter)" if d.missing else "it transfers)"
         )
@@ -572,7 +576,8 @@ def ladder_rows(
             if len(sessions) > 1:
                 per = loso_stats(sessions, fo.fit.model, strategy.fit,
                                  lambda r, o: strategy.heldout_stats(r, o, scatter))  # fmt: skip
-                per_session.append(per)
+                if per_session is not None:
+                    per_session.append(per)
                 stats = mean_stats(per)
             else:
                 stats = strategy.mean_heldout_stats(fo.fit, held, scatter) if held else {}
@@ -601,7 +606,7 @@ def steps_for(discovery: Discovery) -> list[tuple[str, list[str]]]:
     step (a hand-held search: from its start model, model1 and model2 being no steps of an
     orientation-free fit)."""
     hand = discovery.detection is not None
-    steps = [(p, []) for p in BASE_STEPS if p != discovery.start and not hand]
+    steps: list[tuple[str, list[str]]] = [(p, []) for p in BASE_STEPS if p != discovery.start and not hand]
     steps.append((discovery.start, []))
     pairs = [set(c.chosen.split("+")) for c in discovery.choices if c.chosen and "+" in c.chosen]
     added, k = discovery.added, 0
@@ -880,6 +885,7 @@ def _handheld(
         from accellog.present.rrd.recording import RunRecording
         from accellog.present.views import log_session
 
+        assert found.detection is not None  # a hand-held search: its intervals
         with RunRecording(f"save:{rrd}") as rec:
             log_session(rec, data)
             log_detection(rec, found.detection)

@@ -86,9 +86,7 @@ class OnlineIntegrator:
 
     def reset(self) -> None:
         """Forget all samples (start a new session)."""
-        self._t_prev: float | None = None
-        self._a_prev: np.ndarray | None = None
-        self._v_prev: np.ndarray | None = None
+        self._last: tuple[float, np.ndarray, np.ndarray] | None = None  # (t, a, v) of the last sample
         self._v_acc = self._v0.copy()
         self._d_acc = self._d0.copy()
         self.n = 0
@@ -120,10 +118,10 @@ class OnlineIntegrator:
         if t.shape[0] == 0:
             e = np.empty((0, 3))
             return OnlineStep(t, f, a, e, e)
-        first = self._a_prev is None
-        v = cumtrapz(t, a, self._v_acc, prev=None if first else (self._t_prev, self._a_prev))
-        d = cumtrapz(t, v, self._d_acc, prev=None if first else (self._t_prev, self._v_prev))
-        self._t_prev, self._a_prev, self._v_prev = float(t[-1]), a[-1].copy(), v[-1].copy()
+        last = self._last
+        v = cumtrapz(t, a, self._v_acc, prev=None if last is None else (last[0], last[1]))
+        d = cumtrapz(t, v, self._d_acc, prev=None if last is None else (last[0], last[2]))
+        self._last = (float(t[-1]), a[-1].copy(), v[-1].copy())
         self._v_acc, self._d_acc = v[-1].copy(), d[-1].copy()
         self.n += t.shape[0]
         return OnlineStep(t, f, a, v, d)

@@ -267,7 +267,7 @@ class PoseEvaluation(JsonResult):
     """Slopes of each pose's window residuals against temperature and time in the hold."""
     flags: list[str] = field(default_factory=list)
     """Poses whose passes disagree beyond noise or whose windows trend (sentences)."""
-    window_resid_g: np.ndarray | None = None
+    window_resid_g: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     """(windows,3) residual of every window (g; for plots, not in to_dict)."""
 
     @property

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -25,6 +26,15 @@ from accellog.calibrate.model.fit import FitResult, obs_drivers
 from accellog.core.session import ObsTable
 from accellog.present.rrd.bars2d import nice_ticks
 from accellog.present.rrd.entities import AXES, TRACK_COLORS, slug
+
+
+class WindowResiduals(Protocol):
+    """What the residual plots read of a fit (FitResult) or of an evaluation: its (n,3) window
+    residuals in g."""
+
+    @property
+    def residual_g(self) -> np.ndarray: ...
+
 
 SCATTER = "residual_vs"
 """Entity root of the residual-vs-driver plots (role 'scatter2d' in the blueprint)."""
@@ -81,7 +91,7 @@ class Panel:
 
 def panels(
     obs: ObsTable,
-    fits: Mapping[str, FitResult],
+    fits: Mapping[str, WindowResiduals],
     contributions: Mapping[str, np.ndarray] | None = None,
 ) -> list[Panel]:
     """Panels for every driver present (not constant) and every labelled fit; contributions
@@ -240,7 +250,7 @@ def log_panels(
 def log_pose_panels(
     rec,
     obs: ObsTable,
-    fits: Mapping[str, FitResult],
+    fits: Mapping[str, WindowResiduals],
     colors: Mapping[str, tuple[int, int, int]] | None = None,
 ) -> None:
     """Window residuals (mg) by pose, per axis one plot with the fits side by side at each pose
@@ -282,7 +292,7 @@ def log_pose_panels(
 def log_residuals_vs_drivers(
     rec,
     obs: ObsTable,
-    fits: Mapping[str, FitResult],
+    fits: Mapping[str, WindowResiduals],
     contributions: Mapping[str, np.ndarray] | None = None,
     colors: Mapping[str, tuple[int, int, int]] | None = None,
     main: str | None = None,

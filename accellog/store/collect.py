@@ -187,6 +187,7 @@ class Sink:
 
     def _decoder(self, schema: Schema | None, channel: Channel) -> BatchDecoder | None:
         dec = self.decoders.get(channel.topic)
+        assert dec is None or isinstance(dec, BatchDecoder)  # DecodedBatch: the fast path's, never here
         if dec is None:
             msg = self.channel(schema, channel)
             if msg is not None:

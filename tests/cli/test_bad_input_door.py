@@ -44,6 +44,12 @@ def good(tmp_path_factory) -> dict[str, Path]:
     return {"mcap": mcap, "cal": cal}
 
 
+def _obs(d: Path, good: dict) -> Path:
+    """An observation table of the good session (made before the snapshot: an input)."""
+    assert main(["segment", str(good["mcap"]), "-o", str(d / "obs.json")]) == 0
+    return d / "obs.json"
+
+
 def _cal(good: dict, d: Path, edit: Callable[[dict], object], name: str = "badcal.json") -> Path:
     c = json.loads(good["cal"].read_text())
     r = edit(c)
@@ -405,6 +411,19 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
     "cal-2GB": (
         lambda d, g: ["evaluate", str(g["mcap"]), "--cal", str(_sparse(d / "big.json", 2 * 1024**3, b"{"))],
         ("big.json", "at most 32 MiB"),
+    ),
+    "drift-of-observations-drawn": (  # the table was passed on as a session: a TypeError traceback
+        lambda d, g: [
+            "drift",
+            str(_obs(d, g)),
+            "--cal",
+            str(g["cal"]),
+            "-o",
+            str(d / "d.json"),
+            "--rrd",
+            str(d / "d.rrd"),
+        ],
+        ("obs.json", "drift needs a recorded session"),
     ),
     "obs-65MiB": (
         lambda d, g: [

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -158,7 +159,7 @@ def diagnose(
     if not (sig.shape == obs.meas_g.shape and np.all(np.isfinite(sig) & (sig > 0))):
         raise InputError("diagnose needs a noise estimate: finite positive sigma_g for every observation")
     drv = obs_drivers(obs, drivers)
-    fit_kw = {"weighted": weighted, "gravity_g": gravity_g, "drivers": drivers}
+    fit_kw: dict[str, Any] = {"weighted": weighted, "gravity_g": gravity_g, "drivers": drivers}
     trim_heap()  # pages the caller freed (e.g. its own fit) are not carried through the candidates
     base = fit_model(obs, model, **fit_kw)
     m_eq = base.residual_g.size
@@ -204,7 +205,17 @@ def diagnose(
     )
 
 
-def _candidate_rows(cands, obs, model, base, cv_b_all, drv, fit_kw, host_time, n_tests):
+def _candidate_rows(
+    cands: Sequence[str],
+    obs: ObsTable,
+    model: Model,
+    base: FitResult,
+    cv_b_all: np.ndarray,
+    drv: Mapping[str, np.ndarray],
+    fit_kw: dict[str, Any],
+    host_time: LineFit | tuple[np.ndarray, np.ndarray] | None,
+    n_tests: int,
+) -> tuple[list[dict], dict[str, FitResult], dict | None]:
     """(rows, fits of model + candidate by name, clock estimate or None): one row per candidate,
     with the statistics of _candidate_stats, the host-clock test, or why it cannot be revealed."""
     lib = all_effects(model.effects_file)
@@ -367,10 +378,16 @@ def with_choice(verdict: str, advice: list[str], choice: StepChoice, sig_cands: 
             f" Cannot decide between {choice.chosen} and {', '.join(choice.undecided)}: they explain the "
             "same residual on this data."
         )
-    left = choice.scores.get(choice.chosen) if choice.chosen is not None else None
-    if left is not None and choice.evidence in OUT_OF_SESSION and left.chi2_per_eq > STILL_MISSING:
+    chosen = choice.chosen
+    left = choice.scores.get(chosen) if chosen is not None else None
+    if (
+        chosen is not None
+        and left is not None
+        and choice.evidence in OUT_OF_SESSION
+        and left.chi2_per_eq > STILL_MISSING
+    ):
         verdict += (
-            f" With {choice.chosen.replace('+', ' and ')} the other session is still {left.chi2_per_eq:.3g}x "
+            f" With {chosen.replace('+', ' and ')} the other session is still {left.chi2_per_eq:.3g}x "
             "the window noise (chi2/eq): it predicts unseen data better, not to the noise, so more is "
             "missing (accellog workbench with the same sessions searches on and says what no library "
             "effect explains)."
@@ -533,6 +550,7 @@ def settle_choice(d: Diagnosis, obs: ObsTable) -> None:
     rule: the chosen candidate first and as `best`, the verdict naming it (or saying that no
     significant candidate predicts unseen data better), ties named with what separates them."""
     ch = d.choice
+    assert ch is not None, "settled once the choice is made"
     rank_rows(d.candidates, ch)
     sig = [r for r in d.candidates if r.get("significant")]
     d.best = ch.chosen

@@ -177,16 +177,17 @@ def _calibration_uncertainty(res: FitResult, scatter=None):
 
     if res.obs is None:
         return np.asarray(res.cov, float), scatter
+    memo = res.derived
     if scatter is not None:
-        key = ("_predictive_cal", id(scatter))
-        if key not in res.__dict__:
-            res.__dict__[key] = (component_cov(res, res.obs, scatter), scatter)
-        return res.__dict__[key]
-    if "_predictive_cal" not in res.__dict__:
+        key = ("predictive_cal", id(scatter))
+        if key not in memo:
+            memo[key] = (component_cov(res, res.obs, scatter), scatter)
+        return memo[key]
+    if "predictive_cal" not in memo:
         ref = _reference_fit(res)
         sc = estimate_scatter(ref, res.obs)
-        res.__dict__["_predictive_cal"] = (component_cov(res, res.obs, sc), sc)
-    return res.__dict__["_predictive_cal"]
+        memo["predictive_cal"] = (component_cov(res, res.obs, sc), sc)
+    return memo["predictive_cal"]
 
 
 def _reference_fit(res: FitResult) -> FitResult:
@@ -203,6 +204,8 @@ def _reference_fit(res: FitResult) -> FitResult:
     if not add:
         return res
     fit = fit_orientation_free if norm else fit_model
+    if res.obs is None:  # the observations went with it: nothing to fit again
+        return res
     try:
         return fit(res.obs, res.model.with_terms(add), weighted=res.weighted, gravity_g=res.gravity_g)
     except AccellogError:
@@ -293,6 +296,7 @@ def _whitened(res: FitResult, obs: ObsTable, norm: bool = False) -> tuple[np.nda
         return _norm_jacobian(res, obs), e / s, 1
     sig = np.asarray(obs.sigma_g, float)
     J = res.jacobian
+    assert J is not None, "a labelled fit keeps (or remakes) its Jacobian"
     if not res.weighted:
         J = J / sig.ravel()[:, None]
     return J, (res.residual_g / sig).ravel(), 3

@@ -243,8 +243,13 @@ class FirstPass:
         )  # prefix max
         self.nxt, self.has_temp, self.no_gyro, self.seen = 0, True, False, False
         w = qlo.size  # the window sums, filled in as the windows end (none of < 2 samples kept)
-        self.sums: tuple | None = (np.zeros((w, 3)), np.zeros(w), np.zeros(w))
-        self.buf, self.buf0 = None, 0  # samples (w, temp) kept from global index buf0
+        self.sums: tuple[np.ndarray, np.ndarray, np.ndarray] | None = (
+            np.zeros((w, 3)),
+            np.zeros(w),
+            np.zeros(w),
+        )
+        self.buf: tuple[np.ndarray, np.ndarray | None] | None = None  # samples (w, temp) kept from
+        self.buf0 = 0  # global index buf0
 
     def add(self, blk) -> bool:
         """The next block (a RateBlock); False once the session shows no gyro rate."""
@@ -258,15 +263,18 @@ class FirstPass:
         self.moves.add(blk.t_s, blk.gyro_dps)
         loc.add(blk.t_s)
         self.has_temp = has_temp = self.has_temp and blk.temp_degC is not None
-        add = (np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None)
-        buf = add if self.buf is None else tuple(_cat(o, n) for o, n in zip(self.buf, add, strict=True))
+        w, temp = np.asarray(blk.gyro_dps, float), np.asarray(blk.temp_degC, float) if has_temp else None
+        if self.buf is not None:
+            w, temp = np.concatenate([self.buf[0], w]), _cat(self.buf[1], temp)
+        buf, sums = (w, temp), self.sums
+        assert sums is not None, "add() after result()"
         m = max(nxt, int(np.searchsorted(self.end_t, loc.t_last, side="right")))  # windows with a found end
-        _window_sums(loc.counts[qlo[nxt:m]], loc.counts[qlo[nxt:m] + 1], buf, self.buf0, self.sums, nxt)
+        _window_sums(loc.counts[qlo[nxt:m]], loc.counts[qlo[nxt:m] + 1], buf, self.buf0, sums, nxt)
         self.nxt = nxt = m
         held = self.buf0 + buf[0].shape[0]
         need = held if nxt == qlo.size else loc.count(qlo[nxt])
         keep = min(need, held) - self.buf0
-        self.buf, self.buf0 = tuple(None if x is None else x[keep:] for x in buf), self.buf0 + keep
+        self.buf, self.buf0 = (w[keep:], None if temp is None else temp[keep:]), self.buf0 + keep
         return True
 
     def result(self):
@@ -344,7 +352,7 @@ class _Segments:
 
     def __init__(self, lo: np.ndarray, hi: np.ndarray) -> None:
         self.lo, self.hi, self.k = np.asarray(lo, np.int64), np.asarray(hi, np.int64), 0
-        self.new, self.done = None, (0, 0)
+        self.new, self.done = np.zeros(0), (0, 0)  # new: set by every add
 
     def add(self, x: np.ndarray, x0: int) -> int:
         """Sum the ranges complete within x (global indices x0 ..); returns the first index still needed."""
@@ -378,13 +386,15 @@ class _CoarseBlocks:
         self.end = np.append(self.at[1:], n_fine - 1)  # one past its last fine block
         self.phi, self.c = np.zeros((self.at.size, 3)), np.zeros((self.at.size, 3))
         self.base, self.use_temp = base, use_temp
-        self.p, self.k, self.open = np.zeros(3), 0, None  # open: (phi, cross sum, p at start)
+        self.p, self.k = np.zeros(3), 0
+        self.open: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (phi, cross sum, p at start)
 
     def add(self, w_int: np.ndarray, temp_int: np.ndarray | None, span: np.ndarray) -> None:
         """The next fine blocks: rate integrals (deg), temperature integrals (degC s), durations (s)."""
         base = self.base
         b = w_int - np.outer(span, base.bias_dps)
         if self.use_temp:  # int b_T dT dt; int b_T2 dT^2 dt ~ b_T2 (mean dT)^2 span (a fine block's
+            assert temp_int is not None  # use_temp: the pass integrates the temperature
             dT_s = temp_int - base.t_ref_degC * span  # temperature is flat: the error is b_T2 var(T) span)
             b -= np.outer(dT_s, base.temp_bias_dps_per_degC)
             if base.temp_bias2_dps_per_degC2 is not None:
@@ -412,7 +422,7 @@ class _CoarseBlocks:
         self.c[q] = 0.5 * (crs - np.cross(p_at, phi))
 
 
-def _cat(old, new):
+def _cat(old: np.ndarray | None, new: np.ndarray | None) -> np.ndarray | None:
     return None if old is None or new is None else np.concatenate([old, new])
 
 
@@ -422,12 +432,15 @@ def _integrate_pass(blocks: Iterable, first: int, pieces: Iterator[np.ndarray], 
     come hold pair by hold pair from pieces (after the first, mids[0]), taken as the samples reach
     them; the pass stops after the last edge (samples past it are not integrated)."""
     edges, more = np.array([first], np.int64), True  # the fine edges from the first block not summed
-    buf, buf0 = None, 0  # samples (t, w, temp or None) kept from global index buf0
+    buf: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None  # samples (t, w, temp or
+    buf0 = 0  # None) kept from global index buf0
     for blk in blocks:
+        t, w = blk.t_s, np.asarray(blk.gyro_dps, float)
         temp = np.asarray(blk.temp_degC, float) if acc.use_temp else None
-        new = (blk.t_s, np.asarray(blk.gyro_dps, float), temp)
-        buf = new if buf is None else tuple(_cat(o, n) for o, n in zip(buf, new, strict=True))
-        held = buf[0].size
+        if buf is not None:
+            t, w, temp = np.concatenate([buf[0], t]), np.concatenate([buf[1], w]), _cat(buf[2], temp)
+        buf = (t, w, temp)
+        held = t.size
         end = buf0 + held - 1  # one past the last sample pair held
         while more and edges[-1] < end:
             piece = next(pieces, None)
@@ -436,13 +449,13 @@ def _integrate_pass(blocks: Iterable, first: int, pieces: Iterator[np.ndarray], 
         need = int(edges[0])
         if edges.size > 1 and need < end:
             stop = held if more else min(held, int(edges[-1]) - buf0 + 1)
-            t, w, temp = buf[0][:stop], buf[1][:stop], None if buf[2] is None else buf[2][:stop]
-            need, m = _integrate(t, w, temp, buf0, edges, acc)
+            part = None if temp is None else temp[:stop]
+            need, m = _integrate(t[:stop], w[:stop], part, buf0, edges, acc)
             edges = edges[m:]
         if edges.size == 1 and not more:
             return  # the last fine block is summed: the rest of the session is not needed
         keep = min(need, buf0 + held) - buf0  # a range not yet begun: keep nothing
-        buf, buf0 = tuple(None if x is None else x[keep:] for x in buf), buf0 + keep
+        buf, buf0 = (t[keep:], w[keep:], None if temp is None else temp[keep:]), buf0 + keep
 
 
 def _integrate(t, w, temp, buf0: int, edges: np.ndarray, acc: _CoarseBlocks) -> tuple[int, int]:

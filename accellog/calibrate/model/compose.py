@@ -15,6 +15,7 @@ user terms by fixed-point iteration.
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -358,14 +359,14 @@ def _solve_rows(sdiag: np.ndarray, C: np.ndarray, v: np.ndarray) -> np.ndarray:
 def build_model(
     spec: str,
     add: Sequence[str] | None = None,
-    effects_file: str | Path | EffectsFile | None = None,
+    effects_file: str | os.PathLike | EffectsFile | None = None,
     *,
     t_ref_degC: float = 25.0,
 ) -> Model:
     """Model from a preset ('model1'..'model3') or '+'-joined effect names ('bias+scale'), plus
     `add`. Unknown names raise ModelError listing the valid names; a term named twice (bias+bias,
     model3+model3, model3+bias: a preset's terms included) raises ModelError naming it."""
-    ef = load_effects_file(effects_file) if isinstance(effects_file, (str, Path)) else effects_file
+    ef = load_effects_file(effects_file) if isinstance(effects_file, (str, os.PathLike)) else effects_file
     tokens = [t.strip() for t in spec.split("+") if t.strip()] + [a.strip() for a in (add or []) if a.strip()]
     if not tokens:
         raise ModelError("empty model: give a preset (model1, model2, model3) or effect names")
@@ -391,7 +392,7 @@ def orientation_free_model(m: Model, where: str) -> Model:
     return build_model("+".join(dict.fromkeys(terms)), effects_file=m.effects_file) if swap else m
 
 
-def model_from_spec(spec: Mapping, effects_file: str | Path | EffectsFile | None = None) -> Model:
+def model_from_spec(spec: Mapping, effects_file: str | os.PathLike | EffectsFile | None = None) -> Model:
     """Inverse of Model.to_spec. A spec that needs user effects never loads code by itself: the
     effects file comes from the caller (the user's --effects-file); its SHA-256 is checked against
     the one the spec recorded before the file is executed."""

@@ -276,7 +276,7 @@ class EffectsFile:
     effects: dict[str, Effect] = field(default_factory=dict)
 
 
-def load_effects_file(path: str | Path, *, expect_sha256: str | None = None) -> EffectsFile:
+def load_effects_file(path: str | os.PathLike, *, expect_sha256: str | None = None) -> EffectsFile:
     """Run a user's Python file and collect its effects: a module-level list ``EFFECTS`` if
     present, else every module-level `Effect` instance. Each must define `contribution`.
 

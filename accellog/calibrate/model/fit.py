@@ -37,7 +37,7 @@ from accellog.calibrate.model.identifiability import (
 )
 from accellog.calibrate.model.jacobian import norm_jacobian, numeric_columns, predict_jacobian
 from accellog.calibrate.model.prior import Prior
-from accellog.calibrate.model.residual_fns import numjac, restricted, with_prior
+from accellog.calibrate.model.residual_fns import Residuals, numjac, restricted, with_prior
 from accellog.core.errors import InputError, ModelError
 from accellog.core.numeric import chi2_sf, least_squares
 from accellog.core.reprs import fit_text, param_table_html, short_repr
@@ -109,6 +109,8 @@ class FitResult:
     obs: ObsTable | None = field(default=None, repr=False, compare=False)
     """The observations fitted (held-out scores take the session's between-hold scatter from them)."""
     _recompute: Callable[[], np.ndarray] | None = field(default=None, init=False, repr=False, compare=False)
+    derived: dict[Any, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
+    """Values later stages derive from this fit, made once (the held-out score's covariance)."""
 
     def release_jacobian(self) -> None:
         """Free the stored Jacobian (3 n_obs x n_params floats: ~20 MB at 24 h of windows); reading
@@ -420,8 +422,7 @@ def fit_orientation_free(
         J = norm_jacobian(model, theta, meas, drv)
         return None if J is None else (J * wn[:, None], numeric_columns(model))
 
-    norm.analytic = analytic
-    fun = with_prior(norm, prior)
+    fun = with_prior(Residuals(norm, analytic), prior)
     th0 = model.initial_theta() if prior is None else prior.theta.copy()
     if prior is None:
         _norm_rank_check(restricted(fun, th0, free), th0, model, obs, free)

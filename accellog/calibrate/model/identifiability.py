@@ -274,8 +274,8 @@ def design_null(model: Model, kind: str = "labelled", obs: ObsTable | None = Non
     rank of the column-normalised Jacobian at the documented starting point (Model.initial_theta,
     where every fit starts); [] when all can be."""
     o = design_obs() if obs is None else obs
-    drv = {"t_s": o.t_s, "t_in_pose_s": o.t_in_pose_s, "temp_degC": o.temp_degC}
-    drv["dtemp_degC_per_s"] = o.dtemp_degC_per_s
+    optional = {"temp_degC": o.temp_degC, "dtemp_degC_per_s": o.dtemp_degC_per_s}
+    drv = {"t_s": o.t_s, "t_in_pose_s": o.t_in_pose_s, **{k: v for k, v in optional.items() if v is not None}}
     th = model.initial_theta()
     steps = np.maximum(1e-4 * model.param_typical, 1e-7 * np.abs(th))
     if kind == "norm":

@@ -1,17 +1,44 @@
 """Residual functions of the fits (accellog.calibrate.model.fit) and their Jacobians.
 
 A residual function fun(theta) -> (m,) may offer `fun.analytic(theta) -> (J, columns left to
-differences)` (calibrate.model.jacobian); numjac fills those columns (or all, without it) by central
+differences)` (calibrate.model.jacobian; a ``Residuals`` or a bound method of an object that has
+one); numjac fills those columns (or all, without it) by central
 differences. with_prior appends a prior's whitened rows (calibrate.model.prior); restricted holds
 some parameters fixed.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 
 from accellog.calibrate.model.prior import Prior
 from accellog.core.numeric import jacobian_array
+
+Vector = Callable[[np.ndarray], np.ndarray]
+Analytic = Callable[[np.ndarray], "tuple[np.ndarray, list[int]] | None"]  # (J, columns to differences)
+
+
+def _same(theta: np.ndarray) -> np.ndarray:
+    return theta
+
+
+@dataclass(frozen=True)
+class Residuals:
+    """A residual function with its analytic Jacobian (None: every column by differences) and, for
+    a restriction to some parameters, full(x) -> the whole theta."""
+
+    fun: Vector
+    jacobian: Analytic | None = None
+    full: Vector = _same
+
+    def __call__(self, theta: np.ndarray) -> np.ndarray:
+        return self.fun(theta)
+
+    def analytic(self, theta: np.ndarray) -> tuple[np.ndarray, list[int]] | None:
+        return None if self.jacobian is None else self.jacobian(theta)
 
 
 def numjac(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
@@ -50,8 +77,7 @@ def with_prior(fun, prior: Prior | None):
         got = _analytic(fun, theta)
         return None if got is None else (np.vstack([got[0], prior.whiten]), got[1])
 
-    joined.analytic = analytic
-    return joined
+    return Residuals(joined, analytic)
 
 
 def restricted(fun, theta0: np.ndarray, free: np.ndarray):
@@ -72,8 +98,7 @@ def restricted(fun, theta0: np.ndarray, free: np.ndarray):
             return None
         return got[0][:, idx], [int(np.searchsorted(idx, k)) for k in got[1] if free[k]]
 
-    sub.analytic, sub.full = analytic, full
-    return sub
+    return Residuals(sub, analytic, full)
 
 
 def _analytic(fun, theta: np.ndarray):

@@ -179,7 +179,11 @@ class HoldSamples:
 
     def _write(self, t: np.ndarray, acc: np.ndarray, temp: np.ndarray | None) -> None:
         if self.spill is not None:
-            self.spill.append(np.column_stack([t, acc, *([temp] if self.has_temp else [])]))
+            cols = [t, acc]
+            if self.has_temp:
+                assert temp is not None  # has_temp: every part carries one
+                cols.append(temp)
+            self.spill.append(np.column_stack(cols))
 
     def chunks(self, rows: int = CHUNK_ROWS) -> Iterator[tuple]:
         """(t, acc, temp or None) of rows samples at a time (the last: the rest), in order."""
@@ -344,7 +348,9 @@ class WindowSums:
         self.first[ids] = np.where(np.isnan(self.first[ids]), t[starts], self.first[ids])
         self.last[ids] = t[starts + cnt - 1]
 
-    def stats(self, ref: np.ndarray) -> tuple[np.ndarray, ...]:
+    def stats(
+        self, ref: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """(first time, last time, mean, std (ddof=1), n, mean time, mean temperature or None) of
         the windows holding samples."""
         k = self.n > 0

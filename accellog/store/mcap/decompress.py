@@ -46,7 +46,7 @@ class GroupDecompressor:
         self.damaged = damaged  # appended to (list.append is atomic)
         self.check_crcs = check_crcs  # False: the data section CRC vouches for the chunks (fastread)
 
-    def _into(self, comp: bytes, raw, dst: memoryview, slot: int) -> str | None:
+    def _into(self, comp: bytes | bytearray, raw, dst: memoryview, slot: int) -> str | None:
         """Decompress one chunk's records into dst (zstd straight into it, no copy); None if they
         fill it exactly, else the reason why not."""
         u = len(dst)

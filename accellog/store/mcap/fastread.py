@@ -20,6 +20,7 @@ every chunk byte) and, if it fails, reads the file again checking each chunk's C
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
 import mmap
 from collections.abc import Callable, Iterable
@@ -299,7 +300,7 @@ def _decode_group(
             rb,
             payload_at[sel],
             payload_end[sel],
-            lambda nm, dt, k, a=acc, f=frac: a.reserve(nm, dt, k, f),
+            functools.partial(acc.reserve, done=frac),
             acc.scalar_arrays,
         )
         if dec is None:

@@ -34,7 +34,9 @@ SUMMARY_OPS = {
 }  # schema, channel, chunk/attachment/metadata index, ...
 FOOTER_SIZE = 9 + 20
 MESSAGE_HEADER = 2 + 4 + 8 + 8  # channel_id u16, sequence u32, log_time u64, publish_time u64
-Bytes = bytes | mmap.mmap  # the file: mapped read-only (no copy) by fast_collect
+Bytes = (
+    bytes | bytearray | mmap.mmap
+)  # the file mapped read-only (no copy) by fast_collect, or decompressed records
 
 
 class NotFast(Exception):
@@ -82,7 +84,7 @@ def schema_at(data: Bytes, c: int) -> tuple[Schema, int]:
     name, q = str_at(data, c + 2)
     encoding, q = str_at(data, q)
     end = map_end(data, q)
-    return Schema(id=sid, name=name, encoding=encoding, data=data[q + 4 : end]), end
+    return Schema(id=sid, name=name, encoding=encoding, data=bytes(data[q + 4 : end])), end
 
 
 def channel_at(data: Bytes, c: int) -> tuple[Channel, int]:
