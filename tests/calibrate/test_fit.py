@@ -151,3 +151,25 @@ def test_orientation_free_fit_matches_labelled():
     assert r.method == "orientation_free" and 0.5 < r.chi2_dof < 1.6
     with pytest.raises(ModelError, match="misalignment_tri"):
         fit_orientation_free(obs, build_model("model3"))
+
+
+def test_a_term_the_data_does_not_show_is_said_insignificant():
+    """A term beyond the linear model whose parameters are 0 within their uncertainty is named with
+    its Wald test (the statistic and p as numpy and scipy.stats give them); one the data shows is
+    not; the linear model is never judged so."""
+    from scipy import stats
+
+    m = build_model("model3+nonlin2")
+    absent = synthetic_obs(m, true_theta(m, {"k2_x": 0.0, "k2_y": 0.0, "k2_z": 0.0}), protocol="24", seed=5)
+    r = fit_model(absent, m)
+    said = [w for w in r.warnings if w.startswith("nonlin2 is not significant")]
+    sl = m.slices["nonlin2"]
+    th, c = r.theta[sl], r.cov[sl, sl]
+    wald = float(th @ np.linalg.solve(c, th))
+    assert said and f"Wald chi2 {wald:.3g} on 3 dof, p = {stats.chi2.sf(wald, 3):.2g}" in said[0]
+    shown = synthetic_obs(
+        m, true_theta(m, {"k2_x": 0.004, "k2_y": -0.003, "k2_z": 0.002}), protocol="24", seed=5
+    )
+    assert not [w for w in fit_model(shown, m).warnings if "not significant" in w]
+    m3 = build_model("model3")  # b, S near their 'absent' values are still not judged
+    assert not [w for w in fit_model(absent, m3).warnings if "not significant" in w]

@@ -1,5 +1,6 @@
 """What a fit warns about: ArduPilot-like acceptance checks of a fitted calibration (scale within
-0.8-1.2, |offset| < 1 g), residuals against the noise floor, parameters poorly determined."""
+0.8-1.2, |offset| < 1 g), residuals against the noise floor, parameters poorly determined, and
+terms beyond the linear model that this data does not show (insignificant_terms)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,12 @@ import numpy as np
 
 from accellog.calibrate.model.compose import Model
 from accellog.calibrate.model.effects import AXES
+from accellog.core.numeric import chi2_sf
+
+STRUCTURAL = ("bias", "scale", "cross_axis", "misalignment_tri", "fixture_tilt")
+"""Terms a calibration carries whether or not this data resolves them (the linear sensor model and
+the fixture): not judged by insignificant_terms."""
+SIGNIFICANT_P = 0.05
 
 
 def acceptance_warnings(
@@ -19,9 +26,13 @@ def acceptance_warnings(
     weighted: bool,
     dof: int,
     noise_only: bool = True,
+    *,
+    theta: np.ndarray | None = None,
+    cov: np.ndarray | None = None,
 ) -> list[str]:
     """ArduPilot-like acceptance checks as warnings (scale 0.8-1.2, |offset| < 1 g, residual vs noise;
-    noise_only: sigma is the noise-only bound, and the warning says so)."""
+    noise_only: sigma is the noise-only bound, and the warning says so); with theta and cov also
+    the terms the data does not show (insignificant_terms)."""
     w: list[str] = []
     d = np.diag(S)
     for i, a in enumerate(AXES):
@@ -41,4 +52,34 @@ def acceptance_warnings(
     for n, s, t in zip(model.param_names, sigma, model.param_typical, strict=True):
         if np.isfinite(s) and s > t:
             w.append(f"{n} poorly determined: 1-sigma {s:.3g} exceeds its typical size {t:.3g}")
+    if theta is not None and cov is not None:
+        w += insignificant_terms(model, theta, cov)
     return w
+
+
+def insignificant_terms(model: Model, theta: np.ndarray, cov: np.ndarray) -> list[str]:
+    """A sentence per term beyond STRUCTURAL whose effect this data does not show: the Wald test of
+    its parameters at their 'absent' value 0, theta_t^T C_tt^+ theta_t ~ chi2(rank C_tt), has
+    p > SIGNIFICANT_P (parameters that start elsewhere, e.g. a time constant, and parameters held
+    fixed, sigma 0, are left out)."""
+    out: list[str] = []
+    off = model.initial_theta() == 0
+    sig = np.sqrt(np.clip(np.diag(cov), 0, None))
+    for name, sl in model.slices.items():
+        idx = np.arange(sl.start, sl.stop)
+        idx = idx[off[idx] & (sig[idx] > 0)]
+        if name in STRUCTURAL or idx.size == 0:
+            continue
+        c = cov[np.ix_(idx, idx)]
+        stat, k = (
+            float(theta[idx] @ np.linalg.pinv(c, hermitian=True) @ theta[idx]),
+            int(np.linalg.matrix_rank(c)),
+        )
+        p = chi2_sf(stat, k)
+        if np.isfinite(p) and p > SIGNIFICANT_P:
+            out.append(
+                f"{name} is not significant on this data (Wald chi2 {stat:.3g} on {k} dof, p = {p:.2g}): its "
+                "parameters are 0 within their uncertainty, so it adds uncertainty, and extrapolates, without "
+                "explaining the residuals; refit without it (`accellog diagnose` says what this data shows)"
+            )
+    return out

@@ -330,7 +330,7 @@ def _result(prob: _Problem, theta: np.ndarray, weighted: bool, sig_ok: bool, met
     sigma = np.sqrt(np.clip(np.diag(cov), 0, None))
     scale = max(1.0, chi2_dof) if weighted and np.isfinite(chi2_dof) else 1.0
     S, b = model.S_b(theta)
-    warns = acceptance_warnings(model, S, b, chi2_dof, p, sigma, weighted, dof)
+    warns = acceptance_warnings(model, S, b, chi2_dof, p, sigma, weighted, dof, theta=theta, cov=cov)
     out = FitResult(
         model=model,
         theta=theta,
@@ -496,5 +496,5 @@ def _norm_statistics(out: FitResult, funs, theta, weighted: bool, sig_ok: bool, 
     out.sigma_scaled = out.sigma * np.sqrt(scale)  # as _result: the unweighted cov already carries s^2
     # the acceptance checks of _result saw the labelled-style statistics: redo them on the fitted ones
     out.warnings = acceptance_warnings(
-        model, out.S, out.b, out.chi2_dof, out.p_value, out.sigma, weighted, dof
+        model, out.S, out.b, out.chi2_dof, out.p_value, out.sigma, weighted, dof, theta=out.theta, cov=out.cov
     )

@@ -483,4 +483,6 @@ def _finish(out: FitResult, noise_only: bool) -> None:
         out.weighted,
         out.dof,
         noise_only=noise_only,
+        theta=out.theta,
+        cov=out.cov,
     )
