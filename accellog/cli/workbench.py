@@ -160,13 +160,11 @@ def workbench_cmd(
 
     Example: `accellog workbench warmup.mcap --heldout other.mcap --static static.mcap -o cal.json`.
     """
-    from rich.console import Console
-
     from accellog.flows.workbench import run_workbench
-    from accellog.present.discovery_text import print_notes, print_workbench, step_printer
+    from accellog.present.discovery_text import print_notes, print_workbench, step_printer, terminal
     from accellog.present.tables import json_text
 
-    con = Console(stderr=as_json, width=160)
+    con = terminal(stderr=as_json)
     out = run_workbench(
         sessions,
         heldout=heldout or [],

@@ -7,6 +7,7 @@ accellog.flows.workbench.WorkbenchOutcome): present/ does not import flows/.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -15,6 +16,13 @@ from rich.markup import escape
 from rich.table import Table
 
 WIDTH = 160
+"""Columns of the text written into a file or a pipe (a log keeps whole table rows)."""
+
+
+def terminal(stderr: bool = False) -> Console:
+    """A console at the terminal's width, or WIDTH when the output is not a terminal."""
+    stream = sys.stderr if stderr else sys.stdout
+    return Console(stderr=stderr, width=None if stream.isatty() else WIDTH)
 
 
 def _fmt(v, spec: str = ".3g") -> str:
@@ -108,7 +116,7 @@ def signals_table(signals: Sequence[dict], top: int = 10) -> Table:
 
 def print_diagnosis(d, source: str, con: Console | None = None) -> None:
     """A Diagnosis: parameters, out-of-sample evidence, candidates, driver signals, verdict, advice."""
-    con = con or Console(width=WIDTH)
+    con = con or terminal()
     f = d.fit
     con.print(f"[bold]{source}[/]: {f.n_obs} windows, model {d.model.name} ({d.model.n_params} params)")
     con.print(params_sigma_table(f))
@@ -127,7 +135,7 @@ def print_diagnosis(d, source: str, con: Console | None = None) -> None:
 def print_diagnose_outcome(out) -> None:
     """diagnose's terminal output (a DiagnoseOutcome)."""
     if out.detection is not None:
-        Console(width=WIDTH).print(_detected_line(out.session, out.detection))
+        terminal().print(_detected_line(out.session, out.detection))
     print_diagnosis(out.diagnosis, out.session)
 
 
@@ -190,10 +198,15 @@ def log_bars(values: Sequence[float | None], cells: int = BAR_CELLS) -> list[str
     return out
 
 
-def search_table(trail, norm: str = "") -> Table:
+NARROW = 120
+"""A terminal narrower than this (columns) gets the search's reasons as lines under its table."""
+
+
+def search_table(trail, norm: str = "", width: int = WIDTH) -> Table:
     """Every model the workbench's search tried (TrailStep rows, in order): the change, what became
     of it, its held-out residual on the common yardstick (chi2/dof, RMS in mg) with a log-scale bar
-    (the falling curve), and why."""
+    (the falling curve), and why (narrower than NARROW: shorter bars, no why: search_reasons)."""
+    narrow = width < NARROW
     held = any(r.heldout is not None for r in trail)
     what = f"held-out {norm}residual" if held else f"out-of-sample {norm}chi2/eq (no held-out session)"
     t = Table(
@@ -208,14 +221,35 @@ def search_table(trail, norm: str = "") -> Table:
     else:
         t.add_column("OOS χ²/eq", justify="right", no_wrap=True)
     t.add_column("log scale", no_wrap=True)
-    t.add_column("why", overflow="fold", ratio=1)
+    if not narrow:
+        t.add_column("why", overflow="fold", ratio=1)
+    if narrow:  # headers wrap at their words, numbers never
+        for c in t.columns[1:-1]:
+            c.no_wrap = False
     vals = [r.heldout_chi2_dof if held else r.score for r in trail]
-    for r, v, bar in zip(trail, vals, log_bars(vals), strict=True):
+    for r, v, bar in zip(trail, vals, log_bars(vals, BAR_CELLS // 2 if narrow else BAR_CELLS), strict=True):
         status = TRAIL_STATUS.get(r.status, r.status) + (" = final" if r.final else "")
         style = "bold green" if r.final else ("dim" if not r.on_path else "")
         nums = [_fmt(v), _fmt(r.heldout_rms_mg)] if held else [_fmt(v)]
-        t.add_row(str(r.step), escape(r.change), status, *nums, bar, escape(r.why), style=style)
+        t.add_row(
+            str(r.step),
+            escape(r.change),
+            status,
+            *nums,
+            bar,
+            *([] if narrow else [escape(r.why)]),
+            style=style,
+        )
     return t
+
+
+def print_search(trail, con: Console, norm: str = "") -> None:
+    """The search table at the console's width; on a narrow terminal its reasons follow as lines."""
+    con.print(search_table(trail, norm, width=con.width))
+    if con.width < NARROW:
+        for r in trail:
+            if r.why:
+                con.print(f"  {r.step} {escape(r.change)}: {escape(r.why)}")
 
 
 def print_workbench(out, con: Console) -> None:
@@ -228,7 +262,7 @@ def print_workbench(out, con: Console) -> None:
         for a in found.advice:
             con.print(f"advice: {escape(a)}")
         if found.trail:
-            con.print(search_table(found.trail))
+            print_search(found.trail, con)
         con.print(ladder_table(out.ladder, title="watch the error fall: each step of model building"))
     loso = out.loso_dict()
     if loso is not None:
@@ -263,7 +297,7 @@ def _print_handheld(out, con: Console) -> None:
     for a in found.cannot_identify:
         con.print(f"cannot identify: {escape(a)}")
     if found.trail:
-        con.print(search_table(found.trail, norm="gravity-norm "))
+        print_search(found.trail, con, norm="gravity-norm ")
     con.print(
         ladder_table(out.ladder, title="hand-held: each step of model building (gravity-norm residual)")
     )

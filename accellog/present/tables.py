@@ -133,7 +133,8 @@ def drift_table(
 
 class _HeadersWrapFirst(Table):
     """A table that, when too wide for the terminal, wraps the headers of its number columns (each
-    down to its widest cell or header word: ``caps``) before rich narrows the other columns."""
+    down to its widest cell or header word: ``caps``) and collapses the padding between columns
+    before rich narrows the other columns."""
 
     def __init__(self, *args, **kw) -> None:
         super().__init__(*args, **kw)
@@ -143,13 +144,14 @@ class _HeadersWrapFirst(Table):
         wide = self.__rich_measure__(console, options).maximum > options.max_width
         for column, cap in self.caps:
             column.max_width = cap if wide else None
+        self.collapse_padding = wide  # one space between columns, not two
         yield from super().__rich_console__(console, options)
 
 
 def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Table:
     """The one table of the model ladder: model, params, chi2/dof and RMS (mg) on the calibration
-    data; held-out RMS and noise floor (mg), held-out chi2/dof, static-test drift (m) and warnings
-    when any row has them."""
+    data; held-out RMS and noise floor (mg), held-out chi2/dof and static-test drift (m) when any row
+    has them; the number of warnings per model in the caption (its columns fit 80 characters)."""
 
     def mg(v: float | None) -> str:
         return "-" if v is None else f"{v * 1000:.3g}"
@@ -160,11 +162,10 @@ def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Tabl
     held = any(r.heldout_rms_g is not None for r in rows)
     chi = any(getattr(r, "heldout_chi2_dof", None) is not None for r in rows)
     ats = sorted({r.drift_at_s for r in rows if r.drift_at_s is not None})
-    warn = any(r.warnings for r in rows)
     cols = ["model", "params", "χ²/dof (fit)", "RMS (mg)"]
     cols += ["held-out RMS (mg)", "noise floor (mg)"] if held else []
     cols += ["held-out χ²/dof"] if chi else []
-    cols += [f"{a:g} s drift (m)" for a in ats] + (["warnings"] if warn else [])
+    cols += [f"{a:g} s drift (m)" for a in ats]
     body = []
     for r in rows:
         # a narrow terminal wraps the model at its terms ("model3 + temp_bias +" / "temp_scale"), never inside one
@@ -172,7 +173,6 @@ def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Tabl
         cells += [mg(r.heldout_rms_g), mg(r.heldout_noise_g)] if held else []
         cells += [num(r.heldout_chi2_dof)] if chi else []
         cells += [num(r.drift_m) if r.drift_at_s == a else "-" for a in ats]
-        cells += [str(len(r.warnings))] if warn else []
         body.append(cells)
     t = _HeadersWrapFirst(title=title)
     for k, c in enumerate(cols):  # a number or a term never is split (min_width)
@@ -185,6 +185,9 @@ def ladder_table(rows: Sequence[LadderRow], title: str = "model ladder") -> Tabl
         t.caps.append((t.columns[-1], max(widest, *(len(w) for w in c.split()))))
     for cells in body:
         t.add_row(*cells)
+    warned = [f"{r.model.replace('+', ' + ')} {len(r.warnings)}" for r in rows if r.warnings]
+    if warned:
+        t.caption = "warnings (the fit prints them): " + ", ".join(warned)
     return t
 
 

@@ -239,3 +239,16 @@ def test_log_ladder_bars_near_one_are_visible_and_show_their_values(tmp_path: Pa
     assert r.static("/charts/t/values", "Points2D:labels") == ["547", "0.9"]
     ticks = r.static("/charts/t/ticks", "Points2D:labels")
     assert "0.1" in ticks and "1000" in ticks  # whole decades from below 0.9 to above 547
+
+
+def test_ladder_chart_draws_no_empty_group(tmp_path: Path) -> None:
+    """Without a static test no step has a drift: its group is not drawn (an empty group read as
+    zero drift)."""
+    _, _, rows = _ladder()
+    for r in rows:
+        r.drift_m = None
+    out = tmp_path / "ladder.rrd"
+    with RunRecording(f"save:{out}") as rec:
+        rec.log_ladder(rows)
+    ticks = load_rrd(out).static("/charts/ladder/ticks", "Points2D:labels")
+    assert "χ²/dof (fit)" in ticks and "held-out RMS (mg)" in ticks and "static-test drift (m)" not in ticks

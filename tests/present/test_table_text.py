@@ -77,3 +77,44 @@ def test_ladder_model_names_wrap_at_their_terms(width):
     assert all(len(ln) <= width for ln in text.splitlines())
     if width == 120:
         assert "model3 + temp_bias + temp_scale" in cells
+
+
+def test_every_column_shows_at_80_characters():
+    """The workbench's two tables on an 80-column terminal: every column there (the last one was
+    cropped), no line wider, the warnings per model in the ladder's caption; the search's reasons
+    as lines below its table."""
+    from types import SimpleNamespace
+
+    from accellog.present.discovery_text import print_search
+
+    rows = [
+        LadderRow("model1", 3, 3210.0, 0.0143, heldout_rms_g=0.0204, heldout_noise_g=1.86e-4,
+                  heldout_chi2_dof=8510.0, drift_m=1234.5, drift_at_s=60.0, warnings=["x", "y"]),
+        LadderRow("model3+temp_bias+temp_bias2", 18, 0.767, 1.73e-4, heldout_rms_g=2.08e-4,
+                  heldout_noise_g=1.86e-4, heldout_chi2_dof=0.858, drift_m=0.0312, drift_at_s=60.0),
+    ]  # fmt: skip
+    text = _text(ladder_table(rows, "watch the error fall"), 80)
+    assert max(map(len, text.splitlines())) <= 80
+    for word in ("params", "floor", "χ²/dof", "drift", "8.51e+03", "0.858", "0.0312", "warnings", "model1 2"):
+        assert word in text, (word, text)
+    step = dict(heldout=1.0, final=False, on_path=True, status="kept")
+    trail = [
+        SimpleNamespace(step=0, change="model3", heldout_chi2_dof=6110.0, heldout_rms_mg=17.7, why="", **step),
+        SimpleNamespace(step=1, change="+temp_bias2", heldout_chi2_dof=0.858, heldout_rms_mg=0.208,
+                        why="temp_bias2: held-out chi2/eq 734 -> 1.47", **{**step, "final": True}),
+    ]  # fmt: skip
+    con = Console(width=80, record=True, file=open("/dev/null", "w"))  # noqa: SIM115
+    print_search(trail, con)
+    text = con.export_text()
+    assert max(map(len, text.splitlines())) <= 80
+    for word in (
+        "step",
+        "change",
+        "became",
+        "RMS",
+        "log scale",
+        "6.11e+03",
+        "0.208",
+        "1 +temp_bias2: temp_bias2",
+    ):
+        assert word in text, (word, text)

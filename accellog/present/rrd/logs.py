@@ -337,13 +337,15 @@ class PipelineLogs:
             rr.AnyValues(step=[r.model for r in rows], added=["+".join(r.added) for r in rows]),
             static=True,
         )
+        values = np.array([_ladder_values(r) for r in rows], dtype=np.float64).T
+        measured = [k for k, v in enumerate(values) if np.any(np.isfinite(v) & (v > 0))]  # no empty group
         log_bar_groups(
             self,
             f"{CHARTS}/{LADDER}",
-            list(LADDER_BAR_GROUPS.values()),
+            [list(LADDER_BAR_GROUPS.values())[k] for k in measured],
             ladder_step_names(rows),
             [step_color(i) for i in range(len(rows))],
-            np.array([_ladder_values(r) for r in rows], dtype=np.float64).T,
+            values[measured],
             log10=True,
             width=720.0,
         )
