@@ -312,6 +312,9 @@ def write_rrd(res: DemoResult, path: Path, first_tab: int = 0) -> None:
 def _layout_data(res: DemoResult) -> DemoData:
     """The series the demo's views are framed on (the same arrays write_rrd logs)."""
     data = DemoData(n_diagnoses=len(res.diagnoses))
+    cal = res.sessions.get("calibration")
+    if cal is not None and cal.temp_degC is not None:
+        data.calibration_temperature = [(cal.t_s, cal.temp_degC)]
     t_ref = None
     for ev in res.evals:
         if ev.t_s is not None and ev.disp_series_m is not None:

@@ -252,3 +252,20 @@ def test_ladder_chart_draws_no_empty_group(tmp_path: Path) -> None:
         rec.log_ladder(rows)
     ticks = load_rrd(out).static("/charts/ladder/ticks", "Points2D:labels")
     assert "χ²/dof (fit)" in ticks and "held-out RMS (mg)" in ticks and "static-test drift (m)" not in ticks
+
+
+def test_a_constant_temperature_is_drawn_flat(tmp_path: Path) -> None:
+    """The demo's calibration tab: a chip at 25 degC with +-0.05 degC quantisation noise on an axis
+    at least MIN_TEMP_SPAN_DEGC tall (it filled the panel under one tick), its ticks labelled."""
+    from accellog.present.rrd.demo_layout import MIN_TEMP_SPAN_DEGC
+
+    t = np.linspace(0.0, 300.0, 3000)
+    temp = 25.0 + np.random.default_rng(1).choice([-0.05, 0.0, 0.05], t.size)
+    out = tmp_path / "demo.rrd"
+    data = DemoData(calibration_temperature=[(t, temp)])
+    with RunRecording(f"save:{out}", blueprint=demo_blueprint(data, first=1)) as rec:
+        rec.log_temperature(t, temp)
+    r = load_rrd(out)
+    view = next(e for e, c in r.blueprint.items() if c.get("ViewBlueprint:space_origin") == ["/temperature"])
+    lo, hi = r.blueprint[view + "/ScalarAxis"]["ScalarAxis:range"][0]
+    assert hi - lo >= MIN_TEMP_SPAN_DEGC and lo < 24.0 and hi > 26.0 and lo < temp.min() and hi > temp.max()

@@ -43,6 +43,8 @@ class DemoData:
     """Residuals (mg) of the ladder steps plotted in the workbench tab."""
     workbench_driver: list[Series] = field(default_factory=list)
     """What they are plotted against (temperature, degC)."""
+    calibration_temperature: list[Series] = field(default_factory=list)
+    """The calibration session's die temperature (degC)."""
     n_diagnoses: int = 3
 
 
@@ -127,6 +129,25 @@ def framed_plot(origin: str, name: str, series: Sequence[Series], **kw):
     )
 
 
+MIN_TEMP_SPAN_DEGC = 4.0
+"""A temperature plot spans at least this much: a chip held at 25 degC reads as a flat line, not as
+its +-0.05 degC quantisation noise filling the panel under one tick."""
+
+
+def temperature_plot(origin: str, name: str, series: Sequence[Series]):
+    """whole_range_plot of a temperature (degC), its y range at least MIN_TEMP_SPAN_DEGC."""
+    import rerun.blueprint as rrb
+
+    values = np.concatenate([np.asarray(v, np.float64).ravel() for _, v in series]) if series else np.zeros(0)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return whole_range_plot(origin=origin, name=name)
+    mid = 0.5 * (float(values.min()) + float(values.max()))
+    half = 0.5 * MIN_TEMP_SPAN_DEGC
+    lim = tick_range(np.r_[values, mid - half, mid + half])
+    return whole_range_plot(origin=origin, name=name, axis_y=rrb.ScalarAxis(range=lim, zoom_lock=False))
+
+
 def framed_eye(points_m: np.ndarray, face_on: bool = False):
     """Orbital 3D eye looking at the centre of points_m (N,3, m) from a distance that shows them
     all: from above and aside (z up), or with face_on along the direction in which the points spread
@@ -171,7 +192,7 @@ def demo_blueprint(data: DemoData, first: int = 0):
     return rrb.Blueprint(
         rrb.Tabs(
             _static_tab(data.static_tracks),
-            _calibration_tab(),
+            _calibration_tab(data.calibration_temperature),
             _workbench_tab(data),
             _robot_tab(data),
             active_tab=first,
@@ -181,8 +202,9 @@ def demo_blueprint(data: DemoData, first: int = 0):
     )
 
 
-def _calibration_tab():
-    """Raw and calibrated accel, temperature; residual per pose (named) of each model; parameters."""
+def _calibration_tab(temperature: Sequence[Series] = ()):
+    """Raw and calibrated accel, temperature (at least MIN_TEMP_SPAN_DEGC tall); residual per pose
+    (named) of each model; parameters."""
     import rerun.blueprint as rrb
 
     return rrb.Horizontal(
@@ -193,7 +215,7 @@ def _calibration_tab():
                 name="raw accel (g) + holds",
             ),
             whole_range_plot(origin="/accel/Model_3", name="calibrated accel, Model 3 (g)"),
-            whole_range_plot(origin=f"/{TEMPERATURE}", name="temperature (degC)"),
+            temperature_plot(f"/{TEMPERATURE}", "temperature (degC)", temperature),
         ),
         rrb.Vertical(
             rrb.Tabs(
