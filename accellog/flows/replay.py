@@ -34,7 +34,7 @@ from accellog.core.session import Session
 from accellog.core.timeseries import check_gap
 from accellog.navigate.blocks import first_mean, mean_reading, nan_sums
 from accellog.navigate.online import OnlineIntegrator
-from accellog.present.rrd.entities import AXES, AXIS_COLORS, TRACKS, slug
+from accellog.present.rrd.entities import AXES, AXIS_COLORS, TRACKS, slug, track_color
 from accellog.present.rrd.envelope import ENVELOPE_BUCKETS
 from accellog.present.rrd.offload import Recording
 from accellog.store.source import Source, open_source
@@ -320,13 +320,13 @@ def _replay(
                     t_wall0=t_wall0)  # fmt: skip
         return _replay(src, **opts)  # the whole mean's face is not the first block's: a second pass
     results = []
-    for tr in tracks:
+    for k, tr in enumerate(tracks):
         d_end = tr.integ.disp_m
         d_drift = tr.drift.apply(np.array([t_end]), d_end[None, :])[0] if tr.drift is not None else None
         results.append(TrackResult(tr.label, d_end, d_drift, getattr(tr.cal, "path", None), notes=tr.notes))
         if rec is not None:
             final = d_drift if d_drift is not None else d_end
-            rec.log_track_3d(tr.label, np.concatenate([*tr.parts, final[None, :]]))
+            rec.log_track_3d(tr.label, np.concatenate([*tr.parts, final[None, :]]), color=track_color(k))
     res = ReplayResult(
         session=str(src.where),
         n=n,
@@ -388,8 +388,10 @@ def _run(src, extent, tracks, rec, speed_f, batch_s, sleep, clock) -> tuple[int,
             read_n += bc
             if rec is not None and speed_f is not None and clock() - last_3d > 1.0:
                 last_3d = clock()
-                for tr in tracks:
-                    rec.log_track_3d(tr.label, np.concatenate([*tr.parts, tr.last[None, :]]))
+                for k, tr in enumerate(tracks):
+                    rec.log_track_3d(
+                        tr.label, np.concatenate([*tr.parts, tr.last[None, :]]), color=track_color(k)
+                    )
     if rec is not None and (n - 1) % slow:  # a track ends at its final displacement
         for tr in tracks:
             _log_track_rows(rec, tr, np.array([t_end]), tr.last[None, :])

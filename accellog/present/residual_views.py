@@ -305,7 +305,8 @@ def log_residuals_vs_drivers(
 
 def log_diagnosis_residuals(rec, diag, obs: ObsTable) -> None:
     """diagnose --rrd: the model's residuals against each driver with the chosen candidate's
-    predicted contribution drawn over them, and the residuals once the candidate is added."""
+    predicted contribution drawn over them, and the residuals once the candidate is added; the
+    driver they follow (followed_driver) in a tab of its own, first."""
     before = f"{diag.model.name}"
     fits = {before: diag.fit}
     contrib = None
@@ -313,7 +314,7 @@ def log_diagnosis_residuals(rec, diag, obs: ObsTable) -> None:
         after = diag.fits[diag.best]
         fits[f"+{diag.best}"] = after
         contrib = {before: contribution_g(diag.fit, after, obs)}
-    log_residuals_vs_drivers(rec, obs, fits, contrib)
+    log_residuals_vs_drivers(rec, obs, fits, contrib, main=followed_driver(diag))
 
 
 def log_workbench_residuals(
@@ -338,6 +339,24 @@ def log_workbench_residuals(
     log_residuals_vs_drivers(rec, obs, fits, contrib, cols, main)
 
 
+VERDICT = "verdict"
+"""The document a diagnosis recording opens with (above the residual it explains)."""
+
+
+def verdict_markdown(d) -> str:
+    """A diagnosis in a line it can be read by at a glance (what is missing and what adding it does
+    to chi2/dof), then its whole verdict and first advice."""
+    if d.best is not None and d.best in d.fits:
+        head = (
+            f"missing: {d.best} (chi2/dof {d.fit.chi2_dof:.3g} -> {d.fits[d.best].chi2_dof:.3g} when added)"
+        )
+    else:
+        head = "missing: an effect no candidate explains" if d.missing else "nothing missing"
+    return (
+        "\n".join([f"## {d.model.name}: {head}", "", d.verdict, "", *(f"- {a}" for a in d.advice[:3])]) + "\n"
+    )
+
+
 def followed_driver(diagnosis) -> str | None:
     """The driver of DRIVERS the residual of a diagnosis follows most (its strongest significant
     driver signal), None when no plotted driver is significant."""
@@ -356,6 +375,7 @@ def write_diagnosis_rrd(path, session, d, obs) -> None:
     with RunRecording(f"save:{path}") as rec:
         if session is not None:
             log_session(rec, session)
+        rec.log_document(VERDICT, verdict_markdown(d))
         log_diagnosis(rec, d, obs)
         log_diagnosis_residuals(rec, d, obs)
         rec.log_series(

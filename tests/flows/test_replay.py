@@ -198,6 +198,14 @@ def test_compare_cli_table_json_and_rrd(files, tmp_path: Path, capsys) -> None:
     for t in data["tracks"]:
         _, d = r.series(f"tracks/{t['label']}")
         np.testing.assert_allclose(d[-1], t["final_m"], rtol=1e-12)
+    # the 3D tracks in colours of their own (they were all the first), the eye on every end
+    colors = [r.static(f"/world/tracks/{t['label']}", "LineStrips3D:colors")[0] for t in data["tracks"]]
+    assert len(set(colors)) == 3, colors
+    world = next(e for e, c in r.blueprint.items() if c.get("ViewBlueprint:space_origin") == ["/world"])
+    eye = r.blueprint[world + "/EyeControls3D"]
+    ends = np.array([np.zeros(3)] + [t["disp_end_after_drift_m"] or t["final_m"] for t in data["tracks"]])
+    centre = 0.5 * (ends.min(axis=0) + ends.max(axis=0))
+    np.testing.assert_allclose(eye["EyeControls3D:look_target"][0], centre, atol=1e-6)
     rc = main(["compare", str(files["test"]), "--cal", str(files["model3"])])
     assert rc == 0
     txt = capsys.readouterr().out

@@ -269,3 +269,35 @@ def test_a_constant_temperature_is_drawn_flat(tmp_path: Path) -> None:
     view = next(e for e, c in r.blueprint.items() if c.get("ViewBlueprint:space_origin") == ["/temperature"])
     lo, hi = r.blueprint[view + "/ScalarAxis"]["ScalarAxis:range"][0]
     assert hi - lo >= MIN_TEMP_SPAN_DEGC and lo < 24.0 and hi > 26.0 and lo < temp.min() and hi > temp.max()
+
+
+def test_a_diagnosis_recording_opens_on_what_is_missing(tmp_path: Path) -> None:
+    """diagnose --rrd: the first tab is the residual against the driver it follows, before and
+    after the chosen effect, under one line naming it (the recording said nothing on screen and
+    half of it was raw data)."""
+    from support.synthetic import synthetic_obs, true_theta
+
+    from accellog.calibrate.diagnosis.diagnose import diagnose
+    from accellog.calibrate.model.compose import build_model
+    from accellog.present.residual_views import write_diagnosis_rrd
+
+    truth = build_model("model3+temp_bias")
+    th = true_theta(truth, {"bT_x": 1e-3, "bT_y": -8e-4, "bT_z": 5e-4}, seed=2)
+    obs = synthetic_obs(
+        truth, th, protocol="24", temp_path=lambda t: 25 + 10 * np.sin(2 * np.pi * t / t.max()), seed=4
+    )
+    d = diagnose(obs, build_model("model3"))
+    assert d.best == "temp_bias"
+    out = tmp_path / "diag.rrd"
+    write_diagnosis_rrd(out, None, d, obs)
+    r = load_rrd(out)
+    said = r.static("/docs/verdict", "TextDocument:text")[0]
+    assert said.startswith("## model3: missing: temp_bias (chi2/dof ")
+    import uuid
+
+    root = uuid.UUID(bytes=bytes(r.blueprint["/viewport"]["ViewportBlueprint:root_container"][0]))
+    first = "/" + r.blueprint[f"/container/{root}"]["ContainerBlueprint:contents"][0]
+    tab = r.blueprint[first]
+    assert tab["ContainerBlueprint:display_name"] == ["residual vs temperature (degC): before / after"]
+    top = "/" + tab["ContainerBlueprint:contents"][0]
+    assert r.blueprint[top]["ViewBlueprint:space_origin"] == ["/docs/verdict"]

@@ -24,7 +24,7 @@ from accellog.present.rrd.entities import (
     WORLD_TRACKS,
     slug_path,
 )
-from accellog.present.rrd.layout import ladder_bars_view, residual_bars_view, time_panel
+from accellog.present.rrd.layout import framed_eye, ladder_bars_view, residual_bars_view, time_panel
 from accellog.present.rrd.logs import LADDER_DRIVER
 
 Series = tuple[np.ndarray, np.ndarray]
@@ -146,34 +146,6 @@ def temperature_plot(origin: str, name: str, series: Sequence[Series]):
     half = 0.5 * MIN_TEMP_SPAN_DEGC
     lim = tick_range(np.r_[values, mid - half, mid + half])
     return whole_range_plot(origin=origin, name=name, axis_y=rrb.ScalarAxis(range=lim, zoom_lock=False))
-
-
-def framed_eye(points_m: np.ndarray, face_on: bool = False):
-    """Orbital 3D eye looking at the centre of points_m (N,3, m) from a distance that shows them
-    all: from above and aside (z up), or with face_on along the direction in which the points spread
-    least (their smallest principal axis, tilted a little) with their widest spread upwards, so that
-    they and their labels spread over the picture instead of lining up behind each other."""
-    import rerun.blueprint as rrb
-
-    p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
-    lo, hi = p.min(axis=0), p.max(axis=0)
-    centre = 0.5 * (lo + hi)
-    size = max(float(np.linalg.norm(hi - lo)), 1.0)
-    direction, up, distance = np.array([-0.55, -1.0, 0.9]), np.array([0.0, 0.0, 1.0]), 1.5
-    if face_on and p.shape[0] >= 3:
-        axes = np.linalg.svd(p - p.mean(axis=0), full_matrices=False)[2]
-        normal = axes[-1] * (1.0 if axes[-1][2] >= 0 else -1.0)  # from the upper side
-        # the widest spread runs up the picture and the next one at 35 deg to it, so that points
-        # apart along either are apart vertically too: the (wide) labels stack, not overlap
-        up = np.cos(np.radians(35.0)) * axes[0] + np.sin(np.radians(35.0)) * axes[1]
-        direction, distance = normal + 0.2 * axes[1], 1.1
-    direction = direction / np.linalg.norm(direction)
-    return rrb.EyeControls3D(
-        kind=rrb.Eye3DKind.Orbital,
-        position=(centre + distance * size * direction).tolist(),
-        look_target=centre.tolist(),
-        eye_up=up.tolist(),
-    )
 
 
 def _ends_eye(tracks: Mapping[str, Series]):

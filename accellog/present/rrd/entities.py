@@ -84,6 +84,11 @@ TRACK_COLORS = [
 ]
 
 
+def track_color(k: int) -> tuple[int, int, int]:
+    """The colour of the k-th track of a recording (TRACK_COLORS in turn)."""
+    return TRACK_COLORS[k % len(TRACK_COLORS)]
+
+
 def slug(text: str) -> str:
     """Entity-path-safe form of a label: runs of other characters than letters, digits, '_', '-'
     and '.' become '_' ('cal A.json' -> 'cal_A.json')."""

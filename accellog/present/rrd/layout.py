@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+
+import numpy as np
 
 from accellog.present.rrd.entities import (
     CHARTS,
@@ -28,10 +30,11 @@ def time_panel():
     return rrb.TimePanel(timeline=MAIN_TIMELINE, play_state="following", state="collapsed")
 
 
-def build_blueprint(entities: Mapping[str, str]):
+def build_blueprint(entities: Mapping[str, str], ends_m: Sequence[np.ndarray] = ()):
     """Layout for what was logged: sample streams with pose windows, temperature + events, tracks
-    (time series + 3D side by side), residual and ladder charts, documents and logs. With two or
-    more tracks (replay, compare) the tracks take the main area, one auto-scaled plot each."""
+    (time series + 3D side by side, the 3D eye framed on the tracks' start and ends_m, m), residual
+    and ladder charts, documents and logs. With two or more tracks (replay, compare) the tracks take
+    the main area, one auto-scaled plot each."""
     import rerun.blueprint as rrb
 
     roles: dict[str, list[str]] = {}
@@ -39,7 +42,10 @@ def build_blueprint(entities: Mapping[str, str]):
         roles.setdefault(role, []).append(ent)
     tracks = roles.get("track", [])  # logged order (raw first in replays)
     track_views = [rrb.TimeSeriesView(origin=f"/{e}", name=f"{e.split('/', 1)[1]} (m)") for e in tracks]
-    world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)") if "track3d" in roles else None
+    world = None
+    if "track3d" in roles:
+        eye = framed_eye(np.array([np.zeros(3), *ends_m]), face_on=True) if len(ends_m) else None
+        world = rrb.Spatial3DView(origin="/world", name="tracks 3D (m)", eye_controls=eye)
     texts: list[rrb.TextDocumentView | rrb.TextLogView] = [
         rrb.TextDocumentView(origin=f"/{e}", name=e[len(DOCS) + 1 :]) for e in sorted(roles.get("doc", []))
     ]
@@ -48,7 +54,8 @@ def build_blueprint(entities: Mapping[str, str]):
     story = _story_tabs(roles)  # a workbench: the search, the residual it removed first, every driver
     root = _arrange(_sample_views(roles), track_views, world, _chart_views(roles, scatter=not story), texts)
     if story:
-        root = rrb.Tabs(*story, rrb.Vertical(root, name="session and ladder"))
+        rest = "session and ladder" if "ladder_bar" in roles else "session and tables"
+        root = rrb.Tabs(*story, rrb.Vertical(root, name=rest))
     return rrb.Blueprint(root, time_panel(), collapse_panels=True)
 
 
@@ -67,7 +74,18 @@ def _story_tabs(roles: Mapping[str, list[str]]) -> list:
         views = [search, ladder_bars_view()] if "ladder_bar" in roles else [search]
         tabs.append(rrb.Vertical(*views, row_shares=[3, 2][: len(views)], name="the search"))
     main = _scatter_views(roles, "scatter2d_main")
-    tabs += [rrb.Vertical(*vs, name=f"residual vs {d}: before / after") for d, vs in main.items()]
+    verdict = [e for e in roles.get("doc", []) if e == f"{DOCS}/verdict"]  # a diagnosis: said above its plots
+    for d, vs in main.items():
+        said = [rrb.TextDocumentView(origin=f"/{e}", name="what is missing") for e in verdict]
+        tabs.append(
+            rrb.Vertical(
+                *said,
+                *vs,
+                row_shares=[1] * len(said) + [2] * len(vs),
+                name=f"residual vs {d}: before / after",
+            )
+        )
+        verdict = []
     # views of their own: a view placed in two containers (the tab above and here) draws in neither
     every = {**_scatter_views(roles, "scatter2d_main"), **_scatter_views(roles, "scatter2d")}
     if tabs and every:  # each driver as large as the first, one tab each
@@ -280,3 +298,31 @@ def ladder_bars_view(name: str = "model ladder: each step's fit, held-out and dr
     import rerun.blueprint as rrb
 
     return rrb.Spatial2DView(origin=f"/{CHARTS}/{LADDER}", name=name)
+
+
+def framed_eye(points_m: np.ndarray, face_on: bool = False):
+    """Orbital 3D eye looking at the centre of points_m (N,3, m) from a distance that shows them
+    all: from above and aside (z up), or with face_on along the direction in which the points spread
+    least (their smallest principal axis, tilted a little) with their widest spread upwards, so that
+    they and their labels spread over the picture instead of lining up behind each other."""
+    import rerun.blueprint as rrb
+
+    p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    size = max(float(np.linalg.norm(hi - lo)), 1.0)
+    direction, up, distance = np.array([-0.55, -1.0, 0.9]), np.array([0.0, 0.0, 1.0]), 1.5
+    if face_on and p.shape[0] >= 3:
+        axes = np.linalg.svd(p - p.mean(axis=0), full_matrices=False)[2]
+        normal = axes[-1] * (1.0 if axes[-1][2] >= 0 else -1.0)  # from the upper side
+        # the widest spread runs up the picture and the next one at 35 deg to it, so that points
+        # apart along either are apart vertically too: the (wide) labels stack, not overlap
+        up = np.cos(np.radians(35.0)) * axes[0] + np.sin(np.radians(35.0)) * axes[1]
+        direction, distance = normal + 0.2 * axes[1], 1.1
+    direction = direction / np.linalg.norm(direction)
+    return rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital,
+        position=(centre + distance * size * direction).tolist(),
+        look_target=centre.tolist(),
+        eye_up=up.tolist(),
+    )

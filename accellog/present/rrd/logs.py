@@ -36,6 +36,7 @@ from accellog.present.rrd.entities import (
     WORLD_TRACKS,
     slug,
     slug_path,
+    track_color,
 )
 
 if TYPE_CHECKING:
@@ -214,7 +215,7 @@ class PipelineLogs:
     def _write_track(self, label: str, t: np.ndarray, d: np.ndarray, d_strip: np.ndarray) -> None:
         """A displacement track as ``SeriesLogs.log_track`` has reduced it: the time series (t (N,) s,
         d (N,3) m) and the 3D strip (d_strip (M,3) m, its last row the final displacement)."""
-        color = TRACK_COLORS[self._n_tracks % len(TRACK_COLORS)]
+        color = track_color(self._n_tracks)
         if f"{TRACKS}/{slug_path(label)}" not in self._entities:
             self._n_tracks += 1
         name = str(label).rsplit("/", 1)[-1]

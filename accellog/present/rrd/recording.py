@@ -302,7 +302,12 @@ class RunRecording(SeriesLogs, PipelineLogs):
             self.end_batches()
             self._guarded(self._declutter_3d_labels)
             if self.kind == "save" and self._blueprint is not None:
-                bp = build_blueprint(self._entities) if isinstance(self._blueprint, str) else self._blueprint
+                ends = [end for end, _ in self._finals3d.values()]
+                bp = (
+                    build_blueprint(self._entities, ends)
+                    if isinstance(self._blueprint, str)
+                    else self._blueprint
+                )
                 bp = with_time_ranges(bp, self._extents)
                 # active: a viewer reading the file has built a layout from the data by now
                 self.rec.send_blueprint(bp, make_active=True, make_default=True)
