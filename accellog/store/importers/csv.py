@@ -30,14 +30,13 @@ from accellog.store.importers.csv_checks import (
     check_accel,
     check_gyro,
     check_gyro_motion,
-    check_increasing,
     check_offsets,
     check_rate,
-    check_samples,
     check_time_range,
 )
 from accellog.store.importers.csv_options import FIELDS, GROUPS, TIME_UNITS, CsvOptions
 from accellog.store.importers.csv_poses import PoseRuns
+from accellog.store.importers.door import GapEvents, check_increasing, check_samples
 
 CSV_UNITS = ("g", "m/s^2", "counts")
 _T_DIV = {"s": 1.0, "ms": 1e3, "us": 1e6, "ns": 1e9}
@@ -70,7 +69,8 @@ class CsvImport:
     meta: SessionMeta | None = None
     poses: list = field(default_factory=list)
     events: list = field(default_factory=list)
-    """One Event('skipped_row') per row dropped with bad_rows='skip' (its file line and why)."""
+    """One Event('skipped_row') per row dropped with bad_rows='skip' (its file line and why), one
+    Event('gap') per gap in the time column (door.GapEvents), in time order."""
     n: int = 0
 
     def __post_init__(self) -> None:
@@ -139,6 +139,7 @@ class CsvImport:
         turns: GravityTurns | None = None
         t_prev = t0 = None
         t_first_s = dt_s = 0.0
+        gaps = GapEvents()
         for block in self.reader:
             if block.n == 0:  # every line of the block skipped
                 self._skipped(block, np.empty(0), t_prev)
@@ -148,6 +149,7 @@ class CsvImport:
                 self._check_time(block, t_s, t_prev)
             if "t" in self.cols:
                 check_time_range(self.path, block.cols["t"], t_s, block.line_of)
+                gaps.add(t_s)
             if self.meta is None:
                 t_first_s = float(t_s[0])
                 head = t_s[:_HEAD_ROWS]
@@ -181,6 +183,7 @@ class CsvImport:
         if turns is not None:
             turns.finish()
             check_gyro_motion(self.path, turns, self.opts)
+        self.events = sorted([*self.events, *gaps.events], key=lambda e: e.t_s)
         if runs is not None:
             dt = dt_s if dt_s > 0 else 0.0
             self.poses = runs.finish(t_prev[0] + dt)

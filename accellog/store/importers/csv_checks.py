@@ -2,9 +2,7 @@
 unit are refused with the likely fix (the flags to add), judged on the file's first rows; time
 stamps beyond int64 nanoseconds are refused with their line. Thresholds: accellog.core.plausible.
 
-``check_increasing`` (duplicated or backward stamps) and ``check_samples`` (non-finite or absurd
-accelerations and rates) are the door of every importer (CSV and ROS 2): each refusal names the
-sample by the importer's own label (file:line, or topic and message index).
+The stamps and samples of every importer pass ``accellog.store.importers.door``.
 """
 
 from __future__ import annotations
@@ -14,8 +12,6 @@ import numpy as np
 from accellog.core.errors import InputError
 from accellog.core.plausible import (
     GYRO_LSB_HINT,
-    MAX_ACCEL_G,
-    MAX_GYRO_DPS,
     MAX_TIME_S,
     RATE_MAX_HZ,
     RATE_MIN_HZ,
@@ -80,39 +76,6 @@ def check_rate(
         f"a rate of {rate:.3g} Hz (an IMU samples at {_RANGE}): {fix}",
         where=str(path),
     )
-
-
-def check_increasing(t_s: np.ndarray, where_of, prev: float | None = None) -> None:
-    """Refuse the first time stamp t_s[i] (s) that does not exceed the one before it (prev: the last
-    stamp of the previous block): InputError at where_of(i) naming both times."""
-    d = np.diff(t_s) if prev is None else np.diff(t_s, prepend=prev)
-    bad = np.flatnonzero(~(d > 0))
-    if not bad.size:
-        return
-    i = int(bad[0]) + (1 if prev is None else 0)
-    before = float(t_s[i - 1]) if i > 0 else prev
-    if t_s[i] == before:
-        raise InputError(f"duplicated timestamp ({before:.9g} s, as the sample before)", where=where_of(i))
-    raise InputError(f"time goes backwards ({before:.9g} s -> {t_s[i]:.9g} s)", where=where_of(i))
-
-
-def check_samples(accel_g: np.ndarray, gyro_dps: np.ndarray | None, where_of) -> None:
-    """Refuse the first sample whose acceleration (g) or rate (deg/s) is not finite or beyond any
-    MEMS range (MAX_ACCEL_G, MAX_GYRO_DPS on an axis): InputError at where_of(i)."""
-    for name, x, lim, unit in (
-        ("acceleration", accel_g, MAX_ACCEL_G, "g"),
-        ("rate", gyro_dps, MAX_GYRO_DPS, "deg/s"),
-    ):
-        if x is None:
-            continue
-        bad = np.flatnonzero(~(np.abs(x) <= lim).all(axis=1))
-        if bad.size:
-            i = int(bad[0])
-            raise InputError(
-                f"{name} {np.array2string(x[i], precision=4)} {unit} is not finite or beyond any MEMS "
-                f"range (|{unit}| <= {lim:g}): a corrupt value?",
-                where=where_of(i),
-            )
 
 
 def check_time_range(path, t_raw: np.ndarray, t_s: np.ndarray, line_of) -> None:

@@ -24,7 +24,7 @@ from accellog.core.errors import InputError
 from accellog.core.session import Session, SessionMeta
 from accellog.core.textin import file_kind, read_bytes
 from accellog.core.units import STANDARD_GRAVITY_MPS2
-from accellog.store.importers.csv_checks import check_increasing, check_samples
+from accellog.store.importers.door import GapEvents, check_increasing, check_samples
 from accellog.store.importers.ros2_cdr import decode_imu
 
 IMU_TYPE = "sensor_msgs/msg/Imu"
@@ -277,7 +277,7 @@ def _read_scalar(reader, conns, kind: str, path: Path):
 def check_imu(
     path: Path, topic: str, stamp, acc_mps2, gyr_radps, first: int = 0, prev: int | None = None
 ) -> None:
-    """The importers' door (store.importers.csv_checks) for IMU messages first, first+1, ... of
+    """The importers' door (store.importers.door) for IMU messages first, first+1, ... of
     ``topic``: stamps (ns) not negative and strictly increasing (prev: the last stamp before),
     accelerations and rates finite and within any MEMS range; InputError naming topic and index."""
 
@@ -446,6 +446,8 @@ def import_ros2(
     temp_degC = temp_on(temp, stamp)
     mag_t, mag_uT = side_extras(extra, temp, mag, t0)
     meta = session_meta(t0, t_s, extra)
+    gaps = GapEvents()
+    gaps.add(t_s)
     return Session(
         meta=meta,
         t_s=t_s,
@@ -455,5 +457,6 @@ def import_ros2(
         temp_degC=temp_degC,
         mag_t_s=mag_t,
         mag_uT=mag_uT,
+        events=gaps.events,
         path=str(path),
     )

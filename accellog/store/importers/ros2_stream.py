@@ -21,6 +21,7 @@ from accellog.core.session import SessionMeta
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.store.atomic import AtomicOutput
 from accellog.store.importers import ros2
+from accellog.store.importers.door import GapEvents
 from accellog.store.layout import to_ns_array
 from accellog.store.writer import SessionWriter
 
@@ -167,16 +168,20 @@ class _Stream:
                 m_ns = to_ns_array(mag_t)
                 for i in range(0, m_ns.shape[0], batch_size):
                     w.write_mag(m_ns[i : i + batch_size], mag_uT=mag_uT[i : i + batch_size], first_index=i)
+            gaps = GapEvents()
+            gaps.add(t_s)
+            for e in gaps.events:
+                w.write_event(e)
             w.update_meta(meta)
             w.close()
         except BaseException:
             self.abort()
             raise
         self.ao.commit()
-        return _facts(meta, n, float(t_s[-1] - t_s[0]))
+        return _facts(meta, n, float(t_s[-1] - t_s[0]), len(gaps.events))
 
 
-def _facts(meta, n: int, duration_s: float) -> dict:
+def _facts(meta, n: int, duration_s: float, events: int) -> dict:
     """What accellog.cli.imports._facts says of the same session."""
     return {
         "samples": n,
@@ -186,7 +191,7 @@ def _facts(meta, n: int, duration_s: float) -> dict:
         "source_unit": meta.extra.get("source_unit", ""),
         "gyro": True,
         "poses": [],
-        "events": 0,
+        "events": events,
         "notes": {
             k: v for k, v in meta.extra.items() if k.startswith(("ros2_topic", "stamp_", "out_of", "dup"))
         },
