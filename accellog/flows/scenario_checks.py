@@ -110,24 +110,61 @@ ERROR_LIMITS = {  # field: (low, high) of every element; beyond them the loaders
     "scale": (-0.5, 0.5),
     "cross_axis": (-0.3, 0.3),
     "warmup_g": (-1.0, 1.0),
+    "warmup_tau_s": (1e-3, 86400.0),
     "temp_bias_g_per_degC": (-0.01, 0.01),  # datasheet draws +-1.5 mg/degC; 0.01 g/degC: 1 g over 100 degC
+    "temp_bias2_g_per_degC2": (-3e-4, 3e-4),  # 1 g at 60 degC from the reference
     "temp_scale_per_degC": (-3e-3, 3e-3),  # datasheet draws +-0.026 %/degC
+    "temp_scale2_per_degC2": (-1e-4, 1e-4),  # 36 % at 60 degC from the reference
+    "nonlin2_per_g": (-0.1, 0.1),  # 10 % of the reading at 1 g
+    "nonlin3_per_g2": (-0.1, 0.1),
+    "g_cross_per_g": (-0.1, 0.1),
+    "time_drift_g_per_s": (-1e-4, 1e-4),  # 0.36 g an hour
+    "temp_rate_bias_g_per_degC_per_s": (-1.0, 1.0),
     "temp_hysteresis_g": (-1.0, 1.0),
+    "temp_hysteresis_width_degC": (0.0, 125.0),  # the operating range
     "noise_density_g_per_rtHz": (0.0, 0.1),
     "bias_instability_g": (0.0, 0.1),
     "random_walk_g_per_s_rtHz": (0.0, 0.1),
+    "clock_error": (-0.1, 0.1),  # the sample clock 10 % off
+    "t_ref_degC": OPERATING_RANGE_DEGC,
+}
+GYRO_ERROR_LIMITS = {
+    "bias_dps": (-2000.0, 2000.0),  # full scale at +-2000 deg/s (datasheet draws +-5 deg/s)
+    "scale": (-0.5, 0.5),
+    "cross_axis": (-0.3, 0.3),
+    "temp_bias_dps_per_degC": (-1.0, 1.0),  # datasheet draws +-0.24 deg/s/degC
+    "temp_bias2_dps_per_degC2": (-0.05, 0.05),  # 180 deg/s at 60 degC from the reference
+    "noise_density_dps_per_rtHz": (0.0, 10.0),
+    "bias_instability_dps": (0.0, 100.0),
+    "random_walk_dps_per_s_rtHz": (0.0, 100.0),
+    "t_ref_degC": OPERATING_RANGE_DEGC,
 }
 
 
-def check_accel_errors(accel: Any) -> None:
-    """InputError when an accelerometer error field (AccelErrors, after the scenario's [set]) is
-    outside ERROR_LIMITS: a session that saturates or that no calibration loader would accept."""
-    for name, (lo, hi) in ERROR_LIMITS.items():
-        v = np.asarray(getattr(accel, name), float)
+def check_errors(errors: Any, limits: Mapping[str, tuple[float, float]], where: str = "scenario") -> None:
+    """InputError when an error field of the emulated chip (AccelErrors with ERROR_LIMITS, GyroErrors
+    with GYRO_ERROR_LIMITS, after the scenario's [set] / [gyro_set]) is outside its limits: a session
+    that saturates, or that no calibration loader would accept."""
+    check_error_values({k: getattr(errors, k) for k in limits}, limits, where)
+
+
+def check_error_values(
+    values: Mapping[str, Any], limits: Mapping[str, tuple[float, float]], where: str
+) -> None:
+    """check_errors on the fields given (a scenario's [set] table; values that are not numbers are
+    left to overridden_errors, which names them)."""
+    for name, value in values.items():
+        if name not in limits:
+            continue
+        try:
+            v = np.asarray(value, float)
+        except (TypeError, ValueError):
+            continue
+        lo, hi = limits[name]
         if not ((v >= lo) & (v <= hi)).all():
             raise InputError(
                 f"error field {name} = {np.round(v, 6).tolist()} outside its physical range {lo:g}..{hi:g}",
-                where="scenario",
+                where=where,
             )
 
 

@@ -76,8 +76,11 @@ from accellog.core.session import PoseLabel
 from accellog.core.textin import read_text, toml_loads
 from accellog.core.units import STANDARD_GRAVITY_MPS2
 from accellog.flows.scenario_checks import (
+    ERROR_LIMITS,
+    GYRO_ERROR_LIMITS,
     MAX_SESSION_S,
-    check_accel_errors,
+    check_error_values,
+    check_errors,
     check_numbers,
     check_session_runs,
     check_type,
@@ -193,6 +196,10 @@ class Scenario:
             )
         if self.accel_range_g not in (2, 4, 8, 16):
             raise InputError(f"accel_range_g={self.accel_range_g}: use 2, 4, 8 or 16", where=where)
+        check_error_values(self.set, ERROR_LIMITS, f"{where} [set]" if where != "scenario" else where)
+        check_error_values(
+            self.gyro_set, GYRO_ERROR_LIMITS, f"{where} [gyro_set]" if where != "scenario" else where
+        )
         self.fault_plan(where)
         try:
             parse_protocol(self.protocol, self.hold_s)
@@ -277,10 +284,11 @@ def build_sensor_model(sc: Scenario):
     accel = AccelErrors.datasheet(sc.chip_seed) if sc.errors == "datasheet" else AccelErrors.perfect()
     if sc.set:
         accel = overridden_errors(accel, sc.set, "accelerometer")
-        check_accel_errors(accel)
+        check_errors(accel, ERROR_LIMITS)
     gyro = GyroErrors.datasheet(sc.chip_seed) if sc.gyro_errors == "datasheet" else GyroErrors.perfect()
     if sc.gyro_set:
         gyro = overridden_errors(gyro, sc.gyro_set, "gyro")
+        check_errors(gyro, GYRO_ERROR_LIMITS)
     temperature = temperature_path(sc.temperature)
     known_mag = {"field_uT", "hard_iron_uT", "soft_iron", "noise_uT"}
     if set(sc.magnetometer) - known_mag:

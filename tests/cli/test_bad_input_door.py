@@ -119,6 +119,31 @@ CASES: dict[str, tuple[Callable[[Path, dict], list[str]], tuple[str, ...]]] = {
         lambda d, g: [*SIM, "--set", "noise_density_g_per_rtHz=-1e-4", "-o", str(d / "s.mcap")],
         ("noise_density_g_per_rtHz", "physical range"),
     ),
+    "sim-scenario-quadratic-tempco-5-g": (  # ran: 2000 g at 20 degC from the reference
+        lambda d, g: [
+            "simulate",
+            "--scenario",
+            str(
+                _write(
+                    d / "sc.toml",
+                    'protocol = "+z"\nhold_s = 2.0\n[set]\ntemp_bias2_g_per_degC2 = [0, 0, 5.0]\n',
+                )
+            ),
+            "-o",
+            str(d / "s.mcap"),
+        ],
+        ("sc.toml [set]", "temp_bias2_g_per_degC2", "physical range"),
+    ),
+    "sim-scenario-gyro-bias-beyond-full-scale": (  # the gyro's errors were not checked at all
+        lambda d, g: [
+            "simulate",
+            "--scenario",
+            str(_write(d / "sc.toml", 'protocol = "+z"\nhold_s = 2.0\n[gyro_set]\nbias_dps = [1e6, 0, 0]\n')),
+            "-o",
+            str(d / "s.mcap"),
+        ],
+        ("sc.toml [gyro_set]", "bias_dps", "physical range"),
+    ),
     "sim-ramp-1e6": (
         lambda d, g: [*SIM, "--temperature", "ramp:25:1e6", "-o", str(d / "s.mcap")],
         ("ramp", "operating range"),
