@@ -15,7 +15,9 @@ truth's frame):
 each at 25 degC ("no") and warming 20 -> 36 degC ("warm-up"). Held out: 500 orientations uniform on
 the sphere (diverse, few) or z-up within 15 deg (level: where the robot lives), at 25 degC or
 uniform over 20-36 degC; |f| error = RMS(|f_corrected| - 1 g), vector error = RMS|f_corrected -
-f_true| (mg).
+f_true| (mg); its own 1 sigma: the vector error a calibration expects of itself on those points, its
+parameter covariance propagated through its correction (own_sigma_mg; accellog's and the lab's;
+terms held at their nominal value, sigma 0 in the file, are not counted).
 
 Real: imucal's hand-held Ferraris session (a real 16-bit IMU, six faces held 4-7 s each, rotations
 between; `accellog import imucal`, labels removed): each method fitted to the whole recording's stops
@@ -123,12 +125,12 @@ def quiet_main(args: list[str]) -> tuple[int, str]:
 
 
 def accellog_fit(run: Path, cal: Path, warm: bool, prior: Path | None = None):
-    """(status, correct(reading, T) or None) of `accellog fit RUN` (module doc)."""
+    """(status, correct(reading, T) or None, the Calibration or None) of `accellog fit RUN` (module doc)."""
     args = ["fit", str(run), "-o", str(cal), "--force"] + (["--add", "temp_bias"] if warm else [])
     rc, err = quiet_main(args + (["--prior", str(prior)] if prior else []))
     if rc != 0:  # the message's first clause, without the run's (temporary) path
         err = err.split(": ", 1)[-1] if err.startswith(str(run)) else err
-        return f"refuses: {err.split(': ')[0].split(';')[0]}", None
+        return f"refuses: {err.split(': ')[0].split(';')[0]}", None, None
     c = load_calibration(cal)
     held = [t for t in c.terms if not np.any(np.asarray(c.sigma)[c.model.slices[t]] > 0)]  # fixed: sigma 0
     status = (
@@ -138,9 +140,30 @@ def accellog_fit(run: Path, cal: Path, warm: bool, prior: Path | None = None):
     )
     weak = json.loads(cal.read_text())["fit"]["warnings"]
     weak = [w.split(": ")[1].split(" (")[0] for w in weak if w.startswith("weakly determined")]
-    return status + (f"; weakly determined: {weak[0]}" if weak else ""), lambda a, t: c.correct(
-        a, {"temp_degC": t}
+    return (
+        status + (f"; weakly determined: {weak[0]}" if weak else ""),
+        lambda a, t: c.correct(a, {"temp_degC": t}),
+        c,
     )
+
+
+def own_sigma_mg(c, reading: np.ndarray, temp: np.ndarray) -> float:
+    """The calibration's own 1 sigma of the vector error on the held-out points (mg):
+    sqrt(mean_i tr(J_i C J_i^T)), J_i = d correct(reading_i, T_i) / d theta by central differences,
+    C its parameter covariance (parameters held fixed, sigma 0, add nothing)."""
+    th, cov = np.asarray(c.theta, float), np.asarray(c.cov, float)
+    free = np.flatnonzero(np.diag(cov) > 0)
+    drv = {"temp_degC": np.asarray(temp, float)}
+    cols = []
+    for k in free:
+        h = 1e-3 * np.sqrt(cov[k, k])
+        up, down = th.copy(), th.copy()
+        up[k] += h
+        down[k] -= h
+        cols.append((c.model.correct(up, reading, drv) - c.model.correct(down, reading, drv)) / (2 * h))
+    J = np.stack(cols, axis=-1)  # (n, 3, free)
+    var = np.einsum("nap,pq,naq->n", J, cov[np.ix_(free, free)], J)
+    return 1e3 * float(np.sqrt(np.mean(var)))
 
 
 def actipy_fit(session, min_windows: int | None = None):
@@ -161,13 +184,13 @@ def actipy_fit(session, min_windows: int | None = None):
     if not info.get("CalibOK"):
         lim = 50 if min_windows is None else min_windows
         why = f"{n} still 10-s windows < {lim}" if n < lim else "an axis not past +-0.3 g, or error >= 10 mg"
-        return f"refuses: {why}", None
+        return f"refuses: {why}", None, None
     if not info.get("CalibNumIters"):
-        return f"skips: initial error {info['CalibErrorBefore(mg)']:.1f} mg < 10 mg", None
+        return f"skips: initial error {info['CalibErrorBefore(mg)']:.1f} mg < 10 mg", None, None
     b = np.array([info[f"Calib{a}Intercept"] for a in "xyz"])
     s = np.array([info[f"Calib{a}Slope"] for a in "xyz"])
     bt = np.array([info.get(f"Calib{a}SlopeT", 0.0) for a in "xyz"])
-    return f"fitted ({n} windows)", lambda a, t: b + s * a + bt * np.asarray(t)[:, None]
+    return f"fitted ({n} windows)", lambda a, t: b + s * a + bt * np.asarray(t)[:, None], None
 
 
 def score(correct, reading: np.ndarray, temp: np.ndarray, ups: np.ndarray | None):
@@ -179,14 +202,15 @@ def score(correct, reading: np.ndarray, temp: np.ndarray, ups: np.ndarray | None
 
 
 def methods(run: Path, d: Path, warm: bool, prior: Path | None, labelled: Path | None = None):
-    """[(method, status, correct)] for one run (labelled: the run with its labels, a reference fit)."""
+    """[(method, status, correct, Calibration or None)] for one run (labelled: the run with its
+    labels, a reference fit)."""
     s = read_session(run)
-    out = [("none", "-", None), ("accellog", *accellog_fit(run, d / "cal.json", warm))]
+    out = [("none", "-", None, None), ("accellog", *accellog_fit(run, d / "cal.json", warm))]
     if labelled is not None:
         out.append(("accellog, labelled (reference)", *accellog_fit(labelled, d / "cal_lab.json", warm)))
     if prior is not None:
         lab = load_calibration(prior)
-        out.append(("lab calibration alone", "six faces at 25 degC", lambda a, t: lab.correct(a)))
+        out.append(("lab calibration alone", "six faces at 25 degC", lambda a, t: lab.correct(a), lab))
         out.append(("accellog --prior LAB", *accellog_fit(run, d / "cal_prior.json", warm, prior)))
     out += [("actipy", *actipy_fit(s)), ("actipy (limit 4)", *actipy_fit(s, 4))]
     return out
@@ -215,13 +239,14 @@ def emulated_rows(d: Path) -> list[dict]:
             ups, temp = held_out("sphere" if where == "sphere" else "robot", warm)
             reading = truth.apply(ups, temp, np.zeros(len(temp)))
             prior = d / "lab.json" if truth is aged else None
-            for method, status, corr in methods(run, d, warm, prior):
+            for method, status, corr, cal in methods(run, d, warm, prior):
                 norm, vec = score(corr, reading, temp, ups)
+                own = np.nan if cal is None else own_sigma_mg(cal, reading, temp)
                 rows.append({"run": name, "temperature": "warm-up 20-36" if warm else "25 degC",
                              "held_out": where, "method": method, "status": status, "norm_mg": norm,
-                             "vector_mg": vec})  # fmt: skip
+                             "vector_mg": vec, "own_sigma_mg": own})  # fmt: skip
                 print(
-                    f"{name:28s} {rows[-1]['temperature']:14s} {method:22s} {norm:8.2f} {vec:8.2f}  {status}"
+                    f"{name:28s} {rows[-1]['temperature']:14s} {method:22s} {norm:8.2f} {vec:8.2f} {own:8.3f}  {status}"
                 )
     return rows
 
@@ -238,11 +263,11 @@ def real_rows(d: Path, data: Path) -> list[dict]:
     )
     reading, temp = s.accel_g[half], np.full(half.size, 25.0)
     rows = []
-    for method, status, corr in methods(run, d, False, None, labelled):
+    for method, status, corr, _ in methods(run, d, False, None, labelled):
         norm, vec = score(corr, reading, temp, None)
         rows.append({"run": "real: imucal hand-held (6 faces)", "temperature": "room", "held_out":
                      "2nd half of each face", "method": method, "status": status, "norm_mg": norm,
-                     "vector_mg": vec})  # fmt: skip
+                     "vector_mg": vec, "own_sigma_mg": np.nan})  # fmt: skip
         print(f"{'imucal':28s} {'room':14s} {method:22s} {norm:8.2f} {'-':>8s}  {status}")
     return rows
 
@@ -250,14 +275,18 @@ def real_rows(d: Path, data: Path) -> list[dict]:
 def section(rows: list[dict], command: str) -> str:
     out = [PEERS_START, "## Peers: autocalibration from stops (benchmarks/bench_peers.py)", "",
            f"Generated by `{command}` (runs, held-out sets and methods: the script's doc). Errors in mg on "
-           "the held-out set; a method that refuses or skips scores as the raw reading.", "",
-           "| run | temperature | held out | method | \\|f\\| error (mg) | vector error (mg) | status |",
-           "|---|---|---|---|---|---|---|"]  # fmt: skip
+           "the held-out set; a method that refuses or skips scores as the raw reading; its own 1σ: the "
+           "vector error the calibration expects of itself there (its covariance propagated; terms held at "
+           "their nominal value, σ 0 in the file, are not counted).", "",
+           "| run | temperature | held out | method | \\|f\\| error (mg) | vector error (mg) | its own 1σ (mg) "
+           "| status |",
+           "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
         vec = "-" if np.isnan(r["vector_mg"]) else f"{r['vector_mg']:.3g}"
+        own = "-" if np.isnan(r["own_sigma_mg"]) or np.isnan(r["vector_mg"]) else f"{r['own_sigma_mg']:.3g}"
         status = r["status"].replace("|", "/")
         out.append(f"| {r['run']} | {r['temperature']} | {r['held_out']} | {r['method']} | {r['norm_mg']:.3g} "
-                   f"| {vec} | {status} |")  # fmt: skip
+                   f"| {vec} | {own} | {status} |")  # fmt: skip
     return "\n".join([*out, PEERS_END]) + "\n"
 
 
