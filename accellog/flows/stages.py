@@ -52,8 +52,14 @@ from accellog.calibrate.observe.detected_holds import (
     judge_stops,
 )
 from accellog.calibrate.observe.obs_file import obs_to_dict, read_obs_table
-from accellog.calibrate.observe.segment import PoseStats, check_coverage, observations, observe_riding
-from accellog.core.errors import InputError
+from accellog.calibrate.observe.segment import (
+    PoseStats,
+    check_coverage,
+    near_one_direction,
+    observations,
+    observe_riding,
+)
+from accellog.core.errors import InputError, ModelError
 from accellog.core.forked import started
 from accellog.core.heap import trim_heap
 from accellog.core.jsonio import JsonResult
@@ -189,7 +195,10 @@ def run_fit(
         table, first, src = _labelled_pass(src, window_s=window_s, trim_s=trim_s, gyro=gyro)
     assert table is not None  # given, read from its file, or observed in the session above
     if not orientation_free:
-        check_coverage(table, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=name)
+        try:
+            check_coverage(table, needs_scale=m.n_params > 3 or any(t != "bias" for t in m.terms), where=name)
+        except ModelError as exc:  # labelled holds near level (a robot's stops): what they identify
+            return _few_directions(src if near_one_direction(table) else None, exc, field)  # else refused
     fit = fit_with_uncertainty(table, m, orientation_free=orientation_free, weighted=weighted, gravity_g=truth,
                                uncertainty=uncertainty)  # fmt: skip
     if detected is not None:  # stops found in an unlabelled session: how well they determine the fit
@@ -226,14 +235,15 @@ def _fit_input(
     return table, src, src.where
 
 
-def _few_directions(src: Source, exc: TooFewOrientations, field: dict) -> FitOutcome:
-    """The fit of what an unlabelled session's stops identify (_field_fit without a prior), said
-    with why the full model could not be fitted; a truncated file (its labels went with its end)
-    is refused instead."""
-    if any(e.kind == "recovered" for e in src.events):
+def _few_directions(src: Source | None, exc: TooFewOrientations | ModelError, field: dict) -> FitOutcome:
+    """The fit of what a session's stops identify (_field_fit without a prior, its labelled holds
+    or detected still intervals as the stops), said with why the full model could not be fitted;
+    an observation table alone (no samples) and a truncated file (its labels went with its end) are
+    refused instead."""
+    if src is None or any(e.kind == "recovered" for e in src.events):
         raise exc
     note(f"{exc}. Fitting only what these stops identify instead (below)")
-    return _field_fit([src], None, **field)
+    return _field_fit([src], None, as_stops=True, **field)
 
 
 def _labelled_pass(src: Source, *, window_s: float, trim_s: float, gyro: bool):
@@ -259,20 +269,20 @@ def _prior(prior: Calibration | str | os.PathLike, add: Sequence[str], effects_f
 
 
 def _field_fit(inputs, prior: Calibration | None, *, model, add, effects_file, aging, gravity, weighted,
-               local_gravity_mps2, window_s, trim_s, gyro, uncertainty) -> FitOutcome:  # fmt: skip
+               local_gravity_mps2, window_s, trim_s, gyro, uncertainty, as_stops=False) -> FitOutcome:  # fmt: skip
     """run_fit of several sessions of one device, or of field sessions with a prior. Labelled
     sessions without a prior (a freezer warm-up and a room cool-down, several days): their windows
     pooled (loso.concat_obs, each session's holds its own poses) in one labelled fit with one
     temperature model. Otherwise (a robot's run, a drone between flights) the still intervals of
     each are detected (moves ignored), their observations pooled and fitted orientation-free with
-    the prior (or, without one, only what the stops identify). The gyro bias curve from the holds
-    (stops) of all of them."""
+    the prior (or, without one, only what the stops identify; as_stops: labelled holds too, their
+    poses too few to fit the model). The gyro bias curve from the holds (stops) of all of them."""
     from accellog.calibrate.diagnosis.loso import concat_obs
     from accellog.calibrate.model.prior import Prior, untempered_warning
 
     srcs = [open_source(x, what="fit") for x in inputs]
     check_one_device(srcs, prior)
-    joint = prior is None and all(src.poses for src in srcs)  # what the sessions hold, decided here
+    joint = prior is None and not as_stops and all(src.poses for src in srcs)  # what they hold, decided here
     pri = None
     if prior is not None:
         m, gravity = prior.model, prior.gravity_convention

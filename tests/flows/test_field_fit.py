@@ -309,3 +309,24 @@ def test_few_stops_warming_up_say_which_terms_they_barely_determine(tmp_path, ca
             assert all(p in said[0] for p in weak[name]) and ">= 12" in said[0]
     assert weak["many"] == []
     assert weak["few"] and any(p.startswith("bT_") for p in weak["few"]), weak
+
+
+def test_labelled_holds_all_near_level_are_fitted_as_stops(parked, capsys):
+    """The parked robot's run with its labels (r.mcap: 30 labelled holds, all z-up within 15 deg):
+    `fit` was refused ('cannot separate bias from scale', 30 pose names in one line) and so was the
+    workbench; now both fit what the holds identify, as for unlabelled stops, and say so: the
+    horizontal biases within 3 sigma of the truth (b_z only with S_zz), the rest held and named."""
+    tmp_path, aged, _ = parked
+    run, cal = tmp_path / "r.mcap", tmp_path / "labelled_field.json"
+    assert main(["fit", str(run), "--add", "temp_bias", "-o", str(cal), "--json"]) == 0
+    out = capsys.readouterr()
+    first = next(ln for ln in out.err.splitlines() if "cannot separate bias from scale" in ln)
+    assert "30 poses cannot separate" in first and "up(" not in first and "Fitting only what" in first
+    assert "S_xx not identified" in out.err
+    c = load_calibration(cal)
+    p, s = dict(zip(c.param_names, c.theta, strict=True)), dict(zip(c.param_names, c.sigma, strict=True))
+    for i, a in enumerate("xy"):
+        assert s[f"b_{a}"] > 0 and abs(p[f"b_{a}"] - aged.bias_g[i]) < 3 * s[f"b_{a}"] + 2e-4, (a, p, s)
+    assert s["S_xx"] == 0 and s["S_yy"] == 0  # held at nominal, not fitted
+    assert main(["workbench", str(run)]) == 0
+    assert "temp_bias" in capsys.readouterr().out

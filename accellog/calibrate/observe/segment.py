@@ -200,6 +200,21 @@ def obs_from_pose_means(
     )
 
 
+NEAR_ONE_DIRECTION_DEG = 30.0
+"""Holds whose up vectors all lie within this of their mean direction are a robot's stops near level
+(fitted as stops when they cannot separate bias from scale), not a lab session missing faces."""
+
+
+def near_one_direction(obs: ObsTable, deg: float = NEAR_ONE_DIRECTION_DEG) -> bool:
+    """Do the windows' up vectors all lie within deg of their mean direction (False without windows)?"""
+    if obs.n == 0:
+        return False
+    ups = np.asarray(obs.up_sensor, float)
+    mean = ups.mean(axis=0)
+    norm = float(np.linalg.norm(mean))
+    return norm > 0 and bool(np.min(ups @ (mean / norm)) >= np.cos(np.radians(deg)))
+
+
 def check_coverage(obs: ObsTable, needs_scale: bool = True, where: str | None = None) -> None:
     """Raise ModelError if the poses cannot determine the model.
 
@@ -216,8 +231,18 @@ def check_coverage(obs: ObsTable, needs_scale: bool = True, where: str | None = 
     spread = np.ptp(ups, axis=0) if ups.shape[0] else np.zeros(3)
     if np.linalg.matrix_rank(A) < 4 or np.any(spread < 0.5):
         have = {pose_name_for_up(u) for u in ups}
-        missing = [f for f in POSE_UP_VECTORS if f not in have]
+        near = ups @ np.array(list(POSE_UP_VECTORS.values())).T > np.cos(np.radians(30.0))  # within 30 deg
+        missing = [
+            f for f, hit in zip(POSE_UP_VECTORS, near.any(axis=0), strict=True) if not hit and f not in have
+        ]
+        named = (
+            f"poses {sorted(have)}" if len(have) <= 8 else f"{len(have)} poses"
+        )  # a robot's stops: counted
+        span = ", ".join(
+            f"{a} {lo:+.2f}..{hi:+.2f}" for a, lo, hi in zip("xyz", ups.min(0), ups.max(0), strict=True)
+        )
         raise ModelError(
-            f"poses {sorted(have)} cannot separate bias from scale: missing {', '.join(missing) or 'distinct poses'}",
+            f"{named} cannot separate bias from scale (up vectors span {span}; each axis needs two holds "
+            f"0.5 g apart): missing {', '.join(missing) or 'distinct poses'}",
             where=where or obs.session or None,
         )
