@@ -183,9 +183,7 @@ def run_fit(
     lg = float(local_gravity_mps2)
     truth = convention_truth_g(gravity, lg)
     detected, first = None, None  # static intervals found in an unlabelled session; the gyro's first pass
-    if (
-        src is not None and table is None and (relabel or orientation_free)
-    ):  # read whole: relabelled, detected
+    if src is not None and table is None and (relabel or orientation_free):  # relabelled or detected
         try:
             table, detected, src = fit_observations(src, m, gravity_g=truth, relabel=relabel, window_s=window_s,
                                                     trim_s=trim_s)  # fmt: skip
